@@ -1,0 +1,6 @@
+//! nedrt: runtime and simulator for a computational multifocal near-eye
+//! display (lens + static DOE + D-CNN preprocessing).
+//!
+//! The module tree follows the data flow: [`calib`] → [`optics`] → [`sim`].
+
+pub mod calib;
