@@ -4,3 +4,4 @@
 //! The module tree follows the data flow: [`calib`] → [`optics`] → [`sim`].
 
 pub mod calib;
+pub mod optics;

@@ -122,7 +122,11 @@ impl Calibration {
         Self::from_raw(raw, name, base_dir)
     }
 
-    fn from_raw(raw: RawCalibration, name: &str, base_dir: Option<&Path>) -> Result<Self, CalibError> {
+    fn from_raw(
+        raw: RawCalibration,
+        name: &str,
+        base_dir: Option<&Path>,
+    ) -> Result<Self, CalibError> {
         let v = Validator { path: name };
         v.positive("panel.pixel_pitch_um", raw.panel.pixel_pitch_um)?;
         v.positive("panel.lens_distance_mm", raw.panel.lens_distance_mm)?;
@@ -208,9 +212,19 @@ impl Calibration {
             ));
         }
         v.depth_list("depths.main_d", &raw.depths.main_d, [lo, hi], false)?;
-        v.depth_list("depths.intermediate_d", &raw.depths.intermediate_d, [lo, hi], true)?;
+        v.depth_list(
+            "depths.intermediate_d",
+            &raw.depths.intermediate_d,
+            [lo, hi],
+            true,
+        )?;
         for d in &raw.depths.main_d {
-            if raw.depths.intermediate_d.iter().any(|i| (i - d).abs() < DEPTH_TOLERANCE_D) {
+            if raw
+                .depths
+                .intermediate_d
+                .iter()
+                .any(|i| (i - d).abs() < DEPTH_TOLERANCE_D)
+            {
                 return Err(v.err(
                     "depths.intermediate_d",
                     &format!("{d} D is also a main depth; a depth has one target"),
@@ -255,10 +269,7 @@ impl Calibration {
             ));
         }
         if !(s.pupil_step_um.is_finite() && s.pupil_step_um >= 0.0) {
-            return Err(v.err(
-                "simulation.pupil_step_um",
-                "must be ≥ 0 (0 = automatic)",
-            ));
+            return Err(v.err("simulation.pupil_step_um", "must be ≥ 0 (0 = automatic)"));
         }
 
         Ok(Calibration {
@@ -336,12 +347,19 @@ impl Calibration {
 
     /// Whether `accommodation_d` is one of the main (sharp-target) depths.
     pub fn is_main_depth(&self, accommodation_d: f64) -> bool {
-        self.main_d.iter().any(|d| (d - accommodation_d).abs() < DEPTH_TOLERANCE_D)
+        self.main_d
+            .iter()
+            .any(|d| (d - accommodation_d).abs() < DEPTH_TOLERANCE_D)
     }
 
     /// The evaluation depths of evaluation.md: the main and intermediate depths, sorted.
     pub fn evaluation_depths_d(&self) -> Vec<f64> {
-        let mut d: Vec<f64> = self.main_d.iter().chain(&self.intermediate_d).copied().collect();
+        let mut d: Vec<f64> = self
+            .main_d
+            .iter()
+            .chain(&self.intermediate_d)
+            .copied()
+            .collect();
         d.sort_by(f64::total_cmp);
         d
     }

@@ -15,19 +15,46 @@ fn with(edit: impl Fn(&str) -> String) -> Result<Calibration, CalibError> {
 #[test]
 fn vergences_match_optics_md_section_2() {
     let c = default();
-    assert!((c.vergence_d(0) - 1.705).abs() < 1e-3, "V_R = {}", c.vergence_d(0));
-    assert!((c.vergence_d(1) - 1.487).abs() < 1e-3, "V_G = {}", c.vergence_d(1));
-    assert!((c.vergence_d(2) - 1.123).abs() < 1e-3, "V_B = {}", c.vergence_d(2));
+    assert!(
+        (c.vergence_d(0) - 1.705).abs() < 1e-3,
+        "V_R = {}",
+        c.vergence_d(0)
+    );
+    assert!(
+        (c.vergence_d(1) - 1.487).abs() < 1e-3,
+        "V_G = {}",
+        c.vergence_d(1)
+    );
+    assert!(
+        (c.vergence_d(2) - 1.123).abs() < 1e-3,
+        "V_B = {}",
+        c.vergence_d(2)
+    );
     let lca = c.vergence_d(0) - c.vergence_d(2);
-    assert!((lca - 0.58).abs() < 0.005, "longitudinal chromatic aberration {lca}");
+    assert!(
+        (lca - 0.58).abs() < 0.005,
+        "longitudinal chromatic aberration {lca}"
+    );
 }
 
 #[test]
 fn psi_values_match_optics_md_section_3() {
     let c = default();
-    assert!((c.psi_rad(1, 1.5) - (-2.0)).abs() < 0.05, "{}", c.psi_rad(1, 1.5));
-    assert!((c.psi_rad(0, 0.0) - 223.2).abs() < 0.05, "{}", c.psi_rad(0, 0.0));
-    assert!((c.psi_rad(2, 3.0) - (-327.6)).abs() < 0.05, "{}", c.psi_rad(2, 3.0));
+    assert!(
+        (c.psi_rad(1, 1.5) - (-2.0)).abs() < 0.05,
+        "{}",
+        c.psi_rad(1, 1.5)
+    );
+    assert!(
+        (c.psi_rad(0, 0.0) - 223.2).abs() < 0.05,
+        "{}",
+        c.psi_rad(0, 0.0)
+    );
+    assert!(
+        (c.psi_rad(2, 3.0) - (-327.6)).abs() < 0.05,
+        "{}",
+        c.psi_rad(2, 3.0)
+    );
     assert!((c.psi_for_vergence(1, 0.5) - 74.1).abs() < 0.05);
     let max = (0..3)
         .flat_map(|ch| [0.0, 3.0].map(|d| c.psi_rad(ch, d).abs()))
@@ -48,7 +75,10 @@ fn depth_classification() {
     let c = default();
     assert!(c.is_main_depth(1.5));
     assert!(!c.is_main_depth(1.0));
-    assert_eq!(c.evaluation_depths_d(), vec![0.0, 0.5, 1.0, 1.5, 2.0, 2.5, 3.0]);
+    assert_eq!(
+        c.evaluation_depths_d(),
+        vec![0.0, 0.5, 1.0, 1.5, 2.0, 2.5, 3.0]
+    );
     assert_eq!(c.depth_sweep_d(0.1).len(), 31);
 }
 
@@ -77,13 +107,21 @@ fn unknown_key_is_rejected() {
 #[test]
 fn malformed_toml_names_the_file() {
     let e = with(|s| s.replace("[lens]", "[lens")).unwrap_err();
-    assert!(e.to_string().starts_with("test.toml: malformed TOML"), "{e}");
+    assert!(
+        e.to_string().starts_with("test.toml: malformed TOML"),
+        "{e}"
+    );
 }
 
 #[test]
 fn depth_overlap_and_order_are_rejected() {
-    let e = with(|s| s.replace("intermediate_d = [0.0, 1.0, 2.0, 3.0]", "intermediate_d = [0.0, 1.5]"))
-        .unwrap_err();
+    let e = with(|s| {
+        s.replace(
+            "intermediate_d = [0.0, 1.0, 2.0, 3.0]",
+            "intermediate_d = [0.0, 1.5]",
+        )
+    })
+    .unwrap_err();
     assert!(e.to_string().contains("also a main depth"), "{e}");
     let e = with(|s| s.replace("main_d = [0.5, 1.5, 2.5]", "main_d = [1.5, 0.5]")).unwrap_err();
     assert!(e.to_string().contains("strictly increasing"), "{e}");
@@ -101,7 +139,10 @@ fn unknown_design_channel_is_rejected() {
 fn doe_file_resolves_against_the_calibration_folder() {
     let text = DEFAULT_CALIBRATION_TOML.replace("file = \"\"", "file = \"doe.safetensors\"");
     let c = Calibration::from_toml(&text, "x.toml", Some(Path::new("/some/dir"))).unwrap();
-    assert_eq!(c.doe_file.as_deref(), Some(Path::new("/some/dir/doe.safetensors")));
+    assert_eq!(
+        c.doe_file.as_deref(),
+        Some(Path::new("/some/dir/doe.safetensors"))
+    );
 }
 
 #[test]
