@@ -5,3 +5,4 @@
 
 pub mod calib;
 pub mod optics;
+pub mod util;
