@@ -5,4 +5,33 @@
 pub mod doe;
 pub mod doe_file;
 pub mod propagate;
+pub mod psf;
 pub mod pupil;
+pub mod sampling;
+
+pub use doe::HeightMap;
+pub use psf::{Psf, PsfRequest, PsfSet, SamplingReport, compute_psfs};
+pub use sampling::PsfSpec;
+
+/// Why a PSF request cannot be met. Never a silent alias: each names the rule.
+#[derive(Debug, thiserror::Error)]
+pub enum OpticsError {
+    #[error("empty PSF request")]
+    EmptyRequest,
+    #[error("invalid PSF specification {0}")]
+    BadSpec(String),
+    #[error("sampling rule cannot be met: {0}")]
+    RuleViolated(String),
+    #[error(
+        "channel {channel}: the sampling rules need a {samples}×{samples} pupil grid ({step_um:.3} µm step), \
+         more than simulation.max_pupil_samples = {limit}"
+    )]
+    GridTooLarge {
+        channel: String,
+        samples: usize,
+        step_um: f64,
+        limit: usize,
+    },
+    #[error(transparent)]
+    Doe(#[from] doe_file::DoeError),
+}

@@ -1,0 +1,343 @@
+//! PSFs for a request: choose the sampling (optics.md §5), compute each PSF
+//! over a whole period with converged cell integration, choose the smallest
+//! window that holds the required energy for every PSF of the request, and
+//! keep what the window cannot hold as a uniform veil.
+
+use std::time::Instant;
+
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use super::OpticsError;
+use super::doe::HeightMap;
+use super::propagate::{centred_window_energies, crop_centred, fft_period_cells};
+use super::pupil::{PupilGrid, pupil_field};
+use super::sampling::{
+    ChannelSampling, PsfSpec, StepRule, channel_sampling, max_pupil_step,
+    predicted_half_width_cells,
+};
+use crate::calib::Calibration;
+
+/// Highest sub-sampling per cell axis tried before the request is refused.
+pub const MAX_SUB_SAMPLES: usize = 12;
+/// Times the pupil step is halved to fit the window in the period (lens only).
+const MAX_REFINEMENTS: usize = 3;
+
+/// A set of PSFs to compute together: they share one sampling plan and one window.
+#[derive(Debug, Clone)]
+pub struct PsfRequest<'a> {
+    pub specs: Vec<PsfSpec>,
+    /// The DOE in the pupil, or `None` for the lens alone.
+    pub doe: Option<&'a HeightMap>,
+}
+
+/// One PSF on the retinal grid: `window`×`window` cells (odd), on-axis cell
+/// at the centre, each the fraction of the light through the aperture that
+/// falls in it; `veil` is the fraction outside the window.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Psf {
+    pub window: usize,
+    pub cells: Vec<f64>,
+    pub veil: f64,
+    /// Sub-samples per cell axis at which the integration converged.
+    pub sub_samples: usize,
+}
+
+/// What the model chose for a request, printed with every result.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SamplingReport {
+    pub channels: Vec<ChannelReport>,
+    pub step_rule: StepRule,
+    pub window_cells: usize,
+    pub sub_samples_max: usize,
+    /// Smallest share of the light inside the window over the request's PSFs.
+    pub min_window_energy: f64,
+    /// Largest veil (light outside the window, spread uniformly) over the PSFs.
+    pub max_veil: f64,
+    /// True when the period capped the window below the energy target.
+    pub window_capped: bool,
+    pub refinements: usize,
+    pub psf_count: usize,
+    pub compute_s: f64,
+    pub from_cache: bool,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ChannelReport {
+    pub name: String,
+    pub pupil_step_um: f64,
+    pub pupil_samples: usize,
+    pub period_cells: usize,
+}
+
+impl SamplingReport {
+    /// One line for the console.
+    pub fn summary(&self) -> String {
+        let steps: Vec<String> = self
+            .channels
+            .iter()
+            .map(|c| {
+                format!(
+                    "{} {:.2} µm ({} samples)",
+                    c.name, c.pupil_step_um, c.pupil_samples
+                )
+            })
+            .collect();
+        format!(
+            "{} PSFs: pupil step {} set by {}; window {}×{} cells; cells sub-sampled up to {}×{}; \
+             window holds ≥ {:.4}%, veil ≤ {:.4}%{}; {:.2} s{}",
+            self.psf_count,
+            steps.join(", "),
+            self.step_rule,
+            self.window_cells,
+            self.window_cells,
+            self.sub_samples_max,
+            self.sub_samples_max,
+            100.0 * self.min_window_energy,
+            100.0 * self.max_veil,
+            if self.window_capped {
+                " (window capped by the DOE's period: the rest is a uniform veil)"
+            } else {
+                ""
+            },
+            self.compute_s,
+            if self.from_cache { " (from cache)" } else { "" },
+        )
+    }
+}
+
+/// PSFs of a request with the report of how they were sampled.
+#[derive(Debug, Clone)]
+pub struct PsfSet {
+    pub psfs: Vec<Psf>,
+    pub report: SamplingReport,
+}
+
+/// Full-period PSF with its converged sub-sampling.
+struct PeriodPsf {
+    cells: Vec<f64>,
+    period: usize,
+    sub: usize,
+}
+
+/// Computes the PSFs of `request`, calling `tick` once per finished PSF.
+pub fn compute_psfs(
+    calib: &Calibration,
+    request: &PsfRequest,
+    tick: &(dyn Fn() + Sync),
+) -> Result<PsfSet, OpticsError> {
+    let start = Instant::now();
+    if request.specs.is_empty() {
+        return Err(OpticsError::EmptyRequest);
+    }
+    for s in &request.specs {
+        if s.channel >= calib.channels.len() || !s.psi_rad.is_finite() {
+            return Err(OpticsError::BadSpec(format!("{s:?}")));
+        }
+    }
+    let (mut step_cap, mut step_rule) = max_pupil_step(calib, &request.specs, request.doe);
+    if let Some(forced) = calib.simulation.pupil_step_m {
+        if forced > step_cap * (1.0 + 1e-9) {
+            return Err(OpticsError::RuleViolated(format!(
+                "simulation.pupil_step_um = {:.3} µm is coarser than {step_rule} allows ({:.3} µm)",
+                forced * 1e6,
+                step_cap * 1e6
+            )));
+        }
+        (step_cap, step_rule) = (forced, StepRule::Configured);
+    }
+    let predicted = request
+        .specs
+        .iter()
+        .map(|s| predicted_half_width_cells(calib, *s))
+        .fold(0.0, f64::max);
+    let mut min_period = 2 * predicted.ceil() as usize + 1;
+    let mut channels: Vec<usize> = request.specs.iter().map(|s| s.channel).collect();
+    channels.sort_unstable();
+    channels.dedup();
+    let target = calib.simulation.window_energy;
+
+    for refinement in 0..=MAX_REFINEMENTS {
+        let sampling: Vec<ChannelSampling> = channels
+            .iter()
+            .map(|&ch| channel_sampling(calib, ch, step_cap, min_period))
+            .collect::<Result<_, _>>()?;
+        let dtheta = calib.retinal_step_rad();
+        let window_limited = refinement > 0
+            || channels.iter().any(|&ch| {
+                calib.channels[ch].wavelength_m / (step_cap * dtheta) < min_period as f64
+            });
+        let rule = if window_limited {
+            StepRule::Window
+        } else {
+            step_rule
+        };
+        let periods = compute_periods(calib, request, &sampling, tick)?;
+
+        // Smallest odd window holding the target energy for every PSF.
+        let mut half_needed = 0usize;
+        let mut fits = true;
+        let mut energies = Vec::with_capacity(periods.len());
+        for p in &periods {
+            let e = centred_window_energies(&p.cells, p.period);
+            match e.iter().position(|&v| v >= target) {
+                Some(k) => half_needed = half_needed.max(k),
+                None => fits = false,
+            }
+            energies.push(e);
+        }
+        let half_cap = periods
+            .iter()
+            .map(|p| (p.period - 1) / 2)
+            .min()
+            .unwrap_or(0);
+        if !fits || half_needed > half_cap {
+            let can_refine = request.doe.is_none() && calib.simulation.pupil_step_m.is_none();
+            if can_refine && refinement < MAX_REFINEMENTS {
+                // Lens only: the blur outgrew the period; halve the step.
+                step_cap = sampling
+                    .iter()
+                    .map(|s| s.grid.step_m)
+                    .fold(f64::MAX, f64::min)
+                    / 2.0;
+                min_period = 2 * min_period;
+                tracing::debug!(
+                    "window outgrew the period; refining the pupil step to {:.3} µm",
+                    step_cap * 1e6
+                );
+                continue;
+            }
+            if request.doe.is_none() {
+                return Err(OpticsError::RuleViolated(format!(
+                    "no window within one period holds {:.3}% of the light (rules 3 and 5); \
+                     allow a finer pupil step or a lower simulation.window_energy",
+                    100.0 * target
+                )));
+            }
+        }
+        let half = if fits {
+            half_needed.min(half_cap)
+        } else {
+            half_cap
+        };
+        let window = 2 * half + 1;
+        let psfs: Vec<Psf> = periods
+            .iter()
+            .zip(&energies)
+            .map(|(p, e)| {
+                let cells = crop_centred(&p.cells, p.period, window);
+                Psf {
+                    window,
+                    veil: (1.0 - e[half]).max(0.0),
+                    cells,
+                    sub_samples: p.sub,
+                }
+            })
+            .collect();
+        let report = SamplingReport {
+            channels: sampling
+                .iter()
+                .map(|s| ChannelReport {
+                    name: calib.channels[s.channel].name.clone(),
+                    pupil_step_um: s.grid.step_m * 1e6,
+                    pupil_samples: s.grid.samples,
+                    period_cells: s.period_cells,
+                })
+                .collect(),
+            step_rule: rule,
+            window_cells: window,
+            sub_samples_max: psfs.iter().map(|p| p.sub_samples).max().unwrap_or(0),
+            min_window_energy: energies.iter().map(|e| e[half]).fold(f64::MAX, f64::min),
+            max_veil: psfs.iter().map(|p| p.veil).fold(0.0, f64::max),
+            window_capped: !fits || half_needed > half_cap,
+            refinements: refinement,
+            psf_count: psfs.len(),
+            compute_s: start.elapsed().as_secs_f64(),
+            from_cache: false,
+        };
+        return Ok(PsfSet { psfs, report });
+    }
+    unreachable!("the refinement loop returns or errs on its last pass")
+}
+
+/// Full-period PSFs of every spec, cells integrated until converged.
+fn compute_periods(
+    calib: &Calibration,
+    request: &PsfRequest,
+    sampling: &[ChannelSampling],
+    tick: &(dyn Fn() + Sync),
+) -> Result<Vec<PeriodPsf>, OpticsError> {
+    // The DOE's phase depends only on the channel's grid: once per channel.
+    let phases: Vec<Option<Vec<f64>>> = sampling
+        .iter()
+        .map(|s| {
+            request
+                .doe
+                .map(|d| d.phase_on(s.grid.into(), calib, s.channel))
+        })
+        .collect();
+    request
+        .specs
+        .par_iter()
+        .map(|spec| {
+            let i = sampling
+                .iter()
+                .position(|s| s.channel == spec.channel)
+                .ok_or_else(|| OpticsError::BadSpec(format!("{spec:?}")))?;
+            let s = &sampling[i];
+            let grid: PupilGrid = s.grid.into();
+            let q = pupil_field(
+                grid,
+                calib.aperture_radius_m,
+                spec.psi_rad,
+                phases[i].as_deref(),
+            );
+            let out = converged_period(calib, &q, grid, s, spec)?;
+            tick();
+            Ok(out)
+        })
+        .collect()
+}
+
+/// Raises the sub-sampling m until the PSF changes by less than the
+/// convergence tolerance (L1). Starts where m·P ≥ N, so that the period
+/// holds exactly the light through the aperture (Parseval).
+fn converged_period(
+    calib: &Calibration,
+    q: &[num_complex::Complex64],
+    grid: PupilGrid,
+    s: &ChannelSampling,
+    spec: &PsfSpec,
+) -> Result<PeriodPsf, OpticsError> {
+    let lambda = calib.channels[s.channel].wavelength_m;
+    let dtheta = calib.retinal_step_rad();
+    let tol = calib.simulation.cell_convergence_l1;
+    let run = |sub: usize| {
+        fft_period_cells(q, grid, lambda, dtheta, sub)
+            .ok_or_else(|| OpticsError::BadSpec("period is not a whole number of cells".into()))
+    };
+    let mut sub = grid.samples.div_ceil(s.period_cells).max(2);
+    let mut prev = run(sub)?;
+    while sub < MAX_SUB_SAMPLES {
+        sub += 1;
+        let next = run(sub)?;
+        let change: f64 = next.iter().zip(&prev).map(|(a, b)| (a - b).abs()).sum();
+        let norm: f64 = next.iter().sum();
+        if change <= tol * norm {
+            return Ok(PeriodPsf {
+                cells: next,
+                period: s.period_cells,
+                sub,
+            });
+        }
+        prev = next;
+    }
+    Err(OpticsError::RuleViolated(format!(
+        "cell integration did not converge to {tol} (L1) by {MAX_SUB_SAMPLES}×{MAX_SUB_SAMPLES} sub-samples \
+         for channel {} at Ψ = {:.2} rad",
+        calib.channels[s.channel].name, spec.psi_rad
+    )))
+}
+
+#[cfg(test)]
+mod tests;

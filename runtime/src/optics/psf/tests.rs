@@ -1,0 +1,221 @@
+//! The PSF planner against optics.md §5: converged cell integration, energy
+//! kept (window plus veil), the window choice and the refusals.
+
+use super::*;
+use crate::optics::propagate::fft_period_cells;
+use crate::optics::sampling::channel_sampling;
+
+fn calib() -> Calibration {
+    Calibration::default_embedded().expect("default calibration")
+}
+
+#[test]
+fn integrated_cells_weigh_the_in_focus_order_as_optics_md_says() {
+    // Three-lens DOE, G, accommodation 0.5 D: its 0.5 D order is in focus.
+    // optics.md §5: the central sample holds 75 % of a centre-sampled PSF but
+    // 29 % of the integrated one. Those shares are of the light in a window
+    // of ≈ 200 cells, computed on the DOE's own 6 µm grid.
+    let c = calib();
+    let doe = HeightMap::three_lens_init(&c, 6e-6);
+    let spec = PsfSpec {
+        channel: 1,
+        psi_rad: c.psi_rad(1, 0.5),
+    };
+    let grid = doe.grid();
+    let q = pupil_field(
+        grid,
+        c.aperture_radius_m,
+        spec.psi_rad,
+        Some(&doe.phase_on(grid, &c, 1)),
+    );
+    let share = |sub: usize| {
+        let cells =
+            crate::optics::propagate::mft_cells(&q, grid, 530e-9, 201, c.retinal_step_rad(), sub);
+        (
+            cells[cells.len() / 2] / cells.iter().sum::<f64>(),
+            cells[cells.len() / 2],
+        )
+    };
+    let (centre_sampled, _) = share(1);
+    let (integrated, integrated_of_all) = share(4);
+    assert!(
+        (centre_sampled - 0.75).abs() < 0.01,
+        "centre-sampled share {centre_sampled}"
+    );
+    assert!(
+        (integrated - 0.29).abs() < 0.01,
+        "integrated share {integrated}"
+    );
+
+    // The planner (FFT over the period, DOE resampled onto a 5.8 µm grid,
+    // normalised by all the light) agrees with the 6 µm MFT to 2 %.
+    let set = compute_psfs(
+        &c,
+        &PsfRequest {
+            specs: vec![spec],
+            doe: Some(&doe),
+        },
+        &|| (),
+    )
+    .expect("psf");
+    let p = &set.psfs[0];
+    let planned = p.cells[p.cells.len() / 2];
+    assert!(
+        (planned / integrated_of_all - 1.0).abs() < 0.02,
+        "{planned} vs {integrated_of_all}"
+    );
+}
+
+#[test]
+fn lens_psfs_keep_all_light_in_window_plus_veil() {
+    let c = calib();
+    let specs: Vec<PsfSpec> = (0..3)
+        .map(|ch| PsfSpec {
+            channel: ch,
+            psi_rad: c.psi_rad(ch, 1.0),
+        })
+        .collect();
+    let set = compute_psfs(&c, &PsfRequest { specs, doe: None }, &|| ()).expect("psf");
+    assert!(!set.report.window_capped);
+    assert!(set.report.min_window_energy >= c.simulation.window_energy);
+    for p in &set.psfs {
+        let inside: f64 = p.cells.iter().sum();
+        assert!(
+            (inside + p.veil - 1.0).abs() < 1e-12,
+            "window {inside} + veil {} ≠ 1",
+            p.veil
+        );
+        assert!(p.veil <= 1.0 - c.simulation.window_energy + 1e-12);
+        assert_eq!(p.window % 2, 1);
+        assert!(p.sub_samples >= 2);
+    }
+    // The smallest window: one size smaller misses the target for some PSF.
+    let w = set.report.window_cells;
+    let smaller_ok = set.psfs.iter().all(|p| {
+        let inner = crate::optics::propagate::crop_centred(&p.cells, w, w - 2);
+        inner.iter().sum::<f64>() >= c.simulation.window_energy
+    });
+    assert!(!smaller_ok, "window {w} is not the smallest");
+}
+
+#[test]
+fn doe_window_is_capped_by_its_period_and_the_rest_is_veil() {
+    let c = calib();
+    let doe = HeightMap::three_lens_init(&c, 6e-6);
+    let specs: Vec<PsfSpec> = (0..3)
+        .map(|ch| PsfSpec {
+            channel: ch,
+            psi_rad: c.psi_rad(ch, 1.0),
+        })
+        .collect();
+    let set = compute_psfs(
+        &c,
+        &PsfRequest {
+            specs,
+            doe: Some(&doe),
+        },
+        &|| (),
+    )
+    .expect("psf");
+    let r = &set.report;
+    // Blue's period at ≤ 6 µm is ≥ 491 cells: rule 3 bounds the window there.
+    let blue = r.channels.iter().find(|c| c.name == "B").expect("blue");
+    assert!(r.window_cells <= blue.period_cells);
+    for p in &set.psfs {
+        let inside: f64 = p.cells.iter().sum();
+        assert!((inside + p.veil - 1.0).abs() < 1e-12);
+    }
+    // The higher diffraction orders reach the edge of the period.
+    if r.window_capped {
+        assert!(r.max_veil > 1.0 - c.simulation.window_energy);
+    }
+}
+
+#[test]
+fn cell_integration_is_converged() {
+    let c = calib();
+    let spec = PsfSpec {
+        channel: 1,
+        psi_rad: c.psi_rad(1, 1.5),
+    };
+    let set = compute_psfs(
+        &c,
+        &PsfRequest {
+            specs: vec![spec],
+            doe: None,
+        },
+        &|| (),
+    )
+    .expect("psf");
+    let p = &set.psfs[0];
+    // One more sub-sample per axis changes the PSF by less than the tolerance.
+    let ch = &set.report.channels[0];
+    let step = ch.pupil_step_um * 1e-6;
+    let grid = PupilGrid::covering(c.aperture_radius_m, step);
+    let q = pupil_field(grid, c.aperture_radius_m, spec.psi_rad, None);
+    let finer = fft_period_cells(&q, grid, 530e-9, c.retinal_step_rad(), p.sub_samples + 1)
+        .expect("period");
+    let finer = crop_centred(&finer, ch.period_cells, p.window);
+    let change: f64 = finer.iter().zip(&p.cells).map(|(a, b)| (a - b).abs()).sum();
+    assert!(
+        change < c.simulation.cell_convergence_l1,
+        "L1 change {change}"
+    );
+}
+
+#[test]
+fn large_defocus_refines_the_pupil_instead_of_aliasing() {
+    let mut c = calib();
+    c.simulation.min_pupil_samples = 64;
+    // Far beyond the design range: the blur outgrows a coarse period.
+    let spec = PsfSpec {
+        channel: 2,
+        psi_rad: 600.0,
+    };
+    let set = compute_psfs(
+        &c,
+        &PsfRequest {
+            specs: vec![spec],
+            doe: None,
+        },
+        &|| (),
+    )
+    .expect("psf");
+    assert!(set.report.min_window_energy >= c.simulation.window_energy);
+    assert!(set.report.window_cells <= set.report.channels[0].period_cells);
+}
+
+#[test]
+fn forced_step_breaking_a_rule_is_an_error() {
+    let mut c = calib();
+    c.simulation.pupil_step_m = Some(30e-6);
+    let spec = PsfSpec {
+        channel: 2,
+        psi_rad: c.psi_rad(2, 3.0),
+    };
+    let e = compute_psfs(
+        &c,
+        &PsfRequest {
+            specs: vec![spec],
+            doe: None,
+        },
+        &|| (),
+    )
+    .expect_err("rule 2");
+    assert!(e.to_string().contains("rule 2"), "{e}");
+    let doe = HeightMap::three_lens_init(&c, 6e-6);
+    c.simulation.pupil_step_m = Some(8e-6);
+    let e = compute_psfs(
+        &c,
+        &PsfRequest {
+            specs: vec![PsfSpec {
+                channel: 1,
+                psi_rad: 0.0,
+            }],
+            doe: Some(&doe),
+        },
+        &|| (),
+    )
+    .expect_err("rule 1");
+    assert!(e.to_string().contains("rule 1"), "{e}");
+}
