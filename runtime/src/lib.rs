@@ -5,4 +5,5 @@
 
 pub mod calib;
 pub mod optics;
+pub mod sim;
 pub mod util;
