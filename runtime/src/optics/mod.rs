@@ -2,8 +2,10 @@
 //! DOE, propagation to the retina, the sampling rules of optics.md §5, PSFs,
 //! MTFs and the PSF cache.
 
+pub mod cache;
 pub mod doe;
 pub mod doe_file;
+pub mod mtf;
 pub mod propagate;
 pub mod psf;
 pub mod pupil;

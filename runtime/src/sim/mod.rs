@@ -5,4 +5,24 @@
 pub mod convolve;
 pub mod image;
 pub mod image_io;
+pub mod methods;
 pub mod metrics;
+pub mod simulator;
+pub mod wiener;
+
+pub use image::Image;
+pub use methods::{Method, Optics};
+pub use simulator::{Prepared, Simulator, perceive};
+
+/// A simulation that cannot run, naming the input at fault.
+#[derive(Debug, thiserror::Error)]
+pub enum SimError {
+    #[error(transparent)]
+    Optics(#[from] crate::optics::OpticsError),
+    #[error(transparent)]
+    Doe(#[from] crate::optics::doe_file::DoeError),
+    #[error(transparent)]
+    Image(#[from] image_io::ImageError),
+    #[error("{0}")]
+    Invalid(String),
+}

@@ -3,7 +3,6 @@
 
 use super::*;
 use crate::optics::propagate::fft_period_cells;
-use crate::optics::sampling::channel_sampling;
 
 fn calib() -> Calibration {
     Calibration::default_embedded().expect("default calibration")

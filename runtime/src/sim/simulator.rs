@@ -1,0 +1,352 @@
+//! The simulator: gathers the PSFs a set of methods and depths needs into
+//! one request per optics (lens, lens + DOE), computes or loads them once,
+//! and renders perceived images and targets (paper Eqs. 4–5).
+
+use std::collections::HashMap;
+use std::path::Path;
+
+use indicatif::ProgressBar;
+
+use super::image::Image;
+use super::methods::{Method, Optics, psf_terms, target_blur_spec};
+use super::wiener::WienerFilter;
+use super::{SimError, convolve::PreparedKernel};
+use crate::calib::Calibration;
+use crate::optics::cache::PsfCache;
+use crate::optics::{HeightMap, Psf, PsfRequest, PsfSet, PsfSpec, SamplingReport, doe_file};
+
+/// Calibration, DOE and PSF cache: everything a simulation is a function of.
+#[derive(Debug)]
+pub struct Simulator {
+    pub calib: Calibration,
+    pub doe: HeightMap,
+    pub doe_hash: String,
+    pub cache: PsfCache,
+}
+
+impl Simulator {
+    /// Loads the DOE (`doe_path`, else the calibration's file, else the
+    /// three-lens initialisation on the design grid).
+    pub fn new(
+        calib: Calibration,
+        doe_path: Option<&Path>,
+        cache: PsfCache,
+    ) -> Result<Self, SimError> {
+        if calib.channels.len() != 3 {
+            return Err(SimError::Invalid(format!(
+                "{}: image simulation needs exactly 3 channels (R, G, B), the calibration has {}",
+                calib.source,
+                calib.channels.len()
+            )));
+        }
+        let doe = match doe_path.or(calib.doe_file.as_deref()) {
+            Some(p) => doe_file::load(p, &calib)?,
+            None => HeightMap::three_lens_init(&calib, calib.doe_design_pitch_m),
+        };
+        let doe_hash = doe.content_hash();
+        Ok(Self {
+            calib,
+            doe,
+            doe_hash,
+            cache,
+        })
+    }
+
+    /// Computes (or loads) every PSF that `methods` at `depths_d` need,
+    /// the target blur, and the Wiener filters of the methods that use one.
+    pub fn prepare(
+        &self,
+        methods: &[Method],
+        depths_d: &[f64],
+        progress: Option<&ProgressBar>,
+    ) -> Result<Prepared, SimError> {
+        let c = &self.calib;
+        let channels = 0..c.channels.len();
+        let mut lens = SpecSet::default();
+        let mut doe = SpecSet::default();
+        let sweep = c.depth_sweep_d(c.wiener.average_step_d);
+        for &m in methods {
+            let set = match m.optics() {
+                Optics::Lens => &mut lens,
+                Optics::Doe => &mut doe,
+            };
+            let depths = if m.uses_wiener() {
+                [depths_d, &sweep].concat()
+            } else {
+                depths_d.to_vec()
+            };
+            for d in depths {
+                for ch in channels.clone() {
+                    for (spec, _) in psf_terms(c, m, d, ch) {
+                        set.add(spec);
+                    }
+                }
+            }
+        }
+        if depths_d.iter().any(|d| !c.is_main_depth(*d)) {
+            for ch in channels.clone() {
+                lens.add(target_blur_spec(c, ch));
+            }
+        }
+        if let Some(p) = progress {
+            p.set_length((lens.specs.len() + doe.specs.len()) as u64);
+        }
+        let tick = || {
+            if let Some(p) = progress {
+                p.inc(1);
+            }
+        };
+        let mut reports = Vec::new();
+        let mut run = |specs: SpecSet, with_doe: bool| -> Result<Option<PsfTable>, SimError> {
+            if specs.specs.is_empty() {
+                return Ok(None);
+            }
+            let request = PsfRequest {
+                specs: specs.specs.clone(),
+                doe: with_doe.then_some(&self.doe),
+            };
+            let set = self.cache.get_or_compute(c, &request, &tick)?;
+            reports.push((
+                if with_doe { "lens + DOE" } else { "lens" }.to_string(),
+                set.report.clone(),
+            ));
+            Ok(Some(PsfTable {
+                set,
+                index: specs.index,
+            }))
+        };
+        let lens = run(lens, false)?;
+        let doe = run(doe, true)?;
+        let mut prepared = Prepared {
+            calib: c.clone(),
+            lens,
+            doe,
+            wiener: HashMap::new(),
+            reports,
+        };
+        for &m in methods.iter().filter(|m| m.uses_wiener()) {
+            let k = match m {
+                Method::Ai => c.wiener.ai_k,
+                _ => {
+                    if c.wiener.doe_k_tuned_for != self.doe_hash {
+                        tracing::warn!(
+                            "wiener.doe_k = {} was tuned for DOE {:?}, this DOE is {}; run `nedrt tune-wiener --method doe+wiener`",
+                            c.wiener.doe_k,
+                            c.wiener.doe_k_tuned_for,
+                            self.doe_hash
+                        );
+                    }
+                    c.wiener.doe_k
+                }
+            };
+            let mean = prepared.mean_psfs(m, &sweep)?;
+            prepared.wiener.insert(m, WienerFilter::new(&mean, k));
+        }
+        Ok(prepared)
+    }
+}
+
+/// Deduplicated specs of one request, with their index.
+#[derive(Default)]
+struct SpecSet {
+    specs: Vec<PsfSpec>,
+    index: HashMap<(usize, i64), usize>,
+}
+
+/// Ψ values equal to 1e-9 rad are the same PSF.
+fn spec_key(s: PsfSpec) -> (usize, i64) {
+    (s.channel, (s.psi_rad * 1e9).round() as i64)
+}
+
+impl SpecSet {
+    fn add(&mut self, s: PsfSpec) {
+        let n = self.specs.len();
+        if let std::collections::hash_map::Entry::Vacant(e) = self.index.entry(spec_key(s)) {
+            e.insert(n);
+            self.specs.push(s);
+        }
+    }
+}
+
+struct PsfTable {
+    set: PsfSet,
+    index: HashMap<(usize, i64), usize>,
+}
+
+impl std::fmt::Debug for PsfTable {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "PsfTable({} PSFs)", self.set.psfs.len())
+    }
+}
+
+impl PsfTable {
+    fn get(&self, s: PsfSpec) -> Option<&Psf> {
+        self.index.get(&spec_key(s)).map(|&i| &self.set.psfs[i])
+    }
+}
+
+/// PSFs and filters ready to render perceived images.
+#[derive(Debug)]
+pub struct Prepared {
+    calib: Calibration,
+    lens: Option<PsfTable>,
+    doe: Option<PsfTable>,
+    wiener: HashMap<Method, WienerFilter>,
+    /// What the PSF model chose, per request ("lens", "lens + DOE").
+    pub reports: Vec<(String, SamplingReport)>,
+}
+
+impl Prepared {
+    fn table(&self, optics: Optics) -> Result<&PsfTable, SimError> {
+        match optics {
+            Optics::Lens => self.lens.as_ref(),
+            Optics::Doe => self.doe.as_ref(),
+        }
+        .ok_or_else(|| SimError::Invalid("PSFs for these optics were not prepared".into()))
+    }
+
+    fn lookup(&self, optics: Optics, spec: PsfSpec) -> Result<&Psf, SimError> {
+        self.table(optics)?
+            .get(spec)
+            .ok_or_else(|| SimError::Invalid(format!("PSF {spec:?} was not prepared")))
+    }
+
+    /// Time-weighted sum of PSFs of one request (they share one window).
+    fn mixture(&self, optics: Optics, terms: &[(PsfSpec, f64)]) -> Result<Psf, SimError> {
+        let first = self.lookup(optics, terms[0].0)?;
+        let mut out = Psf {
+            window: first.window,
+            cells: vec![0.0; first.cells.len()],
+            veil: 0.0,
+            sub_samples: 0,
+        };
+        for (spec, w) in terms {
+            let p = self.lookup(optics, *spec)?;
+            out.cells
+                .iter_mut()
+                .zip(&p.cells)
+                .for_each(|(o, v)| *o += w * v);
+            out.veil += w * p.veil;
+            out.sub_samples = out.sub_samples.max(p.sub_samples);
+        }
+        Ok(out)
+    }
+
+    /// The retinal PSF of `method` at `accommodation_d`, one per channel.
+    pub fn system_psfs(&self, method: Method, accommodation_d: f64) -> Result<Vec<Psf>, SimError> {
+        (0..self.calib.channels.len())
+            .map(|ch| {
+                self.mixture(
+                    method.optics(),
+                    &psf_terms(&self.calib, method, accommodation_d, ch),
+                )
+            })
+            .collect()
+    }
+
+    /// The system PSF averaged over `depths_d`, per channel (the Wiener H̄).
+    pub fn mean_psfs(&self, method: Method, depths_d: &[f64]) -> Result<Vec<Psf>, SimError> {
+        let mut mean: Option<Vec<Psf>> = None;
+        let w = 1.0 / depths_d.len() as f64;
+        for d in depths_d {
+            let psfs = self.system_psfs(method, *d)?;
+            match &mut mean {
+                None => {
+                    mean = Some(
+                        psfs.into_iter()
+                            .map(|mut p| {
+                                p.cells.iter_mut().for_each(|v| *v *= w);
+                                p.veil *= w;
+                                p
+                            })
+                            .collect(),
+                    )
+                }
+                Some(acc) => {
+                    for (a, p) in acc.iter_mut().zip(psfs) {
+                        a.cells
+                            .iter_mut()
+                            .zip(&p.cells)
+                            .for_each(|(o, v)| *o += w * v);
+                        a.veil += w * p.veil;
+                    }
+                }
+            }
+        }
+        mean.ok_or_else(|| SimError::Invalid("no depths to average".into()))
+    }
+
+    /// The Wiener filter of a method, if it uses one.
+    pub fn wiener(&self, method: Method) -> Option<&WienerFilter> {
+        self.wiener.get(&method)
+    }
+
+    /// The frame the panel shows for `input` under `method`.
+    pub fn display_image(&self, method: Method, input: &Image) -> Image {
+        match self.wiener.get(&method) {
+            Some(f) => f.apply(input),
+            None => input.clone(),
+        }
+    }
+
+    /// Perceived image at `accommodation_d` for `method` from a display image.
+    pub fn perceived(
+        &self,
+        method: Method,
+        display: &Image,
+        accommodation_d: f64,
+    ) -> Result<Image, SimError> {
+        Ok(perceive(
+            display,
+            &self.system_psfs(method, accommodation_d)?,
+        ))
+    }
+
+    /// Perceived image through arbitrary optics (e.g. an external display image).
+    pub fn perceived_through(
+        &self,
+        optics: Optics,
+        display: &Image,
+        accommodation_d: f64,
+    ) -> Result<Image, SimError> {
+        let method = match optics {
+            Optics::Lens => Method::Conventional,
+            Optics::Doe => Method::DoeOnly,
+        };
+        self.perceived(method, display, accommodation_d)
+    }
+
+    /// The multifocal target: up2(I) at a main depth, up2(I) ∗ h_b elsewhere.
+    pub fn target(&self, input: &Image, accommodation_d: f64) -> Result<Image, SimError> {
+        if self.calib.is_main_depth(accommodation_d) {
+            return Ok(input.up2());
+        }
+        let blur: Vec<Psf> = (0..self.calib.channels.len())
+            .map(|ch| {
+                self.lookup(Optics::Lens, target_blur_spec(&self.calib, ch))
+                    .cloned()
+            })
+            .collect::<Result<_, _>>()?;
+        Ok(perceive(input, &blur))
+    }
+}
+
+/// Î_p = up2(I_d) ∗ h + veil · mean(I_d), per channel, on the retinal grid.
+pub fn perceive(display: &Image, psfs: &[Psf]) -> Image {
+    let up = display.up2();
+    let means = display.plane_means();
+    let planes = up
+        .planes
+        .iter()
+        .zip(psfs)
+        .zip(means)
+        .map(|((plane, psf), mean)| {
+            let kernel = PreparedKernel::new(&psf.cells, psf.window, up.width, up.height);
+            let veil = (psf.veil * mean) as f32;
+            let mut out = kernel.apply(plane);
+            out.iter_mut().for_each(|v| *v += veil);
+            out
+        })
+        .collect();
+    Image::from_planes(up.width, up.height, planes)
+}

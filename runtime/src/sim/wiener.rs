@@ -1,0 +1,195 @@
+//! Wiener deconvolution preprocessing at display resolution (optics.md §7):
+//! I_d = clamp(F⁻¹{G·F{I}}, 0, 1), G = H̄*/(|H̄|² + K) scaled to unit gain at
+//! zero frequency, H̄ the system PSF averaged over the accommodation range
+//! and taken to the display grid by the exact 2×2 relation
+//! down2(up2(x) ∗ h) = x ∗ k.
+
+use num_complex::Complex32 as c32;
+
+use super::convolve::Fft2;
+use super::image::{Image, extend_plane};
+use crate::optics::Psf;
+
+/// Display-grid kernel k of a retinal PSF h (odd window W, centred):
+/// k[n, m] = ¼ Σ_{a,b ∈ {−1,0,1}} w_a w_b h[2n + a, 2m + b], w = (1, 2, 1).
+/// It follows from up2 (a pixel fills cells 2i, 2i+1) and down2 (the mean of
+/// a 2×2 block); Σk = Σh. Returns (kernel, side), side odd.
+pub fn display_kernel(psf: &Psf) -> (Vec<f64>, usize) {
+    let w = psf.window as isize;
+    let c = w / 2;
+    let half = (c + 1) / 2;
+    let side = (2 * half + 1) as usize;
+    let weight = |a: isize| if a == 0 { 2.0 } else { 1.0 };
+    let h = |y: isize, x: isize| {
+        if (0..w).contains(&y) && (0..w).contains(&x) {
+            psf.cells[(y * w + x) as usize]
+        } else {
+            0.0
+        }
+    };
+    let mut k = vec![0.0; side * side];
+    for n in -half..=half {
+        for m in -half..=half {
+            let mut acc = 0.0;
+            for a in -1..=1 {
+                for b in -1..=1 {
+                    acc += weight(a) * weight(b) * h(c + 2 * n + a, c + 2 * m + b);
+                }
+            }
+            k[((n + half) as usize) * side + (m + half) as usize] = acc / 4.0;
+        }
+    }
+    (k, side)
+}
+
+/// A Wiener prefilter for one display system: one display-grid kernel per channel.
+#[derive(Debug, Clone)]
+pub struct WienerFilter {
+    pub k_reg: f64,
+    kernels: Vec<(Vec<f64>, usize, f64)>,
+}
+
+impl WienerFilter {
+    /// From the accommodation-averaged retinal PSF of each channel (its
+    /// veil, uniform light, enters H̄ at zero frequency) and the constant K.
+    pub fn new(mean_psfs: &[Psf], k_reg: f64) -> Self {
+        let kernels = mean_psfs
+            .iter()
+            .map(|p| {
+                let (k, side) = display_kernel(p);
+                (k, side, p.veil)
+            })
+            .collect();
+        Self { k_reg, kernels }
+    }
+
+    /// Same kernels, another K (for the K search).
+    pub fn with_k(&self, k_reg: f64) -> Self {
+        Self {
+            k_reg,
+            kernels: self.kernels.clone(),
+        }
+    }
+
+    /// Prefilters a frame and clamps it to the panel's [0, 1]. The frame is
+    /// mirrored to 2w×2h, which is exactly periodic, so the FFT's circular
+    /// convolution equals convolution of the symmetrically extended frame.
+    pub fn apply(&self, image: &Image) -> Image {
+        let (w, h) = (image.width, image.height);
+        let fft = Fft2::new(2 * w, 2 * h);
+        let planes = image
+            .planes
+            .iter()
+            .zip(&self.kernels)
+            .map(|(plane, (kernel, side, veil))| {
+                let mut hs = fft.kernel_spectrum(kernel, *side);
+                hs[0] += c32::new(*veil as f32, 0.0);
+                let k = self.k_reg as f32;
+                let h0 = hs[0].re;
+                let g0 = h0 / (h0 * h0 + k);
+                let extended = extend_plane(plane, w, h, 0, 0, 2 * w, 2 * h);
+                let mut spec = fft.forward(&extended);
+                for (s, hv) in spec.iter_mut().zip(&hs) {
+                    *s *= hv.conj() / ((hv.norm_sqr() + k) * g0);
+                }
+                let full = fft.inverse(spec);
+                let mut out = Vec::with_capacity(w * h);
+                for y in 0..h {
+                    out.extend(
+                        full[y * 2 * w..y * 2 * w + w]
+                            .iter()
+                            .map(|v| v.clamp(0.0, 1.0)),
+                    );
+                }
+                out
+            })
+            .collect();
+        Image::from_planes(w, h, planes)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::sim::convolve::convolve_symmetric;
+
+    fn psf(w: usize, seed: usize) -> Psf {
+        let mut cells: Vec<f64> = (0..w * w)
+            .map(|i| (((i + seed) * 7919) % 101) as f64 + 1.0)
+            .collect();
+        let s: f64 = cells.iter().sum();
+        cells.iter_mut().for_each(|v| *v *= 0.95 / s);
+        Psf {
+            window: w,
+            cells,
+            veil: 0.05,
+            sub_samples: 2,
+        }
+    }
+
+    fn block_mean(p: &[f32], w2: usize, h2: usize) -> Vec<f32> {
+        let (w, h) = (w2 / 2, h2 / 2);
+        let mut out = vec![0.0; w * h];
+        for y in 0..h {
+            for x in 0..w {
+                out[y * w + x] = (p[2 * y * w2 + 2 * x]
+                    + p[2 * y * w2 + 2 * x + 1]
+                    + p[(2 * y + 1) * w2 + 2 * x]
+                    + p[(2 * y + 1) * w2 + 2 * x + 1])
+                    / 4.0;
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn display_kernel_satisfies_down2_up2_relation() {
+        // Away from the borders, down2(up2(x) ∗ h) = x ∗ k exactly.
+        for w in [3, 5, 7, 9] {
+            let p = psf(w, w);
+            let (k, side) = display_kernel(&p);
+            assert!((k.iter().sum::<f64>() - p.cells.iter().sum::<f64>()).abs() < 1e-12);
+            let (iw, ih) = (16, 12);
+            let x: Vec<f32> = (0..iw * ih)
+                .map(|i| ((i * 31) % 13) as f32 / 13.0)
+                .collect();
+            let img = Image::from_planes(iw, ih, vec![x.clone()]);
+            let up = img.up2();
+            let retinal = convolve_symmetric(&up.planes[0], 2 * iw, 2 * ih, &p.cells, w);
+            let lhs = block_mean(&retinal, 2 * iw, 2 * ih);
+            let rhs = convolve_symmetric(&x, iw, ih, &k, side);
+            let m = side / 2 + 1;
+            for y in m..ih - m {
+                for xx in m..iw - m {
+                    let (a, b) = (lhs[y * iw + xx], rhs[y * iw + xx]);
+                    assert!((a - b).abs() < 1e-5, "w {w} at {xx},{y}: {a} vs {b}");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn unit_dc_gain_and_near_inverse_for_small_k() {
+        let p = Psf {
+            window: 3,
+            cells: vec![0.0, 0.1, 0.0, 0.1, 0.6, 0.1, 0.0, 0.1, 0.0],
+            veil: 0.0,
+            sub_samples: 1,
+        };
+        // A flat field passes unchanged (unit gain at zero frequency).
+        let flat = Image::from_planes(8, 8, vec![vec![0.4; 64]]);
+        let out = WienerFilter::new(std::slice::from_ref(&p), 0.1).apply(&flat);
+        assert!(out.planes[0].iter().all(|v| (v - 0.4).abs() < 1e-5));
+        // With small K, blurring the prefiltered frame returns the frame.
+        let x: Vec<f32> = (0..64)
+            .map(|i| 0.5 + 0.02 * ((i * 5 % 9) as f32 / 9.0))
+            .collect();
+        let img = Image::from_planes(8, 8, vec![x.clone()]);
+        let pre = WienerFilter::new(std::slice::from_ref(&p), 1e-7).apply(&img);
+        let (k, side) = display_kernel(&p);
+        let back = convolve_symmetric(&pre.planes[0], 8, 8, &k, side);
+        for (a, b) in back.iter().zip(&x) {
+            assert!((a - b).abs() < 2e-3, "{a} vs {b}");
+        }
+    }
+}
