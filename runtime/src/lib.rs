@@ -3,7 +3,9 @@
 //!
 //! The module tree follows the data flow: [`calib`] → [`optics`] → [`sim`].
 
+pub mod app;
 pub mod calib;
+pub mod charts;
 pub mod optics;
 pub mod sim;
 pub mod util;

@@ -1,0 +1,289 @@
+//! `nedrt eval`: the paper's Fig. 6 table for every method at 0…3 D on a
+//! folder of images, against the sharp image and the multifocal target
+//! (evaluation.md), with the headline mean and worst over 0–2.5 D.
+
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use serde::Serialize;
+
+use super::sim::{Score, pad_to_multiple_of_8};
+use super::{AppError, CommonOptions, create_dir, progress_bar, write_text};
+use crate::sim::image_io;
+use crate::sim::{Image, Method, Optics, Simulator};
+
+/// Upper end of the headline depth range (evaluation.md: 0–2.5 D).
+pub const HEADLINE_MAX_D: f64 = 2.5;
+
+/// Image files in a folder, sorted by name.
+pub fn list_images(dir: &Path) -> Result<Vec<PathBuf>, AppError> {
+    let entries = std::fs::read_dir(dir)
+        .map_err(|e| AppError::output(dir, format!("cannot read folder: {e}")))?;
+    let mut files: Vec<PathBuf> = entries
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| {
+            p.extension().is_some_and(|e| {
+                matches!(
+                    e.to_string_lossy().to_ascii_lowercase().as_str(),
+                    "png" | "jpg" | "jpeg" | "tif" | "tiff" | "bmp" | "ppm"
+                )
+            })
+        })
+        .collect();
+    files.sort();
+    if files.is_empty() {
+        return Err(AppError::Usage(format!(
+            "{}: no images (png, jpg, tif, bmp, ppm) in this folder",
+            dir.display()
+        )));
+    }
+    Ok(files)
+}
+
+/// Loads an image and crops it to multiples of 8 (evaluation.md), saying so.
+pub fn load_cropped(path: &Path) -> Result<Image, AppError> {
+    let l = image_io::load(path)?;
+    for n in &l.notes {
+        tracing::warn!("{n}");
+    }
+    let im = l.image;
+    let (w, h) = (im.width / 8 * 8, im.height / 8 * 8);
+    if w == 0 || h == 0 {
+        return Err(AppError::Usage(format!(
+            "{}: smaller than 8×8 pixels",
+            path.display()
+        )));
+    }
+    if (w, h) != (im.width, im.height) {
+        tracing::warn!(
+            "{}: cropped from {}×{} to {w}×{h} (multiples of 8)",
+            path.display(),
+            im.width,
+            im.height
+        );
+        return Ok(im.crop(0, 0, w, h));
+    }
+    Ok(im)
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct ImageScore {
+    pub image: String,
+    pub vs_sharp: Score,
+    pub vs_target: Score,
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct DepthRow {
+    pub accommodation_d: f64,
+    pub vs_sharp: Score,
+    pub vs_target: Score,
+    pub per_image: Vec<ImageScore>,
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct Headline {
+    pub mean: Score,
+    pub worst: Score,
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct MethodResult {
+    pub method: String,
+    /// Content hash of the DOE, for methods with one in the eyepiece.
+    pub doe: Option<String>,
+    pub rows: Vec<DepthRow>,
+    pub headline_vs_sharp: Headline,
+    pub headline_vs_target: Headline,
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct EvalResult {
+    pub calibration: String,
+    pub images: Vec<String>,
+    pub methods: Vec<MethodResult>,
+    pub unavailable: Vec<String>,
+    pub seconds: f64,
+}
+
+fn mean_score(s: &[Score]) -> Score {
+    let n = s.len().max(1) as f64;
+    Score {
+        psnr_db: s.iter().map(|x| x.psnr_db).sum::<f64>() / n,
+        ssim: s.iter().map(|x| x.ssim).sum::<f64>() / n,
+    }
+}
+
+fn headline(rows: &[DepthRow], pick: impl Fn(&DepthRow) -> Score) -> Headline {
+    let s: Vec<Score> = rows
+        .iter()
+        .filter(|r| r.accommodation_d <= HEADLINE_MAX_D + 1e-9)
+        .map(pick)
+        .collect();
+    Headline {
+        mean: mean_score(&s),
+        worst: Score {
+            psnr_db: s.iter().map(|x| x.psnr_db).fold(f64::INFINITY, f64::min),
+            ssim: s.iter().map(|x| x.ssim).fold(f64::INFINITY, f64::min),
+        },
+    }
+}
+
+/// Runs the evaluation and writes `eval.md` and `eval.json` into `out_dir`.
+pub fn run(
+    common: &CommonOptions,
+    images_dir: &Path,
+    out_dir: &Path,
+    methods: &[Method],
+) -> Result<String, AppError> {
+    let start = Instant::now();
+    let files = list_images(images_dir)?;
+    let images: Vec<Image> = files
+        .iter()
+        .map(|f| load_cropped(f))
+        .collect::<Result<_, _>>()?;
+    create_dir(out_dir)?;
+    let sim = Simulator::new(common.calibration()?, common.doe_path(), common.cache())?;
+    let methods: Vec<Method> = if methods.is_empty() {
+        Method::ALL.to_vec()
+    } else {
+        methods.to_vec()
+    };
+    let depths = sim.calib.evaluation_depths_d();
+    let bar = progress_bar("PSFs");
+    let prepared = sim.prepare(&methods, &depths, Some(&bar))?;
+    bar.finish_and_clear();
+
+    let bar = progress_bar("images");
+    bar.set_length((images.len() * methods.len() * depths.len()) as u64);
+    // scores[method][depth][image]
+    let mut scores = vec![vec![Vec::new(); depths.len()]; methods.len()];
+    for (file, input) in files.iter().zip(&images) {
+        let (input, _) = pad_to_multiple_of_8(input, &file.display().to_string());
+        let sharp = input.up2();
+        let targets: Vec<Image> = depths
+            .iter()
+            .map(|d| prepared.target(&input, *d))
+            .collect::<Result<_, _>>()?;
+        for (mi, &m) in methods.iter().enumerate() {
+            let display = prepared.display_image(m, &input);
+            for (di, &d) in depths.iter().enumerate() {
+                let perceived = prepared.perceived(m, &display, d)?;
+                scores[mi][di].push(ImageScore {
+                    image: file.display().to_string(),
+                    vs_sharp: Score::of(&perceived, &sharp),
+                    vs_target: Score::of(&perceived, &targets[di]),
+                });
+                bar.inc(1);
+            }
+        }
+    }
+    bar.finish_and_clear();
+
+    let results: Vec<MethodResult> = methods
+        .iter()
+        .zip(scores)
+        .map(|(m, per_depth)| {
+            let rows: Vec<DepthRow> = depths
+                .iter()
+                .zip(per_depth)
+                .map(|(d, per_image)| DepthRow {
+                    accommodation_d: *d,
+                    vs_sharp: mean_score(&per_image.iter().map(|s| s.vs_sharp).collect::<Vec<_>>()),
+                    vs_target: mean_score(
+                        &per_image.iter().map(|s| s.vs_target).collect::<Vec<_>>(),
+                    ),
+                    per_image,
+                })
+                .collect();
+            MethodResult {
+                method: m.name().to_string(),
+                doe: (m.optics() == Optics::Doe).then(|| sim.doe_hash.clone()),
+                headline_vs_sharp: headline(&rows, |r| r.vs_sharp),
+                headline_vs_target: headline(&rows, |r| r.vs_target),
+                rows,
+            }
+        })
+        .collect();
+    let result = EvalResult {
+        calibration: sim.calib.source.clone(),
+        images: files.iter().map(|f| f.display().to_string()).collect(),
+        methods: results,
+        unavailable: vec![
+            "proposed and lens+dcnn: need the D-CNN inference backends (not built yet)".into(),
+        ],
+        seconds: start.elapsed().as_secs_f64(),
+    };
+    let mut md = markdown(&result, &sim);
+    for (name, r) in &prepared.reports {
+        let _ = writeln!(md, "- PSF model, {name}: {}", r.summary());
+    }
+    let md_path = out_dir.join("eval.md");
+    let json_path = out_dir.join("eval.json");
+    write_text(&md_path, &md)?;
+    let json =
+        serde_json::to_string_pretty(&result).map_err(|e| AppError::output(&json_path, e))?;
+    write_text(&json_path, &json)?;
+    Ok(format!(
+        "{md}\nwrote {} and {}\n",
+        md_path.display(),
+        json_path.display()
+    ))
+}
+
+/// The Fig. 6-style tables, one per reference.
+pub fn markdown(r: &EvalResult, sim: &Simulator) -> String {
+    let mut t = format!(
+        "# Evaluation ({} image{}, {})\n\nImages: {}.  \nDOE: {} ({}).  \nPSNR dB / SSIM on the retinal grid; headline = over 0–{HEADLINE_MAX_D} D.\n",
+        r.images.len(),
+        if r.images.len() == 1 { "" } else { "s" },
+        r.calibration,
+        r.images.join(", "),
+        sim.doe_hash,
+        sim.doe.description
+    );
+    for (title, pick, head) in [
+        ("vs sharp (paper Fig. 6 convention)", 0, 0),
+        (
+            "vs target (multifocal target, the training objective)",
+            1,
+            1,
+        ),
+    ] {
+        let _ = write!(t, "\n## {title}\n\n| D |");
+        for m in &r.methods {
+            let _ = write!(t, " {} |", m.method);
+        }
+        let _ = write!(t, "\n| --- |{}\n", " --- |".repeat(r.methods.len()));
+        let n_depths = r.methods.first().map_or(0, |m| m.rows.len());
+        for di in (0..n_depths).rev() {
+            let _ = write!(t, "| {:.1} |", r.methods[0].rows[di].accommodation_d);
+            for m in &r.methods {
+                let s = if pick == 0 {
+                    m.rows[di].vs_sharp
+                } else {
+                    m.rows[di].vs_target
+                };
+                let _ = write!(t, " {:.2} / {:.3} |", s.psnr_db, s.ssim);
+            }
+            t.push('\n');
+        }
+        for (label, worst) in [("mean", false), ("worst", true)] {
+            let _ = write!(t, "| {label} 0–{HEADLINE_MAX_D} |");
+            for m in &r.methods {
+                let h = if head == 0 {
+                    &m.headline_vs_sharp
+                } else {
+                    &m.headline_vs_target
+                };
+                let s = if worst { h.worst } else { h.mean };
+                let _ = write!(t, " **{:.2} / {:.3}** |", s.psnr_db, s.ssim);
+            }
+            t.push('\n');
+        }
+    }
+    let _ = writeln!(t, "\nNot evaluated: {}.", r.unavailable.join("; "));
+    let _ = writeln!(t, "Wall time {:.1} s.", r.seconds);
+    t
+}

@@ -1,0 +1,129 @@
+//! What the `nedrt` commands do, as library functions with typed options and
+//! printable reports; the binary only parses arguments and calls these.
+
+pub mod eval;
+pub mod plots;
+pub mod sim;
+pub mod tune;
+
+use std::path::{Path, PathBuf};
+
+use indicatif::{ProgressBar, ProgressStyle};
+
+use crate::calib::{CalibError, Calibration};
+use crate::optics::cache::PsfCache;
+
+/// Options every command shares.
+#[derive(Debug, Clone, Default)]
+pub struct CommonOptions {
+    /// Calibration file; `None` = the embedded `calib/default.toml`.
+    pub calib: Option<PathBuf>,
+    /// PSF cache folder; `None` = the default location.
+    pub cache_dir: Option<PathBuf>,
+    pub no_cache: bool,
+    /// DOE height-map file overriding the calibration's.
+    pub doe: Option<PathBuf>,
+}
+
+impl CommonOptions {
+    pub fn calibration(&self) -> Result<Calibration, CalibError> {
+        match &self.calib {
+            Some(p) => Calibration::load(p),
+            None => Calibration::default_embedded(),
+        }
+    }
+
+    pub fn cache(&self) -> PsfCache {
+        if self.no_cache {
+            PsfCache::disabled()
+        } else if let Some(d) = &self.cache_dir {
+            PsfCache {
+                dir: Some(d.clone()),
+            }
+        } else {
+            PsfCache::default_location()
+        }
+    }
+
+    pub fn doe_path(&self) -> Option<&Path> {
+        self.doe.as_deref()
+    }
+}
+
+/// A progress bar on stderr (hidden when stderr is not a terminal).
+pub fn progress_bar(message: &str) -> ProgressBar {
+    let bar = ProgressBar::new(0);
+    bar.set_style(
+        ProgressStyle::with_template(
+            "{msg:>12} [{bar:40}] {pos}/{len} {elapsed_precise} (eta {eta})",
+        )
+        .unwrap_or_else(|_| ProgressStyle::default_bar())
+        .progress_chars("=> "),
+    );
+    bar.set_message(message.to_string());
+    bar
+}
+
+/// Errors of the commands.
+#[derive(Debug, thiserror::Error)]
+pub enum AppError {
+    #[error(transparent)]
+    Calib(#[from] CalibError),
+    #[error(transparent)]
+    Sim(#[from] crate::sim::SimError),
+    #[error(transparent)]
+    Optics(#[from] crate::optics::OpticsError),
+    #[error(transparent)]
+    Doe(#[from] crate::optics::doe_file::DoeError),
+    #[error(transparent)]
+    Image(#[from] crate::sim::image_io::ImageError),
+    #[error("{path}: {reason}")]
+    Output { path: String, reason: String },
+    #[error("{0}")]
+    Usage(String),
+}
+
+impl AppError {
+    pub fn output(path: &Path, reason: impl std::fmt::Display) -> Self {
+        AppError::Output {
+            path: path.display().to_string(),
+            reason: reason.to_string(),
+        }
+    }
+}
+
+/// Writes a text file atomically, naming the file on failure.
+pub fn write_text(path: &Path, text: &str) -> Result<(), AppError> {
+    crate::util::write_atomic(path, text.as_bytes()).map_err(|e| AppError::output(path, e))
+}
+
+/// Creates an output folder, naming it on failure.
+pub fn create_dir(path: &Path) -> Result<(), AppError> {
+    std::fs::create_dir_all(path)
+        .map_err(|e| AppError::output(path, format!("cannot create folder: {e}")))
+}
+
+/// Checks an accommodation: finite and ≥ 0 (errors), inside the calibrated
+/// range (else a warning, returned for printing).
+pub fn check_accommodation(
+    calib: &Calibration,
+    accommodation_d: f64,
+) -> Result<Option<String>, AppError> {
+    if !accommodation_d.is_finite() {
+        return Err(AppError::Usage(format!(
+            "--accom {accommodation_d}: not a number of diopters"
+        )));
+    }
+    if accommodation_d < 0.0 {
+        return Err(AppError::Usage(format!(
+            "--accom {accommodation_d}: accommodation must be ≥ 0 D (0 D is focus at infinity; an eye cannot focus beyond it)"
+        )));
+    }
+    let [lo, hi] = calib.range_d;
+    Ok((accommodation_d < lo || accommodation_d > hi).then(|| {
+        format!(
+            "accommodation {accommodation_d} D lies outside the calibrated range [{lo}, {hi}] D of {}; simulating anyway",
+            calib.source
+        )
+    }))
+}

@@ -1,0 +1,202 @@
+//! `nedrt --sim`: the perceived image at one accommodation, written to a
+//! file and scored against the sharp image and the multifocal target.
+
+use std::fmt::Write as _;
+use std::path::PathBuf;
+use std::time::Instant;
+
+use super::{AppError, CommonOptions, check_accommodation, progress_bar};
+use crate::sim::image_io::{self, DEFAULT_INPUT_NAME, DEFAULT_INPUT_PNG, LoadedImage};
+use crate::sim::metrics::{psnr, ssim};
+use crate::sim::{Image, Method, Optics, Simulator};
+
+/// Options of `nedrt --sim`.
+#[derive(Debug, Clone)]
+pub struct SimOptions {
+    pub accommodation_d: f64,
+    /// Input image; `None` = the shipped test image.
+    pub input: Option<PathBuf>,
+    pub method: Method,
+    pub out: PathBuf,
+    /// Simulate this display image instead of a method's preprocessing.
+    pub display_image: Option<PathBuf>,
+    /// Optics for `display_image`.
+    pub optics: Optics,
+}
+
+/// PSNR and SSIM of a perceived image against one reference.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct Score {
+    pub psnr_db: f64,
+    pub ssim: f64,
+}
+
+impl Score {
+    pub fn of(perceived: &Image, reference: &Image) -> Self {
+        Self {
+            psnr_db: psnr(perceived, reference),
+            ssim: ssim(perceived, reference),
+        }
+    }
+}
+
+/// Everything `nedrt --sim` reports.
+#[derive(Debug, Clone)]
+pub struct SimReport {
+    pub text: String,
+    pub vs_sharp: Score,
+    pub vs_target: Score,
+}
+
+impl std::fmt::Display for SimReport {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.text)
+    }
+}
+
+/// Pads to multiples of 8 (symmetric reflection) as the D-CNN needs; returns
+/// the padded image and a note when it padded.
+pub fn pad_to_multiple_of_8(image: &Image, name: &str) -> (Image, Option<String>) {
+    let (w, h) = (image.width, image.height);
+    let (pw, ph) = (w.div_ceil(8) * 8, h.div_ceil(8) * 8);
+    if (pw, ph) == (w, h) {
+        return (image.clone(), None);
+    }
+    let note = format!(
+        "{name}: {w}×{h} is not a multiple of 8; padded to {pw}×{ph} by reflection for processing, results cropped back to {w}×{h}"
+    );
+    (image.extend_symmetric(0, 0, pw, ph), Some(note))
+}
+
+pub fn load_input(input: Option<&std::path::Path>) -> Result<(LoadedImage, String), AppError> {
+    Ok(match input {
+        Some(p) => (image_io::load(p)?, p.display().to_string()),
+        None => (
+            image_io::decode(DEFAULT_INPUT_PNG, DEFAULT_INPUT_NAME)?,
+            DEFAULT_INPUT_NAME.to_string(),
+        ),
+    })
+}
+
+/// Runs one simulation. Warnings (accommodation range, conversions) are
+/// logged through `tracing` as they arise.
+pub fn run(common: &CommonOptions, opts: &SimOptions) -> Result<SimReport, AppError> {
+    let start = Instant::now();
+    let calib = common.calibration()?;
+    if let Some(w) = check_accommodation(&calib, opts.accommodation_d)? {
+        tracing::warn!("{w}");
+    }
+    let (loaded, input_name) = load_input(opts.input.as_deref())?;
+    for n in &loaded.notes {
+        tracing::warn!("{n}");
+    }
+    let original = loaded.image;
+    let (input, pad_note) = pad_to_multiple_of_8(&original, &input_name);
+    if let Some(n) = &pad_note {
+        tracing::warn!("{n}");
+    }
+    let display_loaded = match &opts.display_image {
+        Some(p) => {
+            let l = image_io::load(p)?;
+            for n in &l.notes {
+                tracing::warn!("{n}");
+            }
+            if (l.image.width, l.image.height) != (original.width, original.height) {
+                return Err(AppError::Usage(format!(
+                    "{}: display image is {}×{}, the input {input_name} is {}×{}; they must match",
+                    p.display(),
+                    l.image.width,
+                    l.image.height,
+                    original.width,
+                    original.height
+                )));
+            }
+            Some(pad_to_multiple_of_8(&l.image, &p.display().to_string()).0)
+        }
+        None => None,
+    };
+
+    let sim = Simulator::new(calib, common.doe_path(), common.cache())?;
+    let method = match (&display_loaded, opts.optics) {
+        (Some(_), Optics::Lens) => Method::Conventional,
+        (Some(_), Optics::Doe) => Method::DoeOnly,
+        (None, _) => opts.method,
+    };
+    let bar = progress_bar("PSFs");
+    let prepared = sim.prepare(&[method], &[opts.accommodation_d], Some(&bar))?;
+    bar.finish_and_clear();
+    let display = match &display_loaded {
+        Some(d) => d.clone(),
+        None => prepared.display_image(method, &input),
+    };
+    let perceived = prepared.perceived(method, &display, opts.accommodation_d)?;
+    let target = prepared.target(&input, opts.accommodation_d)?;
+    let sharp = input.up2();
+    // Back to the input's own size (2× on the retinal grid).
+    let (rw, rh) = (2 * original.width, 2 * original.height);
+    let crop = |im: &Image| im.crop(0, 0, rw, rh);
+    let (perceived, target, sharp) = (crop(&perceived), crop(&target), crop(&sharp));
+    image_io::save_png16(&perceived, &opts.out)?;
+    let vs_sharp = Score::of(&perceived, &sharp);
+    let vs_target = Score::of(&perceived, &target);
+
+    let c = &sim.calib;
+    let mut t = String::new();
+    let what = match &opts.display_image {
+        Some(p) => format!(
+            "display image {} through {}",
+            p.display(),
+            if opts.optics == Optics::Doe {
+                "lens + DOE"
+            } else {
+                "lens"
+            }
+        ),
+        None => format!("method {method}"),
+    };
+    let _ = writeln!(
+        t,
+        "nedrt sim: {what} at {} D ({})",
+        opts.accommodation_d, c.source
+    );
+    if method.optics() == Optics::Doe {
+        let _ = writeln!(t, "DOE       {} ({})", sim.doe_hash, sim.doe.description);
+    }
+    let _ = writeln!(
+        t,
+        "input     {input_name} ({}×{})",
+        original.width, original.height
+    );
+    let _ = writeln!(
+        t,
+        "wrote     {} ({}×{}, retinal grid {:.3} arcmin, 16-bit PNG)",
+        opts.out.display(),
+        rw,
+        rh,
+        c.retinal_step_rad().to_degrees() * 60.0
+    );
+    let target_kind = if c.is_main_depth(opts.accommodation_d) {
+        "sharp input: a main depth"
+    } else {
+        "input blurred by h_b: not a main depth"
+    };
+    let _ = writeln!(
+        t,
+        "vs sharp  PSNR {:6.2} dB  SSIM {:.4}",
+        vs_sharp.psnr_db, vs_sharp.ssim
+    );
+    let _ = writeln!(
+        t,
+        "vs target PSNR {:6.2} dB  SSIM {:.4}  (target: {target_kind})",
+        vs_target.psnr_db, vs_target.ssim
+    );
+    for (name, r) in &prepared.reports {
+        let _ = writeln!(t, "model     {name}: {}", r.summary());
+    }
+    let _ = write!(t, "time      {:.2} s", start.elapsed().as_secs_f64());
+    Ok(SimReport {
+        text: t,
+        vs_sharp,
+        vs_target,
+    })
+}

@@ -1,0 +1,224 @@
+//! `nedrt`: the command line. Parses arguments and calls [`nedrt::app`];
+//! errors are printed on one line with a non-zero exit.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use anyhow::{Context, Result, bail};
+use clap::{Args, Parser, Subcommand, ValueEnum};
+use nedrt::app::{self, CommonOptions};
+use nedrt::sim::{Method, Optics};
+
+#[derive(Parser, Debug)]
+#[command(
+    name = "nedrt",
+    version,
+    about = "Simulator and runtime of a computational multifocal near-eye display (lens + DOE + D-CNN)",
+    args_conflicts_with_subcommands = true,
+    after_help = "Examples:\n  nedrt --sim --accom 1.0\n  nedrt --sim --accom 0.5 --method doe+wiener --out p.png\n  nedrt psf --out-dir out/psf\n  nedrt eval --images data/images/test"
+)]
+struct Cli {
+    #[command(flatten)]
+    global: GlobalArgs,
+    #[command(subcommand)]
+    command: Option<Command>,
+    /// Render the perceived image at one accommodation and score it.
+    #[arg(long)]
+    sim: bool,
+    #[command(flatten)]
+    sim_args: SimArgs,
+}
+
+#[derive(Args, Debug)]
+struct GlobalArgs {
+    /// Calibration TOML (default: the embedded calib/default.toml).
+    #[arg(long, global = true, value_name = "FILE")]
+    calib: Option<PathBuf>,
+    /// DOE height-map file (default: the calibration's, else the three-lens initialisation).
+    #[arg(long, global = true, value_name = "FILE")]
+    doe: Option<PathBuf>,
+    /// PSF cache folder (default: $NEDRT_CACHE_DIR, $XDG_CACHE_HOME/nedrt or ~/.cache/nedrt).
+    #[arg(long, global = true, value_name = "DIR")]
+    cache_dir: Option<PathBuf>,
+    /// Compute every PSF afresh and store nothing.
+    #[arg(long, global = true)]
+    no_cache: bool,
+    /// More log output (-v: debug, -vv: trace); NEDRT_LOG overrides.
+    #[arg(short, long, global = true, action = clap::ArgAction::Count)]
+    verbose: u8,
+}
+
+#[derive(Args, Debug)]
+struct SimArgs {
+    /// Accommodation of the eye in diopters (0 = infinity).
+    #[arg(long, value_name = "D", allow_negative_numbers = true)]
+    accom: Option<f64>,
+    /// Input image (default: the shipped data/images/test/astronaut.png).
+    #[arg(long, value_name = "IMG")]
+    input: Option<PathBuf>,
+    /// Display system: conventional, ai, doe-only, doe+wiener.
+    #[arg(long, default_value = "conventional", value_parser = parse_method)]
+    method: Method,
+    /// Output PNG (16-bit) of the perceived image on the retinal grid.
+    #[arg(long, default_value = "perceived.png", value_name = "FILE")]
+    out: PathBuf,
+    /// Simulate this display image (same size as the input) instead of a method.
+    #[arg(long, value_name = "FILE")]
+    display_image: Option<PathBuf>,
+    /// Optics that --display-image is seen through.
+    #[arg(long, value_enum, default_value = "doe")]
+    optics: OpticsArg,
+}
+
+#[derive(ValueEnum, Clone, Copy, Debug)]
+enum OpticsArg {
+    Lens,
+    Doe,
+}
+
+fn parse_method(s: &str) -> Result<Method, String> {
+    s.parse()
+}
+
+#[derive(Subcommand, Debug)]
+enum Command {
+    /// PSF cross-sections against accommodation (paper Fig. 4b): PNG, SVG, CSV.
+    Psf(PlotArgs),
+    /// MTFs (paper Fig. 5): at 0.5 D against CPD, and against depth at 1, 5, 10 CPD.
+    Mtf(PlotArgs),
+    /// The DOE height map (paper Fig. 4a); `--write-init FILE` saves the three-lens DOE.
+    Doe(DoeArgs),
+    /// The Fig. 6 table: every method × 0…3 D on a folder of images.
+    Eval(EvalArgs),
+    /// Search the Wiener constant K on training images (quarter decades).
+    TuneWiener(TuneArgs),
+    /// Print the resolved calibration and the quantities derived from it.
+    Calib,
+}
+
+#[derive(Args, Debug)]
+struct PlotArgs {
+    /// Output folder.
+    #[arg(long, default_value = "out", value_name = "DIR")]
+    out_dir: PathBuf,
+    /// Accommodation step of the sweep (D).
+    #[arg(long, default_value_t = 0.1, value_name = "D")]
+    step: f64,
+}
+
+#[derive(Args, Debug)]
+struct DoeArgs {
+    #[arg(long, default_value = "out", value_name = "DIR")]
+    out_dir: PathBuf,
+    /// Write the three-lens initial DOE (design pitch) to this file and exit.
+    #[arg(long, value_name = "FILE")]
+    write_init: Option<PathBuf>,
+    /// Also write the DOE resampled (bicubic) to the fabrication pitch to this file.
+    #[arg(long, value_name = "FILE")]
+    write_fabrication: Option<PathBuf>,
+}
+
+#[derive(Args, Debug)]
+struct EvalArgs {
+    /// Folder of test images (PNG, JPEG, TIFF).
+    #[arg(long, value_name = "DIR")]
+    images: PathBuf,
+    #[arg(long, default_value = "out/eval", value_name = "DIR")]
+    out_dir: PathBuf,
+    /// Methods to evaluate (default: all available).
+    #[arg(long, value_delimiter = ',', value_parser = parse_method)]
+    methods: Vec<Method>,
+}
+
+#[derive(Args, Debug)]
+struct TuneArgs {
+    /// Training images.
+    #[arg(long, default_value = "data/images/train", value_name = "DIR")]
+    images: PathBuf,
+    /// ai or doe+wiener.
+    #[arg(long, value_parser = parse_method)]
+    method: Method,
+    /// Write the chosen K into the calibration file (comments kept).
+    #[arg(long)]
+    write: bool,
+}
+
+fn init_logging(verbose: u8) {
+    let default = match verbose {
+        0 => "nedrt=info",
+        1 => "nedrt=debug",
+        _ => "nedrt=trace",
+    };
+    let filter = tracing_subscriber::EnvFilter::try_from_env("NEDRT_LOG")
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(default));
+    tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr)
+        .with_target(false)
+        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
+        .without_time()
+        .init();
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    init_logging(cli.global.verbose);
+    match run(cli) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {}", format!("{e:#}").replace('\n', " "));
+            ExitCode::FAILURE
+        }
+    }
+}
+
+fn run(cli: Cli) -> Result<()> {
+    let g = &cli.global;
+    let common = CommonOptions {
+        calib: g.calib.clone(),
+        cache_dir: g.cache_dir.clone(),
+        no_cache: g.no_cache,
+        doe: g.doe.clone(),
+    };
+    match cli.command {
+        Some(Command::Psf(a)) => print!("{}", app::plots::psf(&common, &a.out_dir, a.step)?),
+        Some(Command::Mtf(a)) => print!("{}", app::plots::mtf(&common, &a.out_dir, a.step)?),
+        Some(Command::Doe(a)) => print!(
+            "{}",
+            app::plots::doe(
+                &common,
+                &a.out_dir,
+                a.write_init.as_deref(),
+                a.write_fabrication.as_deref()
+            )?
+        ),
+        Some(Command::Eval(a)) => print!(
+            "{}",
+            app::eval::run(&common, &a.images, &a.out_dir, &a.methods)?
+        ),
+        Some(Command::TuneWiener(a)) => {
+            print!("{}", app::tune::run(&common, &a.images, a.method, a.write)?)
+        }
+        Some(Command::Calib) => print!("{}", app::plots::calib_summary(&common)?),
+        None if cli.sim => {
+            let s = cli.sim_args;
+            let accommodation_d = s
+                .accom
+                .context("--sim needs --accom D (the eye's accommodation in diopters)")?;
+            let opts = app::sim::SimOptions {
+                accommodation_d,
+                input: s.input,
+                method: s.method,
+                out: s.out,
+                display_image: s.display_image,
+                optics: match s.optics {
+                    OpticsArg::Lens => Optics::Lens,
+                    OpticsArg::Doe => Optics::Doe,
+                },
+            };
+            println!("{}", app::sim::run(&common, &opts)?);
+        }
+        None => bail!("nothing to do: give --sim --accom D or a command (see nedrt --help)"),
+    }
+    Ok(())
+}
