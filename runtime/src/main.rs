@@ -14,7 +14,6 @@ use nedrt::sim::{Method, Optics};
     name = "nedrt",
     version,
     about = "Simulator and runtime of a computational multifocal near-eye display (lens + DOE + D-CNN)",
-    args_conflicts_with_subcommands = true,
     after_help = "Examples:\n  nedrt --sim --accom 1.0\n  nedrt --sim --accom 0.5 --method doe+wiener --out p.png\n  nedrt psf --out-dir out/psf\n  nedrt eval --images data/images/test"
 )]
 struct Cli {
@@ -180,6 +179,9 @@ fn run(cli: Cli) -> Result<()> {
         no_cache: g.no_cache,
         doe: g.doe.clone(),
     };
+    if cli.command.is_some() && (cli.sim || cli.sim_args.accom.is_some()) {
+        bail!("--sim and --accom cannot be combined with a command");
+    }
     match cli.command {
         Some(Command::Psf(a)) => print!("{}", app::plots::psf(&common, &a.out_dir, a.step)?),
         Some(Command::Mtf(a)) => print!("{}", app::plots::mtf(&common, &a.out_dir, a.step)?),

@@ -1,0 +1,459 @@
+//! End-to-end tests of the `nedrt` binary: the README's main command, every
+//! kind of bad input named in the issue (a clear one-line error, non-zero
+//! exit, nothing half-written), the PSF cache, eval and the plots.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+fn nedrt() -> Command {
+    let mut c = Command::new(env!("CARGO_BIN_EXE_nedrt"));
+    // One shared cache for the whole test run, inside the build folder.
+    c.env(
+        "NEDRT_CACHE_DIR",
+        Path::new(env!("CARGO_TARGET_TMPDIR")).join("psf-cache"),
+    );
+    c.env_remove("NEDRT_LOG");
+    c
+}
+
+fn repo() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
+}
+
+fn small_calib() -> PathBuf {
+    repo().join("tests/data/small-aperture.toml")
+}
+
+fn run(args: &[&str]) -> Output {
+    nedrt().args(args).output().expect("run nedrt")
+}
+
+fn stdout(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stdout).into_owned()
+}
+
+fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+/// A failure: non-zero exit and exactly one `error:` line naming `needle`.
+fn assert_clean_error(o: &Output, needle: &str) {
+    let err = stderr(o);
+    assert!(
+        !o.status.success(),
+        "expected failure, got success; stderr: {err}"
+    );
+    assert!(!err.contains("panicked"), "panic: {err}");
+    let lines: Vec<&str> = err.lines().filter(|l| l.starts_with("error:")).collect();
+    assert_eq!(lines.len(), 1, "one error line expected: {err}");
+    assert!(
+        lines[0].contains(needle),
+        "error should mention {needle:?}: {}",
+        lines[0]
+    );
+}
+
+fn write_png(path: &Path, w: u32, h: u32) {
+    let img = image::RgbImage::from_fn(w, h, |x, y| {
+        image::Rgb([
+            (x * 7 % 256) as u8,
+            (y * 5 % 256) as u8,
+            ((x + y) % 256) as u8,
+        ])
+    });
+    img.save(path).expect("write png");
+}
+
+#[test]
+fn readme_main_command_runs_on_shipped_defaults() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let out = dir.path().join("perceived.png");
+    let o = run(&[
+        "--sim",
+        "--accom",
+        "1.0",
+        "--out",
+        out.to_str().expect("utf8"),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let s = stdout(&o);
+    for needle in [
+        "vs sharp",
+        "vs target",
+        "pupil step",
+        "window",
+        "veil",
+        "sub-sampled",
+        "time",
+    ] {
+        assert!(s.contains(needle), "missing {needle:?} in:\n{s}");
+    }
+    let img = image::open(&out).expect("perceived image");
+    assert_eq!(
+        (img.width(), img.height()),
+        (1024, 1024),
+        "retinal grid is 2× the display"
+    );
+    // Second run: PSFs come from the cache.
+    let o = run(&[
+        "--sim",
+        "--accom",
+        "1.0",
+        "--out",
+        out.to_str().expect("utf8"),
+    ]);
+    assert!(stdout(&o).contains("from cache"), "{}", stdout(&o));
+}
+
+#[test]
+fn bad_images_are_clear_errors() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let out = dir.path().join("p.png");
+    let o = run(&[
+        "--sim",
+        "--accom",
+        "1",
+        "--input",
+        "/no/such.png",
+        "--out",
+        out.to_str().expect("utf8"),
+    ]);
+    assert_clean_error(&o, "/no/such.png: cannot read image");
+    let junk = dir.path().join("junk.png");
+    std::fs::write(&junk, b"this is not an image").expect("write");
+    let o = run(&[
+        "--sim",
+        "--accom",
+        "1",
+        "--input",
+        junk.to_str().expect("utf8"),
+        "--out",
+        out.to_str().expect("utf8"),
+    ]);
+    assert_clean_error(&o, "cannot decode image");
+    let nan = dir.path().join("nan.tif");
+    let mut im = image::Rgb32FImage::from_pixel(16, 16, image::Rgb([0.5, 0.5, 0.5]));
+    im.put_pixel(3, 4, image::Rgb([f32::NAN, 0.5, 0.5]));
+    image::DynamicImage::ImageRgb32F(im)
+        .save(&nan)
+        .expect("tiff");
+    let o = run(&[
+        "--sim",
+        "--accom",
+        "1",
+        "--input",
+        nan.to_str().expect("utf8"),
+        "--out",
+        out.to_str().expect("utf8"),
+    ]);
+    assert_clean_error(&o, "pixel 3,4 channel 0 is NaN");
+    assert!(!out.exists(), "nothing written on failure");
+}
+
+#[test]
+fn odd_gray_and_16_bit_images_are_converted_and_said_so() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let odd = dir.path().join("odd.png");
+    write_png(&odd, 37, 29);
+    let out = dir.path().join("p.png");
+    let o = run(&[
+        "--sim",
+        "--accom",
+        "0.5",
+        "--input",
+        odd.to_str().expect("utf8"),
+        "--out",
+        out.to_str().expect("utf8"),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(
+        stderr(&o).contains("not a multiple of 8; padded to 40×32"),
+        "{}",
+        stderr(&o)
+    );
+    let img = image::open(&out).expect("out");
+    assert_eq!(
+        (img.width(), img.height()),
+        (74, 58),
+        "cropped back to 2× the input"
+    );
+
+    let g16 = dir.path().join("g16.png");
+    image::ImageBuffer::<image::Luma<u16>, Vec<u16>>::from_fn(24, 16, |x, _| {
+        image::Luma([x as u16 * 2000])
+    })
+    .save(&g16)
+    .expect("png16");
+    let o = run(&[
+        "--sim",
+        "--accom",
+        "0.5",
+        "--input",
+        g16.to_str().expect("utf8"),
+        "--out",
+        out.to_str().expect("utf8"),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let e = stderr(&o);
+    assert!(
+        e.contains("grayscale image converted to RGB") && e.contains("16-bit image converted"),
+        "{e}"
+    );
+}
+
+#[test]
+fn accommodation_is_checked() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let input = dir.path().join("in.png");
+    write_png(&input, 16, 16);
+    let out = dir.path().join("p.png");
+    let base = [
+        "--sim",
+        "--input",
+        input.to_str().expect("utf8"),
+        "--out",
+        out.to_str().expect("utf8"),
+    ];
+    let o = run(&[&base[..], &["--accom", "-0.5"]].concat());
+    assert_clean_error(&o, "accommodation must be ≥ 0 D");
+    let o = run(&[&base[..], &["--accom", "4"]].concat());
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(
+        stderr(&o).contains("outside the calibrated range"),
+        "{}",
+        stderr(&o)
+    );
+    let o = run(&base);
+    assert_clean_error(&o, "--sim needs --accom");
+    let o = run(&[&base[..], &["--accom", "1", "--method", "proposed"]].concat());
+    assert!(
+        !o.status.success() && stderr(&o).contains("D-CNN"),
+        "{}",
+        stderr(&o)
+    );
+}
+
+#[test]
+fn malformed_calibration_and_doe_files_are_clear_errors() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let bad = dir.path().join("bad.toml");
+    std::fs::write(&bad, "[panel\npixel_pitch_um = 8.7").expect("write");
+    let o = run(&[
+        "--calib",
+        bad.to_str().expect("utf8"),
+        "--sim",
+        "--accom",
+        "1",
+    ]);
+    assert_clean_error(&o, "bad.toml: malformed TOML");
+    let phys = dir.path().join("phys.toml");
+    let text = std::fs::read_to_string(repo().join("calib/default.toml")).expect("calib");
+    std::fs::write(
+        &phys,
+        text.replace("lens_distance_mm = 28.57", "lens_distance_mm = 31"),
+    )
+    .expect("write");
+    let o = run(&[
+        "--calib",
+        phys.to_str().expect("utf8"),
+        "--sim",
+        "--accom",
+        "1",
+    ]);
+    assert_clean_error(&o, "no virtual image");
+
+    let doe = dir.path().join("doe.safetensors");
+    std::fs::write(&doe, b"\x08\x00\x00\x00\x00\x00\x00\x00{}      ").expect("write");
+    let o = run(&[
+        "--doe",
+        doe.to_str().expect("utf8"),
+        "--sim",
+        "--accom",
+        "1",
+        "--method",
+        "doe-only",
+    ]);
+    assert_clean_error(&o, "invalid DOE file");
+    // A valid file whose grid is too coarse for the aperture it is used with.
+    let init = dir.path().join("init.safetensors");
+    let o = run(&[
+        "--calib",
+        small_calib().to_str().expect("utf8"),
+        "doe",
+        "--write-init",
+        init.to_str().expect("utf8"),
+        "--out-dir",
+        dir.path().to_str().expect("utf8"),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let o = run(&[
+        "--doe",
+        init.to_str().expect("utf8"),
+        "--sim",
+        "--accom",
+        "1",
+        "--method",
+        "doe-only",
+    ]);
+    assert_clean_error(&o, "does not cover");
+}
+
+#[test]
+fn display_image_must_match_and_outputs_must_be_writable() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let input = dir.path().join("in.png");
+    let disp = dir.path().join("d.png");
+    write_png(&input, 16, 16);
+    write_png(&disp, 24, 16);
+    let o = run(&[
+        "--sim",
+        "--accom",
+        "1",
+        "--input",
+        input.to_str().expect("utf8"),
+        "--display-image",
+        disp.to_str().expect("utf8"),
+    ]);
+    assert_clean_error(&o, "must match");
+    let o = run(&[
+        "--sim",
+        "--accom",
+        "1",
+        "--input",
+        input.to_str().expect("utf8"),
+        "--out",
+        "/no/such/dir/p.png",
+    ]);
+    assert_clean_error(&o, "cannot write image");
+    let o = run(&[
+        "--sim",
+        "--accom",
+        "1",
+        "--input",
+        input.to_str().expect("utf8"),
+        "--out",
+        dir.path().join("p.jpg").to_str().expect("utf8"),
+    ]);
+    assert_clean_error(&o, "unsupported extension");
+}
+
+#[test]
+fn display_image_is_simulated_through_the_chosen_optics() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let input = dir.path().join("in.png");
+    write_png(&input, 16, 16);
+    let out = dir.path().join("p.png");
+    let calib = small_calib();
+    let o = run(&[
+        "--calib",
+        calib.to_str().expect("utf8"),
+        "--sim",
+        "--accom",
+        "1.5",
+        "--input",
+        input.to_str().expect("utf8"),
+        "--display-image",
+        input.to_str().expect("utf8"),
+        "--out",
+        out.to_str().expect("utf8"),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(stdout(&o).contains("through lens + DOE"), "{}", stdout(&o));
+}
+
+#[test]
+fn eval_writes_fig6_tables() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let imgs = dir.path().join("imgs");
+    std::fs::create_dir(&imgs).expect("dir");
+    write_png(&imgs.join("a.png"), 24, 16);
+    write_png(&imgs.join("b.png"), 19, 21);
+    let out = dir.path().join("eval");
+    let o = run(&[
+        "--calib",
+        small_calib().to_str().expect("utf8"),
+        "eval",
+        "--images",
+        imgs.to_str().expect("utf8"),
+        "--out-dir",
+        out.to_str().expect("utf8"),
+        "--methods",
+        "conventional,doe-only",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(
+        stderr(&o).contains("cropped from 19×21 to 16×16"),
+        "{}",
+        stderr(&o)
+    );
+    let md = std::fs::read_to_string(out.join("eval.md")).expect("md");
+    for needle in [
+        "vs sharp",
+        "vs target",
+        "| 3.0 |",
+        "| 0.0 |",
+        "mean 0–2.5",
+        "worst 0–2.5",
+        "conventional",
+        "doe-only",
+    ] {
+        assert!(md.contains(needle), "{needle:?} missing from\n{md}");
+    }
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("eval.json")).expect("json"))
+            .expect("parse");
+    assert_eq!(
+        json["methods"][0]["rows"].as_array().expect("rows").len(),
+        7
+    );
+    assert!(
+        json["methods"][1]["doe"].is_string(),
+        "DOE rows name their DOE"
+    );
+    let o = run(&[
+        "eval",
+        "--images",
+        dir.path().join("nothing").to_str().expect("utf8"),
+    ]);
+    assert_clean_error(&o, "cannot read folder");
+}
+
+#[test]
+fn plots_are_written() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let calib = small_calib();
+    let c = calib.to_str().expect("utf8");
+    let d = dir.path().to_str().expect("utf8");
+    for cmd in [
+        vec!["mtf", "--step", "0.5"],
+        vec!["psf", "--step", "0.5"],
+        vec!["doe"],
+    ] {
+        let o = run(&[&["--calib", c][..], &cmd, &["--out-dir", d]].concat());
+        assert!(o.status.success(), "{cmd:?}: {}", stderr(&o));
+    }
+    for f in [
+        "mtf.png",
+        "mtf.svg",
+        "mtf.csv",
+        "psf_cross_sections.png",
+        "psf_cross_sections.csv",
+        "doe_height_map.png",
+        "doe_cross_sections.csv",
+    ] {
+        let p = dir.path().join(f);
+        assert!(
+            p.metadata().map(|m| m.len() > 100).unwrap_or(false),
+            "{f} missing or empty"
+        );
+    }
+    let csv = std::fs::read_to_string(dir.path().join("mtf.csv")).expect("csv");
+    // At 0 CPD every MTF is 1 less its veil.
+    let zero: Vec<f64> = csv
+        .lines()
+        .filter(|l| l.starts_with("a,") && l.split(',').nth(4) == Some("0"))
+        .map(|l| l.rsplit(',').next().expect("v").parse().expect("f"))
+        .collect();
+    assert_eq!(zero.len(), 4);
+    assert!(zero.iter().all(|v| *v <= 1.0 && *v > 0.9), "{zero:?}");
+}
