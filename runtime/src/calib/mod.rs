@@ -303,7 +303,7 @@ impl Calibration {
                 cell_convergence_l1: s.cell_convergence_l1,
                 min_pupil_samples: s.min_pupil_samples,
                 max_pupil_samples: s.max_pupil_samples,
-                pupil_step_m: (s.pupil_step_um > 0.0).then(|| s.pupil_step_um * 1e-6),
+                pupil_step_m: (s.pupil_step_um > 0.0).then_some(s.pupil_step_um * 1e-6),
             },
         })
     }

@@ -72,29 +72,27 @@ impl PsfCache {
         tick: &(dyn Fn() + Sync),
     ) -> Result<PsfSet, OpticsError> {
         let key = Self::key(calib, request);
-        if let Some(path) = self.path(&key) {
-            if path.exists() {
-                match read(&path, request.specs.len()) {
-                    Ok(mut set) => {
-                        set.report.from_cache = true;
-                        tracing::debug!("PSFs from cache {}", path.display());
-                        return Ok(set);
-                    }
-                    Err(e) => tracing::warn!(
-                        "{}: ignoring damaged PSF cache entry ({e}); recomputing",
-                        path.display()
-                    ),
+        if let Some(path) = self.path(&key).filter(|p| p.exists()) {
+            match read(&path, request.specs.len()) {
+                Ok(mut set) => {
+                    set.report.from_cache = true;
+                    tracing::debug!("PSFs from cache {}", path.display());
+                    return Ok(set);
                 }
+                Err(e) => tracing::warn!(
+                    "{}: ignoring damaged PSF cache entry ({e}); recomputing",
+                    path.display()
+                ),
             }
         }
         let set = compute_psfs(calib, request, tick)?;
-        if let Some(path) = self.path(&key) {
-            if let Err(e) = write(&path, &set) {
-                tracing::warn!(
-                    "{}: cannot write PSF cache ({e}); continuing without it",
-                    path.display()
-                );
-            }
+        if let Some(path) = self.path(&key)
+            && let Err(e) = write(&path, &set)
+        {
+            tracing::warn!(
+                "{}: cannot write PSF cache ({e}); continuing without it",
+                path.display()
+            );
         }
         Ok(set)
     }

@@ -293,7 +293,7 @@ mod tests {
         let ch = c.design_channel;
         let k = c.doe_phase_per_m(ch);
         let r = c.aperture_radius_m;
-        let mut sums = vec![c64::new(0.0, 0.0); 3];
+        let mut sums = [c64::new(0.0, 0.0); 3];
         let mut count = 0.0;
         for i in 0..doe.samples {
             for j in 0..doe.samples {

@@ -200,7 +200,7 @@ pub fn compute_psfs(
                     .map(|s| s.grid.step_m)
                     .fold(f64::MAX, f64::min)
                     / 2.0;
-                min_period = 2 * min_period;
+                min_period *= 2;
                 tracing::debug!(
                     "window outgrew the period; refining the pupil step to {:.3} µm",
                     step_cap * 1e6

@@ -103,7 +103,7 @@ pub fn smooth_size_at_least(x: f64) -> usize {
     loop {
         let mut k = n;
         for p in [2, 3, 5] {
-            while k % p == 0 {
+            while k.is_multiple_of(p) {
                 k /= p;
             }
         }

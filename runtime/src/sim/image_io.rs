@@ -90,7 +90,7 @@ pub fn decode(bytes: &[u8], name: &str) -> Result<LoadedImage, ImageError> {
         ));
     }
     let rgb = img.to_rgb32f();
-    let mut planes = vec![Vec::with_capacity(w * h); 3];
+    let mut planes: Vec<Vec<f32>> = (0..3).map(|_| Vec::with_capacity(w * h)).collect();
     for (x, y, p) in rgb.enumerate_pixels() {
         for (c, v) in p.0.iter().enumerate() {
             if !v.is_finite() {

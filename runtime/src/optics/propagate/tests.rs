@@ -142,7 +142,7 @@ fn window_energies_and_crop_are_centred() {
     let p = 5;
     let mut period = vec![0.0; 25];
     period[2 * 5 + 2] = 0.5; // on axis
-    period[1 * 5 + 3] = 0.25; // one ring out
+    period[5 + 3] = 0.25; // one ring out
     period[0] = 0.25; // corner, two rings out
     assert_eq!(centred_window_energies(&period, p), vec![0.5, 0.75, 1.0]);
     let crop = crop_centred(&period, p, 3);
