@@ -37,3 +37,6 @@ pub enum OpticsError {
     #[error(transparent)]
     Doe(#[from] doe_file::DoeError),
 }
+
+#[cfg(test)]
+mod golden_tests;
