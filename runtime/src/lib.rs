@@ -6,6 +6,7 @@
 pub mod app;
 pub mod calib;
 pub mod charts;
+pub mod golden;
 pub mod optics;
 pub mod sim;
 pub mod util;

@@ -5,13 +5,18 @@ use super::propagate::mft_cells;
 use super::pupil::{PupilGrid, pupil_field};
 
 fn golden() -> serde_json::Value {
-    serde_json::from_str(include_str!("../../../tests/golden/hcipy_defocus.json")).expect("golden json")
+    serde_json::from_str(include_str!("../../../tests/golden/hcipy_defocus.json"))
+        .expect("golden json")
 }
 
 fn ours(g: &serde_json::Value) -> Vec<f64> {
     let f = |k: &str| g[k].as_f64().expect(k);
     let grid = PupilGrid::covering(f("aperture_radius_m"), f("pupil_step_m"));
-    assert_eq!(grid.samples as u64, g["pupil_samples"].as_u64().expect("n"), "same grid as the golden");
+    assert_eq!(
+        grid.samples as u64,
+        g["pupil_samples"].as_u64().expect("n"),
+        "same grid as the golden"
+    );
     let q = pupil_field(grid, f("aperture_radius_m"), f("psi_rad"), None);
     let w = g["window"].as_u64().expect("w") as usize;
     let sub = g["sub_samples"].as_u64().expect("sub") as usize;
@@ -19,7 +24,12 @@ fn ours(g: &serde_json::Value) -> Vec<f64> {
 }
 
 fn values(g: &serde_json::Value, key: &str) -> Vec<f64> {
-    g[key].as_array().expect(key).iter().map(|v| v.as_f64().expect("f64")).collect()
+    g[key]
+        .as_array()
+        .expect(key)
+        .iter()
+        .map(|v| v.as_f64().expect("f64"))
+        .collect()
 }
 
 #[test]
@@ -29,8 +39,15 @@ fn defocused_psf_matches_hcipy_propagation_to_round_off() {
     let mine = ours(&g);
     let theirs = values(&g, "nedrt_pupil");
     let peak = theirs.iter().cloned().fold(0.0, f64::max);
-    let worst = mine.iter().zip(&theirs).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max);
-    assert!(worst < 1e-9 * peak, "largest difference {worst:e} (peak {peak:e})");
+    let worst = mine
+        .iter()
+        .zip(&theirs)
+        .map(|(a, b)| (a - b).abs())
+        .fold(0.0, f64::max);
+    assert!(
+        worst < 1e-9 * peak,
+        "largest difference {worst:e} (peak {peak:e})"
+    );
 }
 
 #[test]
@@ -42,8 +59,16 @@ fn defocused_psf_matches_hcipy_with_its_own_aperture() {
     let mine = ours(&g);
     let theirs = values(&g, "hcipy_aperture");
     let peak = theirs.iter().cloned().fold(0.0, f64::max);
-    let worst = mine.iter().zip(&theirs).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max);
+    let worst = mine
+        .iter()
+        .zip(&theirs)
+        .map(|(a, b)| (a - b).abs())
+        .fold(0.0, f64::max);
     let l1: f64 = mine.iter().zip(&theirs).map(|(a, b)| (a - b).abs()).sum();
-    assert!(worst < 5e-4 * peak, "largest difference {:e} of the peak", worst / peak);
+    assert!(
+        worst < 5e-4 * peak,
+        "largest difference {:e} of the peak",
+        worst / peak
+    );
     assert!(l1 < 5e-4, "L1 difference {l1:e}");
 }
