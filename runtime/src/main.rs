@@ -93,6 +93,9 @@ enum Command {
     TuneWiener(TuneArgs),
     /// Print the resolved calibration and the quantities derived from it.
     Calib,
+    /// Time the PSF and the perceived image, writing their inputs for
+    /// tools/bench/compare_numpy.py (see docs/benchmarks.md).
+    Bench(BenchArgs),
 }
 
 #[derive(Args, Debug)]
@@ -140,6 +143,19 @@ struct TuneArgs {
     /// Write the chosen K into the calibration file (comments kept).
     #[arg(long)]
     write: bool,
+}
+
+#[derive(Args, Debug)]
+struct BenchArgs {
+    /// psf, perceived or ceilings.
+    #[arg(value_parser = ["psf", "perceived", "ceilings"])]
+    what: String,
+    /// Folder for the exact inputs, for the numpy side.
+    #[arg(long, default_value = "out/bench", value_name = "DIR")]
+    dump: PathBuf,
+    /// Timed repetitions (median reported).
+    #[arg(long, default_value_t = 3)]
+    repeat: usize,
 }
 
 fn init_logging(verbose: u8) {
@@ -202,6 +218,16 @@ fn run(cli: Cli) -> Result<()> {
             print!("{}", app::tune::run(&common, &a.images, a.method, a.write)?)
         }
         Some(Command::Calib) => print!("{}", app::plots::calib_summary(&common)?),
+        Some(Command::Bench(a)) => match a.what.as_str() {
+            "psf" => println!("{}", app::bench::psf(&common, &a.dump, a.repeat)?),
+            "perceived" => print!("{}", app::bench::perceived(&common, &a.dump, a.repeat)?),
+            _ => {
+                let (gflops, gbps) = app::bench::ceilings();
+                println!(
+                    "{{\"kind\": \"ceilings\", \"f64_gemm_gflops\": {gflops:.2}, \"copy_gbps\": {gbps:.2}}}"
+                );
+            }
+        },
         None if cli.sim => {
             let s = cli.sim_args;
             let accommodation_d = s

@@ -1,6 +1,7 @@
 //! What the `nedrt` commands do, as library functions with typed options and
 //! printable reports; the binary only parses arguments and calls these.
 
+pub mod bench;
 pub mod eval;
 pub mod plots;
 pub mod sim;
