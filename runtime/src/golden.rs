@@ -66,7 +66,6 @@ fn psf_on_doe_grid(calib: &Calibration, doe: &HeightMap, e: &Entry) -> Psf {
         window: WINDOW,
         cells,
         veil,
-        sub_samples: SUB_SAMPLES,
     }
 }
 

@@ -48,7 +48,6 @@ pub struct Channel {
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct SimulationSettings {
     pub window_energy: f64,
-    pub cell_convergence_l1: f64,
     pub min_pupil_samples: usize,
     pub max_pupil_samples: usize,
     /// Forced pupil step; `None` lets the sampling rules choose.
@@ -253,9 +252,6 @@ impl Calibration {
                 "must be a fraction in (0.5, 1): the share of light the PSF window holds",
             ));
         }
-        if !(s.cell_convergence_l1 > 0.0 && s.cell_convergence_l1 < 0.5) {
-            return Err(v.err("simulation.cell_convergence_l1", "must be in (0, 0.5)"));
-        }
         if s.min_pupil_samples < 16 {
             return Err(v.err(
                 "simulation.min_pupil_samples",
@@ -300,7 +296,6 @@ impl Calibration {
             },
             simulation: SimulationSettings {
                 window_energy: s.window_energy,
-                cell_convergence_l1: s.cell_convergence_l1,
                 min_pupil_samples: s.min_pupil_samples,
                 max_pupil_samples: s.max_pupil_samples,
                 pupil_step_m: (s.pupil_step_um > 0.0).then_some(s.pupil_step_um * 1e-6),

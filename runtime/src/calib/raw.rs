@@ -94,7 +94,6 @@ pub struct RawWiener {
 #[serde(deny_unknown_fields)]
 pub struct RawSimulation {
     pub window_energy: f64,
-    pub cell_convergence_l1: f64,
     pub min_pupil_samples: usize,
     pub max_pupil_samples: usize,
     #[serde(default)]

@@ -13,7 +13,7 @@ use super::{OpticsError, compute_psfs};
 use crate::calib::Calibration;
 
 /// Bump when the PSF model changes in a way that changes results.
-pub const MODEL_VERSION: &str = "nedrt-psf/1";
+pub const MODEL_VERSION: &str = "nedrt-psf/2";
 
 /// Where PSFs are cached; `None` disables caching.
 #[derive(Debug, Clone, Default)]
@@ -110,11 +110,6 @@ fn write(path: &Path, set: &PsfSet) -> Result<(), String> {
         .flat_map(|p| p.cells.iter().flat_map(|v| (*v as f32).to_le_bytes()))
         .collect();
     let veil: Vec<u8> = set.psfs.iter().flat_map(|p| p.veil.to_le_bytes()).collect();
-    let sub: Vec<u8> = set
-        .psfs
-        .iter()
-        .flat_map(|p| (p.sub_samples as f64).to_le_bytes())
-        .collect();
     let n = set.psfs.len();
     let views = [
         (
@@ -124,10 +119,6 @@ fn write(path: &Path, set: &PsfSet) -> Result<(), String> {
         (
             "veil",
             safetensors::tensor::TensorView::new(Dtype::F64, vec![n], &veil),
-        ),
-        (
-            "sub",
-            safetensors::tensor::TensorView::new(Dtype::F64, vec![n], &sub),
         ),
     ];
     let mut tensors = Vec::new();
@@ -172,7 +163,6 @@ fn read(path: &Path, expected: usize) -> Result<PsfSet, String> {
             .collect())
     };
     let veil = f64s("veil")?;
-    let sub = f64s("sub")?;
     let w = shape[1];
     let values: Vec<f64> = cells
         .data()
@@ -184,12 +174,11 @@ fn read(path: &Path, expected: usize) -> Result<PsfSet, String> {
     }
     let psfs = values
         .chunks_exact(w * w)
-        .zip(veil.iter().zip(&sub))
-        .map(|(c, (v, s))| Psf {
+        .zip(&veil)
+        .map(|(c, v)| Psf {
             window: w,
             cells: c.to_vec(),
             veil: *v,
-            sub_samples: *s as usize,
         })
         .collect();
     Ok(PsfSet { psfs, report })

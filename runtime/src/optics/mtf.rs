@@ -83,7 +83,6 @@ mod tests {
             window: 3,
             cells,
             veil: 0.0,
-            sub_samples: 1,
         };
         let f = 30.0;
         let got = system_mtf(&p, dtheta, &[0.0, f]);

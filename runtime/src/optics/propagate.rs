@@ -159,6 +159,92 @@ pub fn fft_period_cells(
     Some(cells)
 }
 
+/// PSF over one whole period with each cell integrated *exactly*: the
+/// m → ∞ limit of [`fft_period_cells`]. With u = θΔs/λ, |U(u)|² =
+/// Σ_ℓ A_ℓ e^{−2πiℓ·u} where A is the pupil's autocorrelation, so a cell of
+/// width 1/P centred on c/P integrates to (1/P²) Σ_ℓ A_ℓ sinc(ℓ_y/P)
+/// sinc(ℓ_x/P) e^{−2πiℓ·c/P}: one FFT of size ≥ 2N − 1 gives A (through
+/// |Q̂|²), the lags are weighted and folded modulo P, and one P×P FFT gives
+/// every cell. The cells sum to 1 exactly (only ℓ = 0 survives the sum).
+/// Same layout as [`fft_period_cells`]; `None` when the period is not whole.
+pub fn exact_period_cells(
+    pupil: &[c64],
+    grid: PupilGrid,
+    wavelength_m: f64,
+    cell_rad: f64,
+) -> Option<Vec<f64>> {
+    let p = whole_period_cells(grid, wavelength_m, cell_rad)?;
+    let n = grid.samples;
+    let l = super::sampling::smooth_size_at_least((2 * n - 1) as f64);
+    let mut planner = FftPlanner::<f64>::new();
+    let fwd = planner.plan_fft_forward(l);
+    let inv = planner.plan_fft_inverse(l);
+    let mut field = vec![c64::new(0.0, 0.0); l * l];
+    for (dst, src) in field.chunks_mut(l).zip(pupil.chunks(n)) {
+        dst[..n].copy_from_slice(src);
+    }
+    // Rows beyond N are zero: transform only the first N rows.
+    fft_rows(&mut field[..n * l], l, &fwd);
+    let mut spectrum = transpose(&field, l);
+    fft_rows(&mut spectrum, l, &fwd);
+    // |Q̂|², then back: the autocorrelation A (times L²), indexed [ℓx][ℓy].
+    spectrum
+        .par_iter_mut()
+        .for_each(|z| *z = c64::new(z.norm_sqr(), 0.0));
+    fft_rows(&mut spectrum, l, &inv);
+    let mut autocorr = transpose(&spectrum, l);
+    drop(spectrum);
+    fft_rows(&mut autocorr, l, &inv);
+    // autocorr is now [ℓy][ℓx] again (two transposes).
+    let sinc = |x: f64| {
+        if x == 0.0 {
+            1.0
+        } else {
+            (PI * x).sin() / (PI * x)
+        }
+    };
+    let lags: Vec<(usize, usize, f64)> = (-(n as isize - 1)..n as isize)
+        .map(|lag| {
+            (
+                lag.rem_euclid(l as isize) as usize,
+                lag.rem_euclid(p as isize) as usize,
+                sinc(lag as f64 / p as f64),
+            )
+        })
+        .collect();
+    let folded_rows: Vec<Vec<c64>> = (0..p)
+        .into_par_iter()
+        .map(|ky| {
+            let mut row = vec![c64::new(0.0, 0.0); p];
+            for &(iy, _, wy) in lags.iter().filter(|t| t.1 == ky) {
+                let src = &autocorr[iy * l..(iy + 1) * l];
+                for &(ix, fx, wx) in &lags {
+                    row[fx] += src[ix] * (wy * wx);
+                }
+            }
+            row
+        })
+        .collect();
+    drop(autocorr);
+    let mut folded: Vec<c64> = folded_rows.into_iter().flatten().collect();
+    let fwd_p = planner.plan_fft_forward(p);
+    fft_rows(&mut folded, p, &fwd_p);
+    let mut t = transpose(&folded, p);
+    fft_rows(&mut t, p, &fwd_p);
+    // t is [cx][cy]; scale and centre like fft_period_cells.
+    let scale = 1.0 / ((p * p) as f64 * (l * l) as f64 * pupil_energy(pupil));
+    let half = p / 2;
+    let mut cells = vec![0.0; p * p];
+    cells.par_chunks_mut(p).enumerate().for_each(|(cy, row)| {
+        let c_y = (cy + p - half) % p;
+        for (cx, out) in row.iter_mut().enumerate() {
+            let c_x = (cx + p - half) % p;
+            *out = t[c_x * p + c_y].re * scale;
+        }
+    });
+    Some(cells)
+}
+
 fn fft_rows(data: &mut [c64], len: usize, fft: &Arc<dyn Fft<f64>>) {
     data.par_chunks_mut(len * 16).for_each_init(
         || vec![c64::new(0.0, 0.0); fft.get_inplace_scratch_len()],

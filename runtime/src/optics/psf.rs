@@ -1,5 +1,6 @@
 //! PSFs for a request: choose the sampling (optics.md §5), compute each PSF
-//! over a whole period with converged cell integration, choose the smallest
+//! over a whole period with every retinal cell integrated exactly (the limit
+//! of optics.md's m×m sums, see [`exact_period_cells`]), choose the smallest
 //! window that holds the required energy for every PSF of the request, and
 //! keep what the window cannot hold as a uniform veil.
 
@@ -10,7 +11,7 @@ use serde::{Deserialize, Serialize};
 
 use super::OpticsError;
 use super::doe::HeightMap;
-use super::propagate::{centred_window_energies, crop_centred, fft_period_cells};
+use super::propagate::{centred_window_energies, crop_centred, exact_period_cells};
 use super::pupil::{PupilGrid, pupil_field};
 use super::sampling::{
     ChannelSampling, PsfSpec, StepRule, channel_sampling, max_pupil_step,
@@ -18,8 +19,6 @@ use super::sampling::{
 };
 use crate::calib::Calibration;
 
-/// Highest sub-sampling per cell axis tried before the request is refused.
-pub const MAX_SUB_SAMPLES: usize = 12;
 /// Times the pupil step is halved to fit the window in the period (lens only).
 const MAX_REFINEMENTS: usize = 3;
 
@@ -39,8 +38,6 @@ pub struct Psf {
     pub window: usize,
     pub cells: Vec<f64>,
     pub veil: f64,
-    /// Sub-samples per cell axis at which the integration converged.
-    pub sub_samples: usize,
 }
 
 /// What the model chose for a request, printed with every result.
@@ -49,7 +46,6 @@ pub struct SamplingReport {
     pub channels: Vec<ChannelReport>,
     pub step_rule: StepRule,
     pub window_cells: usize,
-    pub sub_samples_max: usize,
     /// Smallest share of the light inside the window over the request's PSFs.
     pub min_window_energy: f64,
     /// Largest veil (light outside the window, spread uniformly) over the PSFs.
@@ -84,15 +80,13 @@ impl SamplingReport {
             })
             .collect();
         format!(
-            "{} PSFs: pupil step {} set by {}; window {}×{} cells; cells sub-sampled up to {}×{}; \
+            "{} PSFs: pupil step {} set by {}; window {}×{} cells, each integrated exactly; \
              window holds ≥ {:.4}%, veil ≤ {:.4}%{}; {:.2} s{}",
             self.psf_count,
             steps.join(", "),
             self.step_rule,
             self.window_cells,
             self.window_cells,
-            self.sub_samples_max,
-            self.sub_samples_max,
             100.0 * self.min_window_energy,
             100.0 * self.max_veil,
             if self.window_capped {
@@ -113,11 +107,10 @@ pub struct PsfSet {
     pub report: SamplingReport,
 }
 
-/// Full-period PSF with its converged sub-sampling.
+/// Full-period PSF.
 struct PeriodPsf {
     cells: Vec<f64>,
     period: usize,
-    sub: usize,
 }
 
 /// Computes the PSFs of `request`, calling `tick` once per finished PSF.
@@ -230,7 +223,6 @@ pub fn compute_psfs(
                     window,
                     veil: (1.0 - e[half]).max(0.0),
                     cells,
-                    sub_samples: p.sub,
                 }
             })
             .collect();
@@ -246,7 +238,6 @@ pub fn compute_psfs(
                 .collect(),
             step_rule: rule,
             window_cells: window,
-            sub_samples_max: psfs.iter().map(|p| p.sub_samples).max().unwrap_or(0),
             min_window_energy: energies.iter().map(|e| e[half]).fold(f64::MAX, f64::min),
             max_veil: psfs.iter().map(|p| p.veil).fold(0.0, f64::max),
             window_capped: !fits || half_needed > half_cap,
@@ -292,51 +283,17 @@ fn compute_periods(
                 spec.psi_rad,
                 phases[i].as_deref(),
             );
-            let out = converged_period(calib, &q, grid, s, spec)?;
+            let lambda = calib.channels[s.channel].wavelength_m;
+            let cells = exact_period_cells(&q, grid, lambda, calib.retinal_step_rad()).ok_or_else(
+                || OpticsError::BadSpec("period is not a whole number of cells".into()),
+            )?;
             tick();
-            Ok(out)
+            Ok(PeriodPsf {
+                cells,
+                period: s.period_cells,
+            })
         })
         .collect()
-}
-
-/// Raises the sub-sampling m until the PSF changes by less than the
-/// convergence tolerance (L1). Starts where m·P ≥ N, so that the period
-/// holds exactly the light through the aperture (Parseval).
-fn converged_period(
-    calib: &Calibration,
-    q: &[num_complex::Complex64],
-    grid: PupilGrid,
-    s: &ChannelSampling,
-    spec: &PsfSpec,
-) -> Result<PeriodPsf, OpticsError> {
-    let lambda = calib.channels[s.channel].wavelength_m;
-    let dtheta = calib.retinal_step_rad();
-    let tol = calib.simulation.cell_convergence_l1;
-    let run = |sub: usize| {
-        fft_period_cells(q, grid, lambda, dtheta, sub)
-            .ok_or_else(|| OpticsError::BadSpec("period is not a whole number of cells".into()))
-    };
-    let mut sub = grid.samples.div_ceil(s.period_cells).max(2);
-    let mut prev = run(sub)?;
-    while sub < MAX_SUB_SAMPLES {
-        sub += 1;
-        let next = run(sub)?;
-        let change: f64 = next.iter().zip(&prev).map(|(a, b)| (a - b).abs()).sum();
-        let norm: f64 = next.iter().sum();
-        if change <= tol * norm {
-            return Ok(PeriodPsf {
-                cells: next,
-                period: s.period_cells,
-                sub,
-            });
-        }
-        prev = next;
-    }
-    Err(OpticsError::RuleViolated(format!(
-        "cell integration did not converge to {tol} (L1) by {MAX_SUB_SAMPLES}×{MAX_SUB_SAMPLES} sub-samples \
-         for channel {} at Ψ = {:.2} rad",
-        calib.channels[s.channel].name, spec.psi_rad
-    )))
 }
 
 #[cfg(test)]

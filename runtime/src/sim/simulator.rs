@@ -218,7 +218,6 @@ impl Prepared {
             window: first.window,
             cells: vec![0.0; first.cells.len()],
             veil: 0.0,
-            sub_samples: 0,
         };
         for (spec, w) in terms {
             let p = self.lookup(optics, *spec)?;
@@ -227,7 +226,6 @@ impl Prepared {
                 .zip(&p.cells)
                 .for_each(|(o, v)| *o += w * v);
             out.veil += w * p.veil;
-            out.sub_samples = out.sub_samples.max(p.sub_samples);
         }
         Ok(out)
     }

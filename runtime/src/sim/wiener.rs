@@ -123,7 +123,6 @@ mod tests {
             window: w,
             cells,
             veil: 0.05,
-            sub_samples: 2,
         }
     }
 
@@ -174,7 +173,6 @@ mod tests {
             window: 3,
             cells: vec![0.0, 0.1, 0.0, 0.1, 0.6, 0.1, 0.0, 0.1, 0.0],
             veil: 0.0,
-            sub_samples: 1,
         };
         // A flat field passes unchanged (unit gain at zero frequency).
         let flat = Image::from_planes(8, 8, vec![vec![0.4; 64]]);

@@ -159,3 +159,40 @@ fn non_whole_period_is_refused() {
     assert!(whole_period_cells(grid, 500e-9, 1.3e-4).is_none());
     assert!(fft_period_cells(&[c64::new(1.0, 0.0); 64], grid, 500e-9, 1.3e-4, 1).is_none());
 }
+
+#[test]
+fn exact_cells_are_the_limit_of_the_midpoint_rule() {
+    let (grid, r, lambda, cell) = setup(48.0, 23);
+    let n = grid.samples;
+    let screen: Vec<f64> = (0..n * n)
+        .map(|i| ((i * 7919) % 113) as f64 * 0.05)
+        .collect();
+    let q = pupil_field(grid, r, 6.0, Some(&screen));
+    let exact = exact_period_cells(&q, grid, lambda, cell).expect("whole period");
+    assert!((exact.iter().sum::<f64>() - 1.0).abs() < 1e-12, "Parseval");
+    let err = |sub: usize| -> f64 {
+        let m = fft_period_cells(&q, grid, lambda, cell, sub).expect("period");
+        m.iter().zip(&exact).map(|(a, b)| (a - b).abs()).sum()
+    };
+    // The midpoint rule converges to the exact cells at second order.
+    let (e4, e8, e16) = (err(4), err(8), err(16));
+    assert!(e16 < 1e-3, "m = 16 still {e16}");
+    assert!(
+        (e4 / e8 - 4.0).abs() < 0.6 && (e8 / e16 - 4.0).abs() < 0.6,
+        "orders {} {}",
+        e4 / e8,
+        e8 / e16
+    );
+    // And agrees with the MFT's sub-sampled cells on a window.
+    let mft = mft_cells(&q, grid, lambda, 23, cell, 16);
+    let exact_window = crop_centred(&exact, 23, 23);
+    let l1: f64 = mft
+        .iter()
+        .zip(&exact_window)
+        .map(|(a, b)| (a - b).abs())
+        .sum();
+    assert!(
+        (l1 - e16).abs() < 1e-9,
+        "MFT and FFT midpoint sums are the same samples"
+    );
+}
