@@ -363,7 +363,10 @@ impl Calibration {
     pub fn depth_sweep_d(&self, step_d: f64) -> Vec<f64> {
         let [lo, hi] = self.range_d;
         let n = ((hi - lo) / step_d + 1e-9).floor() as usize;
-        (0..=n).map(|i| lo + i as f64 * step_d).collect()
+        // Rounded to 1e-12 D so that 15 × 0.1 is the 1.5 D of the depth lists.
+        (0..=n)
+            .map(|i| ((lo + i as f64 * step_d) * 1e12).round() / 1e12)
+            .collect()
     }
 
     /// Hash of every value that shapes a PSF (not the Wiener constants): the

@@ -101,6 +101,7 @@ impl Simulator {
             if specs.specs.is_empty() {
                 return Ok(None);
             }
+            let specs = specs.canonical();
             let request = PsfRequest {
                 specs: specs.specs.clone(),
                 doe: with_doe.then_some(&self.doe),
@@ -159,6 +160,23 @@ fn spec_key(s: PsfSpec) -> (usize, i64) {
 }
 
 impl SpecSet {
+    /// Sorted by (channel, Ψ): the same PSFs make the same request (and cache key)
+    /// whatever order the methods and depths asked for them in.
+    fn canonical(mut self) -> Self {
+        self.specs.sort_by(|a, b| {
+            a.channel
+                .cmp(&b.channel)
+                .then(a.psi_rad.total_cmp(&b.psi_rad))
+        });
+        self.index = self
+            .specs
+            .iter()
+            .enumerate()
+            .map(|(i, s)| (spec_key(*s), i))
+            .collect();
+        self
+    }
+
     fn add(&mut self, s: PsfSpec) {
         let n = self.specs.len();
         if let std::collections::hash_map::Entry::Vacant(e) = self.index.entry(spec_key(s)) {
@@ -347,4 +365,52 @@ pub fn perceive(display: &Image, psfs: &[Psf]) -> Image {
         })
         .collect();
     Image::from_planes(up.width, up.height, planes)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::optics::cache::PsfCache;
+
+    #[test]
+    fn requests_are_canonical_whatever_the_order_asked() {
+        let c = Calibration::default_embedded().expect("calib");
+        let mut a = SpecSet::default();
+        let mut b = SpecSet::default();
+        let sweep = c.depth_sweep_d(0.1);
+        assert!(
+            sweep.contains(&1.5),
+            "sweep depths are the listed depths exactly"
+        );
+        for d in [1.5, 0.0, 3.0] {
+            a.add(PsfSpec {
+                channel: 1,
+                psi_rad: c.psi_rad(1, d),
+            });
+        }
+        for d in sweep.iter().rev() {
+            b.add(PsfSpec {
+                channel: 1,
+                psi_rad: c.psi_rad(1, *d),
+            });
+        }
+        for d in &sweep {
+            a.add(PsfSpec {
+                channel: 1,
+                psi_rad: c.psi_rad(1, *d),
+            });
+        }
+        let (a, b) = (a.canonical(), b.canonical());
+        let key = |s: &SpecSet| {
+            PsfCache::key(
+                &c,
+                &PsfRequest {
+                    specs: s.specs.clone(),
+                    doe: None,
+                },
+            )
+        };
+        assert_eq!(key(&a), key(&b));
+        assert_eq!(a.specs.len(), 31);
+    }
 }
