@@ -6,6 +6,7 @@ use std::path::Path;
 use std::sync::Once;
 
 use plotters::coord::Shift;
+use plotters::coord::types::RangedCoordf64;
 use plotters::prelude::*;
 use plotters::style::FontStyle;
 
@@ -57,24 +58,45 @@ pub enum Panel {
     Heat(HeatPanel),
 }
 
+type Chart<'a, DB> = ChartContext<'a, DB, Cartesian2d<RangedCoordf64, RangedCoordf64>>;
+
+/// A titled panel with labelled axes over fixed ranges (grid lines optional).
+fn axes<'a, DB: DrawingBackend>(
+    area: &'a DrawingArea<DB, Shift>,
+    title: &str,
+    x_label: &str,
+    y_label: &str,
+    x: (f64, f64),
+    y: (f64, f64),
+    grid: bool,
+) -> Result<Chart<'a, DB>, String> {
+    let e = |x: DrawingAreaErrorKind<DB::ErrorType>| x.to_string();
+    let mut chart = ChartBuilder::on(area)
+        .caption(title, ("sans-serif", 16))
+        .margin(8)
+        .x_label_area_size(32)
+        .y_label_area_size(44)
+        .build_cartesian_2d(x.0..x.1, y.0..y.1)
+        .map_err(e)?;
+    let mut mesh = chart.configure_mesh();
+    if !grid {
+        mesh.disable_mesh();
+    }
+    mesh.x_desc(x_label)
+        .y_desc(y_label)
+        .label_style(("sans-serif", 12))
+        .draw()
+        .map_err(e)?;
+    Ok(chart)
+}
+
 fn draw<DB: DrawingBackend>(area: &DrawingArea<DB, Shift>, panel: &Panel) -> Result<(), String> {
     let e = |x: DrawingAreaErrorKind<DB::ErrorType>| x.to_string();
     match panel {
         Panel::Lines(p) => {
-            let mut chart = ChartBuilder::on(area)
-                .caption(&p.title, ("sans-serif", 16))
-                .margin(8)
-                .x_label_area_size(32)
-                .y_label_area_size(44)
-                .build_cartesian_2d(p.x_range.0..p.x_range.1, p.y_range.0..p.y_range.1)
-                .map_err(e)?;
-            chart
-                .configure_mesh()
-                .x_desc(&p.x_label)
-                .y_desc(&p.y_label)
-                .label_style(("sans-serif", 12))
-                .draw()
-                .map_err(e)?;
+            let mut chart = axes(
+                area, &p.title, &p.x_label, &p.y_label, p.x_range, p.y_range, true,
+            )?;
             for s in &p.series {
                 let style = ShapeStyle::from(s.color).stroke_width(2);
                 let color = s.color;
@@ -103,21 +125,9 @@ fn draw<DB: DrawingBackend>(area: &DrawingArea<DB, Shift>, panel: &Panel) -> Res
             }
         }
         Panel::Heat(p) => {
-            let mut chart = ChartBuilder::on(area)
-                .caption(&p.title, ("sans-serif", 16))
-                .margin(8)
-                .x_label_area_size(32)
-                .y_label_area_size(44)
-                .build_cartesian_2d(p.x_range.0..p.x_range.1, p.y_range.0..p.y_range.1)
-                .map_err(e)?;
-            chart
-                .configure_mesh()
-                .disable_mesh()
-                .x_desc(&p.x_label)
-                .y_desc(&p.y_label)
-                .label_style(("sans-serif", 12))
-                .draw()
-                .map_err(e)?;
+            let mut chart = axes(
+                area, &p.title, &p.x_label, &p.y_label, p.x_range, p.y_range, false,
+            )?;
             let rows = p.colors.len();
             let cols = p.colors.first().map_or(0, |r| r.len());
             let dx = (p.x_range.1 - p.x_range.0) / cols.max(1) as f64;

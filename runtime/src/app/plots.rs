@@ -158,36 +158,58 @@ pub fn mtf(common: &CommonOptions, out_dir: &Path, step_d: f64) -> Result<String
     let freqs: Vec<f64> = (0..=60).map(|i| i as f64 * 0.5).collect();
     let mut csv = String::from("figure,optics,channel,accommodation_d,cpd,mtf\n");
 
-    let at_half = 0.5;
-    let doe_psfs = prepared.system_psfs(Method::DoeOnly, at_half)?;
-    let lens_psfs = prepared.system_psfs(Method::Conventional, at_half)?;
-    let mut series = Vec::new();
-    for (ch, p) in doe_psfs.iter().enumerate() {
-        let m = system_mtf(p, dtheta, &freqs);
-        for (f, v) in freqs.iter().zip(&m) {
-            let _ = writeln!(
-                csv,
-                "a,lens+DOE,{},{at_half},{f},{v:.6}",
-                c.channels[ch].name
-            );
+    // The curves of Fig. 5: every channel through lens + DOE, and the design
+    // channel through the lens alone (dashed).
+    let curves: Vec<(Method, usize)> = (0..c.channels.len())
+        .map(|ch| (Method::DoeOnly, ch))
+        .chain([(Method::Conventional, g)])
+        .collect();
+    let label = |m: Method| {
+        if m == Method::DoeOnly {
+            "lens+DOE"
+        } else {
+            "lens"
         }
-        series.push(Series {
-            name: c.channels[ch].name.clone(),
-            color: colors[ch % 3],
-            dashed: false,
-            points: freqs.iter().copied().zip(m).collect(),
-        });
+    };
+    let series_of = |m: Method, ch: usize, points: Vec<(f64, f64)>| {
+        let lens_only = m == Method::Conventional;
+        Series {
+            name: if lens_only {
+                format!("lens-only {}", c.channels[ch].name)
+            } else {
+                c.channels[ch].name.clone()
+            },
+            color: if lens_only {
+                GREEN_LINE
+            } else {
+                colors[ch % 3]
+            },
+            dashed: lens_only,
+            points,
+        }
+    };
+    let mut row = |fig: &str, m: Method, ch: usize, d: f64, f: f64, v: f64| {
+        let _ = writeln!(
+            csv,
+            "{fig},{},{},{d:.3},{f},{v:.6}",
+            label(m),
+            c.channels[ch].name
+        );
+    };
+
+    let at_half = 0.5;
+    let mut series = Vec::new();
+    for &(m, ch) in &curves {
+        let psf = &prepared.system_psfs(m, at_half)?[ch];
+        let pts: Vec<(f64, f64)> = freqs
+            .iter()
+            .copied()
+            .zip(system_mtf(psf, dtheta, &freqs))
+            .collect();
+        pts.iter()
+            .for_each(|(f, v)| row("a", m, ch, at_half, *f, *v));
+        series.push(series_of(m, ch, pts));
     }
-    let m = system_mtf(&lens_psfs[g], dtheta, &freqs);
-    for (f, v) in freqs.iter().zip(&m) {
-        let _ = writeln!(csv, "a,lens,{},{at_half},{f},{v:.6}", c.channels[g].name);
-    }
-    series.push(Series {
-        name: format!("lens-only {}", c.channels[g].name),
-        color: GREEN_LINE,
-        dashed: true,
-        points: freqs.iter().copied().zip(m).collect(),
-    });
     let mut panels = vec![Panel::Lines(LinePanel {
         title: format!("MTF at {at_half} D"),
         x_label: "CPD".into(),
@@ -197,51 +219,27 @@ pub fn mtf(common: &CommonOptions, out_dir: &Path, step_d: f64) -> Result<String
         series,
     })];
 
-    let depth_psfs: Vec<(Vec<Psf>, Vec<Psf>)> = depths
+    let psfs_at: Vec<[Vec<Psf>; 2]> = depths
         .iter()
         .map(|d| {
-            Ok((
+            Ok([
                 prepared.system_psfs(Method::DoeOnly, *d)?,
                 prepared.system_psfs(Method::Conventional, *d)?,
-            ))
+            ])
         })
         .collect::<Result<_, AppError>>()?;
     for (fig, cpd) in ["b", "c", "d"].iter().zip([1.0, 5.0, 10.0]) {
         let mut series = Vec::new();
-        for ch in 0..c.channels.len() {
+        for &(m, ch) in &curves {
+            let which = usize::from(m == Method::Conventional);
             let pts: Vec<(f64, f64)> = depths
                 .iter()
-                .zip(&depth_psfs)
-                .map(|(d, (doe, _))| (*d, system_mtf(&doe[ch], dtheta, &[cpd])[0]))
+                .zip(&psfs_at)
+                .map(|(d, psfs)| (*d, system_mtf(&psfs[which][ch], dtheta, &[cpd])[0]))
                 .collect();
-            for (d, v) in &pts {
-                let _ = writeln!(
-                    csv,
-                    "{fig},lens+DOE,{},{d:.3},{cpd},{v:.6}",
-                    c.channels[ch].name
-                );
-            }
-            series.push(Series {
-                name: c.channels[ch].name.clone(),
-                color: colors[ch % 3],
-                dashed: false,
-                points: pts,
-            });
+            pts.iter().for_each(|(d, v)| row(fig, m, ch, *d, cpd, *v));
+            series.push(series_of(m, ch, pts));
         }
-        let pts: Vec<(f64, f64)> = depths
-            .iter()
-            .zip(&depth_psfs)
-            .map(|(d, (_, lens))| (*d, system_mtf(&lens[g], dtheta, &[cpd])[0]))
-            .collect();
-        for (d, v) in &pts {
-            let _ = writeln!(csv, "{fig},lens,{},{d:.3},{cpd},{v:.6}", c.channels[g].name);
-        }
-        series.push(Series {
-            name: format!("lens-only {}", c.channels[g].name),
-            color: GREEN_LINE,
-            dashed: true,
-            points: pts,
-        });
         panels.push(Panel::Lines(LinePanel {
             title: format!("MTF at {cpd} CPD"),
             x_label: "accommodation (D)".into(),

@@ -176,6 +176,10 @@ mod tests {
         let c = crate::calib::Calibration::load(&p).expect("valid");
         assert!((c.wiener.doe_k - 3.1622e-3).abs() < 1e-9);
         assert_eq!(c.wiener.doe_k_tuned_for, "abc123");
-        assert!((c.wiener.ai_k - 0.01).abs() < 1e-12, "other K untouched");
+        let default = crate::calib::Calibration::default_embedded().expect("default");
+        assert!(
+            (c.wiener.ai_k - default.wiener.ai_k).abs() < 1e-12,
+            "other K untouched"
+        );
     }
 }

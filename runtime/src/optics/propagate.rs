@@ -136,27 +136,19 @@ pub fn fft_period_cells(
     let mut transposed = transpose(&field, m);
     drop(field);
     fft_rows(&mut transposed, m, &fft);
-    // `transposed` is indexed [qx][qy]; bin m×m blocks into cells.
+    // `transposed` is indexed [qx][qy]; cell c holds FFT samples c·sub + i.
     let scale = 1.0 / ((m * m) as f64 * pupil_energy(pupil));
-    let half = p / 2;
-    let mut cells = vec![0.0; p * p];
-    cells.par_chunks_mut(p).enumerate().for_each(|(cy, row)| {
-        // Cell index cy ↔ period-centred c = cy − P/2 ↔ FFT rows (c·sub + i) mod M.
-        let c_y = (cy + p - half) % p;
-        for (cx, out) in row.iter_mut().enumerate() {
-            let c_x = (cx + p - half) % p;
-            let mut acc = 0.0;
-            for ix in 0..sub {
-                let qx = c_x * sub + ix;
-                let line = &transposed[qx * m..(qx + 1) * m];
-                for iy in 0..sub {
-                    acc += line[c_y * sub + iy].norm_sqr();
-                }
+    Some(centred_cells(p, |c_y, c_x| {
+        let mut acc = 0.0;
+        for ix in 0..sub {
+            let qx = c_x * sub + ix;
+            let line = &transposed[qx * m..(qx + 1) * m];
+            for iy in 0..sub {
+                acc += line[c_y * sub + iy].norm_sqr();
             }
-            *out = acc * scale;
         }
-    });
-    Some(cells)
+        acc * scale
+    }))
 }
 
 /// PSF over one whole period with each cell integrated *exactly*: the
@@ -231,18 +223,23 @@ pub fn exact_period_cells(
     fft_rows(&mut folded, p, &fwd_p);
     let mut t = transpose(&folded, p);
     fft_rows(&mut t, p, &fwd_p);
-    // t is [cx][cy]; scale and centre like fft_period_cells.
+    // t is indexed [cx][cy].
     let scale = 1.0 / ((p * p) as f64 * (l * l) as f64 * pupil_energy(pupil));
+    Some(centred_cells(p, |c_y, c_x| t[c_x * p + c_y].re * scale))
+}
+
+/// A P×P period laid out with the on-axis cell at (P/2, P/2): output (cy, cx)
+/// is cell(c_y, c_x) of the period's natural order, c = (index − P/2) mod P.
+fn centred_cells(p: usize, cell: impl Fn(usize, usize) -> f64 + Sync) -> Vec<f64> {
     let half = p / 2;
     let mut cells = vec![0.0; p * p];
     cells.par_chunks_mut(p).enumerate().for_each(|(cy, row)| {
         let c_y = (cy + p - half) % p;
         for (cx, out) in row.iter_mut().enumerate() {
-            let c_x = (cx + p - half) % p;
-            *out = t[c_x * p + c_y].re * scale;
+            *out = cell(c_y, (cx + p - half) % p);
         }
     });
-    Some(cells)
+    cells
 }
 
 fn fft_rows(data: &mut [c64], len: usize, fft: &Arc<dyn Fft<f64>>) {
