@@ -105,7 +105,14 @@ fn draw<DB: DrawingBackend>(area: &DrawingArea<DB, Shift>, panel: &Panel) -> Res
                         .draw_series(DashedLineSeries::new(s.points.iter().copied(), 6, 4, style))
                         .map_err(e)?
                         .label(&s.name)
-                        .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], color));
+                        .legend(move |(x, y)| {
+                            plotters::element::DashedPathElement::new(
+                                vec![(x, y), (x + 18, y)].into_iter(),
+                                4,
+                                3,
+                                color,
+                            )
+                        });
                 } else {
                     chart
                         .draw_series(LineSeries::new(s.points.iter().copied(), style))
