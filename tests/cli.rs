@@ -83,7 +83,7 @@ fn readme_main_command_runs_on_shipped_defaults() {
         "pupil step",
         "window",
         "veil",
-        "sub-sampled",
+        "integrated exactly",
         "time",
     ] {
         assert!(s.contains(needle), "missing {needle:?} in:\n{s}");

@@ -107,7 +107,7 @@ fn draw<DB: DrawingBackend>(area: &DrawingArea<DB, Shift>, panel: &Panel) -> Res
                         .label(&s.name)
                         .legend(move |(x, y)| {
                             plotters::element::DashedPathElement::new(
-                                vec![(x, y), (x + 18, y)].into_iter(),
+                                vec![(x, y), (x + 18, y)],
                                 4,
                                 3,
                                 color,
