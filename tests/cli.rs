@@ -28,6 +28,15 @@ fn run(args: &[&str]) -> Output {
     nedrt().args(args).output().expect("run nedrt")
 }
 
+/// `nedrt --sim --accom D --out OUT` with extra arguments.
+fn sim(accom: &str, out: &Path, extra: &[&str]) -> Output {
+    run(&[&["--sim", "--accom", accom, "--out", path(out)][..], extra].concat())
+}
+
+fn path(p: &Path) -> &str {
+    p.to_str().expect("utf8 path")
+}
+
 fn stdout(o: &Output) -> String {
     String::from_utf8_lossy(&o.stdout).into_owned()
 }
@@ -68,13 +77,7 @@ fn write_png(path: &Path, w: u32, h: u32) {
 fn readme_main_command_runs_on_shipped_defaults() {
     let dir = tempfile::tempdir().expect("tmp");
     let out = dir.path().join("perceived.png");
-    let o = run(&[
-        "--sim",
-        "--accom",
-        "1.0",
-        "--out",
-        out.to_str().expect("utf8"),
-    ]);
+    let o = sim("1.0", &out, &[]);
     assert!(o.status.success(), "{}", stderr(&o));
     let s = stdout(&o);
     for needle in [
@@ -95,13 +98,7 @@ fn readme_main_command_runs_on_shipped_defaults() {
         "retinal grid is 2× the display"
     );
     // Second run: PSFs come from the cache.
-    let o = run(&[
-        "--sim",
-        "--accom",
-        "1.0",
-        "--out",
-        out.to_str().expect("utf8"),
-    ]);
+    let o = sim("1.0", &out, &[]);
     assert!(stdout(&o).contains("from cache"), "{}", stdout(&o));
 }
 
@@ -109,27 +106,11 @@ fn readme_main_command_runs_on_shipped_defaults() {
 fn bad_images_are_clear_errors() {
     let dir = tempfile::tempdir().expect("tmp");
     let out = dir.path().join("p.png");
-    let o = run(&[
-        "--sim",
-        "--accom",
-        "1",
-        "--input",
-        "/no/such.png",
-        "--out",
-        out.to_str().expect("utf8"),
-    ]);
+    let o = sim("1", &out, &["--input", "/no/such.png"]);
     assert_clean_error(&o, "/no/such.png: cannot read image");
     let junk = dir.path().join("junk.png");
     std::fs::write(&junk, b"this is not an image").expect("write");
-    let o = run(&[
-        "--sim",
-        "--accom",
-        "1",
-        "--input",
-        junk.to_str().expect("utf8"),
-        "--out",
-        out.to_str().expect("utf8"),
-    ]);
+    let o = sim("1", &out, &["--input", junk.to_str().expect("utf8")]);
     assert_clean_error(&o, "cannot decode image");
     let nan = dir.path().join("nan.tif");
     let mut im = image::Rgb32FImage::from_pixel(16, 16, image::Rgb([0.5, 0.5, 0.5]));
@@ -137,15 +118,7 @@ fn bad_images_are_clear_errors() {
     image::DynamicImage::ImageRgb32F(im)
         .save(&nan)
         .expect("tiff");
-    let o = run(&[
-        "--sim",
-        "--accom",
-        "1",
-        "--input",
-        nan.to_str().expect("utf8"),
-        "--out",
-        out.to_str().expect("utf8"),
-    ]);
+    let o = sim("1", &out, &["--input", nan.to_str().expect("utf8")]);
     assert_clean_error(&o, "pixel 3,4 channel 0 is NaN");
     assert!(!out.exists(), "nothing written on failure");
 }
@@ -156,15 +129,7 @@ fn odd_gray_and_16_bit_images_are_converted_and_said_so() {
     let odd = dir.path().join("odd.png");
     write_png(&odd, 37, 29);
     let out = dir.path().join("p.png");
-    let o = run(&[
-        "--sim",
-        "--accom",
-        "0.5",
-        "--input",
-        odd.to_str().expect("utf8"),
-        "--out",
-        out.to_str().expect("utf8"),
-    ]);
+    let o = sim("0.5", &out, &["--input", odd.to_str().expect("utf8")]);
     assert!(o.status.success(), "{}", stderr(&o));
     assert!(
         stderr(&o).contains("not a multiple of 8; padded to 40×32"),
@@ -184,15 +149,7 @@ fn odd_gray_and_16_bit_images_are_converted_and_said_so() {
     })
     .save(&g16)
     .expect("png16");
-    let o = run(&[
-        "--sim",
-        "--accom",
-        "0.5",
-        "--input",
-        g16.to_str().expect("utf8"),
-        "--out",
-        out.to_str().expect("utf8"),
-    ]);
+    let o = sim("0.5", &out, &["--input", g16.to_str().expect("utf8")]);
     assert!(o.status.success(), "{}", stderr(&o));
     let e = stderr(&o);
     assert!(

@@ -270,17 +270,23 @@ pub fn doe(
 ) -> Result<String, AppError> {
     let calib = common.calibration()?;
     let mut t = String::new();
-    if let Some(p) = write_init {
-        let init = HeightMap::three_lens_init(&calib, calib.doe_design_pitch_m);
-        doe_file::save(&init, p)?;
+    let mut save = |map: &HeightMap, p: &Path, what: &str| -> Result<(), AppError> {
+        doe_file::save(map, p)?;
         let _ = writeln!(
             t,
-            "wrote {} (three-lens DOE, {} µm pitch, {}×{})",
+            "wrote {} ({what}, {} µm pitch, {n}×{n})",
             p.display(),
-            calib.doe_design_pitch_m * 1e6,
-            init.samples,
-            init.samples
+            map.pitch_m * 1e6,
+            n = map.samples
         );
+        Ok(())
+    };
+    if let Some(p) = write_init {
+        save(
+            &HeightMap::three_lens_init(&calib, calib.doe_design_pitch_m),
+            p,
+            "three-lens DOE",
+        )?;
     }
     let sim = Simulator::new(
         calib,
@@ -289,16 +295,11 @@ pub fn doe(
     )?;
     let map = &sim.doe;
     if let Some(p) = write_fabrication {
-        let fab = map.resampled(sim.calib.doe_fabrication_pitch_m);
-        doe_file::save(&fab, p)?;
-        let _ = writeln!(
-            t,
-            "wrote {} (bicubic to {} µm, {}×{})",
-            p.display(),
-            fab.pitch_m * 1e6,
-            fab.samples,
-            fab.samples
-        );
+        save(
+            &map.resampled(sim.calib.doe_fabrication_pitch_m),
+            p,
+            "bicubic to the fabrication pitch",
+        )?;
     }
     create_dir(out_dir)?;
     let n = map.samples;

@@ -8,6 +8,14 @@ fn calib() -> Calibration {
     Calibration::default_embedded().expect("default calibration")
 }
 
+fn psfs(
+    c: &Calibration,
+    specs: Vec<PsfSpec>,
+    doe: Option<&HeightMap>,
+) -> Result<PsfSet, OpticsError> {
+    compute_psfs(c, &PsfRequest { specs, doe }, &|| ())
+}
+
 #[test]
 fn integrated_cells_weigh_the_in_focus_order_as_optics_md_says() {
     // Three-lens DOE, G, accommodation 0.5 D: its 0.5 D order is in focus.
@@ -48,15 +56,7 @@ fn integrated_cells_weigh_the_in_focus_order_as_optics_md_says() {
 
     // The planner (FFT over the period, DOE resampled onto a 5.8 µm grid,
     // normalised by all the light) agrees with the 6 µm MFT to 2 %.
-    let set = compute_psfs(
-        &c,
-        &PsfRequest {
-            specs: vec![spec],
-            doe: Some(&doe),
-        },
-        &|| (),
-    )
-    .expect("psf");
+    let set = psfs(&c, vec![spec], Some(&doe)).expect("psf");
     let p = &set.psfs[0];
     let planned = p.cells[p.cells.len() / 2];
     assert!(
@@ -74,7 +74,7 @@ fn lens_psfs_keep_all_light_in_window_plus_veil() {
             psi_rad: c.psi_rad(ch, 1.0),
         })
         .collect();
-    let set = compute_psfs(&c, &PsfRequest { specs, doe: None }, &|| ()).expect("psf");
+    let set = psfs(&c, specs, None).expect("psf");
     assert!(!set.report.window_capped);
     assert!(set.report.min_window_energy >= c.simulation.window_energy);
     for p in &set.psfs {
@@ -106,15 +106,7 @@ fn doe_window_is_capped_by_its_period_and_the_rest_is_veil() {
             psi_rad: c.psi_rad(ch, 1.0),
         })
         .collect();
-    let set = compute_psfs(
-        &c,
-        &PsfRequest {
-            specs,
-            doe: Some(&doe),
-        },
-        &|| (),
-    )
-    .expect("psf");
+    let set = psfs(&c, specs, Some(&doe)).expect("psf");
     let r = &set.report;
     // Blue's period at ≤ 6 µm is ≥ 491 cells: rule 3 bounds the window there.
     let blue = r.channels.iter().find(|c| c.name == "B").expect("blue");
@@ -139,15 +131,7 @@ fn planner_cells_are_the_limit_of_the_midpoint_sums() {
         channel: 1,
         psi_rad: c.psi_rad(1, 1.5),
     };
-    let set = compute_psfs(
-        &c,
-        &PsfRequest {
-            specs: vec![spec],
-            doe: None,
-        },
-        &|| (),
-    )
-    .expect("psf");
+    let set = psfs(&c, vec![spec], None).expect("psf");
     let p = &set.psfs[0];
     let ch = &set.report.channels[0];
     let grid = PupilGrid::covering(c.aperture_radius_m, ch.pupil_step_um * 1e-6);
@@ -175,15 +159,7 @@ fn large_defocus_refines_the_pupil_instead_of_aliasing() {
         channel: 2,
         psi_rad: 600.0,
     };
-    let set = compute_psfs(
-        &c,
-        &PsfRequest {
-            specs: vec![spec],
-            doe: None,
-        },
-        &|| (),
-    )
-    .expect("psf");
+    let set = psfs(&c, vec![spec], None).expect("psf");
     assert!(set.report.min_window_energy >= c.simulation.window_energy);
     assert!(set.report.window_cells <= set.report.channels[0].period_cells);
 }
@@ -196,28 +172,17 @@ fn forced_step_breaking_a_rule_is_an_error() {
         channel: 2,
         psi_rad: c.psi_rad(2, 3.0),
     };
-    let e = compute_psfs(
-        &c,
-        &PsfRequest {
-            specs: vec![spec],
-            doe: None,
-        },
-        &|| (),
-    )
-    .expect_err("rule 2");
+    let e = psfs(&c, vec![spec], None).expect_err("rule 2");
     assert!(e.to_string().contains("rule 2"), "{e}");
     let doe = HeightMap::three_lens_init(&c, 6e-6);
     c.simulation.pupil_step_m = Some(8e-6);
-    let e = compute_psfs(
+    let e = psfs(
         &c,
-        &PsfRequest {
-            specs: vec![PsfSpec {
-                channel: 1,
-                psi_rad: 0.0,
-            }],
-            doe: Some(&doe),
-        },
-        &|| (),
+        vec![PsfSpec {
+            channel: 1,
+            psi_rad: 0.0,
+        }],
+        Some(&doe),
     )
     .expect_err("rule 1");
     assert!(e.to_string().contains("rule 1"), "{e}");
