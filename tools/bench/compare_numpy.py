@@ -88,9 +88,9 @@ def numpy_perceived(image, kernels, veils):
             a = h.shape[0] // 2
             padded = np.pad(up, a, mode="symmetric")
             shape = (padded.shape[0], padded.shape[1])
-            spec = np.fft.rfft2(padded) * np.fft.rfft2(h[::-1, ::-1].astype(np.float32), s=shape)
+            spec = np.fft.rfft2(padded) * np.fft.rfft2(h.astype(np.float32), s=shape)
             full = np.fft.irfft2(spec, s=shape)
-            # Correlation with the flipped kernel, 'valid' part: rows 2a…
+            # Kernel at the origin corner: output row y is full row y + 2a.
             res = full[2 * a:2 * a + up.shape[0], 2 * a:2 * a + up.shape[1]]
             out.append(res + np.float32(v * x.mean()))
         return np.array(out, np.float32)
