@@ -9,7 +9,8 @@ cd "$(dirname "$0")/.."
 if [ ! -x .venv/bin/python ]; then
     python3 -m venv .venv
 fi
-.venv/bin/python -m pip install --quiet --disable-pip-version-check -r tests/python/requirements.txt
+.venv/bin/python -m pip install --quiet --disable-pip-version-check \
+    -r tests/python/requirements.txt -r models/requirements.txt
 
 echo "== cargo fmt --check"
 cargo fmt --all --check
@@ -17,5 +18,6 @@ echo "== cargo clippy --all-targets -- -D warnings"
 cargo clippy --all-targets -- -D warnings
 echo "== cargo test --release"
 cargo test --release --workspace
-echo "== pytest tests/python"
-.venv/bin/python -m pytest -q tests/python
+echo "== pytest tests/python models/tests"
+# One thread: OpenMP busy-waiting makes two threads slower on a shared 2-core machine.
+OMP_NUM_THREADS=1 .venv/bin/python -m pytest -q -W ignore::DeprecationWarning tests/python models/tests

@@ -1,0 +1,57 @@
+"""Exports: the D-CNN as ONNX (opset 17, input `image` and output `display`,
+both 1×3×H×W float32 with dynamic H and W, the residual add inside the
+graph) and the DOE as a height-map file in the format of docs/doe-format.md
+(safetensors, tensor `height_um`, metadata), at the design pitch and
+resampled (Keys bicubic, a = −½, like the Rust side) to the fabrication pitch."""
+import math
+from pathlib import Path
+
+import numpy as np
+import torch
+
+
+def export_onnx(net: torch.nn.Module, path, opset: int = 17):
+    net = net.eval()
+    x = torch.rand(1, 3, 64, 64)
+    torch.onnx.export(
+        net, (x,), str(path), dynamo=False, opset_version=opset,
+        input_names=["image"], output_names=["display"],
+        dynamic_axes={"image": {2: "height", 3: "width"}, "display": {2: "height", 3: "width"}},
+    )
+
+
+def keys_weight(x: np.ndarray) -> np.ndarray:
+    a = -0.5
+    x = np.abs(x)
+    return np.where(x <= 1, ((a + 2) * x - (a + 3)) * x * x + 1,
+                    np.where(x < 2, ((a * x - 5 * a) * x + 8 * a) * x - 4 * a, 0.0))
+
+
+def resample(height: np.ndarray, pitch_m: float, new_pitch_m: float, max_height_m: float) -> np.ndarray:
+    """Keys bicubic resampling of a centred square grid onto a grid of
+    `new_pitch_m` covering the same extent, clamped to [0, max]."""
+    n = height.shape[0]
+    half = (n - 1) / 2 * pitch_m
+    m = 2 * math.floor(half / new_pitch_m + 1e-9) + 1
+    u = (np.arange(m) - (m - 1) / 2) * new_pitch_m / pitch_m + (n - 1) / 2
+    base = np.floor(u)
+    f = u - base
+    idx = np.stack([np.clip(base + k, 0, n - 1).astype(int) for k in (-1, 0, 1, 2)], axis=1)
+    w = np.stack([keys_weight(1 + f), keys_weight(f), keys_weight(1 - f), keys_weight(2 - f)], axis=1)
+    along_s = (height[:, idx] * w[None, :, :]).sum(axis=2)          # n × m
+    out = (along_s[idx, :] * w[:, :, None]).sum(axis=1)             # m × m
+    return np.clip(out, 0, max_height_m)
+
+
+def save_doe(path, height_m: np.ndarray, pitch_m: float, max_height_m: float, material: str,
+             design_wavelength_m: float, description: str, levels: int = 0):
+    from safetensors.numpy import save_file
+    meta = {
+        "format": "nedrt-doe", "version": "1",
+        "pitch_um": repr(pitch_m * 1e6), "max_height_um": repr(max_height_m * 1e6),
+        "levels": str(levels), "material": material,
+        "design_wavelength_nm": repr(design_wavelength_m * 1e9), "description": description,
+    }
+    tmp = Path(str(path) + ".tmp")
+    save_file({"height_um": (np.asarray(height_m) * 1e6).astype(np.float32)}, str(tmp), metadata=meta)
+    tmp.replace(path)
