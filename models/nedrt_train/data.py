@@ -1,0 +1,98 @@
+"""Training and validation images, nothing downloaded: procedural images with
+natural-image statistics (dead leaves with a 1/r³ size distribution, which
+gives the 1/f spectrum of natural scenes, plus edges, colour gradients and
+bar patterns) and the photographs shipped in data/images (from PyPI's
+scikit-image wheel, see tools/data/make_images.py). The test photographs
+(data/images/test) are never used for training."""
+import math
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from .calib import REPO
+
+TRAIN_DIR = REPO / "data" / "images" / "train"
+TEST_DIR = REPO / "data" / "images" / "test"
+
+
+def dead_leaves(rng: np.random.Generator, size: int, r_min: float = 2.0, r_max: float = None) -> np.ndarray:
+    """A dead-leaves image (H×W×3 in [0, 1]): opaque discs dropped front to
+    back until the frame is covered, radii with density ∝ r⁻³."""
+    r_max = r_max or size / 3
+    img = np.zeros((size, size, 3))
+    covered = np.zeros((size, size), bool)
+    yy, xx = np.mgrid[0:size, 0:size]
+    for _ in range(20000):
+        if covered.all():
+            break
+        # Inverse CDF of p(r) ∝ r⁻³ on [r_min, r_max].
+        u = rng.random()
+        r = 1 / math.sqrt(1 / r_min ** 2 - u * (1 / r_min ** 2 - 1 / r_max ** 2))
+        cx, cy = rng.uniform(-r, size + r, 2)
+        disc = (xx - cx) ** 2 + (yy - cy) ** 2 <= r * r
+        new = disc & ~covered
+        if new.any():
+            color = rng.random(3) ** 1.5
+            if rng.random() < 0.3:  # a shaded leaf: linear colour gradient
+                g = (xx - cx) / (2 * r) * rng.uniform(-0.5, 0.5)
+                img[new] = np.clip(color[None, :] + g[new][:, None], 0, 1)
+            else:
+                img[new] = color
+            covered |= disc
+    return img
+
+
+def bars(rng: np.random.Generator, size: int) -> np.ndarray:
+    """Sharp bar patterns of random period and orientation on a colour gradient."""
+    yy, xx = np.mgrid[0:size, 0:size] / size
+    angle = rng.uniform(0, math.pi)
+    period = rng.uniform(0.02, 0.2)
+    phase = (xx * math.cos(angle) + yy * math.sin(angle)) / period
+    stripes = (np.floor(phase) % 2)[..., None]
+    a, b = rng.random(3), rng.random(3)
+    background = a[None, None, :] * (1 - xx[..., None]) + b[None, None, :] * xx[..., None]
+    return np.clip(0.7 * background + 0.3 * stripes * rng.random(3), 0, 1)
+
+
+def load_photos(folder: Path) -> list:
+    from PIL import Image
+    return [np.asarray(Image.open(p).convert("RGB"), dtype=np.float32) / 255 for p in sorted(folder.glob("*.png"))]
+
+
+class TrainingImages:
+    """Random patches: procedural images and random crops/flips of the
+    training photographs, in proportion `photo_share`."""
+
+    def __init__(self, patch: int, seed: int, photo_share: float = 0.3):
+        self.patch = patch
+        self.rng = np.random.default_rng(seed)
+        self.photos = [p for p in load_photos(TRAIN_DIR) if min(p.shape[:2]) >= patch]
+        self.photo_share = photo_share if self.photos else 0.0
+
+    def sample(self) -> np.ndarray:
+        rng, n = self.rng, self.patch
+        if rng.random() < self.photo_share:
+            p = self.photos[rng.integers(len(self.photos))]
+            y = rng.integers(p.shape[0] - n + 1)
+            x = rng.integers(p.shape[1] - n + 1)
+            img = p[y:y + n, x:x + n]
+            if rng.random() < 0.5:
+                img = img[:, ::-1]
+            return np.ascontiguousarray(img)
+        return (dead_leaves if rng.random() < 0.8 else bars)(rng, n).astype(np.float32)
+
+    def batch(self, size: int) -> torch.Tensor:
+        return torch.from_numpy(np.stack([self.sample() for _ in range(size)])).permute(0, 3, 1, 2).contiguous()
+
+
+def validation_images(patch: int, count: int = 4, seed: int = 10_000) -> torch.Tensor:
+    """A fixed validation set, disjoint from training: procedural images from
+    their own seed plus centre crops of the test photographs."""
+    rng = np.random.default_rng(seed)
+    imgs = [dead_leaves(rng, patch).astype(np.float32) for _ in range(count)]
+    for p in load_photos(TEST_DIR):
+        y, x = (p.shape[0] - patch) // 2, (p.shape[1] - patch) // 2
+        if y >= 0 and x >= 0:
+            imgs.append(p[y:y + patch, x:x + patch])
+    return torch.from_numpy(np.stack(imgs)).permute(0, 3, 1, 2).contiguous()
