@@ -3,6 +3,7 @@ both 1×3×H×W float32 with dynamic H and W, the residual add inside the
 graph) and the DOE as a height-map file in the format of docs/doe-format.md
 (safetensors, tensor `height_um`, metadata), at the design pitch and
 resampled (Keys bicubic, a = −½, like the Rust side) to the fabrication pitch."""
+import json
 import math
 from pathlib import Path
 
@@ -55,3 +56,63 @@ def save_doe(path, height_m: np.ndarray, pitch_m: float, max_height_m: float, ma
     tmp = Path(str(path) + ".tmp")
     save_file({"height_um": (np.asarray(height_m) * 1e6).astype(np.float32)}, str(tmp), metadata=meta)
     tmp.replace(path)
+
+
+def sha256(path) -> str:
+    import hashlib
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+def export_run(run: Path, out: Path, name: str) -> dict:
+    """From a training run (checkpoint.pt, result.json) write `out/dcnn-NAME.onnx`,
+    the DOE at the design and fabrication pitches, and `out/card-NAME.json`."""
+    import dataclasses
+    import platform
+
+    from . import calib as calib_mod
+    from .optics import grid
+    from .train import Config, System
+
+    state = torch.load(run / "checkpoint.pt", map_location="cpu", weights_only=False)
+    cfg = Config(**state["config"])
+    cal = calib_mod.load(cfg.calib)
+    system = System(cfg, cal)
+    system.load_state_dict(state["system"])
+    out.mkdir(parents=True, exist_ok=True)
+    onnx_path = out / f"dcnn-{name}.onnx"
+    export_onnx(system.net, onnx_path)
+    height = system.optics.doe().detach().double().numpy()
+    design = out / f"doe-{name}-design.safetensors"
+    fab = out / f"doe-{name}-fabrication.safetensors"
+    lam0 = cal.channels[cal.design_channel].wavelength_m
+    desc = f"nedrt_train run {run.name}, step {state['step']}"
+    save_doe(design, height, cal.doe_design_pitch_m, cal.doe_max_height_m, "fused silica", lam0, desc)
+    fine = resample(height, cal.doe_design_pitch_m, cal.doe_fabrication_pitch_m, cal.doe_max_height_m)
+    save_doe(fab, fine, cal.doe_fabrication_pitch_m, cal.doe_max_height_m, "fused silica", lam0, desc + " (bicubic)")
+    result = json.loads((run / "result.json").read_text()) if (run / "result.json").exists() else {}
+    card = {
+        "name": name, "config": dataclasses.asdict(cfg), "seed": cfg.seed, "steps": state["step"],
+        "wall_time_s": result.get("seconds"), "validation": result.get("validation"),
+        "hardware": {"platform": platform.platform(), "processor": platform.processor(), "torch": torch.__version__,
+                     "cuda": torch.cuda.get_device_name(0) if torch.cuda.is_available() else None},
+        "parameters": sum(p.numel() for p in system.net.parameters()),
+        "macs_per_pixel": system.net.macs_per_pixel(),
+        "files": {p.name: sha256(p) for p in [onnx_path, design, fab]},
+        "grid_points": len(grid(cal, cal.doe_design_pitch_m)),
+    }
+    (out / f"card-{name}.json").write_text(json.dumps(card, indent=1))
+    return card
+
+
+def main(argv=None):
+    import argparse
+    ap = argparse.ArgumentParser(description="Export a training run: ONNX, DOE files, model card.")
+    ap.add_argument("--run", type=Path, required=True)
+    ap.add_argument("--out", type=Path, default=Path(__file__).resolve().parents[1])
+    ap.add_argument("--name", required=True)
+    args = ap.parse_args(argv)
+    print(json.dumps(export_run(args.run, args.out, args.name)["files"], indent=1))
+
+
+if __name__ == "__main__":
+    main()

@@ -61,3 +61,19 @@ def test_ddp_smoke_two_cpu_processes(tmp_path):
     assert out.returncode == 0, out.stderr[-3000:]
     assert (tmp_path / "ddp" / "checkpoint.pt").exists()
     assert (tmp_path / "ddp" / "result.json").exists()
+
+
+def test_export_run_writes_onnx_doe_and_card(tmp_path):
+    import json
+
+    import numpy as np
+    import onnxruntime as ort
+
+    from nedrt_train.export import export_run
+    train(dataclasses.replace(SMOKE, steps=1), tmp_path / "run")
+    card = export_run(tmp_path / "run", tmp_path / "out", "smoke")
+    assert set(card["files"]) == {"dcnn-smoke.onnx", "doe-smoke-design.safetensors", "doe-smoke-fabrication.safetensors"}
+    assert json.loads((tmp_path / "out" / "card-smoke.json").read_text())["steps"] == 1
+    sess = ort.InferenceSession(str(tmp_path / "out" / "dcnn-smoke.onnx"), providers=["CPUExecutionProvider"])
+    y = sess.run(None, {"image": np.random.rand(1, 3, 16, 24).astype(np.float32)})[0]
+    assert y.shape == (1, 3, 16, 24)
