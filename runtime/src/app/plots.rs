@@ -68,6 +68,41 @@ fn header(sim: &Simulator, prepared: &Prepared) -> String {
     t
 }
 
+/// Layout of one written figure.
+struct Figure {
+    stem: &'static str,
+    layout: (usize, usize),
+    size: (u32, u32),
+    svg: bool,
+}
+
+/// Writes the figure and its CSV (`stem`.csv) and reports what was written.
+fn finish(
+    sim: &Simulator,
+    prepared: &Prepared,
+    out_dir: &Path,
+    figure: Figure,
+    panels: &[Panel],
+    csv: &str,
+) -> Result<String, AppError> {
+    let csv_path = out_dir.join(format!("{}.csv", figure.stem));
+    write_text(&csv_path, csv)?;
+    let written = write_figure(
+        &out_dir.join(figure.stem),
+        figure.layout,
+        figure.size,
+        panels,
+        figure.svg,
+    )
+    .map_err(|e| AppError::output(out_dir, e))?;
+    Ok(format!(
+        "{}wrote {} and {}\n",
+        header(sim, prepared),
+        written.join(", "),
+        csv_path.display()
+    ))
+}
+
 /// Fig. 4b: PSF cross-sections against accommodation.
 pub fn psf(common: &CommonOptions, out_dir: &Path, step_d: f64) -> Result<String, AppError> {
     create_dir(out_dir)?;
@@ -129,22 +164,13 @@ pub fn psf(common: &CommonOptions, out_dir: &Path, step_d: f64) -> Result<String
             colors,
         }));
     }
-    let csv_path = out_dir.join("psf_cross_sections.csv");
-    write_text(&csv_path, &csv)?;
-    let written = write_figure(
-        &out_dir.join("psf_cross_sections"),
-        (1, 2),
-        (1200, 520),
-        &panels,
-        false,
-    )
-    .map_err(|e| AppError::output(out_dir, e))?;
-    Ok(format!(
-        "{}wrote {} and {}\n",
-        header(&sim, &prepared),
-        written.join(", "),
-        csv_path.display()
-    ))
+    let figure = Figure {
+        stem: "psf_cross_sections",
+        layout: (1, 2),
+        size: (1200, 520),
+        svg: false,
+    };
+    finish(&sim, &prepared, out_dir, figure, &panels, &csv)
 }
 
 /// Fig. 5: MTF at 0.5 D against CPD, and against accommodation at 1, 5, 10 CPD.
@@ -249,16 +275,13 @@ pub fn mtf(common: &CommonOptions, out_dir: &Path, step_d: f64) -> Result<String
             series,
         }));
     }
-    let csv_path = out_dir.join("mtf.csv");
-    write_text(&csv_path, &csv)?;
-    let written = write_figure(&out_dir.join("mtf"), (2, 2), (1100, 800), &panels, true)
-        .map_err(|e| AppError::output(out_dir, e))?;
-    Ok(format!(
-        "{}wrote {} and {}\n",
-        header(&sim, &prepared),
-        written.join(", "),
-        csv_path.display()
-    ))
+    let figure = Figure {
+        stem: "mtf",
+        layout: (2, 2),
+        size: (1100, 800),
+        svg: true,
+    };
+    finish(&sim, &prepared, out_dir, figure, &panels, &csv)
 }
 
 /// Fig. 4a: the height map; optionally writes the DOE files.
