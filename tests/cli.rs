@@ -414,3 +414,44 @@ fn plots_are_written() {
     assert_eq!(zero.len(), 4);
     assert!(zero.iter().all(|v| *v <= 1.0 && *v > 0.9), "{zero:?}");
 }
+
+#[test]
+fn eval_scores_external_display_images() {
+    // The inputs themselves as "display images" through lens + DOE must score
+    // exactly as doe-only (which shows the input unprocessed).
+    let dir = tempfile::tempdir().expect("tmp");
+    let imgs = dir.path().join("imgs");
+    std::fs::create_dir(&imgs).expect("dir");
+    write_png(&imgs.join("a.png"), 24, 16);
+    let out = dir.path().join("eval");
+    let c = small_calib();
+    let args = [
+        "--calib",
+        path(&c),
+        "eval",
+        "--images",
+        path(&imgs),
+        "--out-dir",
+        path(&out),
+        "--methods",
+        "doe-only",
+        "--display-dir",
+        path(&imgs),
+        "--display-name",
+        "same-as-input",
+    ];
+    let o = run(&args);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("eval.json")).expect("json"))
+            .expect("parse");
+    let methods = json["methods"].as_array().expect("methods");
+    assert_eq!(methods[1]["method"], "same-as-input");
+    assert_eq!(methods[0]["rows"], methods[1]["rows"]);
+    let empty = dir.path().join("empty");
+    std::fs::create_dir(&empty).expect("dir");
+    let mut missing = args.to_vec();
+    missing[10] = path(&empty);
+    let o = run(&missing);
+    assert_clean_error(&o, "a.png: cannot read image");
+}

@@ -75,6 +75,15 @@ enum OpticsArg {
     Doe,
 }
 
+impl From<OpticsArg> for Optics {
+    fn from(o: OpticsArg) -> Self {
+        match o {
+            OpticsArg::Lens => Optics::Lens,
+            OpticsArg::Doe => Optics::Doe,
+        }
+    }
+}
+
 fn parse_method(s: &str) -> Result<Method, String> {
     s.parse()
 }
@@ -130,6 +139,16 @@ struct EvalArgs {
     /// Methods to evaluate (default: all available).
     #[arg(long, value_delimiter = ',', value_parser = parse_method)]
     methods: Vec<Method>,
+    /// Also evaluate display images made elsewhere (e.g. the trainer's
+    /// D-CNN outputs): DIR/NAME for every input image NAME, same size.
+    #[arg(long, value_name = "DIR")]
+    display_dir: Option<PathBuf>,
+    /// Row name for --display-dir.
+    #[arg(long, default_value = "external", value_name = "NAME")]
+    display_name: String,
+    /// Optics the --display-dir images are seen through.
+    #[arg(long, value_enum, default_value = "doe")]
+    display_optics: OpticsArg,
 }
 
 #[derive(Args, Debug)]
@@ -210,10 +229,23 @@ fn run(cli: Cli) -> Result<()> {
                 a.write_fabrication.as_deref()
             )?
         ),
-        Some(Command::Eval(a)) => print!(
-            "{}",
-            app::eval::run(&common, &a.images, &a.out_dir, &a.methods)?
-        ),
+        Some(Command::Eval(a)) => {
+            let external = a.display_dir.map(|dir| app::eval::ExternalDisplays {
+                name: a.display_name,
+                dir,
+                optics: a.display_optics.into(),
+            });
+            print!(
+                "{}",
+                app::eval::run(
+                    &common,
+                    &a.images,
+                    &a.out_dir,
+                    &a.methods,
+                    external.as_ref()
+                )?
+            )
+        }
         Some(Command::TuneWiener(a)) => {
             print!("{}", app::tune::run(&common, &a.images, a.method, a.write)?)
         }
@@ -239,10 +271,7 @@ fn run(cli: Cli) -> Result<()> {
                 method: s.method,
                 out: s.out,
                 display_image: s.display_image,
-                optics: match s.optics {
-                    OpticsArg::Lens => Optics::Lens,
-                    OpticsArg::Doe => Optics::Doe,
-                },
+                optics: s.optics.into(),
             };
             println!("{}", app::sim::run(&common, &opts)?);
         }

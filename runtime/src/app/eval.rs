@@ -131,11 +131,59 @@ fn headline(rows: &[DepthRow], pick: impl Fn(&DepthRow) -> Score) -> Headline {
 }
 
 /// Runs the evaluation and writes `eval.md` and `eval.json` into `out_dir`.
+/// Display images made elsewhere (e.g. by the trainer's D-CNN): for every
+/// input `NAME.ext`, `dir/NAME.ext` (same size) is shown through `optics`.
+#[derive(Debug, Clone)]
+pub struct ExternalDisplays {
+    pub name: String,
+    pub dir: PathBuf,
+    pub optics: Optics,
+}
+
+impl ExternalDisplays {
+    /// The built-in method whose PSFs (and no preprocessing) the row uses.
+    fn psf_method(&self) -> Method {
+        match self.optics {
+            Optics::Lens => Method::Conventional,
+            Optics::Doe => Method::DoeOnly,
+        }
+    }
+
+    fn load(&self, input_file: &Path, input: &Image) -> Result<Image, AppError> {
+        let name = input_file
+            .file_name()
+            .ok_or_else(|| AppError::Usage("input without a file name".into()))?;
+        let path = self.dir.join(name);
+        let l = image_io::load(&path)?;
+        for n in &l.notes {
+            tracing::warn!("{n}");
+        }
+        let im = l.image;
+        if im.width < input.width
+            || im.height < input.height
+            || im.width / 8 * 8 != input.width
+            || im.height / 8 * 8 != input.height
+        {
+            return Err(AppError::Usage(format!(
+                "{}: display image is {}×{}, its input {} is {}×{} after cropping to multiples of 8; the sizes must match",
+                path.display(),
+                im.width,
+                im.height,
+                input_file.display(),
+                input.width,
+                input.height
+            )));
+        }
+        Ok(im.crop(0, 0, input.width, input.height))
+    }
+}
+
 pub fn run(
     common: &CommonOptions,
     images_dir: &Path,
     out_dir: &Path,
     methods: &[Method],
+    external: Option<&ExternalDisplays>,
 ) -> Result<String, AppError> {
     let start = Instant::now();
     let files = list_images(images_dir)?;
@@ -152,13 +200,16 @@ pub fn run(
     };
     let depths = sim.calib.evaluation_depths_d();
     let bar = progress_bar("PSFs");
-    let prepared = sim.prepare(&methods, &depths, Some(&bar))?;
+    let mut needed = methods.clone();
+    needed.extend(external.map(|e| e.psf_method()));
+    let prepared = sim.prepare(&needed, &depths, Some(&bar))?;
     bar.finish_and_clear();
 
+    let rows = methods.len() + usize::from(external.is_some());
     let bar = progress_bar("images");
-    bar.set_length((images.len() * methods.len() * depths.len()) as u64);
-    // scores[method][depth][image]
-    let mut scores = vec![vec![Vec::new(); depths.len()]; methods.len()];
+    bar.set_length((images.len() * rows * depths.len()) as u64);
+    // scores[row][depth][image]; the external row, if any, comes last.
+    let mut scores = vec![vec![Vec::new(); depths.len()]; rows];
     for (file, input) in files.iter().zip(&images) {
         let (input, _) = pad_to_multiple_of_8(input, &file.display().to_string());
         let sharp = input.up2();
@@ -166,10 +217,16 @@ pub fn run(
             .iter()
             .map(|d| prepared.target(&input, *d))
             .collect::<Result<_, _>>()?;
-        for (mi, &m) in methods.iter().enumerate() {
-            let display = prepared.display_image(m, &input);
+        let mut displays: Vec<(Method, Image)> = methods
+            .iter()
+            .map(|&m| (m, prepared.display_image(m, &input)))
+            .collect();
+        if let Some(e) = external {
+            displays.push((e.psf_method(), e.load(file, &input)?));
+        }
+        for (mi, (m, display)) in displays.iter().enumerate() {
             for (di, &d) in depths.iter().enumerate() {
-                let perceived = prepared.perceived(m, &display, d)?;
+                let perceived = prepared.perceived(*m, display, d)?;
                 scores[mi][di].push(ImageScore {
                     image: file.display().to_string(),
                     vs_sharp: Score::of(&perceived, &sharp),
@@ -181,10 +238,15 @@ pub fn run(
     }
     bar.finish_and_clear();
 
-    let results: Vec<MethodResult> = methods
+    let mut row_names: Vec<(String, Optics)> = methods
+        .iter()
+        .map(|m| (m.name().to_string(), m.optics()))
+        .collect();
+    row_names.extend(external.map(|e| (e.name.clone(), e.optics)));
+    let results: Vec<MethodResult> = row_names
         .iter()
         .zip(scores)
-        .map(|(m, per_depth)| {
+        .map(|((name, optics), per_depth)| {
             let rows: Vec<DepthRow> = depths
                 .iter()
                 .zip(per_depth)
@@ -198,8 +260,8 @@ pub fn run(
                 })
                 .collect();
             MethodResult {
-                method: m.name().to_string(),
-                doe: (m.optics() == Optics::Doe).then(|| sim.doe_hash.clone()),
+                method: name.clone(),
+                doe: (*optics == Optics::Doe).then(|| sim.doe_hash.clone()),
                 headline_vs_sharp: headline(&rows, |r| r.vs_sharp),
                 headline_vs_target: headline(&rows, |r| r.vs_target),
                 rows,
