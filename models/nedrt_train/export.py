@@ -110,9 +110,57 @@ def main(argv=None):
     ap.add_argument("--run", type=Path, required=True)
     ap.add_argument("--out", type=Path, default=Path(__file__).resolve().parents[1])
     ap.add_argument("--name", required=True)
+    ap.add_argument("--displays", type=Path, help="also write the D-CNN outputs for data/images/test here (16-bit PNG), for nedrt eval --display-dir")
     args = ap.parse_args(argv)
     print(json.dumps(export_run(args.run, args.out, args.name)["files"], indent=1))
+    if args.displays:
+        from . import calib as calib_mod
+        from .train import Config
+        from .unet import UNet
+        state = torch.load(args.run / "checkpoint.pt", map_location="cpu", weights_only=False)
+        cfg = Config(**state["config"])
+        net = UNet(cfg.width, cfg.levels)
+        net.load_state_dict({k[len("net."):]: v for k, v in state["system"].items() if k.startswith("net.")})
+        for p in write_displays(net, calib_mod.REPO / "data" / "images" / "test", args.displays):
+            print("wrote", p)
 
 
 if __name__ == "__main__":
     main()
+
+
+def write_png16(path, rgb: np.ndarray):
+    """An RGB image in [0, 1] (H×W×3) as a 16-bit PNG (Pillow cannot write
+    16-bit RGB): signature, IHDR, one zlib IDAT of filter-0 rows, IEND."""
+    import struct
+    import zlib
+    h, w, _ = rgb.shape
+    raw = (np.clip(rgb, 0, 1) * 65535 + 0.5).astype(">u2")
+    rows = b"".join(b"\x00" + raw[y].tobytes() for y in range(h))
+
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data) & 0xFFFFFFFF)
+
+    png = (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 16, 2, 0, 0, 0))
+           + chunk(b"IDAT", zlib.compress(rows, 6)) + chunk(b"IEND", b""))
+    tmp = Path(str(path) + ".tmp")
+    tmp.write_bytes(png)
+    tmp.replace(path)
+
+
+@torch.no_grad()
+def write_displays(net: torch.nn.Module, images_dir: Path, out_dir: Path) -> list:
+    """The clamped D-CNN output (the panel's [0, 1]) for every PNG in
+    `images_dir`, cropped to multiples of 8 like `nedrt eval`, as 16-bit PNGs
+    of the same names in `out_dir`."""
+    from PIL import Image
+    out_dir.mkdir(parents=True, exist_ok=True)
+    written = []
+    for p in sorted(images_dir.glob("*.png")):
+        img = np.asarray(Image.open(p).convert("RGB"), dtype=np.float32) / 255
+        h, w = img.shape[0] // 8 * 8, img.shape[1] // 8 * 8
+        x = torch.from_numpy(np.ascontiguousarray(img[:h, :w])).permute(2, 0, 1)[None]
+        display = net.eval().forward_padded(x).clamp(0, 1)[0].permute(1, 2, 0).numpy()
+        write_png16(out_dir / p.name, display)
+        written.append(out_dir / p.name)
+    return written

@@ -77,3 +77,34 @@ def test_export_run_writes_onnx_doe_and_card(tmp_path):
     sess = ort.InferenceSession(str(tmp_path / "out" / "dcnn-smoke.onnx"), providers=["CPUExecutionProvider"])
     y = sess.run(None, {"image": np.random.rand(1, 3, 16, 24).astype(np.float32)})[0]
     assert y.shape == (1, 3, 16, 24)
+
+
+def test_displays_are_exact_16_bit_pngs_that_nedrt_evaluates(tmp_path):
+    import numpy as np
+
+    from nedrt_train.export import write_displays, write_png16
+    from nedrt_train.unet import UNet
+    rgb = np.random.default_rng(0).random((5, 7, 3))
+    write_png16(tmp_path / "x.png", rgb)
+    exe = calib_mod.REPO / "target" / "release" / "nedrt"
+    net = UNet(width=4, levels=2)
+    with torch.no_grad():  # identity network: display = input
+        net.out.weight.zero_()
+        net.out.bias.zero_()
+    imgs = tmp_path / "imgs"
+    imgs.mkdir()
+    from PIL import Image
+    Image.fromarray((np.random.default_rng(1).random((16, 24, 3)) * 255).astype(np.uint8)).save(imgs / "a.png")
+    write_displays(net, imgs, tmp_path / "displays")
+    if not exe.exists():
+        import pytest
+        pytest.skip("nedrt not built")
+    import json
+    out = subprocess.run([str(exe), "--calib", str(calib_mod.REPO / "tests/data/small-aperture.toml"), "eval",
+                          "--images", str(imgs), "--out-dir", str(tmp_path / "eval"), "--methods", "doe-only",
+                          "--display-dir", str(tmp_path / "displays")], capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    methods = json.loads((tmp_path / "eval" / "eval.json").read_text())["methods"]
+    # The identity D-CNN's 16-bit display scores as the unprocessed input (to 16-bit rounding).
+    for a, b in zip(methods[0]["rows"], methods[1]["rows"]):
+        assert abs(a["vs_sharp"]["psnr_db"] - b["vs_sharp"]["psnr_db"]) < 1e-3
