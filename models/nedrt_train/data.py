@@ -16,30 +16,41 @@ TRAIN_DIR = REPO / "data" / "images" / "train"
 TEST_DIR = REPO / "data" / "images" / "test"
 
 
-def dead_leaves(rng: np.random.Generator, size: int, r_min: float = 2.0, r_max: float = None) -> np.ndarray:
+def dead_leaves(rng: np.random.Generator, size: int, r_min: float = 3.0, r_max: float = None) -> np.ndarray:
     """A dead-leaves image (H×W×3 in [0, 1]): opaque discs dropped front to
-    back until the frame is covered, radii with density ∝ r⁻³."""
+    back, radii with density ∝ r⁻³, until 99.5 % of the frame is covered
+    (the rest, a few pixels, takes a background colour)."""
     r_max = r_max or size / 3
     img = np.zeros((size, size, 3))
     covered = np.zeros((size, size), bool)
-    yy, xx = np.mgrid[0:size, 0:size]
+    uncovered = size * size
     for _ in range(20000):
-        if covered.all():
+        if uncovered <= size * size // 200:
+            img[~covered] = rng.random(3) ** 1.5
             break
         # Inverse CDF of p(r) ∝ r⁻³ on [r_min, r_max].
         u = rng.random()
         r = 1 / math.sqrt(1 / r_min ** 2 - u * (1 / r_min ** 2 - 1 / r_max ** 2))
         cx, cy = rng.uniform(-r, size + r, 2)
+        shaded, shade = rng.random() < 0.3, rng.uniform(-0.5, 0.5)
+        color = rng.random(3) ** 1.5
+        # Work inside the disc's bounding box only.
+        x0, x1 = max(int(cx - r), 0), min(int(cx + r) + 1, size)
+        y0, y1 = max(int(cy - r), 0), min(int(cy + r) + 1, size)
+        if x0 >= x1 or y0 >= y1:
+            continue
+        yy, xx = np.mgrid[y0:y1, x0:x1]
         disc = (xx - cx) ** 2 + (yy - cy) ** 2 <= r * r
-        new = disc & ~covered
+        box = covered[y0:y1, x0:x1]
+        new = disc & ~box
         if new.any():
-            color = rng.random(3) ** 1.5
-            if rng.random() < 0.3:  # a shaded leaf: linear colour gradient
-                g = (xx - cx) / (2 * r) * rng.uniform(-0.5, 0.5)
-                img[new] = np.clip(color[None, :] + g[new][:, None], 0, 1)
+            if shaded:  # a shaded leaf: linear colour gradient
+                g = (xx - cx) / (2 * r) * shade
+                img[y0:y1, x0:x1][new] = np.clip(color[None, :] + g[new][:, None], 0, 1)
             else:
-                img[new] = color
-            covered |= disc
+                img[y0:y1, x0:x1][new] = color
+            uncovered -= int(new.sum())
+            box |= disc
     return img
 
 
