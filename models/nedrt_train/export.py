@@ -125,9 +125,6 @@ def main(argv=None):
             print("wrote", p)
 
 
-if __name__ == "__main__":
-    main()
-
 
 def write_png16(path, rgb: np.ndarray):
     """An RGB image in [0, 1] (H×W×3) as a 16-bit PNG (Pillow cannot write
@@ -164,3 +161,7 @@ def write_displays(net: torch.nn.Module, images_dir: Path, out_dir: Path) -> lis
         write_png16(out_dir / p.name, display)
         written.append(out_dir / p.name)
     return written
+
+
+if __name__ == "__main__":
+    main()

@@ -72,6 +72,13 @@ def test_export_run_writes_onnx_doe_and_card(tmp_path):
     from nedrt_train.export import export_run
     train(dataclasses.replace(SMOKE, steps=1), tmp_path / "run")
     card = export_run(tmp_path / "run", tmp_path / "out", "smoke")
+    # The command line, as a module (entry point after every definition).
+    env = dict(os.environ, OMP_NUM_THREADS="1", PYTHONPATH=str(calib_mod.REPO / "models"))
+    cli = subprocess.run([sys.executable, "-m", "nedrt_train.export", "--run", str(tmp_path / "run"), "--name", "smoke",
+                          "--out", str(tmp_path / "cli"), "--displays", str(tmp_path / "displays")],
+                         capture_output=True, text=True, env=env, timeout=300)
+    assert cli.returncode == 0, cli.stderr[-2000:]
+    assert (tmp_path / "displays" / "astronaut.png").exists()
     assert set(card["files"]) == {"dcnn-smoke.onnx", "doe-smoke-design.safetensors", "doe-smoke-fabrication.safetensors"}
     assert json.loads((tmp_path / "out" / "card-smoke.json").read_text())["steps"] == 1
     sess = ort.InferenceSession(str(tmp_path / "out" / "dcnn-smoke.onnx"), providers=["CPUExecutionProvider"])
