@@ -110,7 +110,7 @@ fn bad_images_are_clear_errors() {
     assert_clean_error(&o, "/no/such.png: cannot read image");
     let junk = dir.path().join("junk.png");
     std::fs::write(&junk, b"this is not an image").expect("write");
-    let o = sim("1", &out, &["--input", junk.to_str().expect("utf8")]);
+    let o = sim("1", &out, &["--input", path(&junk)]);
     assert_clean_error(&o, "cannot decode image");
     let nan = dir.path().join("nan.tif");
     let mut im = image::Rgb32FImage::from_pixel(16, 16, image::Rgb([0.5, 0.5, 0.5]));
@@ -118,7 +118,7 @@ fn bad_images_are_clear_errors() {
     image::DynamicImage::ImageRgb32F(im)
         .save(&nan)
         .expect("tiff");
-    let o = sim("1", &out, &["--input", nan.to_str().expect("utf8")]);
+    let o = sim("1", &out, &["--input", path(&nan)]);
     assert_clean_error(&o, "pixel 3,4 channel 0 is NaN");
     assert!(!out.exists(), "nothing written on failure");
 }
@@ -129,7 +129,7 @@ fn odd_gray_and_16_bit_images_are_converted_and_said_so() {
     let odd = dir.path().join("odd.png");
     write_png(&odd, 37, 29);
     let out = dir.path().join("p.png");
-    let o = sim("0.5", &out, &["--input", odd.to_str().expect("utf8")]);
+    let o = sim("0.5", &out, &["--input", path(&odd)]);
     assert!(o.status.success(), "{}", stderr(&o));
     assert!(
         stderr(&o).contains("not a multiple of 8; padded to 40×32"),
@@ -149,7 +149,7 @@ fn odd_gray_and_16_bit_images_are_converted_and_said_so() {
     })
     .save(&g16)
     .expect("png16");
-    let o = sim("0.5", &out, &["--input", g16.to_str().expect("utf8")]);
+    let o = sim("0.5", &out, &["--input", path(&g16)]);
     assert!(o.status.success(), "{}", stderr(&o));
     let e = stderr(&o);
     assert!(
@@ -164,13 +164,7 @@ fn accommodation_is_checked() {
     let input = dir.path().join("in.png");
     write_png(&input, 16, 16);
     let out = dir.path().join("p.png");
-    let base = [
-        "--sim",
-        "--input",
-        input.to_str().expect("utf8"),
-        "--out",
-        out.to_str().expect("utf8"),
-    ];
+    let base = ["--sim", "--input", path(&input), "--out", path(&out)];
     let o = run(&[&base[..], &["--accom", "-0.5"]].concat());
     assert_clean_error(&o, "accommodation must be ≥ 0 D");
     let o = run(&[&base[..], &["--accom", "4"]].concat());
@@ -195,13 +189,7 @@ fn malformed_calibration_and_doe_files_are_clear_errors() {
     let dir = tempfile::tempdir().expect("tmp");
     let bad = dir.path().join("bad.toml");
     std::fs::write(&bad, "[panel\npixel_pitch_um = 8.7").expect("write");
-    let o = run(&[
-        "--calib",
-        bad.to_str().expect("utf8"),
-        "--sim",
-        "--accom",
-        "1",
-    ]);
+    let o = run(&["--calib", path(&bad), "--sim", "--accom", "1"]);
     assert_clean_error(&o, "bad.toml: malformed TOML");
     let phys = dir.path().join("phys.toml");
     let text = std::fs::read_to_string(repo().join("calib/default.toml")).expect("calib");
@@ -210,20 +198,14 @@ fn malformed_calibration_and_doe_files_are_clear_errors() {
         text.replace("lens_distance_mm = 28.57", "lens_distance_mm = 31"),
     )
     .expect("write");
-    let o = run(&[
-        "--calib",
-        phys.to_str().expect("utf8"),
-        "--sim",
-        "--accom",
-        "1",
-    ]);
+    let o = run(&["--calib", path(&phys), "--sim", "--accom", "1"]);
     assert_clean_error(&o, "no virtual image");
 
     let doe = dir.path().join("doe.safetensors");
     std::fs::write(&doe, b"\x08\x00\x00\x00\x00\x00\x00\x00{}      ").expect("write");
     let o = run(&[
         "--doe",
-        doe.to_str().expect("utf8"),
+        path(&doe),
         "--sim",
         "--accom",
         "1",
@@ -238,14 +220,14 @@ fn malformed_calibration_and_doe_files_are_clear_errors() {
         small_calib().to_str().expect("utf8"),
         "doe",
         "--write-init",
-        init.to_str().expect("utf8"),
+        path(&init),
         "--out-dir",
-        dir.path().to_str().expect("utf8"),
+        path(dir.path()),
     ]);
     assert!(o.status.success(), "{}", stderr(&o));
     let o = run(&[
         "--doe",
-        init.to_str().expect("utf8"),
+        path(&init),
         "--sim",
         "--accom",
         "1",
@@ -267,9 +249,9 @@ fn display_image_must_match_and_outputs_must_be_writable() {
         "--accom",
         "1",
         "--input",
-        input.to_str().expect("utf8"),
+        path(&input),
         "--display-image",
-        disp.to_str().expect("utf8"),
+        path(&disp),
     ]);
     assert_clean_error(&o, "must match");
     let o = run(&[
@@ -277,7 +259,7 @@ fn display_image_must_match_and_outputs_must_be_writable() {
         "--accom",
         "1",
         "--input",
-        input.to_str().expect("utf8"),
+        path(&input),
         "--out",
         "/no/such/dir/p.png",
     ]);
@@ -287,7 +269,7 @@ fn display_image_must_match_and_outputs_must_be_writable() {
         "--accom",
         "1",
         "--input",
-        input.to_str().expect("utf8"),
+        path(&input),
         "--out",
         dir.path().join("p.jpg").to_str().expect("utf8"),
     ]);
@@ -303,16 +285,16 @@ fn display_image_is_simulated_through_the_chosen_optics() {
     let calib = small_calib();
     let o = run(&[
         "--calib",
-        calib.to_str().expect("utf8"),
+        path(&calib),
         "--sim",
         "--accom",
         "1.5",
         "--input",
-        input.to_str().expect("utf8"),
+        path(&input),
         "--display-image",
-        input.to_str().expect("utf8"),
+        path(&input),
         "--out",
-        out.to_str().expect("utf8"),
+        path(&out),
     ]);
     assert!(o.status.success(), "{}", stderr(&o));
     assert!(stdout(&o).contains("through lens + DOE"), "{}", stdout(&o));
@@ -331,9 +313,9 @@ fn eval_writes_fig6_tables() {
         small_calib().to_str().expect("utf8"),
         "eval",
         "--images",
-        imgs.to_str().expect("utf8"),
+        path(&imgs),
         "--out-dir",
-        out.to_str().expect("utf8"),
+        path(&out),
         "--methods",
         "conventional,doe-only",
     ]);
@@ -379,8 +361,8 @@ fn eval_writes_fig6_tables() {
 fn plots_are_written() {
     let dir = tempfile::tempdir().expect("tmp");
     let calib = small_calib();
-    let c = calib.to_str().expect("utf8");
-    let d = dir.path().to_str().expect("utf8");
+    let c = path(&calib);
+    let d = path(dir.path());
     for cmd in [
         vec!["mtf", "--step", "0.5"],
         vec!["psf", "--step", "0.5"],
