@@ -130,7 +130,6 @@ fn headline(rows: &[DepthRow], pick: impl Fn(&DepthRow) -> Score) -> Headline {
     }
 }
 
-/// Runs the evaluation and writes `eval.md` and `eval.json` into `out_dir`.
 /// Display images made elsewhere (e.g. by the trainer's D-CNN): for every
 /// input `NAME.ext`, `dir/NAME.ext` (same size) is shown through `optics`.
 #[derive(Debug, Clone)]
@@ -143,27 +142,18 @@ pub struct ExternalDisplays {
 impl ExternalDisplays {
     /// The built-in method whose PSFs (and no preprocessing) the row uses.
     fn psf_method(&self) -> Method {
-        match self.optics {
-            Optics::Lens => Method::Conventional,
-            Optics::Doe => Method::DoeOnly,
-        }
+        Method::unprocessed(self.optics)
     }
 
+    /// The display image of `input_file`, cropped to multiples of 8 like
+    /// its input; its size must then equal the input's.
     fn load(&self, input_file: &Path, input: &Image) -> Result<Image, AppError> {
         let name = input_file
             .file_name()
             .ok_or_else(|| AppError::Usage("input without a file name".into()))?;
         let path = self.dir.join(name);
-        let l = image_io::load(&path)?;
-        for n in &l.notes {
-            tracing::warn!("{n}");
-        }
-        let im = l.image;
-        if im.width < input.width
-            || im.height < input.height
-            || im.width / 8 * 8 != input.width
-            || im.height / 8 * 8 != input.height
-        {
+        let im = load_cropped(&path)?;
+        if (im.width, im.height) != (input.width, input.height) {
             return Err(AppError::Usage(format!(
                 "{}: display image is {}×{}, its input {} is {}×{} after cropping to multiples of 8; the sizes must match",
                 path.display(),
@@ -174,10 +164,11 @@ impl ExternalDisplays {
                 input.height
             )));
         }
-        Ok(im.crop(0, 0, input.width, input.height))
+        Ok(im)
     }
 }
 
+/// Runs the evaluation and writes `eval.md` and `eval.json` into `out_dir`.
 pub fn run(
     common: &CommonOptions,
     images_dir: &Path,

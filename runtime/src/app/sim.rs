@@ -117,10 +117,9 @@ pub fn run(common: &CommonOptions, opts: &SimOptions) -> Result<SimReport, AppEr
     };
 
     let sim = Simulator::new(calib, common.doe_path(), common.cache())?;
-    let method = match (&display_loaded, opts.optics) {
-        (Some(_), Optics::Lens) => Method::Conventional,
-        (Some(_), Optics::Doe) => Method::DoeOnly,
-        (None, _) => opts.method,
+    let method = match display_loaded {
+        Some(_) => Method::unprocessed(opts.optics),
+        None => opts.method,
     };
     let bar = progress_bar("PSFs");
     let prepared = sim.prepare(&[method], &[opts.accommodation_d], Some(&bar))?;

@@ -10,6 +10,7 @@ use super::eval::{HEADLINE_MAX_D, list_images, load_cropped};
 use super::{AppError, CommonOptions, progress_bar, write_text};
 use crate::calib::DEFAULT_CALIBRATION_NAME;
 use crate::sim::metrics::psnr;
+use crate::sim::simulator::PerceivePlan;
 use crate::sim::{Method, Simulator};
 
 /// K grid: 10^(−6) … 10^0 in quarter decades.
@@ -54,6 +55,15 @@ pub fn run(
         .map(|d| prepared.system_psfs(method, *d))
         .collect::<Result<_, _>>()?;
     let sharps: Vec<_> = images.iter().map(|im| im.up2()).collect();
+    // Only the display image changes with K: transform the kernels once.
+    let plans: Vec<Vec<PerceivePlan>> = images
+        .iter()
+        .map(|im| {
+            psfs.iter()
+                .map(|p| PerceivePlan::new(p, im.width, im.height))
+                .collect()
+        })
+        .collect();
 
     let grid = k_grid();
     let bar = progress_bar("K");
@@ -62,10 +72,10 @@ pub fn run(
     for &k in &grid {
         let filter = base.with_k(k);
         let mut total = 0.0;
-        for (im, sharp) in images.iter().zip(&sharps) {
+        for ((im, sharp), plans) in images.iter().zip(&sharps).zip(&plans) {
             let display = filter.apply(im);
-            for p in &psfs {
-                total += psnr(&crate::sim::perceive(&display, p), sharp);
+            for plan in plans {
+                total += psnr(&plan.apply(&display), sharp);
             }
         }
         table.push((k, total / (images.len() * psfs.len()) as f64));

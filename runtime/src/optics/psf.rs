@@ -184,7 +184,9 @@ pub fn compute_psfs(
             .map(|p| (p.period - 1) / 2)
             .min()
             .unwrap_or(0);
-        if !fits || half_needed > half_cap {
+        // The period caps the window below the energy target.
+        let capped = !fits || half_needed > half_cap;
+        if capped {
             let can_refine = request.doe.is_none() && calib.simulation.pupil_step_m.is_none();
             if can_refine && refinement < MAX_REFINEMENTS {
                 // Lens only: the blur outgrew the period; halve the step.
@@ -208,11 +210,7 @@ pub fn compute_psfs(
                 )));
             }
         }
-        let half = if fits {
-            half_needed.min(half_cap)
-        } else {
-            half_cap
-        };
+        let half = if capped { half_cap } else { half_needed };
         let window = 2 * half + 1;
         let psfs: Vec<Psf> = periods
             .iter()
@@ -240,7 +238,7 @@ pub fn compute_psfs(
             window_cells: window,
             min_window_energy: energies.iter().map(|e| e[half]).fold(f64::MAX, f64::min),
             max_veil: psfs.iter().map(|p| p.veil).fold(0.0, f64::max),
-            window_capped: !fits || half_needed > half_cap,
+            window_capped: capped,
             refinements: refinement,
             psf_count: psfs.len(),
             compute_s: start.elapsed().as_secs_f64(),
@@ -251,7 +249,7 @@ pub fn compute_psfs(
     unreachable!("the refinement loop returns or errs on its last pass")
 }
 
-/// Full-period PSFs of every spec, cells integrated until converged.
+/// Full-period PSFs of every spec, each cell integrated exactly.
 fn compute_periods(
     calib: &Calibration,
     request: &PsfRequest,

@@ -52,6 +52,15 @@ impl Method {
         }
     }
 
+    /// The method that shows a frame unprocessed through `optics`: what an
+    /// externally made display image is seen through.
+    pub fn unprocessed(optics: Optics) -> Method {
+        match optics {
+            Optics::Lens => Method::Conventional,
+            Optics::Doe => Method::DoeOnly,
+        }
+    }
+
     /// Whether the frame is Wiener-prefiltered.
     pub fn uses_wiener(self) -> bool {
         matches!(self, Method::Ai | Method::DoeWiener)

@@ -101,9 +101,9 @@ impl Simulator {
             if specs.specs.is_empty() {
                 return Ok(None);
             }
-            let specs = specs.canonical();
+            let SpecSet { specs, index } = specs.canonical();
             let request = PsfRequest {
-                specs: specs.specs.clone(),
+                specs,
                 doe: with_doe.then_some(&self.doe),
             };
             let set = self.cache.get_or_compute(c, &request, &tick)?;
@@ -111,10 +111,7 @@ impl Simulator {
                 if with_doe { "lens + DOE" } else { "lens" }.to_string(),
                 set.report.clone(),
             ));
-            Ok(Some(PsfTable {
-                set,
-                index: specs.index,
-            }))
+            Ok(Some(PsfTable { set, index }))
         };
         let lens = run(lens, false)?;
         let doe = run(doe, true)?;
@@ -318,20 +315,6 @@ impl Prepared {
         ))
     }
 
-    /// Perceived image through arbitrary optics (e.g. an external display image).
-    pub fn perceived_through(
-        &self,
-        optics: Optics,
-        display: &Image,
-        accommodation_d: f64,
-    ) -> Result<Image, SimError> {
-        let method = match optics {
-            Optics::Lens => Method::Conventional,
-            Optics::Doe => Method::DoeOnly,
-        };
-        self.perceived(method, display, accommodation_d)
-    }
-
     /// The multifocal target: up2(I) at a main depth, up2(I) ∗ h_b elsewhere.
     pub fn target(&self, input: &Image, accommodation_d: f64) -> Result<Image, SimError> {
         if self.calib.is_main_depth(accommodation_d) {
@@ -349,22 +332,47 @@ impl Prepared {
 
 /// Î_p = up2(I_d) ∗ h + veil · mean(I_d), per channel, on the retinal grid.
 pub fn perceive(display: &Image, psfs: &[Psf]) -> Image {
-    let up = display.up2();
-    let means = display.plane_means();
-    let planes = up
-        .planes
-        .iter()
-        .zip(psfs)
-        .zip(means)
-        .map(|((plane, psf), mean)| {
-            let kernel = PreparedKernel::new(&psf.cells, psf.window, up.width, up.height);
-            let veil = (psf.veil * mean) as f32;
-            let mut out = kernel.apply(plane);
-            out.iter_mut().for_each(|v| *v += veil);
-            out
-        })
-        .collect();
-    Image::from_planes(up.width, up.height, planes)
+    PerceivePlan::new(psfs, display.width, display.height).apply(display)
+}
+
+/// Per-channel PSFs with their kernels transformed once for display images
+/// of one size, for rendering many frames through the same optics.
+#[derive(Debug)]
+pub struct PerceivePlan {
+    kernels: Vec<(PreparedKernel, f64)>,
+}
+
+impl PerceivePlan {
+    pub fn new(psfs: &[Psf], display_width: usize, display_height: usize) -> Self {
+        let kernels = psfs
+            .iter()
+            .map(|p| {
+                let k =
+                    PreparedKernel::new(&p.cells, p.window, 2 * display_width, 2 * display_height);
+                (k, p.veil)
+            })
+            .collect();
+        Self { kernels }
+    }
+
+    /// Î_p for a display image of the planned size.
+    pub fn apply(&self, display: &Image) -> Image {
+        let up = display.up2();
+        let means = display.plane_means();
+        let planes = up
+            .planes
+            .iter()
+            .zip(&self.kernels)
+            .zip(means)
+            .map(|((plane, (kernel, veil)), mean)| {
+                let veil = (veil * mean) as f32;
+                let mut out = kernel.apply(plane);
+                out.iter_mut().for_each(|v| *v += veil);
+                out
+            })
+            .collect();
+        Image::from_planes(up.width, up.height, planes)
+    }
 }
 
 #[cfg(test)]
