@@ -12,6 +12,13 @@ fi
 .venv/bin/python -m pip install --quiet --disable-pip-version-check \
     -r tests/python/requirements.txt -r models/requirements.txt
 
+# The ort backend's tests load ONNX Runtime from the onnxruntime wheel just installed.
+ORT_DYLIB_PATH="$(ls "$PWD"/.venv/lib/python3*/site-packages/onnxruntime/capi/libonnxruntime.so.* | head -n 1)"
+export ORT_DYLIB_PATH NEDRT_REQUIRE_ORT=1
+# GPU tests run on any Vulkan adapter (Mesa's lavapipe in CI, which sets
+# NEDRT_REQUIRE_GPU=1); without one they say why they skip.
+export XDG_RUNTIME_DIR="${XDG_RUNTIME_DIR:-/tmp}"
+
 echo "== cargo fmt --check"
 cargo fmt --all --check
 echo "== cargo clippy --all-targets -- -D warnings"

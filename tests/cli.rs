@@ -437,3 +437,138 @@ fn eval_scores_external_display_images() {
     let o = run(&missing);
     assert_clean_error(&o, "a.png: cannot read image");
 }
+
+fn dcnn_model() -> PathBuf {
+    repo().join("models/dcnn.onnx")
+}
+
+/// The "vs sharp" line of a sim report.
+fn vs_sharp(o: &Output) -> String {
+    stdout(o)
+        .lines()
+        .find(|l| l.starts_with("vs sharp"))
+        .unwrap_or_default()
+        .to_string()
+}
+
+#[test]
+fn proposed_method_gives_the_same_image_on_every_backend() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let calib = small_calib();
+    let model = dcnn_model();
+    let base = [
+        "--calib",
+        path(&calib),
+        "--method",
+        "proposed",
+        "--dcnn",
+        path(&model),
+    ];
+    let cpu = sim("1.0", &dir.path().join("cpu.png"), &base);
+    assert!(cpu.status.success(), "{}", stderr(&cpu));
+    assert!(stdout(&cpu).contains("D-CNN"), "{}", stdout(&cpu));
+    assert!(
+        stdout(&cpu).contains("nedrt_train run cpu"),
+        "the companion DOE is used"
+    );
+    let mut backends = vec![];
+    if std::env::var_os("ORT_DYLIB_PATH").is_some()
+        || std::env::var_os("NEDRT_REQUIRE_ORT").is_some()
+    {
+        backends.push("ort");
+    }
+    if std::env::var_os("NEDRT_REQUIRE_GPU").is_some() {
+        backends.push("wgpu");
+    }
+    for backend in backends {
+        let out = dir.path().join(format!("{backend}.png"));
+        let o = sim("1.0", &out, &[&base[..], &["--backend", backend]].concat());
+        assert!(o.status.success(), "{backend}: {}", stderr(&o));
+        assert_eq!(vs_sharp(&o), vs_sharp(&cpu), "{backend}");
+    }
+}
+
+#[test]
+fn bad_dcnn_inputs_are_clear_errors() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let calib = small_calib();
+    let out = dir.path().join("p.png");
+    let corrupt = dir.path().join("corrupt.onnx");
+    std::fs::write(&corrupt, b"\x08\x07garbage").expect("write");
+    let o = sim(
+        "1.0",
+        &out,
+        &[
+            "--calib",
+            path(&calib),
+            "--method",
+            "proposed",
+            "--dcnn",
+            path(&corrupt),
+        ],
+    );
+    assert_clean_error(&o, "corrupt.onnx");
+    let missing = dir.path().join("none.onnx");
+    let o = sim(
+        "1.0",
+        &out,
+        &[
+            "--calib",
+            path(&calib),
+            "--method",
+            "lens+dcnn",
+            "--dcnn-lens",
+            path(&missing),
+        ],
+    );
+    assert_clean_error(&o, "none.onnx");
+    let model = dcnn_model();
+    let o = nedrt()
+        .args([
+            "--sim",
+            "--accom",
+            "1",
+            "--out",
+            path(&out),
+            "--calib",
+            path(&calib),
+        ])
+        .args([
+            "--method",
+            "proposed",
+            "--dcnn",
+            path(&model),
+            "--backend",
+            "ort",
+        ])
+        .env("ORT_DYLIB_PATH", "/nonexistent/libonnxruntime.so")
+        .output()
+        .expect("run");
+    assert_clean_error(
+        &o,
+        "ORT_DYLIB_PATH=/nonexistent/libonnxruntime.so is not a file",
+    );
+    let o = nedrt()
+        .args([
+            "--sim",
+            "--accom",
+            "1",
+            "--out",
+            path(&out),
+            "--calib",
+            path(&calib),
+        ])
+        .args([
+            "--method",
+            "proposed",
+            "--dcnn",
+            path(&model),
+            "--backend",
+            "wgpu",
+        ])
+        .env("WGPU_BACKEND", "metal")
+        .output()
+        .expect("run");
+    assert_clean_error(&o, "no GPU adapter");
+    assert!(!out.exists(), "nothing written on error");
+}

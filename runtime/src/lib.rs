@@ -1,12 +1,14 @@
 //! nedrt: runtime and simulator for a computational multifocal near-eye
 //! display (lens + static DOE + D-CNN preprocessing).
 //!
-//! The module tree follows the data flow: [`calib`] → [`optics`] → [`sim`].
+//! The module tree follows the data flow: [`calib`] → [`optics`] → ([`sim`] |
+//! [`inference`]).
 
 pub mod app;
 pub mod calib;
 pub mod charts;
 pub mod golden;
+pub mod inference;
 pub mod optics;
 pub mod sim;
 pub mod util;

@@ -7,6 +7,7 @@ use std::process::ExitCode;
 use anyhow::{Context, Result, bail};
 use clap::{Args, Parser, Subcommand, ValueEnum};
 use nedrt::app::{self, CommonOptions};
+use nedrt::inference::{BackendKind, BackendOptions, Precision};
 use nedrt::sim::{Method, Optics};
 
 #[derive(Parser, Debug)]
@@ -14,7 +15,7 @@ use nedrt::sim::{Method, Optics};
     name = "nedrt",
     version,
     about = "Simulator and runtime of a computational multifocal near-eye display (lens + DOE + D-CNN)",
-    after_help = "Examples:\n  nedrt --sim --accom 1.0\n  nedrt --sim --accom 0.5 --method doe+wiener --out p.png\n  nedrt psf --out-dir out/psf\n  nedrt eval --images data/images/test"
+    after_help = "Examples:\n  nedrt --sim --accom 1.0\n  nedrt --sim --accom 0.5 --method doe+wiener --out p.png\n  nedrt --sim --accom 1.0 --method proposed --backend wgpu\n  nedrt bench inference --sizes 512x512\n  nedrt psf --out-dir out/psf\n  nedrt eval --images data/images/test"
 )]
 struct Cli {
     #[command(flatten)]
@@ -42,6 +43,32 @@ struct GlobalArgs {
     /// Compute every PSF afresh and store nothing.
     #[arg(long, global = true)]
     no_cache: bool,
+    /// D-CNN of the `proposed` method (its DOE: the same name with
+    /// `.doe.safetensors`, used unless --doe is given).
+    #[arg(
+        long,
+        global = true,
+        value_name = "FILE",
+        default_value = "models/dcnn.onnx"
+    )]
+    dcnn: PathBuf,
+    /// D-CNN of the `lens+dcnn` ablation, trained for the lens alone.
+    #[arg(
+        long,
+        global = true,
+        value_name = "FILE",
+        default_value = "models/dcnn-lens.onnx"
+    )]
+    dcnn_lens: PathBuf,
+    /// Engine that runs the D-CNN.
+    #[arg(long, global = true, value_enum, default_value = "cpu")]
+    backend: BackendKind,
+    /// Precision of the wgpu backend (f16 needs the adapter's shader-f16).
+    #[arg(long, global = true, value_enum, default_value = "f32")]
+    precision: Precision,
+    /// Threads of the ort backend (0: its default).
+    #[arg(long, global = true, default_value_t = 0)]
+    threads: usize,
     /// More log output (-v: debug, -vv: trace); NEDRT_LOG overrides.
     #[arg(short, long, global = true, action = clap::ArgAction::Count)]
     verbose: u8,
@@ -55,7 +82,7 @@ struct SimArgs {
     /// Input image (default: the shipped data/images/test/astronaut.png).
     #[arg(long, value_name = "IMG")]
     input: Option<PathBuf>,
-    /// Display system: conventional, ai, doe-only, doe+wiener.
+    /// Display system: conventional, ai, doe-only, doe+wiener, proposed, lens+dcnn.
     #[arg(long, default_value = "conventional", value_parser = parse_method)]
     method: Method,
     /// Output PNG (16-bit) of the perceived image on the retinal grid.
@@ -82,6 +109,19 @@ impl From<OpticsArg> for Optics {
             OpticsArg::Doe => Optics::Doe,
         }
     }
+}
+
+fn parse_size(s: &str) -> Result<(usize, usize), String> {
+    let (w, h) = s
+        .split_once('x')
+        .ok_or_else(|| format!("{s:?}: expected WIDTHxHEIGHT, e.g. 1920x1080"))?;
+    let parse = |v: &str| {
+        v.parse::<usize>()
+            .ok()
+            .filter(|&n| (1..=16384).contains(&n))
+            .ok_or_else(|| format!("{s:?}: sides must be integers in 1..=16384"))
+    };
+    Ok((parse(w)?, parse(h)?))
 }
 
 fn parse_method(s: &str) -> Result<Method, String> {
@@ -166,9 +206,18 @@ struct TuneArgs {
 
 #[derive(Args, Debug)]
 struct BenchArgs {
-    /// psf, perceived or ceilings.
-    #[arg(value_parser = ["psf", "perceived", "ceilings"])]
+    /// psf, perceived, ceilings, or inference (D-CNN latency per backend).
+    #[arg(value_parser = ["psf", "perceived", "ceilings", "inference"])]
     what: String,
+    /// inference: backends to time.
+    #[arg(long, value_delimiter = ',', value_enum, default_values = ["cpu", "ort", "wgpu"])]
+    backends: Vec<BackendKind>,
+    /// inference: frame sizes, WIDTHxHEIGHT.
+    #[arg(long, value_delimiter = ',', default_values = ["512x512", "1920x1080"], value_parser = parse_size)]
+    sizes: Vec<(usize, usize)>,
+    /// inference: skip a case estimated to take longer than this (seconds).
+    #[arg(long, default_value_t = 120.0)]
+    max_seconds: f64,
     /// Folder for the exact inputs, for the numpy side.
     #[arg(long, default_value = "out/bench", value_name = "DIR")]
     dump: PathBuf,
@@ -213,6 +262,15 @@ fn run(cli: Cli) -> Result<()> {
         cache_dir: g.cache_dir.clone(),
         no_cache: g.no_cache,
         doe: g.doe.clone(),
+        dcnn: app::DcnnOptions {
+            path: g.dcnn.clone(),
+            lens_path: g.dcnn_lens.clone(),
+            backend: g.backend,
+            backend_options: BackendOptions {
+                threads: g.threads,
+                precision: g.precision,
+            },
+        },
     };
     if cli.command.is_some() && (cli.sim || cli.sim_args.accom.is_some()) {
         bail!("--sim and --accom cannot be combined with a command");
@@ -253,6 +311,21 @@ fn run(cli: Cli) -> Result<()> {
         Some(Command::Bench(a)) => match a.what.as_str() {
             "psf" => println!("{}", app::bench::psf(&common, &a.dump, a.repeat)?),
             "perceived" => print!("{}", app::bench::perceived(&common, &a.dump, a.repeat)?),
+            "inference" => {
+                let (table, records) =
+                    app::bench_inference::run(&app::bench_inference::InferenceBench {
+                        backends: a.backends,
+                        sizes: a.sizes,
+                        models: vec![("full".into(), 32), ("half".into(), 16)],
+                        repeat: a.repeat,
+                        max_seconds: a.max_seconds,
+                        threads: g.threads,
+                    })?;
+                for r in records {
+                    println!("{r}");
+                }
+                print!("{table}");
+            }
             _ => {
                 let (gflops, gbps) = app::bench::ceilings();
                 println!(

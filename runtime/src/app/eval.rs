@@ -183,12 +183,17 @@ pub fn run(
         .map(|f| load_cropped(f))
         .collect::<Result<_, _>>()?;
     create_dir(out_dir)?;
-    let sim = Simulator::new(common.calibration()?, common.doe_path(), common.cache())?;
     let methods: Vec<Method> = if methods.is_empty() {
-        Method::ALL.to_vec()
+        Method::BUILT_IN.to_vec()
     } else {
         methods.to_vec()
     };
+    let mut dcnns = common.dcnn.load_for(&methods)?;
+    let sim = Simulator::new(
+        common.calibration()?,
+        common.doe_path_for(&methods).as_deref(),
+        common.cache(),
+    )?;
     let depths = sim.calib.evaluation_depths_d();
     let bar = progress_bar("PSFs");
     let mut needed = methods.clone();
@@ -210,8 +215,8 @@ pub fn run(
             .collect::<Result<_, _>>()?;
         let mut displays: Vec<(Method, Image)> = methods
             .iter()
-            .map(|&m| (m, prepared.display_image(m, &input)))
-            .collect();
+            .map(|&m| Ok((m, super::display_image(&prepared, &mut dcnns, m, &input)?)))
+            .collect::<Result<_, AppError>>()?;
         if let Some(e) = external {
             displays.push((e.psf_method(), e.load(file, &input)?));
         }

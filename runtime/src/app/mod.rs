@@ -2,6 +2,7 @@
 //! printable reports; the binary only parses arguments and calls these.
 
 pub mod bench;
+pub mod bench_inference;
 pub mod eval;
 pub mod plots;
 pub mod sim;
@@ -11,8 +12,13 @@ use std::path::{Path, PathBuf};
 
 use indicatif::{ProgressBar, ProgressStyle};
 
+use std::collections::HashMap;
+
 use crate::calib::{CalibError, Calibration};
+use crate::inference::{BackendKind, BackendOptions, Dcnn, InferenceError};
 use crate::optics::cache::PsfCache;
+use crate::sim::simulator::Prepared;
+use crate::sim::{Image, Method};
 
 /// Options every command shares.
 #[derive(Debug, Clone, Default)]
@@ -24,6 +30,73 @@ pub struct CommonOptions {
     pub no_cache: bool,
     /// DOE height-map file overriding the calibration's.
     pub doe: Option<PathBuf>,
+    pub dcnn: DcnnOptions,
+}
+
+/// Which trained D-CNNs the `proposed` and `lens+dcnn` methods run, and how.
+#[derive(Debug, Clone)]
+pub struct DcnnOptions {
+    /// The D-CNN co-trained with the DOE (`proposed`).
+    pub path: PathBuf,
+    /// A D-CNN trained for the lens alone (`lens+dcnn`).
+    pub lens_path: PathBuf,
+    pub backend: BackendKind,
+    pub backend_options: BackendOptions,
+}
+
+impl Default for DcnnOptions {
+    fn default() -> Self {
+        Self {
+            path: PathBuf::from("models/dcnn.onnx"),
+            lens_path: PathBuf::from("models/dcnn-lens.onnx"),
+            backend: BackendKind::Cpu,
+            backend_options: BackendOptions::default(),
+        }
+    }
+}
+
+impl DcnnOptions {
+    /// The DOE trained with `path`: `<stem>.doe.safetensors` beside it.
+    pub fn companion_doe(&self) -> PathBuf {
+        self.path.with_extension("doe.safetensors")
+    }
+
+    /// Loads (once) the D-CNN of every method in `methods` that has one.
+    pub fn load_for(&self, methods: &[Method]) -> Result<HashMap<Method, Dcnn>, AppError> {
+        let mut out = HashMap::new();
+        for &m in methods.iter().filter(|m| m.uses_dcnn()) {
+            let path = match m {
+                Method::LensDcnn => &self.lens_path,
+                _ => &self.path,
+            };
+            if !path.exists() {
+                return Err(AppError::Usage(format!(
+                    "{}: no D-CNN for method {m} (give --dcnn{} FILE; models/README.md says how \
+                     to train one)",
+                    path.display(),
+                    if m == Method::LensDcnn { "-lens" } else { "" }
+                )));
+            }
+            let dcnn = Dcnn::load(path, self.backend, &self.backend_options)?;
+            tracing::info!("{m}: {} on {}", path.display(), dcnn.describe());
+            out.insert(m, dcnn);
+        }
+        Ok(out)
+    }
+}
+
+/// The frame the panel shows for `input` under `method`.
+pub fn display_image(
+    prepared: &Prepared,
+    dcnns: &mut HashMap<Method, Dcnn>,
+    method: Method,
+    input: &Image,
+) -> Result<Image, AppError> {
+    match dcnns.get_mut(&method) {
+        Some(d) => Ok(d.run_image(input)?),
+        None if method.uses_dcnn() => Err(AppError::Usage(format!("no D-CNN loaded for {method}"))),
+        None => Ok(prepared.display_image(method, input)),
+    }
 }
 
 impl CommonOptions {
@@ -48,6 +121,18 @@ impl CommonOptions {
 
     pub fn doe_path(&self) -> Option<&Path> {
         self.doe.as_deref()
+    }
+
+    /// The DOE for a run of `methods`: `--doe` if given; else, when the
+    /// co-designed `proposed` system is among them, the DOE trained with its
+    /// D-CNN (so every DOE method of the run sees the same element); else
+    /// the calibration's.
+    pub fn doe_path_for(&self, methods: &[Method]) -> Option<PathBuf> {
+        if let Some(p) = &self.doe {
+            return Some(p.clone());
+        }
+        let companion = self.dcnn.companion_doe();
+        (methods.contains(&Method::Proposed) && companion.exists()).then_some(companion)
     }
 }
 
@@ -78,6 +163,8 @@ pub enum AppError {
     Doe(#[from] crate::optics::doe_file::DoeError),
     #[error(transparent)]
     Image(#[from] crate::sim::image_io::ImageError),
+    #[error(transparent)]
+    Inference(#[from] InferenceError),
     #[error("{path}: {reason}")]
     Output { path: String, reason: String },
     #[error("{0}")]

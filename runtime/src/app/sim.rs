@@ -116,17 +116,22 @@ pub fn run(common: &CommonOptions, opts: &SimOptions) -> Result<SimReport, AppEr
         None => None,
     };
 
-    let sim = Simulator::new(calib, common.doe_path(), common.cache())?;
     let method = match display_loaded {
         Some(_) => Method::unprocessed(opts.optics),
         None => opts.method,
     };
+    let mut dcnns = common.dcnn.load_for(&[method])?;
+    let sim = Simulator::new(
+        calib,
+        common.doe_path_for(&[method]).as_deref(),
+        common.cache(),
+    )?;
     let bar = progress_bar("PSFs");
     let prepared = sim.prepare(&[method], &[opts.accommodation_d], Some(&bar))?;
     bar.finish_and_clear();
     let display = match &display_loaded {
         Some(d) => d.clone(),
-        None => prepared.display_image(method, &input),
+        None => super::display_image(&prepared, &mut dcnns, method, &input)?,
     };
     let perceived = prepared.perceived(method, &display, opts.accommodation_d)?;
     let target = prepared.target(&input, opts.accommodation_d)?;
@@ -160,6 +165,16 @@ pub fn run(common: &CommonOptions, opts: &SimOptions) -> Result<SimReport, AppEr
     );
     if method.optics() == Optics::Doe {
         let _ = writeln!(t, "DOE       {} ({})", sim.doe_hash, sim.doe.description);
+    }
+    if let Some(d) = dcnns.get(&method) {
+        let _ = writeln!(
+            t,
+            "D-CNN     {} ({}, {:.0} MAC/pixel) on {}",
+            d.model.path.display(),
+            d.model.hash,
+            d.network.macs_per_pixel,
+            d.describe()
+        );
     }
     let _ = writeln!(
         t,

@@ -26,10 +26,24 @@ pub enum Method {
     DoeOnly,
     /// Lens + DOE with Wiener deconvolution instead of the D-CNN.
     DoeWiener,
+    /// Lens + co-designed DOE + D-CNN (the paper's system).
+    Proposed,
+    /// Lens alone with a D-CNN trained for it (ablation).
+    LensDcnn,
 }
 
 impl Method {
-    pub const ALL: [Method; 4] = [
+    pub const ALL: [Method; 6] = [
+        Method::Conventional,
+        Method::Ai,
+        Method::DoeOnly,
+        Method::DoeWiener,
+        Method::Proposed,
+        Method::LensDcnn,
+    ];
+
+    /// The methods that need no trained model.
+    pub const BUILT_IN: [Method; 4] = [
         Method::Conventional,
         Method::Ai,
         Method::DoeOnly,
@@ -42,13 +56,15 @@ impl Method {
             Method::Ai => "ai",
             Method::DoeOnly => "doe-only",
             Method::DoeWiener => "doe+wiener",
+            Method::Proposed => "proposed",
+            Method::LensDcnn => "lens+dcnn",
         }
     }
 
     pub fn optics(self) -> Optics {
         match self {
-            Method::Conventional | Method::Ai => Optics::Lens,
-            Method::DoeOnly | Method::DoeWiener => Optics::Doe,
+            Method::Conventional | Method::Ai | Method::LensDcnn => Optics::Lens,
+            Method::DoeOnly | Method::DoeWiener | Method::Proposed => Optics::Doe,
         }
     }
 
@@ -59,6 +75,11 @@ impl Method {
             Optics::Lens => Method::Conventional,
             Optics::Doe => Method::DoeOnly,
         }
+    }
+
+    /// Whether the frame is preprocessed by a D-CNN.
+    pub fn uses_dcnn(self) -> bool {
+        matches!(self, Method::Proposed | Method::LensDcnn)
     }
 
     /// Whether the frame is Wiener-prefiltered.
@@ -81,15 +102,7 @@ impl std::str::FromStr for Method {
             .find(|m| m.name() == s)
             .ok_or_else(|| {
                 let names: Vec<&str> = Method::ALL.iter().map(|m| m.name()).collect();
-                let later = if matches!(s, "proposed" | "lens+dcnn") {
-                    " (the D-CNN methods need the inference backends, not built yet)"
-                } else {
-                    ""
-                };
-                format!(
-                    "unknown method {s:?}{later}; choose one of {}",
-                    names.join(", ")
-                )
+                format!("unknown method {s:?}; choose one of {}", names.join(", "))
             })
     }
 }
@@ -150,7 +163,6 @@ mod tests {
         for m in Method::ALL {
             assert_eq!(m.name().parse::<Method>(), Ok(m));
         }
-        assert!("proposed".parse::<Method>().unwrap_err().contains("D-CNN"));
         assert!(
             "foo"
                 .parse::<Method>()

@@ -294,7 +294,9 @@ impl Prepared {
         self.wiener.get(&method)
     }
 
-    /// The frame the panel shows for `input` under `method`.
+    /// The frame the panel shows for `input` under a method without a
+    /// D-CNN (those are run by [`crate::inference::Dcnn`]; the input is
+    /// passed through here).
     pub fn display_image(&self, method: Method, input: &Image) -> Image {
         match self.wiener.get(&method) {
             Some(f) => f.apply(input),

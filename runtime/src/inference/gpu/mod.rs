@@ -1,0 +1,644 @@
+//! The `wgpu` backend: the lowered network run as generated WGSL compute
+//! kernels (tiled conv with fused epilogue, 2×2 max pool, 2×2 transposed
+//! conv; concatenation costs nothing, producers write into channel ranges
+//! of the concat's buffer). Pipelines and the weight buffer are built once
+//! per network; buffers and bind groups once per frame size; a frame only
+//! uploads, records the dispatches and reads back.
+//!
+//! f16 mode stores weights and intermediate activations as f16 and
+//! accumulates in f32; the frame in and the display out stay f32.
+
+pub mod codegen;
+pub mod params;
+
+use std::collections::HashMap;
+
+use codegen::{Dtype, KernelKey, KernelKind};
+use params::Params;
+use wgpu::util::DeviceExt;
+
+use super::network::{Layer, Network, ValueId};
+use super::{Backend, BackendOptions, Frame, InferenceError, Precision};
+
+fn err(reason: impl std::fmt::Display) -> InferenceError {
+    InferenceError::Backend {
+        backend: "wgpu",
+        reason: reason.to_string(),
+    }
+}
+
+/// Requests the default adapter (`WGPU_BACKEND`, `WGPU_ADAPTER_NAME` are
+/// honoured) and a device with the adapter's limits and, if asked, f16.
+pub fn open_device(
+    precision: Precision,
+) -> Result<(wgpu::Adapter, wgpu::Device, wgpu::Queue), InferenceError> {
+    let instance =
+        wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
+    let adapter = pollster::block_on(instance.request_adapter(&wgpu::RequestAdapterOptions {
+        power_preference: wgpu::PowerPreference::HighPerformance,
+        force_fallback_adapter: false,
+        compatible_surface: None,
+        apply_limit_buckets: false,
+    }))
+    .map_err(|e| {
+        err(format!(
+            "no GPU adapter ({e}); on Linux without a GPU, Mesa's lavapipe \
+             (`apt-get install mesa-vulkan-drivers`) provides one; or use --backend cpu"
+        ))
+    })?;
+    let mut features = wgpu::Features::empty();
+    if precision == Precision::F16 {
+        if !adapter.features().contains(wgpu::Features::SHADER_F16) {
+            return Err(err(format!(
+                "adapter '{}' has no shader-f16; use --precision f32",
+                adapter.get_info().name
+            )));
+        }
+        features |= wgpu::Features::SHADER_F16;
+    }
+    let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
+        label: Some("nedrt"),
+        required_features: features,
+        required_limits: adapter.limits(),
+        ..Default::default()
+    }))
+    .map_err(|e| err(format!("requesting a device: {e}")))?;
+    Ok((adapter, device, queue))
+}
+
+/// Where a value lives: a buffer and an element offset into it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+struct Place {
+    buffer: usize,
+    offset: usize,
+}
+
+/// One recorded dispatch.
+#[derive(Debug)]
+struct Dispatch {
+    pipeline: usize,
+    bind_group: wgpu::BindGroup,
+    workgroups: [u32; 3],
+}
+
+/// Everything sized for one frame size.
+#[derive(Debug)]
+struct SizedPlan {
+    width: usize,
+    height: usize,
+    buffers: Vec<wgpu::Buffer>,
+    dispatches: Vec<Dispatch>,
+    input: Place,
+    output: Place,
+    output_elems: usize,
+    readback: wgpu::Buffer,
+}
+
+/// The network on a wgpu device.
+#[derive(Debug)]
+pub struct GpuBackend {
+    device: wgpu::Device,
+    queue: wgpu::Queue,
+    adapter_name: String,
+    network: Network,
+    precision: Precision,
+    layout: wgpu::BindGroupLayout,
+    pipelines: Vec<wgpu::ComputePipeline>,
+    /// Per layer: pipeline index (None for Concat).
+    layer_pipeline: Vec<Option<usize>>,
+    weights: wgpu::Buffer,
+    /// Per layer: (weight offset, bias offset) in elements.
+    weight_offsets: Vec<(usize, usize)>,
+    /// Concat inputs placed inside their concat: value → (concat value, channel offset).
+    alias: HashMap<ValueId, (ValueId, usize)>,
+    dummy: wgpu::Buffer,
+    plan: Option<SizedPlan>,
+}
+
+impl GpuBackend {
+    /// Opens the default adapter and prepares `network` on it.
+    pub fn new_default(
+        network: &Network,
+        options: &BackendOptions,
+    ) -> Result<Self, InferenceError> {
+        let (adapter, device, queue) = open_device(options.precision)?;
+        let info = adapter.get_info();
+        let name = format!("{} ({:?}, {:?})", info.name, info.backend, info.device_type);
+        Self::new(&device, &queue, name, network, options.precision)
+    }
+
+    /// Prepares `network` on a given device: pipelines and weights.
+    pub fn new(
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        adapter_name: String,
+        network: &Network,
+        precision: Precision,
+    ) -> Result<Self, InferenceError> {
+        if precision == Precision::F16 && !device.features().contains(wgpu::Features::SHADER_F16) {
+            return Err(err("the device was opened without shader-f16"));
+        }
+        // wgpu reports errors through a handler that panics by default.
+        device.on_uncaptured_error(std::sync::Arc::new(|e| {
+            tracing::error!("wgpu: {e}");
+        }));
+        let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let t = match precision {
+            Precision::F32 => Dtype::F32,
+            Precision::F16 => Dtype::F16,
+        };
+        let dtype = |v: ValueId| {
+            if v == 0 || v == network.output {
+                Dtype::F32
+            } else {
+                t
+            }
+        };
+        let alias = concat_aliases(network);
+        for layer in &network.layers {
+            if let Layer::Concat { inputs, output } = layer {
+                let mut ch = 0;
+                for &i in inputs {
+                    if alias.get(&i) != Some(&(*output, ch)) {
+                        return Err(err(format!(
+                            "a concat input (value {i}) is the frame, the output, or feeds \
+                             another concat; the GPU backend writes concat inputs in place \
+                             and does not support that"
+                        )));
+                    }
+                    ch += network.values[i].channels;
+                }
+            }
+        }
+        let root = |mut v: ValueId| {
+            while let Some(&(c, _)) = alias.get(&v) {
+                v = c;
+            }
+            v
+        };
+
+        let storage = |read_only: bool| wgpu::BindingType::Buffer {
+            ty: wgpu::BufferBindingType::Storage { read_only },
+            has_dynamic_offset: false,
+            min_binding_size: None,
+        };
+        let entry = |binding: u32, ty| wgpu::BindGroupLayoutEntry {
+            binding,
+            visibility: wgpu::ShaderStages::COMPUTE,
+            ty,
+            count: None,
+        };
+        let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("dcnn layer"),
+            entries: &[
+                entry(
+                    0,
+                    wgpu::BindingType::Buffer {
+                        ty: wgpu::BufferBindingType::Uniform,
+                        has_dynamic_offset: false,
+                        min_binding_size: None,
+                    },
+                ),
+                entry(1, storage(true)),
+                entry(2, storage(true)),
+                entry(3, storage(false)),
+                entry(4, storage(true)),
+            ],
+        });
+        let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("dcnn layer"),
+            bind_group_layouts: &[Some(&layout)],
+            immediate_size: 0,
+        });
+
+        let mut keys: HashMap<KernelKey, usize> = HashMap::new();
+        let mut pipelines = Vec::new();
+        let mut layer_pipeline = Vec::new();
+        let mut weights: Vec<f32> = Vec::new();
+        let mut weight_offsets = Vec::new();
+        for layer in &network.layers {
+            let (kind, input, residual) = match layer {
+                Layer::Conv(c) => {
+                    if c.kernel > codegen::MAX_CONV_KERNEL {
+                        return Err(err(format!(
+                            "{}×{} convolutions are not supported (at most {}×{})",
+                            c.kernel,
+                            c.kernel,
+                            codegen::MAX_CONV_KERNEL,
+                            codegen::MAX_CONV_KERNEL
+                        )));
+                    }
+                    (
+                        KernelKind::Conv {
+                            kernel: c.kernel,
+                            relu: c.relu,
+                            residual: c.residual.is_some(),
+                            clamp: c.output == network.output,
+                        },
+                        c.input,
+                        c.residual,
+                    )
+                }
+                Layer::ConvTranspose(c) => {
+                    (KernelKind::ConvTranspose { relu: c.relu }, c.input, None)
+                }
+                Layer::MaxPool { input, .. } => (KernelKind::MaxPool, *input, None),
+                Layer::Concat { .. } => {
+                    layer_pipeline.push(None);
+                    weight_offsets.push((0, 0));
+                    continue;
+                }
+            };
+            let (w, b): (&[f32], &[f32]) = match layer {
+                Layer::Conv(c) => (&c.weight, &c.bias),
+                Layer::ConvTranspose(c) => (&c.weight, &c.bias),
+                _ => (&[], &[]),
+            };
+            weight_offsets.push((weights.len(), weights.len() + w.len()));
+            weights.extend_from_slice(w);
+            weights.extend_from_slice(b);
+            let key = KernelKey {
+                kind,
+                src: dtype(root(input)),
+                dst: dtype(root(layer.output())),
+                residual: residual.map_or(Dtype::F32, |r| dtype(root(r))),
+                weights: t,
+            };
+            let index = *keys.entry(key).or_insert_with(|| {
+                let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+                    label: Some(&key.label()),
+                    source: wgpu::ShaderSource::Wgsl(key.wgsl().into()),
+                });
+                pipelines.push(
+                    device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                        label: Some(&key.label()),
+                        layout: Some(&pipeline_layout),
+                        module: &module,
+                        entry_point: Some("main"),
+                        compilation_options: Default::default(),
+                        cache: None,
+                    }),
+                );
+                pipelines.len() - 1
+            });
+            layer_pipeline.push(Some(index));
+        }
+        if weights.len() > u32::MAX as usize {
+            return Err(err("more than 2^32 weights"));
+        }
+        let weight_bytes: Vec<u8> = match t {
+            Dtype::F32 => bytemuck::cast_slice(&weights).to_vec(),
+            Dtype::F16 => {
+                let h: Vec<half::f16> = weights.iter().map(|&v| half::f16::from_f32(v)).collect();
+                bytemuck::cast_slice(&h).to_vec()
+            }
+        };
+        let weights = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("dcnn weights"),
+            contents: &pad4(weight_bytes),
+            usage: wgpu::BufferUsages::STORAGE,
+        });
+        let dummy = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("unused binding"),
+            size: 4,
+            usage: wgpu::BufferUsages::STORAGE,
+            mapped_at_creation: false,
+        });
+        if let Some(e) = pollster::block_on(scope.pop()) {
+            return Err(err(format!("building the kernels: {e}")));
+        }
+        Ok(Self {
+            device: device.clone(),
+            queue: queue.clone(),
+            adapter_name,
+            network: network.clone(),
+            precision,
+            layout,
+            pipelines,
+            layer_pipeline,
+            weights,
+            weight_offsets,
+            alias,
+            dummy,
+            plan: None,
+        })
+    }
+
+    fn dtype(&self, root: ValueId) -> Dtype {
+        if root == 0 || root == self.network.output || self.precision == Precision::F32 {
+            Dtype::F32
+        } else {
+            Dtype::F16
+        }
+    }
+
+    /// Buffers, params and bind groups for a `width`×`height` frame.
+    fn prepare(&self, width: usize, height: usize) -> Result<SizedPlan, InferenceError> {
+        let net = &self.network;
+        let m = net.multiple;
+        if !width.is_multiple_of(m) || !height.is_multiple_of(m) {
+            return Err(err(format!("{width}×{height} is not a multiple of {m}")));
+        }
+        let plane = |v: ValueId| (width >> net.values[v].level) * (height >> net.values[v].level);
+        let limits = self.device.limits();
+        // Buffers: one per root value; aliased values sit at a channel offset.
+        let mut buffers = Vec::new();
+        let mut root_place: Vec<Option<Place>> = vec![None; net.values.len()];
+        let scope = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let mut places = Vec::with_capacity(net.values.len());
+        for v in 0..net.values.len() {
+            let mut offset = 0;
+            let mut r = v;
+            while let Some(&(c, ch)) = self.alias.get(&r) {
+                offset += ch * plane(c);
+                r = c;
+            }
+            let base = match root_place[r] {
+                Some(p) => p,
+                None => {
+                    let elems = net.values[r].channels * plane(r);
+                    let bytes = (elems * self.dtype(r).bytes()).next_multiple_of(4).max(4) as u64;
+                    let cap = limits
+                        .max_storage_buffer_binding_size
+                        .min(limits.max_buffer_size);
+                    if bytes > cap {
+                        return Err(err(format!(
+                            "a {width}×{height} frame needs a {:.0} MiB activation buffer; the \
+                             adapter binds at most {:.0} MiB (try --precision f16 or a smaller \
+                             frame)",
+                            bytes as f64 / 1048576.0,
+                            cap as f64 / 1048576.0
+                        )));
+                    }
+                    buffers.push(self.device.create_buffer(&wgpu::BufferDescriptor {
+                        label: Some("dcnn activation"),
+                        size: bytes,
+                        usage: wgpu::BufferUsages::STORAGE
+                            | wgpu::BufferUsages::COPY_DST
+                            | wgpu::BufferUsages::COPY_SRC,
+                        mapped_at_creation: false,
+                    }));
+                    let p = Place {
+                        buffer: buffers.len() - 1,
+                        offset: 0,
+                    };
+                    root_place[r] = Some(p);
+                    p
+                }
+            };
+            places.push(Place {
+                buffer: base.buffer,
+                offset: base.offset + offset,
+            });
+        }
+        let place_of = |v: ValueId| places[v];
+        let input = place_of(0);
+        let mut dispatches = Vec::new();
+        for (li, layer) in net.layers.iter().enumerate() {
+            let out = place_of(layer.output());
+            // Concat costs nothing: its inputs were written in place.
+            let Some(pipeline) = self.layer_pipeline[li] else {
+                continue;
+            };
+            let (input_v, residual, cin, cout) = match layer {
+                Layer::Conv(c) => (c.input, c.residual, c.cin, c.cout),
+                Layer::ConvTranspose(c) => (c.input, None, c.cin, c.cout),
+                Layer::MaxPool { input, .. } => (
+                    *input,
+                    None,
+                    net.values[*input].channels,
+                    net.values[*input].channels,
+                ),
+                Layer::Concat { .. } => continue,
+            };
+            let src = place_of(input_v);
+            let res = residual.map(place_of);
+            if src.buffer == out.buffer || res.is_some_and(|r| r.buffer == out.buffer) {
+                return Err(err(format!(
+                    "layer {li} reads and writes the same concat buffer; not supported"
+                )));
+            }
+            let (lw, lh) = (
+                width >> net.values[input_v].level,
+                height >> net.values[input_v].level,
+            );
+            let (w_off, b_off) = self.weight_offsets[li];
+            let params = Params {
+                width: lw as u32,
+                height: lh as u32,
+                cin: cin as u32,
+                cout: cout as u32,
+                in_offset: src.offset as u32,
+                out_offset: out.offset as u32,
+                res_offset: res.map_or(0, |r| r.offset as u32),
+                w_offset: w_off as u32,
+                b_offset: b_off as u32,
+                _pad: [0; 3],
+            };
+            let uniform = self
+                .device
+                .create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                    label: Some("dcnn layer params"),
+                    contents: bytemuck::bytes_of(&params),
+                    usage: wgpu::BufferUsages::UNIFORM,
+                });
+            let buf = |p: Place| buffers[p.buffer].as_entire_binding();
+            let bind_group = self.device.create_bind_group(&wgpu::BindGroupDescriptor {
+                label: Some("dcnn layer"),
+                layout: &self.layout,
+                entries: &[
+                    wgpu::BindGroupEntry {
+                        binding: 0,
+                        resource: uniform.as_entire_binding(),
+                    },
+                    wgpu::BindGroupEntry {
+                        binding: 1,
+                        resource: buf(src),
+                    },
+                    wgpu::BindGroupEntry {
+                        binding: 2,
+                        resource: self.weights.as_entire_binding(),
+                    },
+                    wgpu::BindGroupEntry {
+                        binding: 3,
+                        resource: buf(out),
+                    },
+                    wgpu::BindGroupEntry {
+                        binding: 4,
+                        resource: res.map_or_else(|| self.dummy.as_entire_binding(), buf),
+                    },
+                ],
+            });
+            let (lw, lh, cout) = (lw as u32, lh as u32, cout as u32);
+            let workgroups = match layer {
+                Layer::Conv(_) => {
+                    let (tw, th, oc) = codegen::CONV_TILE;
+                    [lw.div_ceil(tw), lh.div_ceil(th), cout.div_ceil(oc)]
+                }
+                Layer::ConvTranspose(_) => {
+                    let (t, oc) = codegen::CONV_TRANSPOSE_TILE;
+                    [lw.div_ceil(t), lh.div_ceil(t), cout.div_ceil(oc)]
+                }
+                _ => {
+                    let t = codegen::POOL_TILE;
+                    [(lw / 2).div_ceil(t), (lh / 2).div_ceil(t), cout]
+                }
+            };
+            let max = limits.max_compute_workgroups_per_dimension;
+            if workgroups.iter().any(|&n| n > max) {
+                return Err(err(format!(
+                    "{width}×{height} needs {workgroups:?} workgroups; the adapter allows {max} per dimension"
+                )));
+            }
+            dispatches.push(Dispatch {
+                pipeline,
+                bind_group,
+                workgroups,
+            });
+        }
+        let output = place_of(net.output);
+        let output_elems = net.values[net.output].channels * plane(net.output);
+        let readback = self.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("dcnn readback"),
+            size: (output_elems * 4).max(4) as u64,
+            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        if let Some(e) = pollster::block_on(scope.pop()) {
+            return Err(err(format!("preparing {width}×{height}: {e}")));
+        }
+        Ok(SizedPlan {
+            width,
+            height,
+            buffers,
+            dispatches,
+            input,
+            output,
+            output_elems,
+            readback,
+        })
+    }
+
+    /// Runs on a CHW tensor with the network's input channels; returns the
+    /// output value (any channel count) as CHW f32.
+    pub fn run_tensor(
+        &mut self,
+        data: &[f32],
+        width: usize,
+        height: usize,
+    ) -> Result<Vec<f32>, InferenceError> {
+        let expected = self.network.values[0].channels * width * height;
+        if data.len() != expected {
+            return Err(err(format!(
+                "{} values for a {width}×{height} input",
+                data.len()
+            )));
+        }
+        if self
+            .plan
+            .as_ref()
+            .is_none_or(|p| (p.width, p.height) != (width, height))
+        {
+            self.plan = None;
+            self.plan = Some(self.prepare(width, height)?);
+        }
+        let Some(plan) = &self.plan else {
+            return Err(err("no plan"));
+        };
+        let scope = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
+        self.queue.write_buffer(
+            &plan.buffers[plan.input.buffer],
+            (plan.input.offset * 4) as u64,
+            bytemuck::cast_slice(data),
+        );
+        let mut encoder = self
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some("dcnn"),
+            });
+        {
+            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some("dcnn"),
+                timestamp_writes: None,
+            });
+            for d in &plan.dispatches {
+                pass.set_pipeline(&self.pipelines[d.pipeline]);
+                pass.set_bind_group(0, &d.bind_group, &[]);
+                let [x, y, z] = d.workgroups;
+                pass.dispatch_workgroups(x, y, z);
+            }
+        }
+        encoder.copy_buffer_to_buffer(
+            &plan.buffers[plan.output.buffer],
+            (plan.output.offset * 4) as u64,
+            &plan.readback,
+            0,
+            (plan.output_elems * 4) as u64,
+        );
+        self.queue.submit([encoder.finish()]);
+        let slice = plan.readback.slice(..);
+        let (tx, rx) = std::sync::mpsc::channel();
+        slice.map_async(wgpu::MapMode::Read, move |r| {
+            let _ = tx.send(r);
+        });
+        self.device
+            .poll(wgpu::PollType::wait_indefinitely())
+            .map_err(|e| err(format!("waiting for the GPU: {e}")))?;
+        rx.recv()
+            .map_err(|_| err("the GPU never answered (device lost?)"))?
+            .map_err(|e| err(format!("reading back: {e}")))?;
+        let out = {
+            let view = slice
+                .get_mapped_range()
+                .map_err(|e| err(format!("reading back: {e}")))?;
+            bytemuck::cast_slice::<u8, f32>(&view[..plan.output_elems * 4]).to_vec()
+        };
+        plan.readback.unmap();
+        if let Some(e) = pollster::block_on(scope.pop()) {
+            return Err(err(format!("running: {e}")));
+        }
+        Ok(out)
+    }
+}
+
+fn pad4(mut bytes: Vec<u8>) -> Vec<u8> {
+    bytes.resize(bytes.len().next_multiple_of(4).max(4), 0);
+    bytes
+}
+
+/// Places each concat input inside its concat's buffer where it can be:
+/// not the frame, not the output, and not already placed in another concat.
+fn concat_aliases(net: &Network) -> HashMap<ValueId, (ValueId, usize)> {
+    let mut alias = HashMap::new();
+    for layer in &net.layers {
+        if let Layer::Concat { inputs, output } = layer {
+            let mut ch = 0;
+            for &i in inputs {
+                if i != 0 && i != net.output && !alias.contains_key(&i) {
+                    alias.insert(i, (*output, ch));
+                }
+                ch += net.values[i].channels;
+            }
+        }
+    }
+    alias
+}
+
+impl Backend for GpuBackend {
+    fn describe(&self) -> String {
+        let p = match self.precision {
+            Precision::F32 => "f32",
+            Precision::F16 => "f16",
+        };
+        format!("wgpu {p} on {}", self.adapter_name)
+    }
+
+    fn run(&mut self, frame: &Frame) -> Result<Frame, InferenceError> {
+        let data = self.run_tensor(&frame.data, frame.width, frame.height)?;
+        Ok(Frame {
+            width: frame.width,
+            height: frame.height,
+            data,
+        })
+    }
+}

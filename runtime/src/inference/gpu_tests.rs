@@ -1,0 +1,290 @@
+//! GPU parity: each WGSL kernel against its CPU twin ([`reference`]), and
+//! the whole network against the twin and ONNX Runtime, in f32 (≤ 1e-4)
+//! and f16 (≤ 2e-2). Runs on any adapter; CI uses Mesa's lavapipe and sets
+//! NEDRT_REQUIRE_GPU=1 so that a missing adapter fails instead of skipping.
+//! lavapipe is slow: frames stay small.
+
+use super::gpu::{GpuBackend, open_device};
+use super::network::{Conv, ConvTranspose, Layer, Network, ValueInfo};
+use super::synth::{self, SplitMix};
+use super::tests::{max_abs_diff, model_from, ort_or_skip, random_frame};
+use super::*;
+
+fn device_or_skip(precision: Precision) -> Option<(wgpu::Device, wgpu::Queue)> {
+    match open_device(precision) {
+        Ok((_, d, q)) => Some((d, q)),
+        Err(e) if std::env::var_os("NEDRT_REQUIRE_GPU").is_none() => {
+            eprintln!("skipping GPU test: {e}");
+            None
+        }
+        Err(e) => panic!("NEDRT_REQUIRE_GPU is set but {e}"),
+    }
+}
+
+fn tolerance(p: Precision) -> f32 {
+    match p {
+        Precision::F32 => 1e-4,
+        Precision::F16 => 2e-2,
+    }
+}
+
+fn conv(
+    rng: &mut SplitMix,
+    input: usize,
+    output: usize,
+    cin: usize,
+    cout: usize,
+    k: usize,
+) -> Conv {
+    let b = 1.0 / ((cin * k * k) as f32).sqrt();
+    Conv {
+        input,
+        output,
+        cin,
+        cout,
+        kernel: k,
+        weight: (0..cout * cin * k * k).map(|_| rng.symmetric(b)).collect(),
+        bias: (0..cout).map(|_| rng.symmetric(b)).collect(),
+        relu: false,
+        residual: None,
+    }
+}
+
+fn info(channels: usize, level: u32) -> ValueInfo {
+    ValueInfo { channels, level }
+}
+
+/// Hand-built networks that exercise each kernel's edges: channel counts
+/// that are not multiples of the tiles' 4/8/16, frames that are not
+/// multiples of the 32×16 conv tile, 1×1, 3×3 and 5×5 kernels.
+fn kernel_networks() -> Vec<(&'static str, Network)> {
+    let mut rng = SplitMix::new(42);
+    let mut residual3 = conv(&mut rng, 0, 1, 3, 3, 3);
+    residual3.residual = Some(0);
+    let mut residual5 = conv(&mut rng, 0, 1, 3, 3, 5);
+    residual5.residual = Some(0);
+    residual5.relu = true;
+    let mut first = conv(&mut rng, 0, 1, 3, 10, 3);
+    first.relu = true;
+    let up = ConvTranspose {
+        input: 2,
+        output: 3,
+        cin: 10,
+        cout: 6,
+        weight: (0..10 * 6 * 4).map(|_| rng.symmetric(0.2)).collect(),
+        bias: (0..6).map(|_| rng.symmetric(0.2)).collect(),
+        relu: true,
+    };
+    let mut last = conv(&mut rng, 4, 5, 9, 3, 1);
+    last.residual = Some(0);
+    vec![
+        (
+            "conv 3×3 + residual + clamp",
+            Network {
+                layers: vec![Layer::Conv(residual3)],
+                values: vec![info(3, 0), info(3, 0)],
+                output: 1,
+                multiple: 1,
+                macs_per_pixel: 0.0,
+            },
+        ),
+        (
+            "conv 5×5 + ReLU + residual + clamp",
+            Network {
+                layers: vec![Layer::Conv(residual5)],
+                values: vec![info(3, 0), info(3, 0)],
+                output: 1,
+                multiple: 1,
+                macs_per_pixel: 0.0,
+            },
+        ),
+        (
+            "conv, max pool, transposed conv, concat, 1×1 conv",
+            Network {
+                layers: vec![
+                    Layer::Conv(first),
+                    Layer::MaxPool {
+                        input: 1,
+                        output: 2,
+                    },
+                    Layer::ConvTranspose(up),
+                    Layer::Concat {
+                        inputs: vec![0, 3],
+                        output: 4,
+                    },
+                    Layer::Conv(last),
+                ],
+                values: vec![
+                    info(3, 0),
+                    info(10, 0),
+                    info(10, 1),
+                    info(6, 0),
+                    info(9, 0),
+                    info(3, 0),
+                ],
+                output: 5,
+                multiple: 2,
+                macs_per_pixel: 0.0,
+            },
+        ),
+    ]
+}
+
+#[test]
+fn each_kernel_matches_its_cpu_twin() {
+    for precision in [Precision::F32, Precision::F16] {
+        let Some((device, queue)) = device_or_skip(precision) else {
+            return;
+        };
+        for (name, net) in kernel_networks() {
+            let result = GpuBackend::new(&device, &queue, "test".into(), &net, precision);
+            if name.contains("concat") {
+                // The frame itself is a concat input: refused, not mis-run.
+                let e = result.expect_err("frame in a concat").to_string();
+                assert!(e.contains("concat input"), "{e}");
+                continue;
+            }
+            let mut gpu = result.unwrap_or_else(|e| panic!("{name}: {e}"));
+            for (w, h) in [(37, 21), (32, 16), (6, 50)] {
+                let frame = random_frame(w, h, 3);
+                let want = reference::run(&net, &frame.data, h, w);
+                let got = gpu.run_tensor(&frame.data, w, h).expect("runs");
+                let d = max_abs_diff(&want, &got);
+                assert!(
+                    d <= tolerance(precision),
+                    "{name} {precision:?} {w}×{h}: {d}"
+                );
+            }
+        }
+    }
+}
+
+#[test]
+fn pool_upsample_and_concat_kernels_match_their_cpu_twins() {
+    // As the third kernel network, but with the concat fed by a conv output
+    // (placed in the concat's buffer) rather than by the frame.
+    let mut rng = SplitMix::new(9);
+    let mut a = conv(&mut rng, 0, 1, 3, 10, 3);
+    a.relu = true;
+    let up = ConvTranspose {
+        input: 2,
+        output: 3,
+        cin: 10,
+        cout: 6,
+        weight: (0..10 * 6 * 4).map(|_| rng.symmetric(0.3)).collect(),
+        bias: (0..6).map(|_| rng.symmetric(0.3)).collect(),
+        relu: false,
+    };
+    let mut last = conv(&mut rng, 4, 5, 16, 3, 3);
+    last.residual = Some(0);
+    let net = Network {
+        layers: vec![
+            Layer::Conv(a),
+            Layer::MaxPool {
+                input: 1,
+                output: 2,
+            },
+            Layer::ConvTranspose(up),
+            Layer::Concat {
+                inputs: vec![1, 3],
+                output: 4,
+            },
+            Layer::Conv(last),
+        ],
+        values: vec![
+            info(3, 0),
+            info(10, 0),
+            info(10, 1),
+            info(6, 0),
+            info(16, 0),
+            info(3, 0),
+        ],
+        output: 5,
+        multiple: 2,
+        macs_per_pixel: 0.0,
+    };
+    for precision in [Precision::F32, Precision::F16] {
+        let Some((device, queue)) = device_or_skip(precision) else {
+            return;
+        };
+        let mut gpu =
+            GpuBackend::new(&device, &queue, "test".into(), &net, precision).expect("builds");
+        for (w, h) in [(38, 22), (64, 2)] {
+            let frame = random_frame(w, h, 5);
+            let want = reference::run(&net, &frame.data, h, w);
+            let got = gpu.run_tensor(&frame.data, w, h).expect("runs");
+            let d = max_abs_diff(&want, &got);
+            assert!(d <= tolerance(precision), "{precision:?} {w}×{h}: {d}");
+        }
+    }
+}
+
+#[test]
+fn random_unets_match_onnxruntime_and_the_cpu_twin() {
+    for precision in [Precision::F32, Precision::F16] {
+        let Some((device, queue)) = device_or_skip(precision) else {
+            return;
+        };
+        for (width, levels, seed) in [(4, 3, 21), (8, 4, 22)] {
+            let model = model_from(&synth::unet(width, levels, seed), "random.onnx");
+            let net = model.lower().expect("lowers");
+            let mut gpu =
+                GpuBackend::new(&device, &queue, "test".into(), &net, precision).expect("builds");
+            let mut ort = ort_or_skip(&model);
+            for (w, h) in [(16, 16), (40, 24)] {
+                let frame = random_frame(w, h, seed + w as u64);
+                let got = gpu.run_tensor(&frame.data, w, h).expect("runs");
+                let twin = reference::run(&net, &frame.data, h, w);
+                let d = max_abs_diff(&twin, &got);
+                assert!(
+                    d <= tolerance(precision),
+                    "twin {precision:?} {width} {w}×{h}: {d}"
+                );
+                if let Some(ort) = ort.as_mut() {
+                    let mut want = ort.run(&frame).expect("ort").data;
+                    want.iter_mut().for_each(|v| *v = v.clamp(0.0, 1.0));
+                    let d = max_abs_diff(&want, &got);
+                    assert!(
+                        d <= tolerance(precision),
+                        "ort {precision:?} {width} {w}×{h}: {d}"
+                    );
+                }
+            }
+        }
+    }
+}
+
+#[test]
+fn trained_model_on_the_gpu_matches_onnxruntime_at_sizes_not_multiple_of_8() {
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/dcnn.onnx");
+    let model = ModelFile::read(&path).expect("loads");
+    let Some(mut ort) = ort_or_skip(&model) else {
+        return;
+    };
+    let mut ort_dcnn_frame = |frame: &Frame| {
+        let (pw, ph) = (frame.width.div_ceil(8) * 8, frame.height.div_ceil(8) * 8);
+        let mut out = ort
+            .run(&frame.pad_reflect(pw, ph))
+            .expect("ort")
+            .crop(frame.width, frame.height);
+        out.data.iter_mut().for_each(|v| *v = v.clamp(0.0, 1.0));
+        out
+    };
+    for precision in [Precision::F32, Precision::F16] {
+        if device_or_skip(precision).is_none() {
+            return;
+        }
+        let options = BackendOptions {
+            threads: 1,
+            precision,
+        };
+        let mut dcnn = Dcnn::from_model(model.clone(), BackendKind::Wgpu, &options).expect("wgpu");
+        for (w, h) in [(21, 13), (30, 17)] {
+            let frame = random_frame(w, h, 77);
+            let got = dcnn.run_frame(&frame).expect("runs");
+            let want = ort_dcnn_frame(&frame);
+            let d = max_abs_diff(&want.data, &got.data);
+            assert!(d <= tolerance(precision), "{precision:?} {w}×{h}: {d}");
+        }
+    }
+}
