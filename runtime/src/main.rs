@@ -312,18 +312,15 @@ fn run(cli: Cli) -> Result<()> {
             "psf" => println!("{}", app::bench::psf(&common, &a.dump, a.repeat)?),
             "perceived" => print!("{}", app::bench::perceived(&common, &a.dump, a.repeat)?),
             "inference" => {
-                let (table, records) =
-                    app::bench_inference::run(&app::bench_inference::InferenceBench {
-                        backends: a.backends,
-                        sizes: a.sizes,
-                        models: vec![("full".into(), 32), ("half".into(), 16)],
-                        repeat: a.repeat,
-                        max_seconds: a.max_seconds,
-                        threads: g.threads,
-                    })?;
-                for r in records {
-                    println!("{r}");
-                }
+                let bench = app::bench_inference::InferenceBench {
+                    backends: a.backends,
+                    sizes: a.sizes,
+                    models: vec![("full".into(), 32), ("half".into(), 16)],
+                    repeat: a.repeat,
+                    max_seconds: a.max_seconds,
+                    threads: g.threads,
+                };
+                let table = app::bench_inference::run(&bench, &mut |r| println!("{r}"))?;
                 print!("{table}");
             }
             _ => {

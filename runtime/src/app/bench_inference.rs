@@ -31,13 +31,22 @@ fn median(mut v: Vec<f64>) -> f64 {
     v[v.len() / 2]
 }
 
-/// Runs every case; returns a Markdown table, and JSON lines on stdout's
-/// behalf in the second element.
-pub fn run(b: &InferenceBench) -> Result<(String, Vec<serde_json::Value>), AppError> {
+/// Runs every case, handing each result to `on_record` as it is measured
+/// (JSON), and returns the Markdown table.
+pub fn run(
+    b: &InferenceBench,
+    on_record: &mut dyn FnMut(&serde_json::Value),
+) -> Result<String, AppError> {
+    let bar = super::progress_bar("cases");
+    let variants: usize = b
+        .backends
+        .iter()
+        .map(|&k| if k == BackendKind::Wgpu { 2 } else { 1 })
+        .sum();
+    bar.set_length((b.models.len() * variants * b.sizes.len()) as u64);
     let mut table = String::from(
         "| model | backend | precision | frame | median ms | min ms | GMAC/s |\n| --- | --- | --- | --- | --- | --- | --- |\n",
     );
-    let mut records = Vec::new();
     for (name, width) in &b.models {
         let proto = synth::unet(*width, 4, 1);
         let model = ModelFile::from_bytes(
@@ -64,6 +73,7 @@ pub fn run(b: &InferenceBench) -> Result<(String, Vec<serde_json::Value>), AppEr
                             "| {name} | {} | {precision:?} | – | skipped: {e} | | |",
                             kind.name()
                         );
+                        bar.inc(b.sizes.len() as u64);
                         continue;
                     }
                 };
@@ -80,6 +90,7 @@ pub fn run(b: &InferenceBench) -> Result<(String, Vec<serde_json::Value>), AppEr
                             kind.name(),
                             spp * pixels
                         );
+                        bar.inc(1);
                         continue;
                     }
                     let frame = Frame {
@@ -110,7 +121,7 @@ pub fn run(b: &InferenceBench) -> Result<(String, Vec<serde_json::Value>), AppEr
                         med * 1e3,
                         min * 1e3
                     );
-                    records.push(json!({
+                    on_record(&json!({
                         "kind": "dcnn_latency",
                         "model": name,
                         "macs_per_pixel": macs,
@@ -125,9 +136,11 @@ pub fn run(b: &InferenceBench) -> Result<(String, Vec<serde_json::Value>), AppEr
                         "repeat": b.repeat,
                         "gmac_per_s": gmacs,
                     }));
+                    bar.inc(1);
                 }
             }
         }
     }
-    Ok((table, records))
+    bar.finish_and_clear();
+    Ok(table)
 }
