@@ -7,6 +7,7 @@
 //! clamp to the panel's [0, 1].
 
 pub mod gpu;
+mod lower;
 pub mod network;
 pub mod ort_backend;
 pub mod reference;
@@ -187,18 +188,18 @@ impl Dcnn {
         kind: BackendKind,
         options: &BackendOptions,
     ) -> Result<Self, InferenceError> {
-        let network = model.lower()?;
-        let backend: Box<dyn Backend> = match kind {
-            BackendKind::Cpu => Box::new(tract_backend::TractBackend::new(&model, options)?),
-            BackendKind::Ort => Box::new(ort_backend::OrtBackend::new(&model, options)?),
-            BackendKind::Wgpu => Box::new(gpu::GpuBackend::new_default(&network, options)?),
-        };
         if kind != BackendKind::Wgpu && options.precision == Precision::F16 {
             return Err(InferenceError::Backend {
                 backend: kind.name(),
                 reason: "f16 is offered by the wgpu backend only".into(),
             });
         }
+        let network = model.lower()?;
+        let backend: Box<dyn Backend> = match kind {
+            BackendKind::Cpu => Box::new(tract_backend::TractBackend::new(&model, options)?),
+            BackendKind::Ort => Box::new(ort_backend::OrtBackend::new(&model, options)?),
+            BackendKind::Wgpu => Box::new(gpu::GpuBackend::new_default(&network, options)?),
+        };
         Ok(Self {
             model,
             network,
