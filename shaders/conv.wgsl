@@ -11,26 +11,7 @@
 // Tensors are NCHW planes addressed by element offsets (concat by layout).
 {{ENABLE_F16}}
 
-struct Params {
-    width: u32,
-    height: u32,
-    cin: u32,
-    cout: u32,
-    in_offset: u32,
-    out_offset: u32,
-    res_offset: u32,
-    w_offset: u32,
-    b_offset: u32,
-    _pad0: u32,
-    _pad1: u32,
-    _pad2: u32,
-}
-
-@group(0) @binding(0) var<uniform> p: Params;
-@group(0) @binding(1) var<storage, read> src: array<{{SRC_T}}>;
-@group(0) @binding(2) var<storage, read> weights: array<{{W_T}}>;
-@group(0) @binding(3) var<storage, read_write> dst: array<{{DST_T}}>;
-@group(0) @binding(4) var<storage, read> residual: array<{{RES_T}}>;
+{{LAYER_BINDINGS}}
 
 const K: u32 = {{K}}u;
 const R: u32 = K / 2u;

@@ -6,26 +6,7 @@
 // shared by the workgroup's 16×16 input pixels.
 {{ENABLE_F16}}
 
-struct Params {
-    width: u32, // input width; the output is 2·width × 2·height
-    height: u32,
-    cin: u32,
-    cout: u32,
-    in_offset: u32,
-    out_offset: u32,
-    res_offset: u32,
-    w_offset: u32,
-    b_offset: u32,
-    _pad0: u32,
-    _pad1: u32,
-    _pad2: u32,
-}
-
-@group(0) @binding(0) var<uniform> p: Params;
-@group(0) @binding(1) var<storage, read> src: array<{{SRC_T}}>;
-@group(0) @binding(2) var<storage, read> weights: array<{{W_T}}>;
-@group(0) @binding(3) var<storage, read_write> dst: array<{{DST_T}}>;
-@group(0) @binding(4) var<storage, read> residual: array<{{RES_T}}>;
+{{LAYER_BINDINGS}}
 
 const OC: u32 = 8u;
 const CI: u32 = 16u;

@@ -56,6 +56,7 @@ pub const MAX_CONV_KERNEL: usize = 5;
 const CONV: &str = include_str!("../../../../shaders/conv.wgsl");
 const CONV_TRANSPOSE: &str = include_str!("../../../../shaders/conv_transpose.wgsl");
 const MAX_POOL: &str = include_str!("../../../../shaders/max_pool.wgsl");
+const LAYER_BINDINGS: &str = include_str!("../../../../shaders/layer_bindings.wgsl");
 
 /// Conv output tile per workgroup (pixels) and output channels per workgroup,
 /// as fixed in conv.wgsl.
@@ -95,6 +96,7 @@ impl KernelKey {
         };
         let enable = if self.uses_f16() { "enable f16;" } else { "" };
         let mut s = template
+            .replace("{{LAYER_BINDINGS}}", LAYER_BINDINGS)
             .replace("{{ENABLE_F16}}", enable)
             .replace("{{SRC_T}}", self.src.wgsl())
             .replace("{{DST_T}}", self.dst.wgsl())

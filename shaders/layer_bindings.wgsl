@@ -1,0 +1,27 @@
+// The uniform block and bindings every layer kernel shares, pasted into
+// each kernel where it says LAYER_BINDINGS, by
+// runtime/src/inference/gpu/codegen.rs.
+// Mirrors `Params` in runtime/src/inference/gpu/params.rs (a test checks
+// sizes and offsets). Sizes are of the layer's input; offsets are in
+// elements of the bound buffer's type, so one buffer can hold several
+// tensors (concatenation by layout).
+struct Params {
+    width: u32, // of the layer's input
+    height: u32,
+    cin: u32,
+    cout: u32,
+    in_offset: u32,
+    out_offset: u32,
+    res_offset: u32,
+    w_offset: u32,
+    b_offset: u32,
+    _pad0: u32,
+    _pad1: u32,
+    _pad2: u32,
+}
+
+@group(0) @binding(0) var<uniform> p: Params;
+@group(0) @binding(1) var<storage, read> src: array<{{SRC_T}}>;
+@group(0) @binding(2) var<storage, read> weights: array<{{W_T}}>;
+@group(0) @binding(3) var<storage, read_write> dst: array<{{DST_T}}>;
+@group(0) @binding(4) var<storage, read> residual: array<{{RES_T}}>;
