@@ -522,53 +522,38 @@ fn bad_dcnn_inputs_are_clear_errors() {
         ],
     );
     assert_clean_error(&o, "none.onnx");
+    // A backend that cannot start: its environment variable says why.
     let model = dcnn_model();
-    let o = nedrt()
-        .args([
-            "--sim",
-            "--accom",
-            "1",
-            "--out",
-            path(&out),
-            "--calib",
-            path(&calib),
-        ])
-        .args([
-            "--method",
-            "proposed",
-            "--dcnn",
-            path(&model),
-            "--backend",
-            "ort",
-        ])
-        .env("ORT_DYLIB_PATH", "/nonexistent/libonnxruntime.so")
-        .output()
-        .expect("run");
+    let with_backend = |backend: &str, var: &str, value: &str| {
+        nedrt()
+            .args([
+                "--sim",
+                "--accom",
+                "1",
+                "--out",
+                path(&out),
+                "--calib",
+                path(&calib),
+            ])
+            .args([
+                "--method",
+                "proposed",
+                "--dcnn",
+                path(&model),
+                "--backend",
+                backend,
+            ])
+            .env(var, value)
+            .output()
+            .expect("run")
+    };
+    let o = with_backend("ort", "ORT_DYLIB_PATH", "/nonexistent/libonnxruntime.so");
     assert_clean_error(
         &o,
         "ORT_DYLIB_PATH=/nonexistent/libonnxruntime.so is not a file",
     );
-    let o = nedrt()
-        .args([
-            "--sim",
-            "--accom",
-            "1",
-            "--out",
-            path(&out),
-            "--calib",
-            path(&calib),
-        ])
-        .args([
-            "--method",
-            "proposed",
-            "--dcnn",
-            path(&model),
-            "--backend",
-            "wgpu",
-        ])
-        .env("WGPU_BACKEND", "metal")
-        .output()
-        .expect("run");
+    // No adapter: ask wgpu for a backend this OS does not have.
+    let o = with_backend("wgpu", "WGPU_BACKEND", "metal");
     assert_clean_error(&o, "no GPU adapter");
     assert!(!out.exists(), "nothing written on error");
 }
