@@ -7,7 +7,7 @@ use std::process::ExitCode;
 use anyhow::{Context, Result, bail};
 use clap::{Args, Parser, Subcommand, ValueEnum};
 use nedrt::app::{self, CommonOptions};
-use nedrt::inference::{BackendKind, BackendOptions, Precision};
+use nedrt::inference::{BackendKind, BackendOptions, OrtProvider, Precision};
 use nedrt::sim::{Method, Optics};
 
 #[derive(Parser, Debug)]
@@ -66,6 +66,9 @@ struct GlobalArgs {
     /// Precision of the wgpu backend (f16 needs the adapter's shader-f16).
     #[arg(long, global = true, value_enum, default_value = "f32")]
     precision: Precision,
+    /// Execution provider of the ort backend.
+    #[arg(long, global = true, value_enum, default_value = "cpu")]
+    ort_provider: OrtProvider,
     /// Threads of the ort backend (0: its default).
     #[arg(long, global = true, default_value_t = 0)]
     threads: usize,
@@ -269,6 +272,7 @@ fn run(cli: Cli) -> Result<()> {
             backend_options: BackendOptions {
                 threads: g.threads,
                 precision: g.precision,
+                ort_provider: g.ort_provider,
             },
         },
     };

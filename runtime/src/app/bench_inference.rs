@@ -63,6 +63,7 @@ pub fn run(
                 let options = BackendOptions {
                     threads: b.threads,
                     precision,
+                    ..Default::default()
                 };
                 let mut dcnn = match Dcnn::from_model(model.clone(), kind, &options) {
                     Ok(d) => d,

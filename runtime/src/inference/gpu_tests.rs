@@ -247,6 +247,7 @@ fn trained_model_on_the_gpu_matches_onnxruntime_at_sizes_not_multiple_of_8() {
         let options = BackendOptions {
             threads: 1,
             precision,
+            ..Default::default()
         };
         let mut dcnn = Dcnn::from_model(model.clone(), BackendKind::Wgpu, &options).expect("wgpu");
         for (w, h) in [(21, 13), (30, 17)] {

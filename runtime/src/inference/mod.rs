@@ -156,12 +156,24 @@ pub trait Backend: Send + std::fmt::Debug {
     fn run(&mut self, frame: &Frame) -> Result<Frame, InferenceError>;
 }
 
+/// ONNX Runtime execution provider of the `ort` backend.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default, clap::ValueEnum)]
+pub enum OrtProvider {
+    #[default]
+    Cpu,
+    /// Needs an ONNX Runtime build with CUDA (the onnxruntime-gpu wheel).
+    Cuda,
+    /// Needs an ONNX Runtime build with TensorRT.
+    Tensorrt,
+}
+
 /// Options for building a backend.
 #[derive(Debug, Clone, Default)]
 pub struct BackendOptions {
     /// Threads for CPU engines (0: the engine's default).
     pub threads: usize,
     pub precision: Precision,
+    pub ort_provider: OrtProvider,
 }
 
 /// The D-CNN ready to preprocess frames of any size.

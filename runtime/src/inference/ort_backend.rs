@@ -2,8 +2,9 @@
 //! time from a shared library (nothing is downloaded at build time). The
 //! library is `ORT_DYLIB_PATH` if set, else the one shipped in the
 //! `onnxruntime` Python package (`pip install onnxruntime==1.31.1`), looked
-//! for in `./.venv` and through `python3`. Its CPU provider runs here; a
-//! headset build adds the CUDA or TensorRT provider to the same session.
+//! for in `./.venv` and through `python3`. The CPU provider by default;
+//! `--ort-provider cuda|tensorrt` asks for those, and a library built
+//! without them is an error, never a silent fall-back to the CPU.
 
 use std::path::{Path, PathBuf};
 
@@ -11,10 +12,11 @@ use ndarray::ArrayView4;
 use std::sync::OnceLock;
 
 use ort::environment::Environment;
+use ort::ep;
 use ort::session::Session;
 use ort::value::TensorRef;
 
-use super::{Backend, BackendOptions, Frame, InferenceError, ModelFile};
+use super::{Backend, BackendOptions, Frame, InferenceError, ModelFile, OrtProvider};
 
 /// The ONNX Runtime release the `ort` crate was built against.
 pub const ORT_VERSION: &str = "1.31";
@@ -23,6 +25,7 @@ pub struct OrtBackend {
     session: Session,
     library: PathBuf,
     threads: usize,
+    provider: OrtProvider,
 }
 
 impl std::fmt::Debug for OrtBackend {
@@ -144,6 +147,23 @@ impl OrtBackend {
                 .with_intra_threads(options.threads)
                 .map_err(|e| err(e.to_string()))?;
         }
+        let provider = match options.ort_provider {
+            OrtProvider::Cpu => None,
+            OrtProvider::Cuda => Some(ep::CUDA::default().build()),
+            OrtProvider::Tensorrt => Some(ep::TensorRT::default().build()),
+        };
+        if let Some(p) = provider {
+            let name = p.name();
+            builder = builder
+                .with_execution_providers([p.error_on_failure()])
+                .map_err(|e| {
+                    err(format!(
+                        "the {name} execution provider is not available in {} ({e}); use an \
+                         ONNX Runtime build with it (ORT_DYLIB_PATH) or --ort-provider cpu",
+                        library.display()
+                    ))
+                })?;
+        }
         let session =
             builder
                 .commit_from_memory(&model.bytes)
@@ -155,6 +175,7 @@ impl OrtBackend {
             session,
             library: library.clone(),
             threads: options.threads,
+            provider: options.ort_provider,
         })
     }
 }
@@ -166,7 +187,7 @@ impl Backend for OrtBackend {
         } else {
             format!("{} threads", self.threads)
         };
-        format!("ort (ONNX Runtime CPU provider, {threads})")
+        format!("ort (ONNX Runtime {:?} provider, {threads})", self.provider)
     }
 
     fn run(&mut self, frame: &Frame) -> Result<Frame, InferenceError> {

@@ -204,6 +204,24 @@ fn a_missing_ort_library_is_a_clear_error() {
     );
 }
 
+#[test]
+fn an_unavailable_ort_provider_is_an_error_not_a_silent_cpu_fallback() {
+    let model = model_from(&synth::unet(4, 3, 1), "small.onnx");
+    if ort_or_skip(&model).is_none() {
+        return;
+    }
+    let options = BackendOptions {
+        ort_provider: OrtProvider::Cuda,
+        ..Default::default()
+    };
+    let e = ort_backend::OrtBackend::new(&model, &options).expect_err("CPU-only wheel");
+    assert!(
+        e.to_string()
+            .contains("execution provider is not available"),
+        "{e}"
+    );
+}
+
 /// The ort backend when its library can be found; CI requires it.
 pub(crate) fn ort_or_skip(model: &ModelFile) -> Option<ort_backend::OrtBackend> {
     match ort_backend::OrtBackend::new(
