@@ -103,7 +103,10 @@ pub struct EvalResult {
     pub calibration: String,
     pub images: Vec<String>,
     pub methods: Vec<MethodResult>,
-    pub unavailable: Vec<String>,
+    /// Methods left out of this run (add them with --methods).
+    pub not_evaluated: Vec<String>,
+    /// The D-CNN behind each D-CNN method: file, content hash, backend.
+    pub dcnn: Vec<String>,
     pub seconds: f64,
 }
 
@@ -268,9 +271,24 @@ pub fn run(
         calibration: sim.calib.source.clone(),
         images: files.iter().map(|f| f.display().to_string()).collect(),
         methods: results,
-        unavailable: vec![
-            "proposed and lens+dcnn: need the D-CNN inference backends (not built yet)".into(),
-        ],
+        not_evaluated: Method::ALL
+            .iter()
+            .filter(|m| !methods.contains(m))
+            .map(|m| m.name().to_string())
+            .collect(),
+        dcnn: methods
+            .iter()
+            .filter_map(|m| {
+                dcnns.get(m).map(|d| {
+                    format!(
+                        "{m}: {} ({}) on {}",
+                        d.model.path.display(),
+                        d.model.hash,
+                        d.describe()
+                    )
+                })
+            })
+            .collect(),
         seconds: start.elapsed().as_secs_f64(),
     };
     let mut md = markdown(&result, &sim);
@@ -341,7 +359,16 @@ pub fn markdown(r: &EvalResult, sim: &Simulator) -> String {
             t.push('\n');
         }
     }
-    let _ = writeln!(t, "\nNot evaluated: {}.", r.unavailable.join("; "));
+    for d in &r.dcnn {
+        let _ = writeln!(t, "\nD-CNN {d}.");
+    }
+    if !r.not_evaluated.is_empty() {
+        let _ = writeln!(
+            t,
+            "\nNot in this run (add with --methods): {}.",
+            r.not_evaluated.join(", ")
+        );
+    }
     let _ = writeln!(t, "Wall time {:.1} s.", r.seconds);
     t
 }
