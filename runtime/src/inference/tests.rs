@@ -276,3 +276,38 @@ fn trained_model_agrees_across_cpu_backends() {
     let b = tract.run(&frame).expect("tract").data;
     assert!(max_abs_diff(&a, &b) <= 1e-4);
 }
+
+#[test]
+fn frames_with_nan_or_the_wrong_size_are_refused() {
+    let model = model_from(&synth::unet(4, 3, 1), "small.onnx");
+    let mut dcnn =
+        Dcnn::from_model(model, BackendKind::Cpu, &BackendOptions::default()).expect("loads");
+    let mut frame = random_frame(8, 8, 1);
+    frame.data[5] = f32::NAN;
+    assert!(
+        dcnn.run_frame(&frame)
+            .expect_err("NaN")
+            .to_string()
+            .contains("NaN")
+    );
+    let short = Frame {
+        width: 8,
+        height: 8,
+        data: vec![0.5; 10],
+    };
+    assert!(dcnn.run_frame(&short).is_err());
+    let gray = crate::sim::Image::zeros(8, 8, 1);
+    assert!(
+        dcnn.run_image(&gray)
+            .expect_err("gray")
+            .to_string()
+            .contains("RGB")
+    );
+    let f16_cpu = BackendOptions {
+        precision: Precision::F16,
+        ..Default::default()
+    };
+    let model = model_from(&synth::unet(4, 3, 1), "small.onnx");
+    let e = Dcnn::from_model(model, BackendKind::Cpu, &f16_cpu).expect_err("f16 on cpu");
+    assert!(e.to_string().contains("wgpu backend only"));
+}
