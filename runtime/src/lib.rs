@@ -10,5 +10,6 @@ pub mod charts;
 pub mod golden;
 pub mod inference;
 pub mod optics;
+pub mod pipeline;
 pub mod sim;
 pub mod util;

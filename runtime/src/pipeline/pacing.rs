@@ -1,0 +1,223 @@
+//! Frame pacing: the present loop runs on the panel's refresh, never on
+//! ingest. A [`Pacer`] turns a clock into vsync deadlines and counts the
+//! refreshes it missed; a [`NewestSlot`] is the hand-over between the last
+//! processing stage and the present loop: the newest frame wins, a frame
+//! replaced before it was shown is counted as dropped, and taking never
+//! blocks. The clock is a trait so tests run on a [`FakeClock`].
+
+use std::sync::Mutex;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::time::{Duration, Instant};
+
+/// Monotonic time in nanoseconds since an arbitrary origin.
+pub trait Clock: Send + Sync + std::fmt::Debug {
+    fn now_ns(&self) -> u64;
+    fn sleep_until_ns(&self, deadline_ns: u64);
+}
+
+/// The real monotonic clock.
+#[derive(Debug, Clone, Copy)]
+pub struct SystemClock {
+    origin: Instant,
+}
+
+impl Default for SystemClock {
+    fn default() -> Self {
+        Self {
+            origin: Instant::now(),
+        }
+    }
+}
+
+impl Clock for SystemClock {
+    fn now_ns(&self) -> u64 {
+        self.origin.elapsed().as_nanos() as u64
+    }
+    fn sleep_until_ns(&self, deadline_ns: u64) {
+        let now = self.now_ns();
+        if deadline_ns > now {
+            std::thread::sleep(Duration::from_nanos(deadline_ns - now));
+        }
+    }
+}
+
+/// A clock that moves only when told to (or when slept on), for tests.
+#[derive(Debug, Default)]
+pub struct FakeClock {
+    now_ns: AtomicU64,
+}
+
+impl FakeClock {
+    pub fn advance_ns(&self, ns: u64) {
+        self.now_ns.fetch_add(ns, Ordering::SeqCst);
+    }
+}
+
+impl Clock for FakeClock {
+    fn now_ns(&self) -> u64 {
+        self.now_ns.load(Ordering::SeqCst)
+    }
+    fn sleep_until_ns(&self, deadline_ns: u64) {
+        self.now_ns.fetch_max(deadline_ns, Ordering::SeqCst);
+    }
+}
+
+/// One refresh to present at.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Tick {
+    /// The refresh's time.
+    pub vsync_ns: u64,
+    /// Refreshes that passed since the previous tick without a present.
+    pub missed: u64,
+}
+
+/// Vsync deadlines at a fixed refresh rate.
+#[derive(Debug, Clone)]
+pub struct Pacer {
+    period_ns: u64,
+    next_vsync_ns: u64,
+}
+
+impl Pacer {
+    /// Refreshes at `refresh_hz` from `start_ns` on.
+    pub fn new(refresh_hz: f64, start_ns: u64) -> Self {
+        let period_ns = (1e9 / refresh_hz).round().max(1.0) as u64;
+        Self {
+            period_ns,
+            next_vsync_ns: start_ns + period_ns,
+        }
+    }
+
+    pub fn period_ns(&self) -> u64 {
+        self.period_ns
+    }
+
+    /// The next refresh at or after `now_ns`; refreshes already past are
+    /// counted as missed and skipped (a late loop catches up, it does not
+    /// present a burst).
+    pub fn next(&mut self, now_ns: u64) -> Tick {
+        let mut missed = 0;
+        if now_ns > self.next_vsync_ns {
+            missed = (now_ns - self.next_vsync_ns).div_ceil(self.period_ns);
+            self.next_vsync_ns += missed * self.period_ns;
+        }
+        let tick = Tick {
+            vsync_ns: self.next_vsync_ns,
+            missed,
+        };
+        self.next_vsync_ns += self.period_ns;
+        tick
+    }
+}
+
+/// Newest-wins hand-over of one item between two threads.
+#[derive(Debug, Default)]
+pub struct NewestSlot<T> {
+    slot: Mutex<Option<T>>,
+    dropped: AtomicU64,
+}
+
+impl<T> NewestSlot<T> {
+    pub fn new() -> Self {
+        Self {
+            slot: Mutex::new(None),
+            dropped: AtomicU64::new(0),
+        }
+    }
+
+    /// Puts `item`, replacing (and counting as dropped) one not yet taken.
+    pub fn put(&self, item: T) {
+        let mut slot = self.slot.lock().unwrap_or_else(|p| p.into_inner());
+        if slot.replace(item).is_some() {
+            self.dropped.fetch_add(1, Ordering::Relaxed);
+        }
+    }
+
+    /// Takes the newest item, if any; never waits for one.
+    pub fn take(&self) -> Option<T> {
+        self.slot.lock().unwrap_or_else(|p| p.into_inner()).take()
+    }
+
+    /// Items replaced before anyone took them.
+    pub fn dropped(&self) -> u64 {
+        self.dropped.load(Ordering::Relaxed)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn ticks_follow_the_refresh_and_count_missed_ones() {
+        let clock = FakeClock::default();
+        let mut pacer = Pacer::new(90.0, clock.now_ns());
+        let period = pacer.period_ns();
+        assert_eq!(period, 11_111_111);
+        let t1 = pacer.next(clock.now_ns());
+        assert_eq!(
+            t1,
+            Tick {
+                vsync_ns: period,
+                missed: 0
+            }
+        );
+        clock.sleep_until_ns(t1.vsync_ns);
+        let t2 = pacer.next(clock.now_ns());
+        assert_eq!(
+            t2,
+            Tick {
+                vsync_ns: 2 * period,
+                missed: 0
+            }
+        );
+        // The loop stalls for 3.5 periods: refreshes 3, 4 and 5 are missed.
+        clock.advance_ns(period + 7 * period / 2);
+        let t3 = pacer.next(clock.now_ns());
+        assert_eq!(t3.missed, 3);
+        assert_eq!(t3.vsync_ns, 6 * period);
+        assert!(t3.vsync_ns >= clock.now_ns());
+        // Exactly on a refresh is not late.
+        clock.sleep_until_ns(t3.vsync_ns);
+        assert_eq!(pacer.next(clock.now_ns()).missed, 0);
+    }
+
+    #[test]
+    fn the_newest_frame_wins_and_replaced_ones_are_counted() {
+        let slot = NewestSlot::new();
+        assert_eq!(slot.take(), None::<u32>);
+        slot.put(1);
+        slot.put(2);
+        slot.put(3);
+        assert_eq!(slot.take(), Some(3));
+        assert_eq!(slot.dropped(), 2);
+        assert_eq!(slot.take(), None);
+        slot.put(4);
+        assert_eq!(slot.take(), Some(4));
+        assert_eq!(slot.dropped(), 2);
+    }
+
+    #[test]
+    fn a_producer_faster_than_the_consumer_loses_only_counted_frames() {
+        let slot = std::sync::Arc::new(NewestSlot::new());
+        let producer = {
+            let slot = slot.clone();
+            std::thread::spawn(move || {
+                for i in 0..10_000u32 {
+                    slot.put(i);
+                }
+            })
+        };
+        let mut taken = Vec::new();
+        while !producer.is_finished() {
+            if let Some(v) = slot.take() {
+                taken.push(v);
+            }
+        }
+        producer.join().expect("producer");
+        taken.extend(slot.take());
+        assert!(taken.windows(2).all(|w| w[0] < w[1]), "in order");
+        assert_eq!(taken.last(), Some(&9_999), "the last frame is never lost");
+        assert_eq!(taken.len() as u64 + slot.dropped(), 10_000);
+    }
+}
