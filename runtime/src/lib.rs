@@ -2,7 +2,7 @@
 //! display (lens + static DOE + D-CNN preprocessing).
 //!
 //! The module tree follows the data flow: [`calib`] → [`optics`] → ([`sim`] |
-//! [`inference`]).
+//! [`inference`] → [`pipeline`] → [`present`]).
 
 pub mod app;
 pub mod calib;
@@ -11,5 +11,6 @@ pub mod golden;
 pub mod inference;
 pub mod optics;
 pub mod pipeline;
+pub mod present;
 pub mod sim;
 pub mod util;

@@ -60,9 +60,9 @@ struct GlobalArgs {
         default_value = "models/dcnn-lens.onnx"
     )]
     dcnn_lens: PathBuf,
-    /// Engine that runs the D-CNN.
-    #[arg(long, global = true, value_enum, default_value = "cpu")]
-    backend: BackendKind,
+    /// Engine that runs the D-CNN [default: cpu for the simulator, wgpu for `run`].
+    #[arg(long, global = true, value_enum)]
+    backend: Option<BackendKind>,
     /// Precision of the wgpu backend (f16 needs the adapter's shader-f16).
     #[arg(long, global = true, value_enum, default_value = "f32")]
     precision: Precision,
@@ -145,9 +145,63 @@ enum Command {
     TuneWiener(TuneArgs),
     /// Print the resolved calibration and the quantities derived from it.
     Calib,
+    /// The real-time service: frames from a source, preprocessed by the
+    /// D-CNN, encoded through the panel's transfer curve, presented to a sink.
+    Run(RunArgs),
     /// Time the PSF and the perceived image, writing their inputs for
     /// tools/bench/compare_numpy.py (see docs/benchmarks.md).
     Bench(BenchArgs),
+}
+
+#[derive(Args, Debug)]
+struct RunArgs {
+    /// Where frames come from.
+    #[arg(long, value_enum, default_value = "pattern")]
+    source: app::run::SourceKind,
+    /// --source dir: a folder of images (name order) or one image, at the panel's resolution.
+    #[arg(long, value_name = "PATH")]
+    input: Option<PathBuf>,
+    /// --source socket: the Unix socket to listen on.
+    #[arg(long, value_name = "PATH", default_value = "/tmp/nedrt.sock")]
+    socket: PathBuf,
+    /// --source socket: folder of the clients' shared-memory objects.
+    #[arg(long, value_name = "DIR", default_value = nedrt::pipeline::protocol::DEFAULT_SHM_DIR)]
+    shm_dir: PathBuf,
+    /// Frames the pattern or folder source submits (default: pattern until
+    /// stopped, a folder once through).
+    #[arg(long, value_name = "N")]
+    frames: Option<u64>,
+    /// Submission rate of the pattern and folder sources in Hz (default:
+    /// the panel's refresh; 0: as fast as the pipeline takes them).
+    #[arg(long, value_name = "HZ")]
+    source_rate: Option<f64>,
+    /// Where frames go.
+    #[arg(long, value_enum, default_value = "window")]
+    sink: app::run::SinkKind,
+    /// --sink record: the folder of the PNG sequence.
+    #[arg(long, value_name = "DIR", default_value = "out/recording")]
+    record_dir: PathBuf,
+    /// Borderless fullscreen (on --monitor, else the primary monitor).
+    #[arg(long)]
+    fullscreen: bool,
+    /// Monitor name for --fullscreen.
+    #[arg(long, value_name = "NAME")]
+    monitor: Option<String>,
+    /// Present without waiting for vsync where the surface allows.
+    #[arg(long)]
+    no_vsync: bool,
+    /// What runs when the D-CNN backend cannot start or fails.
+    #[arg(long, value_enum, default_value = "cpu")]
+    fallback: app::run::FallbackKind,
+    /// Keep showing the last frame after the source ends, until Ctrl-C or the window closes.
+    #[arg(long)]
+    keep_open: bool,
+    /// Write a Chrome/Perfetto trace of every stage span to FILE.
+    #[arg(long, value_name = "FILE")]
+    trace: Option<PathBuf>,
+    /// Write the counts and latency histograms as JSON to FILE.
+    #[arg(long, value_name = "FILE")]
+    report_json: Option<PathBuf>,
 }
 
 #[derive(Args, Debug)]
@@ -229,7 +283,10 @@ struct BenchArgs {
     repeat: usize,
 }
 
-fn init_logging(verbose: u8) {
+/// Logging to stderr, and with `trace` a Chrome/Perfetto trace of every
+/// span; the returned guard writes the trace when dropped.
+fn init_logging(verbose: u8, trace: Option<&std::path::Path>) -> Result<Option<tracing_chrome::FlushGuard>> {
+    use tracing_subscriber::prelude::*;
     let default = match verbose {
         0 => "nedrt=info",
         1 => "nedrt=debug",
@@ -237,25 +294,65 @@ fn init_logging(verbose: u8) {
     };
     let filter = tracing_subscriber::EnvFilter::try_from_env("NEDRT_LOG")
         .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(default));
-    tracing_subscriber::fmt()
-        .with_env_filter(filter)
+    let fmt = tracing_subscriber::fmt::layer()
         .with_writer(std::io::stderr)
         .with_target(false)
         .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
-        .without_time()
+        .without_time();
+    let (chrome, guard) = match trace {
+        Some(path) => {
+            let file = std::fs::File::create(path)
+                .with_context(|| format!("{}: cannot create the trace file", path.display()))?;
+            let (layer, guard) = tracing_chrome::ChromeLayerBuilder::new()
+                .writer(file)
+                .include_args(true)
+                .build();
+            (Some(layer), Some(guard))
+        }
+        None => (None, None),
+    };
+    tracing_subscriber::registry()
+        .with(filter)
+        .with(fmt)
+        .with(chrome)
         .init();
+    Ok(guard)
 }
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
-    init_logging(cli.global.verbose);
-    match run(cli) {
+    let trace = match &cli.command {
+        Some(Command::Run(a)) => a.trace.clone(),
+        _ => None,
+    };
+    let guard = match init_logging(cli.global.verbose, trace.as_deref()) {
+        Ok(g) => g,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            return ExitCode::FAILURE;
+        }
+    };
+    let result = run(cli);
+    drop(guard);
+    match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
             eprintln!("error: {}", format!("{e:#}").replace('\n', " "));
             ExitCode::FAILURE
         }
     }
+}
+
+/// Ctrl-C and SIGTERM stop the service cleanly (a second one exits at
+/// once); SIGUSR1 prints the latency table.
+fn install_signals(control: &nedrt::pipeline::service::Control) -> Result<()> {
+    use signal_hook::consts::{SIGINT, SIGTERM, SIGUSR1};
+    for sig in [SIGINT, SIGTERM] {
+        signal_hook::flag::register_conditional_shutdown(sig, 1, control.stop.clone())?;
+        signal_hook::flag::register(sig, control.stop.clone())?;
+    }
+    signal_hook::flag::register(SIGUSR1, control.report.clone())?;
+    Ok(())
 }
 
 fn run(cli: Cli) -> Result<()> {
@@ -268,7 +365,7 @@ fn run(cli: Cli) -> Result<()> {
         dcnn: app::DcnnOptions {
             path: g.dcnn.clone(),
             lens_path: g.dcnn_lens.clone(),
-            backend: g.backend,
+            backend: g.backend.unwrap_or(BackendKind::Cpu),
             backend_options: BackendOptions {
                 threads: g.threads,
                 precision: g.precision,
@@ -310,6 +407,36 @@ fn run(cli: Cli) -> Result<()> {
         }
         Some(Command::TuneWiener(a)) => {
             print!("{}", app::tune::run(&common, &a.images, a.method, a.write)?)
+        }
+        Some(Command::Run(a)) => {
+            let mut common = common;
+            common.dcnn.backend = g.backend.unwrap_or(BackendKind::Wgpu);
+            let control = nedrt::pipeline::service::Control {
+                keep_open: a.keep_open,
+                progress: std::io::IsTerminal::is_terminal(&std::io::stderr()),
+                ..Default::default()
+            };
+            install_signals(&control)?;
+            let opts = app::run::RunOptions {
+                source: a.source,
+                input: a.input,
+                socket: a.socket,
+                shm_dir: a.shm_dir,
+                frames: a.frames,
+                source_rate_hz: a.source_rate,
+                sink: a.sink,
+                record_dir: a.record_dir,
+                window: nedrt::present::window::WindowOptions {
+                    title: "nedrt".into(),
+                    fullscreen: a.fullscreen,
+                    monitor: a.monitor,
+                    vsync: !a.no_vsync,
+                },
+                fallback: a.fallback,
+                report_json: a.report_json,
+            };
+            let report = app::run::run(&common, &opts, &control)?;
+            print!("{}", report.table());
         }
         Some(Command::Calib) => print!("{}", app::plots::calib_summary(&common)?),
         Some(Command::Bench(a)) => match a.what.as_str() {

@@ -5,6 +5,7 @@ pub mod bench;
 pub mod bench_inference;
 pub mod eval;
 pub mod plots;
+pub mod run;
 pub mod sim;
 pub mod tune;
 
@@ -165,6 +166,10 @@ pub enum AppError {
     Image(#[from] crate::sim::image_io::ImageError),
     #[error(transparent)]
     Inference(#[from] InferenceError),
+    #[error(transparent)]
+    Source(#[from] crate::pipeline::source::SourceError),
+    #[error(transparent)]
+    Present(#[from] crate::present::PresentError),
     #[error("{path}: {reason}")]
     Output { path: String, reason: String },
     #[error("{0}")]

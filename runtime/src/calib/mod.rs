@@ -63,6 +63,18 @@ pub struct WienerSettings {
     pub doe_k_tuned_for: String,
 }
 
+/// The panel as the runtime drives it: resolution, refresh and the
+/// transfer curve from linear intensity to code values.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct PanelSettings {
+    pub width_px: usize,
+    pub height_px: usize,
+    pub refresh_hz: f64,
+    /// Per channel (in `channels` order): emitted intensity = code^γ, so a
+    /// linear intensity x is sent as code x^(1/γ).
+    pub transfer_gamma: Vec<f64>,
+}
+
 /// A validated calibration in SI units. Construct with [`Calibration::load`],
 /// [`Calibration::from_toml`] or [`Calibration::default_embedded`].
 #[derive(Debug, Clone, PartialEq, Serialize)]
@@ -91,7 +103,12 @@ pub struct Calibration {
     pub ai_planes_d: Vec<f64>,
     pub wiener: WienerSettings,
     pub simulation: SimulationSettings,
+    pub panel: PanelSettings,
 }
+
+/// Largest panel side the runtime accepts (pixels): a guard against typos
+/// that would allocate gigabytes per frame.
+pub const MAX_PANEL_SIDE_PX: usize = 16384;
 
 /// Depths closer than this are the same depth (diopters).
 pub const DEPTH_TOLERANCE_D: f64 = 1e-9;
@@ -268,6 +285,46 @@ impl Calibration {
             return Err(v.err("simulation.pupil_step_um", "must be ≥ 0 (0 = automatic)"));
         }
 
+        let p = &raw.panel;
+        for (field, px) in [("panel.width_px", p.width_px), ("panel.height_px", p.height_px)] {
+            if !(1..=MAX_PANEL_SIDE_PX).contains(&px) {
+                return Err(v.err(
+                    field,
+                    &format!("{px} must lie in 1..={MAX_PANEL_SIDE_PX} pixels"),
+                ));
+            }
+        }
+        if !(p.refresh_hz.is_finite() && (1.0..=1000.0).contains(&p.refresh_hz)) {
+            return Err(v.err(
+                "panel.refresh_hz",
+                &format!("{} must lie in 1–1000 Hz", p.refresh_hz),
+            ));
+        }
+        if p.transfer_gamma.len() != channels.len() {
+            return Err(v.err(
+                "panel.transfer_gamma",
+                &format!(
+                    "{} values for {} [[channel]]s: one exponent per primary",
+                    p.transfer_gamma.len(),
+                    channels.len()
+                ),
+            ));
+        }
+        for g in &p.transfer_gamma {
+            if !(g.is_finite() && (0.5..=4.0).contains(g)) {
+                return Err(v.err(
+                    "panel.transfer_gamma",
+                    &format!("{g} is not a display gamma (0.5–4)"),
+                ));
+            }
+        }
+        let panel = PanelSettings {
+            width_px: p.width_px,
+            height_px: p.height_px,
+            refresh_hz: p.refresh_hz,
+            transfer_gamma: p.transfer_gamma.clone(),
+        };
+
         Ok(Calibration {
             source: name.to_string(),
             pixel_pitch_m: raw.panel.pixel_pitch_um * 1e-6,
@@ -300,6 +357,7 @@ impl Calibration {
                 max_pupil_samples: s.max_pupil_samples,
                 pupil_step_m: (s.pupil_step_um > 0.0).then_some(s.pupil_step_um * 1e-6),
             },
+            panel,
         })
     }
 

@@ -24,6 +24,10 @@ pub struct RawCalibration {
 pub struct RawPanel {
     pub pixel_pitch_um: f64,
     pub lens_distance_mm: f64,
+    pub width_px: usize,
+    pub height_px: usize,
+    pub refresh_hz: f64,
+    pub transfer_gamma: Vec<f64>,
 }
 
 #[derive(Debug, Clone, Deserialize)]

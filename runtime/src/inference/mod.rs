@@ -219,6 +219,30 @@ impl Dcnn {
         })
     }
 
+    /// The wgpu backend on a device the caller opened (the window's, so
+    /// that inference and present share one GPU context).
+    pub fn on_device(
+        model: ModelFile,
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        adapter_name: String,
+        precision: Precision,
+    ) -> Result<Self, InferenceError> {
+        let network = model.lower()?;
+        let backend = Box::new(gpu::GpuBackend::new(
+            device,
+            queue,
+            adapter_name,
+            &network,
+            precision,
+        )?);
+        Ok(Self {
+            model,
+            network,
+            backend,
+        })
+    }
+
     pub fn describe(&self) -> String {
         self.backend.describe()
     }

@@ -1,8 +1,17 @@
-//! The real-time path (issue 5): frames in, preprocessed frames on the
-//! panel. So far the parts that need no device: frame pacing against the
-//! panel's refresh ([`pacing`], with a fake clock for tests) and latency
-//! accounting ([`latency`]). The stage threads, sources and sinks build on
-//! these.
+//! The real-time path: frames in, preprocessed frames on the panel.
+//!
+//! Sources ([`source`]: a folder, a test pattern, applications over the
+//! socket [`protocol`]) submit [`frame`]s through a
+//! [`service::Compositor`]; the [`service`] runs upload → D-CNN → encode on
+//! threads joined by newest-wins [`channel`]s and presents on the panel's
+//! refresh ([`pacing`]) to a `present::Sink`, counting everything
+//! ([`stats`], [`latency`]).
 
+pub mod channel;
+pub mod frame;
 pub mod latency;
 pub mod pacing;
+pub mod protocol;
+pub mod service;
+pub mod source;
+pub mod stats;

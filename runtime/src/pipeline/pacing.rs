@@ -7,7 +7,7 @@
 
 use std::sync::Mutex;
 use std::sync::atomic::{AtomicU64, Ordering};
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 /// Monotonic time in nanoseconds since an arbitrary origin.
 pub trait Clock: Send + Sync + std::fmt::Debug {
@@ -15,23 +15,20 @@ pub trait Clock: Send + Sync + std::fmt::Debug {
     fn sleep_until_ns(&self, deadline_ns: u64);
 }
 
-/// The real monotonic clock.
-#[derive(Debug, Clone, Copy)]
-pub struct SystemClock {
-    origin: Instant,
-}
+/// The real monotonic clock: CLOCK_MONOTONIC, the clock applications
+/// stamp capture times with (docs/protocol.md).
+#[derive(Debug, Clone, Copy, Default)]
+pub struct SystemClock;
 
-impl Default for SystemClock {
-    fn default() -> Self {
-        Self {
-            origin: Instant::now(),
-        }
-    }
+/// CLOCK_MONOTONIC now, in nanoseconds.
+pub fn monotonic_ns() -> u64 {
+    let t = rustix::time::clock_gettime(rustix::time::ClockId::Monotonic);
+    t.tv_sec as u64 * 1_000_000_000 + t.tv_nsec as u64
 }
 
 impl Clock for SystemClock {
     fn now_ns(&self) -> u64 {
-        self.origin.elapsed().as_nanos() as u64
+        monotonic_ns()
     }
     fn sleep_until_ns(&self, deadline_ns: u64) {
         let now = self.now_ns();

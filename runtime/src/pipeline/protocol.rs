@@ -1,0 +1,304 @@
+//! The application interface on the wire (docs/protocol.md): a Unix stream
+//! socket carries fixed-size little-endian headers and replies; pixel
+//! payloads travel in a POSIX shared-memory object (a file in /dev/shm)
+//! that the client creates and names in its hello. The service reads each
+//! payload once, replies, and the client may then reuse the memory.
+//!
+//! [`Client`] is the client side, used by `examples/stream_client.rs` and
+//! the tests; the service side is `source::socket`.
+
+use std::io::{Read, Write};
+use std::os::unix::fs::{FileExt, OpenOptionsExt};
+use std::os::unix::net::UnixStream;
+use std::path::{Path, PathBuf};
+
+use super::frame::PixelFormat;
+
+pub const VERSION: u16 = 1;
+pub const HELLO_MAGIC: [u8; 4] = *b"NEDH";
+pub const FRAME_MAGIC: [u8; 4] = *b"NEDF";
+pub const REPLY_MAGIC: [u8; 4] = *b"NEDR";
+/// Hello: magic, version u16, name length u16, shared-memory size u64.
+pub const HELLO_LEN: usize = 16;
+/// Frame header: magic, version u16, format u16, width u32, height u32,
+/// frame id u64, capture ns u64, payload offset u64, payload length u64.
+pub const HEADER_LEN: usize = 48;
+/// Reply: magic, status u32, frame id u64, panel width u32, panel height
+/// u32, message length u32; the UTF-8 message follows.
+pub const REPLY_LEN: usize = 28;
+/// Reply status of an accepted frame; rejections use `RejectReason::code`.
+pub const STATUS_OK: u32 = 0;
+/// Reply status of a refused hello (the service then closes).
+pub const STATUS_BAD_HELLO: u32 = 100;
+/// Longest shared-memory name.
+pub const MAX_NAME: usize = 255;
+
+/// A frame header as sent.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct FrameHeader {
+    pub version: u16,
+    pub format: u16,
+    pub width: u32,
+    pub height: u32,
+    pub frame_id: u64,
+    pub capture_ns: u64,
+    pub offset: u64,
+    pub length: u64,
+}
+
+impl FrameHeader {
+    /// A header for a payload at offset 0 of the shared memory.
+    pub fn new(format: PixelFormat, width: usize, height: usize, frame_id: u64, capture_ns: u64) -> Self {
+        Self {
+            version: VERSION,
+            format: format.code(),
+            width: width as u32,
+            height: height as u32,
+            frame_id,
+            capture_ns,
+            offset: 0,
+            length: (width * height * format.bytes_per_pixel()) as u64,
+        }
+    }
+
+    pub fn to_bytes(&self) -> [u8; HEADER_LEN] {
+        let mut b = [0u8; HEADER_LEN];
+        b[0..4].copy_from_slice(&FRAME_MAGIC);
+        b[4..6].copy_from_slice(&self.version.to_le_bytes());
+        b[6..8].copy_from_slice(&self.format.to_le_bytes());
+        b[8..12].copy_from_slice(&self.width.to_le_bytes());
+        b[12..16].copy_from_slice(&self.height.to_le_bytes());
+        b[16..24].copy_from_slice(&self.frame_id.to_le_bytes());
+        b[24..32].copy_from_slice(&self.capture_ns.to_le_bytes());
+        b[32..40].copy_from_slice(&self.offset.to_le_bytes());
+        b[40..48].copy_from_slice(&self.length.to_le_bytes());
+        b
+    }
+
+    /// Parses a header; `Err` names what is wrong (the frame id, if
+    /// readable, is in the header's usual place).
+    pub fn parse(b: &[u8; HEADER_LEN]) -> Result<Self, String> {
+        let u16_at = |i: usize| u16::from_le_bytes([b[i], b[i + 1]]);
+        let u32_at = |i: usize| u32::from_le_bytes([b[i], b[i + 1], b[i + 2], b[i + 3]]);
+        let u64_at = |i: usize| {
+            let mut a = [0u8; 8];
+            a.copy_from_slice(&b[i..i + 8]);
+            u64::from_le_bytes(a)
+        };
+        if b[0..4] != FRAME_MAGIC {
+            return Err(format!("bad magic {:?} (expected \"NEDF\")", &b[0..4]));
+        }
+        let h = Self {
+            version: u16_at(4),
+            format: u16_at(6),
+            width: u32_at(8),
+            height: u32_at(12),
+            frame_id: u64_at(16),
+            capture_ns: u64_at(24),
+            offset: u64_at(32),
+            length: u64_at(40),
+        };
+        if h.version != VERSION {
+            return Err(format!("protocol version {} (this service speaks {VERSION})", h.version));
+        }
+        Ok(h)
+    }
+
+    /// The id field, readable even from a malformed header.
+    pub fn id_of(b: &[u8; HEADER_LEN]) -> u64 {
+        let mut a = [0u8; 8];
+        a.copy_from_slice(&b[16..24]);
+        u64::from_le_bytes(a)
+    }
+}
+
+/// A reply from the service.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Reply {
+    pub status: u32,
+    pub frame_id: u64,
+    pub panel_width: u32,
+    pub panel_height: u32,
+    pub message: String,
+}
+
+impl Reply {
+    pub fn to_bytes(&self) -> Vec<u8> {
+        let msg = self.message.as_bytes();
+        let mut b = Vec::with_capacity(REPLY_LEN + msg.len());
+        b.extend_from_slice(&REPLY_MAGIC);
+        b.extend_from_slice(&self.status.to_le_bytes());
+        b.extend_from_slice(&self.frame_id.to_le_bytes());
+        b.extend_from_slice(&self.panel_width.to_le_bytes());
+        b.extend_from_slice(&self.panel_height.to_le_bytes());
+        b.extend_from_slice(&(msg.len() as u32).to_le_bytes());
+        b.extend_from_slice(msg);
+        b
+    }
+
+    /// Reads one reply from `r`.
+    pub fn read_from(r: &mut impl Read) -> std::io::Result<Self> {
+        let mut b = [0u8; REPLY_LEN];
+        r.read_exact(&mut b)?;
+        let bad = |m: &str| std::io::Error::new(std::io::ErrorKind::InvalidData, m.to_string());
+        if b[0..4] != REPLY_MAGIC {
+            return Err(bad("reply with a bad magic"));
+        }
+        let u32_at = |i: usize| u32::from_le_bytes([b[i], b[i + 1], b[i + 2], b[i + 3]]);
+        let mut id = [0u8; 8];
+        id.copy_from_slice(&b[8..16]);
+        let len = u32_at(24) as usize;
+        if len > 64 * 1024 {
+            return Err(bad("reply message over 64 KiB"));
+        }
+        let mut msg = vec![0u8; len];
+        r.read_exact(&mut msg)?;
+        Ok(Self {
+            status: u32_at(4),
+            frame_id: u64::from_le_bytes(id),
+            panel_width: u32_at(16),
+            panel_height: u32_at(20),
+            message: String::from_utf8_lossy(&msg).into_owned(),
+        })
+    }
+}
+
+/// Whether `name` may name a shared-memory object: one path component of
+/// letters, digits, '.', '_', '-', not starting with '.'.
+pub fn valid_shm_name(name: &str) -> bool {
+    !name.is_empty()
+        && name.len() <= MAX_NAME
+        && !name.starts_with('.')
+        && name
+            .bytes()
+            .all(|c| c.is_ascii_alphanumeric() || matches!(c, b'.' | b'_' | b'-'))
+}
+
+/// The default folder of shared-memory objects.
+pub const DEFAULT_SHM_DIR: &str = "/dev/shm";
+
+/// A connection to the service.
+#[derive(Debug)]
+pub struct Client {
+    stream: UnixStream,
+    shm: std::fs::File,
+    shm_size: u64,
+    /// The panel's resolution, from the service's welcome.
+    pub panel: (usize, usize),
+}
+
+impl Client {
+    /// Connects, creating a private shared-memory object of `shm_size`
+    /// bytes in `shm_dir`; the object's name is removed once the service
+    /// has opened it, so nothing is left behind however either side ends.
+    pub fn connect(socket: &Path, shm_dir: &Path, shm_size: u64) -> std::io::Result<Self> {
+        let stream = UnixStream::connect(socket).map_err(|e| {
+            std::io::Error::new(e.kind(), format!("{}: {e}", socket.display()))
+        })?;
+        let nanos = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0, |d| d.as_nanos());
+        let name = format!("nedrt-{}-{nanos}", std::process::id());
+        let path: PathBuf = shm_dir.join(&name);
+        let shm = std::fs::OpenOptions::new()
+            .read(true)
+            .write(true)
+            .create_new(true)
+            .mode(0o600)
+            .open(&path)?;
+        let result = (|| {
+            shm.set_len(shm_size)?;
+            let mut hello = Vec::with_capacity(HELLO_LEN + name.len());
+            hello.extend_from_slice(&HELLO_MAGIC);
+            hello.extend_from_slice(&VERSION.to_le_bytes());
+            hello.extend_from_slice(&(name.len() as u16).to_le_bytes());
+            hello.extend_from_slice(&shm_size.to_le_bytes());
+            hello.extend_from_slice(name.as_bytes());
+            (&stream).write_all(&hello)?;
+            Reply::read_from(&mut &stream)
+        })();
+        let _ = std::fs::remove_file(&path);
+        let welcome = result?;
+        if welcome.status != STATUS_OK {
+            return Err(std::io::Error::new(
+                std::io::ErrorKind::ConnectionRefused,
+                format!("service refused the connection: {}", welcome.message),
+            ));
+        }
+        Ok(Self {
+            stream,
+            shm,
+            shm_size,
+            panel: (welcome.panel_width as usize, welcome.panel_height as usize),
+        })
+    }
+
+    /// Writes `payload` at offset 0 of the shared memory, sends `header`
+    /// and waits for the reply.
+    pub fn send(&mut self, header: &FrameHeader, payload: &[u8]) -> std::io::Result<Reply> {
+        if payload.len() as u64 > self.shm_size {
+            return Err(std::io::Error::new(
+                std::io::ErrorKind::InvalidInput,
+                format!("{} payload bytes for {} of shared memory", payload.len(), self.shm_size),
+            ));
+        }
+        self.shm.write_all_at(payload, 0)?;
+        self.send_header_bytes(&header.to_bytes())
+    }
+
+    /// Sends raw header bytes (any, for fault tests) and waits for the reply.
+    pub fn send_header_bytes(&mut self, header: &[u8]) -> std::io::Result<Reply> {
+        self.stream.write_all(header)?;
+        Reply::read_from(&mut self.stream)
+    }
+
+    /// The socket, for tests that misbehave on purpose.
+    pub fn stream(&mut self) -> &mut UnixStream {
+        &mut self.stream
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    proptest! {
+        #[test]
+        fn headers_round_trip(format in 0u16..8, w in any::<u32>(), h in any::<u32>(), id in any::<u64>(),
+                              t in any::<u64>(), off in any::<u64>(), len in any::<u64>()) {
+            let header = FrameHeader { version: VERSION, format, width: w, height: h, frame_id: id,
+                                       capture_ns: t, offset: off, length: len };
+            prop_assert_eq!(FrameHeader::parse(&header.to_bytes()), Ok(header));
+        }
+
+        #[test]
+        fn any_bytes_parse_or_fail_cleanly(bytes in proptest::collection::vec(any::<u8>(), HEADER_LEN)) {
+            let mut b = [0u8; HEADER_LEN];
+            b.copy_from_slice(&bytes);
+            let _ = FrameHeader::parse(&b);
+            let _ = FrameHeader::id_of(&b);
+            let _ = Reply::read_from(&mut bytes.as_slice());
+        }
+
+        #[test]
+        fn replies_round_trip(status in any::<u32>(), id in any::<u64>(), msg in ".{0,40}") {
+            let r = Reply { status, frame_id: id, panel_width: 64, panel_height: 48, message: msg };
+            prop_assert_eq!(Reply::read_from(&mut r.to_bytes().as_slice()).ok(), Some(r));
+        }
+    }
+
+    #[test]
+    fn bad_magic_and_version_are_named() {
+        let mut b = FrameHeader::new(PixelFormat::Rgba8Linear, 4, 4, 9, 0).to_bytes();
+        b[4] = 7;
+        assert!(FrameHeader::parse(&b).unwrap_err().contains("version 7"));
+        b[0] = b'X';
+        assert!(FrameHeader::parse(&b).unwrap_err().contains("magic"));
+        assert_eq!(FrameHeader::id_of(&b), 9);
+        assert!(valid_shm_name("nedrt-12-34"));
+        for bad in ["", ".hidden", "a/b", "../x", "a b"] {
+            assert!(!valid_shm_name(bad), "{bad}");
+        }
+    }
+}

@@ -1,0 +1,88 @@
+//! A synthetic moving test pattern: colour ramps, a fine checkerboard
+//! (the panel's Nyquist detail, where preprocessing matters most) and a
+//! white bar sweeping one eighth of the width per second, so dropped or
+//! stale frames are visible at a glance.
+
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+
+use super::{Rate, Source, SourceError};
+use crate::pipeline::frame::{PixelFormat, SubmittedFrame};
+use crate::pipeline::pacing::Clock;
+use crate::pipeline::service::Compositor;
+
+/// The pattern at `rate_hz`, `count` frames (`None`: until stopped).
+#[derive(Debug)]
+pub struct PatternSource {
+    width: usize,
+    height: usize,
+    count: Option<u64>,
+    rate_hz: f64,
+    rate: Rate,
+}
+
+impl PatternSource {
+    pub fn new(
+        width: usize,
+        height: usize,
+        count: Option<u64>,
+        rate_hz: f64,
+        clock: Arc<dyn Clock>,
+    ) -> Self {
+        Self {
+            width,
+            height,
+            count,
+            rate_hz,
+            rate: Rate::new(rate_hz, clock),
+        }
+    }
+}
+
+/// Frame `id` of the pattern as RGBA8 (linear values).
+pub fn pattern_rgba8(width: usize, height: usize, id: u64, rate_hz: f64) -> Vec<u8> {
+    let mut out = vec![255u8; 4 * width * height];
+    let per_second = if rate_hz > 0.0 { rate_hz } else { 90.0 };
+    let bar_w = (width / 16).max(1);
+    let bar_x = ((id as f64 / per_second) * width as f64 / 8.0) as usize % width.max(1);
+    for y in 0..height {
+        for x in 0..width {
+            let px = &mut out[4 * (y * width + x)..4 * (y * width + x) + 4];
+            let in_bar = (x + width - bar_x) % width < bar_w;
+            if in_bar {
+                px[..3].fill(255);
+            } else if y < height / 2 {
+                px[0] = (255 * x / width.max(1)) as u8;
+                px[1] = (255 * y / height.max(1)) as u8;
+                px[2] = 255 - px[0];
+            } else {
+                let v = if (x + y) % 2 == 0 { 230 } else { 25 };
+                px[..3].fill(v);
+            }
+        }
+    }
+    out
+}
+
+impl Source for PatternSource {
+    fn describe(&self) -> String {
+        format!("test pattern {}×{} at {} Hz", self.width, self.height, self.rate_hz)
+    }
+
+    fn run(&mut self, compositor: Compositor, stop: &AtomicBool) -> Result<u64, SourceError> {
+        let mut id = 0;
+        while self.count.is_none_or(|n| id < n) && !stop.load(Ordering::Relaxed) {
+            let capture_ns = self.rate.wait();
+            let _ = compositor.submit(SubmittedFrame {
+                id,
+                capture_ns,
+                width: self.width,
+                height: self.height,
+                format: PixelFormat::Rgba8Linear,
+                payload: pattern_rgba8(self.width, self.height, id, self.rate_hz),
+            });
+            id += 1;
+        }
+        Ok(id)
+    }
+}

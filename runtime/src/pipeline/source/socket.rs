@@ -1,0 +1,250 @@
+//! The application interface, service side (docs/protocol.md): a Unix
+//! socket accepting any number of clients, one thread each. A client's
+//! frames are read from its shared memory and submitted; every frame gets
+//! a reply (accepted, or the rejection reason and message). A malformed
+//! header is answered and the next one read (headers have a fixed size, so
+//! the stream stays in step); a client that vanishes mid-frame is counted
+//! and does no harm.
+
+use std::io::{ErrorKind, Read, Write};
+use std::os::unix::fs::{FileExt, FileTypeExt};
+use std::os::unix::net::{UnixListener, UnixStream};
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Duration;
+
+use super::{Source, SourceError};
+use crate::pipeline::frame::{PixelFormat, RejectReason, SubmittedFrame};
+use crate::pipeline::protocol::{
+    FrameHeader, HEADER_LEN, HELLO_LEN, HELLO_MAGIC, Reply, STATUS_BAD_HELLO, STATUS_OK, VERSION,
+    valid_shm_name,
+};
+use crate::pipeline::service::Compositor;
+
+/// How often blocked reads and accepts look at the stop flag.
+const POLL: Duration = Duration::from_millis(50);
+
+/// The listening socket.
+#[derive(Debug)]
+pub struct SocketSource {
+    path: PathBuf,
+    shm_dir: PathBuf,
+    listener: UnixListener,
+}
+
+impl SocketSource {
+    /// Listens on `path`; a stale socket left by a dead service is
+    /// replaced, a live one or any other file is an error.
+    pub fn bind(path: &Path, shm_dir: &Path) -> Result<Self, SourceError> {
+        let fail = |reason: String| SourceError::Socket {
+            path: path.to_path_buf(),
+            reason,
+        };
+        if let Ok(meta) = std::fs::symlink_metadata(path) {
+            if !meta.file_type().is_socket() {
+                return Err(fail("exists and is not a socket; not removing it".into()));
+            }
+            if UnixStream::connect(path).is_ok() {
+                return Err(fail("another service is listening there".into()));
+            }
+            std::fs::remove_file(path).map_err(|e| fail(format!("cannot remove the stale socket: {e}")))?;
+        }
+        let listener = UnixListener::bind(path).map_err(|e| fail(format!("cannot listen: {e}")))?;
+        listener
+            .set_nonblocking(true)
+            .map_err(|e| fail(e.to_string()))?;
+        Ok(Self {
+            path: path.to_path_buf(),
+            shm_dir: shm_dir.to_path_buf(),
+            listener,
+        })
+    }
+}
+
+impl Drop for SocketSource {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_file(&self.path);
+    }
+}
+
+impl Source for SocketSource {
+    fn describe(&self) -> String {
+        format!("socket {}", self.path.display())
+    }
+
+    fn run(&mut self, compositor: Compositor, stop: &AtomicBool) -> Result<u64, SourceError> {
+        std::thread::scope(|scope| {
+            let mut clients = 0u64;
+            while !stop.load(Ordering::Relaxed) {
+                match self.listener.accept() {
+                    Ok((stream, _)) => {
+                        clients += 1;
+                        let compositor = compositor.clone();
+                        let shm_dir = self.shm_dir.clone();
+                        let spawned = std::thread::Builder::new()
+                            .name(format!("client-{clients}"))
+                            .spawn_scoped(scope, move || {
+                                if let Err(e) = serve(stream, &compositor, &shm_dir, stop) {
+                                    tracing::warn!("client {clients}: {e}");
+                                }
+                            });
+                        if let Err(e) = spawned {
+                            tracing::error!("cannot start a client thread: {e}");
+                        }
+                    }
+                    Err(e) if e.kind() == ErrorKind::WouldBlock => std::thread::sleep(POLL),
+                    Err(e) => tracing::warn!("accept: {e}"),
+                }
+            }
+            Ok(clients)
+        })
+    }
+}
+
+/// How a fixed-size read ended.
+enum Fill {
+    Full,
+    /// The peer closed before the first byte.
+    Closed,
+    /// The peer closed part-way.
+    Partial,
+    Stopped,
+}
+
+fn read_full(stream: &mut UnixStream, buf: &mut [u8], stop: &AtomicBool) -> std::io::Result<Fill> {
+    let mut n = 0;
+    while n < buf.len() {
+        match stream.read(&mut buf[n..]) {
+            Ok(0) => return Ok(if n == 0 { Fill::Closed } else { Fill::Partial }),
+            Ok(k) => n += k,
+            Err(e) if matches!(e.kind(), ErrorKind::WouldBlock | ErrorKind::TimedOut | ErrorKind::Interrupted) => {
+                if stop.load(Ordering::Relaxed) {
+                    return Ok(Fill::Stopped);
+                }
+            }
+            Err(e) => return Err(e),
+        }
+    }
+    Ok(Fill::Full)
+}
+
+/// One client, from hello to hang-up.
+fn serve(
+    mut stream: UnixStream,
+    compositor: &Compositor,
+    shm_dir: &Path,
+    stop: &AtomicBool,
+) -> std::io::Result<()> {
+    stream.set_nonblocking(false)?;
+    stream.set_read_timeout(Some(POLL))?;
+    let (w, h) = compositor.panel_size();
+    let reply = |stream: &mut UnixStream, status: u32, frame_id: u64, message: String| {
+        let r = Reply {
+            status,
+            frame_id,
+            panel_width: w as u32,
+            panel_height: h as u32,
+            message,
+        };
+        stream.write_all(&r.to_bytes())
+    };
+
+    let mut hello = [0u8; HELLO_LEN];
+    match read_full(&mut stream, &mut hello, stop)? {
+        Fill::Full => {}
+        _ => return Ok(()),
+    }
+    let version = u16::from_le_bytes([hello[4], hello[5]]);
+    let name_len = u16::from_le_bytes([hello[6], hello[7]]) as usize;
+    let mut size = [0u8; 8];
+    size.copy_from_slice(&hello[8..16]);
+    let shm_size = u64::from_le_bytes(size);
+    let refuse = |stream: &mut UnixStream, why: String| {
+        tracing::warn!("refused a client: {why}");
+        reply(stream, STATUS_BAD_HELLO, 0, why)
+    };
+    if hello[0..4] != HELLO_MAGIC || version != VERSION {
+        return refuse(&mut stream, format!("bad hello (magic {:?}, version {version}; expected \"NEDH\", {VERSION})", &hello[0..4]));
+    }
+    if name_len == 0 || name_len > crate::pipeline::protocol::MAX_NAME {
+        return refuse(&mut stream, format!("shared-memory name of {name_len} bytes"));
+    }
+    let mut name = vec![0u8; name_len];
+    if !matches!(read_full(&mut stream, &mut name, stop)?, Fill::Full) {
+        return Ok(());
+    }
+    let name = String::from_utf8_lossy(&name).into_owned();
+    if !valid_shm_name(&name) {
+        return refuse(&mut stream, format!("{name:?} is not a shared-memory name (letters, digits, '.', '_', '-')"));
+    }
+    let shm_path = shm_dir.join(&name);
+    let shm = match std::fs::File::open(&shm_path) {
+        Ok(f) => f,
+        Err(e) => return refuse(&mut stream, format!("cannot open {}: {e}", shm_path.display())),
+    };
+    let actual = shm.metadata()?.len();
+    if actual < shm_size {
+        return refuse(&mut stream, format!("{} holds {actual} bytes, not the {shm_size} announced", shm_path.display()));
+    }
+    reply(&mut stream, STATUS_OK, 0, format!("panel {w}×{h}"))?;
+
+    let max_payload = (w * h * PixelFormat::Rgb32fPlanar.bytes_per_pixel()) as u64;
+    loop {
+        let mut header = [0u8; HEADER_LEN];
+        match read_full(&mut stream, &mut header, stop)? {
+            Fill::Full => {}
+            Fill::Closed | Fill::Stopped => return Ok(()),
+            Fill::Partial => {
+                compositor.count_disconnect_mid_frame();
+                tracing::warn!("a client disconnected in the middle of a frame header");
+                return Ok(());
+            }
+        }
+        let id = FrameHeader::id_of(&header);
+        let rejected = |reason: RejectReason, detail: String| {
+            compositor.reject_before_submit(reason, id, &detail);
+            (reason.code(), detail)
+        };
+        let (status, message) = match FrameHeader::parse(&header) {
+            Err(detail) => rejected(RejectReason::Malformed, detail),
+            Ok(hd) => match PixelFormat::from_code(hd.format) {
+                None => rejected(RejectReason::UnsupportedFormat, format!("pixel format {}", hd.format)),
+                Some(format) if (hd.width as usize, hd.height as usize) != (w, h) => {
+                    let _ = format;
+                    rejected(RejectReason::WrongSize, format!("{}×{} frame for a {w}×{h} panel", hd.width, hd.height))
+                }
+                Some(format) => {
+                    let need = (w * h * format.bytes_per_pixel()) as u64;
+                    let end = hd.offset.checked_add(hd.length);
+                    if hd.length != need || hd.length > max_payload {
+                        rejected(RejectReason::Truncated, format!("{} payload bytes, {need} needed", hd.length))
+                    } else if end.is_none_or(|e| e > shm_size) {
+                        rejected(RejectReason::Truncated, format!("payload at {}+{} lies outside the {shm_size}-byte shared memory", hd.offset, hd.length))
+                    } else {
+                        let mut payload = vec![0u8; hd.length as usize];
+                        match shm.read_exact_at(&mut payload, hd.offset) {
+                            Err(e) => rejected(RejectReason::Truncated, format!("reading the shared memory: {e}")),
+                            Ok(()) => match compositor.submit(SubmittedFrame {
+                                id,
+                                capture_ns: hd.capture_ns,
+                                width: w,
+                                height: h,
+                                format,
+                                payload,
+                            }) {
+                                Ok(()) => (STATUS_OK, String::new()),
+                                Err(e) => (e.reason.code(), e.detail),
+                            },
+                        }
+                    }
+                }
+            },
+        };
+        if let Err(e) = reply(&mut stream, status, id, message) {
+            if matches!(e.kind(), ErrorKind::BrokenPipe | ErrorKind::ConnectionReset) {
+                return Ok(());
+            }
+            return Err(e);
+        }
+    }
+}

@@ -1,0 +1,60 @@
+//! Present: the encoded panel frame goes to a sink. One [`Sink`] trait, a
+//! file per sink: [`window`] (winit + wgpu surface, vsync), [`headless`]
+//! (an off-screen wgpu target of the panel's size), [`recorder`] (a PNG
+//! sequence). [`transfer`] is the panel's transfer curve that the encode
+//! stage applies before any sink sees the frame; [`gpu`] draws an encoded
+//! frame onto a wgpu target for the window and headless sinks.
+
+pub mod gpu;
+pub mod headless;
+pub mod recorder;
+pub mod transfer;
+pub mod window;
+
+/// An encoded frame ready for the panel.
+#[derive(Debug, Clone)]
+pub struct DisplayFrame {
+    pub id: u64,
+    pub width: usize,
+    pub height: usize,
+    /// Interleaved RGBA8 code values (alpha 255), row-major.
+    pub rgba8: Vec<u8>,
+}
+
+/// Errors of the present stage.
+#[derive(Debug, thiserror::Error)]
+pub enum PresentError {
+    #[error("{sink} sink: {reason}")]
+    Sink { sink: &'static str, reason: String },
+}
+
+/// What a sink reports back from a present.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Presented {
+    /// The frame is on the target (for a window: handed to the swapchain).
+    Shown,
+    /// The target could not take it now (window occluded, surface
+    /// outdated); the frame is counted as skipped, the next one is tried.
+    Skipped,
+}
+
+/// A place frames are presented to.
+pub trait Sink: std::fmt::Debug {
+    /// For reports: "window 1920×1080 on 'llvmpipe'".
+    fn describe(&self) -> String;
+    /// Whether `present` itself waits for the display's refresh (a vsync'd
+    /// swapchain); then the present loop does not sleep on its own pacer.
+    fn paced_by_display(&self) -> bool {
+        false
+    }
+    fn present(&mut self, frame: &DisplayFrame) -> Result<Presented, PresentError>;
+    /// Lets the sink handle its events between frames; `false` once the
+    /// sink is gone (the window was closed).
+    fn poll(&mut self) -> bool {
+        true
+    }
+    /// Flushes anything still pending (the recorder's writes).
+    fn finish(&mut self) -> Result<(), PresentError> {
+        Ok(())
+    }
+}

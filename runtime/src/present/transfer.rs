@@ -1,0 +1,122 @@
+//! The panel's transfer curve: linear intensity in [0, 1] to 8-bit code
+//! values, per channel. The panel emits code^γ, so intensity x is sent as
+//! round(255·x^(1/γ)). The curve is held as the 255 decision thresholds
+//! t_c = ((c − ½)/255)^γ: the code of x is the number of thresholds ≤ x.
+//! Comparisons alone decide the code, so every implementation of this
+//! table (this one, the recorder, a GPU shader) gives identical codes, and
+//! a measured panel LUT fits the same form.
+
+use crate::calib::PanelSettings;
+use crate::inference::Frame;
+
+/// Code values of an 8-bit panel.
+pub const CODES: usize = 256;
+
+/// Per-channel encoding thresholds of the panel's transfer curve.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Transfer {
+    /// `thresholds[c][k]`: the smallest intensity sent as code k + 1.
+    thresholds: [Vec<f32>; 3],
+}
+
+impl Transfer {
+    /// A power-law panel with one exponent per channel.
+    pub fn from_gamma(gamma: [f64; 3]) -> Self {
+        let table = |g: f64| -> Vec<f32> {
+            (1..CODES)
+                .map(|c| ((c as f64 - 0.5) / (CODES - 1) as f64).powf(g) as f32)
+                .collect()
+        };
+        Self {
+            thresholds: gamma.map(table),
+        }
+    }
+
+    /// The calibration's panel (which has been validated to three channels).
+    pub fn from_panel(panel: &PanelSettings) -> Self {
+        let g = |i: usize| panel.transfer_gamma.get(i).copied().unwrap_or(1.0);
+        Self::from_gamma([g(0), g(1), g(2)])
+    }
+
+    /// The code of linear intensity `x` in channel `channel`; values outside
+    /// [0, 1] clamp (the panel cannot show them), NaN is black.
+    pub fn code(&self, channel: usize, x: f32) -> u8 {
+        let t = &self.thresholds[channel];
+        // NaN compares false, so it lands on code 0.
+        t.partition_point(|&th| th <= x) as u8
+    }
+
+    /// Encodes a planar linear frame as interleaved RGBA8 (alpha 255).
+    pub fn encode_rgba8(&self, frame: &Frame, out: &mut Vec<u8>) {
+        let n = frame.width * frame.height;
+        out.clear();
+        out.resize(4 * n, 255);
+        for c in 0..3 {
+            let plane = &frame.data[c * n..(c + 1) * n];
+            for (px, &x) in out.chunks_exact_mut(4).zip(plane) {
+                px[c] = self.code(c, x);
+            }
+        }
+    }
+
+    /// The intensity the panel emits for `code` (the curve's inverse), for
+    /// reports and tests.
+    pub fn emitted(gamma: f64, code: u8) -> f64 {
+        (code as f64 / (CODES - 1) as f64).powf(gamma)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    #[test]
+    fn codes_are_the_rounded_inverse_power_law() {
+        let t = Transfer::from_gamma([2.2, 1.0, 2.4]);
+        assert_eq!(t.code(0, 0.0), 0);
+        assert_eq!(t.code(0, 1.0), 255);
+        assert_eq!(t.code(0, 2.0), 255);
+        assert_eq!(t.code(0, -1.0), 0);
+        assert_eq!(t.code(0, f32::NAN), 0);
+        // Linear channel: round(255·x).
+        for k in 0..=255u32 {
+            assert_eq!(t.code(1, k as f32 / 255.0), k as u8);
+        }
+        // Mid-grey at γ = 2.2: 0.5^(1/2.2)·255 = 186.08.
+        assert_eq!(t.code(0, 0.5), 186);
+        // γ = 2.4: 0.5^(1/2.4)·255 = 190.5…: a threshold case decided by the table.
+        let exact = 0.5f64.powf(1.0 / 2.4) * 255.0;
+        assert_eq!(t.code(2, 0.5), exact.round() as u8);
+    }
+
+    proptest! {
+        #[test]
+        fn encoding_is_monotone_and_within_half_a_code(x in 0.0f32..=1.0, y in 0.0f32..=1.0, g in 1.0f64..3.0) {
+            let t = Transfer::from_gamma([g, g, g]);
+            let (lo, hi) = if x <= y { (x, y) } else { (y, x) };
+            prop_assert!(t.code(0, lo) <= t.code(0, hi));
+            let ideal = (x as f64).powf(1.0 / g) * 255.0;
+            prop_assert!((t.code(0, x) as f64 - ideal).abs() <= 0.5 + 1e-3);
+        }
+
+        #[test]
+        fn emitted_intensity_round_trips_through_the_code(code in 0u8..=255, g in 1.0f64..3.0) {
+            let t = Transfer::from_gamma([g, g, g]);
+            prop_assert_eq!(t.code(0, Transfer::emitted(g, code) as f32), code);
+        }
+    }
+
+    #[test]
+    fn frames_encode_to_interleaved_rgba() {
+        let t = Transfer::from_gamma([1.0, 1.0, 1.0]);
+        let frame = Frame {
+            width: 2,
+            height: 1,
+            data: vec![0.0, 1.0, 0.5, 0.25, 1.0, 0.0],
+        };
+        let mut out = Vec::new();
+        t.encode_rgba8(&frame, &mut out);
+        assert_eq!(out, vec![0, 128, 255, 255, 255, 64, 0, 255]);
+    }
+}
