@@ -40,7 +40,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let reply = client.send(&header, &pixels)?;
         if reply.status != STATUS_OK {
             rejected += 1;
-            eprintln!("frame {id} rejected (status {}): {}", reply.status, reply.message);
+            eprintln!(
+                "frame {id} rejected (status {}): {}",
+                reply.status, reply.message
+            );
         }
     }
     println!(

@@ -19,6 +19,21 @@ export ORT_DYLIB_PATH NEDRT_REQUIRE_ORT=1
 # NEDRT_REQUIRE_GPU=1); without one they say why they skip.
 export XDG_RUNTIME_DIR="${XDG_RUNTIME_DIR:-/tmp}"
 
+# The window test needs an X display: without one, start a private Xvfb
+# (if installed) for the duration of the tests.
+if [ -z "${DISPLAY:-}" ] && command -v Xvfb >/dev/null 2>&1; then
+    for n in $(seq 90 120); do
+        if [ ! -e "/tmp/.X11-unix/X$n" ] && [ ! -e "/tmp/.X$n-lock" ]; then
+            Xvfb ":$n" -screen 0 1024x768x24 -nolisten tcp >/dev/null 2>&1 &
+            xvfb_pid=$!
+            trap 'kill $xvfb_pid 2>/dev/null || true' EXIT
+            export DISPLAY=":$n"
+            for _ in $(seq 50); do [ -e "/tmp/.X11-unix/X$n" ] && break; sleep 0.1; done
+            break
+        fi
+    done
+fi
+
 echo "== cargo fmt --check"
 cargo fmt --all --check
 echo "== cargo clippy --all-targets -- -D warnings"

@@ -13,8 +13,8 @@ use nedrt::calib::Calibration;
 use nedrt::inference::{BackendKind, BackendOptions, Dcnn, Frame};
 use nedrt::pipeline::frame::{PixelFormat, RejectReason, planar_payload};
 use nedrt::pipeline::protocol::{Client, FrameHeader, HEADER_LEN, STATUS_OK};
-use nedrt::present::transfer::Transfer;
 use nedrt::present::recorder::frame_path;
+use nedrt::present::transfer::Transfer;
 
 const W: usize = 64;
 const H: usize = 48;
@@ -104,7 +104,10 @@ impl Service {
 fn wait_until(what: &str, mut ok: impl FnMut() -> bool) {
     let start = Instant::now();
     while !ok() {
-        assert!(start.elapsed() < Duration::from_secs(120), "timed out waiting for {what}");
+        assert!(
+            start.elapsed() < Duration::from_secs(120),
+            "timed out waiting for {what}"
+        );
         std::thread::sleep(Duration::from_millis(20));
     }
 }
@@ -141,7 +144,9 @@ fn expected_rgb(dcnn: &mut Dcnn, transfer: &Transfer, frame: &Frame) -> Vec<u8> 
     let out = dcnn.run_frame(frame).expect("D-CNN");
     let mut rgba = Vec::new();
     transfer.encode_rgba8(&out, &mut rgba);
-    rgba.chunks_exact(4).flat_map(|p| [p[0], p[1], p[2]]).collect()
+    rgba.chunks_exact(4)
+        .flat_map(|p| [p[0], p[1], p[2]])
+        .collect()
 }
 
 fn reference() -> (Dcnn, Transfer) {
@@ -165,17 +170,33 @@ fn socket_frames_are_recorded_exactly_as_the_backend_computes_them() {
         let frame = test_frame(id);
         let header = FrameHeader::new(PixelFormat::Rgb32fPlanar, W, H, id, 0);
         let reply = client.send(&header, &planar_payload(&frame)).expect("send");
-        assert_eq!((reply.status, reply.frame_id), (STATUS_OK, id), "{}", reply.message);
+        assert_eq!(
+            (reply.status, reply.frame_id),
+            (STATUS_OK, id),
+            "{}",
+            reply.message
+        );
     }
     let rec = service.dir.path().join("rec");
-    wait_until("the last frame to be recorded", || frame_path(&rec, n - 1).exists());
+    wait_until("the last frame to be recorded", || {
+        frame_path(&rec, n - 1).exists()
+    });
     let (out, dir) = service.stop();
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let r = report(dir.path());
     let presented = r["presented"].as_u64().expect("presented");
-    let dropped = r["dropped_queued"].as_u64().expect("dropped") + r["dropped_at_present"].as_u64().expect("dropped");
+    let dropped = r["dropped_queued"].as_u64().expect("dropped")
+        + r["dropped_at_present"].as_u64().expect("dropped");
     assert_eq!(r["submitted"].as_u64(), Some(n));
-    assert_eq!(presented + dropped, n, "every frame presented or counted as dropped");
+    assert_eq!(
+        presented + dropped,
+        n,
+        "every frame presented or counted as dropped"
+    );
     let (mut dcnn, transfer) = reference();
     let mut checked = 0;
     for id in 0..n {
@@ -184,7 +205,11 @@ fn socket_frames_are_recorded_exactly_as_the_backend_computes_them() {
             continue;
         }
         let got = image::open(&path).expect("png").to_rgb8().into_raw();
-        assert_eq!(got, expected_rgb(&mut dcnn, &transfer, &test_frame(id)), "frame {id}");
+        assert_eq!(
+            got,
+            expected_rgb(&mut dcnn, &transfer, &test_frame(id)),
+            "frame {id}"
+        );
         checked += 1;
     }
     assert_eq!(checked as u64, presented);
@@ -196,7 +221,12 @@ fn every_kind_of_bad_frame_is_rejected_and_good_frames_still_arrive() {
     let service = Service::socket_recorder();
     let shm = W * H * 12;
     let mut client = service.client(shm);
-    let good = |id| (FrameHeader::new(PixelFormat::Rgb32fPlanar, W, H, id, 0), planar_payload(&test_frame(id)));
+    let good = |id| {
+        (
+            FrameHeader::new(PixelFormat::Rgb32fPlanar, W, H, id, 0),
+            planar_payload(&test_frame(id)),
+        )
+    };
     let mut nan = test_frame(0);
     nan.data[100] = f32::NAN;
     let mut bright = test_frame(0);
@@ -215,12 +245,32 @@ fn every_kind_of_bad_frame_is_rejected_and_good_frames_still_arrive() {
     let cases: Vec<(Vec<u8>, Option<Vec<u8>>, RejectReason)> = vec![
         (bad_magic.to_vec(), None, RejectReason::Malformed),
         (bad_version.to_vec(), None, RejectReason::Malformed),
-        (unknown_format.to_bytes().to_vec(), None, RejectReason::UnsupportedFormat),
-        (wrong_size.to_bytes().to_vec(), None, RejectReason::WrongSize),
+        (
+            unknown_format.to_bytes().to_vec(),
+            None,
+            RejectReason::UnsupportedFormat,
+        ),
+        (
+            wrong_size.to_bytes().to_vec(),
+            None,
+            RejectReason::WrongSize,
+        ),
         (short.to_bytes().to_vec(), None, RejectReason::Truncated),
         (outside.to_bytes().to_vec(), None, RejectReason::Truncated),
-        (FrameHeader::new(PixelFormat::Rgb32fPlanar, W, H, 907, 0).to_bytes().to_vec(), Some(planar_payload(&nan)), RejectReason::NonFinite),
-        (FrameHeader::new(PixelFormat::Rgb32fPlanar, W, H, 908, 0).to_bytes().to_vec(), Some(planar_payload(&bright)), RejectReason::OutOfRange),
+        (
+            FrameHeader::new(PixelFormat::Rgb32fPlanar, W, H, 907, 0)
+                .to_bytes()
+                .to_vec(),
+            Some(planar_payload(&nan)),
+            RejectReason::NonFinite,
+        ),
+        (
+            FrameHeader::new(PixelFormat::Rgb32fPlanar, W, H, 908, 0)
+                .to_bytes()
+                .to_vec(),
+            Some(planar_payload(&bright)),
+            RejectReason::OutOfRange,
+        ),
     ];
     let mut id = 0u64;
     let send_good = |client: &mut Client, id: &mut u64| {
@@ -237,42 +287,69 @@ fn every_kind_of_bad_frame_is_rejected_and_good_frames_still_arrive() {
             Some(b) => {
                 let mut h = [0u8; HEADER_LEN];
                 h.copy_from_slice(header);
-                client.send(&FrameHeader::parse(&h).expect("header"), b).expect("reply")
+                client
+                    .send(&FrameHeader::parse(&h).expect("header"), b)
+                    .expect("reply")
             }
             None => client.send_header_bytes(header).expect("reply"),
         };
-        assert_eq!(RejectReason::from_code(r.status), Some(*reason), "{}", r.message);
+        assert_eq!(
+            RejectReason::from_code(r.status),
+            Some(*reason),
+            "{}",
+            r.message
+        );
         assert!(!r.message.is_empty());
     }
     // A client that vanishes mid-header, and one with a bad hello.
     {
         let mut half = service.client(16);
         use std::io::Write;
-        half.stream().write_all(&good(0).0.to_bytes()[..10]).expect("half a header");
+        half.stream()
+            .write_all(&good(0).0.to_bytes()[..10])
+            .expect("half a header");
     }
     {
         use std::io::{Read, Write};
-        let mut raw = std::os::unix::net::UnixStream::connect(Service::socket(service.dir.path())).expect("connect");
-        raw.write_all(b"HELLO, this is not the protocol").expect("write");
+        let mut raw = std::os::unix::net::UnixStream::connect(Service::socket(service.dir.path()))
+            .expect("connect");
+        raw.write_all(b"HELLO, this is not the protocol")
+            .expect("write");
         let mut buf = Vec::new();
         let _ = raw.read_to_end(&mut buf);
-        assert!(String::from_utf8_lossy(&buf).contains("bad hello"), "{:?}", String::from_utf8_lossy(&buf));
+        assert!(
+            String::from_utf8_lossy(&buf).contains("bad hello"),
+            "{:?}",
+            String::from_utf8_lossy(&buf)
+        );
     }
     send_good(&mut client, &mut id);
     let last = id - 1;
     let rec = service.dir.path().join("rec");
     wait_until("the last good frame", || frame_path(&rec, last).exists());
     let (out, dir) = service.stop();
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     for good_id in 0..id {
-        assert!(frame_path(&dir.path().join("rec"), good_id).exists(), "good frame {good_id} was not delivered");
+        assert!(
+            frame_path(&dir.path().join("rec"), good_id).exists(),
+            "good frame {good_id} was not delivered"
+        );
     }
     let r = report(dir.path());
     let rejected: std::collections::HashMap<String, u64> = r["rejected"]
         .as_array()
         .expect("rejected")
         .iter()
-        .map(|p| (p[0].as_str().expect("name").to_string(), p[1].as_u64().expect("n")))
+        .map(|p| {
+            (
+                p[0].as_str().expect("name").to_string(),
+                p[1].as_u64().expect("n"),
+            )
+        })
         .collect();
     assert_eq!(rejected["malformed"], 2);
     assert_eq!(rejected["unsupported-format"], 1);
@@ -282,14 +359,22 @@ fn every_kind_of_bad_frame_is_rejected_and_good_frames_still_arrive() {
     assert_eq!(rejected["out-of-range"], 1);
     assert_eq!(r["disconnects_mid_frame"].as_u64(), Some(1));
     assert_eq!(r["submitted"].as_u64(), Some(id + cases.len() as u64));
-    assert_eq!(r["presented"].as_u64(), Some(id), "{}", serde_json::to_string(&r).unwrap_or_default());
+    assert_eq!(
+        r["presented"].as_u64(),
+        Some(id),
+        "{}",
+        serde_json::to_string(&r).unwrap_or_default()
+    );
 }
 
 fn gpu_or_skip() -> bool {
     match nedrt::inference::gpu::open_device(nedrt::inference::Precision::F32) {
         Ok(_) => true,
         Err(e) => {
-            assert!(std::env::var_os("NEDRT_REQUIRE_GPU").is_none(), "NEDRT_REQUIRE_GPU is set but: {e}");
+            assert!(
+                std::env::var_os("NEDRT_REQUIRE_GPU").is_none(),
+                "NEDRT_REQUIRE_GPU is set but: {e}"
+            );
             eprintln!("skipping: {e}");
             false
         }
@@ -308,14 +393,33 @@ fn a_soak_of_thousands_of_frames_keeps_memory_flat_and_counts_every_frame() {
         .current_dir(repo())
         .args(["run", "--calib"])
         .arg(small_panel())
-        .args(["--backend", "cpu", "--source", "pattern", "--frames", &frames.to_string(), "--sink", "headless", "--report-json"])
+        .args([
+            "--backend",
+            "cpu",
+            "--source",
+            "pattern",
+            "--frames",
+            &frames.to_string(),
+            "--sink",
+            "headless",
+            "--report-json",
+        ])
         .arg(&report_path)
         .output()
         .expect("run");
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let r = report(dir.path());
     let n = |k: &str| r[k].as_u64().unwrap_or_else(|| panic!("{k}"));
-    let rejected: u64 = r["rejected"].as_array().expect("rejected").iter().filter_map(|p| p[1].as_u64()).sum();
+    let rejected: u64 = r["rejected"]
+        .as_array()
+        .expect("rejected")
+        .iter()
+        .filter_map(|p| p[1].as_u64())
+        .sum();
     assert_eq!(n("submitted"), frames);
     assert_eq!(rejected, 0);
     assert_eq!(
@@ -323,13 +427,27 @@ fn a_soak_of_thousands_of_frames_keeps_memory_flat_and_counts_every_frame() {
         frames,
         "every frame presented or counted: {r}"
     );
-    assert!(n("presented") >= frames / 2, "most frames reach the panel: {r}");
-    let rss: Vec<u64> = r["rss_kib"].as_array().expect("rss").iter().filter_map(|v| v.as_u64()).collect();
+    assert!(
+        n("presented") >= frames / 2,
+        "most frames reach the panel: {r}"
+    );
+    let rss: Vec<u64> = r["rss_kib"]
+        .as_array()
+        .expect("rss")
+        .iter()
+        .filter_map(|v| v.as_u64())
+        .collect();
     assert!(rss.len() >= 10, "{rss:?}");
     // After warm-up (the first fifth of the samples), resident memory stays within 8 MiB.
     let warm = &rss[rss.len() / 5..];
-    let (lo, hi) = (warm.iter().min().copied().unwrap_or(0), warm.iter().max().copied().unwrap_or(0));
-    assert!(hi - lo < 8 * 1024, "resident memory grew from {lo} to {hi} KiB: {rss:?}");
+    let (lo, hi) = (
+        warm.iter().min().copied().unwrap_or(0),
+        warm.iter().max().copied().unwrap_or(0),
+    );
+    assert!(
+        hi - lo < 8 * 1024,
+        "resident memory grew from {lo} to {hi} KiB: {rss:?}"
+    );
 }
 
 /// Reads an XWD (X Window Dump) of a 24/32-bit TrueColor window as RGB.
@@ -359,7 +477,10 @@ fn parse_xwd(b: &[u8]) -> (usize, usize, Vec<u8>) {
 #[test]
 fn the_window_shows_the_preprocessed_frame() {
     if std::env::var_os("DISPLAY").is_none() {
-        assert!(std::env::var_os("NEDRT_REQUIRE_WINDOW").is_none(), "NEDRT_REQUIRE_WINDOW is set but DISPLAY is not");
+        assert!(
+            std::env::var_os("NEDRT_REQUIRE_WINDOW").is_none(),
+            "NEDRT_REQUIRE_WINDOW is set but DISPLAY is not"
+        );
         eprintln!("skipping: no DISPLAY (run under Xvfb)");
         return;
     }
@@ -373,23 +494,42 @@ fn the_window_shows_the_preprocessed_frame() {
         .flat_map(|i| (0..3).map(move |c| (c, i)))
         .map(|(c, i)| (frame.data[c * W * H + i] * 255.0).round() as u8)
         .collect();
-    image::RgbImage::from_raw(W as u32, H as u32, rgb8.clone()).expect("image").save(&input).expect("save");
+    image::RgbImage::from_raw(W as u32, H as u32, rgb8.clone())
+        .expect("image")
+        .save(&input)
+        .expect("save");
     // The input as the service reads it: 8-bit values as linear intensity.
     let as_read = Frame {
         width: W,
         height: H,
-        data: (0..3).flat_map(|c| (0..W * H).map(move |i| (c, i))).map(|(c, i)| rgb8[3 * i + c] as f32 / 255.0).collect(),
+        data: (0..3)
+            .flat_map(|c| (0..W * H).map(move |i| (c, i)))
+            .map(|(c, i)| rgb8[3 * i + c] as f32 / 255.0)
+            .collect(),
     };
     let (mut dcnn, transfer) = reference();
     let want = expected_rgb(&mut dcnn, &transfer, &as_read);
     let service = Service::start(
-        &["--backend", "cpu", "--source", "dir", "--input", input.to_str().expect("utf-8"), "--sink", "window", "--keep-open"],
+        &[
+            "--backend",
+            "cpu",
+            "--source",
+            "dir",
+            "--input",
+            input.to_str().expect("utf-8"),
+            "--sink",
+            "window",
+            "--keep-open",
+        ],
         dir,
     );
     let start = Instant::now();
     let mut last;
     loop {
-        let shot = Command::new("xwd").args(["-name", "nedrt", "-silent"]).output().expect("xwd (x11-apps)");
+        let shot = Command::new("xwd")
+            .args(["-name", "nedrt", "-silent"])
+            .output()
+            .expect("xwd (x11-apps)");
         if shot.status.success() && shot.stdout.len() > 100 {
             let (w, h, rgb) = parse_xwd(&shot.stdout);
             if (w, h) == (W, H) && rgb == want {
@@ -400,10 +540,21 @@ fn the_window_shows_the_preprocessed_frame() {
         } else {
             last = String::from_utf8_lossy(&shot.stderr).into_owned();
         }
-        assert!(start.elapsed() < Duration::from_secs(60), "the window never showed the expected frame: {last}");
+        assert!(
+            start.elapsed() < Duration::from_secs(60),
+            "the window never showed the expected frame: {last}"
+        );
         std::thread::sleep(Duration::from_millis(200));
     }
     let (out, _dir) = service.stop();
-    assert!(out.status.success(), "SIGTERM ends the service cleanly: {}", String::from_utf8_lossy(&out.stderr));
-    assert!(String::from_utf8_lossy(&out.stdout).contains("1 presented"), "{}", String::from_utf8_lossy(&out.stdout));
+    assert!(
+        out.status.success(),
+        "SIGTERM ends the service cleanly: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(
+        String::from_utf8_lossy(&out.stdout).contains("1 presented"),
+        "{}",
+        String::from_utf8_lossy(&out.stdout)
+    );
 }

@@ -285,7 +285,10 @@ struct BenchArgs {
 
 /// Logging to stderr, and with `trace` a Chrome/Perfetto trace of every
 /// span; the returned guard writes the trace when dropped.
-fn init_logging(verbose: u8, trace: Option<&std::path::Path>) -> Result<Option<tracing_chrome::FlushGuard>> {
+fn init_logging(
+    verbose: u8,
+    trace: Option<&std::path::Path>,
+) -> Result<Option<tracing_chrome::FlushGuard>> {
     use tracing_subscriber::prelude::*;
     let default = match verbose {
         0 => "nedrt=info",

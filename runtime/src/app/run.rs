@@ -14,13 +14,15 @@ use crate::pipeline::pacing::{Clock, SystemClock};
 use crate::pipeline::service::{
     Control, DcnnStage, FallbackFactory, PanelConfig, PassThrough, Preprocessor, Service,
 };
-use crate::pipeline::source::{self, Source, dir::DirSource, pattern::PatternSource, socket::SocketSource};
+use crate::pipeline::source::{
+    self, Source, dir::DirSource, pattern::PatternSource, socket::SocketSource,
+};
 use crate::pipeline::stats::Report;
+use crate::present::Sink;
 use crate::present::headless::HeadlessSink;
 use crate::present::recorder::RecorderSink;
 use crate::present::transfer::Transfer;
 use crate::present::window::{WindowOptions, WindowSink};
-use crate::present::Sink;
 
 /// Where frames come from.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
@@ -72,22 +74,35 @@ pub struct RunOptions {
     pub report_json: Option<PathBuf>,
 }
 
-fn fallback_factory(kind: FallbackKind, model: ModelFile, common: &CommonOptions) -> FallbackFactory {
+fn fallback_factory(
+    kind: FallbackKind,
+    model: ModelFile,
+    common: &CommonOptions,
+) -> FallbackFactory {
     let options = crate::inference::BackendOptions {
         precision: crate::inference::Precision::F32,
         ..common.dcnn.backend_options.clone()
     };
     match kind {
         FallbackKind::Cpu => Box::new(move || {
-            Ok(Box::new(Dcnn::from_model(model, BackendKind::Cpu, &options)?) as Box<dyn Preprocessor>)
+            Ok(
+                Box::new(Dcnn::from_model(model, BackendKind::Cpu, &options)?)
+                    as Box<dyn Preprocessor>,
+            )
         }),
-        FallbackKind::Passthrough => Box::new(|| Ok(Box::new(PassThrough) as Box<dyn Preprocessor>)),
+        FallbackKind::Passthrough => {
+            Box::new(|| Ok(Box::new(PassThrough) as Box<dyn Preprocessor>))
+        }
     }
 }
 
 /// Runs the service until its source ends (and the last frame is shown)
 /// or `control.stop` is set.
-pub fn run(common: &CommonOptions, opts: &RunOptions, control: &Control) -> Result<Report, AppError> {
+pub fn run(
+    common: &CommonOptions,
+    opts: &RunOptions,
+    control: &Control,
+) -> Result<Report, AppError> {
     let calib = common.calibration()?;
     let p = &calib.panel;
     let panel = PanelConfig {
@@ -109,11 +124,17 @@ pub fn run(common: &CommonOptions, opts: &RunOptions, control: &Control) -> Resu
             clock.clone(),
         )),
         SourceKind::Dir => {
-            let input = opts
-                .input
-                .as_ref()
-                .ok_or_else(|| AppError::Usage("--source dir needs --input FOLDER_OR_IMAGE".into()))?;
-            Box::new(DirSource::load(input, panel.width, panel.height, opts.frames, rate_hz, clock.clone())?)
+            let input = opts.input.as_ref().ok_or_else(|| {
+                AppError::Usage("--source dir needs --input FOLDER_OR_IMAGE".into())
+            })?;
+            Box::new(DirSource::load(
+                input,
+                panel.width,
+                panel.height,
+                opts.frames,
+                rate_hz,
+                clock.clone(),
+            )?)
         }
         SourceKind::Socket => Box::new(SocketSource::bind(&opts.socket, &opts.shm_dir)?),
     };
@@ -191,8 +212,7 @@ pub fn run(common: &CommonOptions, opts: &RunOptions, control: &Control) -> Resu
         Err(_) => return Err(AppError::Usage("the source thread panicked".into())),
     }
     if let Some(path) = &opts.report_json {
-        let json = serde_json::to_string_pretty(&report)
-            .map_err(|e| AppError::output(path, e))?;
+        let json = serde_json::to_string_pretty(&report).map_err(|e| AppError::output(path, e))?;
         crate::util::write_atomic(path, json.as_bytes()).map_err(|e| AppError::output(path, e))?;
     }
     Ok(report)

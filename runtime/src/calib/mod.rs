@@ -286,7 +286,10 @@ impl Calibration {
         }
 
         let p = &raw.panel;
-        for (field, px) in [("panel.width_px", p.width_px), ("panel.height_px", p.height_px)] {
+        for (field, px) in [
+            ("panel.width_px", p.width_px),
+            ("panel.height_px", p.height_px),
+        ] {
             if !(1..=MAX_PANEL_SIDE_PX).contains(&px) {
                 return Err(v.err(
                     field,

@@ -28,7 +28,10 @@ impl<T> Clone for NewestSender<T> {
 }
 
 /// A channel holding at most `capacity` items; `dropped` counts evictions.
-pub fn newest_channel<T>(capacity: usize, dropped: Arc<AtomicU64>) -> (NewestSender<T>, Receiver<T>) {
+pub fn newest_channel<T>(
+    capacity: usize,
+    dropped: Arc<AtomicU64>,
+) -> (NewestSender<T>, Receiver<T>) {
     let (tx, rx) = bounded(capacity.max(1));
     (
         NewestSender {

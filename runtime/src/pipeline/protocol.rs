@@ -48,7 +48,13 @@ pub struct FrameHeader {
 
 impl FrameHeader {
     /// A header for a payload at offset 0 of the shared memory.
-    pub fn new(format: PixelFormat, width: usize, height: usize, frame_id: u64, capture_ns: u64) -> Self {
+    pub fn new(
+        format: PixelFormat,
+        width: usize,
+        height: usize,
+        frame_id: u64,
+        capture_ns: u64,
+    ) -> Self {
         Self {
             version: VERSION,
             format: format.code(),
@@ -99,7 +105,10 @@ impl FrameHeader {
             length: u64_at(40),
         };
         if h.version != VERSION {
-            return Err(format!("protocol version {} (this service speaks {VERSION})", h.version));
+            return Err(format!(
+                "protocol version {} (this service speaks {VERSION})",
+                h.version
+            ));
         }
         Ok(h)
     }
@@ -192,9 +201,8 @@ impl Client {
     /// bytes in `shm_dir`; the object's name is removed once the service
     /// has opened it, so nothing is left behind however either side ends.
     pub fn connect(socket: &Path, shm_dir: &Path, shm_size: u64) -> std::io::Result<Self> {
-        let stream = UnixStream::connect(socket).map_err(|e| {
-            std::io::Error::new(e.kind(), format!("{}: {e}", socket.display()))
-        })?;
+        let stream = UnixStream::connect(socket)
+            .map_err(|e| std::io::Error::new(e.kind(), format!("{}: {e}", socket.display())))?;
         let nanos = std::time::SystemTime::now()
             .duration_since(std::time::UNIX_EPOCH)
             .map_or(0, |d| d.as_nanos());
@@ -239,7 +247,11 @@ impl Client {
         if payload.len() as u64 > self.shm_size {
             return Err(std::io::Error::new(
                 std::io::ErrorKind::InvalidInput,
-                format!("{} payload bytes for {} of shared memory", payload.len(), self.shm_size),
+                format!(
+                    "{} payload bytes for {} of shared memory",
+                    payload.len(),
+                    self.shm_size
+                ),
             ));
         }
         self.shm.write_all_at(payload, 0)?;

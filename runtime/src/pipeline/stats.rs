@@ -3,8 +3,8 @@
 //! end. Counters are atomics; each histogram has its own lock, taken once
 //! per frame by one stage thread (uncontended).
 
-use std::sync::{Arc, Mutex};
 use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
 
 use serde::Serialize;
 
@@ -81,6 +81,13 @@ impl Stats {
         self.rejected[reason.index()].fetch_add(1, Ordering::Relaxed);
     }
 
+    pub fn rejected_total(&self) -> u64 {
+        self.rejected
+            .iter()
+            .map(|a| a.load(Ordering::Relaxed))
+            .sum()
+    }
+
     pub fn record(&self, stage: Stage, ns: u64) {
         let i = Stage::ALL.iter().position(|&s| s == stage).unwrap_or(0);
         self.histograms[i]
@@ -110,7 +117,11 @@ impl Stats {
     pub fn snapshot(&self) -> Report {
         let load = |a: &AtomicU64| a.load(Ordering::Relaxed);
         Report {
-            backend: self.backend.lock().unwrap_or_else(|p| p.into_inner()).clone(),
+            backend: self
+                .backend
+                .lock()
+                .unwrap_or_else(|p| p.into_inner())
+                .clone(),
             submitted: load(&self.submitted),
             rejected: RejectReason::ALL
                 .iter()
@@ -137,7 +148,11 @@ impl Stats {
                     }
                 })
                 .collect(),
-            rss_kib: self.rss_kib.lock().unwrap_or_else(|p| p.into_inner()).clone(),
+            rss_kib: self
+                .rss_kib
+                .lock()
+                .unwrap_or_else(|p| p.into_inner())
+                .clone(),
         }
     }
 }

@@ -50,7 +50,9 @@ impl PanelRenderer {
         if format.is_srgb() {
             return Err(err(
                 "gpu",
-                format!("{format:?} would re-encode the panel's code values; a unorm target is needed"),
+                format!(
+                    "{format:?} would re-encode the panel's code values; a unorm target is needed"
+                ),
             ));
         }
         let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);

@@ -135,10 +135,14 @@ impl WindowSink {
         if let Some(e) = app.error.take() {
             return Err(err(e));
         }
-        let window = app.window.clone().ok_or_else(|| err("no window was created"))?;
-        let instance = wgpu::Instance::new(wgpu::InstanceDescriptor::new_with_display_handle_from_env(
-            Box::new(event_loop.owned_display_handle()),
-        ));
+        let window = app
+            .window
+            .clone()
+            .ok_or_else(|| err("no window was created"))?;
+        let instance =
+            wgpu::Instance::new(wgpu::InstanceDescriptor::new_with_display_handle_from_env(
+                Box::new(event_loop.owned_display_handle()),
+            ));
         let surface = instance
             .create_surface(window.clone())
             .map_err(|e| err(format!("cannot create a surface: {e}")))?;
@@ -174,8 +178,7 @@ impl WindowSink {
                 ))
             })?;
         let vsync = app.options.vsync;
-        let present_mode = if !vsync && caps.present_modes.contains(&wgpu::PresentMode::Immediate)
-        {
+        let present_mode = if !vsync && caps.present_modes.contains(&wgpu::PresentMode::Immediate) {
             wgpu::PresentMode::Immediate
         } else {
             wgpu::PresentMode::Fifo

@@ -66,7 +66,10 @@ pub fn pattern_rgba8(width: usize, height: usize, id: u64, rate_hz: f64) -> Vec<
 
 impl Source for PatternSource {
     fn describe(&self) -> String {
-        format!("test pattern {}×{} at {} Hz", self.width, self.height, self.rate_hz)
+        format!(
+            "test pattern {}×{} at {} Hz",
+            self.width, self.height, self.rate_hz
+        )
     }
 
     fn run(&mut self, compositor: Compositor, stop: &AtomicBool) -> Result<u64, SourceError> {

@@ -47,7 +47,8 @@ impl SocketSource {
             if UnixStream::connect(path).is_ok() {
                 return Err(fail("another service is listening there".into()));
             }
-            std::fs::remove_file(path).map_err(|e| fail(format!("cannot remove the stale socket: {e}")))?;
+            std::fs::remove_file(path)
+                .map_err(|e| fail(format!("cannot remove the stale socket: {e}")))?;
         }
         let listener = UnixListener::bind(path).map_err(|e| fail(format!("cannot listen: {e}")))?;
         listener
@@ -117,7 +118,12 @@ fn read_full(stream: &mut UnixStream, buf: &mut [u8], stop: &AtomicBool) -> std:
         match stream.read(&mut buf[n..]) {
             Ok(0) => return Ok(if n == 0 { Fill::Closed } else { Fill::Partial }),
             Ok(k) => n += k,
-            Err(e) if matches!(e.kind(), ErrorKind::WouldBlock | ErrorKind::TimedOut | ErrorKind::Interrupted) => {
+            Err(e)
+                if matches!(
+                    e.kind(),
+                    ErrorKind::WouldBlock | ErrorKind::TimedOut | ErrorKind::Interrupted
+                ) =>
+            {
                 if stop.load(Ordering::Relaxed) {
                     return Ok(Fill::Stopped);
                 }
@@ -164,10 +170,19 @@ fn serve(
         reply(stream, STATUS_BAD_HELLO, 0, why)
     };
     if hello[0..4] != HELLO_MAGIC || version != VERSION {
-        return refuse(&mut stream, format!("bad hello (magic {:?}, version {version}; expected \"NEDH\", {VERSION})", &hello[0..4]));
+        return refuse(
+            &mut stream,
+            format!(
+                "bad hello (magic {:?}, version {version}; expected \"NEDH\", {VERSION})",
+                &hello[0..4]
+            ),
+        );
     }
     if name_len == 0 || name_len > crate::pipeline::protocol::MAX_NAME {
-        return refuse(&mut stream, format!("shared-memory name of {name_len} bytes"));
+        return refuse(
+            &mut stream,
+            format!("shared-memory name of {name_len} bytes"),
+        );
     }
     let mut name = vec![0u8; name_len];
     if !matches!(read_full(&mut stream, &mut name, stop)?, Fill::Full) {
@@ -175,16 +190,30 @@ fn serve(
     }
     let name = String::from_utf8_lossy(&name).into_owned();
     if !valid_shm_name(&name) {
-        return refuse(&mut stream, format!("{name:?} is not a shared-memory name (letters, digits, '.', '_', '-')"));
+        return refuse(
+            &mut stream,
+            format!("{name:?} is not a shared-memory name (letters, digits, '.', '_', '-')"),
+        );
     }
     let shm_path = shm_dir.join(&name);
     let shm = match std::fs::File::open(&shm_path) {
         Ok(f) => f,
-        Err(e) => return refuse(&mut stream, format!("cannot open {}: {e}", shm_path.display())),
+        Err(e) => {
+            return refuse(
+                &mut stream,
+                format!("cannot open {}: {e}", shm_path.display()),
+            );
+        }
     };
     let actual = shm.metadata()?.len();
     if actual < shm_size {
-        return refuse(&mut stream, format!("{} holds {actual} bytes, not the {shm_size} announced", shm_path.display()));
+        return refuse(
+            &mut stream,
+            format!(
+                "{} holds {actual} bytes, not the {shm_size} announced",
+                shm_path.display()
+            ),
+        );
     }
     reply(&mut stream, STATUS_OK, 0, format!("panel {w}×{h}"))?;
 
@@ -208,22 +237,40 @@ fn serve(
         let (status, message) = match FrameHeader::parse(&header) {
             Err(detail) => rejected(RejectReason::Malformed, detail),
             Ok(hd) => match PixelFormat::from_code(hd.format) {
-                None => rejected(RejectReason::UnsupportedFormat, format!("pixel format {}", hd.format)),
+                None => rejected(
+                    RejectReason::UnsupportedFormat,
+                    format!("pixel format {}", hd.format),
+                ),
                 Some(format) if (hd.width as usize, hd.height as usize) != (w, h) => {
                     let _ = format;
-                    rejected(RejectReason::WrongSize, format!("{}×{} frame for a {w}×{h} panel", hd.width, hd.height))
+                    rejected(
+                        RejectReason::WrongSize,
+                        format!("{}×{} frame for a {w}×{h} panel", hd.width, hd.height),
+                    )
                 }
                 Some(format) => {
                     let need = (w * h * format.bytes_per_pixel()) as u64;
                     let end = hd.offset.checked_add(hd.length);
                     if hd.length != need || hd.length > max_payload {
-                        rejected(RejectReason::Truncated, format!("{} payload bytes, {need} needed", hd.length))
+                        rejected(
+                            RejectReason::Truncated,
+                            format!("{} payload bytes, {need} needed", hd.length),
+                        )
                     } else if end.is_none_or(|e| e > shm_size) {
-                        rejected(RejectReason::Truncated, format!("payload at {}+{} lies outside the {shm_size}-byte shared memory", hd.offset, hd.length))
+                        rejected(
+                            RejectReason::Truncated,
+                            format!(
+                                "payload at {}+{} lies outside the {shm_size}-byte shared memory",
+                                hd.offset, hd.length
+                            ),
+                        )
                     } else {
                         let mut payload = vec![0u8; hd.length as usize];
                         match shm.read_exact_at(&mut payload, hd.offset) {
-                            Err(e) => rejected(RejectReason::Truncated, format!("reading the shared memory: {e}")),
+                            Err(e) => rejected(
+                                RejectReason::Truncated,
+                                format!("reading the shared memory: {e}"),
+                            ),
                             Ok(()) => match compositor.submit(SubmittedFrame {
                                 id,
                                 capture_ns: hd.capture_ns,
