@@ -112,6 +112,15 @@ pub fn run(
         transfer: Transfer::from_panel(p),
     };
     let (w, h) = (panel.width as u32, panel.height as u32);
+    // Output folders are checked before anything runs, not after.
+    if let Some(dir) = opts
+        .report_json
+        .as_deref()
+        .and_then(std::path::Path::parent)
+        && !dir.as_os_str().is_empty()
+    {
+        std::fs::create_dir_all(dir).map_err(|e| AppError::output(dir, e))?;
+    }
     let clock: Arc<dyn Clock> = Arc::new(SystemClock);
     let rate_hz = opts.source_rate_hz.unwrap_or(panel.refresh_hz);
     // Sources first: a bad input is reported before any window opens.

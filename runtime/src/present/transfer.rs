@@ -12,11 +12,18 @@ use crate::inference::Frame;
 /// Code values of an 8-bit panel.
 pub const CODES: usize = 256;
 
+/// Bins of the direct lookup that starts each search.
+const BINS: usize = 4096;
+
 /// Per-channel encoding thresholds of the panel's transfer curve.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Transfer {
     /// `thresholds[c][k]`: the smallest intensity sent as code k + 1.
     thresholds: [Vec<f32>; 3],
+    /// `start[c][i]`: the code of i/BINS; the code of any x in the bin is
+    /// at least this, and a few threshold steps (several only in the
+    /// steep dark end of a gamma curve) reach it exactly.
+    start: [Vec<u8>; 3],
 }
 
 impl Transfer {
@@ -27,9 +34,14 @@ impl Transfer {
                 .map(|c| ((c as f64 - 0.5) / (CODES - 1) as f64).powf(g) as f32)
                 .collect()
         };
-        Self {
-            thresholds: gamma.map(table),
-        }
+        let thresholds = gamma.map(table);
+        let start = std::array::from_fn(|c| {
+            let t: &Vec<f32> = &thresholds[c];
+            (0..=BINS)
+                .map(|i| t.partition_point(|&th| th <= i as f32 / BINS as f32) as u8)
+                .collect()
+        });
+        Self { thresholds, start }
     }
 
     /// The calibration's panel (which has been validated to three channels).
@@ -41,9 +53,18 @@ impl Transfer {
     /// The code of linear intensity `x` in channel `channel`; values outside
     /// [0, 1] clamp (the panel cannot show them), NaN is black.
     pub fn code(&self, channel: usize, x: f32) -> u8 {
-        let t = &self.thresholds[channel];
         // NaN compares false, so it lands on code 0.
-        t.partition_point(|&th| th <= x) as u8
+        if !(x > 0.0) {
+            return 0;
+        }
+        let t = &self.thresholds[channel];
+        // Scaling by a power of two is exact, so bin/BINS ≤ x.
+        let bin = ((x * BINS as f32) as usize).min(BINS);
+        let mut code = self.start[channel][bin] as usize;
+        while code < t.len() && t[code] <= x {
+            code += 1;
+        }
+        code as u8
     }
 
     /// Encodes a planar linear frame as interleaved RGBA8 (alpha 255).
@@ -104,6 +125,29 @@ mod tests {
         fn emitted_intensity_round_trips_through_the_code(code in 0u8..=255, g in 1.0f64..3.0) {
             let t = Transfer::from_gamma([g, g, g]);
             prop_assert_eq!(t.code(0, Transfer::emitted(g, code) as f32), code);
+        }
+    }
+
+    #[test]
+    fn the_bin_lookup_equals_the_full_threshold_search() {
+        let t = Transfer::from_gamma([2.2, 1.0, 3.5]);
+        for c in 0..3 {
+            for i in 0..=200_000u32 {
+                let x = i as f32 / 200_000.0;
+                let full = t.thresholds[c].partition_point(|&th| th <= x) as u8;
+                assert_eq!(t.code(c, x), full, "channel {c}, x = {x}");
+            }
+            // Every threshold itself and its neighbours.
+            for &th in &t.thresholds[c] {
+                for x in [
+                    th,
+                    f32::from_bits(th.to_bits() - 1),
+                    f32::from_bits(th.to_bits() + 1),
+                ] {
+                    let full = t.thresholds[c].partition_point(|&v| v <= x) as u8;
+                    assert_eq!(t.code(c, x), full, "channel {c}, x = {x}");
+                }
+            }
         }
     }
 
