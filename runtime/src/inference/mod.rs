@@ -154,6 +154,11 @@ pub trait Backend: Send + std::fmt::Debug {
     fn describe(&self) -> String;
     /// Runs the network; the result may or may not be clamped.
     fn run(&mut self, frame: &Frame) -> Result<Frame, InferenceError>;
+    /// The device's own time for the last run (GPU timestamp queries), where
+    /// the device can measure it.
+    fn last_gpu_ns(&self) -> Option<u64> {
+        None
+    }
 }
 
 /// ONNX Runtime execution provider of the `ort` backend.
@@ -245,6 +250,11 @@ impl Dcnn {
 
     pub fn describe(&self) -> String {
         self.backend.describe()
+    }
+
+    /// GPU time of the last frame's network, if the backend measures it.
+    pub fn last_gpu_ns(&self) -> Option<u64> {
+        self.backend.last_gpu_ns()
     }
 
     /// Preprocesses one frame: pad to the network's multiple, run, crop,

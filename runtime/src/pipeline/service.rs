@@ -32,6 +32,10 @@ pub trait Preprocessor: Send + std::fmt::Debug {
     fn describe(&self) -> String;
     /// Returns the display image, clamped to [0, 1].
     fn run(&mut self, frame: &Frame) -> Result<Frame, InferenceError>;
+    /// GPU time of the last run, where the engine measures it.
+    fn last_gpu_ns(&self) -> Option<u64> {
+        None
+    }
 }
 
 impl Preprocessor for Dcnn {
@@ -40,6 +44,9 @@ impl Preprocessor for Dcnn {
     }
     fn run(&mut self, frame: &Frame) -> Result<Frame, InferenceError> {
         self.run_frame(frame)
+    }
+    fn last_gpu_ns(&self) -> Option<u64> {
+        Dcnn::last_gpu_ns(self)
     }
 }
 
@@ -85,7 +92,12 @@ impl DcnnStage {
     fn run(&mut self, frame: &Frame, stats: &Stats) -> Option<Frame> {
         loop {
             match self.primary.run(frame) {
-                Ok(out) => return Some(out),
+                Ok(out) => {
+                    if let Some(ns) = self.primary.last_gpu_ns() {
+                        stats.record(Stage::DcnnGpu, ns);
+                    }
+                    return Some(out);
+                }
                 Err(InferenceError::Frame(e)) => {
                     // Validated at submit, so this is a bug, not the client's fault.
                     tracing::error!("D-CNN refused a validated frame: {e}");

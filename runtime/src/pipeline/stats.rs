@@ -18,6 +18,8 @@ pub enum Stage {
     Upload,
     /// The D-CNN (for wgpu: upload to the GPU, dispatches, read-back).
     Dcnn,
+    /// The D-CNN's own GPU time (timestamp queries; part of `Dcnn`).
+    DcnnGpu,
     /// Clamp and the panel's transfer curve.
     Encode,
     /// Drawing onto the sink (for a window: until the swapchain takes it).
@@ -29,9 +31,10 @@ pub enum Stage {
 }
 
 impl Stage {
-    pub const ALL: [Stage; 6] = [
+    pub const ALL: [Stage; 7] = [
         Stage::Upload,
         Stage::Dcnn,
+        Stage::DcnnGpu,
         Stage::Encode,
         Stage::Present,
         Stage::Queued,
@@ -42,6 +45,7 @@ impl Stage {
         match self {
             Stage::Upload => "upload",
             Stage::Dcnn => "dcnn",
+            Stage::DcnnGpu => "dcnn-gpu",
             Stage::Encode => "encode",
             Stage::Present => "present",
             Stage::Queued => "queued",
@@ -67,7 +71,7 @@ pub struct Stats {
     pub dcnn_failures: AtomicU64,
     /// Clients that disconnected with a frame half sent.
     pub disconnects_mid_frame: AtomicU64,
-    histograms: [Mutex<Histogram>; 6],
+    histograms: [Mutex<Histogram>; 7],
     /// Resident set size samples (KiB) taken every `RSS_EVERY` presents.
     rss_kib: Mutex<Vec<u64>>,
     pub backend: Mutex<String>,
@@ -229,7 +233,8 @@ impl Report {
             .map_or(0.0, |r| r.mean_ms);
         s += "stage        count     p50 ms     p99 ms     max ms   share of end-to-end\n";
         for r in &self.stages {
-            let share = if r.stage == "end-to-end" || e2e <= 0.0 {
+            // dcnn-gpu is inside dcnn; end-to-end is the whole.
+            let share = if r.stage == "end-to-end" || r.stage == "dcnn-gpu" || e2e <= 0.0 {
                 String::new()
             } else {
                 format!("{:>5.1} %", 100.0 * r.mean_ms / e2e)

@@ -53,8 +53,7 @@ impl Transfer {
     /// The code of linear intensity `x` in channel `channel`; values outside
     /// [0, 1] clamp (the panel cannot show them), NaN is black.
     pub fn code(&self, channel: usize, x: f32) -> u8 {
-        // NaN compares false, so it lands on code 0.
-        if !(x > 0.0) {
+        if x.is_nan() || x <= 0.0 {
             return 0;
         }
         let t = &self.thresholds[channel];

@@ -155,7 +155,8 @@ impl WindowSink {
         .map_err(|e| err(format!("no GPU adapter can present to the window ({e})")))?;
         let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
             label: Some("nedrt window"),
-            required_features: adapter.features() & wgpu::Features::SHADER_F16,
+            required_features: adapter.features()
+                & (wgpu::Features::SHADER_F16 | wgpu::Features::TIMESTAMP_QUERY),
             required_limits: adapter.limits(),
             ..Default::default()
         }))

@@ -47,7 +47,8 @@ pub fn open_device(
              (`apt-get install mesa-vulkan-drivers`) provides one; or use --backend cpu"
         ))
     })?;
-    let mut features = wgpu::Features::empty();
+    // Timestamps where offered: the service reports the network's GPU time.
+    let mut features = adapter.features() & wgpu::Features::TIMESTAMP_QUERY;
     if precision == Precision::F16 {
         if !adapter.features().contains(wgpu::Features::SHADER_F16) {
             return Err(err(format!(
@@ -86,6 +87,50 @@ pub struct GpuBackend {
     alias: HashMap<ValueId, (ValueId, usize)>,
     dummy: wgpu::Buffer,
     plan: Option<SizedPlan>,
+    /// Start/end timestamps of the network's pass, where the device has them.
+    timer: Option<GpuTimer>,
+    last_gpu_ns: Option<u64>,
+}
+
+/// A timestamp query pair and the buffers that bring it back.
+#[derive(Debug)]
+struct GpuTimer {
+    queries: wgpu::QuerySet,
+    resolve: wgpu::Buffer,
+    readback: wgpu::Buffer,
+    period_ns: f64,
+}
+
+impl GpuTimer {
+    fn new(device: &wgpu::Device, queue: &wgpu::Queue) -> Option<Self> {
+        if !device.features().contains(wgpu::Features::TIMESTAMP_QUERY) {
+            return None;
+        }
+        let buffer = |label, usage| {
+            device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some(label),
+                size: 16,
+                usage,
+                mapped_at_creation: false,
+            })
+        };
+        Some(Self {
+            queries: device.create_query_set(&wgpu::QuerySetDescriptor {
+                label: Some("dcnn timestamps"),
+                ty: wgpu::QueryType::Timestamp,
+                count: 2,
+            }),
+            resolve: buffer(
+                "dcnn timestamps",
+                wgpu::BufferUsages::QUERY_RESOLVE | wgpu::BufferUsages::COPY_SRC,
+            ),
+            readback: buffer(
+                "dcnn timestamps readback",
+                wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+            ),
+            period_ns: queue.get_timestamp_period() as f64,
+        })
+    }
 }
 
 impl GpuBackend {
@@ -294,6 +339,8 @@ impl GpuBackend {
             alias,
             dummy,
             plan: None,
+            timer: GpuTimer::new(device, queue),
+            last_gpu_ns: None,
         })
     }
 
@@ -345,7 +392,14 @@ impl GpuBackend {
         {
             let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
                 label: Some("dcnn"),
-                timestamp_writes: None,
+                timestamp_writes: self
+                    .timer
+                    .as_ref()
+                    .map(|t| wgpu::ComputePassTimestampWrites {
+                        query_set: &t.queries,
+                        beginning_of_pass_write_index: Some(0),
+                        end_of_pass_write_index: Some(1),
+                    }),
             });
             for d in &plan.dispatches {
                 pass.set_pipeline(&self.pipelines[d.pipeline]);
@@ -361,7 +415,14 @@ impl GpuBackend {
             0,
             (plan.output_elems * 4) as u64,
         );
+        if let Some(t) = &self.timer {
+            encoder.resolve_query_set(&t.queries, 0..2, &t.resolve, 0);
+            encoder.copy_buffer_to_buffer(&t.resolve, 0, &t.readback, 0, 16);
+        }
         self.queue.submit([encoder.finish()]);
+        if let Some(t) = &self.timer {
+            t.readback.slice(..).map_async(wgpu::MapMode::Read, |_| {});
+        }
         let slice = plan.readback.slice(..);
         let (tx, rx) = std::sync::mpsc::channel();
         slice.map_async(wgpu::MapMode::Read, move |r| {
@@ -380,6 +441,13 @@ impl GpuBackend {
             bytemuck::cast_slice::<u8, f32>(&view[..plan.output_elems * 4]).to_vec()
         };
         plan.readback.unmap();
+        self.last_gpu_ns = self.timer.as_ref().and_then(|t| {
+            let view = t.readback.slice(..).get_mapped_range().ok()?;
+            let [start, end]: [u64; 2] = bytemuck::pod_read_unaligned(&view[..16]);
+            drop(view);
+            t.readback.unmap();
+            Some((end.saturating_sub(start) as f64 * t.period_ns) as u64)
+        });
         if let Some(e) = pollster::block_on(scope.pop()) {
             return Err(err(format!("running: {e}")));
         }
@@ -417,6 +485,10 @@ impl Backend for GpuBackend {
             Precision::F16 => "f16",
         };
         format!("wgpu {p} on {}", self.adapter_name)
+    }
+
+    fn last_gpu_ns(&self) -> Option<u64> {
+        self.last_gpu_ns
     }
 
     fn run(&mut self, frame: &Frame) -> Result<Frame, InferenceError> {
