@@ -705,29 +705,34 @@ fn run_records_a_folder_and_writes_a_trace_and_report() {
 fn run_falls_back_to_the_cpu_when_the_chosen_backend_cannot_start() {
     let dir = tempfile::tempdir().expect("tempdir");
     let panel = repo().join("tests/data/small-panel.toml");
-    let o = nedrt()
-        .current_dir(repo())
-        .env(
-            "ORT_DYLIB_PATH",
-            dir.path().join("no-such-libonnxruntime.so"),
-        )
-        .args([
-            "run",
-            "--calib",
-            path(&panel),
-            "--backend",
-            "ort",
-            "--frames",
-            "2",
-        ])
-        .args([
-            "--sink",
-            "record",
-            "--record-dir",
-            path(&dir.path().join("rec")),
-        ])
-        .output()
-        .expect("run");
+    // `--backend ort` with no ONNX Runtime to load, recording into `rec`.
+    let run_without_ort = |extra: &[&str], rec: &str| {
+        nedrt()
+            .current_dir(repo())
+            .env(
+                "ORT_DYLIB_PATH",
+                dir.path().join("no-such-libonnxruntime.so"),
+            )
+            .args([
+                "run",
+                "--calib",
+                path(&panel),
+                "--backend",
+                "ort",
+                "--frames",
+                "2",
+            ])
+            .args([
+                "--sink",
+                "record",
+                "--record-dir",
+                path(&dir.path().join(rec)),
+            ])
+            .args(extra)
+            .output()
+            .expect("run")
+    };
+    let o = run_without_ort(&[], "rec");
     assert!(o.status.success(), "{}", stderr(&o));
     assert!(
         stderr(&o).contains("running the D-CNN on the fallback"),
@@ -736,31 +741,7 @@ fn run_falls_back_to_the_cpu_when_the_chosen_backend_cannot_start() {
     );
     assert!(stdout(&o).contains("D-CNN: cpu (tract"), "{}", stdout(&o));
     // Asked not to fall back to a network at all, it shows the frames unprocessed.
-    let o = nedrt()
-        .current_dir(repo())
-        .env(
-            "ORT_DYLIB_PATH",
-            dir.path().join("no-such-libonnxruntime.so"),
-        )
-        .args([
-            "run",
-            "--calib",
-            path(&panel),
-            "--backend",
-            "ort",
-            "--fallback",
-            "passthrough",
-        ])
-        .args([
-            "--frames",
-            "2",
-            "--sink",
-            "record",
-            "--record-dir",
-            path(&dir.path().join("rec2")),
-        ])
-        .output()
-        .expect("run");
+    let o = run_without_ort(&["--fallback", "passthrough"], "rec2");
     assert!(o.status.success(), "{}", stderr(&o));
     assert!(stdout(&o).contains("pass-through"), "{}", stdout(&o));
 }

@@ -159,8 +159,7 @@ pub fn run(
             (Box::new(s), Some(device))
         }
         SinkKind::Headless => {
-            let (adapter, device, queue) = open_device(crate::inference::Precision::F32)
-                .or_else(|_| open_device(precision))?;
+            let (adapter, device, queue) = open_device(precision)?;
             let name = adapter.get_info().name;
             let s = HeadlessSink::new(&device, &queue, name.clone(), w, h)?;
             (Box::new(s), Some((device, queue, name)))

@@ -10,7 +10,7 @@ use super::synth::{self, SplitMix};
 use super::tests::{max_abs_diff, model_from, ort_or_skip, random_frame};
 use super::*;
 
-fn device_or_skip(precision: Precision) -> Option<(wgpu::Device, wgpu::Queue)> {
+pub(crate) fn device_or_skip(precision: Precision) -> Option<(wgpu::Device, wgpu::Queue)> {
     match open_device(precision) {
         Ok((_, d, q)) => Some((d, q)),
         Err(e) if std::env::var_os("NEDRT_REQUIRE_GPU").is_none() => {

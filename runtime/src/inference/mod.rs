@@ -295,6 +295,6 @@ impl Dcnn {
 }
 
 #[cfg(test)]
-mod gpu_tests;
+pub(crate) mod gpu_tests;
 #[cfg(test)]
 mod tests;

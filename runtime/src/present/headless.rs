@@ -87,27 +87,14 @@ impl Sink for HeadlessSink {
 mod tests {
     use super::*;
     use crate::inference::Precision;
-    use crate::inference::gpu::open_device;
-
-    fn device_or_skip() -> Option<(wgpu::Device, wgpu::Queue, String)> {
-        match open_device(Precision::F32) {
-            Ok((a, d, q)) => Some((d, q, a.get_info().name)),
-            Err(e) => {
-                assert!(
-                    std::env::var_os("NEDRT_REQUIRE_GPU").is_none(),
-                    "NEDRT_REQUIRE_GPU is set but: {e}"
-                );
-                eprintln!("skipping: {e}");
-                None
-            }
-        }
-    }
+    use crate::inference::gpu_tests::device_or_skip;
 
     #[test]
     fn the_panel_receives_every_code_value_unchanged() {
-        let Some((device, queue, name)) = device_or_skip() else {
+        let Some((device, queue)) = device_or_skip(Precision::F32) else {
             return;
         };
+        let name = "test adapter".to_string();
         // 37×21: not a multiple of any tile; every code value appears.
         let (w, h) = (37usize, 21usize);
         let rgba8: Vec<u8> = (0..4 * w * h)

@@ -241,13 +241,10 @@ fn serve(
                     RejectReason::UnsupportedFormat,
                     format!("pixel format {}", hd.format),
                 ),
-                Some(format) if (hd.width as usize, hd.height as usize) != (w, h) => {
-                    let _ = format;
-                    rejected(
-                        RejectReason::WrongSize,
-                        format!("{}×{} frame for a {w}×{h} panel", hd.width, hd.height),
-                    )
-                }
+                Some(_) if (hd.width as usize, hd.height as usize) != (w, h) => rejected(
+                    RejectReason::WrongSize,
+                    format!("{}×{} frame for a {w}×{h} panel", hd.width, hd.height),
+                ),
                 Some(format) => {
                     let need = (w * h * format.bytes_per_pixel()) as u64;
                     let end = hd.offset.checked_add(hd.length);
