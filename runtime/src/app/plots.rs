@@ -423,6 +423,19 @@ pub fn calib_summary(common: &CommonOptions) -> Result<String, AppError> {
             c.psi_rad(i, 3.0)
         );
     }
+    let p = &c.panel;
+    let _ = writeln!(
+        t,
+        "panel {}×{} px at {} Hz ({:.2} ms per refresh), {:.2} × {:.2} mm at {} µm pitch, transfer γ = {:?}",
+        p.width_px,
+        p.height_px,
+        p.refresh_hz,
+        1e3 / p.refresh_hz,
+        p.width_px as f64 * c.pixel_pitch_m * 1e3,
+        p.height_px as f64 * c.pixel_pitch_m * 1e3,
+        c.pixel_pitch_m * 1e6,
+        p.transfer_gamma
+    );
     let _ = writeln!(t, "optics fingerprint {}", c.optics_fingerprint());
     Ok(t)
 }

@@ -177,3 +177,71 @@ proptest! {
         let _ = Calibration::from_toml(&text, "p.toml", None);
     }
 }
+
+#[test]
+fn the_panel_defaults_are_the_real_panel_and_bad_values_are_named() {
+    let p = default().panel;
+    assert_eq!((p.width_px, p.height_px), (1920, 1080));
+    assert_eq!(p.refresh_hz, 90.0);
+    assert_eq!(p.transfer_gamma, vec![2.2, 2.2, 2.2]);
+    for (from, to, field, why) in [
+        (
+            "width_px = 1920",
+            "width_px = 0",
+            "panel.width_px",
+            "1..=16384",
+        ),
+        (
+            "height_px = 1080",
+            "height_px = 99999",
+            "panel.height_px",
+            "1..=16384",
+        ),
+        (
+            "refresh_hz = 90.0",
+            "refresh_hz = 0.0",
+            "panel.refresh_hz",
+            "1–1000 Hz",
+        ),
+        (
+            "refresh_hz = 90.0",
+            "refresh_hz = nan",
+            "panel.refresh_hz",
+            "1–1000 Hz",
+        ),
+        (
+            "transfer_gamma = [2.2, 2.2, 2.2]",
+            "transfer_gamma = [2.2, 2.2]",
+            "panel.transfer_gamma",
+            "one exponent per primary",
+        ),
+        (
+            "transfer_gamma = [2.2, 2.2, 2.2]",
+            "transfer_gamma = [2.2, 9.0, 2.2]",
+            "panel.transfer_gamma",
+            "not a display gamma",
+        ),
+    ] {
+        let e = with(|s| s.replace(from, to)).unwrap_err().to_string();
+        assert!(e.contains(field) && e.contains(why), "{to}: {e}");
+    }
+    // A missing panel key is an error naming it, not a silent default.
+    let e = with(|s| s.replace("refresh_hz = 90.0\n", ""))
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("refresh_hz"), "{e}");
+}
+
+#[test]
+fn the_small_test_panel_differs_from_the_default_only_in_its_panel() {
+    let small = Calibration::load(Path::new(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../tests/data/small-panel.toml"
+    )))
+    .expect("tests/data/small-panel.toml");
+    let mut d = default();
+    assert_eq!((small.panel.width_px, small.panel.height_px), (64, 48));
+    d.panel = small.panel.clone();
+    d.source = small.source.clone();
+    assert_eq!(small, d);
+}
