@@ -130,6 +130,33 @@ pub struct FrameError {
     pub detail: String,
 }
 
+/// Checks a frame's size and payload length against a `width`×`height`
+/// panel, before any payload is read (the socket source checks headers
+/// with this).
+pub fn check_shape(
+    id: u64,
+    (frame_w, frame_h): (usize, usize),
+    format: PixelFormat,
+    payload_len: u64,
+    (width, height): (usize, usize),
+) -> Result<(), FrameError> {
+    let fail = |reason, detail: String| FrameError { id, reason, detail };
+    if (frame_w, frame_h) != (width, height) {
+        return Err(fail(
+            RejectReason::WrongSize,
+            format!("{frame_w}×{frame_h} frame for a {width}×{height} panel"),
+        ));
+    }
+    let need = width * height * format.bytes_per_pixel();
+    if payload_len != need as u64 {
+        return Err(fail(
+            RejectReason::Truncated,
+            format!("{payload_len} payload bytes, {need} needed for {width}×{height} {format:?}"),
+        ));
+    }
+    Ok(())
+}
+
 /// Checks `frame` against a `width`×`height` panel.
 pub fn validate(frame: &SubmittedFrame, width: usize, height: usize) -> Result<(), FrameError> {
     let fail = |reason, detail: String| FrameError {
@@ -137,26 +164,13 @@ pub fn validate(frame: &SubmittedFrame, width: usize, height: usize) -> Result<(
         reason,
         detail,
     };
-    if (frame.width, frame.height) != (width, height) {
-        return Err(fail(
-            RejectReason::WrongSize,
-            format!(
-                "{}×{} frame for a {width}×{height} panel",
-                frame.width, frame.height
-            ),
-        ));
-    }
-    let need = width * height * frame.format.bytes_per_pixel();
-    if frame.payload.len() != need {
-        return Err(fail(
-            RejectReason::Truncated,
-            format!(
-                "{} payload bytes, {need} needed for {width}×{height} {:?}",
-                frame.payload.len(),
-                frame.format
-            ),
-        ));
-    }
+    check_shape(
+        frame.id,
+        (frame.width, frame.height),
+        frame.format,
+        frame.payload.len() as u64,
+        (width, height),
+    )?;
     if frame.format == PixelFormat::Rgb32fPlanar {
         for (i, b) in frame.payload.chunks_exact(4).enumerate() {
             let v = f32::from_le_bytes([b[0], b[1], b[2], b[3]]);

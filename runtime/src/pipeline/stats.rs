@@ -41,6 +41,10 @@ impl Stage {
         Stage::EndToEnd,
     ];
 
+    fn index(self) -> usize {
+        Stage::ALL.iter().position(|&s| s == self).unwrap_or(0)
+    }
+
     pub fn name(self) -> &'static str {
         match self {
             Stage::Upload => "upload",
@@ -93,16 +97,14 @@ impl Stats {
     }
 
     pub fn record(&self, stage: Stage, ns: u64) {
-        let i = Stage::ALL.iter().position(|&s| s == stage).unwrap_or(0);
-        self.histograms[i]
+        self.histograms[stage.index()]
             .lock()
             .unwrap_or_else(|p| p.into_inner())
             .record_ns(ns);
     }
 
     pub fn histogram(&self, stage: Stage) -> Histogram {
-        let i = Stage::ALL.iter().position(|&s| s == stage).unwrap_or(0);
-        self.histograms[i]
+        self.histograms[stage.index()]
             .lock()
             .unwrap_or_else(|p| p.into_inner())
             .clone()

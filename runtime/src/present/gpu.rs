@@ -6,6 +6,7 @@
 //! target format; a frame only uploads and records one pass.
 
 use super::{DisplayFrame, PresentError};
+use crate::inference::gpu::map_and_wait;
 
 const SHADER: &str = include_str!("../../../shaders/panel_blit.wgsl");
 
@@ -294,18 +295,9 @@ pub fn read_texture(
         },
     );
     queue.submit([encoder.finish()]);
-    let slice = buffer.slice(..);
-    let (tx, rx) = std::sync::mpsc::channel();
-    slice.map_async(wgpu::MapMode::Read, move |r| {
-        let _ = tx.send(r);
-    });
-    device
-        .poll(wgpu::PollType::wait_indefinitely())
-        .map_err(|e| err("gpu", format!("waiting for the GPU: {e}")))?;
-    rx.recv()
-        .map_err(|_| err("gpu", "the GPU never answered (device lost?)"))?
-        .map_err(|e| err("gpu", format!("reading back: {e}")))?;
-    let view = slice
+    map_and_wait(device, &buffer).map_err(|e| err("gpu", e))?;
+    let view = buffer
+        .slice(..)
         .get_mapped_range()
         .map_err(|e| err("gpu", format!("reading back: {e}")))?;
     let mut out = Vec::with_capacity((4 * w * h) as usize);

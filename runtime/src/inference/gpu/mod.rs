@@ -423,19 +423,11 @@ impl GpuBackend {
         if let Some(t) = &self.timer {
             t.readback.slice(..).map_async(wgpu::MapMode::Read, |_| {});
         }
-        let slice = plan.readback.slice(..);
-        let (tx, rx) = std::sync::mpsc::channel();
-        slice.map_async(wgpu::MapMode::Read, move |r| {
-            let _ = tx.send(r);
-        });
-        self.device
-            .poll(wgpu::PollType::wait_indefinitely())
-            .map_err(|e| err(format!("waiting for the GPU: {e}")))?;
-        rx.recv()
-            .map_err(|_| err("the GPU never answered (device lost?)"))?
-            .map_err(|e| err(format!("reading back: {e}")))?;
+        map_and_wait(&self.device, &plan.readback).map_err(err)?;
         let out = {
-            let view = slice
+            let view = plan
+                .readback
+                .slice(..)
                 .get_mapped_range()
                 .map_err(|e| err(format!("reading back: {e}")))?;
             bytemuck::cast_slice::<u8, f32>(&view[..plan.output_elems * 4]).to_vec()
@@ -453,6 +445,21 @@ impl GpuBackend {
         }
         Ok(out)
     }
+}
+
+/// Maps `buffer` for reading and waits for the GPU, which also completes
+/// any mapping requested before; `Err` says what failed.
+pub fn map_and_wait(device: &wgpu::Device, buffer: &wgpu::Buffer) -> Result<(), String> {
+    let (tx, rx) = std::sync::mpsc::channel();
+    buffer.slice(..).map_async(wgpu::MapMode::Read, move |r| {
+        let _ = tx.send(r);
+    });
+    device
+        .poll(wgpu::PollType::wait_indefinitely())
+        .map_err(|e| format!("waiting for the GPU: {e}"))?;
+    rx.recv()
+        .map_err(|_| "the GPU never answered (device lost?)".to_string())?
+        .map_err(|e| format!("reading back: {e}"))
 }
 
 fn pad4(mut bytes: Vec<u8>) -> Vec<u8> {

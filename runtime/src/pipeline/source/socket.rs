@@ -14,7 +14,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
 
 use super::{Source, SourceError};
-use crate::pipeline::frame::{PixelFormat, RejectReason, SubmittedFrame};
+use crate::pipeline::frame::{PixelFormat, RejectReason, SubmittedFrame, check_shape};
 use crate::pipeline::protocol::{
     FrameHeader, HEADER_LEN, HELLO_LEN, HELLO_MAGIC, Reply, STATUS_BAD_HELLO, STATUS_OK, VERSION,
     valid_shm_name,
@@ -217,7 +217,6 @@ fn serve(
     }
     reply(&mut stream, STATUS_OK, 0, format!("panel {w}×{h}"))?;
 
-    let max_payload = (w * h * PixelFormat::Rgb32fPlanar.bytes_per_pixel()) as u64;
     loop {
         let mut header = [0u8; HEADER_LEN];
         match read_full(&mut stream, &mut header, stop)? {
@@ -241,19 +240,21 @@ fn serve(
                     RejectReason::UnsupportedFormat,
                     format!("pixel format {}", hd.format),
                 ),
-                Some(_) if (hd.width as usize, hd.height as usize) != (w, h) => rejected(
-                    RejectReason::WrongSize,
-                    format!("{}×{} frame for a {w}×{h} panel", hd.width, hd.height),
-                ),
                 Some(format) => {
-                    let need = (w * h * format.bytes_per_pixel()) as u64;
-                    let end = hd.offset.checked_add(hd.length);
-                    if hd.length != need || hd.length > max_payload {
-                        rejected(
-                            RejectReason::Truncated,
-                            format!("{} payload bytes, {need} needed", hd.length),
-                        )
-                    } else if end.is_none_or(|e| e > shm_size) {
+                    let shape = check_shape(
+                        id,
+                        (hd.width as usize, hd.height as usize),
+                        format,
+                        hd.length,
+                        (w, h),
+                    );
+                    if let Err(e) = shape {
+                        rejected(e.reason, e.detail)
+                    } else if hd
+                        .offset
+                        .checked_add(hd.length)
+                        .is_none_or(|e| e > shm_size)
+                    {
                         rejected(
                             RejectReason::Truncated,
                             format!(
