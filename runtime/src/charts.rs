@@ -12,7 +12,7 @@ use plotters::style::FontStyle;
 
 static FONT: Once = Once::new();
 
-fn register_font() {
+pub fn register_font() {
     FONT.call_once(|| {
         let bytes: &'static [u8] = include_bytes!("../assets/DejaVuSans.ttf");
         if plotters::style::register_font("sans-serif", FontStyle::Normal, bytes).is_err() {
@@ -204,3 +204,145 @@ pub fn viridis(t: f64) -> RGBColor {
 pub const RED_LINE: RGBColor = RGBColor(214, 39, 40);
 pub const GREEN_LINE: RGBColor = RGBColor(44, 160, 44);
 pub const BLUE_LINE: RGBColor = RGBColor(31, 119, 180);
+
+/// One point of a scatter figure.
+#[derive(Debug, Clone)]
+pub struct ScatterPoint {
+    pub label: String,
+    pub x: f64,
+    pub y: f64,
+    /// Drawn filled and joined by the front line.
+    pub on_front: bool,
+    /// Drawn hollow: a value that was estimated, not measured.
+    pub estimated: bool,
+}
+
+/// A scatter plot with a logarithmic x axis, labelled points and the
+/// Pareto front drawn as a staircase through the points marked on it.
+#[derive(Debug, Clone)]
+pub struct ScatterFigure {
+    pub title: String,
+    /// Lines printed under the plot (device, hashes).
+    pub footer: Vec<String>,
+    pub x_label: String,
+    pub y_label: String,
+    pub points: Vec<ScatterPoint>,
+}
+
+fn draw_scatter<DB: DrawingBackend>(
+    root: DrawingArea<DB, Shift>,
+    f: &ScatterFigure,
+) -> Result<(), String> {
+    let e = |x: DrawingAreaErrorKind<DB::ErrorType>| x.to_string();
+    root.fill(&WHITE).map_err(e)?;
+    let footer_px = 16 * f.footer.len() as i32 + 8;
+    let (h, _) = (root.dim_in_pixel().1 as i32, ());
+    let (plot, foot) = root.split_vertically(h - footer_px);
+    let xs = f.points.iter().map(|p| p.x.max(1e-3));
+    let (x0, x1) = xs.fold((f64::MAX, f64::MIN), |(a, b), x| (a.min(x), b.max(x)));
+    let (y0, y1) = f
+        .points
+        .iter()
+        .fold((f64::MAX, f64::MIN), |(a, b), p| (a.min(p.y), b.max(p.y)));
+    let (x0, x1) = if x0 > x1 {
+        (0.1, 10.0)
+    } else {
+        (x0 / 3.0, x1 * 3.0)
+    };
+    let (y0, y1) = if y0 > y1 {
+        (0.0, 1.0)
+    } else {
+        (y0 - 0.4 - 0.05 * (y1 - y0), y1 + 0.4 + 0.05 * (y1 - y0))
+    };
+    let mut chart = ChartBuilder::on(&plot)
+        .caption(&f.title, ("sans-serif", 18))
+        .margin(12)
+        .x_label_area_size(36)
+        .y_label_area_size(52)
+        .build_cartesian_2d((x0..x1).log_scale(), y0..y1)
+        .map_err(e)?;
+    chart
+        .configure_mesh()
+        .x_desc(&f.x_label)
+        .y_desc(&f.y_label)
+        .label_style(("sans-serif", 12))
+        .draw()
+        .map_err(e)?;
+    let mut front: Vec<(f64, f64)> = f
+        .points
+        .iter()
+        .filter(|p| p.on_front)
+        .map(|p| (p.x.max(1e-3), p.y))
+        .collect();
+    front.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let mut stairs = Vec::new();
+    for (i, &(x, y)) in front.iter().enumerate() {
+        if i > 0 {
+            stairs.push((x, front[i - 1].1));
+        }
+        stairs.push((x, y));
+    }
+    if let Some(&(_, y)) = front.last() {
+        stairs.push((x1, y));
+    }
+    chart
+        .draw_series(LineSeries::new(
+            stairs,
+            ShapeStyle::from(RED_LINE).stroke_width(2),
+        ))
+        .map_err(e)?
+        .label("Pareto front")
+        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], RED_LINE));
+    for p in &f.points {
+        let at = (p.x.max(1e-3), p.y);
+        let color = if p.on_front { RED_LINE } else { BLUE_LINE };
+        let style = if p.estimated {
+            ShapeStyle::from(color).stroke_width(2)
+        } else {
+            color.filled()
+        };
+        chart
+            .draw_series(std::iter::once(Circle::new(at, 5, style)))
+            .map_err(e)?;
+        chart
+            .draw_series(std::iter::once(Text::new(
+                p.label.clone(),
+                at,
+                ("sans-serif", 11).into_font().color(&BLACK),
+            )))
+            .map_err(e)?;
+    }
+    chart
+        .configure_series_labels()
+        .position(SeriesLabelPosition::LowerRight)
+        .label_font(("sans-serif", 11))
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK)
+        .draw()
+        .map_err(e)?;
+    for (i, line) in f.footer.iter().enumerate() {
+        foot.draw(&Text::new(
+            line.clone(),
+            (12, 4 + 16 * i as i32),
+            ("sans-serif", 12).into_font().color(&BLACK),
+        ))
+        .map_err(e)?;
+    }
+    root.present().map_err(e)
+}
+
+/// Writes a scatter figure to `stem`.png and `stem`.svg.
+pub fn write_scatter(
+    stem: &Path,
+    size: (u32, u32),
+    figure: &ScatterFigure,
+) -> Result<Vec<String>, String> {
+    register_font();
+    let png = stem.with_extension("png");
+    let svg = stem.with_extension("svg");
+    draw_scatter(BitMapBackend::new(&png, size).into_drawing_area(), figure)
+        .map_err(|e| format!("{}: {e}", png.display()))?;
+    draw_scatter(SVGBackend::new(&svg, size).into_drawing_area(), figure)
+        .map_err(|e| format!("{}: {e}", svg.display()))?;
+    Ok(vec![png.display().to_string(), svg.display().to_string()])
+}

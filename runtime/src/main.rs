@@ -151,6 +151,76 @@ enum Command {
     /// Time the PSF and the perceived image, writing their inputs for
     /// tools/bench/compare_numpy.py (see docs/benchmarks.md).
     Bench(BenchArgs),
+    /// Speed against accuracy: every preprocessing configuration's latency
+    /// and quality with the Pareto front, and the simulator's fidelity study.
+    Tradeoff(TradeoffArgs),
+    /// Name the fastest configuration of a tradeoff table that meets a
+    /// quality floor and a latency budget (exit 1 when none does).
+    Pick(PickArgs),
+    /// Where each method breaks (Wiener K, the D-CNN off its training
+    /// distribution, the optics beyond their sampling, f16): docs/stability.md.
+    Stability(StabilityArgs),
+}
+
+#[derive(Args, Debug)]
+struct StabilityArgs {
+    #[arg(long, default_value = "data/images/test", value_name = "DIR")]
+    images: PathBuf,
+    /// The report (Markdown); the JSON is written beside it.
+    #[arg(long, default_value = "docs/stability.md", value_name = "FILE")]
+    out: PathBuf,
+    /// Side of the synthetic content frames.
+    #[arg(long, default_value_t = 128)]
+    content_size: usize,
+    /// Skip the f16-against-f32 comparison on the wgpu adapter.
+    #[arg(long)]
+    no_gpu: bool,
+}
+
+#[derive(Args, Debug)]
+struct TradeoffArgs {
+    /// Images the quality is measured on.
+    #[arg(long, default_value = "data/images/test", value_name = "DIR")]
+    images: PathBuf,
+    #[arg(long, default_value = "docs/tradeoff", value_name = "DIR")]
+    out_dir: PathBuf,
+    /// Frame size of the latency measurements (default: the panel's).
+    #[arg(long, value_parser = parse_size)]
+    size: Option<(usize, usize)>,
+    /// Trained D-CNNs (each with its .doe.safetensors beside it).
+    #[arg(long, value_delimiter = ',', default_values = ["models/dcnn.onnx"])]
+    models: Vec<PathBuf>,
+    #[arg(long, value_delimiter = ',', value_enum, default_values = ["cpu", "ort", "wgpu"])]
+    backends: Vec<BackendKind>,
+    /// Timed runs per latency (median reported).
+    #[arg(long, default_value_t = 3)]
+    repeat: usize,
+    /// Estimate, rather than measure, a latency that would take longer than this (seconds).
+    #[arg(long, default_value_t = 60.0)]
+    max_seconds: f64,
+    /// Skip the simulator-fidelity study (minutes of PSFs at the 3 µm pitch).
+    #[arg(long)]
+    no_fidelity: bool,
+}
+
+#[derive(Args, Debug)]
+struct PickArgs {
+    /// Table written by `nedrt tradeoff`.
+    #[arg(
+        long,
+        default_value = "docs/tradeoff/tradeoff.json",
+        value_name = "FILE"
+    )]
+    table: PathBuf,
+    /// Quality floor: mean PSNR over 0–2.5 D against the sharp image, dB.
+    #[arg(long, value_name = "DB")]
+    min_psnr: f64,
+    /// Optional floor on the worst depth's PSNR, dB.
+    #[arg(long, value_name = "DB")]
+    min_worst_psnr: Option<f64>,
+    /// Latency budget per frame, milliseconds.
+    #[arg(long, value_name = "MS")]
+    budget_ms: f64,
 }
 
 #[derive(Args, Debug)]
@@ -464,6 +534,64 @@ fn run(cli: Cli) -> Result<()> {
                 );
             }
         },
+        Some(Command::Tradeoff(a)) => {
+            let calib = common.calibration()?;
+            let opts = app::tradeoff::TradeoffOptions {
+                images_dir: a.images,
+                out_dir: a.out_dir,
+                size: a
+                    .size
+                    .unwrap_or((calib.panel.width_px, calib.panel.height_px)),
+                models: a.models,
+                backends: a.backends,
+                repeat: a.repeat,
+                max_seconds: a.max_seconds,
+                threads: g.threads,
+                fidelity: !a.no_fidelity,
+            };
+            print!("{}", app::tradeoff::run(&common, &opts)?);
+        }
+        Some(Command::Pick(a)) => {
+            for (name, v) in [("--min-psnr", a.min_psnr), ("--budget-ms", a.budget_ms)]
+                .into_iter()
+                .chain(a.min_worst_psnr.map(|w| ("--min-worst-psnr", w)))
+            {
+                if !v.is_finite() {
+                    bail!("{name} {v}: not a number");
+                }
+            }
+            let table = app::tradeoff::Table::load(&a.table)?;
+            let req = app::tradeoff::pareto::Requirement {
+                min_mean_psnr_db: a.min_psnr,
+                min_worst_psnr_db: a.min_worst_psnr,
+                max_latency_ms: a.budget_ms,
+            };
+            let points = table.points();
+            let pick = app::tradeoff::pareto::pick(&points, &req);
+            if !matches!(pick, app::tradeoff::pareto::Pick::Chosen(_)) {
+                bail!(
+                    "{pick} ({}, {}×{} frames on {})",
+                    a.table.display(),
+                    table.frame_width,
+                    table.frame_height,
+                    table.host
+                );
+            }
+            println!("{pick}");
+        }
+        Some(Command::Stability(a)) => {
+            if a.content_size < 8 {
+                bail!("--content-size {}: at least 8 pixels", a.content_size);
+            }
+            let opts = app::stability::StabilityOptions {
+                images_dir: a.images,
+                out: a.out,
+                model: g.dcnn.clone(),
+                content_size: a.content_size,
+                gpu: !a.no_gpu,
+            };
+            print!("{}", app::stability::run(&common, &opts)?);
+        }
         None if cli.sim => {
             let s = cli.sim_args;
             let accommodation_d = s

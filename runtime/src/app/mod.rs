@@ -7,6 +7,8 @@ pub mod eval;
 pub mod plots;
 pub mod run;
 pub mod sim;
+pub mod stability;
+pub mod tradeoff;
 pub mod tune;
 
 use std::path::{Path, PathBuf};

@@ -245,3 +245,17 @@ fn the_small_test_panel_differs_from_the_default_only_in_its_panel() {
     d.source = small.source.clone();
     assert_eq!(small, d);
 }
+
+#[test]
+fn wiener_constants_must_be_positive_and_finite() {
+    for bad in ["0.0", "-0.01", "nan", "inf"] {
+        let e = with(|s| s.replace("ai_k = 0.031623", &format!("ai_k = {bad}")))
+            .expect_err(bad)
+            .to_string();
+        assert!(e.contains("wiener.ai_k"), "{bad}: {e}");
+    }
+    let e = with(|s| s.replace("doe_k = 0.031623", "doe_k = 0"))
+        .expect_err("zero")
+        .to_string();
+    assert!(e.contains("wiener.doe_k"), "{e}");
+}

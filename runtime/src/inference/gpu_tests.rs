@@ -259,3 +259,31 @@ fn trained_model_on_the_gpu_matches_onnxruntime_at_sizes_not_multiple_of_8() {
         }
     }
 }
+
+#[test]
+fn f16_holds_on_the_worst_conditioned_content() {
+    // docs/stability.md: the shipped D-CNN in f16 against f32 on content
+    // unlike its training data (saturated colours, noise, text, full
+    // black and white), where activations are largest.
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/dcnn.onnx");
+    let model = ModelFile::read(&path).expect("loads");
+    if device_or_skip(Precision::F16).is_none() {
+        return;
+    }
+    let open = |precision| {
+        let options = BackendOptions {
+            precision,
+            ..Default::default()
+        };
+        Dcnn::from_model(model.clone(), BackendKind::Wgpu, &options).expect("wgpu")
+    };
+    let (mut full, mut half) = (open(Precision::F32), open(Precision::F16));
+    for c in crate::app::stability::content::content_set(32) {
+        let a = full.run_image(&c.image).expect("f32");
+        let b = half.run_image(&c.image).expect("f16");
+        let (a, b): (Vec<f32>, Vec<f32>) = (a.planes.concat(), b.planes.concat());
+        assert!(b.iter().all(|v| v.is_finite()), "{}", c.name);
+        let d = max_abs_diff(&a, &b);
+        assert!(d <= tolerance(Precision::F16), "{}: {d}", c.name);
+    }
+}

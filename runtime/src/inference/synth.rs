@@ -31,6 +31,12 @@ impl SplitMix {
     pub fn symmetric(&mut self, b: f32) -> f32 {
         (2.0 * self.unit() - 1.0) * b
     }
+    /// Standard normal (Box–Muller).
+    pub fn normal(&mut self) -> f32 {
+        let u = self.unit().max(1e-7);
+        let v = self.unit();
+        (-2.0 * u.ln()).sqrt() * (2.0 * std::f32::consts::PI * v).cos()
+    }
 }
 
 /// An ONNX graph under construction.

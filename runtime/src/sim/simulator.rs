@@ -299,7 +299,7 @@ impl Prepared {
     /// passed through here).
     pub fn display_image(&self, method: Method, input: &Image) -> Image {
         match self.wiener.get(&method) {
-            Some(f) => f.apply(input),
+            Some(f) => f.apply_checked(input).0,
             None => input.clone(),
         }
     }

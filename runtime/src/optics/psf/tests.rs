@@ -187,3 +187,17 @@ fn forced_step_breaking_a_rule_is_an_error() {
     .expect_err("rule 1");
     assert!(e.to_string().contains("rule 1"), "{e}");
 }
+
+#[test]
+fn psi_beyond_the_largest_pupil_grid_is_an_error_not_an_alias() {
+    let c = calib();
+    // ≈ 140 D of defocus: rule 2 asks for a 0.2 µm step, 51 000 samples.
+    let spec = PsfSpec {
+        channel: 1,
+        psi_rad: 20_000.0,
+    };
+    let e = psfs(&c, vec![spec], None).expect_err("grid too large");
+    let text = e.to_string();
+    assert!(matches!(e, OpticsError::GridTooLarge { .. }), "{text}");
+    assert!(text.contains("max_pupil_samples"), "{text}");
+}

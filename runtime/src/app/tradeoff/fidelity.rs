@@ -1,0 +1,590 @@
+//! Simulation fidelity against cost (optics.md §5): each economy of the
+//! PSF model (a coarser pupil grid, a smaller PSF window, a 1-arcmin
+//! retinal grid, one wavelength per primary) priced in compute time and in
+//! its PSNR error against the exhaustive model, on the proposed system
+//! (the trained DOE and D-CNN) over 0–2.5 D.
+//!
+//! The exhaustive model: pupil step 3 µm (the DOE's fabrication pitch, the
+//! height map resampled bicubically as fabricated), PSF window holding
+//! 99.99 % of the light, the 0.5-arcmin retinal grid, and each primary a
+//! Gaussian spectrum of 30 nm FWHM integrated by 5-point Gauss–Hermite
+//! quadrature, the index at each wavelength from a Cauchy fit n = A + B/λ²
+//! to the calibration's three channels (docs/fidelity.md).
+
+use std::fmt::Write as _;
+use std::path::Path;
+use std::time::Instant;
+
+use serde::Serialize;
+
+use super::quality::{Quality, headline_depths, score_depths};
+use crate::app::{AppError, CommonOptions, progress_bar, write_text};
+use crate::calib::Calibration;
+use crate::charts::{ScatterFigure, ScatterPoint, write_scatter};
+use crate::inference::{BackendKind, BackendOptions, Dcnn};
+use crate::optics::propagate::{centred_window_energies, crop_centred};
+use crate::optics::{HeightMap, Psf, PsfRequest, PsfSpec, compute_psfs, doe_file};
+use crate::sim::convolve::PreparedKernel;
+use crate::sim::wiener::display_kernel;
+use crate::sim::{Image, perceive};
+
+/// Full width at half maximum of each primary's emission spectrum (nm):
+/// an OLED microdisplay's primaries are 25–40 nm wide; 30 nm is assumed.
+pub const PRIMARY_FWHM_NM: f64 = 30.0;
+
+/// Error budget of an economy against the exhaustive model (optics.md §5), dB.
+pub const MAX_ERROR_DB: f64 = 0.1;
+
+/// Gauss–Hermite nodes (in standard deviations) and weights for a normal
+/// distribution: 1 point, or 5 points (exact for polynomials to degree 9).
+pub fn spectral_nodes(samples: usize) -> Vec<(f64, f64)> {
+    match samples {
+        1 => vec![(0.0, 1.0)],
+        _ => {
+            // Probabilists' Hermite nodes of degree 5 and their weights.
+            let a = (5.0 - 10f64.sqrt()).sqrt();
+            let b = (5.0 + 10f64.sqrt()).sqrt();
+            let wa = (7.0 + 2.0 * 10f64.sqrt()) / 60.0;
+            let wb = (7.0 - 2.0 * 10f64.sqrt()) / 60.0;
+            vec![(-b, wb), (-a, wa), (0.0, 8.0 / 15.0), (a, wa), (b, wb)]
+        }
+    }
+}
+
+/// Cauchy dispersion n(λ) = A + B/λ², least-squares fit to the channels.
+pub fn cauchy_fit(calib: &Calibration) -> (f64, f64) {
+    let xs: Vec<f64> = calib
+        .channels
+        .iter()
+        .map(|c| c.wavelength_m.powi(-2))
+        .collect();
+    let ys: Vec<f64> = calib.channels.iter().map(|c| c.index).collect();
+    let n = xs.len() as f64;
+    let (mx, my) = (xs.iter().sum::<f64>() / n, ys.iter().sum::<f64>() / n);
+    let sxy: f64 = xs.iter().zip(&ys).map(|(x, y)| (x - mx) * (y - my)).sum();
+    let sxx: f64 = xs.iter().map(|x| (x - mx).powi(2)).sum();
+    let b = if sxx > 0.0 { sxy / sxx } else { 0.0 };
+    (my - b * mx, b)
+}
+
+/// The calibration with every channel moved by `offset_sd` standard
+/// deviations of its spectrum, the index following the Cauchy fit (the
+/// fit's residual at the channel's own wavelength is kept, so offset 0
+/// is the calibration itself).
+pub fn shifted_calibration(calib: &Calibration, offset_sd: f64) -> Calibration {
+    let (a, b) = cauchy_fit(calib);
+    let sigma_m = PRIMARY_FWHM_NM * 1e-9 / (8.0 * 2f64.ln()).sqrt();
+    let mut c = calib.clone();
+    for ch in &mut c.channels {
+        let residual = ch.index - (a + b / ch.wavelength_m.powi(2));
+        ch.wavelength_m += offset_sd * sigma_m;
+        ch.index = a + b / ch.wavelength_m.powi(2) + residual;
+    }
+    c
+}
+
+/// `psf` cut to the smallest centred window holding `energy` of the light
+/// (the rest joins the veil), as the PSF model's rule 5 does on a period.
+pub fn shrink_window(psf: &Psf, energy: f64) -> Psf {
+    let e = centred_window_energies(&psf.cells, psf.window);
+    let inside = e.last().copied().unwrap_or(0.0);
+    let half = e.iter().position(|&v| v >= energy).unwrap_or(e.len() - 1);
+    let window = 2 * half + 1;
+    Psf {
+        window,
+        cells: crop_centred(&psf.cells, psf.window, window),
+        veil: psf.veil + (inside - e[half]).max(0.0),
+    }
+}
+
+/// Weighted sum of PSFs with (possibly) different windows, centred.
+pub fn mix(psfs: &[(Psf, f64)]) -> Psf {
+    let window = psfs.iter().map(|(p, _)| p.window).max().unwrap_or(1);
+    let mut out = Psf {
+        window,
+        cells: vec![0.0; window * window],
+        veil: 0.0,
+    };
+    for (p, w) in psfs {
+        let off = (window - p.window) / 2;
+        for y in 0..p.window {
+            for x in 0..p.window {
+                out.cells[(y + off) * window + x + off] += w * p.cells[y * p.window + x];
+            }
+        }
+        out.veil += w * p.veil;
+    }
+    out
+}
+
+/// The perceived image on a 1-arcmin grid (one cell per display pixel,
+/// the PSF taken to the display grid by the exact 2×2 relation), shown
+/// on the 0.5-arcmin grid by pixel replication so it is scored like
+/// every other setting.
+pub fn perceive_one_arcmin(display: &Image, psfs: &[Psf]) -> Image {
+    let means = display.plane_means();
+    let planes = display
+        .planes
+        .iter()
+        .zip(psfs)
+        .zip(means)
+        .map(|((plane, psf), mean)| {
+            let (k, side) = display_kernel(psf);
+            let mut out = PreparedKernel::new(&k, side, display.width, display.height).apply(plane);
+            let veil = (psf.veil * mean) as f32;
+            out.iter_mut().for_each(|v| *v += veil);
+            out
+        })
+        .collect();
+    Image::from_planes(display.width, display.height, planes).up2()
+}
+
+/// One setting of the PSF model.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct Setting {
+    /// Forced pupil step, µm; `None`: the sampling rules choose (the default).
+    pub pupil_step_um: Option<f64>,
+    pub window_energy: f64,
+    pub wavelengths: usize,
+    pub one_arcmin: bool,
+}
+
+impl Setting {
+    pub fn describe(&self) -> String {
+        format!(
+            "pupil {}, window {}%, {} λ/primary, {} arcmin",
+            self.pupil_step_um
+                .map_or("auto".into(), |s| format!("{s} µm")),
+            self.window_energy * 100.0,
+            self.wavelengths,
+            if self.one_arcmin { "1" } else { "0.5" }
+        )
+    }
+}
+
+/// PSFs of one pupil setting, per (wavelength node, channel, depth), and
+/// what each node took.
+struct NodePsfs {
+    weight: f64,
+    /// psfs[depth][channel]
+    psfs: Vec<Vec<Psf>>,
+    seconds: f64,
+}
+
+fn node_psfs(
+    calib: &Calibration,
+    doe: &HeightMap,
+    depths_d: &[f64],
+    pupil_step_um: Option<f64>,
+    window_energy: f64,
+    samples: usize,
+) -> Result<Vec<NodePsfs>, AppError> {
+    spectral_nodes(samples)
+        .into_iter()
+        .map(|(offset, weight)| {
+            let mut c = shifted_calibration(calib, offset);
+            c.simulation.pupil_step_m = pupil_step_um.map(|s| s * 1e-6);
+            c.simulation.window_energy = window_energy;
+            let specs: Vec<PsfSpec> = depths_d
+                .iter()
+                .flat_map(|&d| (0..c.channels.len()).map(move |ch| (ch, d)))
+                .map(|(ch, d)| PsfSpec {
+                    channel: ch,
+                    psi_rad: c.psi_rad(ch, d),
+                })
+                .collect();
+            let t = Instant::now();
+            let set = compute_psfs(
+                &c,
+                &PsfRequest {
+                    specs,
+                    doe: Some(doe),
+                },
+                &|| (),
+            )?;
+            let n = c.channels.len();
+            Ok(NodePsfs {
+                weight,
+                psfs: set.psfs.chunks(n).map(<[Psf]>::to_vec).collect(),
+                seconds: t.elapsed().as_secs_f64(),
+            })
+        })
+        .collect()
+}
+
+/// One row of the study.
+#[derive(Debug, Clone, Serialize)]
+pub struct FidelityRow {
+    pub name: String,
+    pub setting: Setting,
+    pub psf_seconds: f64,
+    /// Perceived images of the whole evaluation (images × depths), seconds.
+    pub perceive_seconds: f64,
+    pub mean_psnr_db: f64,
+    pub worst_psnr_db: f64,
+    /// |Δ| of the mean PSNR against the exhaustive row, dB.
+    pub mean_error_db: f64,
+    /// Largest |Δ| over depths of the image-mean PSNR, dB.
+    pub max_depth_error_db: f64,
+    pub within_budget: bool,
+    pub is_default: bool,
+}
+
+/// Runs the study on display images made by the first model's D-CNN
+/// (tract) from `inputs`, and writes `fidelity.{md,json,png,svg}`.
+pub fn run(
+    common: &CommonOptions,
+    doe_path: &Path,
+    inputs: &[Image],
+    out_dir: &Path,
+) -> Result<String, AppError> {
+    let calib = common.calibration()?;
+    let doe = doe_file::load(doe_path, &calib)?;
+    let depths = headline_depths(&calib);
+    let model = doe_path
+        .to_string_lossy()
+        .replace(".doe.safetensors", ".onnx");
+    let mut dcnn = Dcnn::load(
+        Path::new(&model),
+        BackendKind::Cpu,
+        &BackendOptions::default(),
+    )?;
+    let displays: Vec<Image> = inputs
+        .iter()
+        .map(|i| dcnn.run_image(i))
+        .collect::<Result<_, _>>()?;
+    let sharps: Vec<Image> = inputs.iter().map(Image::up2).collect();
+    let default_energy = calib.simulation.window_energy;
+    let exhaustive_energy = 0.9999;
+    let bar = progress_bar("fidelity");
+    bar.set_length(4);
+
+    let fab_um = calib.doe_fabrication_pitch_m * 1e6;
+    let fine = node_psfs(&calib, &doe, &depths, Some(fab_um), exhaustive_energy, 5)?;
+    bar.inc(1);
+    let auto5 = node_psfs(&calib, &doe, &depths, None, exhaustive_energy, 5)?;
+    bar.inc(1);
+    let default = node_psfs(&calib, &doe, &depths, None, default_energy, 1)?;
+    bar.inc(1);
+
+    let centre = |n: &[NodePsfs]| -> Vec<NodePsfs> {
+        n.iter()
+            .filter(|x| (x.weight - 8.0 / 15.0).abs() < 1e-12)
+            .map(|x| NodePsfs {
+                weight: 1.0,
+                psfs: x.psfs.clone(),
+                seconds: x.seconds,
+            })
+            .collect()
+    };
+    let fine_centre = centre(&fine);
+    let setting = |step: Option<f64>, energy: f64, wl: usize, arc: bool| Setting {
+        pupil_step_um: step,
+        window_energy: energy,
+        wavelengths: wl,
+        one_arcmin: arc,
+    };
+    let cases: Vec<(&str, Setting, &[NodePsfs])> = vec![
+        (
+            "exhaustive",
+            setting(Some(fab_um), exhaustive_energy, 5, false),
+            &fine,
+        ),
+        (
+            "one wavelength",
+            setting(Some(fab_um), exhaustive_energy, 1, false),
+            &fine_centre,
+        ),
+        (
+            "window 99.9 %",
+            setting(Some(fab_um), default_energy, 5, false),
+            &fine,
+        ),
+        ("window 99 %", setting(Some(fab_um), 0.99, 5, false), &fine),
+        (
+            "1-arcmin grid",
+            setting(Some(fab_um), exhaustive_energy, 5, true),
+            &fine,
+        ),
+        (
+            "auto pupil step",
+            setting(None, exhaustive_energy, 5, false),
+            &auto5,
+        ),
+        ("default", setting(None, default_energy, 1, false), &default),
+        (
+            "default, window 99 %",
+            setting(None, 0.99, 1, false),
+            &default,
+        ),
+        (
+            "default, 1-arcmin grid",
+            setting(None, default_energy, 1, true),
+            &default,
+        ),
+    ];
+    let mut rows: Vec<(FidelityRow, Quality)> = Vec::new();
+    for (name, s, nodes) in cases {
+        // System PSF per depth and channel for this setting.
+        let system: Vec<Vec<Psf>> = (0..depths.len())
+            .map(|di| {
+                (0..calib.channels.len())
+                    .map(|ch| {
+                        let mixed = mix(&nodes
+                            .iter()
+                            .map(|n| (n.psfs[di][ch].clone(), n.weight))
+                            .collect::<Vec<_>>());
+                        shrink_window(&mixed, s.window_energy)
+                    })
+                    .collect()
+            })
+            .collect();
+        let t = Instant::now();
+        let perceived: Vec<Vec<Image>> = system
+            .iter()
+            .map(|psfs| {
+                displays
+                    .iter()
+                    .map(|d| {
+                        if s.one_arcmin {
+                            perceive_one_arcmin(d, psfs)
+                        } else {
+                            perceive(d, psfs)
+                        }
+                    })
+                    .collect()
+            })
+            .collect();
+        let seconds = t.elapsed().as_secs_f64();
+        let q = score_depths(&depths, &sharps, |d, i| {
+            let di = depths.iter().position(|x| *x == d).unwrap_or(0);
+            Ok(perceived[di][i].clone())
+        })?;
+        rows.push((
+            FidelityRow {
+                name: name.to_string(),
+                setting: s,
+                psf_seconds: nodes.iter().map(|n| n.seconds).sum(),
+                perceive_seconds: seconds,
+                mean_psnr_db: q.mean_psnr_db,
+                worst_psnr_db: q.worst_psnr_db,
+                mean_error_db: 0.0,
+                max_depth_error_db: 0.0,
+                within_budget: false,
+                is_default: name == "default",
+            },
+            q,
+        ));
+    }
+    bar.inc(1);
+    bar.finish_and_clear();
+    let reference = rows[0].1.clone();
+    let rows: Vec<FidelityRow> = rows
+        .into_iter()
+        .map(|(mut r, q)| {
+            r.mean_error_db = (q.mean_psnr_db - reference.mean_psnr_db).abs();
+            r.max_depth_error_db = q
+                .per_depth_psnr_db
+                .iter()
+                .zip(&reference.per_depth_psnr_db)
+                .map(|(a, b)| (a.1 - b.1).abs())
+                .fold(0.0, f64::max);
+            r.within_budget = r.max_depth_error_db < MAX_ERROR_DB;
+            r
+        })
+        .collect();
+    write_outputs(&rows, &calib, doe.content_hash(), out_dir)
+}
+
+fn write_outputs(
+    rows: &[FidelityRow],
+    calib: &Calibration,
+    doe_hash: String,
+    out_dir: &Path,
+) -> Result<String, AppError> {
+    let cost = |r: &FidelityRow| r.psf_seconds + r.perceive_seconds;
+    let cheapest = rows
+        .iter()
+        .filter(|r| r.within_budget)
+        .min_by(|a, b| cost(a).total_cmp(&cost(b)));
+    let mut md = format!(
+        "# Simulation fidelity against cost\n\nProposed system (trained DOE {doe_hash} + D-CNN), {}, mean PSNR vs sharp over 0–2.5 D. \
+         Error = largest |Δ PSNR| over the depths against the exhaustive row; budget {MAX_ERROR_DB} dB (optics.md §5). \
+         Times on {}: PSFs computed afresh (no cache), perceive = every image at every depth.\n\n\
+         | setting | model | PSFs s | perceive s | mean PSNR dB | worst dB | mean error dB | max depth error dB | within {MAX_ERROR_DB} dB |\n\
+         | --- | --- | --- | --- | --- | --- | --- | --- | --- |\n",
+        calib.source,
+        super::host_description()
+    );
+    for r in rows {
+        let _ = writeln!(
+            md,
+            "| {}{} | {} | {:.1} | {:.2} | {:.3} | {:.3} | {:.3} | {:.3} | {} |",
+            r.name,
+            if r.is_default { " (shipped)" } else { "" },
+            r.setting.describe(),
+            r.psf_seconds,
+            r.perceive_seconds,
+            r.mean_psnr_db,
+            r.worst_psnr_db,
+            r.mean_error_db,
+            r.max_depth_error_db,
+            if r.within_budget { "yes" } else { "**no**" }
+        );
+    }
+    let default = rows.iter().find(|r| r.is_default);
+    let verdict = match (cheapest, default) {
+        (Some(c), Some(d)) if c.name == d.name => format!(
+            "The shipped default is the cheapest setting within {MAX_ERROR_DB} dB ({:.3} dB at its worst depth).",
+            d.max_depth_error_db
+        ),
+        (Some(c), Some(d)) => format!(
+            "**The cheapest setting within {MAX_ERROR_DB} dB is \"{}\" ({}), not the shipped default** ({}; error {:.3} dB).",
+            c.name,
+            c.setting.describe(),
+            d.setting.describe(),
+            d.max_depth_error_db
+        ),
+        _ => format!("**No setting but the exhaustive one is within {MAX_ERROR_DB} dB.**"),
+    };
+    let _ = writeln!(md, "\n{verdict}");
+    let json_path = out_dir.join("fidelity.json");
+    let json = serde_json::to_string_pretty(rows).map_err(|e| AppError::output(&json_path, e))?;
+    write_text(&json_path, &json)?;
+    write_text(&out_dir.join("fidelity.md"), &md)?;
+    let front = super::pareto_front(
+        &rows
+            .iter()
+            .map(|r| super::Point {
+                name: r.name.clone(),
+                latency_ms: Some(cost(r) * 1e3),
+                mean_psnr_db: -r.max_depth_error_db,
+                worst_psnr_db: -r.max_depth_error_db,
+                mean_ssim: 0.0,
+            })
+            .collect::<Vec<_>>(),
+    );
+    let written = write_scatter(
+        &out_dir.join("fidelity"),
+        (1100, 740),
+        &ScatterFigure {
+            title: "Simulator fidelity against cost (proposed system)".into(),
+            footer: vec![
+                format!("host: {}", super::host_description()),
+                format!("DOE {doe_hash}; error vs the exhaustive model; budget {MAX_ERROR_DB} dB"),
+            ],
+            x_label: "PSFs + perceived images, s (log)".into(),
+            y_label: "− max |Δ PSNR| over depths vs exhaustive (dB)".into(),
+            points: rows
+                .iter()
+                .zip(front)
+                .map(|(r, on)| ScatterPoint {
+                    label: r.name.clone(),
+                    x: cost(r),
+                    y: -r.max_depth_error_db,
+                    on_front: on,
+                    estimated: false,
+                })
+                .collect(),
+        },
+    )
+    .map_err(|e| AppError::output(out_dir, e))?;
+    Ok(format!(
+        "{md}\nwrote {}, {}\n",
+        json_path.display(),
+        written.join(", ")
+    ))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn five_point_rule_integrates_the_normal_moments() {
+        let n = spectral_nodes(5);
+        let moment = |k: i32| n.iter().map(|(x, w)| w * x.powi(k)).sum::<f64>();
+        assert!((moment(0) - 1.0).abs() < 1e-12);
+        assert!(moment(1).abs() < 1e-12);
+        assert!((moment(2) - 1.0).abs() < 1e-12);
+        assert!((moment(4) - 3.0).abs() < 1e-12);
+        assert!((moment(8) - 105.0).abs() < 1e-9);
+        assert_eq!(spectral_nodes(1), vec![(0.0, 1.0)]);
+    }
+
+    #[test]
+    fn zero_shift_is_the_calibration_and_dispersion_is_normal() {
+        let c = Calibration::default_embedded().expect("calib");
+        assert_eq!(shifted_calibration(&c, 0.0).channels, c.channels);
+        let (_, b) = cauchy_fit(&c);
+        assert!(b > 0.0, "index falls with wavelength");
+        let up = shifted_calibration(&c, 1.0);
+        for (a, z) in c.channels.iter().zip(&up.channels) {
+            assert!(z.wavelength_m > a.wavelength_m && z.index < a.index);
+        }
+    }
+
+    fn ring_psf(window: usize) -> Psf {
+        let c = (window / 2) as isize;
+        let mut cells: Vec<f64> = (0..window * window)
+            .map(|i| {
+                let (x, y) = ((i % window) as isize - c, (i / window) as isize - c);
+                1.0 / (1.0 + (x * x + y * y) as f64)
+            })
+            .collect();
+        let s: f64 = cells.iter().sum();
+        cells.iter_mut().for_each(|v| *v *= 0.98 / s);
+        Psf {
+            window,
+            cells,
+            veil: 0.02,
+        }
+    }
+
+    #[test]
+    fn shrinking_keeps_the_energy_and_meets_the_target() {
+        let p = ring_psf(41);
+        let s = shrink_window(&p, 0.9);
+        assert!(s.window < 41 && s.window % 2 == 1);
+        let total = s.cells.iter().sum::<f64>() + s.veil;
+        assert!((total - 1.0).abs() < 1e-12);
+        assert!(s.cells.iter().sum::<f64>() >= 0.9 - 1e-12);
+        let smaller = shrink_window(&p, 0.0);
+        assert_eq!(smaller.window, 1);
+        // A target the window cannot hold keeps the whole window.
+        assert_eq!(shrink_window(&p, 0.999).window, 41);
+    }
+
+    #[test]
+    fn mixing_centres_windows_and_conserves_energy() {
+        let m = mix(&[(ring_psf(5), 0.25), (ring_psf(9), 0.75)]);
+        assert_eq!(m.window, 9);
+        assert!((m.cells.iter().sum::<f64>() + m.veil - 1.0).abs() < 1e-12);
+        let peak = m.cells.iter().copied().fold(0.0, f64::max);
+        assert_eq!(m.cells[4 * 9 + 4], peak);
+    }
+
+    #[test]
+    fn one_arcmin_perception_of_a_point_psf_is_the_display_image() {
+        let mut cells = vec![0.0; 9];
+        cells[4] = 1.0;
+        let psf = Psf {
+            window: 3,
+            cells,
+            veil: 0.0,
+        };
+        let planes: Vec<Vec<f32>> = (0..3)
+            .map(|c| {
+                (0..64)
+                    .map(|i| ((i * (c + 2)) % 11) as f32 / 10.0)
+                    .collect()
+            })
+            .collect();
+        let im = Image::from_planes(8, 8, planes);
+        let out = perceive_one_arcmin(&im, &[psf.clone(), psf.clone(), psf]);
+        let up = im.up2();
+        for (a, b) in out.planes.iter().flatten().zip(up.planes.iter().flatten()) {
+            assert!((a - b).abs() < 1e-5);
+        }
+    }
+}
