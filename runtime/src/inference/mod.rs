@@ -197,7 +197,31 @@ impl Dcnn {
         options: &BackendOptions,
     ) -> Result<Self, InferenceError> {
         let model = ModelFile::read(path)?;
-        Self::from_model(model, kind, options)
+        let mut dcnn = Self::from_model(model, kind, options)?;
+        if let Some(w) = flat_field_warning(&path.display().to_string(), dcnn.flat_field_shift()?) {
+            tracing::warn!("{w}");
+        }
+        Ok(dcnn)
+    }
+
+    /// The largest mean |D-CNN(I) − I| over flat black, mid-grey and white
+    /// 16×16 fields. A flat field is seen unchanged through any
+    /// energy-conserving optics, so a network that moves it changes the
+    /// frame's brightness for nothing (docs/stability.md).
+    pub fn flat_field_shift(&mut self) -> Result<f32, InferenceError> {
+        let mut worst = 0.0f32;
+        for level in [0.0f32, 0.5, 1.0] {
+            let frame = Frame {
+                width: 16,
+                height: 16,
+                data: vec![level; 3 * 256],
+            };
+            let out = self.run_frame(&frame)?;
+            let shift =
+                out.data.iter().map(|v| (v - level).abs()).sum::<f32>() / out.data.len() as f32;
+            worst = worst.max(shift);
+        }
+        Ok(worst)
     }
 
     pub fn from_model(
@@ -292,6 +316,19 @@ impl Dcnn {
     pub fn run_image(&mut self, image: &Image) -> Result<Image, InferenceError> {
         Ok(self.run_frame(&Frame::from_image(image)?)?.into_image())
     }
+}
+
+/// Flat-field shift above which loading a D-CNN warns: one 8-bit code.
+pub const FLAT_FIELD_TOLERANCE: f32 = 1.0 / 255.0;
+
+/// The warning for a D-CNN that moves flat fields by `shift` on average.
+pub fn flat_field_warning(model: &str, shift: f32) -> Option<String> {
+    (shift > FLAT_FIELD_TOLERANCE).then(|| {
+        format!(
+            "{model}: the D-CNN moves flat black/grey/white fields by {shift:.4} on average ({:.1} 8-bit codes); it changes the brightness of flat content, which needs no preprocessing (docs/stability.md)",
+            shift * 255.0
+        )
+    })
 }
 
 #[cfg(test)]

@@ -311,3 +311,15 @@ fn frames_with_nan_or_the_wrong_size_are_refused() {
     let e = Dcnn::from_model(model, BackendKind::Cpu, &f16_cpu).expect_err("f16 on cpu");
     assert!(e.to_string().contains("wgpu backend only"));
 }
+
+#[test]
+fn a_model_that_moves_flat_fields_is_warned_about() {
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/dcnn.onnx");
+    let mut dcnn = Dcnn::load(&path, BackendKind::Cpu, &BackendOptions::default()).expect("loads");
+    // docs/stability.md: the preliminary model darkens white by ≈ 0.02.
+    let shift = dcnn.flat_field_shift().expect("runs");
+    assert!(shift > FLAT_FIELD_TOLERANCE && shift < 0.1, "{shift}");
+    let w = flat_field_warning("m.onnx", shift).expect("warns");
+    assert!(w.contains("m.onnx") && w.contains("flat"), "{w}");
+    assert!(flat_field_warning("m.onnx", 0.5 / 255.0).is_none());
+}

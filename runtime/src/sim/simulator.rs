@@ -138,7 +138,11 @@ impl Simulator {
                 }
             };
             let mean = prepared.mean_psfs(m, &sweep)?;
-            prepared.wiener.insert(m, WienerFilter::new(&mean, k));
+            let filter = WienerFilter::new(&mean, k);
+            if let Some(w) = filter.blur_only_warning() {
+                tracing::warn!("{m}: {w}");
+            }
+            prepared.wiener.insert(m, filter);
         }
         Ok(prepared)
     }

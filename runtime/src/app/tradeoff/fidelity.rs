@@ -23,6 +23,7 @@ use crate::calib::Calibration;
 use crate::charts::{ScatterFigure, ScatterPoint, write_scatter};
 use crate::inference::{BackendKind, BackendOptions, Dcnn};
 use crate::optics::propagate::{centred_window_energies, crop_centred};
+use crate::optics::sampling::max_pupil_step;
 use crate::optics::{HeightMap, Psf, PsfRequest, PsfSpec, compute_psfs, doe_file};
 use crate::sim::convolve::PreparedKernel;
 use crate::sim::wiener::display_kernel;
@@ -154,7 +155,7 @@ impl Setting {
         format!(
             "pupil {}, window {}%, {} λ/primary, {} arcmin",
             self.pupil_step_um
-                .map_or("auto".into(), |s| format!("{s} µm")),
+                .map_or("auto".into(), |s| format!("≤ {s} µm")),
             self.window_energy * 100.0,
             self.wavelengths,
             if self.one_arcmin { "1" } else { "0.5" }
@@ -183,7 +184,6 @@ fn node_psfs(
         .into_iter()
         .map(|(offset, weight)| {
             let mut c = shifted_calibration(calib, offset);
-            c.simulation.pupil_step_m = pupil_step_um.map(|s| s * 1e-6);
             c.simulation.window_energy = window_energy;
             let specs: Vec<PsfSpec> = depths_d
                 .iter()
@@ -193,6 +193,10 @@ fn node_psfs(
                     psi_rad: c.psi_rad(ch, d),
                 })
                 .collect();
+            // A forced step never coarser than the rules allow (rule 2 tightens
+            // at the spectrum's short-wavelength end).
+            c.simulation.pupil_step_m = pupil_step_um
+                .map(|s| (s * 1e-6).min(max_pupil_step(&c, &specs, Some(doe)).0 * (1.0 - 1e-9)));
             let t = Instant::now();
             let set = compute_psfs(
                 &c,
