@@ -247,7 +247,7 @@ fn draw_scatter<DB: DrawingBackend>(
     let (x0, x1) = if x0 > x1 {
         (0.1, 10.0)
     } else {
-        (x0 / 3.0, x1 * 3.0)
+        (x0 / 3.0, x1 * 30.0)
     };
     let (y0, y1) = if y0 > y1 {
         (0.0, 1.0)
@@ -293,7 +293,12 @@ fn draw_scatter<DB: DrawingBackend>(
         .map_err(e)?
         .label("Pareto front")
         .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], RED_LINE));
-    for p in &f.points {
+    // Labels alternate below and above their points, in order of x, so
+    // neighbours (f32 and f16 of one backend) do not overprint.
+    let mut order: Vec<usize> = (0..f.points.len()).collect();
+    order.sort_by(|&a, &b| f.points[a].x.total_cmp(&f.points[b].x));
+    for (rank, &i) in order.iter().enumerate() {
+        let p = &f.points[i];
         let at = (p.x.max(1e-3), p.y);
         let color = if p.on_front { RED_LINE } else { BLUE_LINE };
         let style = if p.estimated {
@@ -304,12 +309,26 @@ fn draw_scatter<DB: DrawingBackend>(
         chart
             .draw_series(std::iter::once(Circle::new(at, 5, style)))
             .map_err(e)?;
+        // Points that (nearly) coincide with earlier ones get their label
+        // moved right, one slot per earlier neighbour.
+        let near = order[..rank]
+            .iter()
+            .filter(|&&j| {
+                let q = &f.points[j];
+                (q.x.max(1e-3) / at.0).ln().abs() < 0.05 && (q.y - p.y).abs() < 0.02 * (y1 - y0)
+            })
+            .count() as i32;
+        let dy = if rank % 2 == 0 { 6 } else { -18 };
+        let dx = 8 + 16 * near;
         chart
-            .draw_series(std::iter::once(Text::new(
-                p.label.clone(),
-                at,
-                ("sans-serif", 11).into_font().color(&BLACK),
-            )))
+            .draw_series(std::iter::once(
+                EmptyElement::at(at)
+                    + Text::new(
+                        p.label.clone(),
+                        (dx, dy),
+                        ("sans-serif", 11).into_font().color(&BLACK),
+                    ),
+            ))
             .map_err(e)?;
     }
     chart

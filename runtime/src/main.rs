@@ -201,6 +201,9 @@ struct TradeoffArgs {
     /// Skip the simulator-fidelity study (minutes of PSFs at the 3 µm pitch).
     #[arg(long)]
     no_fidelity: bool,
+    /// Measure nothing: rewrite the tables and charts from the JSON in --out-dir.
+    #[arg(long)]
+    replot: bool,
 }
 
 #[derive(Args, Debug)]
@@ -534,6 +537,9 @@ fn run(cli: Cli) -> Result<()> {
                 );
             }
         },
+        Some(Command::Tradeoff(a)) if a.replot => {
+            print!("{}", app::tradeoff::replot(&a.out_dir)?);
+        }
         Some(Command::Tradeoff(a)) => {
             let calib = common.calibration()?;
             let opts = app::tradeoff::TradeoffOptions {

@@ -15,7 +15,7 @@ use std::fmt::Write as _;
 use std::path::Path;
 use std::time::Instant;
 
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use super::quality::{Quality, headline_depths, score_depths};
 use crate::app::{AppError, CommonOptions, progress_bar, write_text};
@@ -141,7 +141,7 @@ pub fn perceive_one_arcmin(display: &Image, psfs: &[Psf]) -> Image {
 }
 
 /// One setting of the PSF model.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct Setting {
     /// Forced pupil step, µm; `None`: the sampling rules choose (the default).
     pub pupil_step_um: Option<f64>,
@@ -151,6 +151,20 @@ pub struct Setting {
 }
 
 impl Setting {
+    /// The spec rule this setting breaks, if any: optics.md §5 rule 5 (the
+    /// window holds ≥ 99.9 % of the light) and §1 (the retinal grid is
+    /// 0.5 arcmin, a display pixel 2×2 samples; evaluation.md scores there).
+    /// The spec wins over an economy, however small its error.
+    pub fn spec_violation(&self) -> Option<&'static str> {
+        if self.window_energy < 0.999 - 1e-12 {
+            Some("rule 5: window < 99.9 %")
+        } else if self.one_arcmin {
+            Some("§1: retinal grid 0.5 arcmin")
+        } else {
+            None
+        }
+    }
+
     pub fn describe(&self) -> String {
         format!(
             "pupil {}, window {}%, {} λ/primary, {} arcmin",
@@ -217,7 +231,7 @@ fn node_psfs(
 }
 
 /// One row of the study.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct FidelityRow {
     pub name: String,
     pub setting: Setting,
@@ -397,33 +411,74 @@ pub fn run(
             r
         })
         .collect();
-    write_outputs(&rows, &calib, doe.content_hash(), out_dir)
+    write_outputs(
+        &FidelityReport {
+            host: super::host_description(),
+            calibration: calib.source.clone(),
+            doe_hash: doe.content_hash(),
+            rows,
+        },
+        out_dir,
+    )
 }
 
-fn write_outputs(
-    rows: &[FidelityRow],
-    calib: &Calibration,
-    doe_hash: String,
-    out_dir: &Path,
-) -> Result<String, AppError> {
+/// What `fidelity.json` holds.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct FidelityReport {
+    pub host: String,
+    pub calibration: String,
+    pub doe_hash: String,
+    pub rows: Vec<FidelityRow>,
+}
+
+/// Rewrites `fidelity.md` and the chart from `fidelity.json` in `out_dir`.
+pub fn replot(out_dir: &Path) -> Result<String, AppError> {
+    let path = out_dir.join("fidelity.json");
+    let text = std::fs::read_to_string(&path)
+        .map_err(|e| AppError::Usage(format!("{}: cannot read: {e}", path.display())))?;
+    let report: FidelityReport = serde_json::from_str(&text).map_err(|e| {
+        AppError::Usage(format!(
+            "{}: not a report written by `nedrt tradeoff`: {e}",
+            path.display()
+        ))
+    })?;
+    write_outputs(&report, out_dir)
+}
+
+fn write_outputs(report: &FidelityReport, out_dir: &Path) -> Result<String, AppError> {
+    let rows = &report.rows;
+    let doe_hash = &report.doe_hash;
     let cost = |r: &FidelityRow| r.psf_seconds + r.perceive_seconds;
+    let allowed = |r: &&FidelityRow| r.within_budget && r.setting.spec_violation().is_none();
     let cheapest = rows
         .iter()
-        .filter(|r| r.within_budget)
+        .filter(allowed)
         .min_by(|a, b| cost(a).total_cmp(&cost(b)));
+    let cheaper_ruled_out: Vec<String> = rows
+        .iter()
+        .filter(|r| r.within_budget && cheapest.is_some_and(|c| cost(r) < cost(c)) && !allowed(r))
+        .map(|r| {
+            format!(
+                "\"{}\" ({:.3} dB, {:.1} s; {})",
+                r.name,
+                r.max_depth_error_db,
+                cost(r),
+                r.setting.spec_violation().unwrap_or("")
+            )
+        })
+        .collect();
     let mut md = format!(
         "# Simulation fidelity against cost\n\nProposed system (trained DOE {doe_hash} + D-CNN), {}, mean PSNR vs sharp over 0–2.5 D. \
          Error = largest |Δ PSNR| over the depths against the exhaustive row; budget {MAX_ERROR_DB} dB (optics.md §5). \
          Times on {}: PSFs computed afresh (no cache), perceive = every image at every depth.\n\n\
-         | setting | model | PSFs s | perceive s | mean PSNR dB | worst dB | mean error dB | max depth error dB | within {MAX_ERROR_DB} dB |\n\
-         | --- | --- | --- | --- | --- | --- | --- | --- | --- |\n",
-        calib.source,
-        super::host_description()
+         | setting | model | PSFs s | perceive s | mean PSNR dB | worst dB | mean error dB | max depth error dB | within {MAX_ERROR_DB} dB | spec |\n\
+         | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |\n",
+        report.calibration, report.host
     );
     for r in rows {
         let _ = writeln!(
             md,
-            "| {}{} | {} | {:.1} | {:.2} | {:.3} | {:.3} | {:.3} | {:.3} | {} |",
+            "| {}{} | {} | {:.1} | {:.2} | {:.3} | {:.3} | {:.3} | {:.3} | {} | {} |",
             r.name,
             if r.is_default { " (shipped)" } else { "" },
             r.setting.describe(),
@@ -433,27 +488,34 @@ fn write_outputs(
             r.worst_psnr_db,
             r.mean_error_db,
             r.max_depth_error_db,
-            if r.within_budget { "yes" } else { "**no**" }
+            if r.within_budget { "yes" } else { "**no**" },
+            r.setting.spec_violation().unwrap_or("allowed")
         );
     }
     let default = rows.iter().find(|r| r.is_default);
-    let verdict = match (cheapest, default) {
+    let mut verdict = match (cheapest, default) {
         (Some(c), Some(d)) if c.name == d.name => format!(
-            "The shipped default is the cheapest setting within {MAX_ERROR_DB} dB ({:.3} dB at its worst depth).",
+            "The shipped default is the cheapest setting the spec allows within {MAX_ERROR_DB} dB ({:.3} dB at its worst depth).",
             d.max_depth_error_db
         ),
         (Some(c), Some(d)) => format!(
-            "**The cheapest setting within {MAX_ERROR_DB} dB is \"{}\" ({}), not the shipped default** ({}; error {:.3} dB).",
+            "**The cheapest setting the spec allows within {MAX_ERROR_DB} dB is \"{}\" ({}), not the shipped default** ({}; error {:.3} dB).",
             c.name,
             c.setting.describe(),
             d.setting.describe(),
             d.max_depth_error_db
         ),
-        _ => format!("**No setting but the exhaustive one is within {MAX_ERROR_DB} dB.**"),
+        _ => format!("**No allowed setting but the exhaustive one is within {MAX_ERROR_DB} dB.**"),
     };
+    if !cheaper_ruled_out.is_empty() {
+        verdict += &format!(
+            " Cheaper settings within the budget that the spec rules out: {}.",
+            cheaper_ruled_out.join(", ")
+        );
+    }
     let _ = writeln!(md, "\n{verdict}");
     let json_path = out_dir.join("fidelity.json");
-    let json = serde_json::to_string_pretty(rows).map_err(|e| AppError::output(&json_path, e))?;
+    let json = serde_json::to_string_pretty(report).map_err(|e| AppError::output(&json_path, e))?;
     write_text(&json_path, &json)?;
     write_text(&out_dir.join("fidelity.md"), &md)?;
     let front = super::pareto_front(
@@ -474,16 +536,22 @@ fn write_outputs(
         &ScatterFigure {
             title: "Simulator fidelity against cost (proposed system)".into(),
             footer: vec![
-                format!("host: {}", super::host_description()),
+                format!("host: {}", report.host),
                 format!("DOE {doe_hash}; error vs the exhaustive model; budget {MAX_ERROR_DB} dB"),
+                rows.iter()
+                    .enumerate()
+                    .map(|(i, r)| format!("{}: {}", i + 1, r.name))
+                    .collect::<Vec<_>>()
+                    .join(" · "),
             ],
             x_label: "PSFs + perceived images, s (log)".into(),
             y_label: "− max |Δ PSNR| over depths vs exhaustive (dB)".into(),
             points: rows
                 .iter()
                 .zip(front)
-                .map(|(r, on)| ScatterPoint {
-                    label: r.name.clone(),
+                .enumerate()
+                .map(|(i, (r, on))| ScatterPoint {
+                    label: (i + 1).to_string(),
                     x: cost(r),
                     y: -r.max_depth_error_db,
                     on_front: on,

@@ -47,6 +47,17 @@ pub struct TradeoffOptions {
     pub fidelity: bool,
 }
 
+/// Rewrites the Markdown and the charts from the JSON already in
+/// `out_dir`, measuring nothing (after a change to the report's layout).
+pub fn replot(out_dir: &Path) -> Result<String, AppError> {
+    let mut text = write_table(&Table::load(&out_dir.join("tradeoff.json"))?, out_dir)?;
+    if out_dir.join("fidelity.json").exists() {
+        text.push('\n');
+        text.push_str(&fidelity::replot(out_dir)?);
+    }
+    Ok(text)
+}
+
 /// One configuration's row of the table.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct Record {
