@@ -81,17 +81,17 @@ pub fn section(sim: &Simulator) -> Result<(String, Value), AppError> {
         md,
         "\n### PSF windows too small for the energy rule\n\n\
          Rule 5 wants {:.1} % of the light in the window. With the DOE, rule 3 caps the window at one period λ/Δs of the pupil step; \
-         what the window cannot hold becomes a uniform veil, reported. Channel {}, 0.5 / 1.5 / 2.5 D:\n\n\
+         what the window cannot hold becomes a uniform veil, reported. R, G and B at 0.5 / 1.5 / 2.5 D (pupil step of the first channel shown):\n\n\
          | DOE, pupil step | window cells | light in window | veil | capped |\n| --- | --- | --- | --- | --- |",
         100.0 * c.simulation.window_energy,
-        c.channels[g].name
     );
-    let specs: Vec<PsfSpec> = c
-        .main_d
-        .iter()
-        .map(|&d| PsfSpec {
-            channel: g,
-            psi_rad: c.psi_rad(g, d),
+    // Every channel: the shortest wavelength has the shortest period.
+    let specs: Vec<PsfSpec> = (0..c.channels.len())
+        .flat_map(|ch| {
+            c.main_d.iter().map(move |&d| PsfSpec {
+                channel: ch,
+                psi_rad: c.psi_rad(ch, d),
+            })
         })
         .collect();
     let mut windows = Vec::new();
@@ -103,7 +103,9 @@ pub fn section(sim: &Simulator) -> Result<(String, Value), AppError> {
         ("three-lens initial", &init, None),
     ] {
         let mut cc = c.clone();
-        cc.simulation.pupil_step_m = forced;
+        // Never coarser than rule 2 allows at the shortest wavelength.
+        cc.simulation.pupil_step_m =
+            forced.map(|f| f.min(max_pupil_step(c, &specs, Some(doe)).0 * (1.0 - 1e-9)));
         let set = compute_psfs(
             &cc,
             &PsfRequest {
@@ -117,7 +119,7 @@ pub fn section(sim: &Simulator) -> Result<(String, Value), AppError> {
         let _ = writeln!(
             md,
             "| {label} DOE, {} ({:.2} µm) | {} | ≥ {:.3} % | ≤ {:.3} % | {} |",
-            forced.map_or("auto".into(), |s| format!("forced {:.0} µm", s * 1e6)),
+            forced.map_or("auto".into(), |s| format!("forced ≤ {:.0} µm", s * 1e6)),
             r.channels[0].pupil_step_um,
             r.window_cells,
             100.0 * r.min_window_energy,
