@@ -151,9 +151,9 @@ pub fn section(sim: &Simulator) -> Result<(String, Value), AppError> {
          - Guards: tests `doe_window_is_capped_by_its_period_and_the_rest_is_veil`, `lens_psfs_keep_all_light_in_window_plus_veil`, \
          `forced_step_breaking_a_rule_is_an_error` (optics::psf).",
         if any_capped {
-            "Where a DOE's orders spread beyond one period (the three-lens initial DOE on its 6 µm grid), the window is capped by the period \
-             and the light it cannot hold is kept as a uniform veil, reported with every result (never dropped or renormalised away); \
-             a finer pupil step widens the period."
+            "Where a DOE spreads light beyond one period (every row marked capped: its higher orders fall off only as 1/m²), \
+             the window is capped by the period and the light it cannot hold is kept as a uniform veil, reported with every result, \
+             never dropped or renormalised away."
         } else {
             "No DOE here needs more than one period: every window holds the energy rule's share."
         }
