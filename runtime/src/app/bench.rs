@@ -17,7 +17,8 @@ use crate::optics::{PsfRequest, PsfSpec, compute_psfs};
 use crate::sim::image_io::{DEFAULT_INPUT_NAME, DEFAULT_INPUT_PNG, decode};
 use crate::sim::{Method, Simulator, perceive};
 
-fn median(mut v: Vec<f64>) -> f64 {
+/// Median of timings (the upper one of an even count); `v` must not be empty.
+pub(crate) fn median(mut v: Vec<f64>) -> f64 {
     v.sort_by(f64::total_cmp);
     v[v.len() / 2]
 }

@@ -10,6 +10,7 @@ use std::time::Instant;
 use serde_json::json;
 
 use super::AppError;
+use super::bench::median;
 use crate::inference::{BackendKind, BackendOptions, Dcnn, Frame, ModelFile, Precision, synth};
 
 /// What to time.
@@ -24,11 +25,6 @@ pub struct InferenceBench {
     /// Skip a case whose estimated time (from the previous size) exceeds this.
     pub max_seconds: f64,
     pub threads: usize,
-}
-
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    v[v.len() / 2]
 }
 
 /// Runs every case, handing each result to `on_record` as it is measured

@@ -19,6 +19,7 @@ use serde::{Deserialize, Serialize};
 
 pub use quality::{Quality, Scorer};
 
+use super::bench::median;
 use super::eval::{list_images, load_cropped};
 use super::sim::pad_to_multiple_of_8;
 use super::{AppError, CommonOptions, create_dir, progress_bar, write_text};
@@ -141,11 +142,6 @@ pub fn latency_frame(size: (usize, usize)) -> Image {
         })
         .collect();
     Image::from_planes(w, h, planes)
-}
-
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    v[v.len() / 2]
 }
 
 /// Median seconds of `repeat` timed calls after one warm-up.
