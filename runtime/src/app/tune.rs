@@ -48,8 +48,7 @@ pub fn run(
     bar.finish_and_clear();
     let base = prepared
         .wiener(method)
-        .ok_or_else(|| AppError::Usage("no Wiener filter prepared".into()))?
-        .clone();
+        .ok_or_else(|| AppError::Usage("no Wiener filter prepared".into()))?;
     let psfs: Vec<_> = depths
         .iter()
         .map(|d| prepared.system_psfs(method, *d))

@@ -4,7 +4,11 @@
 //! and taken to the display grid by the exact 2×2 relation
 //! down2(up2(x) ∗ h) = x ∗ k.
 
+use std::sync::{Arc, Mutex};
+
 use num_complex::Complex32 as c32;
+
+use rayon::prelude::*;
 
 use super::convolve::Fft2;
 use super::image::{Image, extend_plane};
@@ -43,10 +47,79 @@ pub fn display_kernel(psf: &Psf) -> (Vec<f64>, usize) {
 }
 
 /// A Wiener prefilter for one display system: one display-grid kernel per channel.
-#[derive(Debug, Clone)]
+#[derive(Debug)]
 pub struct WienerFilter {
     pub k_reg: f64,
     kernels: Vec<(Vec<f64>, usize, f64)>,
+    /// Plans of the frame sizes seen last, newest at the end: the gain
+    /// spectra depend only on the size, so frames after the first pay for
+    /// two transforms per channel instead of three and no planning.
+    plans: Mutex<Vec<Arc<WienerPlan>>>,
+}
+
+/// Frame sizes whose plans a filter keeps (a 1080p plan holds 100 MB of
+/// gain spectra; the simulator scores images of a few sizes and one
+/// latency frame).
+const PLANS_KEPT: usize = 4;
+
+/// The prefilter prepared for frames of one size: the FFT of the mirrored
+/// 2w×2h frame and each channel's gain G over its half spectrum.
+#[derive(Debug)]
+pub struct WienerPlan {
+    pub width: usize,
+    pub height: usize,
+    fft: Fft2,
+    gains: Vec<Vec<c32>>,
+}
+
+impl WienerPlan {
+    /// Gains G = H̄*/((|H̄|² + K)·G(0)), so a flat field passes unchanged.
+    fn new(kernels: &[(Vec<f64>, usize, f64)], k_reg: f64, width: usize, height: usize) -> Self {
+        let fft = Fft2::new(2 * width, 2 * height);
+        let k = k_reg as f32;
+        let gains = kernels
+            .iter()
+            .map(|(kernel, side, veil)| {
+                let mut hs = fft.kernel_spectrum(kernel, *side);
+                hs[0] += c32::new(*veil as f32, 0.0);
+                let h0 = hs[0].re;
+                let g0 = h0 / (h0 * h0 + k);
+                hs.iter_mut()
+                    .for_each(|hv| *hv = hv.conj() / ((hv.norm_sqr() + k) * g0));
+                hs
+            })
+            .collect();
+        Self {
+            width,
+            height,
+            fft,
+            gains,
+        }
+    }
+
+    /// The prefiltered frame before the panel's clamp. The frame is
+    /// mirrored to 2w×2h, which is exactly periodic, so the FFT's circular
+    /// convolution equals convolution of the symmetrically extended frame.
+    fn apply_unclamped(&self, image: &Image) -> Image {
+        let (w, h) = (self.width, self.height);
+        let planes = image
+            .planes
+            .iter()
+            .zip(&self.gains)
+            .map(|(plane, gain)| {
+                let extended = extend_plane(plane, w, h, 0, 0, 2 * w, 2 * h);
+                let mut spec = self.fft.forward(&extended);
+                spec.par_iter_mut().zip(gain).for_each(|(s, g)| *s *= g);
+                let full = self.fft.inverse(spec);
+                let mut out = Vec::with_capacity(w * h);
+                for y in 0..h {
+                    out.extend_from_slice(&full[y * 2 * w..y * 2 * w + w]);
+                }
+                out
+            })
+            .collect();
+        Image::from_planes(w, h, planes)
+    }
 }
 
 impl WienerFilter {
@@ -60,7 +133,11 @@ impl WienerFilter {
                 (k, side, p.veil)
             })
             .collect();
-        Self { k_reg, kernels }
+        Self {
+            k_reg,
+            kernels,
+            plans: Mutex::new(Vec::new()),
+        }
     }
 
     /// The warning for a K that cannot sharpen: the prefilter's gain
@@ -87,7 +164,30 @@ impl WienerFilter {
         Self {
             k_reg,
             kernels: self.kernels.clone(),
+            plans: Mutex::new(Vec::new()),
         }
+    }
+
+    /// The plan for `width`×`height` frames, made once per size and kept
+    /// for the [`PLANS_KEPT`] sizes used last.
+    pub fn plan(&self, width: usize, height: usize) -> Arc<WienerPlan> {
+        // A poisoned lock only means another thread panicked mid-push; the
+        // list of finished plans is still valid.
+        let mut plans = self.plans.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(i) = plans
+            .iter()
+            .position(|p| (p.width, p.height) == (width, height))
+        {
+            let plan = plans.remove(i);
+            plans.push(plan.clone());
+            return plan;
+        }
+        let plan = Arc::new(WienerPlan::new(&self.kernels, self.k_reg, width, height));
+        if plans.len() == PLANS_KEPT {
+            plans.remove(0);
+        }
+        plans.push(plan.clone());
+        plan
     }
 
     /// Prefilters a frame and clamps it to the panel's [0, 1].
@@ -108,36 +208,9 @@ impl WienerFilter {
         (raw.clamped(), clipped)
     }
 
-    /// The prefiltered frame before the panel's clamp. The frame is
-    /// mirrored to 2w×2h, which is exactly periodic, so the FFT's circular
-    /// convolution equals convolution of the symmetrically extended frame.
+    /// The prefiltered frame before the panel's clamp (see [`WienerPlan`]).
     pub fn apply_unclamped(&self, image: &Image) -> Image {
-        let (w, h) = (image.width, image.height);
-        let fft = Fft2::new(2 * w, 2 * h);
-        let planes = image
-            .planes
-            .iter()
-            .zip(&self.kernels)
-            .map(|(plane, (kernel, side, veil))| {
-                let mut hs = fft.kernel_spectrum(kernel, *side);
-                hs[0] += c32::new(*veil as f32, 0.0);
-                let k = self.k_reg as f32;
-                let h0 = hs[0].re;
-                let g0 = h0 / (h0 * h0 + k);
-                let extended = extend_plane(plane, w, h, 0, 0, 2 * w, 2 * h);
-                let mut spec = fft.forward(&extended);
-                for (s, hv) in spec.iter_mut().zip(&hs) {
-                    *s *= hv.conj() / ((hv.norm_sqr() + k) * g0);
-                }
-                let full = fft.inverse(spec);
-                let mut out = Vec::with_capacity(w * h);
-                for y in 0..h {
-                    out.extend_from_slice(&full[y * 2 * w..y * 2 * w + w]);
-                }
-                out
-            })
-            .collect();
-        Image::from_planes(w, h, planes)
+        self.plan(image.width, image.height).apply_unclamped(image)
     }
 }
 
@@ -303,5 +376,32 @@ mod tests {
         let out = f.apply(&img);
         let contrast = |v: &[f32]| v.iter().map(|a| (a - 0.5).abs()).sum::<f32>();
         assert!(contrast(&out.planes[0]) < contrast(&x));
+    }
+
+    #[test]
+    fn a_kept_plan_gives_the_same_frame_and_sizes_past_the_limit_are_replanned() {
+        let p = psf(5, 3);
+        let f = WienerFilter::new(std::slice::from_ref(&p), 1e-2);
+        let frame = |w: usize, h: usize| {
+            let x = (0..w * h).map(|i| ((i * 29) % 11) as f32 / 11.0).collect();
+            Image::from_planes(w, h, vec![x])
+        };
+        let first = f.apply_unclamped(&frame(12, 10));
+        let plan = f.plan(12, 10);
+        // Fill the list past its limit: the 12×10 plan is dropped, then rebuilt.
+        for s in 1..=PLANS_KEPT {
+            f.apply_unclamped(&frame(12 + s, 10));
+        }
+        assert_eq!(f.plans.lock().unwrap().len(), PLANS_KEPT);
+        assert!(!Arc::ptr_eq(&plan, &f.plan(12, 10)));
+        // Same size, same plan, without replanning.
+        assert!(Arc::ptr_eq(&f.plan(12, 10), &f.plan(12, 10)));
+        // A rebuilt plan and a fresh filter give the first frame bit for bit.
+        assert_eq!(f.apply_unclamped(&frame(12, 10)).planes, first.planes);
+        let fresh = WienerFilter::new(std::slice::from_ref(&p), 1e-2);
+        assert_eq!(fresh.apply_unclamped(&frame(12, 10)).planes, first.planes);
+        // Another K never reuses this filter's gains.
+        let other = f.with_k(1e-1).apply_unclamped(&frame(12, 10));
+        assert_ne!(other.planes, first.planes);
     }
 }

@@ -158,8 +158,7 @@ fn wiener_sweep(sim: &Simulator, inputs: &[Image]) -> Result<(String, Value), Ap
         let filter = scorer
             .prepared
             .wiener(method)
-            .ok_or_else(|| AppError::Usage(format!("{method} has no Wiener filter")))?
-            .clone();
+            .ok_or_else(|| AppError::Usage(format!("{method} has no Wiener filter")))?;
         let unprocessed = [
             scorer.quality(method, inputs)?.mean_psnr_db,
             scorer.quality(method, &noisy_inputs)?.mean_psnr_db,
@@ -190,7 +189,7 @@ fn wiener_sweep(sim: &Simulator, inputs: &[Image]) -> Result<(String, Value), Ap
             );
             per_k.push((k, cells));
         }
-        findings.push(wiener_findings(method, &filter, &per_k, unprocessed));
+        findings.push(wiener_findings(method, filter, &per_k, unprocessed));
         rows.push(json!({
             "method": method.name(), "unprocessed_psnr_db": unprocessed,
             "sweep": per_k.iter().map(|(k, c)| json!({"k": k, "clean_psnr_db": c[0].0, "clean_clipped": c[0].1, "noisy_psnr_db": c[1].0, "noisy_clipped": c[1].1})).collect::<Vec<_>>(),
