@@ -8,6 +8,7 @@ use std::path::Path;
 use serde::{Deserialize, Serialize};
 
 use super::{FidelityRow, MAX_ERROR_DB};
+use crate::app::tradeoff::{Point, pareto_front};
 use crate::app::{AppError, write_text};
 use crate::charts::{ScatterFigure, ScatterPoint, write_scatter};
 
@@ -37,7 +38,6 @@ pub fn replot(out_dir: &Path) -> Result<String, AppError> {
 pub(super) fn write_outputs(report: &FidelityReport, out_dir: &Path) -> Result<String, AppError> {
     let rows = &report.rows;
     let doe_hash = &report.doe_hash;
-    let cost = row_cost_s;
     let mut md = format!(
         "# Simulation fidelity against cost\n\nProposed system (trained DOE {doe_hash} + D-CNN), {}, mean PSNR vs sharp over 0–2.5 D. \
          Error = largest |Δ PSNR| over the depths against the exhaustive row; budget {MAX_ERROR_DB} dB (optics.md §5). \
@@ -69,12 +69,12 @@ pub(super) fn write_outputs(report: &FidelityReport, out_dir: &Path) -> Result<S
     let json = serde_json::to_string_pretty(report).map_err(|e| AppError::output(&json_path, e))?;
     write_text(&json_path, &json)?;
     write_text(&out_dir.join("fidelity.md"), &md)?;
-    let front = crate::app::tradeoff::pareto_front(
+    let front = pareto_front(
         &rows
             .iter()
-            .map(|r| crate::app::tradeoff::Point {
+            .map(|r| Point {
                 name: r.name.clone(),
-                latency_ms: Some(cost(r) * 1e3),
+                latency_ms: Some(row_cost_s(r) * 1e3),
                 mean_psnr_db: -r.max_depth_error_db,
                 worst_psnr_db: -r.max_depth_error_db,
                 mean_ssim: 0.0,
@@ -103,7 +103,7 @@ pub(super) fn write_outputs(report: &FidelityReport, out_dir: &Path) -> Result<S
                 .enumerate()
                 .map(|(i, (r, on))| ScatterPoint {
                     label: (i + 1).to_string(),
-                    x: cost(r),
+                    x: row_cost_s(r),
                     y: -r.max_depth_error_db,
                     on_front: on,
                     estimated: false,
