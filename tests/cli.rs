@@ -185,6 +185,27 @@ fn accommodation_is_checked() {
 }
 
 #[test]
+fn stability_refuses_a_missing_output_folder_before_the_work() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let missing = dir.path().join("missing");
+    let out = missing.join("stability.md");
+    let (images, model) = (repo().join("data/images/test"), dcnn_model());
+    let o = run(&[
+        "--dcnn",
+        path(&model),
+        "stability",
+        "--images",
+        path(&images),
+        "--no-cache",
+        "--out",
+        path(&out),
+    ]);
+    assert_clean_error(&o, "does not exist");
+    assert!(stderr(&o).contains("missing"), "{}", stderr(&o));
+    assert!(!missing.exists());
+}
+
+#[test]
 fn malformed_calibration_and_doe_files_are_clear_errors() {
     let dir = tempfile::tempdir().expect("tmp");
     let bad = dir.path().join("bad.toml");

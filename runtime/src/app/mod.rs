@@ -198,6 +198,18 @@ pub fn create_dir(path: &Path) -> Result<(), AppError> {
         .map_err(|e| AppError::output(path, format!("cannot create folder: {e}")))
 }
 
+/// Refuses an output file whose folder does not exist, so that a long run
+/// fails at its start rather than losing its report at the end.
+pub fn check_output_folder(file: &Path) -> Result<(), AppError> {
+    match file.parent() {
+        Some(dir) if !dir.as_os_str().is_empty() && !dir.is_dir() => Err(AppError::output(
+            file,
+            format!("cannot write: folder {} does not exist", dir.display()),
+        )),
+        _ => Ok(()),
+    }
+}
+
 /// Checks an accommodation: finite and ≥ 0 (errors), inside the calibrated
 /// range (else a warning, returned for printing).
 pub fn check_accommodation(

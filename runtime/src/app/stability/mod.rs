@@ -18,7 +18,7 @@ use serde_json::{Value, json};
 use super::eval::{list_images, load_cropped};
 use super::sim::pad_to_multiple_of_8;
 use super::tradeoff::Scorer;
-use super::{AppError, CommonOptions, progress_bar, write_text};
+use super::{AppError, CommonOptions, check_output_folder, progress_bar, write_text};
 use crate::inference::synth::SplitMix;
 use crate::inference::{BackendKind, BackendOptions, Dcnn, Precision};
 use crate::sim::metrics::psnr;
@@ -77,6 +77,7 @@ pub fn run(common: &CommonOptions, o: &StabilityOptions) -> Result<String, AppEr
             doe.display()
         )));
     }
+    check_output_folder(&o.out)?;
     let sim = Simulator::new(common.calibration()?, Some(&doe), common.cache())?;
     let mut dcnn = Dcnn::load(&o.model, BackendKind::Cpu, &BackendOptions::default())?;
     let bar = progress_bar("sections");
