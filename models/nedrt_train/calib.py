@@ -31,6 +31,9 @@ class Calib:
     main_d: tuple
     intermediate_d: tuple
     target_blur_psi_rad: float
+    range_d: tuple = (0.0, 3.0)
+    wiener_average_step_d: float = 0.1
+    material_name: str = "fused silica"
 
     def focal_length_m(self, ch: int) -> float:
         return self.focal_length_spec_m * (self.index_at_spec - 1) / (self.channels[ch].index - 1)
@@ -84,6 +87,9 @@ def load(path=DEFAULT) -> Calib:
             main_d=tuple(raw["depths"]["main_d"]),
             intermediate_d=tuple(raw["depths"]["intermediate_d"]),
             target_blur_psi_rad=raw["target_blur"]["psi_rad"],
+            range_d=tuple(raw["depths"]["range_d"]),
+            wiener_average_step_d=raw["wiener"]["average_step_d"],
+            material_name=raw["material"]["name"],
         )
     except (KeyError, ValueError, tomllib.TOMLDecodeError) as e:
         raise ValueError(f"{path}: invalid calibration ({e!r}); `nedrt calib --calib {path}` names the field") from e

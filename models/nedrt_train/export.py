@@ -46,12 +46,18 @@ def resample(height: np.ndarray, pitch_m: float, new_pitch_m: float, max_height_
 
 def save_doe(path, height_m: np.ndarray, pitch_m: float, max_height_m: float, material: str,
              design_wavelength_m: float, description: str, levels: int = 0):
+    """A DOE file: a 2-D map (N×N, centred) or, for a 1-D array, a radial
+    profile with samples at (n + ½)·pitch (docs/doe-format.md)."""
     from safetensors.numpy import save_file
+    height_m = np.asarray(height_m)
+    if height_m.ndim not in (1, 2):
+        raise ValueError(f"{path}: a DOE is a radial profile (1-D) or a square map (2-D), not {height_m.shape}")
     meta = {
         "format": "nedrt-doe", "version": "1",
         "pitch_um": repr(pitch_m * 1e6), "max_height_um": repr(max_height_m * 1e6),
         "levels": str(levels), "material": material,
         "design_wavelength_nm": repr(design_wavelength_m * 1e9), "description": description,
+        "profile": "radial" if height_m.ndim == 1 else "map",
     }
     tmp = Path(str(path) + ".tmp")
     save_file({"height_um": (np.asarray(height_m) * 1e6).astype(np.float32)}, str(tmp), metadata=meta)
@@ -71,10 +77,11 @@ def export_run(run: Path, out: Path, name: str) -> dict:
 
     from . import calib as calib_mod
     from .optics import grid
-    from .train import Config, System
+    from .radial import keys_profile, radial_nodes
+    from .train import System, config_from_saved
 
     state = torch.load(run / "checkpoint.pt", map_location="cpu", weights_only=False)
-    cfg = Config(**state["config"])
+    cfg = config_from_saved(state["config"])
     cal = calib_mod.load(cfg.calib)
     system = System(cfg, cal)
     system.load_state_dict(state["system"])
@@ -87,8 +94,14 @@ def export_run(run: Path, out: Path, name: str) -> dict:
     lam0 = cal.channels[cal.design_channel].wavelength_m
     desc = f"nedrt_train run {run.name}, step {state['step']}"
     save_doe(design, height, cal.doe_design_pitch_m, cal.doe_max_height_m, "fused silica", lam0, desc)
-    fine = resample(height, cal.doe_design_pitch_m, cal.doe_fabrication_pitch_m, cal.doe_max_height_m)
-    save_doe(fab, fine, cal.doe_fabrication_pitch_m, cal.doe_max_height_m, "fused silica", lam0, desc + " (bicubic)")
+    if height.ndim == 1:
+        fab_rho, _ = radial_nodes(cal.aperture_radius_m, cal.doe_fabrication_pitch_m)
+        fine = keys_profile(height, cal.doe_design_pitch_m, fab_rho, cal.doe_max_height_m)
+        how = " (Keys cubic to the fabrication pitch)"
+    else:
+        fine = resample(height, cal.doe_design_pitch_m, cal.doe_fabrication_pitch_m, cal.doe_max_height_m)
+        how = " (bicubic)"
+    save_doe(fab, fine, cal.doe_fabrication_pitch_m, cal.doe_max_height_m, "fused silica", lam0, desc + how)
     result = json.loads((run / "result.json").read_text()) if (run / "result.json").exists() else {}
     card = {
         "name": name, "config": dataclasses.asdict(cfg), "seed": cfg.seed, "steps": state["step"],
@@ -98,7 +111,8 @@ def export_run(run: Path, out: Path, name: str) -> dict:
         "parameters": sum(p.numel() for p in system.net.parameters()),
         "macs_per_pixel": system.net.macs_per_pixel(),
         "files": {p.name: sha256(p) for p in [onnx_path, design, fab]},
-        "grid_points": len(grid(cal, cal.doe_design_pitch_m)),
+        "doe_profile": cfg.doe_profile,
+        "grid_points": len(height) if height.ndim == 1 else len(grid(cal, cal.doe_design_pitch_m)),
     }
     (out / f"card-{name}.json").write_text(json.dumps(card, indent=1))
     return card
@@ -115,10 +129,10 @@ def main(argv=None):
     print(json.dumps(export_run(args.run, args.out, args.name)["files"], indent=1))
     if args.displays:
         from . import calib as calib_mod
-        from .train import Config
+        from .train import config_from_saved
         from .unet import UNet
         state = torch.load(args.run / "checkpoint.pt", map_location="cpu", weights_only=False)
-        cfg = Config(**state["config"])
+        cfg = config_from_saved(state["config"])
         net = UNet(cfg.width, cfg.levels)
         net.load_state_dict({k[len("net."):]: v for k, v in state["system"].items() if k.startswith("net.")})
         for p in write_displays(net, calib_mod.REPO / "data" / "images" / "test", args.displays):

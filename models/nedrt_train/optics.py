@@ -6,8 +6,14 @@ tests/golden/vectors.json, which the tests reproduce:
 - pupil grid: the DOE's own grid, N = ceil(2r/Δs) + 1 samples at
   s_n = (n − (N−1)/2)·Δs; aperture A = clamp((r − ρ)/Δs + ½, 0, 1);
 - Q = A·exp(j(Φ_λ + Ψρ²)), Φ_λ = 2π(n_λ − 1)·d/λ;
-- cell = Σ over sub×sub midpoints of |U|²·(Δθ/sub)²·Δs²/(λ²·Σ|Q|²), cells
-  centred at (c − (W−1)/2)·Δθ; veil = 1 − Σ cells (light outside the window).
+- cells integrated exactly over their squares (the m → ∞ limit of m×m
+  midpoint sums, as nedrt's `exact_period_cells`): with the pupil's
+  autocorrelation A_ℓ, cell c holds Σ_ℓ A_ℓ sinc(ℓ_y/P) sinc(ℓ_x/P)
+  e^{−2πiℓ·c/P} / (P²·Σ|Q|²), P = λ/(Δs Δθ), cells centred at
+  (c − (W−1)/2)·Δθ; veil = 1 − Σ cells (light outside the window).
+
+This 2-D model is the free-form option (GPU runs); the default trainer
+optics is the radial model of `radial.py`, 20–40× cheaper on a CPU.
 """
 import math
 
@@ -32,11 +38,6 @@ def three_lens_init(calib: Calib, s: torch.Tensor) -> torch.Tensor:
     return phi / (2 * math.pi) * calib.wave_height_m
 
 
-def sub_sample_angles(window: int, sub: int, cell_rad: float, dtype=torch.float64) -> torch.Tensor:
-    k = torch.arange(window * sub, dtype=dtype)
-    return ((k // sub) - (window - 1) / 2 + ((k % sub) + 0.5) / sub - 0.5) * cell_rad
-
-
 class DoeHeight(nn.Module):
     """A height map kept within [0, max] by construction: d = max·sigmoid(θ)."""
 
@@ -51,26 +52,35 @@ class DoeHeight(nn.Module):
 
 
 class PsfModel(nn.Module):
-    """PSFs of the lens (+ DOE) on a window of retinal cells, per channel.
+    """PSFs of the lens (+ DOE) on a window of retinal cells, per channel,
+    for a free-form 2-D height map.
 
     The DOE is parameterised on the pupil grid `pitch_m` (the 6 µm design
-    grid); window and sub-sampling are fixed at construction, so the Fourier
-    matrices are computed once.
+    grid); the window is fixed at construction, so the lag-to-cell Fourier
+    matrices and the sinc weights are computed once.
     """
 
-    def __init__(self, calib: Calib, pitch_m: float, window: int, sub: int,
+    def __init__(self, calib: Calib, pitch_m: float, window: int,
                  doe_init_m: torch.Tensor | None = None, dtype=torch.float64):
         super().__init__()
-        self.calib, self.pitch_m, self.window, self.sub = calib, pitch_m, window, sub
+        if window % 2 != 1:
+            raise ValueError(f"window = {window}: an odd number of cells puts a cell centre on the axis")
+        self.calib, self.pitch_m, self.window = calib, pitch_m, window
         s = grid(calib, pitch_m, dtype)
+        n = len(s)
         r = calib.aperture_radius_m
         rho = torch.hypot(s[None, :], s[:, None])
         self.register_buffer("amplitude", ((r - rho) / pitch_m + 0.5).clamp(0, 1))
         self.register_buffer("rho2", rho ** 2 / r ** 2)
-        theta = sub_sample_angles(window, sub, calib.retinal_step_rad, dtype)
+        # Lags −(N−1) … N−1 of the autocorrelation, and their rows in an FFT of size 2N.
+        lags = torch.arange(-(n - 1), n, dtype=torch.float64)
+        self.register_buffer("lag_rows", torch.remainder(torch.arange(-(n - 1), n), 2 * n))
+        cells = torch.arange(window, dtype=torch.float64) - (window - 1) / 2
         for ch, c in enumerate(calib.channels):
-            e = torch.exp(-2j * math.pi * torch.outer(theta, s) / c.wavelength_m)
-            self.register_buffer(f"fourier_{ch}", e)
+            period = c.wavelength_m / (pitch_m * calib.retinal_step_rad)
+            e = torch.exp(-2j * math.pi * torch.outer(cells, lags) / period)
+            self.register_buffer(f"fourier_{ch}", e.to(torch.complex128 if dtype == torch.float64 else torch.complex64))
+            self.register_buffer(f"sinc_{ch}", torch.sinc(lags / period).to(dtype))
         init = three_lens_init(calib, s) if doe_init_m is None else doe_init_m.to(dtype)
         self.doe = DoeHeight(init, calib.doe_max_height_m)
 
@@ -83,13 +93,16 @@ class PsfModel(nn.Module):
             height = self.doe() if height_m is None else height_m
             phase = phase + self.calib.doe_phase_per_m(ch) * height
         q = self.amplitude * torch.exp(1j * phase)
+        n = q.shape[0]
+        spectrum = torch.fft.fft2(q, s=(2 * n, 2 * n))
+        autocorr = torch.fft.ifft2(spectrum.real ** 2 + spectrum.imag ** 2)
+        autocorr = autocorr.index_select(0, self.lag_rows).index_select(1, self.lag_rows)
+        sinc = getattr(self, f"sinc_{ch}")
+        weighted = autocorr * (sinc[:, None] * sinc[None, :])
         e = getattr(self, f"fourier_{ch}")
-        u = e @ q @ e.transpose(0, 1)
+        period = c.wavelength_m / (self.pitch_m * self.calib.retinal_step_rad)
         energy = (self.amplitude ** 2).sum()
-        scale = (self.calib.retinal_step_rad / self.sub) ** 2 * self.pitch_m ** 2 / (c.wavelength_m ** 2 * energy)
-        power = (u.real ** 2 + u.imag ** 2) * scale
-        w, m = self.window, self.sub
-        cells = power.reshape(w, m, w, m).sum(dim=(1, 3))
+        cells = (e @ weighted @ e.transpose(0, 1)).real / (period ** 2 * energy)
         return cells, 1 - cells.sum()
 
     def system(self, accommodation_d: float, with_doe: bool = True):

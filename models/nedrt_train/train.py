@@ -29,6 +29,7 @@ from . import calib as calib_mod
 from .data import TrainingImages, validation_images
 from .loss import loss_terms, total
 from .optics import PsfModel, perceive, target, up2
+from .radial import RadialPsfModel
 from .unet import UNet
 
 
@@ -42,10 +43,12 @@ class Config:
     lr_net: float = 1e-4
     lr_doe: float = 1e-2
     # Training-time PSF model: a window of retinal cells (light outside it is
-    # the uniform veil) and midpoint sub-samples per cell axis. The final
-    # figures come from the Rust simulator (exact cells, full period).
+    # the uniform veil), every cell integrated over its square. The DOE is a
+    # radial profile h(ρ) (Hankel transform, radial.py) or, for GPU runs, a
+    # free-form 2-D map ("map", optics.PsfModel). The final figures come from
+    # the Rust simulator (3 µm fabrication file, window up to the period).
     window: int = 121
-    sub: int = 2
+    doe_profile: str = "radial"
     seed: int = 0
     calib: str = str(calib_mod.DEFAULT)
     validate_every: int = 500
@@ -53,14 +56,24 @@ class Config:
     extra: dict = field(default_factory=dict)
 
 
+def config_from_saved(saved: dict) -> Config:
+    """A checkpoint's Config; runs from before the radial model (with a
+    midpoint `sub`) were 2-D maps."""
+    saved = dict(saved)
+    if "sub" in saved:
+        saved.pop("sub")
+        saved.setdefault("doe_profile", "map")
+    return Config(**saved)
+
+
 PRESETS = {
     "full": Config(),
     "half": Config(width=16),
     # What two CPU cores can train in about an hour: the half-width network
     # on 128² patches, a 61-cell PSF window (the rest is veil), 2×2 cells.
-    "cpu": Config(width=16, patch=128, batch=4, window=61, sub=2, steps=3000, lr_net=3e-4,
+    "cpu": Config(width=16, patch=128, batch=4, window=61, steps=3000, lr_net=3e-4,
                   validate_every=500, checkpoint_every=250),
-    "smoke": Config(width=4, levels=2, patch=32, batch=1, steps=2, window=9, sub=1,
+    "smoke": Config(width=4, levels=2, patch=32, batch=1, steps=2, window=9,
                     calib=str(calib_mod.REPO / "tests" / "data" / "small-aperture.toml"),
                     validate_every=1000, checkpoint_every=1),
 }
@@ -73,7 +86,12 @@ class System(nn.Module):
         super().__init__()
         self.calib = calib
         self.net = UNet(cfg.width, cfg.levels)
-        self.optics = PsfModel(calib, calib.doe_design_pitch_m, cfg.window, cfg.sub, dtype=torch.float32)
+        if cfg.doe_profile == "radial":
+            self.optics = RadialPsfModel(calib, calib.doe_design_pitch_m, cfg.window, dtype=torch.float32)
+        elif cfg.doe_profile == "map":
+            self.optics = PsfModel(calib, calib.doe_design_pitch_m, cfg.window, dtype=torch.float32)
+        else:
+            raise ValueError(f"doe_profile = {cfg.doe_profile!r}: choose radial or map")
 
     def forward(self, image: torch.Tensor, accommodation_d: float, blur):
         display = self.net(image)
@@ -176,12 +194,13 @@ def main(argv=None):
     ap.add_argument("--batch", type=int)
     ap.add_argument("--patch", type=int)
     ap.add_argument("--calib")
+    ap.add_argument("--doe-profile", dest="doe_profile", choices=["radial", "map"])
     ap.add_argument("--out", required=True, type=Path)
     ap.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")
     ap.add_argument("--resume", action="store_true")
     args = ap.parse_args(argv)
     cfg = PRESETS[args.preset]
-    overrides = {k: getattr(args, k) for k in ["steps", "seed", "batch", "patch", "calib"] if getattr(args, k) is not None}
+    overrides = {k: getattr(args, k) for k in ["steps", "seed", "batch", "patch", "calib", "doe_profile"] if getattr(args, k) is not None}
     cfg = dataclasses.replace(cfg, **overrides)
     result = train(cfg, args.out, args.device, args.resume)
     if int(os.environ.get("RANK", "0")) == 0:

@@ -17,7 +17,7 @@ CAL = calib_mod.load()
 
 @pytest.fixture(scope="module")
 def model():
-    return PsfModel(CAL, CAL.doe_design_pitch_m, window=31, sub=4)
+    return PsfModel(CAL, CAL.doe_design_pitch_m, window=31)
 
 
 def test_doe_initialisation_matches_the_golden_probe():
@@ -90,7 +90,7 @@ def test_gradients_of_the_optics_match_finite_differences():
     # A small aperture and window so that gradcheck (float64) stays quick;
     # the whole chain: sigmoid → DOE phase → MFT → cells → perceived image.
     small = dataclasses.replace(CAL, aperture_radius_m=60e-6)
-    m = PsfModel(small, 10e-6, window=5, sub=2)
+    m = PsfModel(small, 10e-6, window=5)
     x = torch.rand(1, 3, 6, 6, dtype=torch.float64)
 
     def perceived(logit):

@@ -1,0 +1,152 @@
+"""The radial (Hankel) optics model against closed forms (Airy pattern,
+encircled energy, disk ∩ rectangle areas), against the 2-D model with
+exact cells on the same element, its convergence in the annulus width, and
+its gradients against finite differences."""
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from nedrt_train import calib as calib_mod
+from nedrt_train.optics import PsfModel, grid, perceive
+from nedrt_train.radial import (RadialPsfModel, annulus_cell_weights, disk_rect_area, keys_profile,
+                                octant_cells, radial_nodes, three_lens_profile)
+
+CAL = calib_mod.load()
+SMALL = calib_mod.load(calib_mod.REPO / "tests" / "data" / "small-aperture.toml")
+
+
+def j1(x):
+    return torch.special.bessel_j1(torch.as_tensor(x, dtype=torch.float64))
+
+
+def j0(x):
+    return torch.special.bessel_j0(torch.as_tensor(x, dtype=torch.float64))
+
+
+def test_disk_rect_area_against_a_fine_raster():
+    rng = np.random.default_rng(4)
+    n = 1200
+    for _ in range(6):
+        radius = rng.uniform(0.2, 1.5)
+        x0, y0 = rng.uniform(-1.2, 1.0, 2)
+        x1, y1 = x0 + rng.uniform(0.05, 1.0), y0 + rng.uniform(0.05, 1.0)
+        xs = x0 + (np.arange(n) + 0.5) * (x1 - x0) / n
+        ys = y0 + (np.arange(n) + 0.5) * (y1 - y0) / n
+        inside = (xs[None, :] ** 2 + ys[:, None] ** 2 <= radius ** 2).mean() * (x1 - x0) * (y1 - y0)
+        exact = disk_rect_area(np.array(radius), x0, x1, y0, y1)
+        assert abs(exact - inside) < 2e-3 * (x1 - x0) * (y1 - y0)
+    # Closed cases: the rectangle inside the disk, the disk inside the rectangle.
+    assert disk_rect_area(np.array(10.0), -1, 2, -0.5, 0.5) == pytest.approx(3.0, abs=1e-12)
+    assert disk_rect_area(np.array(1.0), -3, 3, -3, 3) == pytest.approx(math.pi, abs=1e-12)
+
+
+def test_annulus_weights_partition_every_annulus_inside_the_window():
+    window, cell = 9, 1.0
+    index, weights, t = annulus_cell_weights(window, cell, 8)
+    _, _, full = octant_cells(window)
+    per_annulus = np.zeros(len(t))
+    for c in full:  # every cell of the window through its octant representative
+        np.add.at(per_annulus, index[c], weights[c])
+    delta = cell / 8
+    a = np.arange(len(t)) * delta
+    inside = a + delta <= window / 2 * cell
+    assert np.allclose(per_annulus[inside], math.pi * ((a + delta) ** 2 - a ** 2)[inside], rtol=1e-12, atol=1e-15)
+
+
+def test_nodes_cover_the_aperture_area_exactly():
+    rho, area = radial_nodes(5e-3, 6e-6)
+    assert area.sum() == pytest.approx(math.pi * 25e-6, rel=1e-12)
+    assert rho[0] == pytest.approx(3e-6) and (len(rho) - 1) * 6e-6 < 5e-3 <= len(rho) * 6e-6
+
+
+def test_in_focus_field_is_the_airy_pattern_and_encloses_its_energy():
+    # Fine annuli: the encircled energy is summed by the midpoint rule here.
+    m = RadialPsfModel(CAL, CAL.doe_design_pitch_m, 15, annuli_per_cell=128, richardson=False)
+    ch = 1
+    lam, r = CAL.channels[ch].wavelength_m, CAL.aperture_radius_m
+    p = m.density(ch, [0.0], with_doe=False)[0]
+    x = 2 * math.pi * r * m.t / lam
+    airy = math.pi * r ** 2 / lam ** 2 * (2 * j1(x) / x) ** 2
+    assert (p - airy).abs().max() < 1e-6 * airy.max()
+    # Encircled energy 1 − J0² − J1² at the edge of each cell ring.
+    delta = m.t[1] - m.t[0]
+    cumulative = torch.cumsum(p * 2 * math.pi * m.t * delta, 0)
+    for k in [1, 3, 7]:
+        i = int(round(float(k * CAL.retinal_step_rad / delta))) - 1
+        xr = 2 * math.pi * r * (m.t[i] + delta / 2) / lam
+        closed = 1 - j0(xr) ** 2 - j1(xr) ** 2
+        assert abs(cumulative[i] - closed) < 3e-4, (k, float(cumulative[i]), float(closed))
+
+
+def test_cells_converge_in_the_annulus_width():
+    # The hardest case: the in-focus lens at full aperture (Airy core 0.42 cells).
+    reference = RadialPsfModel(CAL, CAL.doe_design_pitch_m, 15, annuli_per_cell=256, richardson=False)
+    default = RadialPsfModel(CAL, CAL.doe_design_pitch_m, 15)
+    plain16 = RadialPsfModel(CAL, CAL.doe_design_pitch_m, 15, richardson=False)
+    ch = 1
+    psi = CAL.psi_rad(ch, CAL.vergence_d(ch))
+    ref = reference.psf(ch, psi, with_doe=False)[0]
+    err = (default.psf(ch, psi, with_doe=False)[0] - ref).abs().max() / ref.max()
+    err16 = (plain16.psf(ch, psi, with_doe=False)[0] - ref).abs().max() / ref.max()
+    assert err < 1e-3 < err16, (float(err), float(err16))
+
+
+@pytest.mark.parametrize("ch", [0, 1, 2])
+def test_radial_matches_the_2d_model_on_the_same_element(ch):
+    # The three-lens DOE as a radial profile at 6 µm, carried to a 3 µm
+    # pupil by the same Keys interpolation for both models (small aperture
+    # so that the 2-D model stays quick).
+    window, pitch = 31, 3e-6
+    design_rho, _ = radial_nodes(SMALL.aperture_radius_m, 6e-6)
+    profile = three_lens_profile(SMALL, design_rho).numpy()
+    flat = PsfModel(SMALL, pitch, window)
+    s = grid(SMALL, pitch).numpy()
+    map_m = torch.tensor(keys_profile(profile, 6e-6, np.hypot(s[None, :], s[:, None]), SMALL.doe_max_height_m))
+    radial = RadialPsfModel(SMALL, 6e-6, window, quadrature_pitch_m=pitch)
+    for d in [0.0, 0.5, 1.5, 2.5, 3.0]:
+        psi = SMALL.psi_rad(ch, d)
+        for with_doe in [True, False]:
+            a, va = flat.psf(ch, psi, with_doe, height_m=map_m)
+            b, vb = radial.psf(ch, psi, with_doe, height_m=torch.tensor(profile))
+            assert (a - b).abs().max() < 5e-3 * a.max(), (d, with_doe)
+            assert abs(float(va - vb)) < 2e-3
+
+
+def test_window_plus_veil_is_all_the_light_and_a_wide_window_holds_it():
+    m = RadialPsfModel(SMALL, 6e-6, 61)
+    for ch in range(3):
+        cells, veil = m.psf(ch, SMALL.psi_rad(ch, 0.5), with_doe=False)
+        assert float(cells.sum() + veil) == pytest.approx(1.0, abs=1e-12)
+        assert 0 <= float(veil) < 0.01
+        assert float(cells.min()) > -1e-6 * float(cells.max())
+
+
+def test_keys_profile_reproduces_even_quadratics_through_the_axis():
+    pitch = 6e-6
+    rho, _ = radial_nodes(1e-3, pitch)
+    f = lambda r: 1e-6 + 2.0 * r ** 2                           # noqa: E731 — even in ρ
+    fine = np.linspace(0, 0.9e-3, 301)
+    got = keys_profile(f(rho), pitch, fine, 1.0)
+    assert np.abs(got - f(fine)).max() < 1e-15 + 1e-12 * f(fine).max()
+
+
+def test_gradients_of_the_radial_optics_match_finite_differences():
+    small = dataclasses.replace(CAL, aperture_radius_m=60e-6)
+    m = RadialPsfModel(small, 10e-6, 5, quadrature_pitch_m=5e-6)
+    x = torch.rand(1, 3, 6, 6, dtype=torch.float64)
+
+    def perceived(logit):
+        height = small.doe_max_height_m * torch.sigmoid(logit)
+        psfs = [m.psf(ch, small.psi_rad(ch, 1.0), height_m=height) for ch in range(3)]
+        return perceive(x, psfs)
+
+    logit = m.doe.logit.detach().clone().requires_grad_(True)
+    assert torch.autograd.gradcheck(perceived, (logit,), eps=1e-6, atol=1e-7, rtol=1e-4)
+
+
+def test_a_window_the_pupil_pitch_cannot_resolve_is_refused():
+    with pytest.raises(ValueError, match="cannot resolve"):
+        RadialPsfModel(CAL, 60e-6, 301, quadrature_pitch_m=60e-6)
