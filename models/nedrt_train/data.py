@@ -1,9 +1,12 @@
 """Training and validation images, nothing downloaded: procedural images with
 natural-image statistics (dead leaves with a 1/r³ size distribution, which
 gives the 1/f spectrum of natural scenes, plus edges, colour gradients and
-bar patterns) and the photographs shipped in data/images (from PyPI's
-scikit-image wheel, see tools/data/make_images.py). The test photographs
-(data/images/test) are never used for training."""
+bar patterns) and the photographs shipped in data/images: training crops in
+data/images/train, a validation set in data/images/val, both cut from
+photographs that PyPI and Debian packages ship (tools/data/make_photos.py;
+provenance and licences in data/images/SOURCES.md). The validation
+photographs are never trained on, and the test photographs (data/images/test)
+are neither trained nor validated on."""
 import math
 from pathlib import Path
 
@@ -13,6 +16,7 @@ import torch
 from .calib import REPO
 
 TRAIN_DIR = REPO / "data" / "images" / "train"
+VAL_DIR = REPO / "data" / "images" / "val"
 TEST_DIR = REPO / "data" / "images" / "test"
 
 
@@ -67,13 +71,16 @@ def bars(rng: np.random.Generator, size: int) -> np.ndarray:
 
 
 def load_photos(folder: Path) -> list:
+    """Every PNG of `folder`, sorted by name, as H×W×3 float32 in [0, 1]
+    (8-bit code values, taken as linear intensity)."""
     from PIL import Image
     return [np.asarray(Image.open(p).convert("RGB"), dtype=np.float32) / 255 for p in sorted(folder.glob("*.png"))]
 
 
 class TrainingImages:
     """Random patches: procedural images and random crops/flips of the
-    training photographs, in proportion `photo_share`."""
+    training photographs (every PNG of data/images/train at least `patch`
+    on a side), in proportion `photo_share`."""
 
     def __init__(self, patch: int, seed: int, photo_share: float = 0.3):
         self.patch = patch
@@ -97,12 +104,32 @@ class TrainingImages:
         return torch.from_numpy(np.stack([self.sample() for _ in range(size)])).permute(0, 3, 1, 2).contiguous()
 
 
+def validation_photos(patch: int = None) -> torch.Tensor:
+    """The validation photographs of data/images/val (N×3×H×W, float32 in
+    [0, 1]), disjoint from the training photographs by source photograph;
+    with `patch`, their centre patch×patch crops (photographs smaller than
+    that are left out), else their centre squares of the smallest side (all
+    are 384×384 now, so the whole photographs)."""
+    photos, imgs = load_photos(VAL_DIR), []
+    side = patch or min((min(p.shape[:2]) for p in photos), default=0)
+    for p in photos:
+        n = side
+        y, x = (p.shape[0] - n) // 2, (p.shape[1] - n) // 2
+        if y >= 0 and x >= 0:
+            imgs.append(p[y:y + n, x:x + n])
+    if not imgs:
+        return torch.zeros(0, 3, patch or 0, patch or 0)
+    return torch.from_numpy(np.stack(imgs)).permute(0, 3, 1, 2).contiguous()
+
+
 def validation_images(patch: int, count: int = 4, seed: int = 10_000) -> torch.Tensor:
     """A fixed validation set, disjoint from training: procedural images from
-    their own seed plus centre crops of the test photographs."""
+    their own seed plus centre crops of the validation photographs
+    (data/images/val; until issue 14 these were the test photographs, which
+    are now kept for the final evaluation only)."""
     rng = np.random.default_rng(seed)
     imgs = [dead_leaves(rng, patch).astype(np.float32) for _ in range(count)]
-    for p in load_photos(TEST_DIR):
+    for p in load_photos(VAL_DIR):
         y, x = (p.shape[0] - patch) // 2, (p.shape[1] - patch) // 2
         if y >= 0 and x >= 0:
             imgs.append(p[y:y + patch, x:x + patch])

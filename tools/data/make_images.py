@@ -9,6 +9,11 @@ hubble_deep_field are NASA/SpaceX public domain; coffee and chelsea are CC0.
 Crops are multiples of 8 display pixels (evaluation.md). Training images
 (used only to tune the Wiener constant K, and later by the trainer) and test
 images come from different photographs.
+
+The rest of data/images/train and the validation set data/images/val come from
+tools/data/make_photos.py, which also writes data/images/manifest.json and
+SOURCES.md for every image, these included (and checks that the committed
+files are exactly these crops).
 """
 from pathlib import Path
 
