@@ -67,6 +67,11 @@ class DesignConfig:
     design_step_d: float = 0.1
     softmin_db: float = 0.5
     worst_weight: float = 0.5
+    # "images": the clamped error on fixed crops of the training photographs
+    # (display-grid side `frequencies`/2, mirrored like nedrt's Wiener), by
+    # Parseval; "spectrum": the expected error over S ∝ |f|^−α, unclamped.
+    objective: str = "images"
+    crops: int = 32
     # Spectral slope of natural images; None fits it on the training photos.
     spectrum_alpha: float | None = None
     initial_k: float = 0.03
@@ -110,8 +115,16 @@ def fit_spectrum_alpha(images_dir: Path) -> float:
 class DesignModel(torch.nn.Module):
     """The radial DOE, log κ, and the expected-error objective."""
 
-    def __init__(self, cfg: DesignConfig, calib, alpha: float, dtype=torch.float64):
+    def __init__(self, cfg: DesignConfig, calib, alpha: float, dtype=torch.float64, crops: torch.Tensor | None = None):
         super().__init__()
+        if cfg.objective not in ("images", "spectrum"):
+            raise ValueError(f"objective {cfg.objective!r}: choose images or spectrum")
+        if cfg.objective == "images":
+            if crops is None or crops.shape[-1] * 2 != cfg.frequencies:
+                raise ValueError(f"the images objective needs crops of side {cfg.frequencies // 2}")
+            mirrored = torch.cat([crops, crops.flip(-1)], dim=-1)
+            self.register_buffer("mirrored", torch.cat([mirrored, mirrored.flip(-2)], dim=-2).to(dtype))
+            self.register_buffer("input_hat", torch.fft.fft2(self.mirrored))
         self.cfg, self.calib = cfg, calib
         self.optics = RadialPsfModel(calib, calib.doe_design_pitch_m, cfg.window, dtype=dtype)
         self.log_k = torch.nn.Parameter(torch.tensor(math.log(cfg.initial_k), dtype=dtype))
@@ -188,8 +201,49 @@ class DesignModel(torch.nn.Module):
             errors.append(torch.stack(rows))
         return torch.stack(errors)                                  # channels × depths
 
+    def clamped_errors(self, height_m: torch.Tensor | None = None):
+        """Per design depth: the mean squared error on the retinal grid of the
+        crops' perceived images, display = clamp(Wiener(crop), 0, 1), against
+        the target, over crops and channels, computed exactly in the
+        frequency domain of the mirrored frames (Parseval): with D, I the
+        display's and the input's spectra, E_D = Σ_ν |B(ν)|² |D(2ν) H_D(ν) −
+        I(2ν) T_D(ν)|² / (4c)⁴ for crops of side c."""
+        kappa = self.log_k.exp()
+        index = {round(d, 9): i for i, d in enumerate(self.all_d)}
+        sweep_rows = [index[round(d, 9)] for d in self.sweep_d]
+        design_rows = [index[round(d, 9)] for d in self.design_d]
+        side = self.mirrored.shape[-1] * 2                           # retinal side of a mirrored crop
+        total = 0
+        for ch in range(len(self.calib.channels)):
+            psi = [self.calib.psi_rad(ch, d) for d in self.all_d]
+            cells, veil = self.optics.psfs(ch, psi, height_m=height_m)
+            h = self._spectrum(cells, veil)
+            k = self.display_transfer(h[sweep_rows]).mean(0)
+            gain = k / (k * k + kappa) * ((k[0, 0] ** 2 + kappa) / k[0, 0])
+            x = self.input_hat[:, ch]
+            display = torch.fft.ifft2(x * gain).real.clamp(0, 1)
+            d_hat = torch.fft.fft2(display)
+            # Crop sums of |D|², Re(D I*), |I|² on the display grid, tiled to 2ν.
+            a = (d_hat.real ** 2 + d_hat.imag ** 2).sum(0).repeat(2, 2) * self.up2_gain
+            b = (d_hat * x.conj()).real.sum(0).repeat(2, 2) * self.up2_gain
+            c = (x.real ** 2 + x.imag ** 2).sum(0).repeat(2, 2) * self.up2_gain
+            rows = []
+            for i, d in zip(design_rows, self.design_d):
+                goal = self.blur_otf[ch] if self.cfg.target == "multifocal" and not self.calib.is_main_depth(d) else 1.0
+                hd = h[i]
+                rows.append((a * hd * hd - 2 * b * hd * goal + c * goal * goal).sum())
+            total = total + torch.stack(rows)
+        crops = self.mirrored.shape[0]
+        return total / (len(self.calib.channels) * crops * side ** 4)
+
     def objective(self, height_m: torch.Tensor | None = None):
-        rel = self.depth_errors(height_m).mean(0)                    # mean over channels
+        """(loss, dB per design depth): PSNR of the clamped display on the
+        crops ("images") or signal-to-error ratio of the linear model
+        ("spectrum"); the loss trades their mean against a soft minimum."""
+        if self.cfg.objective == "images":
+            rel = self.clamped_errors(height_m)
+        else:
+            rel = self.depth_errors(height_m).mean(0)                # mean over channels
         db = -10 * torch.log10(rel)
         tau = self.cfg.softmin_db
         soft_worst = -tau * torch.logsumexp(-db / tau, 0) + tau * math.log(len(db))
@@ -260,12 +314,16 @@ def evaluate(model: DesignModel, images: list, k_reg: float, depths_d=None) -> l
              "psnr_vs_target": float(np.mean(r["target"]))} for d, r in rows.items()]
 
 
-def load_images(folder: Path) -> list:
+def load_images(folder: Path, limit: int | None = None) -> list:
     """The PNGs of `folder` as C×H×W float64 tensors in [0, 1] (linear),
-    cropped to multiples of 8 like nedrt eval."""
+    cropped to multiples of 8 like nedrt eval; with `limit`, every n-th of
+    the sorted names so that at most `limit` are read."""
     from PIL import Image
     out = []
-    for p in sorted(Path(folder).glob("*.png")):
+    paths = sorted(Path(folder).glob("*.png"))
+    if limit and len(paths) > limit:
+        paths = paths[::math.ceil(len(paths) / limit)]
+    for p in paths:
         img = np.asarray(Image.open(p).convert("RGB"), dtype=np.float64) / 255
         h, w = img.shape[0] // 8 * 8, img.shape[1] // 8 * 8
         out.append(torch.from_numpy(np.ascontiguousarray(img[:h, :w])).permute(2, 0, 1))
@@ -289,6 +347,23 @@ def tune_k(model: DesignModel, images: list, target: str) -> tuple:
     return best
 
 
+def training_crops(folder: Path, count: int, side: int, seed: int) -> torch.Tensor:
+    """`count` fixed crops (side×side display pixels, C×H×W in [0, 1]) of the
+    training photographs, cycling through them in name order, each at a
+    position drawn from `seed`."""
+    images = load_images(folder)
+    rng = np.random.default_rng(seed)
+    out = []
+    for i in range(count):
+        img = images[i % len(images)]
+        _, h, w = img.shape
+        if h < side or w < side:
+            raise ValueError(f"{folder}: photograph {i % len(images)} is {w}×{h}, smaller than a {side}² crop")
+        y, x = int(rng.integers(0, h - side + 1)), int(rng.integers(0, w - side + 1))
+        out.append(img[:, y:y + side, x:x + side])
+    return torch.stack(out)
+
+
 def _rng_state():
     return {"torch": torch.get_rng_state(), "numpy": np.random.get_state()}
 
@@ -296,11 +371,18 @@ def _rng_state():
 def identity(cfg: DesignConfig) -> dict:
     """What a checkpoint must share with the run that resumes it."""
     return {"target": cfg.target, "calib_sha": file_hash(cfg.calib), "window": cfg.window,
+            "objective": cfg.objective, "crops": cfg.crops,
             "frequencies": cfg.frequencies, "design_range_d": list(cfg.design_range_d),
             "design_step_d": cfg.design_step_d}
 
 
-def design(cfg: DesignConfig, out: Path, resume: bool = False, images_dir: Path | None = None) -> dict:
+#: Training photographs the clamped K search uses (every n-th, sorted by name):
+#: 17 K values × 8 photos × 6 depths is about two minutes on one core.
+TUNE_IMAGES = 8
+
+
+def design(cfg: DesignConfig, out: Path, resume: bool = False, images_dir: Path | None = None,
+           tune: bool = True) -> dict:
     if cfg.target not in TARGETS:
         raise ValueError(f"target {cfg.target!r}: choose one of {', '.join(TARGETS)}")
     calib = calib_mod.load(cfg.calib)
@@ -326,7 +408,15 @@ def design(cfg: DesignConfig, out: Path, resume: bool = False, images_dir: Path 
         images_dir = images_dir or calib_mod.REPO / "data" / "images" / "train"
         alpha = cfg.spectrum_alpha if cfg.spectrum_alpha is not None else fit_spectrum_alpha(images_dir)
     torch.manual_seed(cfg.seed)
-    model = DesignModel(cfg, calib, alpha)
+    crops = None
+    if cfg.objective == "images":
+        crops = training_crops(images_dir or calib_mod.REPO / "data" / "images" / "train", cfg.crops,
+                               cfg.frequencies // 2, cfg.seed)
+    crops_sha = hashlib.sha256(crops.numpy().tobytes()).hexdigest()[:16] if crops is not None else None
+    if state and state.get("crops_sha") != crops_sha:
+        raise ValueError(f"{ckpt}: cannot resume: the training crops differ from the checkpoint's "
+                         "(data/images/train changed); start a new run in another --out folder")
+    model = DesignModel(cfg, calib, alpha, crops=crops)
     opt = torch.optim.Adam(model.parameters(), lr=cfg.lr)
     step, elapsed = 0, 0.0
     if state:
@@ -346,6 +436,7 @@ def design(cfg: DesignConfig, out: Path, resume: bool = False, images_dir: Path 
         tmp = Path(str(ckpt) + ".tmp")
         torch.save({"model": model.state_dict(), "optimizer": opt.state_dict(), "step": step,
                     "elapsed_s": time.time() - start, "alpha": alpha, "identity": identity(cfg),
+                    "crops_sha": crops_sha,
                     "config": dataclasses.asdict(cfg), "rng": _rng_state()}, tmp)
         os.replace(tmp, ckpt)
 
@@ -367,8 +458,10 @@ def design(cfg: DesignConfig, out: Path, resume: bool = False, images_dir: Path 
         save()
     with torch.no_grad():
         _, db = model.objective()
-    train_images = load_images(calib_mod.REPO / "data" / "images" / "train")
-    k_clamped, _, train_rows = tune_k(model, train_images, cfg.target)
+    k_clamped, train_rows = None, None
+    if tune:
+        tune_images = load_images(images_dir or calib_mod.REPO / "data" / "images" / "train", limit=TUNE_IMAGES)
+        k_clamped, _, train_rows = tune_k(model, tune_images, cfg.target)
     result = {
         "target": cfg.target, "steps": step, "wall_time_s": round(time.time() - start, 1),
         "threads": torch.get_num_threads(), "spectrum_alpha": alpha,
@@ -388,9 +481,9 @@ def export_design(run: Path, name: str, out: Path) -> dict:
     state = torch.load(run / "checkpoint.pt", map_location="cpu", weights_only=False)
     cfg = DesignConfig(**{**state["config"], "design_range_d": tuple(state["config"]["design_range_d"])})
     calib = calib_mod.load(cfg.calib)
-    model = DesignModel(cfg, calib, state["alpha"])
-    model.load_state_dict(state["model"])
-    height = model.optics.doe().detach().double().numpy()
+    optics = RadialPsfModel(calib, calib.doe_design_pitch_m, cfg.window)
+    optics.doe.load_state_dict({"logit": state["model"]["optics.doe.logit"]})
+    height = optics.doe().detach().double().numpy()
     out.mkdir(parents=True, exist_ok=True)
     lam0 = calib.channels[calib.design_channel].wavelength_m
     desc = f"nedrt_train.design {cfg.target}, {state['step']} steps"
@@ -401,8 +494,7 @@ def export_design(run: Path, name: str, out: Path) -> dict:
     fine = keys_profile(height, calib.doe_design_pitch_m, fab_rho, calib.doe_max_height_m)
     save_doe(fab_path, fine, calib.doe_fabrication_pitch_m, calib.doe_max_height_m, calib.material_name, lam0,
              desc + " (Keys cubic to the fabrication pitch)")
-    return {"files": {p.name: sha256(p) for p in [design_path, fab_path]},
-            "wiener_k_linear": model.log_k.exp().item()}
+    return {"files": {p.name: sha256(p) for p in [design_path, fab_path]}}
 
 
 def main(argv=None):
@@ -414,12 +506,13 @@ def main(argv=None):
     ap.add_argument("--window", type=int)
     ap.add_argument("--calib")
     ap.add_argument("--resume", action="store_true")
+    ap.add_argument("--no-tune", dest="tune", action="store_false", help="skip the clamped K search on training photographs")
     ap.add_argument("--name", help="also write the DOE files doe-NAME-{design,fabrication}.safetensors into --out")
     args = ap.parse_args(argv)
     overrides = {k: getattr(args, k) for k in ["steps", "lr", "window", "calib"] if getattr(args, k) is not None}
     cfg = dataclasses.replace(DesignConfig(target=args.target), **overrides)
     try:
-        result = design(cfg, args.out, resume=args.resume)
+        result = design(cfg, args.out, resume=args.resume, tune=args.tune)
     except ValueError as e:
         raise SystemExit(f"error: {e}")
     if args.name:
