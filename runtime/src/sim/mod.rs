@@ -3,6 +3,7 @@
 //! evaluation.md).
 
 pub mod convolve;
+pub mod focus;
 pub mod image;
 pub mod image_io;
 pub mod methods;
