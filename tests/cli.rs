@@ -370,12 +370,113 @@ fn eval_writes_fig6_tables() {
         json["methods"][1]["doe"].is_string(),
         "DOE rows name their DOE"
     );
+    // Focus cues are opt-in: none measured, no chart.
+    assert!(json["methods"][0].get("focus_cues").is_none());
+    assert!(json.get("focus_cue_definition").is_none());
+    assert!(!out.join("focus_cues.png").exists());
+    assert!(!md.contains("Focus cues"));
     let o = run(&[
         "eval",
         "--images",
         dir.path().join("nothing").to_str().expect("utf8"),
     ]);
     assert_clean_error(&o, "cannot read folder");
+}
+
+#[test]
+fn eval_measures_focus_cues_and_charts_them() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let imgs = dir.path().join("imgs");
+    std::fs::create_dir(&imgs).expect("dir");
+    write_png(&imgs.join("a.png"), 64, 64);
+    let out = dir.path().join("eval");
+    let o = run(&[
+        "--calib",
+        path(&small_calib()),
+        "eval",
+        "--images",
+        path(&imgs),
+        "--out-dir",
+        path(&out),
+        "--methods",
+        "conventional,ai,doe-only",
+        "--focus-cues",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    for f in ["focus_cues.png", "focus_cues.svg"] {
+        let p = out.join(f);
+        assert!(
+            p.metadata().map(|m| m.len() > 1000).unwrap_or(false),
+            "{f} missing or empty"
+        );
+        assert!(stdout(&o).contains(f), "{f} not reported: {}", stdout(&o));
+    }
+    let md = std::fs::read_to_string(out.join("eval.md")).expect("md");
+    for needle in [
+        "vs sharp",
+        "## Focus cues",
+        "| conventional | 1.5 |",
+        "| ai | 0.5 |",
+        "| doe-only | 2.5 |",
+        "S_5 maxima, ai:",
+        "focus_cues.png",
+    ] {
+        assert!(md.contains(needle), "{needle:?} missing from\n{md}");
+    }
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("eval.json")).expect("json"))
+            .expect("parse");
+    let def = &json["focus_cue_definition"];
+    assert_eq!(def["frequencies_cpd"], serde_json::json!([5.0, 10.0]));
+    assert_eq!(def["sweep_step_d"], 0.1);
+    assert_eq!(json["charts"].as_array().expect("charts").len(), 2);
+    let methods = json["methods"].as_array().expect("methods");
+    assert_eq!(methods.len(), 3);
+    for m in methods {
+        // The tables are unchanged by the sweep: seven depths.
+        assert_eq!(m["rows"].as_array().expect("rows").len(), 7);
+        let cues = &m["focus_cues"];
+        let depths = cues["accommodation_d"].as_array().expect("depths");
+        assert_eq!(depths.len(), 31, "0–3 D in 0.1 D steps");
+        let curves = cues["curves"].as_array().expect("curves");
+        assert_eq!(curves.len(), 2);
+        for c in curves {
+            let s = c["sharpness"].as_array().expect("sharpness");
+            assert_eq!(s.len(), 31);
+            assert!(
+                s.iter()
+                    .all(|v| v.as_f64().is_some_and(|v| v > 0.0 && v < 1.5)),
+                "{}: {s:?}",
+                m["method"]
+            );
+        }
+        let main = cues["main_depths"].as_array().expect("main depths");
+        assert_eq!(main.len(), 3);
+        for (d, want) in main.iter().zip([0.5, 1.5, 2.5]) {
+            assert_eq!(d["depth_d"], want);
+            assert_eq!(d["scores"].as_array().expect("scores").len(), 2);
+            assert!(d["scores"][0]["score"].is_f64(), "{d}");
+            assert!(d["nearest_peak"]["offset_d"].is_f64(), "{d}");
+        }
+    }
+    // Physics: the lens alone is sharpest near its own focus (G at 1.49 D,
+    // R 1.70, B 1.12: the channel mean peaks between), and that is a cue.
+    let conventional = &methods[0]["focus_cues"];
+    let best = conventional["peaks"]
+        .as_array()
+        .expect("peaks")
+        .iter()
+        .max_by(|a, b| {
+            let v = |p: &serde_json::Value| p["value"].as_f64().unwrap_or(f64::NAN);
+            v(a).total_cmp(&v(b))
+        })
+        .expect("a peak");
+    let at = best["accommodation_d"].as_f64().expect("d");
+    assert!((at - 1.49).abs() < 0.25, "conventional S_5 peaks at {at} D");
+    let fc_mid = conventional["main_depths"][1]["scores"][0]["score"]
+        .as_f64()
+        .expect("fc");
+    assert!(fc_mid > 0.0, "FC_5(1.5 D) of the lens alone: {fc_mid}");
 }
 
 #[test]

@@ -39,6 +39,8 @@ pub struct LinePanel {
     pub x_range: (f64, f64),
     pub y_range: (f64, f64),
     pub series: Vec<Series>,
+    /// Where the legend goes; `None`: plotters' default (middle right).
+    pub legend: Option<SeriesLabelPosition>,
 }
 
 /// A heat map: `values[row][col]` as RGB colours on a grid of cells.
@@ -100,12 +102,13 @@ fn draw<DB: DrawingBackend>(area: &DrawingArea<DB, Shift>, panel: &Panel) -> Res
             for s in &p.series {
                 let style = ShapeStyle::from(s.color).stroke_width(2);
                 let color = s.color;
+                // A series without a name (a repeated marker) has no legend entry.
                 if s.dashed {
-                    chart
+                    let drawn = chart
                         .draw_series(DashedLineSeries::new(s.points.iter().copied(), 6, 4, style))
-                        .map_err(e)?
-                        .label(&s.name)
-                        .legend(move |(x, y)| {
+                        .map_err(e)?;
+                    if !s.name.is_empty() {
+                        drawn.label(&s.name).legend(move |(x, y)| {
                             plotters::element::DashedPathElement::new(
                                 vec![(x, y), (x + 18, y)],
                                 4,
@@ -113,17 +116,24 @@ fn draw<DB: DrawingBackend>(area: &DrawingArea<DB, Shift>, panel: &Panel) -> Res
                                 color,
                             )
                         });
+                    }
                 } else {
-                    chart
+                    let drawn = chart
                         .draw_series(LineSeries::new(s.points.iter().copied(), style))
-                        .map_err(e)?
-                        .label(&s.name)
-                        .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], color));
+                        .map_err(e)?;
+                    if !s.name.is_empty() {
+                        drawn.label(&s.name).legend(move |(x, y)| {
+                            PathElement::new(vec![(x, y), (x + 18, y)], color)
+                        });
+                    }
                 }
             }
-            if p.series.len() > 1 {
-                chart
-                    .configure_series_labels()
+            if p.series.iter().filter(|s| !s.name.is_empty()).count() > 1 {
+                let mut labels = chart.configure_series_labels();
+                if let Some(at) = &p.legend {
+                    labels.position(at.clone());
+                }
+                labels
                     .label_font(("sans-serif", 11))
                     .background_style(WHITE.mix(0.85))
                     .border_style(BLACK)
@@ -204,6 +214,26 @@ pub fn viridis(t: f64) -> RGBColor {
 pub const RED_LINE: RGBColor = RGBColor(214, 39, 40);
 pub const GREEN_LINE: RGBColor = RGBColor(44, 160, 44);
 pub const BLUE_LINE: RGBColor = RGBColor(31, 119, 180);
+/// Thin reference lines (marked depths) that should not compete with data.
+pub const MARKER_LINE: RGBColor = RGBColor(150, 150, 150);
+
+/// Colour of the `i`-th of several compared series (matplotlib's tab10, so
+/// neighbouring series stay distinguishable; repeats after ten).
+pub fn series_color(i: usize) -> RGBColor {
+    const TAB10: [RGBColor; 10] = [
+        BLUE_LINE,
+        RGBColor(255, 127, 14),
+        GREEN_LINE,
+        RED_LINE,
+        RGBColor(148, 103, 189),
+        RGBColor(140, 86, 75),
+        RGBColor(227, 119, 194),
+        RGBColor(127, 127, 127),
+        RGBColor(188, 189, 34),
+        RGBColor(23, 190, 207),
+    ];
+    TAB10[i % TAB10.len()]
+}
 
 /// One point of a scatter figure.
 #[derive(Debug, Clone)]

@@ -319,6 +319,11 @@ struct EvalArgs {
     /// Optics the --display-dir images are seen through.
     #[arg(long, value_enum, default_value = "doe")]
     display_optics: OpticsArg,
+    /// Also measure focus cues: each method's perceived sharpness at 5 and
+    /// 10 CPD over 0–3 D in 0.1 D steps, its focus-cue score at the main
+    /// depths and a chart (focus_cues.png/.svg); renders 31 depths instead of 7.
+    #[arg(long)]
+    focus_cues: bool,
 }
 
 #[derive(Args, Debug)]
@@ -477,7 +482,8 @@ fn run(cli: Cli) -> Result<()> {
                     &a.images,
                     &a.out_dir,
                     &a.methods,
-                    external.as_ref()
+                    external.as_ref(),
+                    a.focus_cues
                 )?
             )
         }

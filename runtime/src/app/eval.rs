@@ -1,6 +1,8 @@
 //! `nedrt eval`: the paper's Fig. 6 table for every method at 0…3 D on a
 //! folder of images, against the sharp image and the multifocal target
-//! (evaluation.md), with the headline mean and worst over 0–2.5 D.
+//! (evaluation.md), with the headline mean and worst over 0–2.5 D; with
+//! focus cues on, also each method's perceived sharpness across the whole
+//! accommodation range (app::focus_cues), from the same renders.
 
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -8,6 +10,7 @@ use std::time::Instant;
 
 use serde::Serialize;
 
+use super::focus_cues::{self, FocusCueDefinition, FocusCues, FocusSweep};
 use super::sim::{Score, pad_to_multiple_of_8};
 use super::{AppError, CommonOptions, create_dir, progress_bar, write_text};
 use crate::sim::image_io;
@@ -96,6 +99,9 @@ pub struct MethodResult {
     pub rows: Vec<DepthRow>,
     pub headline_vs_sharp: Headline,
     pub headline_vs_target: Headline,
+    /// Perceived sharpness across accommodation, when measured.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub focus_cues: Option<FocusCues>,
 }
 
 #[derive(Debug, Clone, Serialize)]
@@ -107,6 +113,12 @@ pub struct EvalResult {
     pub not_evaluated: Vec<String>,
     /// The D-CNN behind each D-CNN method: file, content hash, backend.
     pub dcnn: Vec<String>,
+    /// How the focus cues were measured, when they were.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub focus_cue_definition: Option<FocusCueDefinition>,
+    /// Chart files written beside the tables.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub charts: Vec<String>,
     pub seconds: f64,
 }
 
@@ -171,13 +183,24 @@ impl ExternalDisplays {
     }
 }
 
-/// Runs the evaluation and writes `eval.md` and `eval.json` into `out_dir`.
+/// The sorted union of two depth lists (depths within 1e-9 D are one).
+fn union_d(a: &[f64], b: &[f64]) -> Vec<f64> {
+    let mut all: Vec<f64> = a.iter().chain(b).copied().collect();
+    all.sort_by(f64::total_cmp);
+    all.dedup_by(|x, y| (*x - *y).abs() < 1e-9);
+    all
+}
+
+/// Runs the evaluation and writes `eval.md` and `eval.json` into `out_dir`;
+/// with `focus_cues`, also the sharpness sweep and its chart
+/// (`focus_cues.png`, `.svg`).
 pub fn run(
     common: &CommonOptions,
     images_dir: &Path,
     out_dir: &Path,
     methods: &[Method],
     external: Option<&ExternalDisplays>,
+    focus_cues: bool,
 ) -> Result<String, AppError> {
     let start = Instant::now();
     let files = list_images(images_dir)?;
@@ -198,20 +221,34 @@ pub fn run(
         common.cache(),
     )?;
     let depths = sim.calib.evaluation_depths_d();
+    let rows = methods.len() + usize::from(external.is_some());
+    let mut sweep = focus_cues.then(|| FocusSweep::new(&sim.calib, rows));
+    // Every depth rendered: the table's, and the sweep's; the PSFs of both
+    // go into one request per optics, so a later run loads them.
+    let rendered = match &sweep {
+        Some(s) => union_d(&depths, &s.depths_d),
+        None => depths.clone(),
+    };
     let bar = progress_bar("PSFs");
     let mut needed = methods.clone();
     needed.extend(external.map(|e| e.psf_method()));
-    let prepared = sim.prepare(&needed, &depths, Some(&bar))?;
+    let prepared = sim.prepare(&needed, &rendered, Some(&bar))?;
     bar.finish_and_clear();
 
-    let rows = methods.len() + usize::from(external.is_some());
-    let bar = progress_bar("images");
-    bar.set_length((images.len() * rows * depths.len()) as u64);
+    let bar = progress_bar(if sweep.is_some() {
+        "focus sweep"
+    } else {
+        "images"
+    });
+    bar.set_length((images.len() * rows * rendered.len()) as u64);
     // scores[row][depth][image]; the external row, if any, comes last.
     let mut scores = vec![vec![Vec::new(); depths.len()]; rows];
     for (file, input) in files.iter().zip(&images) {
         let (input, _) = pad_to_multiple_of_8(input, &file.display().to_string());
         let sharp = input.up2();
+        if let Some(s) = &mut sweep {
+            s.start_image(&sharp);
+        }
         let targets: Vec<Image> = depths
             .iter()
             .map(|d| prepared.target(&input, *d))
@@ -224,18 +261,29 @@ pub fn run(
             displays.push((e.psf_method(), e.load(file, &input)?));
         }
         for (mi, (m, display)) in displays.iter().enumerate() {
-            for (di, &d) in depths.iter().enumerate() {
+            for &d in &rendered {
                 let perceived = prepared.perceived(*m, display, d)?;
-                scores[mi][di].push(ImageScore {
-                    image: file.display().to_string(),
-                    vs_sharp: Score::of(&perceived, &sharp),
-                    vs_target: Score::of(&perceived, &targets[di]),
-                });
+                if let Some(di) = depths.iter().position(|x| (x - d).abs() < 1e-9) {
+                    scores[mi][di].push(ImageScore {
+                        image: file.display().to_string(),
+                        vs_sharp: Score::of(&perceived, &sharp),
+                        vs_target: Score::of(&perceived, &targets[di]),
+                    });
+                }
+                if let Some(s) = &mut sweep
+                    && let Some(si) = s.index_of(d)
+                {
+                    s.record(mi, si, &perceived);
+                }
                 bar.inc(1);
             }
         }
     }
     bar.finish_and_clear();
+    let mut cues: Vec<Option<FocusCues>> = match sweep {
+        Some(s) => s.finish(&sim.calib.main_d).into_iter().map(Some).collect(),
+        None => vec![None; rows],
+    };
 
     let mut row_names: Vec<(String, Optics)> = methods
         .iter()
@@ -245,7 +293,8 @@ pub fn run(
     let results: Vec<MethodResult> = row_names
         .iter()
         .zip(scores)
-        .map(|((name, optics), per_depth)| {
+        .zip(cues.iter_mut())
+        .map(|(((name, optics), per_depth), cues)| {
             let rows: Vec<DepthRow> = depths
                 .iter()
                 .zip(per_depth)
@@ -264,9 +313,19 @@ pub fn run(
                 headline_vs_sharp: headline(&rows, |r| r.vs_sharp),
                 headline_vs_target: headline(&rows, |r| r.vs_target),
                 rows,
+                focus_cues: cues.take(),
             }
         })
         .collect();
+    let cue_rows: Vec<(&str, &FocusCues)> = results
+        .iter()
+        .filter_map(|m| m.focus_cues.as_ref().map(|c| (m.method.as_str(), c)))
+        .collect();
+    let charts = if cue_rows.is_empty() {
+        Vec::new()
+    } else {
+        focus_cues::write_chart(out_dir, &cue_rows, &sim.calib.main_d, sim.calib.range_d)?
+    };
     let result = EvalResult {
         calibration: sim.calib.source.clone(),
         images: files.iter().map(|f| f.display().to_string()).collect(),
@@ -289,6 +348,8 @@ pub fn run(
                 })
             })
             .collect(),
+        focus_cue_definition: focus_cues.then(FocusCueDefinition::current),
+        charts,
         seconds: start.elapsed().as_secs_f64(),
     };
     let mut md = markdown(&result, &sim);
@@ -301,11 +362,12 @@ pub fn run(
     let json =
         serde_json::to_string_pretty(&result).map_err(|e| AppError::output(&json_path, e))?;
     write_text(&json_path, &json)?;
-    Ok(format!(
-        "{md}\nwrote {} and {}\n",
-        md_path.display(),
-        json_path.display()
-    ))
+    let mut written = vec![
+        md_path.display().to_string(),
+        json_path.display().to_string(),
+    ];
+    written.extend(result.charts.iter().cloned());
+    Ok(format!("{md}\nwrote {}\n", written.join(", ")))
 }
 
 /// The Fig. 6-style tables, one per reference.
@@ -358,6 +420,14 @@ pub fn markdown(r: &EvalResult, sim: &Simulator) -> String {
             }
             t.push('\n');
         }
+    }
+    let cue_rows: Vec<(&str, &FocusCues)> = r
+        .methods
+        .iter()
+        .filter_map(|m| m.focus_cues.as_ref().map(|c| (m.method.as_str(), c)))
+        .collect();
+    if !cue_rows.is_empty() {
+        t.push_str(&focus_cues::markdown(&cue_rows));
     }
     for d in &r.dcnn {
         let _ = writeln!(t, "\nD-CNN {d}.");

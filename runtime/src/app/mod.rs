@@ -4,6 +4,7 @@
 pub mod bench;
 pub mod bench_inference;
 pub mod eval;
+pub mod focus_cues;
 pub mod plots;
 pub mod run;
 pub mod sim;

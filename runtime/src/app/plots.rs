@@ -243,6 +243,7 @@ pub fn mtf(common: &CommonOptions, out_dir: &Path, step_d: f64) -> Result<String
         x_range: (0.0, 30.0),
         y_range: (0.0, 1.02),
         series,
+        legend: None,
     })];
 
     let psfs_at: Vec<[Vec<Psf>; 2]> = depths
@@ -273,6 +274,7 @@ pub fn mtf(common: &CommonOptions, out_dir: &Path, step_d: f64) -> Result<String
             x_range: (depths[0], depths[depths.len() - 1]),
             y_range: (0.0, 1.02),
             series,
+            legend: None,
         }));
     }
     let figure = Figure {
