@@ -168,9 +168,18 @@ class RadialPsfModel(nn.Module):
             raise ValueError(
                 f"pupil pitch {quad * 1e6:.2f} µm cannot resolve a {window}-cell window "
                 f"(needs ≤ {lam_min / (2 * t_max) * 1e6:.2f} µm at {lam_min * 1e9:.0f} nm)")
-        taps, tap_weights = keys_taps(len(design_rho), pitch_m, rho)
-        self.register_buffer("taps", torch.tensor(taps))
-        self.register_buffer("tap_weights", torch.tensor(tap_weights, dtype=dtype))
+        # Finer than the fabrication pitch, the heights go design → fabrication
+        # file → quadrature, each by Keys, as nedrt simulates the fabrication file.
+        fab = calib.doe_fabrication_pitch_m
+        stages = [(len(design_rho), pitch_m, rho)]
+        if quad < fab < pitch_m:
+            fab_rho, _ = radial_nodes(r, fab)
+            stages = [(len(design_rho), pitch_m, fab_rho), (len(fab_rho), fab, rho)]
+        self.stages = len(stages)
+        for i, (n_src, src_pitch, at) in enumerate(stages):
+            taps, tap_weights = keys_taps(n_src, src_pitch, at)
+            self.register_buffer(f"taps_{i}", torch.tensor(taps))
+            self.register_buffer(f"tap_weights_{i}", torch.tensor(tap_weights, dtype=dtype))
         self.register_buffer("rho2", torch.tensor(rho ** 2 / r ** 2, dtype=dtype))
         self.register_buffer("area", torch.tensor(area, dtype=dtype))
         self.register_buffer("cell_index", torch.tensor(index))
@@ -195,8 +204,11 @@ class RadialPsfModel(nn.Module):
 
     def heights_on_quadrature(self, design_height_m: torch.Tensor) -> torch.Tensor:
         """Design-pitch heights → the quadrature nodes (Keys cubic, clamped)."""
-        h = (design_height_m[self.taps] * self.tap_weights).sum(-1)
-        return h.clamp(0, self.calib.doe_max_height_m)
+        h = design_height_m
+        for i in range(self.stages):
+            h = (h[getattr(self, f"taps_{i}")] * getattr(self, f"tap_weights_{i}")).sum(-1)
+            h = h.clamp(0, self.calib.doe_max_height_m)
+        return h
 
     def field(self, ch: int, psi_rad, with_doe: bool = True, height_m: torch.Tensor | None = None):
         """(Re U, Im U) at the annulus nodes `t` for each Ψ in `psi_rad`."""

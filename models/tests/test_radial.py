@@ -150,3 +150,51 @@ def test_gradients_of_the_radial_optics_match_finite_differences():
 def test_a_window_the_pupil_pitch_cannot_resolve_is_refused():
     with pytest.raises(ValueError, match="cannot resolve"):
         RadialPsfModel(CAL, 60e-6, 301, quadrature_pitch_m=60e-6)
+
+
+def test_trainer_psfs_agree_with_nedrt_for_the_same_doe(tmp_path):
+    # The same element, the three-lens profile at the 6 µm design pitch
+    # carried to the 3 µm fabrication file by the export's Keys
+    # interpolation, through nedrt's planner (its own finer pupil step and
+    # window, cells integrated exactly) and through the trainer's model at a
+    # fine (1.5 µm) quadrature: the system PSF's central cut of `nedrt psf`,
+    # to 0.5 % of its peak (acceptance line of issue 14). The training
+    # default, 3 µm, is within 0.8 % (docs/training.md).
+    import csv
+    import subprocess
+    from nedrt_train.export import save_doe
+    exe = calib_mod.REPO / "target" / "release" / "nedrt"
+    if not exe.exists():
+        pytest.fail("target/release/nedrt is not built: scripts/test.sh builds it before pytest")
+    model = RadialPsfModel(CAL, CAL.doe_design_pitch_m, 81, quadrature_pitch_m=1.5e-6)
+    profile = three_lens_profile(CAL, model.design_rho_m).numpy()
+    fab_rho, _ = radial_nodes(CAL.aperture_radius_m, CAL.doe_fabrication_pitch_m)
+    fabricated = keys_profile(profile, CAL.doe_design_pitch_m, fab_rho, CAL.doe_max_height_m)
+    doe = tmp_path / "three-lens-radial.safetensors"
+    save_doe(doe, fabricated, CAL.doe_fabrication_pitch_m, CAL.doe_max_height_m, CAL.material_name,
+             CAL.channels[CAL.design_channel].wavelength_m, "three-lens profile")
+    out = subprocess.run([str(exe), "--doe", str(doe), "--cache-dir", str(tmp_path / "cache"), "psf",
+                          "--out-dir", str(tmp_path), "--step", "1.0"], capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    rows = list(csv.DictReader(open(next(tmp_path.glob("*.csv")))))
+    names = [c.name for c in CAL.channels]
+    depths = sorted({float(r["accommodation_d"]) for r in rows})
+    assert depths == [0.0, 1.0, 2.0, 3.0]
+    cell_arcmin = math.degrees(CAL.retinal_step_rad) * 60
+    for optics in ["lens + DOE", "lens only"]:
+        for d in depths:
+            for ch, name in enumerate(names):
+                theirs = {round(float(r["angle_arcmin"]) / cell_arcmin * 2): float(r["value"]) for r in rows
+                          if r["optics"] == optics and float(r["accommodation_d"]) == d and r["channel"] == name}
+                cells, _ = model.psf(ch, CAL.psi_rad(ch, d), with_doe=optics == "lens + DOE",
+                                     height_m=torch.tensor(profile))
+                w = cells.shape[0]
+                sys_psf = torch.nn.functional.pad(cells, (0, 1, 0, 1)) / 4
+                sys_psf = sys_psf + sys_psf.roll(1, 0) + sys_psf.roll(1, 1) + sys_psf.roll((1, 1), (0, 1))
+                c = (w - 1) // 2
+                cut = 0.5 * (sys_psf[c] + sys_psf[c + 1])
+                # Half-cell angle units: x − (n − 1)/2 with n = w + 1.
+                mine = {round(2 * (x - w / 2)): float(cut[x]) for x in range(w + 1)}
+                peak = max(theirs.values())
+                diff = max(abs(mine[k] - v) for k, v in theirs.items())
+                assert diff < 5e-3 * peak, (optics, d, name, diff / peak)
