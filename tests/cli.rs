@@ -86,7 +86,7 @@ fn readme_main_command_runs_on_shipped_defaults() {
         "pupil step",
         "window",
         "veil",
-        "integrated exactly",
+        "integrated",
         "time",
     ] {
         assert!(s.contains(needle), "missing {needle:?} in:\n{s}");
@@ -990,4 +990,28 @@ fn tradeoff_writes_the_chart_and_the_picker_reads_it() {
     ]
     .concat());
     assert_clean_error(&o, "no DOE beside this D-CNN");
+}
+
+#[test]
+fn designs_are_selected_by_name_and_bad_selections_are_refused() {
+    let in_repo = |args: &[&str]| {
+        nedrt()
+            .current_dir(repo())
+            .args(args)
+            .output()
+            .expect("run nedrt")
+    };
+    for name in ["allsharp", "multifocal"] {
+        let o = in_repo(&["--design", name, "calib"]);
+        assert!(o.status.success(), "{name}: {}", stderr(&o));
+    }
+    let o = in_repo(&["--design", "no-such-design", "calib"]);
+    assert!(!o.status.success());
+    assert!(
+        stderr(&o).contains("designs/no-such-design.toml") && stderr(&o).contains("allsharp"),
+        "{}",
+        stderr(&o)
+    );
+    let o = in_repo(&["--design", "allsharp", "--doe", "x.safetensors", "calib"]);
+    assert!(!o.status.success(), "--design and --doe together");
 }

@@ -36,17 +36,28 @@ def test_sigmoid_parameterisation_keeps_heights_in_range(model):
     assert (h - three_lens_init(CAL, s)).abs().max() < 1e-4 * CAL.doe_max_height_m + 1e-12
 
 
-@pytest.mark.parametrize("entry", VECTORS["psfs"], ids=lambda e: f'{e["optics"]}-{e["channel"]}-{e["accommodation_d"]}')
+RADIAL = json.loads((calib_mod.REPO / "tests/golden/radial.json").read_text())
+
+
+@pytest.mark.parametrize("entry", RADIAL["psfs"], ids=lambda e: f'{e["optics"]}-{e["channel"]}-{e["accommodation_d"]}')
 def test_psfs_match_the_rust_simulator(entry):
+    # nedrt's 2-D exact path at ≈ 3 µm on the three-lens radial DOE
+    # (tests/golden/radial.json, examples/make_radial_golden.rs) against the
+    # trainer's radial model at its training quadrature (3 µm): the cells to
+    # 0.5 % of the peak, the veil to 1e-3. (The midpoint sums of
+    # vectors.json are no longer a model of either side.)
+    from nedrt_train.radial import RadialPsfModel
     names = [c.name for c in CAL.channels]
     ch = names.index(entry["channel"])
-    # The exact initial heights (the sigmoid's clamp would move them by 1e-4).
-    height = three_lens_init(CAL, grid(CAL, CAL.doe_design_pitch_m))
-    m = PsfModel(CAL, CAL.doe_design_pitch_m, window=entry["window"], sub=entry["sub_samples"])
-    cells, veil = m.psf(ch, entry["psi_rad"], with_doe=entry["optics"] == "lens+doe", height_m=height)
-    theirs = torch.tensor(entry["cells"], dtype=torch.float64).reshape(cells.shape)
-    assert (cells - theirs).abs().max() <= 1e-5 * theirs.max()
-    assert abs(veil.item() - entry["veil"]) < 1e-6
+    doe = RADIAL["doe"]
+    assert doe["pitch_m"] == CAL.doe_design_pitch_m
+    m = RadialPsfModel(CAL, doe["pitch_m"], RADIAL["window"])
+    with torch.no_grad():
+        cells, veil = m.psf(ch, entry["psi_rad"], with_doe=entry["optics"] == "lens+doe",
+                            height_m=torch.tensor(doe["height_m"], dtype=torch.float64))
+    theirs = torch.tensor(entry["two_d"]["cells"], dtype=torch.float64).reshape(cells.shape)
+    assert (cells - theirs).abs().max() <= 5e-3 * theirs.max()
+    assert abs(veil.item() - entry["two_d"]["veil"]) < 1e-3
 
 
 def test_perceived_image_matches_the_rust_simulator(model):

@@ -37,6 +37,10 @@ struct GlobalArgs {
     /// DOE height-map file (default: the calibration's, else the three-lens initialisation).
     #[arg(long, global = true, value_name = "FILE")]
     doe: Option<PathBuf>,
+    /// Display design: a DOE with the Wiener K tuned for it, by name
+    /// (designs/NAME.toml: multifocal, allsharp) or as a design FILE.
+    #[arg(long, global = true, value_name = "NAME|FILE", conflicts_with = "doe")]
+    design: Option<String>,
     /// PSF cache folder (default: $NEDRT_CACHE_DIR, $XDG_CACHE_HOME/nedrt or ~/.cache/nedrt).
     #[arg(long, global = true, value_name = "DIR")]
     cache_dir: Option<PathBuf>,
@@ -341,8 +345,9 @@ struct TuneArgs {
 
 #[derive(Args, Debug)]
 struct BenchArgs {
-    /// psf, perceived, ceilings, or inference (D-CNN latency per backend).
-    #[arg(value_parser = ["psf", "perceived", "ceilings", "inference"])]
+    /// psf, perceived, ceilings, inference (D-CNN latency per backend), or
+    /// radial (the radial PSF path against the 2-D path, docs/benchmarks.md).
+    #[arg(value_parser = ["psf", "perceived", "ceilings", "inference", "radial"])]
     what: String,
     /// inference: backends to time.
     #[arg(long, value_delimiter = ',', value_enum, default_values = ["cpu", "ort", "wgpu"])]
@@ -438,11 +443,20 @@ fn install_signals(control: &nedrt::pipeline::service::Control) -> Result<()> {
 
 fn run(cli: Cli) -> Result<()> {
     let g = &cli.global;
+    let design = g
+        .design
+        .as_deref()
+        .map(app::design::Design::resolve)
+        .transpose()?;
     let common = CommonOptions {
         calib: g.calib.clone(),
         cache_dir: g.cache_dir.clone(),
         no_cache: g.no_cache,
-        doe: g.doe.clone(),
+        doe: design
+            .as_ref()
+            .map(|d| d.doe.clone())
+            .or_else(|| g.doe.clone()),
+        design,
         dcnn: app::DcnnOptions {
             path: g.dcnn.clone(),
             lens_path: g.dcnn_lens.clone(),
@@ -524,6 +538,7 @@ fn run(cli: Cli) -> Result<()> {
         Some(Command::Bench(a)) => match a.what.as_str() {
             "psf" => println!("{}", app::bench::psf(&common, &a.dump, a.repeat)?),
             "perceived" => print!("{}", app::bench::perceived(&common, &a.dump, a.repeat)?),
+            "radial" => print!("{}", app::bench::radial(&common, &a.dump)?),
             "inference" => {
                 let bench = app::bench_inference::InferenceBench {
                     backends: a.backends,

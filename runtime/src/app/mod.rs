@@ -3,6 +3,7 @@
 
 pub mod bench;
 pub mod bench_inference;
+pub mod design;
 pub mod eval;
 pub mod focus_cues;
 pub mod plots;
@@ -34,6 +35,8 @@ pub struct CommonOptions {
     pub no_cache: bool,
     /// DOE height-map file overriding the calibration's.
     pub doe: Option<PathBuf>,
+    /// A named design (`--design`): its DOE is `doe`, its K the Wiener's.
+    pub design: Option<design::Design>,
     pub dcnn: DcnnOptions,
 }
 
@@ -104,11 +107,18 @@ pub fn display_image(
 }
 
 impl CommonOptions {
-    pub fn calibration(&self) -> Result<Calibration, CalibError> {
-        match &self.calib {
-            Some(p) => Calibration::load(p),
-            None => Calibration::default_embedded(),
+    /// The calibration, with a selected design's Wiener K (marked as tuned
+    /// for the design's DOE).
+    pub fn calibration(&self) -> Result<Calibration, AppError> {
+        let mut calib = match &self.calib {
+            Some(p) => Calibration::load(p)?,
+            None => Calibration::default_embedded()?,
+        };
+        if let Some(d) = &self.design {
+            let hash = crate::optics::doe_file::load(&d.doe, &calib)?.content_hash();
+            d.apply(&mut calib, hash);
         }
+        Ok(calib)
     }
 
     pub fn cache(&self) -> PsfCache {
