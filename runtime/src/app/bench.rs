@@ -13,7 +13,7 @@ use serde_json::json;
 use super::{AppError, CommonOptions, create_dir};
 use crate::optics::propagate::{crop_centred, exact_period_cells, fft_period_cells, mft_cells};
 use crate::optics::pupil::{PupilGrid, pupil_field};
-use crate::optics::{PsfRequest, PsfSpec, compute_psfs};
+use crate::optics::{PsfRequest, PsfSpec, SamplingReport, compute_psfs};
 use crate::sim::image_io::{DEFAULT_INPUT_NAME, DEFAULT_INPUT_PNG, decode};
 use crate::sim::{Method, Simulator, perceive};
 
@@ -74,7 +74,10 @@ pub fn psf(common: &CommonOptions, dump: &Path, repeat: usize) -> Result<String,
         common.doe_path(),
         crate::optics::cache::PsfCache::disabled(),
     )?;
-    let c = &sim.calib;
+    // The 2-D propagators are timed here (`bench radial` times the radial path).
+    let mut c = sim.calib.clone();
+    c.simulation.propagator = crate::calib::PropagatorSetting::TwoD;
+    let c = &c;
     let g = c.design_channel;
     let spec = PsfSpec {
         channel: g,
@@ -165,5 +168,135 @@ pub fn perceived(common: &CommonOptions, dump: &Path, repeat: usize) -> Result<S
         )?;
         let _ = writeln!(out, "{info}");
     }
+    Ok(out)
+}
+
+/// Seconds of one call (no warm-up: for runs of minutes).
+fn time_once<T>(f: impl FnOnce() -> T) -> (f64, T) {
+    let t = Instant::now();
+    let out = f();
+    (t.elapsed().as_secs_f64(), out)
+}
+
+/// J0 evaluations and GEMM flops of a radial run whose window has
+/// half-width `half` cells: per channel the kernel has (fine + coarse
+/// annuli to the corner) × N_ρ entries and meets 2 columns per PSF.
+fn radial_work(report: &SamplingReport, specs: &[PsfSpec], half: usize) -> (f64, f64) {
+    let corner = std::f64::consts::SQRT_2 * (half as f64 + 0.5);
+    let m = report.annuli_per_cell as f64;
+    let angles = (corner * m).ceil() + (corner * m / 2.0).ceil();
+    let nodes = report.channels.first().map_or(0, |c| c.pupil_samples) as f64;
+    let mut per_channel = std::collections::BTreeMap::<usize, f64>::new();
+    for s in specs {
+        *per_channel.entry(s.channel).or_default() += 1.0;
+    }
+    let j0 = per_channel.len() as f64 * angles * nodes;
+    let flops = per_channel.values().map(|n| 4.0 * angles * nodes * n).sum();
+    (j0, flops)
+}
+
+/// The radial (Hankel) path against the 2-D path on the same requests, in
+/// one run (docs/benchmarks.md): the evaluation's 7 depths × 3 channels
+/// through the three-lens DOE as a radial profile at the fabrication pitch,
+/// and the lens PSFs of the AI display's Wiener average. Both paths
+/// simulate the same element (the 2-D path samples the profile at every
+/// grid point); no cache.
+pub fn radial(common: &CommonOptions, dump: &Path) -> Result<String, AppError> {
+    create_dir(dump)?;
+    let c = &common.calibration()?;
+    let mut two_d = c.clone();
+    two_d.simulation.propagator = crate::calib::PropagatorSetting::TwoD;
+    let doe = crate::optics::HeightMap::three_lens_radial(c, c.doe_design_pitch_m)
+        .resampled(c.doe_fabrication_pitch_m);
+    let channels = 0..c.channels.len();
+    let eval: Vec<PsfSpec> = c
+        .depth_sweep_d(0.5)
+        .into_iter()
+        .flat_map(|d| {
+            channels.clone().map(move |ch| PsfSpec {
+                channel: ch,
+                psi_rad: c.psi_rad(ch, d),
+            })
+        })
+        .collect();
+    let mut wiener: Vec<PsfSpec> = Vec::new();
+    for d in c.depth_sweep_d(c.wiener.average_step_d) {
+        for ch in channels.clone() {
+            for (s, _) in crate::sim::methods::psf_terms(c, Method::Ai, d, ch) {
+                if !wiener.contains(&s) {
+                    wiener.push(s);
+                }
+            }
+        }
+    }
+    let (gflops, _) = ceilings();
+    let j0_ns = {
+        let n = 4_000_000;
+        let (t, s) = time_once(|| (0..n).map(|i| libm::j0(2.0 + i as f64 * 1e-3)).sum::<f64>());
+        std::hint::black_box(s);
+        t / n as f64 * 1e9
+    };
+    let mut out = String::new();
+    let mut rows = Vec::new();
+    for (name, specs, element) in [
+        (
+            "three-lens radial DOE at the fabrication pitch, 7 depths × 3 channels",
+            &eval,
+            Some(&doe),
+        ),
+        ("lens alone, AI display's Wiener average", &wiener, None),
+    ] {
+        let request = PsfRequest {
+            specs: specs.clone(),
+            doe: element,
+        };
+        let (t_radial, radial) = time_once(|| compute_psfs(c, &request, &|| ()));
+        let radial = radial?;
+        let (t_2d, flat) = time_once(|| compute_psfs(&two_d, &request, &|| ()));
+        let flat = flat?;
+        let r = &radial.report;
+        // The kernel covered the final window (the lens alone: its first
+        // guess may have been wider) or, with a DOE, the 2-D period's cap.
+        let half = match element {
+            Some(_) => r
+                .channels
+                .iter()
+                .map(|ch| (ch.period_cells - 1) / 2)
+                .min()
+                .unwrap_or(0),
+            None => (r.window_cells - 1) / 2,
+        };
+        let (j0, flops) = radial_work(r, specs, half);
+        let diff = radial
+            .psfs
+            .iter()
+            .zip(&flat.psfs)
+            .map(|(a, b)| {
+                let w = a.window.min(b.window);
+                let (a, b) = (
+                    crop_centred(&a.cells, a.window, w),
+                    crop_centred(&b.cells, b.window, w),
+                );
+                let peak = b.iter().cloned().fold(0.0, f64::max);
+                a.iter()
+                    .zip(&b)
+                    .map(|(x, y)| (x - y).abs())
+                    .fold(0.0, f64::max)
+                    / peak
+            })
+            .fold(0.0, f64::max);
+        let info = json!({
+            "kind": "radial", "request": name, "psfs": specs.len(),
+            "radial_s": t_radial, "two_d_s": t_2d, "ratio": t_2d / t_radial,
+            "radial_report": r.summary(), "two_d_report": flat.report.summary(),
+            "max_abs_radial_minus_two_d_of_peak": diff,
+            "j0_evaluations": j0, "j0_ns_each": j0_ns, "j0_s_one_core": j0 * j0_ns * 1e-9,
+            "gemm_flops": flops, "gemm_s_at_peak": flops / (gflops * 1e9), "f64_gemm_gflops": gflops,
+            "threads": rayon::current_num_threads(),
+        });
+        let _ = writeln!(out, "{info}");
+        rows.push(info);
+    }
+    super::write_text(&dump.join("radial.json"), &json!(rows).to_string())?;
     Ok(out)
 }

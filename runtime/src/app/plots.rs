@@ -326,6 +326,14 @@ pub fn doe(
             "bicubic to the fabrication pitch",
         )?;
     }
+    // A radial profile is drawn as the 2-D map it describes.
+    let as_map;
+    let map = if map.profile == crate::optics::Profile::Radial {
+        as_map = map.to_map(map.pitch_m, sim.calib.aperture_radius_m);
+        &as_map
+    } else {
+        map
+    };
     create_dir(out_dir)?;
     let n = map.samples;
     let (lo, hi) = map

@@ -52,6 +52,17 @@ pub struct SimulationSettings {
     pub max_pupil_samples: usize,
     /// Forced pupil step; `None` lets the sampling rules choose.
     pub pupil_step_m: Option<f64>,
+    /// Which propagator the PSF planner may use (`simulation.propagator`).
+    pub propagator: PropagatorSetting,
+}
+
+/// `simulation.propagator`: `Auto` takes the radial (Hankel) path for
+/// rotationally symmetric pupils (lens alone, radial DOEs) and the 2-D path
+/// for free-form maps; `TwoD` forces the 2-D path (comparisons, studies).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+pub enum PropagatorSetting {
+    Auto,
+    TwoD,
 }
 
 /// Wiener preprocessing constants (optics.md §7).
@@ -284,6 +295,11 @@ impl Calibration {
         if !(s.pupil_step_um.is_finite() && s.pupil_step_um >= 0.0) {
             return Err(v.err("simulation.pupil_step_um", "must be ≥ 0 (0 = automatic)"));
         }
+        let propagator = match s.propagator.as_str() {
+            "auto" => PropagatorSetting::Auto,
+            "2d" => PropagatorSetting::TwoD,
+            _ => return Err(v.err("simulation.propagator", "must be \"auto\" or \"2d\"")),
+        };
 
         let p = &raw.panel;
         for (field, px) in [
@@ -359,6 +375,7 @@ impl Calibration {
                 min_pupil_samples: s.min_pupil_samples,
                 max_pupil_samples: s.max_pupil_samples,
                 pupil_step_m: (s.pupil_step_um > 0.0).then_some(s.pupil_step_um * 1e-6),
+                propagator,
             },
             panel,
         })

@@ -102,4 +102,11 @@ pub struct RawSimulation {
     pub max_pupil_samples: usize,
     #[serde(default)]
     pub pupil_step_um: f64,
+    /// "auto" (radial Hankel path for rotationally symmetric pupils) or "2d".
+    #[serde(default = "auto")]
+    pub propagator: String,
+}
+
+fn auto() -> String {
+    "auto".into()
 }

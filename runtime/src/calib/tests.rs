@@ -154,6 +154,16 @@ fn fingerprint_tracks_optics_not_wiener() {
     assert_ne!(a.optics_fingerprint(), c.optics_fingerprint());
 }
 
+#[test]
+fn propagator_is_parsed_strictly() {
+    assert_eq!(default().simulation.propagator, PropagatorSetting::Auto);
+    let two_d = with(|s| s.replace("propagator = \"auto\"", "propagator = \"2d\"")).unwrap();
+    assert_eq!(two_d.simulation.propagator, PropagatorSetting::TwoD);
+    assert_ne!(default().optics_fingerprint(), two_d.optics_fingerprint());
+    let e = with(|s| s.replace("propagator = \"auto\"", "propagator = \"hankel\"")).unwrap_err();
+    assert!(e.to_string().contains("simulation.propagator"), "{e}");
+}
+
 proptest! {
     // Any single numeric value replaced by any float gives Ok or a clean error, never a panic.
     #[test]

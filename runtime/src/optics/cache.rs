@@ -1,6 +1,7 @@
 //! On-disk PSF cache. A request's PSFs depend only on the calibration's
-//! optics, the DOE's content and the request itself; they are stored under a
-//! key hashing all three (and this code's model version), so a second run
+//! optics, the DOE's content, the propagator and the request itself; they
+//! are stored under a key hashing all four (and this code's model version),
+//! so a second run
 //! loads instead of recomputing. A damaged or stale entry is recomputed, never trusted.
 
 use std::collections::HashMap;
@@ -8,12 +9,13 @@ use std::path::{Path, PathBuf};
 
 use safetensors::{Dtype, SafeTensors};
 
-use super::psf::{Psf, PsfRequest, PsfSet, SamplingReport};
+use super::psf::{Psf, PsfRequest, PsfSet, SamplingReport, propagator_for};
 use super::{OpticsError, compute_psfs};
 use crate::calib::Calibration;
 
-/// Bump when the PSF model changes in a way that changes results.
-pub const MODEL_VERSION: &str = "nedrt-psf/2";
+/// Bump when the PSF model changes in a way that changes results
+/// (3: the radial path for the lens alone and radial DOE profiles).
+pub const MODEL_VERSION: &str = "nedrt-psf/3";
 
 /// Where PSFs are cached; `None` disables caching.
 #[derive(Debug, Clone, Default)]
@@ -51,6 +53,7 @@ impl PsfCache {
                 .map_or_else(|| "lens".to_string(), |d| d.content_hash())
                 .as_bytes(),
         );
+        h.update(propagator_for(calib, request.doe).to_string().as_bytes());
         for s in &request.specs {
             h.update(&(s.channel as u64).to_le_bytes());
             h.update(&s.psi_rad.to_le_bytes());
@@ -248,14 +251,23 @@ mod tests {
         };
         let mut c2 = c.clone();
         c2.aperture_radius_m *= 0.9;
+        let mut two_d = c.clone();
+        two_d.simulation.propagator = crate::calib::PropagatorSetting::TwoD;
+        let radial = crate::optics::HeightMap::three_lens_radial(&c, 100e-6);
+        let r = PsfRequest {
+            specs: a.specs.clone(),
+            doe: Some(&radial),
+        };
         let keys = [
             PsfCache::key(&c, &a),
             PsfCache::key(&c, &b),
             PsfCache::key(&c, &d),
             PsfCache::key(&c2, &a),
+            PsfCache::key(&two_d, &a),
+            PsfCache::key(&c, &r),
         ];
-        for i in 0..4 {
-            for j in i + 1..4 {
+        for i in 0..keys.len() {
+            for j in i + 1..keys.len() {
                 assert_ne!(keys[i], keys[j]);
             }
         }

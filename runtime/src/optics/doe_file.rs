@@ -1,14 +1,15 @@
 //! DOE height-map files: safetensors with one tensor `height_um` (N×N, F32 or
-//! F64, row-major, centred on the axis) and string metadata stating the grid
-//! and the fabrication limits (docs/doe-format.md). The trainer writes them;
-//! every field is validated at load time, once.
+//! F64, row-major, centred on the axis; or N samples of a radial profile at
+//! (n + ½)·pitch with `profile = "radial"`) and string metadata stating the
+//! grid and the fabrication limits (docs/doe-format.md). The trainer writes
+//! them; every field is validated at load time, once.
 
 use std::collections::HashMap;
 use std::path::Path;
 
 use safetensors::{Dtype, SafeTensors};
 
-use super::doe::HeightMap;
+use super::doe::{HeightMap, Profile};
 use crate::calib::Calibration;
 
 /// Value of the `format` metadata key.
@@ -16,6 +17,10 @@ pub const FORMAT: &str = "nedrt-doe";
 /// Value of the `version` metadata key this code writes and reads.
 pub const VERSION: &str = "1";
 const TENSOR: &str = "height_um";
+/// Metadata key and value marking a radial profile (absent or `map`: 2-D).
+const PROFILE: &str = "profile";
+const RADIAL: &str = "radial";
+const MAP: &str = "map";
 
 #[derive(Debug, thiserror::Error)]
 pub enum DoeError {
@@ -122,12 +127,43 @@ pub fn parse(bytes: &[u8], name: &str, calib: &Calibration) -> Result<HeightMap,
         .tensor(TENSOR)
         .map_err(|_| bad(format!("tensor `{TENSOR}` is missing")))?;
     let shape = view.shape().to_vec();
-    if shape.len() != 2 || shape[0] != shape[1] || shape[0] < 4 {
-        return Err(bad(format!(
-            "tensor `{TENSOR}` has shape {shape:?}; a square N×N grid with N ≥ 4 is required"
-        )));
-    }
-    let samples = shape[0];
+    let profile = match meta.get(PROFILE).map(String::as_str) {
+        None | Some(MAP) => Profile::Map,
+        Some(RADIAL) => Profile::Radial,
+        Some(other) => {
+            return Err(bad(format!(
+                "metadata `{PROFILE}` = {other:?}; it must be {MAP:?} (2-D, the default) or {RADIAL:?}"
+            )));
+        }
+    };
+    let samples = match (profile, shape.as_slice()) {
+        (Profile::Map, &[rows, cols]) if rows == cols && rows >= 4 => rows,
+        (Profile::Radial, &[n]) if n >= 4 => n,
+        (Profile::Map, &[_]) => {
+            return Err(bad(format!(
+                "tensor `{TENSOR}` has shape {shape:?} (1-D) but metadata `{PROFILE}` is {}; \
+                 a radial profile needs `{PROFILE}` = {RADIAL:?}",
+                meta.get(PROFILE)
+                    .map_or("absent (2-D map)".to_string(), |v| format!("{v:?}"))
+            )));
+        }
+        (Profile::Radial, _) => {
+            return Err(bad(format!(
+                "metadata `{PROFILE}` = {RADIAL:?} but tensor `{TENSOR}` has shape {shape:?}; \
+                 a radial profile is 1-D with N ≥ 4 samples"
+            )));
+        }
+        (Profile::Map, _) => {
+            return Err(bad(format!(
+                "tensor `{TENSOR}` has shape {shape:?}; a square N×N grid with N ≥ 4 is required"
+            )));
+        }
+    };
+    // Where sample k lies, for messages.
+    let at = |k: usize| match profile {
+        Profile::Map => format!("row {}, column {}", k / samples, k % samples),
+        Profile::Radial => format!("sample {k} (ρ = {:.2} µm)", (k as f64 + 0.5) * pitch_um),
+    };
     let values: Vec<f64> = match view.dtype() {
         Dtype::F32 => view
             .data()
@@ -146,11 +182,7 @@ pub fn parse(bytes: &[u8], name: &str, calib: &Calibration) -> Result<HeightMap,
         }
     };
     if let Some(k) = values.iter().position(|v| !v.is_finite()) {
-        return Err(bad(format!(
-            "height at row {}, column {} is not finite",
-            k / samples,
-            k % samples
-        )));
+        return Err(bad(format!("height at {} is not finite", at(k))));
     }
     // f32 files hold heights to ~1e-7 relative: allow that much over the limits.
     let slack_um = max_height_um * 1e-6;
@@ -159,10 +191,9 @@ pub fn parse(bytes: &[u8], name: &str, calib: &Calibration) -> Result<HeightMap,
         .position(|v| *v < -slack_um || *v > max_height_um + slack_um)
     {
         return Err(bad(format!(
-            "height {} µm at row {}, column {} lies outside [0, max_height_um = {max_height_um}]",
+            "height {} µm at {} lies outside [0, max_height_um = {max_height_um}]",
             values[k],
-            k / samples,
-            k % samples
+            at(k)
         )));
     }
     if levels >= 2 {
@@ -172,22 +203,36 @@ pub fn parse(bytes: &[u8], name: &str, calib: &Calibration) -> Result<HeightMap,
             (v - q).abs() > 1e-4 * step
         }) {
             return Err(bad(format!(
-                "levels = {levels} but height {} µm at row {}, column {} is not one of the {levels} levels from 0 to {max_height_um} µm",
+                "levels = {levels} but height {} µm at {} is not one of the {levels} levels from 0 to {max_height_um} µm",
                 values[k],
-                k / samples,
-                k % samples
+                at(k)
             )));
         }
     }
     let pitch_m = pitch_um * 1e-6;
-    let half_extent_m = (samples as f64 - 1.0) / 2.0 * pitch_m;
     let r = calib.aperture_radius_m;
-    if half_extent_m < r * (1.0 - 1e-9) {
-        return Err(bad(format!(
-            "the grid ({samples} × {pitch_um} µm, {:.4} mm across) does not cover the {:.4} mm aperture",
-            2.0 * half_extent_m * 1e3,
-            2.0 * r * 1e3
-        )));
+    match profile {
+        Profile::Map => {
+            let half_extent_m = (samples as f64 - 1.0) / 2.0 * pitch_m;
+            if half_extent_m < r * (1.0 - 1e-9) {
+                return Err(bad(format!(
+                    "the grid ({samples} × {pitch_um} µm, {:.4} mm across) does not cover the {:.4} mm aperture",
+                    2.0 * half_extent_m * 1e3,
+                    2.0 * r * 1e3
+                )));
+            }
+        }
+        Profile::Radial => {
+            // Sample n covers [n, n + 1)·pitch: N·pitch must reach r.
+            let extent_m = samples as f64 * pitch_m;
+            if extent_m < r * (1.0 - 1e-9) {
+                return Err(bad(format!(
+                    "the radial profile ({samples} × {pitch_um} µm, reaching ρ = {:.4} mm) does not cover the {:.4} mm aperture radius",
+                    extent_m * 1e3,
+                    r * 1e3
+                )));
+            }
+        }
     }
     if max_height_um * 1e-6 > calib.doe_max_height_m * (1.0 + 1e-9) {
         tracing::warn!(
@@ -205,6 +250,7 @@ pub fn parse(bytes: &[u8], name: &str, calib: &Calibration) -> Result<HeightMap,
         );
     }
     Ok(HeightMap {
+        profile,
         samples,
         pitch_m,
         height_m: values
@@ -222,16 +268,21 @@ pub fn parse(bytes: &[u8], name: &str, calib: &Calibration) -> Result<HeightMap,
     })
 }
 
-/// Encodes a height map (heights as F32 µm) with its metadata.
+/// Encodes a height map or radial profile (heights as F32 µm) with its
+/// metadata; a map is written exactly as before radial profiles existed
+/// (no `profile` key).
 pub fn to_bytes(map: &HeightMap) -> Result<Vec<u8>, safetensors::SafeTensorError> {
     let heights: Vec<u8> = map
         .height_m
         .iter()
         .flat_map(|h| ((h * 1e6) as f32).to_le_bytes())
         .collect();
-    let view =
-        safetensors::tensor::TensorView::new(Dtype::F32, vec![map.samples, map.samples], &heights)?;
-    let meta: HashMap<String, String> = [
+    let shape = match map.profile {
+        Profile::Map => vec![map.samples, map.samples],
+        Profile::Radial => vec![map.samples],
+    };
+    let view = safetensors::tensor::TensorView::new(Dtype::F32, shape, &heights)?;
+    let mut meta: HashMap<String, String> = [
         ("format", FORMAT.to_string()),
         ("version", VERSION.to_string()),
         ("pitch_um", format!("{}", map.pitch_m * 1e6)),
@@ -247,6 +298,9 @@ pub fn to_bytes(map: &HeightMap) -> Result<Vec<u8>, safetensors::SafeTensorError
     .into_iter()
     .map(|(k, v)| (k.to_string(), v))
     .collect();
+    if map.profile == Profile::Radial {
+        meta.insert(PROFILE.into(), RADIAL.into());
+    }
     safetensors::serialize([(TENSOR, view)], Some(meta))
 }
 

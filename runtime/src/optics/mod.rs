@@ -9,10 +9,12 @@ pub mod mtf;
 pub mod propagate;
 pub mod psf;
 pub mod pupil;
+pub mod radial;
+pub mod radial_golden;
 pub mod sampling;
 
-pub use doe::HeightMap;
-pub use psf::{Psf, PsfRequest, PsfSet, SamplingReport, compute_psfs};
+pub use doe::{HeightMap, Profile};
+pub use psf::{Propagator, Psf, PsfRequest, PsfSet, SamplingReport, compute_psfs, propagator_for};
 pub use sampling::PsfSpec;
 
 /// Why a PSF request cannot be met. Never a silent alias: each names the rule.
@@ -25,8 +27,8 @@ pub enum OpticsError {
     #[error("sampling rule cannot be met: {0}")]
     RuleViolated(String),
     #[error(
-        "channel {channel}: the sampling rules need a {samples}×{samples} pupil grid ({step_um:.3} µm step), \
-         more than simulation.max_pupil_samples = {limit}"
+        "channel {channel}: the sampling rules need {samples} pupil samples across the aperture \
+         ({step_um:.3} µm step), more than simulation.max_pupil_samples = {limit}"
     )]
     GridTooLarge {
         channel: String,

@@ -1,8 +1,15 @@
-//! PSFs for a request: choose the sampling (optics.md §5), compute each PSF
-//! over a whole period with every retinal cell integrated exactly (the limit
-//! of optics.md's m×m sums, see [`exact_period_cells`]), choose the smallest
-//! window that holds the required energy for every PSF of the request, and
-//! keep what the window cannot hold as a uniform veil.
+//! PSFs for a request: choose the sampling (optics.md §5) and the
+//! propagator, compute every PSF with each retinal cell integrated, choose
+//! the smallest window that holds the required energy for every PSF of the
+//! request, and keep what the window cannot hold as a uniform veil.
+//!
+//! Two propagators ([`Propagator`]): rotationally symmetric pupils (the lens
+//! alone, radial DOE profiles) go through the radial (Hankel) path
+//! ([`super::radial`], planned in `radial_plan`), free-form 2-D maps through
+//! the 2-D path, which computes each PSF over a whole period with every cell
+//! integrated exactly (the limit of optics.md's m×m sums, see
+//! [`exact_period_cells`]). `simulation.propagator = "2d"` forces the 2-D
+//! path. Both report the same window rule and a comparable veil.
 
 use std::time::Instant;
 
@@ -10,14 +17,16 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use super::OpticsError;
-use super::doe::HeightMap;
+use super::doe::{HeightMap, Profile};
 use super::propagate::{centred_window_energies, crop_centred, exact_period_cells};
 use super::pupil::{PupilGrid, pupil_field};
 use super::sampling::{
     ChannelSampling, PsfSpec, StepRule, channel_sampling, max_pupil_step,
     predicted_half_width_cells,
 };
-use crate::calib::Calibration;
+use crate::calib::{Calibration, PropagatorSetting};
+
+mod radial_plan;
 
 /// Times the pupil step is halved to fit the window in the period (lens only).
 const MAX_REFINEMENTS: usize = 3;
@@ -40,9 +49,53 @@ pub struct Psf {
     pub veil: f64,
 }
 
+/// The propagator that computed a request's PSFs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+pub enum Propagator {
+    /// Hankel transform of a rotationally symmetric pupil profile.
+    #[serde(rename = "radial")]
+    Radial,
+    /// 2-D pupil grid, exact cells over one period.
+    #[default]
+    #[serde(rename = "2d")]
+    TwoD,
+}
+
+impl std::fmt::Display for Propagator {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Self::Radial => "radial (Hankel)",
+            Self::TwoD => "2-D",
+        })
+    }
+}
+
+/// The propagator `calib` uses for a request with `doe`: radial for the
+/// lens alone and for radial DOE profiles, 2-D for maps, or 2-D whenever
+/// `simulation.propagator = "2d"`.
+pub fn propagator_for(calib: &Calibration, doe: Option<&HeightMap>) -> Propagator {
+    match calib.simulation.propagator {
+        PropagatorSetting::TwoD => Propagator::TwoD,
+        PropagatorSetting::Auto => match doe {
+            Some(d) if d.profile == Profile::Map => Propagator::TwoD,
+            _ => Propagator::Radial,
+        },
+    }
+}
+
 /// What the model chose for a request, printed with every result.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct SamplingReport {
+    /// Which propagator ran.
+    #[serde(default)]
+    pub propagator: Propagator,
+    /// Radial path: annuli per cell width m_t of its cell rule (extrapolated
+    /// from m_t and m_t/2); 0 on the 2-D path.
+    #[serde(default)]
+    pub annuli_per_cell: usize,
+    /// Per channel: the pupil step (Δs, or Δρ on the radial path), its
+    /// samples (across the grid, or radial nodes) and the 2-D period that
+    /// bounds the window (0 for the radial lens alone, which has none).
     pub channels: Vec<ChannelReport>,
     pub step_rule: StepRule,
     pub window_cells: usize,
@@ -69,20 +122,34 @@ pub struct ChannelReport {
 impl SamplingReport {
     /// One line for the console.
     pub fn summary(&self) -> String {
+        let radial = self.propagator == Propagator::Radial;
         let steps: Vec<String> = self
             .channels
             .iter()
             .map(|c| {
                 format!(
-                    "{} {:.2} µm ({} samples)",
-                    c.name, c.pupil_step_um, c.pupil_samples
+                    "{} {:.2} µm ({} {})",
+                    c.name,
+                    c.pupil_step_um,
+                    c.pupil_samples,
+                    if radial { "annuli" } else { "samples" }
                 )
             })
             .collect();
+        let cells = if radial {
+            format!(
+                "integrated over {} and {} annuli per cell, extrapolated",
+                self.annuli_per_cell,
+                self.annuli_per_cell / 2
+            )
+        } else {
+            "each integrated exactly".to_string()
+        };
         format!(
-            "{} PSFs: pupil step {} set by {}; window {}×{} cells, each integrated exactly; \
+            "{} PSFs, {} path: pupil step {} set by {}; window {}×{} cells, {cells}; \
              window holds ≥ {:.4}%, veil ≤ {:.4}%{}; {:.2} s{}",
             self.psf_count,
+            self.propagator,
             steps.join(", "),
             self.step_rule,
             self.window_cells,
@@ -128,26 +195,59 @@ pub fn compute_psfs(
             return Err(OpticsError::BadSpec(format!("{s:?}")));
         }
     }
-    let (mut step_cap, mut step_rule) = max_pupil_step(calib, &request.specs, request.doe);
-    if let Some(forced) = calib.simulation.pupil_step_m {
-        if forced > step_cap * (1.0 + 1e-9) {
-            return Err(OpticsError::RuleViolated(format!(
+    match propagator_for(calib, request.doe) {
+        Propagator::Radial => radial_plan::compute(calib, request, tick, start),
+        Propagator::TwoD => compute_2d(calib, request, tick, start),
+    }
+}
+
+/// The coarsest pupil step rules 1, 2 and 4 allow for the request, or the
+/// configured step (an error if a rule forbids it), with the rule that set it.
+fn step_cap(calib: &Calibration, request: &PsfRequest) -> Result<(f64, StepRule), OpticsError> {
+    let (step_cap, step_rule) = max_pupil_step(calib, &request.specs, request.doe);
+    match calib.simulation.pupil_step_m {
+        Some(forced) if forced > step_cap * (1.0 + 1e-9) => {
+            Err(OpticsError::RuleViolated(format!(
                 "simulation.pupil_step_um = {:.3} µm is coarser than {step_rule} allows ({:.3} µm)",
                 forced * 1e6,
                 step_cap * 1e6
-            )));
+            )))
         }
-        (step_cap, step_rule) = (forced, StepRule::Configured);
+        Some(forced) => Ok((forced, StepRule::Configured)),
+        None => Ok((step_cap, step_rule)),
     }
+}
+
+/// The request's channels, sorted, once each.
+fn request_channels(request: &PsfRequest) -> Vec<usize> {
+    let mut channels: Vec<usize> = request.specs.iter().map(|s| s.channel).collect();
+    channels.sort_unstable();
+    channels.dedup();
+    channels
+}
+
+/// The smallest period the 2-D path allows before looking at the PSFs: it
+/// must hold the predicted blur (odd, cells).
+fn predicted_min_period(calib: &Calibration, request: &PsfRequest) -> usize {
     let predicted = request
         .specs
         .iter()
         .map(|s| predicted_half_width_cells(calib, *s))
         .fold(0.0, f64::max);
-    let mut min_period = 2 * predicted.ceil() as usize + 1;
-    let mut channels: Vec<usize> = request.specs.iter().map(|s| s.channel).collect();
-    channels.sort_unstable();
-    channels.dedup();
+    2 * predicted.ceil() as usize + 1
+}
+
+/// The 2-D path: exact cells over one period per PSF, the pupil step
+/// refined (lens alone) until the window fits in the period.
+fn compute_2d(
+    calib: &Calibration,
+    request: &PsfRequest,
+    tick: &(dyn Fn() + Sync),
+    start: Instant,
+) -> Result<PsfSet, OpticsError> {
+    let (mut step_cap, step_rule) = step_cap(calib, request)?;
+    let mut min_period = predicted_min_period(calib, request);
+    let channels = request_channels(request);
     let target = calib.simulation.window_energy;
 
     for refinement in 0..=MAX_REFINEMENTS {
@@ -225,6 +325,8 @@ pub fn compute_psfs(
             })
             .collect();
         let report = SamplingReport {
+            propagator: Propagator::TwoD,
+            annuli_per_cell: 0,
             channels: sampling
                 .iter()
                 .map(|s| ChannelReport {
@@ -294,5 +396,7 @@ fn compute_periods(
         .collect()
 }
 
+#[cfg(test)]
+mod radial_tests;
 #[cfg(test)]
 mod tests;

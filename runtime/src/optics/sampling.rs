@@ -34,6 +34,9 @@ pub enum StepRule {
     ApertureSamples,
     /// Capped by `simulation.pupil_step_um`.
     Configured,
+    /// Radial path: the J0 kernel resolved out to the window's corner,
+    /// Δρ ≤ λ_min / (2 θ_corner) (the radial counterpart of rule 3).
+    KernelNyquist,
 }
 
 impl std::fmt::Display for StepRule {
@@ -44,6 +47,7 @@ impl std::fmt::Display for StepRule {
             Self::Window => "rule 3 (window within one period)",
             Self::ApertureSamples => "rule 4 (samples across the aperture)",
             Self::Configured => "simulation.pupil_step_um",
+            Self::KernelNyquist => "the radial kernel's Nyquist limit at the window corner",
         })
     }
 }

@@ -8,6 +8,14 @@ fn calib() -> Calibration {
     Calibration::default_embedded().expect("default calibration")
 }
 
+/// The default calibration with the 2-D path forced (the lens alone would
+/// otherwise take the radial path, tested in `radial_tests`).
+fn calib_2d() -> Calibration {
+    let mut c = calib();
+    c.simulation.propagator = crate::calib::PropagatorSetting::TwoD;
+    c
+}
+
 fn psfs(
     c: &Calibration,
     specs: Vec<PsfSpec>,
@@ -67,7 +75,7 @@ fn integrated_cells_weigh_the_in_focus_order_as_optics_md_says() {
 
 #[test]
 fn lens_psfs_keep_all_light_in_window_plus_veil() {
-    let c = calib();
+    let c = calib_2d();
     let specs: Vec<PsfSpec> = (0..3)
         .map(|ch| PsfSpec {
             channel: ch,
@@ -126,7 +134,7 @@ fn planner_cells_are_the_limit_of_the_midpoint_sums() {
     // optics.md's m×m sums converge to the planner's exactly integrated
     // cells at second order. (Its stopping rule, a change below 0.5 % from
     // m−1 to m, stops at m = 6 here with 0.75 % still left to go.)
-    let c = calib();
+    let c = calib_2d();
     let spec = PsfSpec {
         channel: 1,
         psi_rad: c.psi_rad(1, 1.5),
@@ -152,7 +160,7 @@ fn planner_cells_are_the_limit_of_the_midpoint_sums() {
 
 #[test]
 fn large_defocus_refines_the_pupil_instead_of_aliasing() {
-    let mut c = calib();
+    let mut c = calib_2d();
     c.simulation.min_pupil_samples = 64;
     // Far beyond the design range: the blur outgrows a coarse period.
     let spec = PsfSpec {
