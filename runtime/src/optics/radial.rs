@@ -24,13 +24,14 @@
 //! constant at the axis (t_i is not the annulus's area centroid), so the
 //! cells are its Richardson extrapolation from m_t and m_t / 2
 //! ([`WindowCells`]): fourth order. The cost is one J0 kernel per channel
-//! (N_ρ × annuli, evaluated in row blocks, never stored whole) times the
-//! pupils of every PSF of that channel at once, against two 2-D FFTs of
-//! ≥ (2N)² per PSF on the 2-D path.
+//! (N_ρ × annuli, evaluated in row blocks, never stored whole; `kernel`:
+//! `libm::j0` below x = 25, Hankel's asymptotic expansion with rotations
+//! along t above) times the pupils of every PSF of that channel at once,
+//! against two 2-D FFTs of ≥ (2N)² per PSF on the 2-D path.
 
 use std::f64::consts::PI;
 
-use faer::{Accum, Mat, Par};
+use faer::{Accum, Mat, MatRef, Par};
 use num_complex::Complex64 as c64;
 use rayon::prelude::*;
 
@@ -134,6 +135,14 @@ pub fn pupil_energy_m2(grid: RadialGrid, pupil: &RadialPupil) -> f64 {
         .sum()
 }
 
+/// J0(2π ρ_n t_i / λ) for angles `t_rad` (> 0, rad) and node radii `rho_m`
+/// (increasing, m), `wavenumber_per_m` = 2π/λ: the radial kernel, row-major
+/// (rows t), as [`angular_density`] builds it block by block (exposed for
+/// `nedrt bench radial`).
+pub fn j0_kernel(wavenumber_per_m: f64, t_rad: &[f64], rho_m: &[f64]) -> Vec<f64> {
+    kernel::j0_block(wavenumber_per_m, t_rad, rho_m)
+}
+
 /// Field of the uniform disk of radius r at angle t: 2π r² J1(x)/x,
 /// x = 2π r t / λ (π r² on axis), m².
 fn disk_field_m2(radius_m: f64, wavenumber_per_m: f64, t_rad: f64) -> f64 {
@@ -177,12 +186,13 @@ pub fn angular_density(
     flat.par_chunks_mut(KERNEL_BLOCK_ROWS * count.max(1))
         .zip(t_rad.par_chunks(KERNEL_BLOCK_ROWS))
         .for_each(|(out, ts)| {
-            let kernel = Mat::<f64>::from_fn(ts.len(), n_rho, |i, n| libm::j0(k * ts[i] * rho[n]));
+            let kernel = kernel::j0_block(k, ts, &rho);
+            let kernel = MatRef::from_row_major_slice(&kernel, ts.len(), n_rho);
             let mut u = Mat::<f64>::zeros(ts.len(), 2 * count);
             faer::linalg::matmul::matmul(
                 u.as_mut(),
                 Accum::Replace,
-                kernel.as_ref(),
+                kernel,
                 weighted.as_ref(),
                 1.0,
                 Par::Seq,
@@ -421,6 +431,8 @@ impl WindowCells {
             .collect()
     }
 }
+
+mod kernel;
 
 #[cfg(test)]
 mod tests;
