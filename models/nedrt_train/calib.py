@@ -1,5 +1,5 @@
 """The calibration (calib/*.toml) and the quantities derived from it,
-optics.md §1–§4. Field names follow the TOML; values are SI."""
+docs/model.md §2–§5. Field names follow the TOML; values are SI."""
 import math
 import tomllib
 from dataclasses import dataclass

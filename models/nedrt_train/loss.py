@@ -1,4 +1,4 @@
-"""The training loss of optics.md §8:
+"""The training loss of docs/model.md §15 (SSIM as §16):
 
     E = L1(I_p, Î_p) + (1 − SSIM(I_p, Î_p)) + α R_dark + γ R_range
     R_dark  = mean(exp(−β J(I_p)) · J(Î_p)),  J = min over RGB and a 17×17 window

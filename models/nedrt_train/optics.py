@@ -1,4 +1,4 @@
-"""Differentiable display optics (optics.md §3–§6) in PyTorch: the pupil with
+"""Differentiable display optics (docs/model.md §4–§10) in PyTorch: the pupil with
 the DOE's height map, PSFs on the retinal grid by matrix Fourier transform
 with complex autograd, and the perceived image. Conventions are those of
 tests/golden/vectors.json, which the tests reproduce:
@@ -29,7 +29,7 @@ def grid(calib: Calib, pitch_m: float, dtype=torch.float64) -> torch.Tensor:
 
 
 def three_lens_init(calib: Calib, s: torch.Tensor) -> torch.Tensor:
-    """Heights (m) of the three-lens initial DOE on the grid s (optics.md §4)."""
+    """Heights (m) of the three-lens initial DOE on the grid s (docs/model.md §5)."""
     r = calib.aperture_radius_m
     rho2 = (s[None, :] ** 2 + s[:, None] ** 2) / r ** 2
     g = calib.design_channel

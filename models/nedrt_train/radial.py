@@ -46,7 +46,7 @@ def radial_nodes(radius_m: float, pitch_m: float) -> tuple[np.ndarray, np.ndarra
 
 
 def three_lens_profile(calib: Calib, rho_m) -> torch.Tensor:
-    """Heights (m) of the three-lens initial DOE (optics.md §4) at radii `rho_m`."""
+    """Heights (m) of the three-lens initial DOE (docs/model.md §5) at radii `rho_m`."""
     rho2 = torch.as_tensor(rho_m, dtype=torch.float64) ** 2 / calib.aperture_radius_m ** 2
     g = calib.design_channel
     total = sum(torch.exp(-1j * calib.psi_rad(g, d) * rho2) for d in calib.main_d)

@@ -1,4 +1,4 @@
-"""Joint training of the DOE and the D-CNN (paper §2, optics.md §8).
+"""Joint training of the DOE and the D-CNN (paper §2, docs/model.md §14–§15).
 
     python -m nedrt_train.train --preset half --steps 2000 --out models/runs/half
     torchrun --nproc_per_node=4 -m nedrt_train.train --preset full --device cuda ...

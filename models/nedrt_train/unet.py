@@ -1,4 +1,4 @@
-"""The D-CNN (optics.md §8): a residual U-Net, I_d = I + UNet(I). Encoder
+"""The D-CNN (docs/model.md §14): a residual U-Net, I_d = I + UNet(I). Encoder
 levels of two 3×3 conv + ReLU (32, 64, 128, 256 channels by default) with
 2×2 max-pooling between them; decoder levels of a 2×2 transposed conv, the
 skip concatenated, two 3×3 conv + ReLU; a final 1×1 conv to 3 channels.

@@ -2,7 +2,7 @@
 //! small PSFs of the three-lens DOE at a few wavelengths and depths, the lens
 //! alone, the target blur, and a small perceived image with its target, all
 //! with the exact sampling that produced them, so any implementation of
-//! optics.md can reproduce them. Written by `examples/make_golden.rs`.
+//! docs/model.md can reproduce them. Written by `examples/make_golden.rs`.
 
 use serde_json::{Value, json};
 

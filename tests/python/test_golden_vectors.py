@@ -1,4 +1,4 @@
-"""Independent numpy implementation of optics.md checked against the golden
+"""Independent numpy implementation of docs/model.md checked against the golden
 vectors the Rust simulator writes (tests/golden/vectors.json). Reads only
 calib/default.toml and the vectors: the trainer and the Rust optics share no
 code. Run: python -m pytest tests/python

@@ -6,7 +6,7 @@ bundled in the scikit-image wheel (PyPI), so the set is reproducible:
 
 Licences (from scikit-image's docstrings): astronaut, rocket and
 hubble_deep_field are NASA/SpaceX public domain; coffee and chelsea are CC0.
-Crops are multiples of 8 display pixels (evaluation.md). Training images
+Crops are multiples of 8 display pixels (docs/model.md §17). Training images
 (used only to tune the Wiener constant K, and later by the trainer) and test
 images come from different photographs.
 

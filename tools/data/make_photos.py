@@ -47,7 +47,7 @@ shipped images, are treated as linear intensity by the simulator and the
 trainer. Large wallpapers are reduced (×3 to ×5) so that a 256² crop holds a
 scene rather than a few blurred pixels, and the reduction also averages out
 JPEG and sensor noise. Training crops are 256×256, validation crops 384×384
-(sides multiples of 8, evaluation.md). Train and validation never share a
+(sides multiples of 8, docs/model.md §17). Train and validation never share a
 source photograph, and neither uses the test photographs (astronaut, hubble).
 Validation photographs are for validation only: never train or tune on them.
 """

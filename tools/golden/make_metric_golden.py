@@ -1,5 +1,5 @@
 """Golden PSNR/SSIM values from scikit-image, the reference implementation
-that optics.md §8 names, for the Rust metrics test.
+that docs/model.md §16 names, for the Rust metrics test.
 
     .venv/bin/pip install scikit-image==0.26.0 numpy
     .venv/bin/python tools/golden/make_metric_golden.py

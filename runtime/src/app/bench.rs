@@ -92,7 +92,8 @@ pub fn psf(common: &CommonOptions, dump: &Path, repeat: usize) -> Result<String,
     let report = &set.report;
     let w = report.window_cells;
     // The propagators alone, on the planner's grid, at the 6×6 midpoint
-    // sub-sampling that optics.md's convergence rule reaches for DOE PSFs.
+    // sub-sampling that the convergence rule of docs/model.md §18 (item 14)
+    // reaches for DOE PSFs.
     let sub = 6;
     let step = report.channels[0].pupil_step_um * 1e-6;
     let period = report.channels[0].period_cells;

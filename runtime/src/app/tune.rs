@@ -1,6 +1,6 @@
 //! `nedrt tune-wiener`: the Wiener constant K of a method, chosen on a grid
 //! of quarter decades to maximise the mean PSNR against the sharp image over
-//! 0–2.5 D on the training images (optics.md §7), and optionally written back
+//! 0–2.5 D on the training images (docs/model.md §13), and optionally written back
 //! into the calibration file with its comments kept.
 
 use std::fmt::Write as _;

@@ -1,6 +1,6 @@
 //! Calibration: parse `calib/*.toml` strictly, validate every field against
 //! its physical meaning, and resolve once into [`Calibration`] (SI units) from
-//! which the optics derive everything else (optics.md §1–§3).
+//! which the optics derive everything else (docs/model.md §2–§4).
 
 mod raw;
 
@@ -44,7 +44,7 @@ pub struct Channel {
     pub index: f64,
 }
 
-/// Settings of the PSF model (optics.md §5).
+/// Settings of the PSF model (docs/model.md §6–§8).
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct SimulationSettings {
     pub window_energy: f64,
@@ -65,7 +65,7 @@ pub enum PropagatorSetting {
     TwoD,
 }
 
-/// Wiener preprocessing constants (optics.md §7).
+/// Wiener preprocessing constants (docs/model.md §13).
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct WienerSettings {
     pub average_step_d: f64,
@@ -381,7 +381,8 @@ impl Calibration {
         })
     }
 
-    /// Focal length at a channel's wavelength, f_λ = f_s (n_s − 1)/(n_λ − 1) (optics.md §2), metres.
+    /// Focal length at a channel's wavelength, f_λ = f_s (n_s − 1)/(n_λ − 1)
+    /// (docs/model.md §3), metres.
     pub fn focal_length_m(&self, channel: usize) -> f64 {
         self.focal_length_spec_m * (self.index_at_spec - 1.0) / (self.channels[channel].index - 1.0)
     }
@@ -391,7 +392,7 @@ impl Calibration {
         1.0 / self.lens_distance_m - 1.0 / self.focal_length_m(channel)
     }
 
-    /// Defocus coefficient Ψ_λ(D) = (π/λ)(V_λ − D) r² (optics.md §3), radians.
+    /// Defocus coefficient Ψ_λ(D) = (π/λ)(V_λ − D) r² (docs/model.md §4), radians.
     pub fn psi_rad(&self, channel: usize, accommodation_d: f64) -> f64 {
         self.psi_for_vergence(channel, self.vergence_d(channel) - accommodation_d)
     }
@@ -406,7 +407,8 @@ impl Calibration {
         self.pixel_pitch_m / (2.0 * self.lens_distance_m)
     }
 
-    /// Phase per metre of DOE height at a channel, 2π(n_λ − 1)/λ (optics.md §4), rad/m.
+    /// Phase per metre of DOE height at a channel, 2π(n_λ − 1)/λ (docs/model.md §5),
+    /// rad/m.
     pub fn doe_phase_per_m(&self, channel: usize) -> f64 {
         let c = &self.channels[channel];
         2.0 * PI * (c.index - 1.0) / c.wavelength_m
@@ -425,7 +427,8 @@ impl Calibration {
             .any(|d| (d - accommodation_d).abs() < DEPTH_TOLERANCE_D)
     }
 
-    /// The evaluation depths of evaluation.md: the main and intermediate depths, sorted.
+    /// The evaluation depths of docs/model.md §17: the main and intermediate depths,
+    /// sorted.
     pub fn evaluation_depths_d(&self) -> Vec<f64> {
         let mut d: Vec<f64> = self
             .main_d

@@ -1,4 +1,4 @@
-//! Closed-form checks of the derived quantities (optics.md §2–§4) and of the
+//! Closed-form checks of the derived quantities (docs/model.md §3–§5, §19) and of the
 //! validation messages.
 
 use super::*;

@@ -210,7 +210,7 @@ impl GraphBuilder {
     }
 }
 
-/// The residual U-Net of optics.md §8 with channel widths width·2^i for
+/// The residual U-Net of docs/model.md §14 with channel widths width·2^i for
 /// `levels` levels (32 and 4 are the full model), random weights.
 pub fn unet(width: i64, levels: u32, seed: u64) -> pb::ModelProto {
     let mut g = GraphBuilder::new(seed);

@@ -1,4 +1,4 @@
-//! The diffractive optical element as heights d ≥ 0 (optics.md §4): a 2-D
+//! The diffractive optical element as heights d ≥ 0 (docs/model.md §5): a 2-D
 //! map on a square grid centred on the axis, or a radial profile d(ρ) for a
 //! rotationally symmetric element (the three-lens DOE, most lens-like
 //! designs), which the radial (Hankel) propagator computes ≥ 10× faster.
@@ -48,7 +48,7 @@ pub struct HeightMap {
     pub description: String,
 }
 
-/// The three-lens phase of optics.md §4 at normalised radius² `rho2`:
+/// The three-lens phase of docs/model.md §5 at normalised radius² `rho2`:
 /// arg Σ_i exp(−j Ψ_i ρ²) wrapped to [0, 2π), radians.
 fn three_lens_phase(psis: &[f64], rho2: f64) -> f64 {
     let sum: c64 = psis.iter().map(|p| c64::from_polar(1.0, -p * rho2)).sum();
@@ -84,7 +84,7 @@ impl HeightMap {
             && (grid.step_m - self.pitch_m).abs() <= 1e-12 * self.pitch_m
     }
 
-    /// The three-lens initial DOE of optics.md §4 on a grid of `pitch_m`:
+    /// The three-lens initial DOE of docs/model.md §5 on a grid of `pitch_m`:
     /// Φ = arg Σ_i exp(−j Ψ_λ0(D_i) ρ²) over the main depths, wrapped to
     /// [0, 2π), as height d = Φ λ0 / (2π (n_λ0 − 1)).
     pub fn three_lens_init(calib: &Calibration, pitch_m: f64) -> Self {

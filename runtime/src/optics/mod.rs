@@ -1,5 +1,5 @@
 //! Optics: dispersion and defocus (via [`crate::calib`]), the pupil with its
-//! DOE, propagation to the retina, the sampling rules of optics.md §5, PSFs,
+//! DOE, propagation to the retina, the sampling rules of docs/model.md §8, PSFs,
 //! MTFs and the PSF cache.
 
 pub mod cache;

@@ -1,4 +1,4 @@
-//! System PSF and MTF (optics.md §6): the system PSF is the retinal PSF
+//! System PSF and MTF (docs/model.md §11): the system PSF is the retinal PSF
 //! convolved with one display pixel (a 2×2-cell box); its MTF is reported
 //! along x in cycles per degree. The veil (light outside the window, spread
 //! uniformly) counts in the zero-frequency term, so it lowers the MTF at
@@ -100,7 +100,7 @@ mod tests {
 
     #[test]
     fn in_focus_lens_mtf_at_30_cpd_matches_optics_md() {
-        // optics.md §5: the lens-only in-focus MTF at 30 CPD reads 0.986 from
+        // docs/model.md §6, §19: the lens-only in-focus MTF at 30 CPD reads 0.986 from
         // centre samples but 0.884 from cell-integrated ones (the MTF of h on
         // the retinal grid, without the pixel).
         let c = Calibration::default_embedded().expect("calib");

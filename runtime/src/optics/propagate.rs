@@ -1,4 +1,4 @@
-//! Pupil → PSF in angle (optics.md §5): pure functions from a sampled pupil
+//! Pupil → PSF in angle (docs/model.md §6): pure functions from a sampled pupil
 //! to retinal cells, each cell holding ∫_cell |U|² dθ divided by the light
 //! through the aperture, with U(θ) = Σ Q(s) exp(−j2π s·θ/λ).
 //!

@@ -1,4 +1,4 @@
-//! PSFs for a request: choose the sampling (optics.md §5) and the
+//! PSFs for a request: choose the sampling (docs/model.md §8) and the
 //! propagator, compute every PSF with each retinal cell integrated, choose
 //! the smallest window that holds the required energy for every PSF of the
 //! request, and keep what the window cannot hold as a uniform veil.
@@ -7,7 +7,7 @@
 //! alone, radial DOE profiles) go through the radial (Hankel) path
 //! ([`super::radial`], planned in `radial_plan`), free-form 2-D maps through
 //! the 2-D path, which computes each PSF over a whole period with every cell
-//! integrated exactly (the limit of optics.md's m×m sums, see
+//! integrated exactly (the limit of the m×m sums of docs/model.md §6, see
 //! [`exact_period_cells`]). `simulation.propagator = "2d"` forces the 2-D
 //! path. Both report the same window rule and a comparable veil.
 

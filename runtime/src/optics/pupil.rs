@@ -1,5 +1,5 @@
 //! The generalised pupil function Q(s, t) = A · exp(jΦ) · exp(jΨρ²) (paper
-//! Eq. 2, optics.md §3) sampled on a square grid centred on the optical axis.
+//! Eq. 2, docs/model.md §4) sampled on a square grid centred on the optical axis.
 
 use num_complex::Complex64 as c64;
 use rayon::prelude::*;

@@ -1,6 +1,6 @@
 //! Radial (Hankel) propagation for rotationally symmetric pupils: pure
 //! functions from a pupil profile Q(ρ) to retinal cells, each holding
-//! ∫_cell |U|² dθ over the light through the aperture (optics.md §5 in polar
+//! ∫_cell |U|² dθ over the light through the aperture (docs/model.md §6 in polar
 //! form). For Q(ρ) the 2-D transform is a Hankel transform,
 //!
 //!   U(t) = Σ_n Q(ρ_n) · J0(2π ρ_n t / λ) · w_n,   ρ_n = (n + ½)Δρ,

@@ -1,4 +1,4 @@
-//! Sampling rules of optics.md §5, as pure functions of the request: the
+//! Sampling rules of docs/model.md §8, as pure functions of the request: the
 //! coarsest pupil step that resolves the aperture (rule 4), the DOE (rule 1)
 //! and the smooth phase (rule 2), and per channel a period λ/Δs holding a
 //! whole number of retinal cells for the FFT propagator (rule 3 then bounds

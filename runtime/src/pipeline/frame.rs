@@ -8,7 +8,7 @@
 use crate::inference::Frame;
 
 /// Pixel layouts the service takes. Values are display intensities, linear
-/// unless the format says otherwise (optics.md §6: the D-CNN works on
+/// unless the format says otherwise (docs/model.md §1: the D-CNN works on
 /// linear intensity).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum PixelFormat {

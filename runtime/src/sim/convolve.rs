@@ -1,5 +1,5 @@
 //! Real 2-D FFTs (realfft rows, rustfft columns) and the convolution of
-//! evaluation.md: pad by symmetric reflection by the kernel half-width,
+//! docs/model.md §9: pad by symmetric reflection by the kernel half-width,
 //! convolve, crop back, so no light wraps around the frame.
 
 use std::sync::Arc;

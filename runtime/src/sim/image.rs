@@ -1,4 +1,4 @@
-//! Planar RGB images of linear intensity (optics.md §6) and the grid
+//! Planar RGB images of linear intensity (docs/model.md §1, §9) and the grid
 //! operations of the model: up2 (display pixel → 2×2 retinal cells),
 //! symmetric extension, cropping.
 

@@ -1,4 +1,4 @@
-//! The display systems compared (optics.md §7, evaluation.md): which optics
+//! The display systems compared (docs/model.md §12, §17): which optics
 //! sit in the eyepiece, which PSFs the eye sees at an accommodation, and how
 //! the frame is preprocessed.
 
@@ -146,7 +146,7 @@ pub fn psf_terms(
     }
 }
 
-/// The target blur h_b: lens only, Ψ = Ψ_b at every wavelength (optics.md §6).
+/// The target blur h_b: lens only, Ψ = Ψ_b at every wavelength (docs/model.md §10).
 pub fn target_blur_spec(calib: &Calibration, channel: usize) -> PsfSpec {
     PsfSpec {
         channel,

@@ -1,4 +1,4 @@
-//! Image quality as optics.md §8 defines it: PSNR with peak 1 over the whole
+//! Image quality as docs/model.md §16 defines it: PSNR with peak 1 over the whole
 //! frame, and SSIM (Wang et al. 2004) with an 11×11 Gaussian window
 //! (σ = 1.5), K1 = 0.01, K2 = 0.03, data range 1, population covariance,
 //! per channel, averaged over the windows inside the frame (a 5-sample border

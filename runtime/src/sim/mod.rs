@@ -1,6 +1,6 @@
 //! The simulator: what the eye perceives through each display system, the
-//! targets it is judged against, and the scores (optics.md §6–§7,
-//! evaluation.md).
+//! targets it is judged against, and the scores (docs/model.md §9–§13,
+//! §16–§17).
 
 pub mod convolve;
 pub mod focus;

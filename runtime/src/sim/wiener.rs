@@ -1,4 +1,4 @@
-//! Wiener deconvolution preprocessing at display resolution (optics.md §7):
+//! Wiener deconvolution preprocessing at display resolution (docs/model.md §13):
 //! I_d = clamp(F⁻¹{G·F{I}}, 0, 1), G = H̄*/(|H̄|² + K) scaled to unit gain at
 //! zero frequency, H̄ the system PSF averaged over the accommodation range
 //! and taken to the display grid by the exact 2×2 relation

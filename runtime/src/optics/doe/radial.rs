@@ -33,7 +33,7 @@ impl HeightMap {
         (n as f64 + 0.5) * self.pitch_m
     }
 
-    /// The three-lens initial DOE of optics.md §4 as a radial profile of
+    /// The three-lens initial DOE of docs/model.md §5 as a radial profile of
     /// pitch `pitch_m`: N = ⌈r/p⌉ samples at (n + ½)·p (N·p ≥ r), each the
     /// wrapped phase arg Σ_i exp(−j Ψ_λ0(D_i) ρ²) as a height. The same
     /// element as [`HeightMap::three_lens_init`], rotationally symmetric by

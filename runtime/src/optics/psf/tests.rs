@@ -1,4 +1,4 @@
-//! The PSF planner against optics.md §5: converged cell integration, energy
+//! The PSF planner against docs/model.md §6–§8: converged cell integration, energy
 //! kept (window plus veil), the window choice and the refusals.
 
 use super::*;
@@ -27,7 +27,7 @@ fn psfs(
 #[test]
 fn integrated_cells_weigh_the_in_focus_order_as_optics_md_says() {
     // Three-lens DOE, G, accommodation 0.5 D: its 0.5 D order is in focus.
-    // optics.md §5: the central sample holds 75 % of a centre-sampled PSF but
+    // docs/model.md §6: the central sample holds 75 % of a centre-sampled PSF but
     // 29 % of the integrated one. Those shares are of the light in a window
     // of ≈ 200 cells, computed on the DOE's own 6 µm grid.
     let c = calib();
@@ -131,7 +131,7 @@ fn doe_window_is_capped_by_its_period_and_the_rest_is_veil() {
 
 #[test]
 fn planner_cells_are_the_limit_of_the_midpoint_sums() {
-    // optics.md's m×m sums converge to the planner's exactly integrated
+    // docs/model.md §6's m×m sums converge to the planner's exactly integrated
     // cells at second order. (Its stopping rule, a change below 0.5 % from
     // m−1 to m, stops at m = 6 here with 0.75 % still left to go.)
     let c = calib_2d();

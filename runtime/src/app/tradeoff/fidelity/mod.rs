@@ -1,4 +1,4 @@
-//! Simulation fidelity against cost (optics.md §5): each economy of the
+//! Simulation fidelity against cost (docs/model.md §8): each economy of the
 //! PSF model (a coarser pupil grid, a smaller PSF window, a 1-arcmin
 //! retinal grid, one wavelength per primary) priced in compute time and in
 //! its PSNR error against the exhaustive model, on the proposed system
@@ -36,7 +36,7 @@ use crate::sim::{Image, perceive};
 /// an OLED microdisplay's primaries are 25–40 nm wide; 30 nm is assumed.
 pub const PRIMARY_FWHM_NM: f64 = 30.0;
 
-/// Error budget of an economy against the exhaustive model (optics.md §5), dB.
+/// Error budget of an economy against the exhaustive model (docs/model.md §8), dB.
 pub const MAX_ERROR_DB: f64 = 0.1;
 
 /// Gauss–Hermite nodes (in standard deviations) and weights for a normal
@@ -154,9 +154,10 @@ pub struct Setting {
 }
 
 impl Setting {
-    /// The spec rule this setting breaks, if any: optics.md §5 rule 5 (the
-    /// window holds ≥ 99.9 % of the light) and §1 (the retinal grid is
-    /// 0.5 arcmin, a display pixel 2×2 samples; evaluation.md scores there).
+    /// The spec rule this setting breaks, if any: docs/model.md §8 rule 5
+    /// (the window holds ≥ 99.9 % of the light) and §2 (the retinal grid is
+    /// 0.5 arcmin, a display pixel 2×2 samples; §17 scores there). The
+    /// label "§1" in the report predates docs/model.md (now its §2).
     /// The spec wins over an economy, however small its error.
     pub fn spec_violation(&self) -> Option<&'static str> {
         if self.window_energy < 0.999 - 1e-12 {
