@@ -10,7 +10,10 @@ if [ ! -x .venv/bin/python ]; then
     python3 -m venv .venv
 fi
 .venv/bin/python -m pip install --quiet --disable-pip-version-check \
-    -r tests/python/requirements.txt -r models/requirements.txt
+    -r tests/python/requirements.txt -r models/requirements.txt "setuptools>=70.1"
+# The trainer as a package (models/pyproject.toml, the `nedrt-train` command),
+# editable; built with the venv's setuptools, so it needs no network.
+.venv/bin/python -m pip install --quiet --disable-pip-version-check --no-build-isolation -e models
 
 # The ort backend's tests load ONNX Runtime from the onnxruntime wheel just installed.
 ORT_DYLIB_PATH="$(ls "$PWD"/.venv/lib/python3*/site-packages/onnxruntime/capi/libonnxruntime.so.* | head -n 1)"

@@ -1,12 +1,18 @@
 """The calibration (calib/*.toml) and the quantities derived from it,
-docs/model.md §2–§5. Field names follow the TOML; values are SI."""
+docs/model.md §2–§5. Field names follow the TOML; values are SI.
+
+The package never looks for the repository: every command takes the
+calibration file as an argument (`--calib FILE`, by default
+`calib/default.toml` under the current directory, see `resolve`), and the
+functions receive the loaded `Calib` or the file's path."""
 import math
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[2]
-DEFAULT = REPO / "calib" / "default.toml"
+#: Where a command looks for the calibration when `--calib` is not given,
+#: relative to the current directory (the repository root, usually).
+DEFAULT_RELATIVE = Path("calib") / "default.toml"
 
 
 @dataclass(frozen=True)
@@ -66,8 +72,23 @@ class Calib:
         return sorted(self.main_d + self.intermediate_d)
 
 
-def load(path=DEFAULT) -> Calib:
+def resolve(arg=None, cwd=None) -> Path:
+    """The calibration file a command line names: `arg`, or
+    `calib/default.toml` under `cwd` (the current directory) when `arg` is
+    None; absolute. Raises FileNotFoundError naming the path when it is not
+    a file."""
+    base = Path(cwd) if cwd is not None else Path.cwd()
+    path = (base / (Path(arg) if arg is not None else DEFAULT_RELATIVE)).resolve()
+    if not path.is_file():
+        how = "" if arg is not None else " (the default: run from the repository root, or pass --calib FILE)"
+        raise FileNotFoundError(f"{path}: calibration file not found{how}")
+    return path
+
+
+def load(path) -> Calib:
     """Reads a calibration; raises ValueError naming the file and field."""
+    if path is None:
+        raise ValueError("no calibration file given (pass --calib FILE)")
     path = Path(path)
     try:
         raw = tomllib.loads(path.read_text())

@@ -6,18 +6,44 @@ data/images/train, a validation set in data/images/val, both cut from
 photographs that PyPI and Debian packages ship (tools/data/make_photos.py;
 provenance and licences in data/images/SOURCES.md). The validation
 photographs are never trained on, and the test photographs (data/images/test)
-are neither trained nor validated on."""
+are neither trained nor validated on.
+
+The folders are arguments: the commands take the image root (`--images DIR`,
+by default `data/images` under the current directory, see `resolve_root`)
+and pass its `train`, `val` or `test` folder on."""
 import math
 from pathlib import Path
 
 import numpy as np
 import torch
 
-from .calib import REPO
+#: Where a command looks for the image folders when `--images` is not given,
+#: relative to the current directory (the repository root, usually).
+DEFAULT_ROOT = Path("data") / "images"
 
-TRAIN_DIR = REPO / "data" / "images" / "train"
-VAL_DIR = REPO / "data" / "images" / "val"
-TEST_DIR = REPO / "data" / "images" / "test"
+
+def resolve_root(arg=None, cwd=None) -> Path:
+    """The image root a command line names (the folder holding train/, val/
+    and test/): `arg`, or `data/images` under `cwd` (the current directory)
+    when `arg` is None; absolute. Raises FileNotFoundError naming the path
+    when it is not a folder."""
+    base = Path(cwd) if cwd is not None else Path.cwd()
+    path = (base / (Path(arg) if arg is not None else DEFAULT_ROOT)).resolve()
+    if not path.is_dir():
+        how = "" if arg is not None else " (the default: run from the repository root, or pass --images DIR)"
+        raise FileNotFoundError(f"{path}: image folder not found{how}")
+    return path
+
+
+def photo_folder(folder) -> Path:
+    """`folder` as a Path, refused (naming it) when it is not a folder: a
+    mistyped path must not train on no photographs without a word."""
+    if folder is None:
+        raise ValueError("no photograph folder given (pass --images DIR)")
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise FileNotFoundError(f"{folder}: photograph folder not found")
+    return folder
 
 
 def dead_leaves(rng: np.random.Generator, size: int, r_min: float = 3.0, r_max: float = None) -> np.ndarray:
@@ -79,13 +105,13 @@ def load_photos(folder: Path) -> list:
 
 class TrainingImages:
     """Random patches: procedural images and random crops/flips of the
-    training photographs (every PNG of data/images/train at least `patch`
-    on a side), in proportion `photo_share`."""
+    training photographs (every PNG of `photo_dir`, data/images/train, at
+    least `patch` on a side), in proportion `photo_share`."""
 
-    def __init__(self, patch: int, seed: int, photo_share: float = 0.3):
+    def __init__(self, patch: int, seed: int, photo_dir, photo_share: float = 0.3):
         self.patch = patch
         self.rng = np.random.default_rng(seed)
-        self.photos = [p for p in load_photos(TRAIN_DIR) if min(p.shape[:2]) >= patch]
+        self.photos = [p for p in load_photos(photo_folder(photo_dir)) if min(p.shape[:2]) >= patch]
         self.photo_share = photo_share if self.photos else 0.0
 
     def sample(self) -> np.ndarray:
@@ -104,13 +130,13 @@ class TrainingImages:
         return torch.from_numpy(np.stack([self.sample() for _ in range(size)])).permute(0, 3, 1, 2).contiguous()
 
 
-def validation_photos(patch: int = None) -> torch.Tensor:
-    """The validation photographs of data/images/val (N×3×H×W, float32 in
+def validation_photos(val_dir, patch: int = None) -> torch.Tensor:
+    """The validation photographs of `val_dir`, data/images/val (N×3×H×W, float32 in
     [0, 1]), disjoint from the training photographs by source photograph;
     with `patch`, their centre patch×patch crops (photographs smaller than
     that are left out), else their centre squares of the smallest side (all
     are 384×384 now, so the whole photographs)."""
-    photos, imgs = load_photos(VAL_DIR), []
+    photos, imgs = load_photos(photo_folder(val_dir)), []
     side = patch or min((min(p.shape[:2]) for p in photos), default=0)
     for p in photos:
         n = side
@@ -122,14 +148,14 @@ def validation_photos(patch: int = None) -> torch.Tensor:
     return torch.from_numpy(np.stack(imgs)).permute(0, 3, 1, 2).contiguous()
 
 
-def validation_images(patch: int, count: int = 4, seed: int = 10_000) -> torch.Tensor:
+def validation_images(patch: int, val_dir, count: int = 4, seed: int = 10_000) -> torch.Tensor:
     """A fixed validation set, disjoint from training: procedural images from
-    their own seed plus centre crops of the validation photographs
-    (data/images/val; until issue 14 these were the test photographs, which
-    are now kept for the final evaluation only)."""
+    their own seed plus centre crops of the validation photographs in
+    `val_dir` (data/images/val; until issue 14 these were the test
+    photographs, which are now kept for the final evaluation only)."""
     rng = np.random.default_rng(seed)
     imgs = [dead_leaves(rng, patch).astype(np.float32) for _ in range(count)]
-    for p in load_photos(VAL_DIR):
+    for p in load_photos(photo_folder(val_dir)):
         y, x = (p.shape[0] - patch) // 2, (p.shape[1] - patch) // 2
         if y >= 0 and x >= 0:
             imgs.append(p[y:y + patch, x:x + patch])

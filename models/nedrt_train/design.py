@@ -2,9 +2,11 @@
 profile h(ρ) for the display with a linear (Wiener) prefilter, for a chosen
 target, by the expected error over natural-image spectra.
 
-    python -m nedrt_train.design --target multifocal --out runs/design-multifocal
-    python -m nedrt_train.design --target allsharp --out runs/design-allsharp
-    python -m nedrt_train.design --target allsharp --out runs/design-allsharp --resume
+    nedrt-train design --target multifocal --out models/runs/design-multifocal
+    nedrt-train design --target allsharp --out models/runs/design-allsharp
+    python -m nedrt_train.design --target allsharp --out models/runs/design-allsharp --resume
+
+(from the repository root, or with `--calib FILE` and `--images DIR`).
 
 Model (docs/training.md, "The DOE stage"). Per colour channel, the PSFs h_D
 of the lens + DOE over the accommodation sweep (radial model, cells
@@ -47,6 +49,7 @@ import torch
 from tqdm import tqdm
 
 from . import calib as calib_mod
+from .data import photo_folder, resolve_root
 from .radial import RadialPsfModel, keys_profile, radial_nodes
 
 TARGETS = ("multifocal", "allsharp")
@@ -77,7 +80,9 @@ class DesignConfig:
     initial_k: float = 0.03
     seed: int = 0
     checkpoint_every: int = 50
-    calib: str = str(calib_mod.DEFAULT)
+    # The calibration TOML: an absolute path the command line resolves
+    # (--calib); no default here.
+    calib: str | None = None
 
 
 def file_hash(path) -> str:
@@ -383,6 +388,10 @@ TUNE_IMAGES = 8
 
 def design(cfg: DesignConfig, out: Path, resume: bool = False, images_dir: Path | None = None,
            tune: bool = True) -> dict:
+    """The DOE stage in `out`. `images_dir` is the training photographs'
+    folder (data/images/train): the spectrum fit, the crops of the images
+    objective and the clamped K search read it; the command line passes
+    `--images`'s train/."""
     if cfg.target not in TARGETS:
         raise ValueError(f"target {cfg.target!r}: choose one of {', '.join(TARGETS)}")
     calib = calib_mod.load(cfg.calib)
@@ -405,12 +414,11 @@ def design(cfg: DesignConfig, out: Path, resume: bool = False, images_dir: Path 
     else:
         if ckpt.exists():
             raise ValueError(f"{ckpt} exists: pass --resume to continue it, or choose another --out")
-        images_dir = images_dir or calib_mod.REPO / "data" / "images" / "train"
-        alpha = cfg.spectrum_alpha if cfg.spectrum_alpha is not None else fit_spectrum_alpha(images_dir)
+        alpha = cfg.spectrum_alpha if cfg.spectrum_alpha is not None else fit_spectrum_alpha(photo_folder(images_dir))
     torch.manual_seed(cfg.seed)
     crops = None
     if cfg.objective == "images":
-        crops = training_crops(images_dir or calib_mod.REPO / "data" / "images" / "train", cfg.crops,
+        crops = training_crops(photo_folder(images_dir), cfg.crops,
                                cfg.frequencies // 2, cfg.seed)
     crops_sha = hashlib.sha256(crops.numpy().tobytes()).hexdigest()[:16] if crops is not None else None
     if state and state.get("crops_sha") != crops_sha:
@@ -460,7 +468,7 @@ def design(cfg: DesignConfig, out: Path, resume: bool = False, images_dir: Path 
         _, db = model.objective()
     k_clamped, train_rows = None, None
     if tune:
-        tune_images = load_images(images_dir or calib_mod.REPO / "data" / "images" / "train", limit=TUNE_IMAGES)
+        tune_images = load_images(photo_folder(images_dir), limit=TUNE_IMAGES)
         k_clamped, _, train_rows = tune_k(model, tune_images, cfg.target)
     result = {
         "target": cfg.target, "steps": step, "wall_time_s": round(time.time() - start, 1),
@@ -497,23 +505,31 @@ def export_design(run: Path, name: str, out: Path) -> dict:
     return {"files": {p.name: sha256(p) for p in [design_path, fab_path]}}
 
 
-def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+def main(argv=None, prog=None):
+    ap = argparse.ArgumentParser(prog=prog, description=__doc__.split("\n\n")[0])
     ap.add_argument("--target", choices=TARGETS, required=True)
     ap.add_argument("--out", type=Path, required=True)
     ap.add_argument("--steps", type=int)
     ap.add_argument("--lr", type=float)
     ap.add_argument("--window", type=int)
-    ap.add_argument("--calib")
+    ap.add_argument("--calib", metavar="FILE",
+                    help="calibration TOML (default: calib/default.toml under the current directory)")
+    ap.add_argument("--images", metavar="DIR",
+                    help="image root whose train/ the design reads (default: data/images under the current directory)")
     ap.add_argument("--resume", action="store_true")
     ap.add_argument("--no-tune", dest="tune", action="store_false", help="skip the clamped K search on training photographs")
     ap.add_argument("--name", help="also write the DOE files doe-NAME-{design,fabrication}.safetensors into --out")
     args = ap.parse_args(argv)
-    overrides = {k: getattr(args, k) for k in ["steps", "lr", "window", "calib"] if getattr(args, k) is not None}
-    cfg = dataclasses.replace(DesignConfig(target=args.target), **overrides)
+    overrides = {k: getattr(args, k) for k in ["steps", "lr", "window"] if getattr(args, k) is not None}
     try:
-        result = design(cfg, args.out, resume=args.resume, tune=args.tune)
-    except ValueError as e:
+        calib = calib_mod.resolve(args.calib)
+        images = resolve_root(args.images)
+    except FileNotFoundError as e:
+        raise SystemExit(f"error: {e}")
+    cfg = dataclasses.replace(DesignConfig(target=args.target), calib=str(calib), **overrides)
+    try:
+        result = design(cfg, args.out, resume=args.resume, images_dir=images / "train", tune=args.tune)
+    except (ValueError, FileNotFoundError) as e:
         raise SystemExit(f"error: {e}")
     if args.name:
         result.update(export_design(args.out, args.name, args.out))

@@ -69,9 +69,11 @@ def sha256(path) -> str:
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
-def export_run(run: Path, out: Path, name: str) -> dict:
+def export_run(run: Path, out: Path, name: str, calib=None) -> dict:
     """From a training run (checkpoint.pt, result.json) write `out/dcnn-NAME.onnx`,
-    the DOE at the design and fabrication pitches, and `out/card-NAME.json`."""
+    the DOE at the design and fabrication pitches, and `out/card-NAME.json`.
+    The calibration is `calib` or, when None, the file the run recorded in
+    its config (an error naming it if it is gone)."""
     import dataclasses
     import platform
 
@@ -82,6 +84,11 @@ def export_run(run: Path, out: Path, name: str) -> dict:
 
     state = torch.load(run / "checkpoint.pt", map_location="cpu", weights_only=False)
     cfg = config_from_saved(state["config"])
+    if calib is not None:
+        cfg = dataclasses.replace(cfg, calib=str(calib))
+    elif cfg.calib is None or not Path(cfg.calib).is_file():
+        raise FileNotFoundError(f"{cfg.calib}: the calibration recorded by {run / 'checkpoint.pt'} is not a file; "
+                                "pass --calib FILE")
     cal = calib_mod.load(cfg.calib)
     system = System(cfg, cal)
     system.load_state_dict(state["system"])
@@ -118,24 +125,36 @@ def export_run(run: Path, out: Path, name: str) -> dict:
     return card
 
 
-def main(argv=None):
+def main(argv=None, prog=None):
     import argparse
-    ap = argparse.ArgumentParser(description="Export a training run: ONNX, DOE files, model card.")
+
+    from . import calib as calib_mod
+    from .data import resolve_root
+    ap = argparse.ArgumentParser(prog=prog, description="Export a training run: ONNX, DOE files, model card.")
     ap.add_argument("--run", type=Path, required=True)
-    ap.add_argument("--out", type=Path, default=Path(__file__).resolve().parents[1])
+    ap.add_argument("--out", type=Path, default=Path("models"),
+                    help="folder for the files (default: models under the current directory)")
     ap.add_argument("--name", required=True)
-    ap.add_argument("--displays", type=Path, help="also write the D-CNN outputs for data/images/test here (16-bit PNG), for nedrt eval --display-dir")
+    ap.add_argument("--calib", metavar="FILE", help="calibration TOML (default: the one the run was trained with)")
+    ap.add_argument("--displays", type=Path, help="also write the D-CNN outputs for the test photographs (--images's test/) here (16-bit PNG), for nedrt eval --display-dir")
+    ap.add_argument("--images", metavar="DIR",
+                    help="image root whose test/ --displays reads (default: data/images under the current directory)")
     args = ap.parse_args(argv)
-    print(json.dumps(export_run(args.run, args.out, args.name)["files"], indent=1))
+    try:
+        calib = calib_mod.resolve(args.calib) if args.calib is not None else None
+        images = resolve_root(args.images) if args.displays else None
+        files = export_run(args.run, args.out, args.name, calib)["files"]
+    except (ValueError, FileNotFoundError) as e:
+        raise SystemExit(f"error: {e}")
+    print(json.dumps(files, indent=1))
     if args.displays:
-        from . import calib as calib_mod
         from .train import config_from_saved
         from .unet import UNet
         state = torch.load(args.run / "checkpoint.pt", map_location="cpu", weights_only=False)
         cfg = config_from_saved(state["config"])
         net = UNet(cfg.width, cfg.levels)
         net.load_state_dict({k[len("net."):]: v for k, v in state["system"].items() if k.startswith("net.")})
-        for p in write_displays(net, calib_mod.REPO / "data" / "images" / "test", args.displays):
+        for p in write_displays(net, images / "test", args.displays):
             print("wrote", p)
 
 

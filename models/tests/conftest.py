@@ -1,4 +1,10 @@
-import sys
-from pathlib import Path
+"""The trainer's tests import the installed package (`pip install
+--no-build-isolation -e models`, which scripts/test.sh does); nothing here
+edits sys.path."""
+import importlib.util
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+import pytest
+
+if importlib.util.find_spec("nedrt_train") is None:
+    raise pytest.UsageError("nedrt_train is not installed: run `.venv/bin/pip install --no-build-isolation -e models` "
+                            "(scripts/test.sh does)")

@@ -5,6 +5,7 @@ or target is refused."""
 import dataclasses
 import math
 import shutil
+from pathlib import Path
 
 import pytest
 import torch
@@ -14,8 +15,9 @@ from nedrt_train.design import (DesignConfig, DesignModel, design, display_kerne
                                 wiener_display, wiener_gain)
 from nedrt_train.optics import perceive, target, up2
 
-SMALL_PATH = str(calib_mod.REPO / "tests" / "data" / "small-aperture.toml")
-TRAIN = calib_mod.REPO / "data" / "images" / "train"
+REPO = Path(__file__).resolve().parents[2]
+SMALL_PATH = str(REPO / "tests" / "data" / "small-aperture.toml")
+TRAIN = REPO / "data" / "images" / "train"
 TINY = DesignConfig(target="allsharp", window=9, frequencies=32, crops=2, steps=3, checkpoint_every=1, calib=SMALL_PATH,
                     spectrum_alpha=2.0)
 
@@ -65,22 +67,22 @@ def test_display_transfer_is_the_transform_of_nedrts_display_kernel():
 
 
 def test_resume_equals_straight_through_and_refuses_another_target_or_calibration(tmp_path):
-    design(TINY, tmp_path / "a", tune=False)
-    design(dataclasses.replace(TINY, steps=1), tmp_path / "b", tune=False)
-    design(TINY, tmp_path / "b", resume=True, tune=False)
+    design(TINY, tmp_path / "a", tune=False, images_dir=TRAIN)
+    design(dataclasses.replace(TINY, steps=1), tmp_path / "b", tune=False, images_dir=TRAIN)
+    design(TINY, tmp_path / "b", resume=True, tune=False, images_dir=TRAIN)
     a = torch.load(tmp_path / "a" / "checkpoint.pt", weights_only=False)["model"]
     b = torch.load(tmp_path / "b" / "checkpoint.pt", weights_only=False)["model"]
     assert all(torch.equal(a[k], b[k]) for k in a)
     with pytest.raises(ValueError, match="target = 'allsharp'"):
-        design(dataclasses.replace(TINY, target="multifocal"), tmp_path / "a", resume=True, tune=False)
+        design(dataclasses.replace(TINY, target="multifocal"), tmp_path / "a", resume=True, tune=False, images_dir=TRAIN)
     other = tmp_path / "other.toml"
     shutil.copy(SMALL_PATH, other)
     other.write_text(other.read_text().replace("aperture_radius_mm = 1.5", "aperture_radius_mm = 1.4"))
     with pytest.raises(ValueError, match="calib_sha"):
-        design(dataclasses.replace(TINY, calib=str(other)), tmp_path / "a", resume=True, tune=False)
+        design(dataclasses.replace(TINY, calib=str(other)), tmp_path / "a", resume=True, tune=False, images_dir=TRAIN)
     # A fresh run never overwrites a checkpoint silently.
     with pytest.raises(ValueError, match="--resume"):
-        design(TINY, tmp_path / "a", tune=False)
+        design(TINY, tmp_path / "a", tune=False, images_dir=TRAIN)
 
 
 def test_a_design_step_improves_the_objective():

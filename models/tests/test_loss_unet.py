@@ -1,6 +1,7 @@
 """Each loss term against a hand-computed case, SSIM against scikit-image,
 the U-Net's shape, size and residual, and its ONNX export round trip."""
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -10,9 +11,11 @@ from nedrt_train import calib as calib_mod
 from nedrt_train.loss import ALPHA, GAMMA, dark_channel, loss_terms, ssim, total
 from nedrt_train.unet import UNet
 
+REPO = Path(__file__).resolve().parents[2]
+
 
 def test_ssim_matches_scikit_image():
-    golden = json.loads((calib_mod.REPO / "tests/golden/metrics.json").read_text())
+    golden = json.loads((REPO / "tests/golden/metrics.json").read_text())
     for case in golden["cases"]:
         h, w = case["height"], case["width"]
         a = torch.tensor(case["a"], dtype=torch.float64).reshape(1, 3, h, w)
@@ -92,14 +95,14 @@ def test_bicubic_reproduces_quadratics_and_doe_file_loads_in_nedrt(tmp_path):
     assert np.abs(fine - want)[5:-5, 5:-5].max() < 1e-12
     # A file the Rust loader accepts: `nedrt doe --doe FILE` validates it.
     import subprocess
-    cal = calib_mod.load()
+    cal = calib_mod.load(REPO / "calib" / "default.toml")
     from nedrt_train.optics import grid, three_lens_init
     sg = grid(cal, cal.doe_design_pitch_m)
     height = three_lens_init(cal, sg).numpy()
     path = tmp_path / "doe.safetensors"
     save_doe(path, height, cal.doe_design_pitch_m, cal.wave_height_m, "fused silica",
              cal.channels[cal.design_channel].wavelength_m, "test")
-    exe = calib_mod.REPO / "target" / "release" / "nedrt"
+    exe = REPO / "target" / "release" / "nedrt"
     if not exe.exists():
         pytest.skip("nedrt not built")
     out = subprocess.run([str(exe), "doe", "--doe", str(path), "--out-dir", str(tmp_path)], capture_output=True, text=True)

@@ -4,6 +4,7 @@ finite differences, and the convolution against a direct sum."""
 import dataclasses
 import json
 import math
+from pathlib import Path
 
 import pytest
 import torch
@@ -11,8 +12,9 @@ import torch
 from nedrt_train import calib as calib_mod
 from nedrt_train.optics import PsfModel, convolve, grid, perceive, symmetric_index, three_lens_init, up2
 
-VECTORS = json.loads((calib_mod.REPO / "tests/golden/vectors.json").read_text())
-CAL = calib_mod.load()
+REPO = Path(__file__).resolve().parents[2]
+VECTORS = json.loads((REPO / "tests/golden/vectors.json").read_text())
+CAL = calib_mod.load(REPO / "calib" / "default.toml")
 
 
 @pytest.fixture(scope="module")
@@ -36,7 +38,7 @@ def test_sigmoid_parameterisation_keeps_heights_in_range(model):
     assert (h - three_lens_init(CAL, s)).abs().max() < 1e-4 * CAL.doe_max_height_m + 1e-12
 
 
-RADIAL = json.loads((calib_mod.REPO / "tests/golden/radial.json").read_text())
+RADIAL = json.loads((REPO / "tests/golden/radial.json").read_text())
 
 
 @pytest.mark.parametrize("entry", RADIAL["psfs"], ids=lambda e: f'{e["optics"]}-{e["channel"]}-{e["accommodation_d"]}')

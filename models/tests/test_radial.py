@@ -4,6 +4,7 @@ exact cells on the same element, its convergence in the annulus width, and
 its gradients against finite differences."""
 import dataclasses
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -14,8 +15,9 @@ from nedrt_train.optics import PsfModel, grid, perceive
 from nedrt_train.radial import (RadialPsfModel, annulus_cell_weights, disk_rect_area, keys_profile,
                                 octant_cells, radial_nodes, three_lens_profile)
 
-CAL = calib_mod.load()
-SMALL = calib_mod.load(calib_mod.REPO / "tests" / "data" / "small-aperture.toml")
+REPO = Path(__file__).resolve().parents[2]
+CAL = calib_mod.load(REPO / "calib" / "default.toml")
+SMALL = calib_mod.load(REPO / "tests" / "data" / "small-aperture.toml")
 
 
 def j1(x):
@@ -163,7 +165,7 @@ def test_trainer_psfs_agree_with_nedrt_for_the_same_doe(tmp_path):
     import csv
     import subprocess
     from nedrt_train.export import save_doe
-    exe = calib_mod.REPO / "target" / "release" / "nedrt"
+    exe = REPO / "target" / "release" / "nedrt"
     if not exe.exists():
         pytest.fail("target/release/nedrt is not built: scripts/test.sh builds it before pytest")
     model = RadialPsfModel(CAL, CAL.doe_design_pitch_m, 81, quadrature_pitch_m=1.5e-6)

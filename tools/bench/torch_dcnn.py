@@ -1,7 +1,9 @@
 """PyTorch side of `nedrt bench inference`: the trainer's U-Net (random
 weights; latency does not depend on them) at the same frame sizes, on CUDA
 when present (f32 with TF32 off, TF32, f16) else on the CPU (f32). Prints
-JSON lines like the Rust bench. Run from the repo root:
+JSON lines like the Rust bench. Needs the trainer installed
+(`.venv/bin/pip install --no-build-isolation -e models`, which
+scripts/test.sh does). Run from the repo root:
 
     .venv/bin/python tools/bench/torch_dcnn.py --sizes 512x512,1920x1080
 
@@ -11,14 +13,11 @@ frame over the device's peak for that precision (--peak-tflops f32,tf32,f16).
 import argparse
 import json
 import statistics
-import sys
 import time
-from pathlib import Path
 
 import torch
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "models"))
-from nedrt_train.unet import UNet  # noqa: E402
+from nedrt_train.unet import UNet
 
 
 def timed(fn, repeat, cuda):
