@@ -1015,3 +1015,123 @@ fn designs_are_selected_by_name_and_bad_selections_are_refused() {
     let o = in_repo(&["--design", "allsharp", "--doe", "x.safetensors", "calib"]);
     assert!(!o.status.success(), "--design and --doe together");
 }
+
+#[test]
+fn eval_adds_a_row_per_design_equal_to_running_that_design() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let imgs = dir.path().join("imgs");
+    std::fs::create_dir(&imgs).expect("dir");
+    write_png(&imgs.join("a.png"), 48, 40);
+    let doe = dir.path().join("d.safetensors");
+    let small = small_calib();
+    let o = run(&[
+        "--calib",
+        path(&small),
+        "doe",
+        "--out-dir",
+        path(dir.path()),
+        "--write-init",
+        path(&doe),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let design = dir.path().join("d.toml");
+    std::fs::write(
+        &design,
+        "name = \"d\"\ntarget = \"multifocal\"\ndoe = \"d.safetensors\"\nwiener_k = 0.05\n",
+    )
+    .expect("write");
+    let eval = |extra: &[&str], out: &str| {
+        let out = dir.path().join(out);
+        let o = run(&[
+            &["--calib", path(&small)][..],
+            extra,
+            &[
+                "eval",
+                "--images",
+                path(&imgs),
+                "--out-dir",
+                path(&out),
+                "--methods",
+                "doe+wiener",
+            ],
+        ]
+        .concat());
+        assert!(o.status.success(), "{}", stderr(&o));
+        let json: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(out.join("eval.json")).expect("json"))
+                .expect("parse");
+        json["methods"].as_array().expect("methods").clone()
+    };
+    let rows = eval(&[], "rows");
+    assert_eq!(rows.len(), 1);
+    let with_design = {
+        let out = dir.path().join("with");
+        let o = run(&[
+            "--calib",
+            path(&small),
+            "eval",
+            "--images",
+            path(&imgs),
+            "--out-dir",
+            path(&out),
+            "--methods",
+            "doe+wiener",
+            "--designs",
+            path(&design),
+        ]);
+        assert!(o.status.success(), "{}", stderr(&o));
+        let md = std::fs::read_to_string(out.join("eval.md")).expect("md");
+        assert!(md.contains("| doe+wiener | doe+wiener d |"), "{md}");
+        assert!(
+            md.contains("Design d:") && md.contains("Wiener K 0.05"),
+            "{md}"
+        );
+        let json: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(out.join("eval.json")).expect("json"))
+                .expect("parse");
+        json["methods"].as_array().expect("methods").clone()
+    };
+    assert_eq!(with_design.len(), 2);
+    assert_eq!(with_design[1]["method"], "doe+wiener d");
+    // Every PSNR and SSIM of a row (the PSF cache stores f32, so a run that
+    // loads them differs from one that computed them in the 9th digit).
+    let scores = |row: &serde_json::Value| -> Vec<f64> {
+        row["rows"]
+            .as_array()
+            .expect("rows")
+            .iter()
+            .flat_map(|r| {
+                ["vs_sharp", "vs_target"]
+                    .into_iter()
+                    .flat_map(|k| [r[k]["psnr_db"].as_f64(), r[k]["ssim"].as_f64()])
+            })
+            .map(|v| v.expect("number"))
+            .collect()
+    };
+    let close = |a: &serde_json::Value, b: &serde_json::Value| {
+        let (a, b) = (scores(a), scores(b));
+        a.len() == b.len() && a.iter().zip(&b).all(|(x, y)| (x - y).abs() < 1e-6)
+    };
+    // The calibration's own row is unchanged by the extra row.
+    assert!(close(&with_design[0], &rows[0]));
+    // The design's row is what `--design d.toml` gives for doe+wiener.
+    let alone = eval(&["--design", path(&design)], "alone");
+    assert!(close(&with_design[1], &alone[0]));
+    assert_eq!(with_design[1]["doe"], alone[0]["doe"]);
+    // K differs from the calibration's (0.01), so the rows differ.
+    assert!(!close(&with_design[1], &with_design[0]));
+    // A design that does not exist is refused, naming it.
+    let o = run(&[
+        "--calib",
+        path(&small),
+        "eval",
+        "--images",
+        path(&imgs),
+        "--out-dir",
+        path(&dir.path().join("bad")),
+        "--designs",
+        "no-such-design",
+    ]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("no-such-design"), "{}", stderr(&o));
+}

@@ -478,9 +478,21 @@ def design(cfg: DesignConfig, out: Path, resume: bool = False, images_dir: Path 
         "train_psnr_clamped": train_rows,
         "design_depths_d": model.design_d,
         "expected_db": [round(v, 3) for v in db.tolist()],
-        "config": dataclasses.asdict(cfg), "calib_sha": file_hash(cfg.calib),
+        # The calibration relative to the working directory when inside it,
+        # so that a shipped design.json names no machine's folders.
+        "config": {**dataclasses.asdict(cfg), "calib": portable_path(cfg.calib)},
+        "calib_sha": file_hash(cfg.calib),
     }
     return result
+
+
+def portable_path(path) -> str:
+    """`path` relative to the working directory if it lies inside it."""
+    p = Path(path).resolve()
+    try:
+        return str(p.relative_to(Path.cwd().resolve()))
+    except ValueError:
+        return str(p)
 
 
 def export_design(run: Path, name: str, out: Path) -> dict:

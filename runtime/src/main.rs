@@ -179,6 +179,10 @@ struct StabilityArgs {
     /// Skip the f16-against-f32 comparison on the wgpu adapter.
     #[arg(long)]
     no_gpu: bool,
+    /// Display designs compared beside the baselines (names in designs/ or
+    /// files); default: every design in designs/.
+    #[arg(long, value_delimiter = ',', value_name = "NAME|FILE")]
+    designs: Option<Vec<String>>,
 }
 
 #[derive(Args, Debug)]
@@ -208,6 +212,10 @@ struct TradeoffArgs {
     /// Measure nothing: rewrite the tables and charts from the JSON in --out-dir.
     #[arg(long)]
     replot: bool,
+    /// Display designs compared beside the baselines (names in designs/ or
+    /// files); default: every design in designs/.
+    #[arg(long, value_delimiter = ',', value_name = "NAME|FILE")]
+    designs: Option<Vec<String>>,
 }
 
 #[derive(Args, Debug)]
@@ -328,6 +336,10 @@ struct EvalArgs {
     /// depths and a chart (focus_cues.png/.svg); renders 31 depths instead of 7.
     #[arg(long)]
     focus_cues: bool,
+    /// Display designs to add, one `doe+wiener NAME` row each with its own
+    /// DOE and K (names in designs/ or design files).
+    #[arg(long, value_delimiter = ',', value_name = "NAME|FILE")]
+    designs: Vec<String>,
 }
 
 #[derive(Args, Debug)]
@@ -496,8 +508,15 @@ fn run(cli: Cli) -> Result<()> {
                     &a.images,
                     &a.out_dir,
                     &a.methods,
-                    external.as_ref(),
-                    a.focus_cues
+                    &app::eval::EvalExtras {
+                        external,
+                        designs: a
+                            .designs
+                            .iter()
+                            .map(|n| app::design::Design::resolve(n))
+                            .collect::<Result<_, _>>()?,
+                        focus_cues: a.focus_cues,
+                    }
                 )?
             )
         }
@@ -575,6 +594,7 @@ fn run(cli: Cli) -> Result<()> {
                 max_seconds: a.max_seconds,
                 threads: g.threads,
                 fidelity: !a.no_fidelity,
+                designs: app::design::Design::resolve_list(a.designs.as_deref())?,
             };
             print!("{}", app::tradeoff::run(&common, &opts)?);
         }
@@ -616,6 +636,7 @@ fn run(cli: Cli) -> Result<()> {
                 model: g.dcnn.clone(),
                 content_size: a.content_size,
                 gpu: !a.no_gpu,
+                designs: app::design::Design::resolve_list(a.designs.as_deref())?,
             };
             print!("{}", app::stability::run(&common, &opts)?);
         }

@@ -8,7 +8,8 @@
 #   bash tools/designs/make_designs.sh allsharp        # one
 #   RUNS=/scratch/runs STEPS=500 bash tools/designs/make_designs.sh
 #
-# Needs .venv (scripts/test.sh makes it) and a release build of nedrt.
+# Needs .venv with the trainer installed (scripts/test.sh makes it) and a
+# release build of nedrt.
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 RUNS="${RUNS:-models/runs}"
@@ -23,8 +24,8 @@ for t in "${TARGETS[@]}"; do
     run="$RUNS/design-$t"
     resume=()
     [ -f "$run/checkpoint.pt" ] && resume=(--resume)
-    (cd models && ../.venv/bin/python -m nedrt_train.design --target "$t" --steps "$STEPS" \
-        --out "../$run" --name "$t" "${resume[@]}")
+    .venv/bin/nedrt-train design --target "$t" --steps "$STEPS" \
+        --out "$run" --name "$t" "${resume[@]}"
     mkdir -p "designs/$t"
     cp "$run/doe-$t-design.safetensors" "designs/$t/doe-design.safetensors"
     cp "$run/doe-$t-fabrication.safetensors" "designs/$t/doe-fabrication.safetensors"

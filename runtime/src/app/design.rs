@@ -95,6 +95,40 @@ impl Design {
         })
     }
 
+    /// Every design file in `designs/` (name order), for the studies that
+    /// compare the shipped designs; none when the folder is missing.
+    pub fn shipped() -> Result<Vec<Self>, AppError> {
+        let mut paths: Vec<PathBuf> = match std::fs::read_dir(DESIGNS_DIR) {
+            Ok(dir) => dir
+                .filter_map(|e| e.ok().map(|e| e.path()))
+                .filter(|p| p.extension().is_some_and(|x| x == "toml"))
+                .collect(),
+            Err(_) => Vec::new(),
+        };
+        paths.sort();
+        paths.iter().map(|p| Self::load(p)).collect()
+    }
+
+    /// `--designs` of the studies: the named designs, or all shipped ones
+    /// when none are named.
+    pub fn resolve_list(names: Option<&[String]>) -> Result<Vec<Self>, AppError> {
+        match names {
+            None => Self::shipped(),
+            Some(names) => names.iter().map(|n| Self::resolve(n)).collect(),
+        }
+    }
+
+    /// A simulator of this design: its DOE, and `base` with its K.
+    pub fn simulator(
+        &self,
+        mut base: Calibration,
+        cache: crate::optics::cache::PsfCache,
+    ) -> Result<crate::sim::Simulator, AppError> {
+        let hash = crate::optics::doe_file::load(&self.doe, &base)?.content_hash();
+        self.apply(&mut base, hash);
+        Ok(crate::sim::Simulator::new(base, Some(&self.doe), cache)?)
+    }
+
     /// The calibration with this design's K for the DOE's Wiener prefilter,
     /// marked as tuned for the design's DOE (`doe_hash`, its content hash).
     pub fn apply(&self, calib: &mut Calibration, doe_hash: String) {

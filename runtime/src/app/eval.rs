@@ -1,6 +1,6 @@
 //! `nedrt eval`: the paper's Fig. 6 table for every method at 0…3 D on a
 //! folder of images, against the sharp image and the multifocal target
-//! (evaluation.md), with the headline mean and worst over 0–2.5 D; with
+//! (docs/model.md §17), with the headline mean and worst over 0–2.5 D; with
 //! focus cues on, also each method's perceived sharpness across the whole
 //! accommodation range (app::focus_cues), from the same renders.
 
@@ -10,13 +10,14 @@ use std::time::Instant;
 
 use serde::Serialize;
 
+use super::design::Design;
 use super::focus_cues::{self, FocusCueDefinition, FocusCues, FocusSweep};
 use super::sim::{Score, pad_to_multiple_of_8};
 use super::{AppError, CommonOptions, create_dir, progress_bar, write_text};
 use crate::sim::image_io;
-use crate::sim::{Image, Method, Optics, Simulator};
+use crate::sim::{Image, Method, Optics, Prepared, Simulator};
 
-/// Upper end of the headline depth range (evaluation.md: 0–2.5 D).
+/// Upper end of the headline depth range (docs/model.md §17: 0–2.5 D).
 pub const HEADLINE_MAX_D: f64 = 2.5;
 
 /// Image files in a folder, sorted by name.
@@ -44,7 +45,7 @@ pub fn list_images(dir: &Path) -> Result<Vec<PathBuf>, AppError> {
     Ok(files)
 }
 
-/// Loads an image and crops it to multiples of 8 (evaluation.md), saying so.
+/// Loads an image and crops it to multiples of 8 (docs/model.md §17), saying so.
 pub fn load_cropped(path: &Path) -> Result<Image, AppError> {
     let l = image_io::load(path)?;
     for n in &l.notes {
@@ -191,6 +192,25 @@ fn union_d(a: &[f64], b: &[f64]) -> Vec<f64> {
     all
 }
 
+/// What `nedrt eval` compares besides the built-in methods.
+#[derive(Debug, Clone, Default)]
+pub struct EvalExtras {
+    /// Display images made elsewhere, as one more row.
+    pub external: Option<ExternalDisplays>,
+    /// Display designs, one `doe+wiener NAME` row each (its DOE, its K).
+    pub designs: Vec<Design>,
+    /// Also measure the focus cues.
+    pub focus_cues: bool,
+}
+
+/// One row of the tables: a method seen through one simulator.
+struct Row<'a> {
+    name: String,
+    method: Method,
+    prepared: &'a Prepared,
+    doe_hash: Option<String>,
+}
+
 /// Runs the evaluation and writes `eval.md` and `eval.json` into `out_dir`;
 /// with `focus_cues`, also the sharpness sweep and its chart
 /// (`focus_cues.png`, `.svg`).
@@ -199,9 +219,9 @@ pub fn run(
     images_dir: &Path,
     out_dir: &Path,
     methods: &[Method],
-    external: Option<&ExternalDisplays>,
-    focus_cues: bool,
+    extras: &EvalExtras,
 ) -> Result<String, AppError> {
+    let external = extras.external.as_ref();
     let start = Instant::now();
     let files = list_images(images_dir)?;
     let images: Vec<Image> = files
@@ -220,9 +240,14 @@ pub fn run(
         common.doe_path_for(&methods).as_deref(),
         common.cache(),
     )?;
+    let design_sims = extras
+        .designs
+        .iter()
+        .map(|d| d.simulator(sim.calib.clone(), common.cache()))
+        .collect::<Result<Vec<_>, _>>()?;
     let depths = sim.calib.evaluation_depths_d();
-    let rows = methods.len() + usize::from(external.is_some());
-    let mut sweep = focus_cues.then(|| FocusSweep::new(&sim.calib, rows));
+    let rows = methods.len() + usize::from(external.is_some()) + design_sims.len();
+    let mut sweep = extras.focus_cues.then(|| FocusSweep::new(&sim.calib, rows));
     // Every depth rendered: the table's, and the sweep's; the PSFs of both
     // go into one request per optics, so a later run loads them.
     let rendered = match &sweep {
@@ -233,7 +258,40 @@ pub fn run(
     let mut needed = methods.clone();
     needed.extend(external.map(|e| e.psf_method()));
     let prepared = sim.prepare(&needed, &rendered, Some(&bar))?;
+    let design_prepared = design_sims
+        .iter()
+        .map(|s| s.prepare(&[Method::DoeWiener], &rendered, Some(&bar)))
+        .collect::<Result<Vec<_>, _>>()?;
     bar.finish_and_clear();
+    let doe_hash = |optics: Optics| (optics == Optics::Doe).then(|| sim.doe_hash.clone());
+    let mut row_specs: Vec<Row> = methods
+        .iter()
+        .map(|&m| Row {
+            name: m.name().to_string(),
+            method: m,
+            prepared: &prepared,
+            doe_hash: doe_hash(m.optics()),
+        })
+        .collect();
+    row_specs.extend(external.map(|e| Row {
+        name: e.name.clone(),
+        method: e.psf_method(),
+        prepared: &prepared,
+        doe_hash: doe_hash(e.optics),
+    }));
+    for ((d, s), p) in extras
+        .designs
+        .iter()
+        .zip(&design_sims)
+        .zip(&design_prepared)
+    {
+        row_specs.push(Row {
+            name: format!("{} {}", Method::DoeWiener.name(), d.name),
+            method: Method::DoeWiener,
+            prepared: p,
+            doe_hash: Some(s.doe_hash.clone()),
+        });
+    }
 
     let bar = progress_bar(if sweep.is_some() {
         "focus sweep"
@@ -241,7 +299,7 @@ pub fn run(
         "images"
     });
     bar.set_length((images.len() * rows * rendered.len()) as u64);
-    // scores[row][depth][image]; the external row, if any, comes last.
+    // scores[row][depth][image], rows in `row_specs` order.
     let mut scores = vec![vec![Vec::new(); depths.len()]; rows];
     for (file, input) in files.iter().zip(&images) {
         let (input, _) = pad_to_multiple_of_8(input, &file.display().to_string());
@@ -253,16 +311,19 @@ pub fn run(
             .iter()
             .map(|d| prepared.target(&input, *d))
             .collect::<Result<_, _>>()?;
-        let mut displays: Vec<(Method, Image)> = methods
+        let mut displays: Vec<Image> = methods
             .iter()
-            .map(|&m| Ok((m, super::display_image(&prepared, &mut dcnns, m, &input)?)))
+            .map(|&m| super::display_image(&prepared, &mut dcnns, m, &input))
             .collect::<Result<_, AppError>>()?;
         if let Some(e) = external {
-            displays.push((e.psf_method(), e.load(file, &input)?));
+            displays.push(e.load(file, &input)?);
         }
-        for (mi, (m, display)) in displays.iter().enumerate() {
+        for row in &row_specs[displays.len()..] {
+            displays.push(row.prepared.display_image(row.method, &input));
+        }
+        for (mi, (row, display)) in row_specs.iter().zip(&displays).enumerate() {
             for &d in &rendered {
-                let perceived = prepared.perceived(*m, display, d)?;
+                let perceived = row.prepared.perceived(row.method, display, d)?;
                 if let Some(di) = depths.iter().position(|x| (x - d).abs() < 1e-9) {
                     scores[mi][di].push(ImageScore {
                         image: file.display().to_string(),
@@ -285,16 +346,11 @@ pub fn run(
         None => vec![None; rows],
     };
 
-    let mut row_names: Vec<(String, Optics)> = methods
-        .iter()
-        .map(|m| (m.name().to_string(), m.optics()))
-        .collect();
-    row_names.extend(external.map(|e| (e.name.clone(), e.optics)));
-    let results: Vec<MethodResult> = row_names
+    let results: Vec<MethodResult> = row_specs
         .iter()
         .zip(scores)
         .zip(cues.iter_mut())
-        .map(|(((name, optics), per_depth), cues)| {
+        .map(|((row, per_depth), cues)| {
             let rows: Vec<DepthRow> = depths
                 .iter()
                 .zip(per_depth)
@@ -308,8 +364,8 @@ pub fn run(
                 })
                 .collect();
             MethodResult {
-                method: name.clone(),
-                doe: (*optics == Optics::Doe).then(|| sim.doe_hash.clone()),
+                method: row.name.clone(),
+                doe: row.doe_hash.clone(),
                 headline_vs_sharp: headline(&rows, |r| r.vs_sharp),
                 headline_vs_target: headline(&rows, |r| r.vs_target),
                 rows,
@@ -348,13 +404,29 @@ pub fn run(
                 })
             })
             .collect(),
-        focus_cue_definition: focus_cues.then(FocusCueDefinition::current),
+        focus_cue_definition: extras.focus_cues.then(FocusCueDefinition::current),
         charts,
         seconds: start.elapsed().as_secs_f64(),
     };
     let mut md = markdown(&result, &sim);
+    for (d, s) in extras.designs.iter().zip(&design_sims) {
+        let _ = writeln!(
+            md,
+            "- Design {}: {} (DOE {}, {}), Wiener K {}.",
+            d.name,
+            d.source.display(),
+            s.doe_hash,
+            s.doe.description,
+            s.calib.wiener.doe_k
+        );
+    }
     for (name, r) in &prepared.reports {
         let _ = writeln!(md, "- PSF model, {name}: {}", r.summary());
+    }
+    for (d, p) in extras.designs.iter().zip(&design_prepared) {
+        for (name, r) in &p.reports {
+            let _ = writeln!(md, "- PSF model, {name} ({}): {}", d.name, r.summary());
+        }
     }
     let md_path = out_dir.join("eval.md");
     let json_path = out_dir.join("eval.json");

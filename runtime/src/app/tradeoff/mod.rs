@@ -46,6 +46,9 @@ pub struct TradeoffOptions {
     pub threads: usize,
     /// Also run the simulator-fidelity study.
     pub fidelity: bool,
+    /// Display designs whose DOE (with and without its Wiener) join the
+    /// baselines, each with its own K.
+    pub designs: Vec<super::design::Design>,
 }
 
 /// Rewrites the Markdown and the charts from the JSON already in
@@ -196,7 +199,7 @@ pub fn run(common: &CommonOptions, o: &TradeoffOptions) -> Result<String, AppErr
     let mut skipped = Vec::new();
     let host = host_description();
 
-    // The baselines, simulated with the first model's DOE.
+    // The baselines, simulated with the first model's DOE (or --doe/--design).
     let sim = Simulator::new(
         calib.clone(),
         Some(common.doe.as_deref().unwrap_or(&dcnn_doe)),
@@ -208,34 +211,42 @@ pub fn run(common: &CommonOptions, o: &TradeoffOptions) -> Result<String, AppErr
         Method::DoeOnly,
         Method::DoeWiener,
     ];
+    let design_sims = o
+        .designs
+        .iter()
+        .map(|d| d.simulator(calib.clone(), common.cache()))
+        .collect::<Result<Vec<_>, _>>()?;
     let bar = progress_bar("PSFs");
     let scorer = Scorer::new(&sim, &baselines, &inputs, Some(&bar))?;
+    let design_methods = [Method::DoeOnly, Method::DoeWiener];
+    let design_scorers = design_sims
+        .iter()
+        .map(|s| Scorer::new(s, &design_methods, &inputs, Some(&bar)))
+        .collect::<Result<Vec<_>, _>>()?;
     bar.finish_and_clear();
     let bar = progress_bar("configs");
-    bar.set_length((baselines.len() + o.models.len() * (o.backends.len() + 1)) as u64);
+    bar.set_length(
+        (baselines.len()
+            + design_methods.len() * o.designs.len()
+            + o.models.len() * (o.backends.len() + 1)) as u64,
+    );
+    let run = LinearRun {
+        inputs: &inputs,
+        frame: &frame,
+        repeat: o.repeat,
+        device: format!("{host} (rayon, {} threads)", rayon::current_num_threads()),
+    };
     for m in baselines {
-        let displays: Vec<Image> = inputs
-            .iter()
-            .map(|i| scorer.prepared.display_image(m, i))
-            .collect();
-        let q = scorer.quality(m, &displays)?;
-        let seconds = time_median(o.repeat, || {
-            std::hint::black_box(scorer.prepared.display_image(m, &frame).clamped());
-            Ok::<_, AppError>(())
-        })?;
-        records.push(q.record(
-            m.name(),
-            m,
-            Some(seconds * 1e3),
-            None,
-            (m.optics() == crate::sim::Optics::Doe).then(|| sim.doe_hash.clone()),
-            (
-                "cpu",
-                "f32",
-                format!("{host} (rayon, {} threads)", rayon::current_num_threads()),
-            ),
-        ));
+        records.push(linear_record(&run, &scorer, &sim.doe_hash, m, m.name())?);
         bar.inc(1);
+    }
+    for ((design, sim), scorer) in o.designs.iter().zip(&design_sims).zip(&design_scorers) {
+        let hash = &sim.doe_hash;
+        for m in design_methods {
+            let name = format!("{} {}", m.name(), design.name);
+            records.push(linear_record(&run, scorer, hash, m, &name)?);
+            bar.inc(1);
+        }
     }
 
     for model in &o.models {
@@ -330,6 +341,44 @@ pub fn run(common: &CommonOptions, o: &TradeoffOptions) -> Result<String, AppErr
     }
     let _ = writeln!(text, "\nWall time {:.1} s.", start.elapsed().as_secs_f64());
     Ok(text)
+}
+
+/// The record of a method the simulator itself runs (no D-CNN): its
+/// quality on the images and its latency on `frame` on the CPU.
+fn linear_record(
+    run: &LinearRun,
+    scorer: &Scorer,
+    doe_hash: &str,
+    m: Method,
+    name: &str,
+) -> Result<Record, AppError> {
+    let displays: Vec<Image> = run
+        .inputs
+        .iter()
+        .map(|i| scorer.prepared.display_image(m, i))
+        .collect();
+    let q = scorer.quality(m, &displays)?;
+    let seconds = time_median(run.repeat, || {
+        std::hint::black_box(scorer.prepared.display_image(m, run.frame).clamped());
+        Ok::<_, AppError>(())
+    })?;
+    Ok(q.record(
+        name,
+        m,
+        Some(seconds * 1e3),
+        None,
+        (m.optics() == crate::sim::Optics::Doe).then(|| doe_hash.to_string()),
+        ("cpu", "f32", run.device.clone()),
+    ))
+}
+
+/// What every simulator-run configuration is measured on.
+struct LinearRun<'a> {
+    inputs: &'a [Image],
+    /// The latency frame.
+    frame: &'a Image,
+    repeat: usize,
+    device: String,
 }
 
 /// Writes the Markdown, JSON and chart of a table; returns the Markdown.

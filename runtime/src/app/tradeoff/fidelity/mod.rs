@@ -156,14 +156,13 @@ pub struct Setting {
 impl Setting {
     /// The spec rule this setting breaks, if any: docs/model.md §8 rule 5
     /// (the window holds ≥ 99.9 % of the light) and §2 (the retinal grid is
-    /// 0.5 arcmin, a display pixel 2×2 samples; §17 scores there). The
-    /// label "§1" in the report predates docs/model.md (now its §2).
+    /// 0.5 arcmin, a display pixel 2×2 samples; §17 scores there).
     /// The spec wins over an economy, however small its error.
     pub fn spec_violation(&self) -> Option<&'static str> {
         if self.window_energy < 0.999 - 1e-12 {
             Some("rule 5: window < 99.9 %")
         } else if self.one_arcmin {
-            Some("§1: retinal grid 0.5 arcmin")
+            Some("docs/model.md §2: retinal grid 0.5 arcmin")
         } else {
             None
         }

@@ -40,7 +40,7 @@ pub(super) fn write_outputs(report: &FidelityReport, out_dir: &Path) -> Result<S
     let doe_hash = &report.doe_hash;
     let mut md = format!(
         "# Simulation fidelity against cost\n\nProposed system (trained DOE {doe_hash} + D-CNN), {}, mean PSNR vs sharp over 0–2.5 D. \
-         Error = largest |Δ PSNR| over the depths against the exhaustive row; budget {MAX_ERROR_DB} dB (optics.md §5). \
+         Error = largest |Δ PSNR| over the depths against the exhaustive row; budget {MAX_ERROR_DB} dB (docs/model.md §8). \
          Times on {}: PSFs computed afresh (no cache), perceive = every image at every depth.\n\n\
          | setting | model | PSFs s | perceive s | mean PSNR dB | worst dB | mean error dB | max depth error dB | within {MAX_ERROR_DB} dB | spec |\n\
          | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |\n",
@@ -249,7 +249,10 @@ mod tests {
             v.starts_with("The shipped default is among the cheapest"),
             "{v}"
         );
-        assert!(v.contains("\"1-arcmin\"") && v.contains("§1"), "{v}");
+        assert!(
+            v.contains("\"1-arcmin\"") && v.contains("model.md §2"),
+            "{v}"
+        );
 
         // Beyond the noise the verdict says the default is not the cheapest.
         let mut dear = tied.clone();
