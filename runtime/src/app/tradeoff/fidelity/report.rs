@@ -125,11 +125,12 @@ fn row_cost_s(r: &FidelityRow) -> f64 {
 }
 
 /// Relative timing noise on a shared machine: settings whose costs differ by
-/// less are equally cheap. Two runs of the study swapped the order of "one
-/// wavelength" and the default, which do nearly the same work (about 1 %
-/// apart either way), so the strict minimum let noise name the cheapest
-/// setting; the economies that matter save far more (one wavelength: 5×).
-pub const TIMING_NOISE: f64 = 0.05;
+/// less are equally cheap. "One wavelength" and the default plan the same
+/// pupil grid for the trained DOE (its automatic step is below 3 µm), yet
+/// three runs of the study put the default 1 % dearer, 6 % cheaper and
+/// 5.2 % dearer, so a tighter band lets noise name the cheapest setting;
+/// the economies that matter save far more (one wavelength: 5×).
+pub const TIMING_NOISE: f64 = 0.10;
 
 /// The sentence under the table: is the shipped default the cheapest setting
 /// the spec allows within the error budget (ties within [`TIMING_NOISE`]
