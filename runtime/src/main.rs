@@ -15,18 +15,13 @@ use nedrt::sim::{Method, Optics};
     name = "nedrt",
     version,
     about = "Simulator and runtime of a computational multifocal near-eye display (lens + DOE + D-CNN)",
-    after_help = "Examples:\n  nedrt --sim --accom 1.0\n  nedrt --sim --accom 0.5 --method doe+wiener --out p.png\n  nedrt --sim --accom 1.0 --method proposed --backend wgpu\n  nedrt bench inference --sizes 512x512\n  nedrt psf --out-dir out/psf\n  nedrt eval --images data/images/test"
+    after_help = "Examples:\n  nedrt --sim --accom 1.0            (or: nedrt sim --accom 1.0)\n  nedrt sim --accom 0.5 --method doe+wiener --out p.png\n  nedrt --design allsharp sim --accom 2.5\n  nedrt sim --accom 1.0 --method proposed --backend wgpu\n  nedrt bench inference --sizes 512x512\n  nedrt psf --out-dir out/psf\n  nedrt eval --images data/images/test"
 )]
 struct Cli {
     #[command(flatten)]
     global: GlobalArgs,
     #[command(subcommand)]
     command: Option<Command>,
-    /// Render the perceived image at one accommodation and score it.
-    #[arg(long)]
-    sim: bool,
-    #[command(flatten)]
-    sim_args: SimArgs,
 }
 
 #[derive(Args, Debug)]
@@ -137,6 +132,10 @@ fn parse_method(s: &str) -> Result<Method, String> {
 
 #[derive(Subcommand, Debug)]
 enum Command {
+    /// The perceived image at one accommodation, scored against the sharp
+    /// image and the target (`nedrt sim` or `nedrt --sim`).
+    #[command(long_flag = "sim")]
+    Sim(SimArgs),
     /// PSF cross-sections against accommodation (paper Fig. 4b): PNG, SVG, CSV.
     Psf(PlotArgs),
     /// MTFs (paper Fig. 5): at 0.5 D against CPD, and against depth at 1, 5, 10 CPD.
@@ -480,9 +479,6 @@ fn run(cli: Cli) -> Result<()> {
             },
         },
     };
-    if cli.command.is_some() && (cli.sim || cli.sim_args.accom.is_some()) {
-        bail!("--sim and --accom cannot be combined with a command");
-    }
     match cli.command {
         Some(Command::Psf(a)) => print!("{}", app::plots::psf(&common, &a.out_dir, a.step)?),
         Some(Command::Mtf(a)) => print!("{}", app::plots::mtf(&common, &a.out_dir, a.step)?),
@@ -640,8 +636,7 @@ fn run(cli: Cli) -> Result<()> {
             };
             print!("{}", app::stability::run(&common, &opts)?);
         }
-        None if cli.sim => {
-            let s = cli.sim_args;
+        Some(Command::Sim(s)) => {
             let accommodation_d = s
                 .accom
                 .context("--sim needs --accom D (the eye's accommodation in diopters)")?;
@@ -655,7 +650,9 @@ fn run(cli: Cli) -> Result<()> {
             };
             println!("{}", app::sim::run(&common, &opts)?);
         }
-        None => bail!("nothing to do: give --sim --accom D or a command (see nedrt --help)"),
+        None => {
+            bail!("nothing to do: give a command, e.g. `nedrt sim --accom 1.0` (see nedrt --help)")
+        }
     }
     Ok(())
 }
