@@ -87,35 +87,39 @@ impl Sink for HeadlessSink {
 mod tests {
     use super::*;
     use crate::inference::Precision;
-    use crate::inference::gpu_tests::device_or_skip;
+    use crate::inference::gpu_tests::gpu_device;
 
-    #[test]
-    fn the_panel_receives_every_code_value_unchanged() {
-        let Some((device, queue)) = device_or_skip(Precision::F32) else {
-            return;
-        };
-        let name = "test adapter".to_string();
-        // 37×21: not a multiple of any tile; every code value appears.
-        let (w, h) = (37usize, 21usize);
-        let rgba8: Vec<u8> = (0..4 * w * h)
-            .map(|i| if i % 4 == 3 { 255 } else { (i * 7 % 256) as u8 })
-            .collect();
-        let frame = DisplayFrame {
-            id: 1,
-            width: w,
-            height: h,
-            rgba8,
-        };
-        let mut sink = HeadlessSink::new(&device, &queue, name, w as u32, h as u32).expect("sink");
-        assert_eq!(sink.present(&frame).expect("present"), Presented::Shown);
-        assert_eq!(sink.read_back().expect("read back"), frame.rgba8);
-        // A wrong-size frame is an error, not a panic.
-        let small = DisplayFrame {
-            id: 2,
-            width: 2,
-            height: 2,
-            rgba8: vec![0; 16],
-        };
-        assert!(sink.present(&small).is_err());
+    mod needs_gpu {
+        use super::*;
+
+        #[test]
+        #[ignore = "needs a GPU adapter (run: scripts/test.sh, or cargo test -- --include-ignored)"]
+        fn the_panel_receives_every_code_value_unchanged() {
+            let (device, queue) = gpu_device(Precision::F32);
+            let name = "test adapter".to_string();
+            // 37×21: not a multiple of any tile; every code value appears.
+            let (w, h) = (37usize, 21usize);
+            let rgba8: Vec<u8> = (0..4 * w * h)
+                .map(|i| if i % 4 == 3 { 255 } else { (i * 7 % 256) as u8 })
+                .collect();
+            let frame = DisplayFrame {
+                id: 1,
+                width: w,
+                height: h,
+                rgba8,
+            };
+            let mut sink =
+                HeadlessSink::new(&device, &queue, name, w as u32, h as u32).expect("sink");
+            assert_eq!(sink.present(&frame).expect("present"), Presented::Shown);
+            assert_eq!(sink.read_back().expect("read back"), frame.rgba8);
+            // A wrong-size frame is an error, not a panic.
+            let small = DisplayFrame {
+                id: 2,
+                width: 2,
+                height: 2,
+                rgba8: vec![0; 16],
+            };
+            assert!(sink.present(&small).is_err());
+        }
     }
 }
