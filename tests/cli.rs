@@ -1163,3 +1163,30 @@ fn eval_adds_a_row_per_design_equal_to_running_that_design() {
     assert!(!o.status.success());
     assert!(stderr(&o).contains("no-such-design"), "{}", stderr(&o));
 }
+
+#[test]
+fn sim_refuses_images_smaller_than_8_pixels_a_side_like_eval() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    for (w, h) in [(1, 1), (300, 1), (7, 64)] {
+        let img = dir.path().join(format!("{w}x{h}.png"));
+        write_png(&img, w, h);
+        let out = dir.path().join(format!("{w}x{h}-out.png"));
+        let o = sim("1.0", &out, &["--input", path(&img)]);
+        assert_clean_error(&o, "smaller than 8×8");
+        assert!(
+            stderr(&o).contains(&format!("{w}x{h}.png")),
+            "{}",
+            stderr(&o)
+        );
+        assert!(!out.exists(), "nothing written for {w}×{h}");
+    }
+    let img = dir.path().join("8x8.png");
+    write_png(&img, 8, 8);
+    let o = sim(
+        "1.0",
+        &dir.path().join("8x8-out.png"),
+        &["--input", path(&img)],
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(!stdout(&o).contains("NaN"), "{}", stdout(&o));
+}

@@ -91,6 +91,14 @@ pub fn run(common: &CommonOptions, opts: &SimOptions) -> Result<SimReport, AppEr
         tracing::warn!("{n}");
     }
     let original = loaded.image;
+    // Below 8 pixels a side the scores mean nothing (SSIM needs an 11×11
+    // window on the 2× retinal grid); `eval` refuses the same images.
+    if original.width < 8 || original.height < 8 {
+        return Err(AppError::Usage(format!(
+            "{input_name}: {}×{} pixels, smaller than 8×8",
+            original.width, original.height
+        )));
+    }
     let (input, pad_note) = pad_to_multiple_of_8(&original, &input_name);
     if let Some(n) = &pad_note {
         tracing::warn!("{n}");
