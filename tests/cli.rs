@@ -167,6 +167,10 @@ fn accommodation_is_checked() {
     let base = ["--sim", "--input", path(&input), "--out", path(&out)];
     let o = run(&[&base[..], &["--accom", "-0.5"]].concat());
     assert_clean_error(&o, "accommodation must be ≥ 0 D");
+    for huge in ["1e308", "20.5"] {
+        let o = run(&[&base[..], &["--accom", huge]].concat());
+        assert_clean_error(&o, "beyond what an eye accommodates (at most 20 D");
+    }
     let o = run(&[&base[..], &["--accom", "4"]].concat());
     assert!(o.status.success(), "{}", stderr(&o));
     assert!(
@@ -1189,4 +1193,31 @@ fn sim_refuses_images_smaller_than_8_pixels_a_side_like_eval() {
     );
     assert!(o.status.success(), "{}", stderr(&o));
     assert!(!stdout(&o).contains("NaN"), "{}", stdout(&o));
+}
+
+#[test]
+fn run_refuses_a_source_rate_it_cannot_pace() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let panel = repo().join("tests/data/small-panel.toml");
+    let rec = dir.path().join("rec");
+    for rate in ["nan", "inf", "1e-300", "0.001", "1e6"] {
+        let o = run(&[
+            "run",
+            "--calib",
+            path(&panel),
+            "--backend",
+            "cpu",
+            "--sink",
+            "record",
+            "--record-dir",
+            path(&rec),
+            "--frames",
+            "1",
+            "--source-rate",
+            rate,
+        ]);
+        assert_clean_error(&o, "--source-rate");
+        assert!(stderr(&o).contains("0 (unpaced)"), "{rate}: {}", stderr(&o));
+        assert!(!rec.exists(), "{rate}: the record folder was created");
+    }
 }

@@ -221,8 +221,12 @@ pub fn check_output_folder(file: &Path) -> Result<(), AppError> {
     }
 }
 
-/// Checks an accommodation: finite and ≥ 0 (errors), inside the calibrated
-/// range (else a warning, returned for printing).
+/// The largest accommodation `--accom` takes: a young child's amplitude
+/// (near point 5 cm); past it the request is a typo, not an eye.
+pub const MAX_ACCOMMODATION_D: f64 = 20.0;
+
+/// Checks an accommodation: finite and in [0, 20] D (errors), inside the
+/// calibrated range (else a warning, returned for printing).
 pub fn check_accommodation(
     calib: &Calibration,
     accommodation_d: f64,
@@ -235,6 +239,12 @@ pub fn check_accommodation(
     if accommodation_d < 0.0 {
         return Err(AppError::Usage(format!(
             "--accom {accommodation_d}: accommodation must be ≥ 0 D (0 D is focus at infinity; an eye cannot focus beyond it)"
+        )));
+    }
+    if accommodation_d > MAX_ACCOMMODATION_D {
+        return Err(AppError::Usage(format!(
+            "--accom {accommodation_d:e}: beyond what an eye accommodates (at most \
+             {MAX_ACCOMMODATION_D} D, a child's near point of 5 cm)"
         )));
     }
     let [lo, hi] = calib.range_d;

@@ -55,6 +55,10 @@ pub enum FallbackKind {
     Passthrough,
 }
 
+/// Slowest and fastest paced source rates `--source-rate` takes (Hz).
+pub const MIN_SOURCE_RATE_HZ: f64 = 0.01;
+pub const MAX_SOURCE_RATE_HZ: f64 = 10_000.0;
+
 /// Options of `nedrt run`.
 #[derive(Debug, Clone)]
 pub struct RunOptions {
@@ -103,6 +107,16 @@ pub fn run(
     opts: &RunOptions,
     control: &Control,
 ) -> Result<Report, AppError> {
+    // 0 is "as fast as the pipeline takes them"; anything else must give a
+    // period a clock can wait (NaN, inf or 1e-300 Hz would run unpaced).
+    if let Some(rate_hz) = opts.source_rate_hz
+        && !(rate_hz == 0.0 || (MIN_SOURCE_RATE_HZ..=MAX_SOURCE_RATE_HZ).contains(&rate_hz))
+    {
+        return Err(AppError::Usage(format!(
+            "--source-rate {rate_hz}: give 0 (unpaced) or a rate from {MIN_SOURCE_RATE_HZ} \
+             to {MAX_SOURCE_RATE_HZ} Hz"
+        )));
+    }
     let calib = common.calibration()?;
     let p = &calib.panel;
     let panel = PanelConfig {
