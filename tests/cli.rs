@@ -1221,3 +1221,33 @@ fn run_refuses_a_source_rate_it_cannot_pace() {
         assert!(!rec.exists(), "{rate}: the record folder was created");
     }
 }
+
+#[test]
+fn oversized_calibrations_and_endless_doe_files_are_refused_with_a_short_error() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let shipped = std::fs::read_to_string(repo().join("calib/default.toml")).expect("read");
+    // An unknown key with a 200 kB value: the error quotes it, bounded.
+    let big = dir.path().join("big-key.toml");
+    std::fs::write(
+        &big,
+        format!("{shipped}\n[extra]\nnote = \"{}\"\n", "x".repeat(200_000)),
+    )
+    .expect("write");
+    let o = run(&["--calib", path(&big), "calib"]);
+    assert_clean_error(&o, "big-key.toml");
+    assert!(
+        stderr(&o).len() < 2000,
+        "{} bytes of error",
+        stderr(&o).len()
+    );
+    // Past the 1 MiB cap the file is not parsed at all.
+    let huge = dir.path().join("huge.toml");
+    std::fs::write(&huge, format!("{shipped}\n# {}\n", "y".repeat(2 << 20))).expect("write");
+    let o = run(&["--calib", path(&huge), "calib"]);
+    assert_clean_error(&o, "larger than 1 MiB");
+    // /dev/zero as the DOE: refused at the cap, not read forever.
+    let out = dir.path().join("p.png");
+    let o = sim("1.0", &out, &["--doe", "/dev/zero", "--method", "doe-only"]);
+    assert_clean_error(&o, "larger than 512 MiB");
+    assert!(!out.exists());
+}

@@ -16,6 +16,9 @@ pub const DEFAULT_CALIBRATION_TOML: &str = include_str!("../../../calib/default.
 /// Name under which the embedded calibration is reported in messages.
 pub const DEFAULT_CALIBRATION_NAME: &str = "calib/default.toml";
 
+/// The largest calibration file read (the shipped one is about 5 KB).
+pub const MAX_CALIBRATION_BYTES: u64 = 1 << 20;
+
 /// A calibration problem, always naming the file and (where there is one) the field.
 #[derive(Debug, thiserror::Error)]
 pub enum CalibError {
@@ -130,12 +133,20 @@ impl Calibration {
         Self::from_toml(DEFAULT_CALIBRATION_TOML, DEFAULT_CALIBRATION_NAME, None)
     }
 
-    /// Read and validate a calibration file.
+    /// Read and validate a calibration file (at most
+    /// [`MAX_CALIBRATION_BYTES`]: the shipped one is a few KB).
     pub fn load(path: &Path) -> Result<Self, CalibError> {
         let name = path.display().to_string();
-        let text = std::fs::read_to_string(path).map_err(|source| CalibError::Read {
+        let read = |source| CalibError::Read {
             path: name.clone(),
             source,
+        };
+        let bytes = crate::util::read_capped(path, MAX_CALIBRATION_BYTES).map_err(read)?;
+        let text = String::from_utf8(bytes).map_err(|e| {
+            read(std::io::Error::new(
+                std::io::ErrorKind::InvalidData,
+                format!("not UTF-8 text ({e})"),
+            ))
         })?;
         Self::from_toml(&text, &name, path.parent())
     }
@@ -144,7 +155,9 @@ impl Calibration {
     pub fn from_toml(text: &str, name: &str, base_dir: Option<&Path>) -> Result<Self, CalibError> {
         let raw: RawCalibration = toml::from_str(text).map_err(|e| CalibError::Parse {
             path: name.to_string(),
-            message: e.to_string().replace('\n', " ").trim().to_string(),
+            // toml quotes the offending line: keep a huge value from
+            // turning the error into megabytes.
+            message: crate::util::bounded(e.to_string().replace('\n', " ").trim(), 600),
         })?;
         Self::from_raw(raw, name, base_dir)
     }

@@ -40,13 +40,18 @@ pub enum DoeError {
     Invalid { path: String, reason: String },
 }
 
+/// The largest DOE file read: a 2-D map at 1 µm over a 10 mm aperture is
+/// 400 MB in f32; anything larger is not a height map (`/dev/zero`, a wrong path).
+pub const MAX_DOE_FILE_BYTES: u64 = 512 << 20;
+
 /// Reads and validates a height map against the calibration (material, aperture coverage).
 pub fn load(path: &Path, calib: &Calibration) -> Result<HeightMap, DoeError> {
     let name = path.display().to_string();
-    let bytes = std::fs::read(path).map_err(|source| DoeError::Read {
-        path: name.clone(),
-        source,
-    })?;
+    let bytes =
+        crate::util::read_capped(path, MAX_DOE_FILE_BYTES).map_err(|source| DoeError::Read {
+            path: name.clone(),
+            source,
+        })?;
     parse(&bytes, &name, calib)
 }
 
