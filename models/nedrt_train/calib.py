@@ -10,6 +10,8 @@ import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
+from .paths import resolve_cli_path
+
 #: Where a command looks for the calibration when `--calib` is not given,
 #: relative to the current directory (the repository root, usually).
 DEFAULT_RELATIVE = Path("calib") / "default.toml"
@@ -77,12 +79,7 @@ def resolve(arg=None, cwd=None) -> Path:
     `calib/default.toml` under `cwd` (the current directory) when `arg` is
     None; absolute. Raises FileNotFoundError naming the path when it is not
     a file."""
-    base = Path(cwd) if cwd is not None else Path.cwd()
-    path = (base / (Path(arg) if arg is not None else DEFAULT_RELATIVE)).resolve()
-    if not path.is_file():
-        how = "" if arg is not None else " (the default: run from the repository root, or pass --calib FILE)"
-        raise FileNotFoundError(f"{path}: calibration file not found{how}")
-    return path
+    return resolve_cli_path(arg, DEFAULT_RELATIVE, cwd, folder=False, what="calibration file", flag="--calib FILE")
 
 
 def load(path) -> Calib:

@@ -17,6 +17,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from .paths import resolve_cli_path
+
 #: Where a command looks for the image folders when `--images` is not given,
 #: relative to the current directory (the repository root, usually).
 DEFAULT_ROOT = Path("data") / "images"
@@ -27,12 +29,7 @@ def resolve_root(arg=None, cwd=None) -> Path:
     and test/): `arg`, or `data/images` under `cwd` (the current directory)
     when `arg` is None; absolute. Raises FileNotFoundError naming the path
     when it is not a folder."""
-    base = Path(cwd) if cwd is not None else Path.cwd()
-    path = (base / (Path(arg) if arg is not None else DEFAULT_ROOT)).resolve()
-    if not path.is_dir():
-        how = "" if arg is not None else " (the default: run from the repository root, or pass --images DIR)"
-        raise FileNotFoundError(f"{path}: image folder not found{how}")
-    return path
+    return resolve_cli_path(arg, DEFAULT_ROOT, cwd, folder=True, what="image folder", flag="--images DIR")
 
 
 def photo_folder(folder) -> Path:
