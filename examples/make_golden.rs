@@ -10,9 +10,9 @@ fn main() -> anyhow::Result<()> {
         .nth(1)
         .map(PathBuf::from)
         .unwrap_or_else(|| PathBuf::from("tests/golden/vectors.json"));
-    let calib = nedrt::calib::Calibration::default_embedded()?;
-    let v = nedrt::golden::vectors(&calib);
-    nedrt::util::write_atomic(&out, serde_json::to_string(&v)?.as_bytes())?;
+    let calib = nedrt_core::calib::Calibration::default_embedded()?;
+    let v = nedrt_optics::golden::vectors(&calib);
+    nedrt_core::util::write_atomic(&out, serde_json::to_string(&v)?.as_bytes())?;
     println!("wrote {}", out.display());
     Ok(())
 }

@@ -1,5 +1,5 @@
 //! Writes tests/golden/radial.json, the radial path's golden vectors for the
-//! trainer's radial model (layout: `nedrt::optics::radial_golden`, and the
+//! trainer's radial model (layout: `nedrt_optics::radial_golden`, and the
 //! file's own `layout` and `conventions` fields):
 //!
 //!     cargo run --release --example make_radial_golden [-- OUT.json]
@@ -13,8 +13,8 @@ fn main() -> anyhow::Result<()> {
         .nth(1)
         .map(PathBuf::from)
         .unwrap_or_else(|| PathBuf::from("tests/golden/radial.json"));
-    let calib = nedrt::calib::Calibration::default_embedded()?;
-    let v = nedrt::optics::radial_golden::vectors(&calib)?;
+    let calib = nedrt_core::calib::Calibration::default_embedded()?;
+    let v = nedrt_optics::radial_golden::vectors(&calib)?;
     for p in v["psfs"].as_array().into_iter().flatten() {
         println!(
             "{} {} D {}: max |radial − 2-D| = {:.2e} of the peak",
@@ -26,7 +26,7 @@ fn main() -> anyhow::Result<()> {
                 .unwrap_or(f64::NAN)
         );
     }
-    nedrt::util::write_atomic(&out, serde_json::to_string(&v)?.as_bytes())?;
+    nedrt_core::util::write_atomic(&out, serde_json::to_string(&v)?.as_bytes())?;
     println!("wrote {}", out.display());
     Ok(())
 }

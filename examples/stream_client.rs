@@ -11,10 +11,10 @@
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
-use nedrt::pipeline::frame::PixelFormat;
-use nedrt::pipeline::pacing::monotonic_ns;
-use nedrt::pipeline::protocol::{Client, DEFAULT_SHM_DIR, FrameHeader, STATUS_OK};
-use nedrt::pipeline::source::pattern::pattern_rgba8;
+use nedrt_service::pipeline::frame::PixelFormat;
+use nedrt_service::pipeline::pacing::monotonic_ns;
+use nedrt_service::pipeline::protocol::{Client, DEFAULT_SHM_DIR, FrameHeader, STATUS_OK};
+use nedrt_service::pipeline::source::pattern::pattern_rgba8;
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let mut args = std::env::args().skip(1);

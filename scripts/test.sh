@@ -56,6 +56,8 @@ echo "== cargo fmt --check"
 cargo fmt --all --check
 echo "== cargo clippy --all-targets -- -D warnings"
 cargo clippy --all-targets -- -D warnings
+echo "== layers (docs/ARCHITECTURE.md)"
+bash scripts/check-layers.sh
 echo "== cargo test --release"
 cargo test --release --workspace
 

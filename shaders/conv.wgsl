@@ -2,7 +2,7 @@
 // panel clamp fused into the epilogue (in that order).
 //
 // A template: the fields in double braces are filled by
-// runtime/src/inference/gpu/codegen.rs.
+// runtime/infer/src/gpu/codegen.rs.
 // Tiling: a workgroup of 8×16 threads computes a 32×16-pixel tile for OC
 // output channels; each thread holds PX = 4 adjacent pixels × OC channels in
 // registers. Input channels are taken CI at a time: the input tile with its

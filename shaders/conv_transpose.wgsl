@@ -1,5 +1,5 @@
 // 2×2 transposed convolution with stride 2 (the U-Net's upsampling), bias
-// and ReLU fused. A template filled by runtime/src/inference/gpu/codegen.rs.
+// and ReLU fused. A template filled by runtime/infer/src/gpu/codegen.rs.
 // Each thread reads one input pixel per input channel and writes its 2×2
 // output block for OC channels (4·OC accumulators in registers); the
 // CI×OC×4 weights of a channel chunk are staged in workgroup memory and

@@ -1,7 +1,7 @@
 // The uniform block and bindings every layer kernel shares, pasted into
 // each kernel where it says LAYER_BINDINGS, by
-// runtime/src/inference/gpu/codegen.rs.
-// Mirrors `Params` in runtime/src/inference/gpu/params.rs (a test checks
+// runtime/infer/src/gpu/codegen.rs.
+// Mirrors `Params` in runtime/infer/src/gpu/params.rs (a test checks
 // sizes and offsets). Sizes are of the layer's input; offsets are in
 // elements of the bound buffer's type, so one buffer can hold several
 // tensors (concatenation by layout).

@@ -1,5 +1,5 @@
 // 2×2 max pool, stride 2: one thread per output value (memory-bound; no
-// reuse to stage). A template filled by runtime/src/inference/gpu/codegen.rs.
+// reuse to stage). A template filled by runtime/infer/src/gpu/codegen.rs.
 {{ENABLE_F16}}
 
 {{LAYER_BINDINGS}}

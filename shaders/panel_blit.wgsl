@@ -2,7 +2,7 @@
 // pixel) onto a render target with nearest-pixel scaling: a panel-sized
 // target shows every code value unchanged. The target format must be a
 // non-sRGB unorm format: the codes are already encoded by the panel's
-// transfer curve (runtime/src/present/transfer.rs).
+// transfer curve (runtime/service/src/present/transfer.rs).
 
 @group(0) @binding(0) var panel: texture_2d<f32>;
 

@@ -11,18 +11,19 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Output, Stdio};
 use std::time::{Duration, Instant};
 
-use nedrt::calib::Calibration;
-use nedrt::inference::{BackendKind, BackendOptions, Dcnn, Frame};
-use nedrt::pipeline::frame::{PixelFormat, RejectReason, planar_payload};
-use nedrt::pipeline::protocol::{Client, FrameHeader, HEADER_LEN, STATUS_OK};
-use nedrt::present::recorder::frame_path;
-use nedrt::present::transfer::Transfer;
+use nedrt_core::Image;
+use nedrt_core::calib::Calibration;
+use nedrt_infer::{BackendKind, BackendOptions, Dcnn};
+use nedrt_service::pipeline::frame::{PixelFormat, RejectReason, planar_payload};
+use nedrt_service::pipeline::protocol::{Client, FrameHeader, HEADER_LEN, STATUS_OK};
+use nedrt_service::present::recorder::frame_path;
+use nedrt_service::present::transfer::Transfer;
 
 const W: usize = 64;
 const H: usize = 48;
 
 fn repo() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
 }
 
 fn small_panel() -> PathBuf {
@@ -120,7 +121,7 @@ fn report(dir: &Path) -> serde_json::Value {
 }
 
 /// A distinct, smooth test frame per id, values in [0, 1].
-fn test_frame(id: u64) -> Frame {
+fn test_frame(id: u64) -> Image {
     let mut data = Vec::with_capacity(3 * W * H);
     for c in 0..3 {
         for y in 0..H {
@@ -133,16 +134,12 @@ fn test_frame(id: u64) -> Frame {
             }
         }
     }
-    Frame {
-        width: W,
-        height: H,
-        data,
-    }
+    Image::rgb(W, H, data)
 }
 
 /// What the panel must show for `frame`: the shipped D-CNN on tract, then
 /// the small panel's transfer curve, as RGB.
-fn expected_rgb(dcnn: &mut Dcnn, transfer: &Transfer, frame: &Frame) -> Vec<u8> {
+fn expected_rgb(dcnn: &mut Dcnn, transfer: &Transfer, frame: &Image) -> Vec<u8> {
     let out = dcnn.run_frame(frame).expect("D-CNN");
     let mut rgba = Vec::new();
     transfer.encode_rgba8(&out, &mut rgba);
@@ -230,9 +227,9 @@ fn every_kind_of_bad_frame_is_rejected_and_good_frames_still_arrive() {
         )
     };
     let mut nan = test_frame(0);
-    nan.data[100] = f32::NAN;
+    nan.data_mut()[100] = f32::NAN;
     let mut bright = test_frame(0);
-    bright.data[7] = 1.5;
+    bright.data_mut()[7] = 1.5;
     let mut bad_magic = FrameHeader::new(PixelFormat::Rgb32fPlanar, W, H, 901, 0).to_bytes();
     bad_magic[0] = b'X';
     let mut bad_version = FrameHeader::new(PixelFormat::Rgb32fPlanar, W, H, 902, 0).to_bytes();
@@ -372,7 +369,8 @@ fn every_kind_of_bad_frame_is_rejected_and_good_frames_still_arrive() {
 /// For a test that needs a GPU adapter (it is `#[ignore]`d, so it runs only
 /// when asked for): none is a failure, with the reason.
 fn require_gpu() {
-    if let Err(e) = nedrt::inference::gpu::open_device(nedrt::inference::Precision::F32) {
+    if let Err(e) = nedrt_infer::gpu::open_device(&Default::default(), nedrt_infer::Precision::F32)
+    {
         panic!("this test needs a GPU adapter and found none: {e}");
     }
 }
@@ -490,21 +488,21 @@ mod needs_gpu_and_window {
         let input = dir.path().join("in.png");
         let rgb8: Vec<u8> = (0..W * H)
             .flat_map(|i| (0..3).map(move |c| (c, i)))
-            .map(|(c, i)| (frame.data[c * W * H + i] * 255.0).round() as u8)
+            .map(|(c, i)| (frame.data()[c * W * H + i] * 255.0).round() as u8)
             .collect();
         image::RgbImage::from_raw(W as u32, H as u32, rgb8.clone())
             .expect("image")
             .save(&input)
             .expect("save");
         // The input as the service reads it: 8-bit values as linear intensity.
-        let as_read = Frame {
-            width: W,
-            height: H,
-            data: (0..3)
+        let as_read = Image::rgb(
+            W,
+            H,
+            (0..3)
                 .flat_map(|c| (0..W * H).map(move |i| (c, i)))
                 .map(|(c, i)| rgb8[3 * i + c] as f32 / 255.0)
                 .collect(),
-        };
+        );
         let (mut dcnn, transfer) = reference();
         let want = expected_rgb(&mut dcnn, &transfer, &as_read);
         let service = Service::start(

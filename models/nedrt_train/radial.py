@@ -16,7 +16,7 @@ areas exact geometry (`disk_rect_area`), extrapolated in m_t (Richardson,
 see `ANNULI_PER_CELL`). Light outside the window is the uniform veil, as in
 the 2-D model.
 
-Nedrt's radial path (runtime/src/optics/radial.rs) uses the same
+Nedrt's radial path (runtime/optics/src/radial.rs) uses the same
 conventions; a DOE file with a radial profile stores heights at (n + ½)·pitch.
 """
 import math

@@ -1,0 +1,283 @@
+//! nedrt-app, layer 3 of nedrt: what the `nedrt` commands do, as library
+//! functions with typed options and printable reports (the binary only
+//! parses arguments, reads the environment into [`CommonOptions`] and calls
+//! these): the simulation, the real-time run, and the studies (eval,
+//! tradeoff, stability, focus cues, plots, benchmarks). The preprocessing
+//! registry ([`preprocess`]) names every "input frame → display frame" the
+//! simulator and the service can run.
+//!
+//! Rule: the top library layer, and the only one with plotters and report
+//! writers; no clap, no indicatif, no environment (settings arrive as
+//! values, progress through [`nedrt_core::Progress`]).
+
+pub mod bench;
+pub mod bench_inference;
+pub mod charts;
+pub mod design;
+pub mod eval;
+pub mod focus_cues;
+pub mod plots;
+pub mod preprocess;
+pub mod run;
+pub mod sim;
+pub mod stability;
+pub mod tradeoff;
+pub mod tune;
+
+use std::path::{Path, PathBuf};
+
+use std::sync::Arc;
+
+use nedrt_core::Progress;
+use nedrt_core::progress::Silent;
+
+use std::collections::HashMap;
+
+use nedrt_core::calib::{CalibError, Calibration};
+use nedrt_infer::{BackendKind, BackendOptions, Dcnn, InferenceError};
+use nedrt_optics::cache::PsfCache;
+use nedrt_optics::sim::Method;
+
+/// Options every command shares.
+#[derive(Debug, Clone)]
+pub struct CommonOptions {
+    /// Calibration file; `None` = the embedded `calib/default.toml`.
+    pub calib: Option<PathBuf>,
+    /// PSF cache folder (the binary resolves the default); `None`: no cache.
+    pub cache_dir: Option<PathBuf>,
+    /// DOE height-map file overriding the calibration's.
+    pub doe: Option<PathBuf>,
+    /// A named design (`--design`): its DOE is `doe`, its K the Wiener's.
+    pub design: Option<design::Design>,
+    pub dcnn: DcnnOptions,
+    /// Where long work reports its progress.
+    pub progress: Arc<dyn Progress>,
+}
+
+impl Default for CommonOptions {
+    fn default() -> Self {
+        Self {
+            calib: None,
+            cache_dir: None,
+            doe: None,
+            design: None,
+            dcnn: DcnnOptions::default(),
+            progress: Arc::new(Silent),
+        }
+    }
+}
+
+/// Which trained D-CNNs the `proposed` and `lens+dcnn` methods run, and how.
+#[derive(Debug, Clone)]
+pub struct DcnnOptions {
+    /// The D-CNN co-trained with the DOE (`proposed`).
+    pub path: PathBuf,
+    /// A D-CNN trained for the lens alone (`lens+dcnn`).
+    pub lens_path: PathBuf,
+    pub backend: BackendKind,
+    pub backend_options: BackendOptions,
+}
+
+impl Default for DcnnOptions {
+    fn default() -> Self {
+        Self {
+            path: PathBuf::from("models/dcnn.onnx"),
+            lens_path: PathBuf::from("models/dcnn-lens.onnx"),
+            backend: BackendKind::Cpu,
+            backend_options: BackendOptions::default(),
+        }
+    }
+}
+
+impl DcnnOptions {
+    /// The DOE trained with `path`: `<stem>.doe.safetensors` beside it.
+    pub fn companion_doe(&self) -> PathBuf {
+        self.path.with_extension("doe.safetensors")
+    }
+
+    /// Loads (once) the D-CNN of every method in `methods` that has one.
+    pub fn load_for(&self, methods: &[Method]) -> Result<HashMap<Method, Dcnn>, AppError> {
+        let mut out = HashMap::new();
+        for &m in methods.iter().filter(|m| m.uses_dcnn()) {
+            let path = match m {
+                Method::LensDcnn => &self.lens_path,
+                _ => &self.path,
+            };
+            if !path.exists() {
+                return Err(AppError::Usage(format!(
+                    "{}: no D-CNN for method {m} (give --dcnn{} FILE; models/README.md says how \
+                     to train one)",
+                    path.display(),
+                    if m == Method::LensDcnn { "-lens" } else { "" }
+                )));
+            }
+            let dcnn = Dcnn::load(path, self.backend, &self.backend_options)?;
+            tracing::info!("{m}: {} on {}", path.display(), dcnn.describe());
+            out.insert(m, dcnn);
+        }
+        Ok(out)
+    }
+}
+
+impl CommonOptions {
+    /// The calibration, with a selected design's Wiener K (marked as tuned
+    /// for the design's DOE).
+    pub fn calibration(&self) -> Result<Calibration, AppError> {
+        let mut calib = match &self.calib {
+            Some(p) => Calibration::load(p)?,
+            None => Calibration::default_embedded()?,
+        };
+        if let Some(d) = &self.design {
+            let hash = nedrt_optics::doe_file::load(&d.doe, &calib)?.content_hash();
+            d.apply(&mut calib, hash);
+        }
+        Ok(calib)
+    }
+
+    pub fn cache(&self) -> PsfCache {
+        PsfCache::at(self.cache_dir.clone())
+    }
+
+    /// The progress reporter, for the simulator.
+    pub fn progress(&self) -> &dyn Progress {
+        &*self.progress
+    }
+
+    /// A named phase of work whose length is set once known.
+    pub fn phase(&self, name: &str) -> Phase<'_> {
+        Phase {
+            progress: &*self.progress,
+            name: name.to_string(),
+        }
+    }
+
+    pub fn doe_path(&self) -> Option<&Path> {
+        self.doe.as_deref()
+    }
+
+    /// The DOE for a run of `methods`: `--doe` if given; else, when the
+    /// co-designed `proposed` system is among them, the DOE trained with its
+    /// D-CNN (so every DOE method of the run sees the same element); else
+    /// the calibration's.
+    pub fn doe_path_for(&self, methods: &[Method]) -> Option<PathBuf> {
+        if let Some(p) = &self.doe {
+            return Some(p.clone());
+        }
+        let companion = self.dcnn.companion_doe();
+        (methods.contains(&Method::Proposed) && companion.exists()).then_some(companion)
+    }
+}
+
+/// One phase of a command's progress (see [`CommonOptions::phase`]).
+#[derive(Debug)]
+pub struct Phase<'a> {
+    progress: &'a dyn Progress,
+    name: String,
+}
+
+impl Phase<'_> {
+    /// Starts the phase with `total` steps.
+    pub fn set_length(&self, total: u64) {
+        self.progress.start(&self.name, total);
+    }
+    pub fn inc(&self, n: u64) {
+        self.progress.advance(n);
+    }
+    pub fn finish_and_clear(&self) {
+        self.progress.finish();
+    }
+}
+
+/// Errors of the commands.
+#[derive(Debug, thiserror::Error)]
+pub enum AppError {
+    #[error(transparent)]
+    Calib(#[from] CalibError),
+    #[error(transparent)]
+    Sim(#[from] nedrt_optics::sim::SimError),
+    #[error(transparent)]
+    Optics(#[from] nedrt_optics::OpticsError),
+    #[error(transparent)]
+    Doe(#[from] nedrt_optics::doe_file::DoeError),
+    #[error(transparent)]
+    Image(#[from] nedrt_core::image_io::ImageError),
+    #[error(transparent)]
+    Inference(#[from] InferenceError),
+    #[error(transparent)]
+    Preprocess(#[from] nedrt_core::PreprocessError),
+    #[error(transparent)]
+    Source(#[from] nedrt_service::pipeline::source::SourceError),
+    #[error(transparent)]
+    Present(#[from] nedrt_service::present::PresentError),
+    #[error("{path}: {reason}")]
+    Output { path: String, reason: String },
+    #[error("{0}")]
+    Usage(String),
+}
+
+impl AppError {
+    pub fn output(path: &Path, reason: impl std::fmt::Display) -> Self {
+        AppError::Output {
+            path: path.display().to_string(),
+            reason: reason.to_string(),
+        }
+    }
+}
+
+/// Writes a text file atomically, naming the file on failure.
+pub fn write_text(path: &Path, text: &str) -> Result<(), AppError> {
+    nedrt_core::util::write_atomic(path, text.as_bytes()).map_err(|e| AppError::output(path, e))
+}
+
+/// Creates an output folder, naming it on failure.
+pub fn create_dir(path: &Path) -> Result<(), AppError> {
+    std::fs::create_dir_all(path)
+        .map_err(|e| AppError::output(path, format!("cannot create folder: {e}")))
+}
+
+/// Refuses an output file whose folder does not exist, so that a long run
+/// fails at its start rather than losing its report at the end.
+pub fn check_output_folder(file: &Path) -> Result<(), AppError> {
+    match file.parent() {
+        Some(dir) if !dir.as_os_str().is_empty() && !dir.is_dir() => Err(AppError::output(
+            file,
+            format!("cannot write: folder {} does not exist", dir.display()),
+        )),
+        _ => Ok(()),
+    }
+}
+
+/// The largest accommodation `--accom` takes: a young child's amplitude
+/// (near point 5 cm); past it the request is a typo, not an eye.
+pub const MAX_ACCOMMODATION_D: f64 = 20.0;
+
+/// Checks an accommodation: finite and in [0, 20] D (errors), inside the
+/// calibrated range (else a warning, returned for printing).
+pub fn check_accommodation(
+    calib: &Calibration,
+    accommodation_d: f64,
+) -> Result<Option<String>, AppError> {
+    if !accommodation_d.is_finite() {
+        return Err(AppError::Usage(format!(
+            "--accom {accommodation_d}: not a number of diopters"
+        )));
+    }
+    if accommodation_d < 0.0 {
+        return Err(AppError::Usage(format!(
+            "--accom {accommodation_d}: accommodation must be ≥ 0 D (0 D is focus at infinity; an eye cannot focus beyond it)"
+        )));
+    }
+    if accommodation_d > MAX_ACCOMMODATION_D {
+        return Err(AppError::Usage(format!(
+            "--accom {accommodation_d:e}: beyond what an eye accommodates (at most \
+             {MAX_ACCOMMODATION_D} D, a child's near point of 5 cm)"
+        )));
+    }
+    let [lo, hi] = calib.range_d;
+    Ok((accommodation_d < lo || accommodation_d > hi).then(|| {
+        format!(
+            "accommodation {accommodation_d} D lies outside the calibrated range [{lo}, {hi}] D of {}; simulating anyway",
+            calib.source
+        )
+    }))
+}

@@ -1,0 +1,350 @@
+//! `nedrt run`: the real-time service. Builds the sink (first: a window
+//! must live on this thread, and its GPU is offered to the D-CNN), the
+//! D-CNN with its fallback, the pipeline and the source, presents until the
+//! source ends or a signal stops it, then reports the counts and latencies.
+
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+
+use super::{AppError, CommonOptions};
+use nedrt_core::Named;
+use nedrt_core::preprocess::{Identity, Preprocess};
+use nedrt_infer::gpu::open_device;
+use nedrt_infer::{BackendKind, Dcnn, ModelFile};
+use nedrt_optics::sim::{Method, Simulator};
+use nedrt_service::pipeline::pacing::{Clock, SystemClock};
+use nedrt_service::pipeline::service::{Control, DcnnStage, FallbackFactory, PanelConfig, Service};
+use nedrt_service::pipeline::source::{
+    self, Source, dir::DirSource, pattern::PatternSource, socket::SocketSource,
+};
+use nedrt_service::pipeline::stats::Report;
+use nedrt_service::present::Sink;
+use nedrt_service::present::headless::HeadlessSink;
+use nedrt_service::present::recorder::RecorderSink;
+use nedrt_service::present::transfer::Transfer;
+use nedrt_service::present::window::{WindowOptions, WindowSink};
+
+/// Where frames come from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum SourceKind {
+    /// The synthetic moving test pattern.
+    Pattern,
+    /// Images from --input (a folder or one file), in name order, looping.
+    Dir,
+    /// Applications over the Unix-socket protocol (docs/protocol.md).
+    Socket,
+}
+
+impl Named for SourceKind {
+    const ALL: &'static [Self] = &[SourceKind::Pattern, SourceKind::Dir, SourceKind::Socket];
+    fn name(self) -> &'static str {
+        match self {
+            SourceKind::Pattern => "pattern",
+            SourceKind::Dir => "dir",
+            SourceKind::Socket => "socket",
+        }
+    }
+    fn help(self) -> &'static str {
+        match self {
+            SourceKind::Pattern => "the synthetic moving test pattern",
+            SourceKind::Dir => "images from --input (a folder or one file), in name order, looping",
+            SourceKind::Socket => "applications over the Unix-socket protocol (docs/protocol.md)",
+        }
+    }
+}
+
+/// Where frames go.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum SinkKind {
+    /// A window (fullscreen with --fullscreen) with a vsync'd wgpu surface.
+    Window,
+    /// An off-screen wgpu target of the panel's size.
+    Headless,
+    /// A PNG sequence in --record-dir.
+    Record,
+}
+
+impl Named for SinkKind {
+    const ALL: &'static [Self] = &[SinkKind::Window, SinkKind::Headless, SinkKind::Record];
+    fn name(self) -> &'static str {
+        match self {
+            SinkKind::Window => "window",
+            SinkKind::Headless => "headless",
+            SinkKind::Record => "record",
+        }
+    }
+    fn help(self) -> &'static str {
+        match self {
+            SinkKind::Window => {
+                "a window (fullscreen with --fullscreen) with a vsync'd wgpu surface"
+            }
+            SinkKind::Headless => "an off-screen wgpu target of the panel's size",
+            SinkKind::Record => "a PNG sequence in --record-dir",
+        }
+    }
+}
+
+/// What replaces the D-CNN backend when it cannot start or fails.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum FallbackKind {
+    /// The same network on the CPU (tract).
+    Cpu,
+    /// No preprocessing: the frame as submitted.
+    Passthrough,
+}
+
+impl Named for FallbackKind {
+    const ALL: &'static [Self] = &[FallbackKind::Cpu, FallbackKind::Passthrough];
+    fn name(self) -> &'static str {
+        match self {
+            FallbackKind::Cpu => "cpu",
+            FallbackKind::Passthrough => "passthrough",
+        }
+    }
+    fn help(self) -> &'static str {
+        match self {
+            FallbackKind::Cpu => "the same network on the CPU (tract)",
+            FallbackKind::Passthrough => "no preprocessing: the frame as submitted",
+        }
+    }
+}
+
+/// Slowest and fastest paced source rates `--source-rate` takes (Hz).
+pub const MIN_SOURCE_RATE_HZ: f64 = 0.01;
+pub const MAX_SOURCE_RATE_HZ: f64 = 10_000.0;
+
+/// Options of `nedrt run`.
+#[derive(Debug, Clone)]
+pub struct RunOptions {
+    /// The preprocessing on the panel: a method's (its D-CNN, its Wiener
+    /// prefilter, or none).
+    pub preprocess: Method,
+    pub source: SourceKind,
+    pub input: Option<PathBuf>,
+    pub socket: PathBuf,
+    pub shm_dir: PathBuf,
+    /// Frames the pattern or folder source submits (`None`: pattern until
+    /// stopped, folder once through).
+    pub frames: Option<u64>,
+    /// Submission rate of the pattern and folder sources (`None`: the panel's refresh; 0: unpaced).
+    pub source_rate_hz: Option<f64>,
+    pub sink: SinkKind,
+    pub record_dir: PathBuf,
+    pub window: WindowOptions,
+    pub fallback: FallbackKind,
+    pub report_json: Option<PathBuf>,
+}
+
+fn fallback_factory(
+    kind: FallbackKind,
+    model: ModelFile,
+    common: &CommonOptions,
+) -> FallbackFactory {
+    let options = nedrt_infer::BackendOptions {
+        precision: nedrt_infer::Precision::F32,
+        ..common.dcnn.backend_options.clone()
+    };
+    match kind {
+        FallbackKind::Cpu => Box::new(move || {
+            let dcnn = Dcnn::from_model(model, BackendKind::Cpu, &options).map_err(|e| {
+                nedrt_core::PreprocessError::Engine {
+                    engine: "cpu (tract)".into(),
+                    reason: e.to_string(),
+                }
+            })?;
+            Ok(Box::new(dcnn) as Box<dyn Preprocess>)
+        }),
+        FallbackKind::Passthrough => Box::new(|| Ok(Box::new(Identity) as Box<dyn Preprocess>)),
+    }
+}
+
+/// The preprocessing of a method without a network: its Wiener prefilter
+/// (the PSFs it averages come from the cache after the first run), or none.
+fn linear_preprocessor(
+    common: &CommonOptions,
+    method: Method,
+) -> Result<Box<dyn Preprocess>, AppError> {
+    if !method.uses_wiener() {
+        return Ok(Box::new(Identity));
+    }
+    let sim = Simulator::new(
+        common.calibration()?,
+        common.doe_path_for(&[method]).as_deref(),
+        common.cache(),
+    )?;
+    let prepared = sim.prepare(&[method], &[], common.progress())?;
+    let mut dcnns = std::collections::HashMap::new();
+    crate::preprocess::for_method(method, &prepared, &mut dcnns)
+}
+
+/// Runs the service until its source ends (and the last frame is shown)
+/// or `control.stop` is set.
+pub fn run(
+    common: &CommonOptions,
+    opts: &RunOptions,
+    control: &Control,
+) -> Result<Report, AppError> {
+    // 0 is "as fast as the pipeline takes them"; anything else must give a
+    // period a clock can wait (NaN, inf or 1e-300 Hz would run unpaced).
+    if let Some(rate_hz) = opts.source_rate_hz
+        && !(rate_hz == 0.0 || (MIN_SOURCE_RATE_HZ..=MAX_SOURCE_RATE_HZ).contains(&rate_hz))
+    {
+        return Err(AppError::Usage(format!(
+            "--source-rate {rate_hz}: give 0 (unpaced) or a rate from {MIN_SOURCE_RATE_HZ} \
+             to {MAX_SOURCE_RATE_HZ} Hz"
+        )));
+    }
+    let calib = common.calibration()?;
+    let p = &calib.panel;
+    let panel = PanelConfig {
+        width: p.width_px,
+        height: p.height_px,
+        refresh_hz: p.refresh_hz,
+        transfer: Transfer::from_panel(p),
+    };
+    let (w, h) = (panel.width as u32, panel.height as u32);
+    // Output folders are checked before anything runs, not after.
+    if let Some(dir) = opts
+        .report_json
+        .as_deref()
+        .and_then(std::path::Path::parent)
+        && !dir.as_os_str().is_empty()
+    {
+        std::fs::create_dir_all(dir).map_err(|e| AppError::output(dir, e))?;
+    }
+    let clock: Arc<dyn Clock> = Arc::new(SystemClock);
+    let rate_hz = opts.source_rate_hz.unwrap_or(panel.refresh_hz);
+    // Sources first: a bad input is reported before any window opens.
+    let source: Box<dyn Source> = match opts.source {
+        SourceKind::Pattern => Box::new(PatternSource::new(
+            panel.width,
+            panel.height,
+            opts.frames,
+            rate_hz,
+            clock.clone(),
+        )),
+        SourceKind::Dir => {
+            let input = opts.input.as_ref().ok_or_else(|| {
+                AppError::Usage("--source dir needs --input FOLDER_OR_IMAGE".into())
+            })?;
+            Box::new(DirSource::load(
+                input,
+                panel.width,
+                panel.height,
+                opts.frames,
+                rate_hz,
+                clock.clone(),
+            )?)
+        }
+        SourceKind::Socket => Box::new(SocketSource::bind(&opts.socket, &opts.shm_dir)?),
+    };
+
+    let dcnn = &common.dcnn;
+    let uses_dcnn = opts.preprocess.uses_dcnn();
+    let model = if uses_dcnn {
+        Some(ModelFile::read(match opts.preprocess {
+            Method::LensDcnn => &dcnn.lens_path,
+            _ => &dcnn.path,
+        })?)
+    } else {
+        None
+    };
+    let precision = dcnn.backend_options.precision;
+    // The sink, and a GPU for the D-CNN to share with it.
+    let (sink, device): (Box<dyn Sink>, _) = match opts.sink {
+        SinkKind::Window => {
+            let s = WindowSink::open(w, h, opts.window.clone())?;
+            let device = s.device();
+            (Box::new(s), Some(device))
+        }
+        SinkKind::Headless => {
+            let (adapter, device, queue) = open_device(&dcnn.backend_options.gpu, precision)?;
+            let name = adapter.get_info().name;
+            let s = HeadlessSink::new(&device, &queue, name.clone(), w, h)?;
+            (Box::new(s), Some((device, queue, name)))
+        }
+        SinkKind::Record => (Box::new(RecorderSink::new(&opts.record_dir)?), None),
+    };
+    let Some(model) = model else {
+        let primary = linear_preprocessor(common, opts.preprocess)?;
+        return serve(opts, control, panel, clock, source, sink, primary, None);
+    };
+    let primary: Result<Box<dyn Preprocess>, _> = match (dcnn.backend, &device) {
+        (BackendKind::Wgpu, Some((d, q, name)))
+            if precision == nedrt_infer::Precision::F32
+                || d.features().contains(wgpu::Features::SHADER_F16) =>
+        {
+            Dcnn::on_device(model.clone(), d, q, name.clone(), precision)
+                .map(|x| Box::new(x) as Box<dyn Preprocess>)
+        }
+        (kind, _) => Dcnn::from_model(model.clone(), kind, &dcnn.backend_options)
+            .map(|x| Box::new(x) as Box<dyn Preprocess>),
+    };
+    let mut fallback = Some(fallback_factory(opts.fallback, model, common));
+    let primary = match primary {
+        Ok(p) => p,
+        Err(e) => {
+            let Some(factory) = fallback.take() else {
+                return Err(e.into());
+            };
+            let f = factory()?;
+            tracing::warn!("{e}; running the D-CNN on the fallback: {}", f.describe());
+            f
+        }
+    };
+    serve(opts, control, panel, clock, source, sink, primary, fallback)
+}
+
+/// Starts the pipeline with its preprocessing, runs it to the end and
+/// writes the report.
+#[allow(clippy::too_many_arguments)]
+fn serve(
+    opts: &RunOptions,
+    control: &Control,
+    panel: PanelConfig,
+    clock: Arc<dyn Clock>,
+    source: Box<dyn Source>,
+    mut sink: Box<dyn Sink>,
+    primary: Box<dyn Preprocess>,
+    fallback: Option<FallbackFactory>,
+) -> Result<Report, AppError> {
+    tracing::info!(
+        "panel {}×{} at {} Hz; source: {}; preprocess: {}; sink: {}",
+        panel.width,
+        panel.height,
+        panel.refresh_hz,
+        source.describe(),
+        primary.describe(),
+        sink.describe()
+    );
+    let mut service = Service::start(panel, DcnnStage { primary, fallback }, clock)
+        .map_err(|e| AppError::Usage(format!("cannot start the pipeline threads: {e}")))?;
+    let sources_stop = Arc::new(AtomicBool::new(false));
+    let compositor = service
+        .compositor()
+        .ok_or_else(|| AppError::Usage("the pipeline is closed".into()))?;
+    let source_thread = source::spawn(source, compositor, sources_stop.clone())
+        .map_err(|e| AppError::Usage(format!("cannot start the source thread: {e}")))?;
+    service.close_ingest();
+
+    let presented = service.present_loop(sink.as_mut(), control);
+    // However the loop ended: stop the source, drain the stages, flush the sink.
+    sources_stop.store(true, Ordering::Relaxed);
+    let source_result = source_thread.join();
+    let report = service.shutdown();
+    let finished = sink.finish();
+    presented?;
+    finished?;
+    match source_result {
+        Ok(Ok(n)) => tracing::debug!("source submitted {n} frames"),
+        Ok(Err(e)) => return Err(e.into()),
+        Err(_) => return Err(AppError::Usage("the source thread panicked".into())),
+    }
+    if let Some(path) = &opts.report_json {
+        let json = serde_json::to_string_pretty(&report).map_err(|e| AppError::output(path, e))?;
+        nedrt_core::util::write_atomic(path, json.as_bytes())
+            .map_err(|e| AppError::output(path, e))?;
+    }
+    Ok(report)
+}

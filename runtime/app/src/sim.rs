@@ -1,0 +1,222 @@
+//! `nedrt --sim`: the perceived image at one accommodation, written to a
+//! file and scored against the sharp image and the multifocal target.
+
+use std::fmt::Write as _;
+use std::path::PathBuf;
+use std::time::Instant;
+
+use super::{AppError, CommonOptions, check_accommodation};
+use nedrt_core::image_io::{self, DEFAULT_INPUT_NAME, DEFAULT_INPUT_PNG, LoadedImage};
+use nedrt_optics::sim::metrics::{psnr, ssim};
+use nedrt_optics::sim::{Image, Method, Optics, Simulator};
+
+/// Options of `nedrt --sim`.
+#[derive(Debug, Clone)]
+pub struct SimOptions {
+    pub accommodation_d: f64,
+    /// Input image; `None` = the shipped test image.
+    pub input: Option<PathBuf>,
+    pub method: Method,
+    pub out: PathBuf,
+    /// Simulate this display image instead of a method's preprocessing.
+    pub display_image: Option<PathBuf>,
+    /// Optics for `display_image`.
+    pub optics: Optics,
+    /// Also write the display frame (what the panel shows) here: `.png`
+    /// 16-bit or `.tif` 32-bit float.
+    pub display_out: Option<PathBuf>,
+}
+
+/// PSNR and SSIM of a perceived image against one reference.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct Score {
+    pub psnr_db: f64,
+    pub ssim: f64,
+}
+
+impl Score {
+    pub fn of(perceived: &Image, reference: &Image) -> Self {
+        Self {
+            psnr_db: psnr(perceived, reference),
+            ssim: ssim(perceived, reference),
+        }
+    }
+}
+
+/// Everything `nedrt --sim` reports.
+#[derive(Debug, Clone)]
+pub struct SimReport {
+    pub text: String,
+    pub vs_sharp: Score,
+    pub vs_target: Score,
+}
+
+impl std::fmt::Display for SimReport {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.text)
+    }
+}
+
+pub fn load_input(input: Option<&std::path::Path>) -> Result<(LoadedImage, String), AppError> {
+    Ok(match input {
+        Some(p) => (image_io::load(p)?, p.display().to_string()),
+        None => (
+            image_io::decode(DEFAULT_INPUT_PNG, DEFAULT_INPUT_NAME)?,
+            DEFAULT_INPUT_NAME.to_string(),
+        ),
+    })
+}
+
+/// Runs one simulation. Warnings (accommodation range, conversions) are
+/// logged through `tracing` as they arise.
+pub fn run(common: &CommonOptions, opts: &SimOptions) -> Result<SimReport, AppError> {
+    let start = Instant::now();
+    let calib = common.calibration()?;
+    if let Some(w) = check_accommodation(&calib, opts.accommodation_d)? {
+        tracing::warn!("{w}");
+    }
+    let (loaded, input_name) = load_input(opts.input.as_deref())?;
+    for n in &loaded.notes {
+        tracing::warn!("{n}");
+    }
+    let input = loaded.image;
+    // Below 8 pixels a side the scores mean nothing (SSIM needs an 11×11
+    // window on the 2× retinal grid); `eval` refuses the same images.
+    if input.width < 8 || input.height < 8 {
+        return Err(AppError::Usage(format!(
+            "{input_name}: {}×{} pixels, smaller than 8×8",
+            input.width, input.height
+        )));
+    }
+    let display_loaded = match &opts.display_image {
+        Some(p) => {
+            let l = image_io::load(p)?;
+            for n in &l.notes {
+                tracing::warn!("{n}");
+            }
+            if (l.image.width, l.image.height) != (input.width, input.height) {
+                return Err(AppError::Usage(format!(
+                    "{}: display image is {}×{}, the input {input_name} is {}×{}; they must match",
+                    p.display(),
+                    l.image.width,
+                    l.image.height,
+                    input.width,
+                    input.height
+                )));
+            }
+            Some(l.image)
+        }
+        None => None,
+    };
+
+    let method = match display_loaded {
+        Some(_) => Method::unprocessed(opts.optics),
+        None => opts.method,
+    };
+    let mut dcnns = common.dcnn.load_for(&[method])?;
+    let dcnn_line = dcnns.get(&method).map(|d| {
+        format!(
+            "D-CNN     {} ({}, {:.0} MAC/pixel) on {}",
+            d.model.path.display(),
+            d.model.hash,
+            d.network.macs_per_pixel,
+            d.describe()
+        )
+    });
+    if let Some(d) = dcnns.get(&method) {
+        let m = d.network.multiple;
+        if !input.width.is_multiple_of(m) || !input.height.is_multiple_of(m) {
+            tracing::warn!(
+                "{input_name}: {}×{} is not a multiple of {m}; the D-CNN pads it to {}×{} by \
+                 reflection and crops its output back",
+                input.width,
+                input.height,
+                input.width.div_ceil(m) * m,
+                input.height.div_ceil(m) * m
+            );
+        }
+    }
+    let sim = Simulator::new(
+        calib,
+        common.doe_path_for(&[method]).as_deref(),
+        common.cache(),
+    )?;
+    let prepared = sim.prepare(&[method], &[opts.accommodation_d], common.progress())?;
+    let display = match &display_loaded {
+        Some(d) => d.clone(),
+        None => crate::preprocess::for_method(method, &prepared, &mut dcnns)?.run(&input)?,
+    };
+    let perceived = prepared.perceived(method, &display, opts.accommodation_d)?;
+    let target = prepared.target(&input, opts.accommodation_d)?;
+    let sharp = input.up2();
+    let (rw, rh) = (sharp.width, sharp.height);
+    image_io::save_png16(&perceived, &opts.out)?;
+    if let Some(p) = &opts.display_out {
+        image_io::save(&display, p, &["png", "tif", "tiff"])?;
+    }
+    let vs_sharp = Score::of(&perceived, &sharp);
+    let vs_target = Score::of(&perceived, &target);
+
+    let c = &sim.calib;
+    let mut t = String::new();
+    let what = match &opts.display_image {
+        Some(p) => format!(
+            "display image {} through {}",
+            p.display(),
+            if opts.optics == Optics::Doe {
+                "lens + DOE"
+            } else {
+                "lens"
+            }
+        ),
+        None => format!("method {method}"),
+    };
+    let _ = writeln!(
+        t,
+        "nedrt sim: {what} at {} D ({})",
+        opts.accommodation_d, c.source
+    );
+    if method.optics() == Optics::Doe {
+        let _ = writeln!(t, "DOE       {} ({})", sim.doe_hash, sim.doe.description);
+    }
+    if let Some(line) = &dcnn_line {
+        let _ = writeln!(t, "{line}");
+    }
+    let _ = writeln!(
+        t,
+        "input     {input_name} ({}×{})",
+        input.width, input.height
+    );
+    let _ = writeln!(
+        t,
+        "wrote     {} ({}×{}, retinal grid {:.3} arcmin, 16-bit PNG)",
+        opts.out.display(),
+        rw,
+        rh,
+        c.retinal_step_rad().to_degrees() * 60.0
+    );
+    let target_kind = if c.is_main_depth(opts.accommodation_d) {
+        "sharp input: a main depth"
+    } else {
+        "input blurred by h_b: not a main depth"
+    };
+    let _ = writeln!(
+        t,
+        "vs sharp  PSNR {:6.2} dB  SSIM {:.4}",
+        vs_sharp.psnr_db, vs_sharp.ssim
+    );
+    let _ = writeln!(
+        t,
+        "vs target PSNR {:6.2} dB  SSIM {:.4}  (target: {target_kind})",
+        vs_target.psnr_db, vs_target.ssim
+    );
+    for (name, r) in &prepared.reports {
+        let _ = writeln!(t, "model     {name}: {}", r.summary());
+    }
+    let _ = write!(t, "time      {:.2} s", start.elapsed().as_secs_f64());
+    Ok(SimReport {
+        text: t,
+        vs_sharp,
+        vs_target,
+    })
+}

@@ -1,0 +1,474 @@
+//! `nedrt tradeoff`: every preprocessing configuration priced in
+//! milliseconds per frame (at the stated resolution, on this machine) and
+//! in image quality (mean and worst PSNR, SSIM over 0–2.5 D on an image
+//! set), side by side, with the Pareto front; plus the simulator's own
+//! fidelity settings against their cost ([`fidelity`]). `nedrt pick` reads
+//! the table back and names the configuration for a quality floor and a
+//! latency budget ([`pareto::pick`]).
+
+pub mod chart;
+pub mod fidelity;
+pub mod pareto;
+pub mod quality;
+
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use serde::{Deserialize, Serialize};
+
+pub use quality::{Quality, Scorer};
+
+use super::bench::median;
+use super::eval::{list_images, load_cropped};
+use super::{AppError, CommonOptions, create_dir, write_text};
+use nedrt_infer::{BackendKind, BackendOptions, Dcnn, Precision};
+use nedrt_optics::sim::{Image, Method, Simulator};
+use pareto::{Point, pareto_front};
+
+/// What `nedrt tradeoff` measures.
+#[derive(Debug, Clone)]
+pub struct TradeoffOptions {
+    pub images_dir: PathBuf,
+    pub out_dir: PathBuf,
+    /// Frame size of the latency measurements (width, height).
+    pub size: (usize, usize),
+    /// Trained D-CNNs, each with its DOE beside it (`<stem>.doe.safetensors`).
+    pub models: Vec<PathBuf>,
+    pub backends: Vec<BackendKind>,
+    /// Timed runs per latency (after one warm-up).
+    pub repeat: usize,
+    /// A latency whose estimate exceeds this many seconds in all is not
+    /// measured (its estimate is recorded, marked as such).
+    pub max_seconds: f64,
+    /// Threads of the ort backend (0: its default).
+    pub threads: usize,
+    /// Also run the simulator-fidelity study.
+    pub fidelity: bool,
+    /// Display designs whose DOE (with and without its Wiener) join the
+    /// baselines, each with its own K.
+    pub designs: Vec<super::design::Design>,
+}
+
+/// Rewrites the Markdown and the charts from the JSON already in
+/// `out_dir`, measuring nothing (after a change to the report's layout).
+pub fn replot(out_dir: &Path) -> Result<String, AppError> {
+    let mut text = write_table(&Table::load(&out_dir.join("tradeoff.json"))?, out_dir)?;
+    if out_dir.join("fidelity.json").exists() {
+        text.push('\n');
+        text.push_str(&fidelity::replot(out_dir)?);
+    }
+    Ok(text)
+}
+
+/// One configuration's row of the table.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct Record {
+    #[serde(flatten)]
+    pub point: Point,
+    pub method: String,
+    /// D-CNN file and content hash, for D-CNN methods.
+    pub model: Option<String>,
+    pub model_hash: Option<String>,
+    /// DOE content hash, for methods with a DOE.
+    pub doe_hash: Option<String>,
+    pub backend: String,
+    pub precision: String,
+    /// Where the preprocessing ran.
+    pub device: String,
+    /// Latency extrapolated from the image runs when it was not measured.
+    pub estimated_ms: Option<f64>,
+    /// Mean PSNR per evaluation depth, (D, dB).
+    pub per_depth_psnr_db: Vec<(f64, f64)>,
+    pub on_front: bool,
+}
+
+/// The table `nedrt tradeoff` writes and `nedrt pick` reads.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct Table {
+    pub host: String,
+    pub calibration: String,
+    pub frame_width: usize,
+    pub frame_height: usize,
+    pub images: Vec<String>,
+    pub records: Vec<Record>,
+    /// Configurations that could not run here, with the reason.
+    pub skipped: Vec<String>,
+}
+
+impl Table {
+    pub fn points(&self) -> Vec<Point> {
+        self.records.iter().map(|r| r.point.clone()).collect()
+    }
+
+    /// Reads a table written by `nedrt tradeoff`, naming the file on error.
+    pub fn load(path: &Path) -> Result<Self, AppError> {
+        let text = std::fs::read_to_string(path)
+            .map_err(|e| AppError::Usage(format!("{}: cannot read: {e}", path.display())))?;
+        serde_json::from_str(&text).map_err(|e| {
+            AppError::Usage(format!(
+                "{}: not a table written by `nedrt tradeoff`: {e}",
+                path.display()
+            ))
+        })
+    }
+}
+
+/// This machine's CPU and core count, for the chart and the table.
+pub fn host_description() -> String {
+    let cpu = std::fs::read_to_string("/proc/cpuinfo")
+        .ok()
+        .and_then(|s| {
+            s.lines()
+                .find(|l| l.starts_with("model name"))
+                .and_then(|l| l.split(':').nth(1))
+                .map(|m| m.trim().to_string())
+        })
+        .unwrap_or_else(|| std::env::consts::ARCH.to_string());
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+    format!("{cpu}, {cores} cores")
+}
+
+/// A deterministic frame of `size` with edges and gradients (latency does
+/// not depend on content; the values only keep every path busy).
+pub fn latency_frame(size: (usize, usize)) -> Image {
+    let (w, h) = size;
+    let planes = (0..3)
+        .map(|c| {
+            (0..w * h)
+                .map(|i| {
+                    let (x, y) = (i % w, i / w);
+                    (((x * (c + 3) + y * 7) % 97) as f32 / 96.0) * 0.8 + 0.1
+                })
+                .collect()
+        })
+        .collect();
+    Image::from_planes(w, h, planes)
+}
+
+/// Median seconds of `repeat` timed calls after one warm-up.
+fn time_median<E>(repeat: usize, mut f: impl FnMut() -> Result<(), E>) -> Result<f64, E> {
+    f()?;
+    let mut times = Vec::new();
+    for _ in 0..repeat.max(1) {
+        let t = Instant::now();
+        f()?;
+        times.push(t.elapsed().as_secs_f64());
+    }
+    Ok(median(times))
+}
+
+/// The D-CNN file's companion DOE, which `proposed` must be simulated with.
+fn companion_doe(model: &Path) -> Result<PathBuf, AppError> {
+    let doe = model.with_extension("doe.safetensors");
+    if !doe.exists() {
+        return Err(AppError::Usage(format!(
+            "{}: no DOE beside this D-CNN ({} is missing); the proposed system is a D-CNN and the DOE it was trained with",
+            model.display(),
+            doe.display()
+        )));
+    }
+    Ok(doe)
+}
+
+/// Runs every configuration and writes `tradeoff.{md,json,png,svg}` (and
+/// the fidelity study's files) into the output folder.
+pub fn run(common: &CommonOptions, o: &TradeoffOptions) -> Result<String, AppError> {
+    let start = Instant::now();
+    if o.size.0 == 0 || o.size.1 == 0 {
+        return Err(AppError::Usage(
+            "--size: width and height must be positive".into(),
+        ));
+    }
+    if o.models.is_empty() {
+        return Err(AppError::Usage(
+            "no trained D-CNN to compare (give --models FILE,…)".into(),
+        ));
+    }
+    let files = list_images(&o.images_dir)?;
+    let inputs: Vec<Image> = files
+        .iter()
+        .map(|f| load_cropped(f))
+        .collect::<Result<_, _>>()?;
+    create_dir(&o.out_dir)?;
+    let dcnn_doe = companion_doe(&o.models[0])?;
+    let calib = common.calibration()?;
+    let frame = latency_frame(o.size);
+    let mut records = Vec::new();
+    let mut skipped = Vec::new();
+    let host = host_description();
+
+    // The baselines, simulated with the first model's DOE (or --doe/--design).
+    let sim = Simulator::new(
+        calib.clone(),
+        Some(common.doe.as_deref().unwrap_or(&dcnn_doe)),
+        common.cache(),
+    )?;
+    let baselines = [
+        Method::Conventional,
+        Method::Ai,
+        Method::DoeOnly,
+        Method::DoeWiener,
+    ];
+    let design_sims = o
+        .designs
+        .iter()
+        .map(|d| d.simulator(calib.clone(), common.cache()))
+        .collect::<Result<Vec<_>, _>>()?;
+    let scorer = Scorer::new(&sim, &baselines, &inputs, common.progress())?;
+    let design_methods = [Method::DoeOnly, Method::DoeWiener];
+    let design_scorers = design_sims
+        .iter()
+        .map(|s| Scorer::new(s, &design_methods, &inputs, common.progress()))
+        .collect::<Result<Vec<_>, _>>()?;
+    let bar = common.phase("configs");
+    bar.set_length(
+        (baselines.len()
+            + design_methods.len() * o.designs.len()
+            + o.models.len() * (o.backends.len() + 1)) as u64,
+    );
+    let run = LinearRun {
+        inputs: &inputs,
+        frame: &frame,
+        repeat: o.repeat,
+        device: format!("{host} (rayon, {} threads)", rayon::current_num_threads()),
+    };
+    for m in baselines {
+        records.push(linear_record(&run, &scorer, &sim.doe_hash, m, m.name())?);
+        bar.inc(1);
+    }
+    for ((design, sim), scorer) in o.designs.iter().zip(&design_sims).zip(&design_scorers) {
+        let hash = &sim.doe_hash;
+        for m in design_methods {
+            let name = format!("{} {}", m.name(), design.name);
+            records.push(linear_record(&run, scorer, hash, m, &name)?);
+            bar.inc(1);
+        }
+    }
+
+    for model in &o.models {
+        let doe = companion_doe(model)?;
+        let sim = Simulator::new(calib.clone(), Some(&doe), common.cache())?;
+        let scorer = Scorer::new(
+            &sim,
+            &[Method::Proposed],
+            &inputs,
+            &nedrt_core::progress::Silent,
+        )?;
+        let stem = model
+            .file_stem()
+            .map_or_else(|| "dcnn".into(), |s| s.to_string_lossy().into_owned());
+        for &kind in &o.backends {
+            let precisions: &[Precision] = if kind == BackendKind::Wgpu {
+                &[Precision::F32, Precision::F16]
+            } else {
+                &[Precision::F32]
+            };
+            for &precision in precisions {
+                let options = BackendOptions {
+                    threads: o.threads,
+                    precision,
+                    ..common.dcnn.backend_options.clone()
+                };
+                let prec = format!("{precision:?}").to_lowercase();
+                let name = format!("proposed {stem} {} {prec}", kind.name());
+                let mut dcnn = match Dcnn::load(model, kind, &options) {
+                    Ok(d) => d,
+                    Err(e) => {
+                        tracing::warn!("{name}: skipped: {e}");
+                        skipped.push(format!("{name}: {e}"));
+                        continue;
+                    }
+                };
+                // The image runs give the quality and, from the last one
+                // (warm), the time per pixel that decides whether the
+                // frame-size latency is measured or only estimated.
+                let mut displays = Vec::new();
+                let mut seconds_per_pixel = 0.0;
+                for input in &inputs {
+                    let t = Instant::now();
+                    displays.push(dcnn.run_frame(input)?);
+                    seconds_per_pixel =
+                        t.elapsed().as_secs_f64() / (input.width * input.height) as f64;
+                }
+                let q = scorer.quality(Method::Proposed, &displays)?;
+                let estimate = seconds_per_pixel * (o.size.0 * o.size.1) as f64;
+                let (latency_ms, estimated_ms) = if estimate * (o.repeat + 1) as f64 > o.max_seconds
+                {
+                    tracing::warn!(
+                        "{name}: latency at {}×{} not measured (≈ {estimate:.1} s per frame, over --max-seconds)",
+                        o.size.0,
+                        o.size.1
+                    );
+                    (None, Some(estimate * 1e3))
+                } else {
+                    let s = time_median(o.repeat, || dcnn.run_frame(&frame).map(|_| ()))?;
+                    (Some(s * 1e3), None)
+                };
+                let mut r = q.record(
+                    &name,
+                    Method::Proposed,
+                    latency_ms,
+                    estimated_ms,
+                    Some(sim.doe_hash.clone()),
+                    (kind.name(), &prec, dcnn.describe()),
+                );
+                r.model = Some(model.display().to_string());
+                r.model_hash = Some(dcnn.model.hash.clone());
+                records.push(r);
+            }
+            bar.inc(1);
+        }
+        bar.inc(1);
+    }
+    bar.finish_and_clear();
+    let points: Vec<Point> = records.iter().map(|r| r.point.clone()).collect();
+    for (r, on) in records.iter_mut().zip(pareto_front(&points)) {
+        r.on_front = on;
+    }
+    let table = Table {
+        host,
+        calibration: calib.source.clone(),
+        frame_width: o.size.0,
+        frame_height: o.size.1,
+        images: files.iter().map(|f| f.display().to_string()).collect(),
+        records,
+        skipped,
+    };
+    let mut text = write_table(&table, &o.out_dir)?;
+    if o.fidelity {
+        text.push('\n');
+        text.push_str(&fidelity::run(common, &dcnn_doe, &inputs, &o.out_dir)?);
+    }
+    let _ = writeln!(text, "\nWall time {:.1} s.", start.elapsed().as_secs_f64());
+    Ok(text)
+}
+
+/// The record of a method the simulator itself runs (no D-CNN): its
+/// quality on the images and its latency on `frame` on the CPU.
+fn linear_record(
+    run: &LinearRun,
+    scorer: &Scorer,
+    doe_hash: &str,
+    m: Method,
+    name: &str,
+) -> Result<Record, AppError> {
+    let mut engine = scorer.prepared.preprocessor(m)?;
+    let displays: Vec<Image> = run
+        .inputs
+        .iter()
+        .map(|i| engine.run(i))
+        .collect::<Result<_, _>>()?;
+    let q = scorer.quality(m, &displays)?;
+    let seconds = time_median(run.repeat, || {
+        std::hint::black_box(engine.run(run.frame)?);
+        Ok::<_, AppError>(())
+    })?;
+    Ok(q.record(
+        name,
+        m,
+        Some(seconds * 1e3),
+        None,
+        (m.optics() == nedrt_optics::sim::Optics::Doe).then(|| doe_hash.to_string()),
+        ("cpu", "f32", run.device.clone()),
+    ))
+}
+
+/// What every simulator-run configuration is measured on.
+struct LinearRun<'a> {
+    inputs: &'a [Image],
+    /// The latency frame.
+    frame: &'a Image,
+    repeat: usize,
+    device: String,
+}
+
+/// Writes the Markdown, JSON and chart of a table; returns the Markdown.
+pub fn write_table(table: &Table, out_dir: &Path) -> Result<String, AppError> {
+    let md = markdown(table);
+    let json_path = out_dir.join("tradeoff.json");
+    let json = serde_json::to_string_pretty(table).map_err(|e| AppError::output(&json_path, e))?;
+    write_text(&json_path, &json)?;
+    write_text(&out_dir.join("tradeoff.md"), &md)?;
+    let written =
+        chart::write(table, &out_dir.join("tradeoff")).map_err(|e| AppError::output(out_dir, e))?;
+    Ok(format!(
+        "{md}\nwrote {}, {} and {}\n",
+        json_path.display(),
+        out_dir.join("tradeoff.md").display(),
+        written.join(", ")
+    ))
+}
+
+/// The table in Markdown, fastest first.
+pub fn markdown(t: &Table) -> String {
+    let mut s = format!(
+        "# Speed against accuracy\n\nLatency per {}×{} frame on {}; quality over 0–2.5 D against the sharp image on {} ({}).\n\
+         ★ = on the Pareto front (no configuration is both faster and better).\n\n\
+         | configuration | device | latency ms | mean PSNR dB | worst PSNR dB | mean SSIM | front |\n| --- | --- | --- | --- | --- | --- | --- |\n",
+        t.frame_width,
+        t.frame_height,
+        t.host,
+        t.images.join(", "),
+        t.calibration
+    );
+    let mut order: Vec<&Record> = t.records.iter().collect();
+    order.sort_by(|a, b| {
+        let key = |r: &Record| r.point.latency_ms.or(r.estimated_ms).unwrap_or(f64::MAX);
+        key(a).total_cmp(&key(b))
+    });
+    for r in order {
+        let p = &r.point;
+        let latency = match (p.latency_ms, r.estimated_ms) {
+            (Some(ms), _) => format!("{ms:.2}"),
+            (None, Some(e)) => format!("not measured (≈ {e:.0})"),
+            (None, None) => "–".into(),
+        };
+        let _ = writeln!(
+            s,
+            "| {} | {} | {latency} | {:.2} | {:.2} | {:.3} | {} |",
+            p.name,
+            r.device,
+            p.mean_psnr_db,
+            p.worst_psnr_db,
+            p.mean_ssim,
+            if r.on_front { "★" } else { "" }
+        );
+    }
+    let mut hashes: Vec<String> = t
+        .records
+        .iter()
+        .filter_map(|r| {
+            r.model
+                .as_ref()
+                .zip(r.model_hash.as_ref())
+                .map(|(m, h)| format!("{m} ({h})"))
+        })
+        .collect();
+    hashes.sort();
+    hashes.dedup();
+    let mut does: Vec<&String> = t
+        .records
+        .iter()
+        .filter_map(|r| r.doe_hash.as_ref())
+        .collect();
+    does.sort();
+    does.dedup();
+    let _ = writeln!(
+        s,
+        "\nD-CNN: {}. DOE: {}.",
+        if hashes.is_empty() {
+            "none".into()
+        } else {
+            hashes.join(", ")
+        },
+        does.iter()
+            .map(|d| d.as_str())
+            .collect::<Vec<_>>()
+            .join(", ")
+    );
+    for k in &t.skipped {
+        let _ = writeln!(s, "- not run here: {k}");
+    }
+    s
+}

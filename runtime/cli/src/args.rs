@@ -1,0 +1,393 @@
+//! The command line: clap definitions only. Choices come from the
+//! libraries' own name lists ([`Named`]), so every flag's values and help
+//! are the ones the libraries define.
+
+use std::path::PathBuf;
+
+use clap::builder::{PossibleValue, PossibleValuesParser, TypedValueParser};
+use clap::{Args, Parser, Subcommand, ValueEnum};
+use nedrt_app::run::{FallbackKind, SinkKind, SourceKind};
+use nedrt_core::Named;
+use nedrt_infer::{BackendKind, OrtProvider, Precision};
+use nedrt_optics::sim::{Method, Optics};
+
+/// A parser for any [`Named`] type, listing its values in `--help`.
+pub fn named<T: Named + Clone>() -> impl TypedValueParser<Value = T> {
+    PossibleValuesParser::new(
+        T::ALL
+            .iter()
+            .map(|v| PossibleValue::new(v.name()).help(v.help())),
+    )
+    .map(|s| T::from_name(&s).unwrap_or(T::ALL[0]))
+}
+
+/// What `nedrt bench` times.
+#[derive(ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum BenchKind {
+    /// The PSF computation (inputs dumped for tools/bench/compare_numpy.py).
+    Psf,
+    /// The perceived image (convolution) of one frame.
+    Perceived,
+    /// This machine's f64 GEMM and copy ceilings.
+    Ceilings,
+    /// The D-CNN's latency per backend and frame size.
+    Inference,
+    /// The radial PSF path against the 2-D path (docs/benchmarks.md).
+    Radial,
+}
+
+#[derive(Parser, Debug)]
+#[command(
+    name = "nedrt",
+    version,
+    about = "Simulator and runtime of a computational multifocal near-eye display (lens + DOE + D-CNN)",
+    after_help = "Examples:\n  nedrt --sim --accom 1.0            (or: nedrt sim --accom 1.0)\n  nedrt sim --accom 0.5 --method doe+wiener --out p.png\n  nedrt --design allsharp sim --accom 2.5\n  nedrt sim --accom 1.0 --method proposed --backend wgpu\n  nedrt bench inference --sizes 512x512\n  nedrt psf --out-dir out/psf\n  nedrt eval --images data/images/test"
+)]
+pub struct Cli {
+    #[command(flatten)]
+    pub global: GlobalArgs,
+    #[command(subcommand)]
+    pub command: Option<Command>,
+}
+
+#[derive(Args, Debug)]
+pub struct GlobalArgs {
+    /// Calibration TOML (default: the embedded calib/default.toml).
+    #[arg(long, global = true, value_name = "FILE")]
+    pub calib: Option<PathBuf>,
+    /// DOE height-map file (default: the calibration's, else the three-lens initialisation).
+    #[arg(long, global = true, value_name = "FILE")]
+    pub doe: Option<PathBuf>,
+    /// Display design: a DOE with the Wiener K tuned for it, by name
+    /// (designs/NAME.toml: multifocal, allsharp) or as a design FILE.
+    #[arg(long, global = true, value_name = "NAME|FILE", conflicts_with = "doe")]
+    pub design: Option<String>,
+    /// PSF cache folder (default: $NEDRT_CACHE_DIR, $XDG_CACHE_HOME/nedrt or ~/.cache/nedrt).
+    #[arg(long, global = true, value_name = "DIR")]
+    pub cache_dir: Option<PathBuf>,
+    /// Compute every PSF afresh and store nothing.
+    #[arg(long, global = true)]
+    pub no_cache: bool,
+    /// D-CNN of the `proposed` method (its DOE: the same name with
+    /// `.doe.safetensors`, used unless --doe is given).
+    #[arg(
+        long,
+        global = true,
+        value_name = "FILE",
+        default_value = "models/dcnn.onnx"
+    )]
+    pub dcnn: PathBuf,
+    /// D-CNN of the `lens+dcnn` ablation, trained for the lens alone.
+    #[arg(
+        long,
+        global = true,
+        value_name = "FILE",
+        default_value = "models/dcnn-lens.onnx"
+    )]
+    pub dcnn_lens: PathBuf,
+    /// Engine that runs the D-CNN [default: cpu for the simulator, wgpu for `run`].
+    #[arg(long, global = true, value_parser = named::<BackendKind>())]
+    pub backend: Option<BackendKind>,
+    /// Precision of the wgpu backend (f16 needs the adapter's shader-f16).
+    #[arg(long, global = true, value_parser = named::<Precision>(), default_value = "f32")]
+    pub precision: Precision,
+    /// Execution provider of the ort backend.
+    #[arg(long, global = true, value_parser = named::<OrtProvider>(), default_value = "cpu")]
+    pub ort_provider: OrtProvider,
+    /// Threads of the ort backend (0: its default).
+    #[arg(long, global = true, default_value_t = 0)]
+    pub threads: usize,
+    /// More log output (-v: debug, -vv: trace); NEDRT_LOG overrides.
+    #[arg(short, long, global = true, action = clap::ArgAction::Count)]
+    pub verbose: u8,
+}
+
+#[derive(Args, Debug)]
+pub struct SimArgs {
+    /// Accommodation of the eye in diopters (0 = infinity).
+    #[arg(long, value_name = "D", allow_negative_numbers = true)]
+    pub accom: Option<f64>,
+    /// Input image (default: the shipped data/images/test/astronaut.png).
+    #[arg(long, value_name = "IMG")]
+    pub input: Option<PathBuf>,
+    /// Display system: conventional, ai, doe-only, doe+wiener, proposed, lens+dcnn.
+    #[arg(long, default_value = "conventional", value_parser = named::<Method>())]
+    pub method: Method,
+    /// Output PNG (16-bit) of the perceived image on the retinal grid.
+    #[arg(long, default_value = "perceived.png", value_name = "FILE")]
+    pub out: PathBuf,
+    /// Also write the display frame the panel shows (after the method's
+    /// preprocessing): .png (16-bit) or .tif (32-bit float, exact).
+    #[arg(long, value_name = "FILE")]
+    pub display_out: Option<PathBuf>,
+    /// Simulate this display image (same size as the input) instead of a method.
+    #[arg(long, value_name = "FILE")]
+    pub display_image: Option<PathBuf>,
+    /// Optics that --display-image is seen through.
+    #[arg(long, value_parser = named::<Optics>(), default_value = "doe")]
+    pub optics: Optics,
+}
+
+fn parse_size(s: &str) -> Result<(usize, usize), String> {
+    let (w, h) = s
+        .split_once('x')
+        .ok_or_else(|| format!("{s:?}: expected WIDTHxHEIGHT, e.g. 1920x1080"))?;
+    let parse = |v: &str| {
+        v.parse::<usize>()
+            .ok()
+            .filter(|&n| (1..=16384).contains(&n))
+            .ok_or_else(|| format!("{s:?}: sides must be integers in 1..=16384"))
+    };
+    Ok((parse(w)?, parse(h)?))
+}
+
+#[derive(Subcommand, Debug)]
+pub enum Command {
+    /// The perceived image at one accommodation, scored against the sharp
+    /// image and the target (`nedrt sim` or `nedrt --sim`).
+    #[command(long_flag = "sim")]
+    Sim(SimArgs),
+    /// PSF cross-sections against accommodation (paper Fig. 4b): PNG, SVG, CSV.
+    Psf(PlotArgs),
+    /// MTFs (paper Fig. 5): at 0.5 D against CPD, and against depth at 1, 5, 10 CPD.
+    Mtf(PlotArgs),
+    /// The DOE height map (paper Fig. 4a); `--write-init FILE` saves the three-lens DOE.
+    Doe(DoeArgs),
+    /// The Fig. 6 table: every method × 0…3 D on a folder of images.
+    Eval(EvalArgs),
+    /// Search the Wiener constant K on training images (quarter decades).
+    TuneWiener(TuneArgs),
+    /// Print the resolved calibration and the quantities derived from it.
+    Calib,
+    /// The real-time service: frames from a source, preprocessed by the
+    /// D-CNN, encoded through the panel's transfer curve, presented to a sink.
+    Run(RunArgs),
+    /// Time the PSF and the perceived image, writing their inputs for
+    /// tools/bench/compare_numpy.py (see docs/benchmarks.md).
+    Bench(BenchArgs),
+    /// Speed against accuracy: every preprocessing configuration's latency
+    /// and quality with the Pareto front, and the simulator's fidelity study.
+    Tradeoff(TradeoffArgs),
+    /// Name the fastest configuration of a tradeoff table that meets a
+    /// quality floor and a latency budget (exit 1 when none does).
+    Pick(PickArgs),
+    /// Where each method breaks (Wiener K, the D-CNN off its training
+    /// distribution, the optics beyond their sampling, f16): docs/stability.md.
+    Stability(StabilityArgs),
+}
+
+#[derive(Args, Debug)]
+pub struct StabilityArgs {
+    #[arg(long, default_value = "data/images/test", value_name = "DIR")]
+    pub images: PathBuf,
+    /// The report (Markdown); the JSON is written beside it.
+    #[arg(long, default_value = "docs/stability.md", value_name = "FILE")]
+    pub out: PathBuf,
+    /// Side of the synthetic content frames.
+    #[arg(long, default_value_t = 128)]
+    pub content_size: usize,
+    /// Skip the f16-against-f32 comparison on the wgpu adapter.
+    #[arg(long)]
+    pub no_gpu: bool,
+    /// Display designs compared beside the baselines (names in designs/ or
+    /// files); default: every design in designs/.
+    #[arg(long, value_delimiter = ',', value_name = "NAME|FILE")]
+    pub designs: Option<Vec<String>>,
+}
+
+#[derive(Args, Debug)]
+pub struct TradeoffArgs {
+    /// Images the quality is measured on.
+    #[arg(long, default_value = "data/images/test", value_name = "DIR")]
+    pub images: PathBuf,
+    #[arg(long, default_value = "docs/tradeoff", value_name = "DIR")]
+    pub out_dir: PathBuf,
+    /// Frame size of the latency measurements (default: the panel's).
+    #[arg(long, value_parser = parse_size)]
+    pub size: Option<(usize, usize)>,
+    /// Trained D-CNNs (each with its .doe.safetensors beside it).
+    #[arg(long, value_delimiter = ',', default_values = ["models/dcnn.onnx"])]
+    pub models: Vec<PathBuf>,
+    #[arg(long, value_delimiter = ',', value_parser = named::<BackendKind>(), default_values = ["cpu", "ort", "wgpu"])]
+    pub backends: Vec<BackendKind>,
+    /// Timed runs per latency (median reported).
+    #[arg(long, default_value_t = 3)]
+    pub repeat: usize,
+    /// Estimate, rather than measure, a latency that would take longer than this (seconds).
+    #[arg(long, default_value_t = 60.0)]
+    pub max_seconds: f64,
+    /// Skip the simulator-fidelity study (minutes of PSFs at the 3 µm pitch).
+    #[arg(long)]
+    pub no_fidelity: bool,
+    /// Measure nothing: rewrite the tables and charts from the JSON in --out-dir.
+    #[arg(long)]
+    pub replot: bool,
+    /// Display designs compared beside the baselines (names in designs/ or
+    /// files); default: every design in designs/.
+    #[arg(long, value_delimiter = ',', value_name = "NAME|FILE")]
+    pub designs: Option<Vec<String>>,
+}
+
+#[derive(Args, Debug)]
+pub struct PickArgs {
+    /// Table written by `nedrt tradeoff`.
+    #[arg(
+        long,
+        default_value = "docs/tradeoff/tradeoff.json",
+        value_name = "FILE"
+    )]
+    pub table: PathBuf,
+    /// Quality floor: mean PSNR over 0–2.5 D against the sharp image, dB.
+    #[arg(long, value_name = "DB")]
+    pub min_psnr: f64,
+    /// Optional floor on the worst depth's PSNR, dB.
+    #[arg(long, value_name = "DB")]
+    pub min_worst_psnr: Option<f64>,
+    /// Latency budget per frame, milliseconds.
+    #[arg(long, value_name = "MS")]
+    pub budget_ms: f64,
+}
+
+#[derive(Args, Debug)]
+pub struct RunArgs {
+    /// The preprocessing on the panel: a display system's (its D-CNN, its
+    /// Wiener prefilter, or none). `ai` and `doe+wiener` put the Wiener
+    /// prefilter on the panel.
+    #[arg(long, value_parser = named::<Method>(), default_value = "proposed")]
+    pub preprocess: Method,
+    /// Where frames come from.
+    #[arg(long, value_parser = named::<SourceKind>(), default_value = "pattern")]
+    pub source: SourceKind,
+    /// --source dir: a folder of images (name order) or one image, at the panel's resolution.
+    #[arg(long, value_name = "PATH")]
+    pub input: Option<PathBuf>,
+    /// --source socket: the Unix socket to listen on.
+    #[arg(long, value_name = "PATH", default_value = "/tmp/nedrt.sock")]
+    pub socket: PathBuf,
+    /// --source socket: folder of the clients' shared-memory objects.
+    #[arg(long, value_name = "DIR", default_value = nedrt_service::pipeline::protocol::DEFAULT_SHM_DIR)]
+    pub shm_dir: PathBuf,
+    /// Frames the pattern or folder source submits (default: pattern until
+    /// stopped, a folder once through).
+    #[arg(long, value_name = "N")]
+    pub frames: Option<u64>,
+    /// Submission rate of the pattern and folder sources in Hz (default:
+    /// the panel's refresh; 0: as fast as the pipeline takes them).
+    #[arg(long, value_name = "HZ")]
+    pub source_rate: Option<f64>,
+    /// Where frames go.
+    #[arg(long, value_parser = named::<SinkKind>(), default_value = "window")]
+    pub sink: SinkKind,
+    /// --sink record: the folder of the PNG sequence.
+    #[arg(long, value_name = "DIR", default_value = "out/recording")]
+    pub record_dir: PathBuf,
+    /// Borderless fullscreen (on --monitor, else the primary monitor).
+    #[arg(long)]
+    pub fullscreen: bool,
+    /// Monitor name for --fullscreen.
+    #[arg(long, value_name = "NAME")]
+    pub monitor: Option<String>,
+    /// Present without waiting for vsync where the surface allows.
+    #[arg(long)]
+    pub no_vsync: bool,
+    /// What runs when the D-CNN backend cannot start or fails.
+    #[arg(long, value_parser = named::<FallbackKind>(), default_value = "cpu")]
+    pub fallback: FallbackKind,
+    /// Keep showing the last frame after the source ends, until Ctrl-C or the window closes.
+    #[arg(long)]
+    pub keep_open: bool,
+    /// Write a Chrome/Perfetto trace of every stage span to FILE.
+    #[arg(long, value_name = "FILE")]
+    pub trace: Option<PathBuf>,
+    /// Write the counts and latency histograms as JSON to FILE.
+    #[arg(long, value_name = "FILE")]
+    pub report_json: Option<PathBuf>,
+}
+
+#[derive(Args, Debug)]
+pub struct PlotArgs {
+    /// Output folder.
+    #[arg(long, default_value = "out", value_name = "DIR")]
+    pub out_dir: PathBuf,
+    /// Accommodation step of the sweep (D).
+    #[arg(long, default_value_t = 0.1, value_name = "D")]
+    pub step: f64,
+}
+
+#[derive(Args, Debug)]
+pub struct DoeArgs {
+    #[arg(long, default_value = "out", value_name = "DIR")]
+    pub out_dir: PathBuf,
+    /// Write the three-lens initial DOE (design pitch) to this file and exit.
+    #[arg(long, value_name = "FILE")]
+    pub write_init: Option<PathBuf>,
+    /// Also write the DOE resampled (bicubic) to the fabrication pitch to this file.
+    #[arg(long, value_name = "FILE")]
+    pub write_fabrication: Option<PathBuf>,
+}
+
+#[derive(Args, Debug)]
+pub struct EvalArgs {
+    /// Folder of test images (PNG, JPEG, TIFF).
+    #[arg(long, value_name = "DIR")]
+    pub images: PathBuf,
+    #[arg(long, default_value = "out/eval", value_name = "DIR")]
+    pub out_dir: PathBuf,
+    /// Methods to evaluate (default: all available).
+    #[arg(long, value_delimiter = ',', value_parser = named::<Method>())]
+    pub methods: Vec<Method>,
+    /// Also evaluate display images made elsewhere (e.g. the trainer's
+    /// D-CNN outputs): DIR/NAME for every input image NAME, same size.
+    #[arg(long, value_name = "DIR")]
+    pub display_dir: Option<PathBuf>,
+    /// Row name for --display-dir.
+    #[arg(long, default_value = "external", value_name = "NAME")]
+    pub display_name: String,
+    /// Optics the --display-dir images are seen through.
+    #[arg(long, value_parser = named::<Optics>(), default_value = "doe")]
+    pub display_optics: Optics,
+    /// Also measure focus cues: each method's perceived sharpness at 5 and
+    /// 10 CPD over 0–3 D in 0.1 D steps, its focus-cue score at the main
+    /// depths and a chart (focus_cues.png/.svg); renders 31 depths instead of 7.
+    #[arg(long)]
+    pub focus_cues: bool,
+    /// Display designs to add, one `doe+wiener NAME` row each with its own
+    /// DOE and K (names in designs/ or design files).
+    #[arg(long, value_delimiter = ',', value_name = "NAME|FILE")]
+    pub designs: Vec<String>,
+}
+
+#[derive(Args, Debug)]
+pub struct TuneArgs {
+    /// Training images.
+    #[arg(long, default_value = "data/images/train", value_name = "DIR")]
+    pub images: PathBuf,
+    /// ai or doe+wiener.
+    #[arg(long, value_parser = named::<Method>())]
+    pub method: Method,
+    /// Write the chosen K into the calibration file (comments kept).
+    #[arg(long)]
+    pub write: bool,
+}
+
+#[derive(Args, Debug)]
+pub struct BenchArgs {
+    /// What to time.
+    #[arg(value_enum)]
+    pub what: BenchKind,
+    /// inference: backends to time.
+    #[arg(long, value_delimiter = ',', value_parser = named::<BackendKind>(), default_values = ["cpu", "ort", "wgpu"])]
+    pub backends: Vec<BackendKind>,
+    /// inference: frame sizes, WIDTHxHEIGHT.
+    #[arg(long, value_delimiter = ',', default_values = ["512x512", "1920x1080"], value_parser = parse_size)]
+    pub sizes: Vec<(usize, usize)>,
+    /// inference: skip a case estimated to take longer than this (seconds).
+    #[arg(long, default_value_t = 120.0)]
+    pub max_seconds: f64,
+    /// Folder for the exact inputs, for the numpy side.
+    #[arg(long, default_value = "out/bench", value_name = "DIR")]
+    pub dump: PathBuf,
+    /// Timed repetitions (median reported).
+    #[arg(long, default_value_t = 3)]
+    pub repeat: usize,
+}

@@ -1,0 +1,247 @@
+//! Each command: its arguments turned into nedrt-app's typed options, run,
+//! and its report printed.
+
+use std::sync::Arc;
+
+use anyhow::{Context, Result, bail};
+use nedrt_app::{self as app, CommonOptions};
+use nedrt_infer::{BackendKind, BackendOptions, OrtLibrary};
+use nedrt_service::pipeline::service::Control;
+use nedrt_service::present::window::WindowOptions;
+
+use crate::args::{BenchKind, Cli, Command};
+use crate::console::Console;
+use crate::install_signals;
+use crate::settings::Environment;
+
+/// Runs the parsed command.
+pub fn run(cli: Cli) -> Result<()> {
+    let g = &cli.global;
+    let env = Environment::capture();
+    // The ort library is looked for only when the command may use it.
+    let may_use_ort = g.backend == Some(BackendKind::Ort)
+        || matches!(
+            &cli.command,
+            Some(Command::Tradeoff(a)) if a.backends.contains(&BackendKind::Ort)
+        )
+        || matches!(
+            &cli.command,
+            Some(Command::Bench(a)) if a.backends.contains(&BackendKind::Ort)
+        );
+    let design = g
+        .design
+        .as_deref()
+        .map(app::design::Design::resolve)
+        .transpose()?;
+    let common = CommonOptions {
+        calib: g.calib.clone(),
+        cache_dir: if g.no_cache {
+            None
+        } else {
+            g.cache_dir.clone().or_else(|| env.cache_dir())
+        },
+        doe: design
+            .as_ref()
+            .map(|d| d.doe.clone())
+            .or_else(|| g.doe.clone()),
+        design,
+        dcnn: app::DcnnOptions {
+            path: g.dcnn.clone(),
+            lens_path: g.dcnn_lens.clone(),
+            backend: g.backend.unwrap_or(BackendKind::Cpu),
+            backend_options: BackendOptions {
+                threads: g.threads,
+                precision: g.precision,
+                ort_provider: g.ort_provider,
+                gpu: env.gpu.clone(),
+                ort_library: if may_use_ort {
+                    env.ort_library()
+                } else {
+                    OrtLibrary::default()
+                },
+            },
+        },
+        progress: Arc::new(Console::default()),
+    };
+    match cli.command {
+        Some(Command::Psf(a)) => print!("{}", app::plots::psf(&common, &a.out_dir, a.step)?),
+        Some(Command::Mtf(a)) => print!("{}", app::plots::mtf(&common, &a.out_dir, a.step)?),
+        Some(Command::Doe(a)) => print!(
+            "{}",
+            app::plots::doe(
+                &common,
+                &a.out_dir,
+                a.write_init.as_deref(),
+                a.write_fabrication.as_deref()
+            )?
+        ),
+        Some(Command::Eval(a)) => {
+            let external = a.display_dir.map(|dir| app::eval::ExternalDisplays {
+                name: a.display_name,
+                dir,
+                optics: a.display_optics,
+            });
+            print!(
+                "{}",
+                app::eval::run(
+                    &common,
+                    &a.images,
+                    &a.out_dir,
+                    &a.methods,
+                    &app::eval::EvalExtras {
+                        external,
+                        designs: a
+                            .designs
+                            .iter()
+                            .map(|n| app::design::Design::resolve(n))
+                            .collect::<Result<_, _>>()?,
+                        focus_cues: a.focus_cues,
+                    }
+                )?
+            )
+        }
+        Some(Command::TuneWiener(a)) => {
+            print!("{}", app::tune::run(&common, &a.images, a.method, a.write)?)
+        }
+        Some(Command::Run(a)) => {
+            let mut common = common;
+            common.dcnn.backend = g.backend.unwrap_or(BackendKind::Wgpu);
+            let control = Control {
+                keep_open: a.keep_open,
+                progress: common.progress.clone(),
+                ..Default::default()
+            };
+            install_signals(&control)?;
+            let opts = app::run::RunOptions {
+                preprocess: a.preprocess,
+                source: a.source,
+                input: a.input,
+                socket: a.socket,
+                shm_dir: a.shm_dir,
+                frames: a.frames,
+                source_rate_hz: a.source_rate,
+                sink: a.sink,
+                record_dir: a.record_dir,
+                window: WindowOptions {
+                    gpu: env.gpu.clone(),
+                    title: "nedrt".into(),
+                    fullscreen: a.fullscreen,
+                    monitor: a.monitor,
+                    vsync: !a.no_vsync,
+                },
+                fallback: a.fallback,
+                report_json: a.report_json,
+            };
+            let report = app::run::run(&common, &opts, &control)?;
+            print!("{}", report.table());
+        }
+        Some(Command::Calib) => print!("{}", app::plots::calib_summary(&common)?),
+        Some(Command::Bench(a)) => match a.what {
+            BenchKind::Psf => println!("{}", app::bench::psf(&common, &a.dump, a.repeat)?),
+            BenchKind::Perceived => {
+                print!("{}", app::bench::perceived(&common, &a.dump, a.repeat)?)
+            }
+            BenchKind::Radial => print!("{}", app::bench::radial(&common, &a.dump)?),
+            BenchKind::Inference => {
+                let bench = app::bench_inference::InferenceBench {
+                    backends: a.backends,
+                    sizes: a.sizes,
+                    models: vec![("full".into(), 32), ("half".into(), 16)],
+                    repeat: a.repeat,
+                    max_seconds: a.max_seconds,
+                    threads: g.threads,
+                };
+                let table = app::bench_inference::run(&bench, &common, &mut |r| println!("{r}"))?;
+                print!("{table}");
+            }
+            BenchKind::Ceilings => {
+                let (gflops, gbps) = app::bench::ceilings();
+                println!(
+                    "{{\"kind\": \"ceilings\", \"f64_gemm_gflops\": {gflops:.2}, \"copy_gbps\": {gbps:.2}}}"
+                );
+            }
+        },
+        Some(Command::Tradeoff(a)) if a.replot => {
+            print!("{}", app::tradeoff::replot(&a.out_dir)?);
+        }
+        Some(Command::Tradeoff(a)) => {
+            let calib = common.calibration()?;
+            let opts = app::tradeoff::TradeoffOptions {
+                images_dir: a.images,
+                out_dir: a.out_dir,
+                size: a
+                    .size
+                    .unwrap_or((calib.panel.width_px, calib.panel.height_px)),
+                models: a.models,
+                backends: a.backends,
+                repeat: a.repeat,
+                max_seconds: a.max_seconds,
+                threads: g.threads,
+                fidelity: !a.no_fidelity,
+                designs: app::design::Design::resolve_list(a.designs.as_deref())?,
+            };
+            print!("{}", app::tradeoff::run(&common, &opts)?);
+        }
+        Some(Command::Pick(a)) => {
+            for (name, v) in [("--min-psnr", a.min_psnr), ("--budget-ms", a.budget_ms)]
+                .into_iter()
+                .chain(a.min_worst_psnr.map(|w| ("--min-worst-psnr", w)))
+            {
+                if !v.is_finite() {
+                    bail!("{name} {v}: not a number");
+                }
+            }
+            let table = app::tradeoff::Table::load(&a.table)?;
+            let req = app::tradeoff::pareto::Requirement {
+                min_mean_psnr_db: a.min_psnr,
+                min_worst_psnr_db: a.min_worst_psnr,
+                max_latency_ms: a.budget_ms,
+            };
+            let points = table.points();
+            let pick = app::tradeoff::pareto::pick(&points, &req);
+            if !matches!(pick, app::tradeoff::pareto::Pick::Chosen(_)) {
+                bail!(
+                    "{pick} ({}, {}×{} frames on {})",
+                    a.table.display(),
+                    table.frame_width,
+                    table.frame_height,
+                    table.host
+                );
+            }
+            println!("{pick}");
+        }
+        Some(Command::Stability(a)) => {
+            if a.content_size < 8 {
+                bail!("--content-size {}: at least 8 pixels", a.content_size);
+            }
+            let opts = app::stability::StabilityOptions {
+                images_dir: a.images,
+                out: a.out,
+                model: g.dcnn.clone(),
+                content_size: a.content_size,
+                gpu: !a.no_gpu,
+                designs: app::design::Design::resolve_list(a.designs.as_deref())?,
+            };
+            print!("{}", app::stability::run(&common, &opts)?);
+        }
+        Some(Command::Sim(s)) => {
+            let accommodation_d = s
+                .accom
+                .context("--sim needs --accom D (the eye's accommodation in diopters)")?;
+            let opts = app::sim::SimOptions {
+                accommodation_d,
+                input: s.input,
+                method: s.method,
+                out: s.out,
+                display_image: s.display_image,
+                optics: s.optics,
+                display_out: s.display_out,
+            };
+            println!("{}", app::sim::run(&common, &opts)?);
+        }
+        None => {
+            bail!("nothing to do: give a command, e.g. `nedrt sim --accom 1.0` (see nedrt --help)")
+        }
+    }
+    Ok(())
+}

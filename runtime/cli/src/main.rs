@@ -1,0 +1,91 @@
+//! `nedrt`: the binary. Parses the command line ([`args`]), reads the
+//! environment once ([`settings`]), supplies the terminal's progress
+//! ([`console`]) and hands typed options to nedrt-app ([`commands`]); errors
+//! are printed on one line with a non-zero exit.
+
+mod args;
+mod commands;
+mod console;
+mod settings;
+
+use std::process::ExitCode;
+
+use anyhow::{Context, Result};
+use clap::Parser;
+
+use args::{Cli, Command};
+
+/// Logging to stderr, and with `trace` a Chrome/Perfetto trace of every
+/// span; the returned guard writes the trace when dropped.
+fn init_logging(
+    verbose: u8,
+    trace: Option<&std::path::Path>,
+) -> Result<Option<tracing_chrome::FlushGuard>> {
+    use tracing_subscriber::prelude::*;
+    let default = match verbose {
+        0 => "nedrt=info",
+        1 => "nedrt=debug",
+        _ => "nedrt=trace",
+    };
+    let filter = tracing_subscriber::EnvFilter::try_from_env("NEDRT_LOG")
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(default));
+    let fmt = tracing_subscriber::fmt::layer()
+        .with_writer(std::io::stderr)
+        .with_target(false)
+        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
+        .without_time();
+    let (chrome, guard) = match trace {
+        Some(path) => {
+            let file = std::fs::File::create(path)
+                .with_context(|| format!("{}: cannot create the trace file", path.display()))?;
+            let (layer, guard) = tracing_chrome::ChromeLayerBuilder::new()
+                .writer(file)
+                .include_args(true)
+                .build();
+            (Some(layer), Some(guard))
+        }
+        None => (None, None),
+    };
+    tracing_subscriber::registry()
+        .with(filter)
+        .with(fmt)
+        .with(chrome)
+        .init();
+    Ok(guard)
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    let trace = match &cli.command {
+        Some(Command::Run(a)) => a.trace.clone(),
+        _ => None,
+    };
+    let guard = match init_logging(cli.global.verbose, trace.as_deref()) {
+        Ok(g) => g,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            return ExitCode::FAILURE;
+        }
+    };
+    let result = commands::run(cli);
+    drop(guard);
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {}", format!("{e:#}").replace('\n', " "));
+            ExitCode::FAILURE
+        }
+    }
+}
+
+/// Ctrl-C and SIGTERM stop the service cleanly (a second one exits at
+/// once); SIGUSR1 prints the latency table.
+pub(crate) fn install_signals(control: &nedrt_service::pipeline::service::Control) -> Result<()> {
+    use signal_hook::consts::{SIGINT, SIGTERM, SIGUSR1};
+    for sig in [SIGINT, SIGTERM] {
+        signal_hook::flag::register_conditional_shutdown(sig, 1, control.stop.clone())?;
+        signal_hook::flag::register(sig, control.stop.clone())?;
+    }
+    signal_hook::flag::register(SIGUSR1, control.report.clone())?;
+    Ok(())
+}

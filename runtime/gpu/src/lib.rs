@@ -1,0 +1,93 @@
+//! nedrt-gpu, layer 0 of nedrt: the wgpu plumbing the D-CNN backend and the
+//! panel sinks share, one copy of each: opening a device on the default
+//! adapter, waiting for a read-back, and timing a pass with timestamp
+//! queries.
+//!
+//! Rule: depends on no other nedrt crate; errors are strings the caller
+//! wraps in its own error type.
+
+/// How wgpu's instance is made: which backends it may use, its flags and
+/// per-backend options. The binary fills it from wgpu's environment
+/// variables (`WGPU_BACKEND`, …); the default is wgpu's own.
+#[derive(Debug, Clone, Default)]
+pub struct GpuSettings {
+    pub backends: wgpu::Backends,
+    pub flags: wgpu::InstanceFlags,
+    pub backend_options: wgpu::BackendOptions,
+}
+
+impl GpuSettings {
+    /// The instance descriptor, without a display handle.
+    pub fn descriptor(&self) -> wgpu::InstanceDescriptor {
+        wgpu::InstanceDescriptor {
+            backends: self.backends,
+            flags: self.flags,
+            backend_options: self.backend_options.clone(),
+            ..wgpu::InstanceDescriptor::new_without_display_handle()
+        }
+    }
+}
+
+/// Requests the default adapter of `settings` and a device with the
+/// adapter's limits, timestamp queries where offered and, if `shader_f16`,
+/// half-precision shaders.
+pub fn open_device(
+    settings: &GpuSettings,
+    shader_f16: bool,
+) -> Result<(wgpu::Adapter, wgpu::Device, wgpu::Queue), String> {
+    let instance = wgpu::Instance::new(settings.descriptor());
+    let adapter = pollster::block_on(instance.request_adapter(&wgpu::RequestAdapterOptions {
+        power_preference: wgpu::PowerPreference::HighPerformance,
+        force_fallback_adapter: false,
+        compatible_surface: None,
+        apply_limit_buckets: false,
+    }))
+    .map_err(|e| {
+        format!(
+            "no GPU adapter ({e}); on Linux without a GPU, Mesa's lavapipe \
+             (`apt-get install mesa-vulkan-drivers`) provides one; or use --backend cpu"
+        )
+    })?;
+    let mut features = adapter.features() & wgpu::Features::TIMESTAMP_QUERY;
+    if shader_f16 {
+        if !adapter.features().contains(wgpu::Features::SHADER_F16) {
+            return Err(format!(
+                "adapter '{}' has no shader-f16; use --precision f32",
+                adapter.get_info().name
+            ));
+        }
+        features |= wgpu::Features::SHADER_F16;
+    }
+    let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
+        label: Some("nedrt"),
+        required_features: features,
+        required_limits: adapter.limits(),
+        ..Default::default()
+    }))
+    .map_err(|e| format!("requesting a device: {e}"))?;
+    Ok((adapter, device, queue))
+}
+
+/// Maps `buffer` for reading and waits for the GPU, which also completes
+/// any mapping requested before; `Err` says what failed.
+pub fn map_and_wait(device: &wgpu::Device, buffer: &wgpu::Buffer) -> Result<(), String> {
+    let (tx, rx) = std::sync::mpsc::channel();
+    buffer.slice(..).map_async(wgpu::MapMode::Read, move |r| {
+        let _ = tx.send(r);
+    });
+    device
+        .poll(wgpu::PollType::wait_indefinitely())
+        .map_err(|e| format!("waiting for the GPU: {e}"))?;
+    rx.recv()
+        .map_err(|_| "the GPU never answered (device lost?)".to_string())?
+        .map_err(|e| format!("reading back: {e}"))
+}
+
+/// The device for a test that needs one: no adapter is a failure (such
+/// tests are `#[ignore = "needs a GPU"]`, so they run only when asked for).
+pub fn test_device(shader_f16: bool) -> (wgpu::Device, wgpu::Queue) {
+    match open_device(&GpuSettings::default(), shader_f16) {
+        Ok((_, d, q)) => (d, q),
+        Err(e) => panic!("this test needs a GPU adapter and found none: {e}"),
+    }
+}

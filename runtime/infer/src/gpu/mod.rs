@@ -1,0 +1,461 @@
+//! The `wgpu` backend: the lowered network run as generated WGSL compute
+//! kernels (tiled conv with fused epilogue, 2×2 max pool, 2×2 transposed
+//! conv; concatenation costs nothing, producers write into channel ranges
+//! of the concat's buffer). Pipelines and the weight buffer are built once
+//! per network; buffers and bind groups once per frame size; a frame only
+//! uploads, records the dispatches and reads back.
+//!
+//! f16 mode stores weights and intermediate activations as f16 and
+//! accumulates in f32; the frame in and the display out stay f32.
+
+pub mod codegen;
+pub mod params;
+mod plan;
+
+use std::collections::HashMap;
+
+use codegen::{Dtype, KernelKey, KernelKind};
+use nedrt_gpu::map_and_wait;
+use plan::SizedPlan;
+use wgpu::util::DeviceExt;
+
+use super::network::{Layer, Network, ValueId};
+use super::{Backend, BackendOptions, InferenceError, Precision};
+use nedrt_core::Image;
+
+fn err(reason: impl std::fmt::Display) -> InferenceError {
+    InferenceError::Backend {
+        backend: "wgpu",
+        reason: reason.to_string(),
+    }
+}
+
+/// Opens the default adapter's device for `precision` (f16 needs the
+/// adapter's shader-f16).
+pub fn open_device(
+    settings: &nedrt_gpu::GpuSettings,
+    precision: Precision,
+) -> Result<(wgpu::Adapter, wgpu::Device, wgpu::Queue), InferenceError> {
+    nedrt_gpu::open_device(settings, precision == Precision::F16).map_err(err)
+}
+
+/// The network on a wgpu device.
+#[derive(Debug)]
+pub struct GpuBackend {
+    device: wgpu::Device,
+    queue: wgpu::Queue,
+    adapter_name: String,
+    network: Network,
+    precision: Precision,
+    layout: wgpu::BindGroupLayout,
+    pipelines: Vec<wgpu::ComputePipeline>,
+    /// Per layer: pipeline index (None for Concat).
+    layer_pipeline: Vec<Option<usize>>,
+    weights: wgpu::Buffer,
+    /// Per layer: (weight offset, bias offset) in elements.
+    weight_offsets: Vec<(usize, usize)>,
+    /// Concat inputs placed inside their concat: value → (concat value, channel offset).
+    alias: HashMap<ValueId, (ValueId, usize)>,
+    dummy: wgpu::Buffer,
+    plan: Option<SizedPlan>,
+    /// Start/end timestamps of the network's pass, where the device has them.
+    timer: Option<GpuTimer>,
+    last_gpu_ns: Option<u64>,
+}
+
+/// A timestamp query pair and the buffers that bring it back.
+#[derive(Debug)]
+struct GpuTimer {
+    queries: wgpu::QuerySet,
+    resolve: wgpu::Buffer,
+    readback: wgpu::Buffer,
+    period_ns: f64,
+}
+
+impl GpuTimer {
+    fn new(device: &wgpu::Device, queue: &wgpu::Queue) -> Option<Self> {
+        if !device.features().contains(wgpu::Features::TIMESTAMP_QUERY) {
+            return None;
+        }
+        let buffer = |label, usage| {
+            device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some(label),
+                size: 16,
+                usage,
+                mapped_at_creation: false,
+            })
+        };
+        Some(Self {
+            queries: device.create_query_set(&wgpu::QuerySetDescriptor {
+                label: Some("dcnn timestamps"),
+                ty: wgpu::QueryType::Timestamp,
+                count: 2,
+            }),
+            resolve: buffer(
+                "dcnn timestamps",
+                wgpu::BufferUsages::QUERY_RESOLVE | wgpu::BufferUsages::COPY_SRC,
+            ),
+            readback: buffer(
+                "dcnn timestamps readback",
+                wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+            ),
+            period_ns: queue.get_timestamp_period() as f64,
+        })
+    }
+}
+
+impl GpuBackend {
+    /// Opens the default adapter and prepares `network` on it.
+    pub fn new_default(
+        network: &Network,
+        options: &BackendOptions,
+    ) -> Result<Self, InferenceError> {
+        let (adapter, device, queue) = open_device(&options.gpu, options.precision)?;
+        let info = adapter.get_info();
+        let name = format!("{} ({:?}, {:?})", info.name, info.backend, info.device_type);
+        Self::new(&device, &queue, name, network, options.precision)
+    }
+
+    /// Prepares `network` on a given device: pipelines and weights.
+    pub fn new(
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        adapter_name: String,
+        network: &Network,
+        precision: Precision,
+    ) -> Result<Self, InferenceError> {
+        if precision == Precision::F16 && !device.features().contains(wgpu::Features::SHADER_F16) {
+            return Err(err("the device was opened without shader-f16"));
+        }
+        // wgpu reports errors through a handler that panics by default.
+        device.on_uncaptured_error(std::sync::Arc::new(|e| {
+            tracing::error!("wgpu: {e}");
+        }));
+        let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let t = match precision {
+            Precision::F32 => Dtype::F32,
+            Precision::F16 => Dtype::F16,
+        };
+        let dtype = |v: ValueId| {
+            if v == 0 || v == network.output {
+                Dtype::F32
+            } else {
+                t
+            }
+        };
+        let alias = concat_aliases(network);
+        for layer in &network.layers {
+            if let Layer::Concat { inputs, output } = layer {
+                let mut ch = 0;
+                for &i in inputs {
+                    if alias.get(&i) != Some(&(*output, ch)) {
+                        return Err(err(format!(
+                            "a concat input (value {i}) is the frame, the output, or feeds \
+                             another concat; the GPU backend writes concat inputs in place \
+                             and does not support that"
+                        )));
+                    }
+                    ch += network.values[i].channels;
+                }
+            }
+        }
+        let root = |mut v: ValueId| {
+            while let Some(&(c, _)) = alias.get(&v) {
+                v = c;
+            }
+            v
+        };
+
+        let storage = |read_only: bool| wgpu::BindingType::Buffer {
+            ty: wgpu::BufferBindingType::Storage { read_only },
+            has_dynamic_offset: false,
+            min_binding_size: None,
+        };
+        let entry = |binding: u32, ty| wgpu::BindGroupLayoutEntry {
+            binding,
+            visibility: wgpu::ShaderStages::COMPUTE,
+            ty,
+            count: None,
+        };
+        let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("dcnn layer"),
+            entries: &[
+                entry(
+                    0,
+                    wgpu::BindingType::Buffer {
+                        ty: wgpu::BufferBindingType::Uniform,
+                        has_dynamic_offset: false,
+                        min_binding_size: None,
+                    },
+                ),
+                entry(1, storage(true)),
+                entry(2, storage(true)),
+                entry(3, storage(false)),
+                entry(4, storage(true)),
+            ],
+        });
+        let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("dcnn layer"),
+            bind_group_layouts: &[Some(&layout)],
+            immediate_size: 0,
+        });
+
+        let mut keys: HashMap<KernelKey, usize> = HashMap::new();
+        let mut pipelines = Vec::new();
+        let mut layer_pipeline = Vec::new();
+        let mut weights: Vec<f32> = Vec::new();
+        let mut weight_offsets = Vec::new();
+        for layer in &network.layers {
+            let (kind, input, residual) = match layer {
+                Layer::Conv(c) => {
+                    if c.kernel > codegen::MAX_CONV_KERNEL {
+                        return Err(err(format!(
+                            "{}×{} convolutions are not supported (at most {}×{})",
+                            c.kernel,
+                            c.kernel,
+                            codegen::MAX_CONV_KERNEL,
+                            codegen::MAX_CONV_KERNEL
+                        )));
+                    }
+                    (
+                        KernelKind::Conv {
+                            kernel: c.kernel,
+                            relu: c.relu,
+                            residual: c.residual.is_some(),
+                            clamp: c.output == network.output,
+                        },
+                        c.input,
+                        c.residual,
+                    )
+                }
+                Layer::ConvTranspose(c) => {
+                    (KernelKind::ConvTranspose { relu: c.relu }, c.input, None)
+                }
+                Layer::MaxPool { input, .. } => (KernelKind::MaxPool, *input, None),
+                Layer::Concat { .. } => {
+                    layer_pipeline.push(None);
+                    weight_offsets.push((0, 0));
+                    continue;
+                }
+            };
+            let (w, b): (&[f32], &[f32]) = match layer {
+                Layer::Conv(c) => (&c.weight, &c.bias),
+                Layer::ConvTranspose(c) => (&c.weight, &c.bias),
+                _ => (&[], &[]),
+            };
+            weight_offsets.push((weights.len(), weights.len() + w.len()));
+            weights.extend_from_slice(w);
+            weights.extend_from_slice(b);
+            let key = KernelKey {
+                kind,
+                src: dtype(root(input)),
+                dst: dtype(root(layer.output())),
+                residual: residual.map_or(Dtype::F32, |r| dtype(root(r))),
+                weights: t,
+            };
+            let index = *keys.entry(key).or_insert_with(|| {
+                let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+                    label: Some(&key.label()),
+                    source: wgpu::ShaderSource::Wgsl(key.wgsl().into()),
+                });
+                pipelines.push(
+                    device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                        label: Some(&key.label()),
+                        layout: Some(&pipeline_layout),
+                        module: &module,
+                        entry_point: Some("main"),
+                        compilation_options: Default::default(),
+                        cache: None,
+                    }),
+                );
+                pipelines.len() - 1
+            });
+            layer_pipeline.push(Some(index));
+        }
+        if weights.len() > u32::MAX as usize {
+            return Err(err("more than 2^32 weights"));
+        }
+        let weight_bytes: Vec<u8> = match t {
+            Dtype::F32 => bytemuck::cast_slice(&weights).to_vec(),
+            Dtype::F16 => {
+                let h: Vec<half::f16> = weights.iter().map(|&v| half::f16::from_f32(v)).collect();
+                bytemuck::cast_slice(&h).to_vec()
+            }
+        };
+        let weights = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("dcnn weights"),
+            contents: &pad4(weight_bytes),
+            usage: wgpu::BufferUsages::STORAGE,
+        });
+        let dummy = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("unused binding"),
+            size: 4,
+            usage: wgpu::BufferUsages::STORAGE,
+            mapped_at_creation: false,
+        });
+        if let Some(e) = pollster::block_on(scope.pop()) {
+            return Err(err(format!("building the kernels: {e}")));
+        }
+        Ok(Self {
+            device: device.clone(),
+            queue: queue.clone(),
+            adapter_name,
+            network: network.clone(),
+            precision,
+            layout,
+            pipelines,
+            layer_pipeline,
+            weights,
+            weight_offsets,
+            alias,
+            dummy,
+            plan: None,
+            timer: GpuTimer::new(device, queue),
+            last_gpu_ns: None,
+        })
+    }
+
+    fn dtype(&self, root: ValueId) -> Dtype {
+        if root == 0 || root == self.network.output || self.precision == Precision::F32 {
+            Dtype::F32
+        } else {
+            Dtype::F16
+        }
+    }
+
+    /// Runs on a CHW tensor with the network's input channels; returns the
+    /// output value (any channel count) as CHW f32.
+    pub fn run_tensor(
+        &mut self,
+        data: &[f32],
+        width: usize,
+        height: usize,
+    ) -> Result<Vec<f32>, InferenceError> {
+        let expected = self.network.values[0].channels * width * height;
+        if data.len() != expected {
+            return Err(err(format!(
+                "{} values for a {width}×{height} input",
+                data.len()
+            )));
+        }
+        if self
+            .plan
+            .as_ref()
+            .is_none_or(|p| (p.width, p.height) != (width, height))
+        {
+            self.plan = None;
+            self.plan = Some(self.prepare(width, height)?);
+        }
+        let Some(plan) = &self.plan else {
+            return Err(err("no plan"));
+        };
+        let scope = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
+        self.queue.write_buffer(
+            &plan.buffers[plan.input.buffer],
+            (plan.input.offset * 4) as u64,
+            bytemuck::cast_slice(data),
+        );
+        let mut encoder = self
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some("dcnn"),
+            });
+        {
+            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some("dcnn"),
+                timestamp_writes: self
+                    .timer
+                    .as_ref()
+                    .map(|t| wgpu::ComputePassTimestampWrites {
+                        query_set: &t.queries,
+                        beginning_of_pass_write_index: Some(0),
+                        end_of_pass_write_index: Some(1),
+                    }),
+            });
+            for d in &plan.dispatches {
+                pass.set_pipeline(&self.pipelines[d.pipeline]);
+                pass.set_bind_group(0, &d.bind_group, &[]);
+                let [x, y, z] = d.workgroups;
+                pass.dispatch_workgroups(x, y, z);
+            }
+        }
+        encoder.copy_buffer_to_buffer(
+            &plan.buffers[plan.output.buffer],
+            (plan.output.offset * 4) as u64,
+            &plan.readback,
+            0,
+            (plan.output_elems * 4) as u64,
+        );
+        if let Some(t) = &self.timer {
+            encoder.resolve_query_set(&t.queries, 0..2, &t.resolve, 0);
+            encoder.copy_buffer_to_buffer(&t.resolve, 0, &t.readback, 0, 16);
+        }
+        self.queue.submit([encoder.finish()]);
+        if let Some(t) = &self.timer {
+            t.readback.slice(..).map_async(wgpu::MapMode::Read, |_| {});
+        }
+        map_and_wait(&self.device, &plan.readback).map_err(err)?;
+        let out = {
+            let view = plan
+                .readback
+                .slice(..)
+                .get_mapped_range()
+                .map_err(|e| err(format!("reading back: {e}")))?;
+            bytemuck::cast_slice::<u8, f32>(&view[..plan.output_elems * 4]).to_vec()
+        };
+        plan.readback.unmap();
+        self.last_gpu_ns = self.timer.as_ref().and_then(|t| {
+            let view = t.readback.slice(..).get_mapped_range().ok()?;
+            let [start, end]: [u64; 2] = bytemuck::pod_read_unaligned(&view[..16]);
+            drop(view);
+            t.readback.unmap();
+            Some((end.saturating_sub(start) as f64 * t.period_ns) as u64)
+        });
+        if let Some(e) = pollster::block_on(scope.pop()) {
+            return Err(err(format!("running: {e}")));
+        }
+        Ok(out)
+    }
+}
+
+fn pad4(mut bytes: Vec<u8>) -> Vec<u8> {
+    bytes.resize(bytes.len().next_multiple_of(4).max(4), 0);
+    bytes
+}
+
+/// Places each concat input inside its concat's buffer where it can be:
+/// not the frame, not the output, and not already placed in another concat.
+fn concat_aliases(net: &Network) -> HashMap<ValueId, (ValueId, usize)> {
+    let mut alias = HashMap::new();
+    for layer in &net.layers {
+        if let Layer::Concat { inputs, output } = layer {
+            let mut ch = 0;
+            for &i in inputs {
+                if i != 0 && i != net.output && !alias.contains_key(&i) {
+                    alias.insert(i, (*output, ch));
+                }
+                ch += net.values[i].channels;
+            }
+        }
+    }
+    alias
+}
+
+impl Backend for GpuBackend {
+    fn describe(&self) -> String {
+        let p = match self.precision {
+            Precision::F32 => "f32",
+            Precision::F16 => "f16",
+        };
+        format!("wgpu {p} on {}", self.adapter_name)
+    }
+
+    fn last_gpu_ns(&self) -> Option<u64> {
+        self.last_gpu_ns
+    }
+
+    fn run(&mut self, frame: &Image) -> Result<Image, InferenceError> {
+        let data = self.run_tensor(frame.data(), frame.width, frame.height)?;
+        Ok(Image::rgb(frame.width, frame.height, data))
+    }
+}

@@ -1,0 +1,229 @@
+//! Everything that depends on the frame size, built once per size: one
+//! buffer per activation (a concat's inputs live inside its buffer at their
+//! channel offsets), one uniform block and bind group per layer, the
+//! dispatch sizes, and the read-back buffer. Per frame nothing is created.
+
+use wgpu::util::DeviceExt;
+
+use super::codegen;
+use super::params::Params;
+use super::{GpuBackend, err};
+use crate::InferenceError;
+use crate::network::{Layer, ValueId};
+
+/// Where a value lives: a buffer and an element offset into it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(super) struct Place {
+    pub(super) buffer: usize,
+    pub(super) offset: usize,
+}
+
+/// One recorded dispatch.
+#[derive(Debug)]
+pub(super) struct Dispatch {
+    pub(super) pipeline: usize,
+    pub(super) bind_group: wgpu::BindGroup,
+    pub(super) workgroups: [u32; 3],
+}
+
+/// Everything sized for one frame size.
+#[derive(Debug)]
+pub(super) struct SizedPlan {
+    pub(super) width: usize,
+    pub(super) height: usize,
+    pub(super) buffers: Vec<wgpu::Buffer>,
+    pub(super) dispatches: Vec<Dispatch>,
+    pub(super) input: Place,
+    pub(super) output: Place,
+    pub(super) output_elems: usize,
+    pub(super) readback: wgpu::Buffer,
+}
+
+impl GpuBackend {
+    /// Buffers, params and bind groups for a `width`×`height` frame.
+    pub(super) fn prepare(&self, width: usize, height: usize) -> Result<SizedPlan, InferenceError> {
+        let net = &self.network;
+        let m = net.multiple;
+        if !width.is_multiple_of(m) || !height.is_multiple_of(m) {
+            return Err(err(format!("{width}×{height} is not a multiple of {m}")));
+        }
+        let plane = |v: ValueId| (width >> net.values[v].level) * (height >> net.values[v].level);
+        let limits = self.device.limits();
+        // Buffers: one per root value; aliased values sit at a channel offset.
+        let mut buffers = Vec::new();
+        let mut root_place: Vec<Option<Place>> = vec![None; net.values.len()];
+        let scope = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let mut places = Vec::with_capacity(net.values.len());
+        for v in 0..net.values.len() {
+            let mut offset = 0;
+            let mut r = v;
+            while let Some(&(c, ch)) = self.alias.get(&r) {
+                offset += ch * plane(c);
+                r = c;
+            }
+            let base = match root_place[r] {
+                Some(p) => p,
+                None => {
+                    let elems = net.values[r].channels * plane(r);
+                    let bytes = (elems * self.dtype(r).bytes()).next_multiple_of(4).max(4) as u64;
+                    let cap = limits
+                        .max_storage_buffer_binding_size
+                        .min(limits.max_buffer_size);
+                    if bytes > cap {
+                        return Err(err(format!(
+                            "a {width}×{height} frame needs a {:.0} MiB activation buffer; the \
+                             adapter binds at most {:.0} MiB (try --precision f16 or a smaller \
+                             frame)",
+                            bytes as f64 / 1048576.0,
+                            cap as f64 / 1048576.0
+                        )));
+                    }
+                    buffers.push(self.device.create_buffer(&wgpu::BufferDescriptor {
+                        label: Some("dcnn activation"),
+                        size: bytes,
+                        usage: wgpu::BufferUsages::STORAGE
+                            | wgpu::BufferUsages::COPY_DST
+                            | wgpu::BufferUsages::COPY_SRC,
+                        mapped_at_creation: false,
+                    }));
+                    let p = Place {
+                        buffer: buffers.len() - 1,
+                        offset: 0,
+                    };
+                    root_place[r] = Some(p);
+                    p
+                }
+            };
+            places.push(Place {
+                buffer: base.buffer,
+                offset: base.offset + offset,
+            });
+        }
+        let place_of = |v: ValueId| places[v];
+        let input = place_of(0);
+        let mut dispatches = Vec::new();
+        for (li, layer) in net.layers.iter().enumerate() {
+            let out = place_of(layer.output());
+            // Concat costs nothing: its inputs were written in place.
+            let Some(pipeline) = self.layer_pipeline[li] else {
+                continue;
+            };
+            let (input_v, residual, cin, cout) = match layer {
+                Layer::Conv(c) => (c.input, c.residual, c.cin, c.cout),
+                Layer::ConvTranspose(c) => (c.input, None, c.cin, c.cout),
+                Layer::MaxPool { input, .. } => (
+                    *input,
+                    None,
+                    net.values[*input].channels,
+                    net.values[*input].channels,
+                ),
+                Layer::Concat { .. } => continue,
+            };
+            let src = place_of(input_v);
+            let res = residual.map(place_of);
+            if src.buffer == out.buffer || res.is_some_and(|r| r.buffer == out.buffer) {
+                return Err(err(format!(
+                    "layer {li} reads and writes the same concat buffer; not supported"
+                )));
+            }
+            let (lw, lh) = (
+                width >> net.values[input_v].level,
+                height >> net.values[input_v].level,
+            );
+            let (w_off, b_off) = self.weight_offsets[li];
+            let params = Params {
+                width: lw as u32,
+                height: lh as u32,
+                cin: cin as u32,
+                cout: cout as u32,
+                in_offset: src.offset as u32,
+                out_offset: out.offset as u32,
+                res_offset: res.map_or(0, |r| r.offset as u32),
+                w_offset: w_off as u32,
+                b_offset: b_off as u32,
+                _pad: [0; 3],
+            };
+            let uniform = self
+                .device
+                .create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                    label: Some("dcnn layer params"),
+                    contents: bytemuck::bytes_of(&params),
+                    usage: wgpu::BufferUsages::UNIFORM,
+                });
+            let buf = |p: Place| buffers[p.buffer].as_entire_binding();
+            let bind_group = self.device.create_bind_group(&wgpu::BindGroupDescriptor {
+                label: Some("dcnn layer"),
+                layout: &self.layout,
+                entries: &[
+                    wgpu::BindGroupEntry {
+                        binding: 0,
+                        resource: uniform.as_entire_binding(),
+                    },
+                    wgpu::BindGroupEntry {
+                        binding: 1,
+                        resource: buf(src),
+                    },
+                    wgpu::BindGroupEntry {
+                        binding: 2,
+                        resource: self.weights.as_entire_binding(),
+                    },
+                    wgpu::BindGroupEntry {
+                        binding: 3,
+                        resource: buf(out),
+                    },
+                    wgpu::BindGroupEntry {
+                        binding: 4,
+                        resource: res.map_or_else(|| self.dummy.as_entire_binding(), buf),
+                    },
+                ],
+            });
+            let (lw, lh, cout) = (lw as u32, lh as u32, cout as u32);
+            let workgroups = match layer {
+                Layer::Conv(_) => {
+                    let (tw, th, oc) = codegen::CONV_TILE;
+                    [lw.div_ceil(tw), lh.div_ceil(th), cout.div_ceil(oc)]
+                }
+                Layer::ConvTranspose(_) => {
+                    let (t, oc) = codegen::CONV_TRANSPOSE_TILE;
+                    [lw.div_ceil(t), lh.div_ceil(t), cout.div_ceil(oc)]
+                }
+                _ => {
+                    let t = codegen::POOL_TILE;
+                    [(lw / 2).div_ceil(t), (lh / 2).div_ceil(t), cout]
+                }
+            };
+            let max = limits.max_compute_workgroups_per_dimension;
+            if workgroups.iter().any(|&n| n > max) {
+                return Err(err(format!(
+                    "{width}×{height} needs {workgroups:?} workgroups; the adapter allows {max} per dimension"
+                )));
+            }
+            dispatches.push(Dispatch {
+                pipeline,
+                bind_group,
+                workgroups,
+            });
+        }
+        let output = place_of(net.output);
+        let output_elems = net.values[net.output].channels * plane(net.output);
+        let readback = self.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("dcnn readback"),
+            size: (output_elems * 4).max(4) as u64,
+            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        if let Some(e) = pollster::block_on(scope.pop()) {
+            return Err(err(format!("preparing {width}×{height}: {e}")));
+        }
+        Ok(SizedPlan {
+            width,
+            height,
+            buffers,
+            dispatches,
+            input,
+            output,
+            output_elems,
+            readback,
+        })
+    }
+}

@@ -1,0 +1,335 @@
+//! The D-CNN at run time: one ONNX file, read and checked once
+//! ([`network`]), run by any of three backends behind [`Backend`]:
+//! `cpu` (tract, pure Rust, always built in), `ort` (ONNX Runtime loaded
+//! from a shared library at run time) and `wgpu` (WGSL kernels generated
+//! from the graph, [`gpu`]). [`Dcnn`] adds what every backend shares:
+//! reflection padding to the network's multiple, cropping back, and the
+//! clamp to the panel's [0, 1].
+
+pub mod content;
+pub mod gpu;
+mod lower;
+pub mod network;
+pub mod ort_backend;
+pub mod reference;
+pub mod synth;
+pub mod tract_backend;
+
+use std::path::{Path, PathBuf};
+
+pub use network::{ModelFile, Network};
+
+use nedrt_core::preprocess::{Preprocess, PreprocessError, check_frame};
+use nedrt_core::{Image, Named};
+
+/// Errors of loading or running the D-CNN.
+#[derive(Debug, thiserror::Error)]
+pub enum InferenceError {
+    #[error("cannot read model {path}: {source}")]
+    Io {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    #[error("model {path}: {reason}")]
+    Model { path: PathBuf, reason: String },
+    #[error("{backend} backend: {reason}")]
+    Backend {
+        backend: &'static str,
+        reason: String,
+    },
+    #[error("frame: {0}")]
+    Frame(String),
+}
+
+/// Which engine runs the network.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum BackendKind {
+    /// tract, pure Rust, built in.
+    Cpu,
+    /// ONNX Runtime, loaded from a shared library at run time.
+    Ort,
+    /// Generated WGSL compute kernels on any wgpu adapter.
+    Wgpu,
+}
+
+impl Named for BackendKind {
+    const ALL: &'static [Self] = &[BackendKind::Cpu, BackendKind::Ort, BackendKind::Wgpu];
+    fn name(self) -> &'static str {
+        match self {
+            BackendKind::Cpu => "cpu",
+            BackendKind::Ort => "ort",
+            BackendKind::Wgpu => "wgpu",
+        }
+    }
+    fn help(self) -> &'static str {
+        match self {
+            BackendKind::Cpu => "tract, pure Rust, built in",
+            BackendKind::Ort => {
+                "ONNX Runtime, loaded from ORT_DYLIB_PATH or the onnxruntime Python package"
+            }
+            BackendKind::Wgpu => "generated WGSL compute kernels on any wgpu adapter",
+        }
+    }
+}
+
+impl BackendKind {
+    pub fn name(self) -> &'static str {
+        Named::name(self)
+    }
+}
+
+/// Arithmetic precision of the GPU backend.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
+pub enum Precision {
+    #[default]
+    F32,
+    /// Half-precision storage (weights and activations), f32 accumulation;
+    /// needs the adapter's `shader-f16`.
+    F16,
+}
+
+impl Named for Precision {
+    const ALL: &'static [Self] = &[Precision::F32, Precision::F16];
+    fn name(self) -> &'static str {
+        match self {
+            Precision::F32 => "f32",
+            Precision::F16 => "f16",
+        }
+    }
+    fn help(self) -> &'static str {
+        match self {
+            Precision::F32 => "f32 storage and arithmetic",
+            Precision::F16 => {
+                "f16 storage, f32 accumulation; needs the adapter's shader-f16 (wgpu only)"
+            }
+        }
+    }
+}
+
+/// An engine that runs the lowered network on frames whose sides are
+/// multiples of the network's multiple.
+pub trait Backend: Send + std::fmt::Debug {
+    /// What runs it, for reports: "cpu (tract)", "wgpu f16 on <adapter>".
+    fn describe(&self) -> String;
+    /// Runs the network; the result may or may not be clamped.
+    fn run(&mut self, frame: &Image) -> Result<Image, InferenceError>;
+    /// The device's own time for the last run (GPU timestamp queries), where
+    /// the device can measure it.
+    fn last_gpu_ns(&self) -> Option<u64> {
+        None
+    }
+}
+
+/// ONNX Runtime execution provider of the `ort` backend.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
+pub enum OrtProvider {
+    #[default]
+    Cpu,
+    /// Needs an ONNX Runtime build with CUDA (the onnxruntime-gpu wheel).
+    Cuda,
+    /// Needs an ONNX Runtime build with TensorRT.
+    Tensorrt,
+}
+
+impl Named for OrtProvider {
+    const ALL: &'static [Self] = &[OrtProvider::Cpu, OrtProvider::Cuda, OrtProvider::Tensorrt];
+    fn name(self) -> &'static str {
+        match self {
+            OrtProvider::Cpu => "cpu",
+            OrtProvider::Cuda => "cuda",
+            OrtProvider::Tensorrt => "tensorrt",
+        }
+    }
+    fn help(self) -> &'static str {
+        match self {
+            OrtProvider::Cpu => "ONNX Runtime's CPU provider",
+            OrtProvider::Cuda => {
+                "needs an ONNX Runtime build with CUDA (the onnxruntime-gpu wheel)"
+            }
+            OrtProvider::Tensorrt => "needs an ONNX Runtime build with TensorRT",
+        }
+    }
+}
+
+/// The ONNX Runtime shared library for the `ort` backend, as the caller
+/// found it (the binary's rule is in its settings), or why there is none.
+#[derive(Debug, Clone)]
+pub enum OrtLibrary {
+    Found(PathBuf),
+    Missing(String),
+}
+
+impl Default for OrtLibrary {
+    fn default() -> Self {
+        OrtLibrary::Missing("no ONNX Runtime library was given".into())
+    }
+}
+
+/// Options for building a backend.
+#[derive(Debug, Clone, Default)]
+pub struct BackendOptions {
+    /// Threads for CPU engines (0: the engine's default).
+    pub threads: usize,
+    pub precision: Precision,
+    pub ort_provider: OrtProvider,
+    pub ort_library: OrtLibrary,
+    /// How the wgpu backend opens its device.
+    pub gpu: nedrt_gpu::GpuSettings,
+}
+
+/// The D-CNN ready to preprocess frames of any size.
+#[derive(Debug)]
+pub struct Dcnn {
+    pub model: ModelFile,
+    pub network: Network,
+    backend: Box<dyn Backend>,
+}
+
+impl Dcnn {
+    /// Reads, validates and prepares `path` for `kind`.
+    pub fn load(
+        path: &Path,
+        kind: BackendKind,
+        options: &BackendOptions,
+    ) -> Result<Self, InferenceError> {
+        let model = ModelFile::read(path)?;
+        let mut dcnn = Self::from_model(model, kind, options)?;
+        if let Some(w) = flat_field_warning(&path.display().to_string(), dcnn.flat_field_shift()?) {
+            tracing::warn!("{w}");
+        }
+        Ok(dcnn)
+    }
+
+    /// The largest mean |D-CNN(I) − I| over flat black, mid-grey and white
+    /// 16×16 fields. A flat field is seen unchanged through any
+    /// energy-conserving optics, so a network that moves it changes the
+    /// frame's brightness for nothing (docs/stability.md).
+    pub fn flat_field_shift(&mut self) -> Result<f32, InferenceError> {
+        let mut worst = 0.0f32;
+        for level in [0.0f32, 0.5, 1.0] {
+            let frame = Image::rgb(16, 16, vec![level; 3 * 256]);
+            let out = self.run_frame(&frame)?;
+            let shift =
+                out.data().iter().map(|v| (v - level).abs()).sum::<f32>() / out.data().len() as f32;
+            worst = worst.max(shift);
+        }
+        Ok(worst)
+    }
+
+    pub fn from_model(
+        model: ModelFile,
+        kind: BackendKind,
+        options: &BackendOptions,
+    ) -> Result<Self, InferenceError> {
+        if kind != BackendKind::Wgpu && options.precision == Precision::F16 {
+            return Err(InferenceError::Backend {
+                backend: kind.name(),
+                reason: "f16 is offered by the wgpu backend only".into(),
+            });
+        }
+        let network = model.lower()?;
+        let backend: Box<dyn Backend> = match kind {
+            BackendKind::Cpu => Box::new(tract_backend::TractBackend::new(&model, options)?),
+            BackendKind::Ort => Box::new(ort_backend::OrtBackend::new(&model, options)?),
+            BackendKind::Wgpu => Box::new(gpu::GpuBackend::new_default(&network, options)?),
+        };
+        Ok(Self {
+            model,
+            network,
+            backend,
+        })
+    }
+
+    /// The wgpu backend on a device the caller opened (the window's, so
+    /// that inference and present share one GPU context).
+    pub fn on_device(
+        model: ModelFile,
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        adapter_name: String,
+        precision: Precision,
+    ) -> Result<Self, InferenceError> {
+        let network = model.lower()?;
+        let backend = Box::new(gpu::GpuBackend::new(
+            device,
+            queue,
+            adapter_name,
+            &network,
+            precision,
+        )?);
+        Ok(Self {
+            model,
+            network,
+            backend,
+        })
+    }
+
+    pub fn describe(&self) -> String {
+        self.backend.describe()
+    }
+
+    /// GPU time of the last frame's network, if the backend measures it.
+    pub fn last_gpu_ns(&self) -> Option<u64> {
+        self.backend.last_gpu_ns()
+    }
+
+    /// Preprocesses one frame: pad to the network's multiple by reflection
+    /// ([`Image::pad_reflect`], the trainer's rule), run, crop back, clamp
+    /// to [0, 1].
+    pub fn run_frame(&mut self, frame: &Image) -> Result<Image, InferenceError> {
+        check_frame(frame, 3).map_err(|e| match e {
+            PreprocessError::Frame(reason) => InferenceError::Frame(reason),
+            other => InferenceError::Frame(other.to_string()),
+        })?;
+        let m = self.network.multiple;
+        let (pw, ph) = (frame.width.div_ceil(m) * m, frame.height.div_ceil(m) * m);
+        let out = if (pw, ph) == (frame.width, frame.height) {
+            self.backend.run(frame)?
+        } else {
+            self.backend
+                .run(&frame.pad_reflect(pw, ph))?
+                .crop(0, 0, frame.width, frame.height)
+        };
+        Ok(out.clamped())
+    }
+}
+
+impl Preprocess for Dcnn {
+    fn describe(&self) -> String {
+        format!(
+            "D-CNN {} on {}",
+            self.model.path.display(),
+            self.backend.describe()
+        )
+    }
+    fn run(&mut self, input: &Image) -> Result<Image, PreprocessError> {
+        self.run_frame(input).map_err(|e| match e {
+            InferenceError::Frame(reason) => PreprocessError::Frame(reason),
+            other => PreprocessError::Engine {
+                engine: self.backend.describe(),
+                reason: other.to_string(),
+            },
+        })
+    }
+    fn last_gpu_ns(&self) -> Option<u64> {
+        self.backend.last_gpu_ns()
+    }
+}
+
+/// Flat-field shift above which loading a D-CNN warns: one 8-bit code.
+pub const FLAT_FIELD_TOLERANCE: f32 = 1.0 / 255.0;
+
+/// The warning for a D-CNN that moves flat fields by `shift` on average.
+pub fn flat_field_warning(model: &str, shift: f32) -> Option<String> {
+    (shift > FLAT_FIELD_TOLERANCE).then(|| {
+        format!(
+            "{model}: the D-CNN moves flat black/grey/white fields by {shift:.4} on average ({:.1} 8-bit codes); it changes the brightness of flat content, which needs no preprocessing (docs/stability.md)",
+            shift * 255.0
+        )
+    })
+}
+
+#[cfg(test)]
+pub(crate) mod gpu_tests;
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,402 @@
+//! PSFs for a request: choose the sampling (docs/model.md §8) and the
+//! propagator, compute every PSF with each retinal cell integrated, choose
+//! the smallest window that holds the required energy for every PSF of the
+//! request, and keep what the window cannot hold as a uniform veil.
+//!
+//! Two propagators ([`Propagator`]): rotationally symmetric pupils (the lens
+//! alone, radial DOE profiles) go through the radial (Hankel) path
+//! ([`super::radial`], planned in `radial_plan`), free-form 2-D maps through
+//! the 2-D path, which computes each PSF over a whole period with every cell
+//! integrated exactly (the limit of the m×m sums of docs/model.md §6, see
+//! [`exact_period_cells`]). `simulation.propagator = "2d"` forces the 2-D
+//! path. Both report the same window rule and a comparable veil.
+
+use std::time::Instant;
+
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use super::OpticsError;
+use super::doe::{HeightMap, Profile};
+use super::propagate::{centred_window_energies, crop_centred, exact_period_cells};
+use super::pupil::{PupilGrid, pupil_field};
+use super::sampling::{
+    ChannelSampling, PsfSpec, StepRule, channel_sampling, max_pupil_step,
+    predicted_half_width_cells,
+};
+use nedrt_core::calib::{Calibration, PropagatorSetting};
+
+mod radial_plan;
+
+/// Times the pupil step is halved to fit the window in the period (lens only).
+const MAX_REFINEMENTS: usize = 3;
+
+/// A set of PSFs to compute together: they share one sampling plan and one window.
+#[derive(Debug, Clone)]
+pub struct PsfRequest<'a> {
+    pub specs: Vec<PsfSpec>,
+    /// The DOE in the pupil, or `None` for the lens alone.
+    pub doe: Option<&'a HeightMap>,
+}
+
+/// One PSF on the retinal grid: `window`×`window` cells (odd), on-axis cell
+/// at the centre, each the fraction of the light through the aperture that
+/// falls in it; `veil` is the fraction outside the window.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Psf {
+    pub window: usize,
+    pub cells: Vec<f64>,
+    pub veil: f64,
+}
+
+/// The propagator that computed a request's PSFs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+pub enum Propagator {
+    /// Hankel transform of a rotationally symmetric pupil profile.
+    #[serde(rename = "radial")]
+    Radial,
+    /// 2-D pupil grid, exact cells over one period.
+    #[default]
+    #[serde(rename = "2d")]
+    TwoD,
+}
+
+impl std::fmt::Display for Propagator {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Self::Radial => "radial (Hankel)",
+            Self::TwoD => "2-D",
+        })
+    }
+}
+
+/// The propagator `calib` uses for a request with `doe`: radial for the
+/// lens alone and for radial DOE profiles, 2-D for maps, or 2-D whenever
+/// `simulation.propagator = "2d"`.
+pub fn propagator_for(calib: &Calibration, doe: Option<&HeightMap>) -> Propagator {
+    match calib.simulation.propagator {
+        PropagatorSetting::TwoD => Propagator::TwoD,
+        PropagatorSetting::Auto => match doe {
+            Some(d) if d.profile == Profile::Map => Propagator::TwoD,
+            _ => Propagator::Radial,
+        },
+    }
+}
+
+/// What the model chose for a request, printed with every result.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SamplingReport {
+    /// Which propagator ran.
+    #[serde(default)]
+    pub propagator: Propagator,
+    /// Radial path: annuli per cell width m_t of its cell rule (extrapolated
+    /// from m_t and m_t/2); 0 on the 2-D path.
+    #[serde(default)]
+    pub annuli_per_cell: usize,
+    /// Per channel: the pupil step (Δs, or Δρ on the radial path), its
+    /// samples (across the grid, or radial nodes) and the 2-D period that
+    /// bounds the window (0 for the radial lens alone, which has none).
+    pub channels: Vec<ChannelReport>,
+    pub step_rule: StepRule,
+    pub window_cells: usize,
+    /// Smallest share of the light inside the window over the request's PSFs.
+    pub min_window_energy: f64,
+    /// Largest veil (light outside the window, spread uniformly) over the PSFs.
+    pub max_veil: f64,
+    /// True when the period capped the window below the energy target.
+    pub window_capped: bool,
+    pub refinements: usize,
+    pub psf_count: usize,
+    pub compute_s: f64,
+    pub from_cache: bool,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ChannelReport {
+    pub name: String,
+    pub pupil_step_um: f64,
+    pub pupil_samples: usize,
+    pub period_cells: usize,
+}
+
+impl SamplingReport {
+    /// One line for the console.
+    pub fn summary(&self) -> String {
+        let radial = self.propagator == Propagator::Radial;
+        let steps: Vec<String> = self
+            .channels
+            .iter()
+            .map(|c| {
+                format!(
+                    "{} {:.2} µm ({} {})",
+                    c.name,
+                    c.pupil_step_um,
+                    c.pupil_samples,
+                    if radial { "annuli" } else { "samples" }
+                )
+            })
+            .collect();
+        let cells = if radial {
+            format!(
+                "integrated over {} and {} annuli per cell, extrapolated",
+                self.annuli_per_cell,
+                self.annuli_per_cell / 2
+            )
+        } else {
+            "each integrated exactly".to_string()
+        };
+        format!(
+            "{} PSFs, {} path: pupil step {} set by {}; window {}×{} cells, {cells}; \
+             window holds ≥ {:.4}%, veil ≤ {:.4}%{}; {:.2} s{}",
+            self.psf_count,
+            self.propagator,
+            steps.join(", "),
+            self.step_rule,
+            self.window_cells,
+            self.window_cells,
+            100.0 * self.min_window_energy,
+            100.0 * self.max_veil,
+            if self.window_capped {
+                " (window capped by the DOE's period: the rest is a uniform veil)"
+            } else {
+                ""
+            },
+            self.compute_s,
+            if self.from_cache { " (from cache)" } else { "" },
+        )
+    }
+}
+
+/// PSFs of a request with the report of how they were sampled.
+#[derive(Debug, Clone)]
+pub struct PsfSet {
+    pub psfs: Vec<Psf>,
+    pub report: SamplingReport,
+}
+
+/// Full-period PSF.
+struct PeriodPsf {
+    cells: Vec<f64>,
+    period: usize,
+}
+
+/// Computes the PSFs of `request`, calling `tick` once per finished PSF.
+pub fn compute_psfs(
+    calib: &Calibration,
+    request: &PsfRequest,
+    tick: &(dyn Fn() + Sync),
+) -> Result<PsfSet, OpticsError> {
+    let start = Instant::now();
+    if request.specs.is_empty() {
+        return Err(OpticsError::EmptyRequest);
+    }
+    for s in &request.specs {
+        if s.channel >= calib.channels.len() || !s.psi_rad.is_finite() {
+            return Err(OpticsError::BadSpec(format!("{s:?}")));
+        }
+    }
+    match propagator_for(calib, request.doe) {
+        Propagator::Radial => radial_plan::compute(calib, request, tick, start),
+        Propagator::TwoD => compute_2d(calib, request, tick, start),
+    }
+}
+
+/// The coarsest pupil step rules 1, 2 and 4 allow for the request, or the
+/// configured step (an error if a rule forbids it), with the rule that set it.
+fn step_cap(calib: &Calibration, request: &PsfRequest) -> Result<(f64, StepRule), OpticsError> {
+    let (step_cap, step_rule) = max_pupil_step(calib, &request.specs, request.doe);
+    match calib.simulation.pupil_step_m {
+        Some(forced) if forced > step_cap * (1.0 + 1e-9) => {
+            Err(OpticsError::RuleViolated(format!(
+                "simulation.pupil_step_um = {:.3} µm is coarser than {step_rule} allows ({:.3} µm)",
+                forced * 1e6,
+                step_cap * 1e6
+            )))
+        }
+        Some(forced) => Ok((forced, StepRule::Configured)),
+        None => Ok((step_cap, step_rule)),
+    }
+}
+
+/// The request's channels, sorted, once each.
+fn request_channels(request: &PsfRequest) -> Vec<usize> {
+    let mut channels: Vec<usize> = request.specs.iter().map(|s| s.channel).collect();
+    channels.sort_unstable();
+    channels.dedup();
+    channels
+}
+
+/// The smallest period the 2-D path allows before looking at the PSFs: it
+/// must hold the predicted blur (odd, cells).
+fn predicted_min_period(calib: &Calibration, request: &PsfRequest) -> usize {
+    let predicted = request
+        .specs
+        .iter()
+        .map(|s| predicted_half_width_cells(calib, *s))
+        .fold(0.0, f64::max);
+    2 * predicted.ceil() as usize + 1
+}
+
+/// The 2-D path: exact cells over one period per PSF, the pupil step
+/// refined (lens alone) until the window fits in the period.
+fn compute_2d(
+    calib: &Calibration,
+    request: &PsfRequest,
+    tick: &(dyn Fn() + Sync),
+    start: Instant,
+) -> Result<PsfSet, OpticsError> {
+    let (mut step_cap, step_rule) = step_cap(calib, request)?;
+    let mut min_period = predicted_min_period(calib, request);
+    let channels = request_channels(request);
+    let target = calib.simulation.window_energy;
+
+    for refinement in 0..=MAX_REFINEMENTS {
+        let sampling: Vec<ChannelSampling> = channels
+            .iter()
+            .map(|&ch| channel_sampling(calib, ch, step_cap, min_period))
+            .collect::<Result<_, _>>()?;
+        let dtheta = calib.retinal_step_rad();
+        let window_limited = refinement > 0
+            || channels.iter().any(|&ch| {
+                calib.channels[ch].wavelength_m / (step_cap * dtheta) < min_period as f64
+            });
+        let rule = if window_limited {
+            StepRule::Window
+        } else {
+            step_rule
+        };
+        let periods = compute_periods(calib, request, &sampling, tick)?;
+
+        // Smallest odd window holding the target energy for every PSF.
+        let mut half_needed = 0usize;
+        let mut fits = true;
+        let mut energies = Vec::with_capacity(periods.len());
+        for p in &periods {
+            let e = centred_window_energies(&p.cells, p.period);
+            match e.iter().position(|&v| v >= target) {
+                Some(k) => half_needed = half_needed.max(k),
+                None => fits = false,
+            }
+            energies.push(e);
+        }
+        let half_cap = periods
+            .iter()
+            .map(|p| (p.period - 1) / 2)
+            .min()
+            .unwrap_or(0);
+        // The period caps the window below the energy target.
+        let capped = !fits || half_needed > half_cap;
+        if capped {
+            let can_refine = request.doe.is_none() && calib.simulation.pupil_step_m.is_none();
+            if can_refine && refinement < MAX_REFINEMENTS {
+                // Lens only: the blur outgrew the period; halve the step.
+                step_cap = sampling
+                    .iter()
+                    .map(|s| s.grid.step_m)
+                    .fold(f64::MAX, f64::min)
+                    / 2.0;
+                min_period *= 2;
+                tracing::debug!(
+                    "window outgrew the period; refining the pupil step to {:.3} µm",
+                    step_cap * 1e6
+                );
+                continue;
+            }
+            if request.doe.is_none() {
+                return Err(OpticsError::RuleViolated(format!(
+                    "no window within one period holds {:.3}% of the light (rules 3 and 5); \
+                     allow a finer pupil step or a lower simulation.window_energy",
+                    100.0 * target
+                )));
+            }
+        }
+        let half = if capped { half_cap } else { half_needed };
+        let window = 2 * half + 1;
+        let psfs: Vec<Psf> = periods
+            .iter()
+            .zip(&energies)
+            .map(|(p, e)| {
+                let cells = crop_centred(&p.cells, p.period, window);
+                Psf {
+                    window,
+                    veil: (1.0 - e[half]).max(0.0),
+                    cells,
+                }
+            })
+            .collect();
+        let report = SamplingReport {
+            propagator: Propagator::TwoD,
+            annuli_per_cell: 0,
+            channels: sampling
+                .iter()
+                .map(|s| ChannelReport {
+                    name: calib.channels[s.channel].name.clone(),
+                    pupil_step_um: s.grid.step_m * 1e6,
+                    pupil_samples: s.grid.samples,
+                    period_cells: s.period_cells,
+                })
+                .collect(),
+            step_rule: rule,
+            window_cells: window,
+            min_window_energy: energies.iter().map(|e| e[half]).fold(f64::MAX, f64::min),
+            max_veil: psfs.iter().map(|p| p.veil).fold(0.0, f64::max),
+            window_capped: capped,
+            refinements: refinement,
+            psf_count: psfs.len(),
+            compute_s: start.elapsed().as_secs_f64(),
+            from_cache: false,
+        };
+        return Ok(PsfSet { psfs, report });
+    }
+    unreachable!("the refinement loop returns or errs on its last pass")
+}
+
+/// Full-period PSFs of every spec, each cell integrated exactly.
+fn compute_periods(
+    calib: &Calibration,
+    request: &PsfRequest,
+    sampling: &[ChannelSampling],
+    tick: &(dyn Fn() + Sync),
+) -> Result<Vec<PeriodPsf>, OpticsError> {
+    // The DOE's phase depends only on the channel's grid: once per channel.
+    let phases: Vec<Option<Vec<f64>>> = sampling
+        .iter()
+        .map(|s| {
+            request
+                .doe
+                .map(|d| d.phase_on(s.grid.into(), calib, s.channel))
+        })
+        .collect();
+    request
+        .specs
+        .par_iter()
+        .map(|spec| {
+            let i = sampling
+                .iter()
+                .position(|s| s.channel == spec.channel)
+                .ok_or_else(|| OpticsError::BadSpec(format!("{spec:?}")))?;
+            let s = &sampling[i];
+            let grid: PupilGrid = s.grid.into();
+            let q = pupil_field(
+                grid,
+                calib.aperture_radius_m,
+                spec.psi_rad,
+                phases[i].as_deref(),
+            );
+            let lambda = calib.channels[s.channel].wavelength_m;
+            let cells = exact_period_cells(&q, grid, lambda, calib.retinal_step_rad()).ok_or_else(
+                || OpticsError::BadSpec("period is not a whole number of cells".into()),
+            )?;
+            tick();
+            Ok(PeriodPsf {
+                cells,
+                period: s.period_cells,
+            })
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod radial_tests;
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,210 @@
+//! The PSF planner against docs/model.md §6–§8: converged cell integration, energy
+//! kept (window plus veil), the window choice and the refusals.
+
+use super::*;
+use crate::propagate::fft_period_cells;
+
+fn calib() -> Calibration {
+    Calibration::default_embedded().expect("default calibration")
+}
+
+/// The default calibration with the 2-D path forced (the lens alone would
+/// otherwise take the radial path, tested in `radial_tests`).
+fn calib_2d() -> Calibration {
+    let mut c = calib();
+    c.simulation.propagator = nedrt_core::calib::PropagatorSetting::TwoD;
+    c
+}
+
+fn psfs(
+    c: &Calibration,
+    specs: Vec<PsfSpec>,
+    doe: Option<&HeightMap>,
+) -> Result<PsfSet, OpticsError> {
+    compute_psfs(c, &PsfRequest { specs, doe }, &|| ())
+}
+
+#[test]
+fn integrated_cells_weigh_the_in_focus_order_as_optics_md_says() {
+    // Three-lens DOE, G, accommodation 0.5 D: its 0.5 D order is in focus.
+    // docs/model.md §6: the central sample holds 75 % of a centre-sampled PSF but
+    // 29 % of the integrated one. Those shares are of the light in a window
+    // of ≈ 200 cells, computed on the DOE's own 6 µm grid.
+    let c = calib();
+    let doe = HeightMap::three_lens_init(&c, 6e-6);
+    let spec = PsfSpec {
+        channel: 1,
+        psi_rad: c.psi_rad(1, 0.5),
+    };
+    let grid = doe.grid();
+    let q = pupil_field(
+        grid,
+        c.aperture_radius_m,
+        spec.psi_rad,
+        Some(&doe.phase_on(grid, &c, 1)),
+    );
+    let share = |sub: usize| {
+        let cells = crate::propagate::mft_cells(&q, grid, 530e-9, 201, c.retinal_step_rad(), sub);
+        (
+            cells[cells.len() / 2] / cells.iter().sum::<f64>(),
+            cells[cells.len() / 2],
+        )
+    };
+    let (centre_sampled, _) = share(1);
+    let (integrated, integrated_of_all) = share(4);
+    assert!(
+        (centre_sampled - 0.75).abs() < 0.01,
+        "centre-sampled share {centre_sampled}"
+    );
+    assert!(
+        (integrated - 0.29).abs() < 0.01,
+        "integrated share {integrated}"
+    );
+
+    // The planner (FFT over the period, DOE resampled onto a 5.8 µm grid,
+    // normalised by all the light) agrees with the 6 µm MFT to 2 %.
+    let set = psfs(&c, vec![spec], Some(&doe)).expect("psf");
+    let p = &set.psfs[0];
+    let planned = p.cells[p.cells.len() / 2];
+    assert!(
+        (planned / integrated_of_all - 1.0).abs() < 0.02,
+        "{planned} vs {integrated_of_all}"
+    );
+}
+
+#[test]
+fn lens_psfs_keep_all_light_in_window_plus_veil() {
+    let c = calib_2d();
+    let specs: Vec<PsfSpec> = (0..3)
+        .map(|ch| PsfSpec {
+            channel: ch,
+            psi_rad: c.psi_rad(ch, 1.0),
+        })
+        .collect();
+    let set = psfs(&c, specs, None).expect("psf");
+    assert!(!set.report.window_capped);
+    assert!(set.report.min_window_energy >= c.simulation.window_energy);
+    for p in &set.psfs {
+        let inside: f64 = p.cells.iter().sum();
+        assert!(
+            (inside + p.veil - 1.0).abs() < 1e-12,
+            "window {inside} + veil {} ≠ 1",
+            p.veil
+        );
+        assert!(p.veil <= 1.0 - c.simulation.window_energy + 1e-12);
+        assert_eq!(p.window % 2, 1);
+    }
+    // The smallest window: one size smaller misses the target for some PSF.
+    let w = set.report.window_cells;
+    let smaller_ok = set.psfs.iter().all(|p| {
+        let inner = crate::propagate::crop_centred(&p.cells, w, w - 2);
+        inner.iter().sum::<f64>() >= c.simulation.window_energy
+    });
+    assert!(!smaller_ok, "window {w} is not the smallest");
+}
+
+#[test]
+fn doe_window_is_capped_by_its_period_and_the_rest_is_veil() {
+    let c = calib();
+    let doe = HeightMap::three_lens_init(&c, 6e-6);
+    let specs: Vec<PsfSpec> = (0..3)
+        .map(|ch| PsfSpec {
+            channel: ch,
+            psi_rad: c.psi_rad(ch, 1.0),
+        })
+        .collect();
+    let set = psfs(&c, specs, Some(&doe)).expect("psf");
+    let r = &set.report;
+    // Blue's period at ≤ 6 µm is ≥ 491 cells: rule 3 bounds the window there.
+    let blue = r.channels.iter().find(|c| c.name == "B").expect("blue");
+    assert!(r.window_cells <= blue.period_cells);
+    for p in &set.psfs {
+        let inside: f64 = p.cells.iter().sum();
+        assert!((inside + p.veil - 1.0).abs() < 1e-12);
+    }
+    // The higher diffraction orders reach the edge of the period.
+    if r.window_capped {
+        assert!(r.max_veil > 1.0 - c.simulation.window_energy);
+    }
+}
+
+#[test]
+fn planner_cells_are_the_limit_of_the_midpoint_sums() {
+    // docs/model.md §6's m×m sums converge to the planner's exactly integrated
+    // cells at second order. (Its stopping rule, a change below 0.5 % from
+    // m−1 to m, stops at m = 6 here with 0.75 % still left to go.)
+    let c = calib_2d();
+    let spec = PsfSpec {
+        channel: 1,
+        psi_rad: c.psi_rad(1, 1.5),
+    };
+    let set = psfs(&c, vec![spec], None).expect("psf");
+    let p = &set.psfs[0];
+    let ch = &set.report.channels[0];
+    let grid = PupilGrid::covering(c.aperture_radius_m, ch.pupil_step_um * 1e-6);
+    let q = pupil_field(grid, c.aperture_radius_m, spec.psi_rad, None);
+    let error = |m: usize| {
+        let full = fft_period_cells(&q, grid, 530e-9, c.retinal_step_rad(), m).expect("period");
+        let cells = crop_centred(&full, ch.period_cells, p.window);
+        cells
+            .iter()
+            .zip(&p.cells)
+            .map(|(x, y)| (x - y).abs())
+            .sum::<f64>()
+    };
+    let (e6, e12) = (error(6), error(12));
+    assert!(e12 < 0.0025, "m = 12 is {e12} from the exact cells");
+    assert!((e6 / e12 - 4.0).abs() < 0.5, "second order: {e6} / {e12}");
+}
+
+#[test]
+fn large_defocus_refines_the_pupil_instead_of_aliasing() {
+    let mut c = calib_2d();
+    c.simulation.min_pupil_samples = 64;
+    // Far beyond the design range: the blur outgrows a coarse period.
+    let spec = PsfSpec {
+        channel: 2,
+        psi_rad: 600.0,
+    };
+    let set = psfs(&c, vec![spec], None).expect("psf");
+    assert!(set.report.min_window_energy >= c.simulation.window_energy);
+    assert!(set.report.window_cells <= set.report.channels[0].period_cells);
+}
+
+#[test]
+fn forced_step_breaking_a_rule_is_an_error() {
+    let mut c = calib();
+    c.simulation.pupil_step_m = Some(30e-6);
+    let spec = PsfSpec {
+        channel: 2,
+        psi_rad: c.psi_rad(2, 3.0),
+    };
+    let e = psfs(&c, vec![spec], None).expect_err("rule 2");
+    assert!(e.to_string().contains("rule 2"), "{e}");
+    let doe = HeightMap::three_lens_init(&c, 6e-6);
+    c.simulation.pupil_step_m = Some(8e-6);
+    let e = psfs(
+        &c,
+        vec![PsfSpec {
+            channel: 1,
+            psi_rad: 0.0,
+        }],
+        Some(&doe),
+    )
+    .expect_err("rule 1");
+    assert!(e.to_string().contains("rule 1"), "{e}");
+}
+
+#[test]
+fn psi_beyond_the_largest_pupil_grid_is_an_error_not_an_alias() {
+    let c = calib();
+    // ≈ 140 D of defocus: rule 2 asks for a 0.2 µm step, 51 000 samples.
+    let spec = PsfSpec {
+        channel: 1,
+        psi_rad: 20_000.0,
+    };
+    let e = psfs(&c, vec![spec], None).expect_err("grid too large");
+    let text = e.to_string();
+    assert!(matches!(e, OpticsError::GridTooLarge { .. }), "{text}");
+    assert!(text.contains("max_pupil_samples"), "{text}");
+}

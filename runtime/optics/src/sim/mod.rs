@@ -1,0 +1,27 @@
+//! The simulator: what the eye perceives through each display system, the
+//! targets it is judged against, and the scores (docs/model.md §9–§13,
+//! §16–§17).
+
+pub mod convolve;
+pub mod focus;
+pub mod methods;
+pub mod metrics;
+pub mod simulator;
+pub mod wiener;
+
+pub use methods::{Method, Optics};
+pub use nedrt_core::Image;
+pub use simulator::{Prepared, Simulator, perceive};
+
+/// A simulation that cannot run, naming the input at fault.
+#[derive(Debug, thiserror::Error)]
+pub enum SimError {
+    #[error(transparent)]
+    Optics(#[from] crate::OpticsError),
+    #[error(transparent)]
+    Doe(#[from] crate::doe_file::DoeError),
+    #[error(transparent)]
+    Image(#[from] nedrt_core::image_io::ImageError),
+    #[error("{0}")]
+    Invalid(String),
+}

@@ -1,0 +1,301 @@
+//! Frames as applications submit them: a pixel format, a payload, and the
+//! checks every frame passes before it enters the pipeline (size, payload
+//! length, finite values in [0, 1]). A rejected frame gets a
+//! [`FrameError`] with a [`RejectReason`] the service counts and the
+//! socket protocol replies with. Decoding to the D-CNN's planar linear
+//! input is the upload stage's work ([`decode`]).
+
+use nedrt_core::Image;
+
+/// Pixel layouts the service takes. Values are display intensities, linear
+/// unless the format says otherwise (docs/model.md §1: the D-CNN works on
+/// linear intensity).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum PixelFormat {
+    /// 8-bit RGBA, interleaved, value/255 is linear intensity; alpha ignored.
+    Rgba8Linear,
+    /// 8-bit RGBA, interleaved, sRGB-encoded (a typical render target); alpha ignored.
+    Rgba8Srgb,
+    /// 32-bit float, planar R, G, B planes, little-endian, linear.
+    Rgb32fPlanar,
+}
+
+impl PixelFormat {
+    /// Wire codes of the socket protocol (docs/protocol.md).
+    pub fn from_code(code: u16) -> Option<Self> {
+        match code {
+            1 => Some(Self::Rgba8Linear),
+            2 => Some(Self::Rgba8Srgb),
+            3 => Some(Self::Rgb32fPlanar),
+            _ => None,
+        }
+    }
+
+    pub fn code(self) -> u16 {
+        match self {
+            Self::Rgba8Linear => 1,
+            Self::Rgba8Srgb => 2,
+            Self::Rgb32fPlanar => 3,
+        }
+    }
+
+    pub fn bytes_per_pixel(self) -> usize {
+        match self {
+            Self::Rgba8Linear | Self::Rgba8Srgb => 4,
+            Self::Rgb32fPlanar => 12,
+        }
+    }
+}
+
+/// One frame from an application.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SubmittedFrame {
+    /// The application's frame number (echoed in replies and recordings).
+    pub id: u64,
+    /// When the application captured/rendered it, CLOCK_MONOTONIC ns
+    /// (0: unknown; latency is then counted from submission).
+    pub capture_ns: u64,
+    pub width: usize,
+    pub height: usize,
+    pub format: PixelFormat,
+    pub payload: Vec<u8>,
+}
+
+/// Why a frame was refused.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum RejectReason {
+    /// Unreadable header, unknown magic or version.
+    Malformed,
+    /// A pixel format the service does not know.
+    UnsupportedFormat,
+    /// Payload shorter than width × height × bytes per pixel, or outside
+    /// the shared memory.
+    Truncated,
+    /// Not the panel's resolution.
+    WrongSize,
+    /// NaN or infinity in a float frame.
+    NonFinite,
+    /// A float value outside the panel's [0, 1].
+    OutOfRange,
+}
+
+impl RejectReason {
+    pub const ALL: [RejectReason; 6] = [
+        Self::Malformed,
+        Self::UnsupportedFormat,
+        Self::Truncated,
+        Self::WrongSize,
+        Self::NonFinite,
+        Self::OutOfRange,
+    ];
+
+    /// Status code in the socket protocol's reply (0 is "accepted").
+    pub fn code(self) -> u32 {
+        match self {
+            Self::Malformed => 1,
+            Self::UnsupportedFormat => 2,
+            Self::Truncated => 3,
+            Self::WrongSize => 4,
+            Self::NonFinite => 5,
+            Self::OutOfRange => 6,
+        }
+    }
+
+    pub fn from_code(code: u32) -> Option<Self> {
+        Self::ALL.into_iter().find(|r| r.code() == code)
+    }
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Malformed => "malformed",
+            Self::UnsupportedFormat => "unsupported-format",
+            Self::Truncated => "truncated",
+            Self::WrongSize => "wrong-size",
+            Self::NonFinite => "non-finite",
+            Self::OutOfRange => "out-of-range",
+        }
+    }
+
+    pub fn index(self) -> usize {
+        Self::ALL.iter().position(|&r| r == self).unwrap_or(0)
+    }
+}
+
+/// A refused frame: the reason (counted) and what exactly was wrong.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("frame {id} rejected ({}): {detail}", reason.name())]
+pub struct FrameError {
+    pub id: u64,
+    pub reason: RejectReason,
+    pub detail: String,
+}
+
+/// Checks a frame's size and payload length against a `width`×`height`
+/// panel, before any payload is read (the socket source checks headers
+/// with this).
+pub fn check_shape(
+    id: u64,
+    (frame_w, frame_h): (usize, usize),
+    format: PixelFormat,
+    payload_len: u64,
+    (width, height): (usize, usize),
+) -> Result<(), FrameError> {
+    let fail = |reason, detail: String| FrameError { id, reason, detail };
+    if (frame_w, frame_h) != (width, height) {
+        return Err(fail(
+            RejectReason::WrongSize,
+            format!("{frame_w}×{frame_h} frame for a {width}×{height} panel"),
+        ));
+    }
+    let need = width * height * format.bytes_per_pixel();
+    if payload_len != need as u64 {
+        return Err(fail(
+            RejectReason::Truncated,
+            format!("{payload_len} payload bytes, {need} needed for {width}×{height} {format:?}"),
+        ));
+    }
+    Ok(())
+}
+
+/// Checks `frame` against a `width`×`height` panel.
+pub fn validate(frame: &SubmittedFrame, width: usize, height: usize) -> Result<(), FrameError> {
+    let fail = |reason, detail: String| FrameError {
+        id: frame.id,
+        reason,
+        detail,
+    };
+    check_shape(
+        frame.id,
+        (frame.width, frame.height),
+        frame.format,
+        frame.payload.len() as u64,
+        (width, height),
+    )?;
+    if frame.format == PixelFormat::Rgb32fPlanar {
+        for (i, b) in frame.payload.chunks_exact(4).enumerate() {
+            let v = f32::from_le_bytes([b[0], b[1], b[2], b[3]]);
+            let (c, px) = (i / (width * height), i % (width * height));
+            let at = format!("pixel {},{} channel {c}", px % width, px / width);
+            if !v.is_finite() {
+                return Err(fail(RejectReason::NonFinite, format!("{at} is {v}")));
+            }
+            if !(0.0..=1.0).contains(&v) {
+                return Err(fail(
+                    RejectReason::OutOfRange,
+                    format!("{at} is {v}; display intensities lie in [0, 1]"),
+                ));
+            }
+        }
+    }
+    Ok(())
+}
+
+/// The sRGB decoding function (IEC 61966-2-1), code value → linear.
+fn srgb_to_linear(v: f32) -> f32 {
+    if v <= 0.04045 {
+        v / 12.92
+    } else {
+        ((v + 0.055) / 1.055).powf(2.4)
+    }
+}
+
+/// Decodes a validated frame to the D-CNN's planar linear input.
+pub fn decode(frame: &SubmittedFrame) -> Image {
+    let n = frame.width * frame.height;
+    let mut data = vec![0f32; 3 * n];
+    match frame.format {
+        PixelFormat::Rgba8Linear | PixelFormat::Rgba8Srgb => {
+            let lut: Vec<f32> = (0..256)
+                .map(|v| {
+                    let x = v as f32 / 255.0;
+                    if frame.format == PixelFormat::Rgba8Srgb {
+                        srgb_to_linear(x)
+                    } else {
+                        x
+                    }
+                })
+                .collect();
+            for (i, px) in frame.payload.chunks_exact(4).enumerate() {
+                for c in 0..3 {
+                    data[c * n + i] = lut[px[c] as usize];
+                }
+            }
+        }
+        PixelFormat::Rgb32fPlanar => {
+            for (v, b) in data.iter_mut().zip(frame.payload.chunks_exact(4)) {
+                *v = f32::from_le_bytes([b[0], b[1], b[2], b[3]]);
+            }
+        }
+    }
+    Image::rgb(frame.width, frame.height, data)
+}
+
+/// A planar linear frame as an `Rgb32fPlanar` payload.
+pub fn planar_payload(frame: &Image) -> Vec<u8> {
+    frame.data().iter().flat_map(|v| v.to_le_bytes()).collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn float_frame(values: &[f32]) -> SubmittedFrame {
+        SubmittedFrame {
+            id: 7,
+            capture_ns: 0,
+            width: 2,
+            height: 1,
+            format: PixelFormat::Rgb32fPlanar,
+            payload: values.iter().flat_map(|v| v.to_le_bytes()).collect(),
+        }
+    }
+
+    #[test]
+    fn each_fault_has_its_reason() {
+        let good = float_frame(&[0.0, 0.5, 1.0, 0.25, 0.75, 0.125]);
+        assert_eq!(validate(&good, 2, 1), Ok(()));
+        assert_eq!(
+            decode(&good).into_data(),
+            vec![0.0, 0.5, 1.0, 0.25, 0.75, 0.125]
+        );
+        let reason = |f: &SubmittedFrame| validate(f, 2, 1).unwrap_err().reason;
+        assert_eq!(reason(&float_frame(&[0.0; 5])), RejectReason::Truncated);
+        let nan = float_frame(&[0.0, 0.5, 1.0, f32::NAN, 0.75, 0.125]);
+        let e = validate(&nan, 2, 1).unwrap_err();
+        assert_eq!(e.reason, RejectReason::NonFinite);
+        assert!(e.detail.contains("pixel 1,0 channel 1"), "{e}");
+        assert_eq!(
+            reason(&float_frame(&[0.0, 0.5, 1.5, 0.0, 0.0, 0.0])),
+            RejectReason::OutOfRange
+        );
+        assert_eq!(
+            validate(&good, 4, 4).unwrap_err().reason,
+            RejectReason::WrongSize
+        );
+    }
+
+    #[test]
+    fn rgba_frames_decode_linear_or_srgb() {
+        let mut f = SubmittedFrame {
+            id: 1,
+            capture_ns: 0,
+            width: 1,
+            height: 1,
+            format: PixelFormat::Rgba8Linear,
+            payload: vec![255, 128, 0, 17],
+        };
+        assert_eq!(validate(&f, 1, 1), Ok(()));
+        assert_eq!(decode(&f).into_data(), vec![1.0, 128.0 / 255.0, 0.0]);
+        f.format = PixelFormat::Rgba8Srgb;
+        let d = decode(&f).into_data();
+        assert_eq!(d[0], 1.0);
+        assert!((d[1] - 0.2158605).abs() < 1e-6, "{}", d[1]);
+        for r in RejectReason::ALL {
+            assert_eq!(RejectReason::from_code(r.code()), Some(r));
+        }
+        for code in 1..=3 {
+            assert_eq!(PixelFormat::from_code(code).map(|f| f.code()), Some(code));
+        }
+        assert_eq!(PixelFormat::from_code(9), None);
+    }
+}

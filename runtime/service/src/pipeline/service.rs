@@ -1,0 +1,452 @@
+//! The service: stages on their own threads joined by bounded newest-wins
+//! channels, and the present loop on the caller's thread.
+//!
+//! ```text
+//! Compositor::submit ─► upload ─► dcnn ─► encode ─► NewestSlot ─► present loop ─► Sink
+//!   (validate)          (decode)  (D-CNN,  (clamp,   (newest      (paced on the
+//!                                 fallback) transfer) wins)        refresh)
+//! ```
+//!
+//! Back-pressure: every hand-over keeps the newest frame. A stage that
+//! falls behind works on the newest frame it can get; older ones are
+//! dropped and counted (`dropped_queued`, `dropped_at_present`). Submitting
+//! never blocks on the pipeline and the present loop never waits for a
+//! frame: at each refresh it shows the newest finished frame, if any.
+
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::thread::JoinHandle;
+
+use crossbeam_channel::Receiver;
+
+use super::channel::{NewestSender, newest_channel};
+use super::frame::{FrameError, SubmittedFrame, decode, validate};
+use super::pacing::{Clock, NewestSlot, Pacer};
+use super::stats::{RSS_EVERY, Report, Stage, Stats};
+use crate::present::transfer::Transfer;
+use crate::present::{DisplayFrame, PresentError, Presented, Sink};
+use nedrt_core::Image;
+use nedrt_core::preprocess::{Identity, Preprocess, PreprocessError};
+use nedrt_core::progress::{Progress, Silent};
+
+/// Builds the preprocessor to switch to when the primary one fails.
+pub type FallbackFactory = Box<dyn FnOnce() -> Result<Box<dyn Preprocess>, PreprocessError> + Send>;
+
+/// The D-CNN stage's engines: the primary, and what replaces it if it
+/// fails (a lost GPU): the factory's preprocessor, else none ([`Identity`]).
+pub struct DcnnStage {
+    pub primary: Box<dyn Preprocess>,
+    pub fallback: Option<FallbackFactory>,
+}
+
+impl std::fmt::Debug for DcnnStage {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("DcnnStage")
+            .field("primary", &self.primary)
+            .field("fallback", &self.fallback.is_some())
+            .finish()
+    }
+}
+
+impl DcnnStage {
+    /// Runs the frame; on a backend failure logs it, switches to the
+    /// fallback for good and runs the frame there.
+    fn run(&mut self, frame: &Image, stats: &Stats) -> Option<Image> {
+        loop {
+            match self.primary.run(frame) {
+                Ok(out) => {
+                    if let Some(ns) = self.primary.last_gpu_ns() {
+                        stats.record(Stage::DcnnGpu, ns);
+                    }
+                    return Some(out);
+                }
+                Err(PreprocessError::Frame(e)) => {
+                    // Validated at submit, so this is a bug, not the client's fault.
+                    tracing::error!("D-CNN refused a validated frame: {e}");
+                    return None;
+                }
+                Err(e) => {
+                    stats
+                        .dcnn_failures
+                        .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                    let next: Box<dyn Preprocess> = match self.fallback.take() {
+                        Some(factory) => match factory() {
+                            Ok(p) => p,
+                            Err(fe) => {
+                                tracing::error!("fallback backend cannot start: {fe}");
+                                Box::new(Identity)
+                            }
+                        },
+                        None => Box::new(Identity),
+                    };
+                    tracing::error!(
+                        "D-CNN {} failed: {e}; falling back to {}",
+                        self.primary.describe(),
+                        next.describe()
+                    );
+                    *stats.backend.lock().unwrap_or_else(|p| p.into_inner()) = format!(
+                        "{} (after a failure of {})",
+                        next.describe(),
+                        self.primary.describe()
+                    );
+                    self.primary = next;
+                }
+            }
+        }
+    }
+}
+
+/// The panel the service drives.
+#[derive(Debug, Clone)]
+pub struct PanelConfig {
+    pub width: usize,
+    pub height: usize,
+    pub refresh_hz: f64,
+    pub transfer: Transfer,
+}
+
+/// A frame in flight with its timing.
+#[derive(Debug)]
+struct Timed<T> {
+    item: T,
+    id: u64,
+    /// Capture time if the client gave a usable one, else submission.
+    start_ns: u64,
+    /// Time spent in the stages' own work so far.
+    work_ns: u64,
+}
+
+/// The in-process API: submit frames to a running service. Cheap to clone;
+/// the pipeline runs until every clone is dropped (or the service stops).
+#[derive(Debug, Clone)]
+pub struct Compositor {
+    tx: NewestSender<Timed<SubmittedFrame>>,
+    stats: Arc<Stats>,
+    clock: Arc<dyn Clock>,
+    width: usize,
+    height: usize,
+}
+
+impl Compositor {
+    /// Checks `frame` and queues it; a bad frame is refused (and counted)
+    /// here, on the caller's thread, so the caller learns why at once.
+    /// Never blocks on the pipeline: a full queue drops its oldest frame.
+    pub fn submit(&self, frame: SubmittedFrame) -> Result<(), FrameError> {
+        use std::sync::atomic::Ordering::Relaxed;
+        self.stats.submitted.fetch_add(1, Relaxed);
+        if let Err(e) = validate(&frame, self.width, self.height) {
+            self.stats.reject(e.reason);
+            tracing::warn!("{e}");
+            return Err(e);
+        }
+        let now = self.clock.now_ns();
+        let start_ns = if frame.capture_ns > 0 && frame.capture_ns <= now {
+            frame.capture_ns
+        } else {
+            now
+        };
+        self.tx.send(Timed {
+            id: frame.id,
+            item: frame,
+            start_ns,
+            work_ns: 0,
+        });
+        Ok(())
+    }
+
+    /// The panel's resolution, which every frame must have.
+    pub fn panel_size(&self) -> (usize, usize) {
+        (self.width, self.height)
+    }
+
+    /// Counts a frame refused before it could be submitted (a header the
+    /// socket source could not turn into a frame).
+    pub fn reject_before_submit(&self, reason: super::frame::RejectReason, id: u64, detail: &str) {
+        self.stats
+            .submitted
+            .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        self.stats.reject(reason);
+        tracing::warn!("frame {id} rejected ({}): {detail}", reason.name());
+    }
+
+    /// Counts a client that vanished with a frame half sent.
+    pub fn count_disconnect_mid_frame(&self) {
+        self.stats
+            .disconnects_mid_frame
+            .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    }
+}
+
+/// How the present loop runs and ends.
+#[derive(Debug, Clone)]
+pub struct Control {
+    /// Set by a signal (or a test) to stop.
+    pub stop: Arc<AtomicBool>,
+    /// Set by SIGUSR1: print the latency table now.
+    pub report: Arc<AtomicBool>,
+    /// Keep showing the last frame after the sources end, until stopped.
+    pub keep_open: bool,
+    /// Where the live status line and the requested tables go.
+    pub progress: Arc<dyn Progress>,
+}
+
+impl Default for Control {
+    fn default() -> Self {
+        Self {
+            stop: Arc::default(),
+            report: Arc::default(),
+            keep_open: false,
+            progress: Arc::new(Silent),
+        }
+    }
+}
+
+/// A running pipeline.
+#[derive(Debug)]
+pub struct Service {
+    panel: PanelConfig,
+    compositor: Option<Compositor>,
+    slot: Arc<NewestSlot<Timed<DisplayFrame>>>,
+    stats: Arc<Stats>,
+    clock: Arc<dyn Clock>,
+    /// Set when the last stage has finished (every sender dropped).
+    drained: Arc<AtomicBool>,
+    threads: Vec<JoinHandle<()>>,
+}
+
+fn spawn_stage<I: Send + 'static, O: Send + 'static>(
+    name: &'static str,
+    stage: Stage,
+    rx: Receiver<Timed<I>>,
+    out: impl Fn(Timed<O>) + Send + 'static,
+    stats: Arc<Stats>,
+    clock: Arc<dyn Clock>,
+    mut work: impl FnMut(u64, I, &Stats) -> Option<O> + Send + 'static,
+) -> std::io::Result<JoinHandle<()>> {
+    std::thread::Builder::new()
+        .name(name.into())
+        .spawn(move || {
+            for t in rx {
+                let span = tracing::info_span!("stage", stage = %name, frame = t.id).entered();
+                let t0 = clock.now_ns();
+                let result = work(t.id, t.item, &stats);
+                let ns = clock.now_ns().saturating_sub(t0);
+                drop(span);
+                stats.record(stage, ns);
+                if let Some(item) = result {
+                    out(Timed {
+                        item,
+                        id: t.id,
+                        start_ns: t.start_ns,
+                        work_ns: t.work_ns + ns,
+                    });
+                }
+            }
+        })
+}
+
+impl Service {
+    /// Starts the stage threads; frames flow once submitted through
+    /// [`Service::compositor`], and reach a sink through
+    /// [`Service::present_loop`].
+    pub fn start(
+        panel: PanelConfig,
+        mut dcnn: DcnnStage,
+        clock: Arc<dyn Clock>,
+    ) -> std::io::Result<Self> {
+        let stats = Arc::new(Stats::default());
+        *stats.backend.lock().unwrap_or_else(|p| p.into_inner()) = dcnn.primary.describe();
+        let queued = stats.dropped_queued.clone();
+        let (ingest_tx, ingest_rx) = newest_channel(1, queued.clone());
+        let (upload_tx, upload_rx) = newest_channel(1, queued.clone());
+        let (dcnn_tx, dcnn_rx) = newest_channel(1, queued.clone());
+        let slot = Arc::new(NewestSlot::<Timed<DisplayFrame>>::new());
+        let drained = Arc::new(AtomicBool::new(false));
+        let mut threads = Vec::new();
+        threads.push(spawn_stage(
+            "upload",
+            Stage::Upload,
+            ingest_rx,
+            move |t| upload_tx.send(t),
+            stats.clone(),
+            clock.clone(),
+            |_, f: SubmittedFrame, _| Some(decode(&f)),
+        )?);
+        threads.push(spawn_stage(
+            "dcnn",
+            Stage::Dcnn,
+            upload_rx,
+            move |t| dcnn_tx.send(t),
+            stats.clone(),
+            clock.clone(),
+            move |_, f: Image, stats| dcnn.run(&f, stats),
+        )?);
+        let transfer = panel.transfer.clone();
+        let slot_in = slot.clone();
+        let encode = spawn_stage(
+            "encode",
+            Stage::Encode,
+            dcnn_rx,
+            move |t| slot_in.put(t),
+            stats.clone(),
+            clock.clone(),
+            move |id, f: Image, _| {
+                let mut rgba8 = Vec::new();
+                transfer.encode_rgba8(&f, &mut rgba8);
+                Some(DisplayFrame {
+                    id,
+                    width: f.width,
+                    height: f.height,
+                    rgba8,
+                })
+            },
+        )?;
+        // Marks the pipeline drained once the encode stage has ended.
+        let drained_flag = drained.clone();
+        threads.push(
+            std::thread::Builder::new()
+                .name("drain".into())
+                .spawn(move || {
+                    let _ = encode.join();
+                    drained_flag.store(true, Ordering::SeqCst);
+                })?,
+        );
+        let compositor = Compositor {
+            tx: ingest_tx,
+            stats: stats.clone(),
+            clock: clock.clone(),
+            width: panel.width,
+            height: panel.height,
+        };
+        Ok(Self {
+            panel,
+            compositor: Some(compositor),
+            slot,
+            stats,
+            clock,
+            drained,
+            threads,
+        })
+    }
+
+    /// A handle to submit frames with.
+    pub fn compositor(&self) -> Option<Compositor> {
+        self.compositor.clone()
+    }
+
+    /// Drops the service's own handle: the pipeline drains once every
+    /// other handle (the sources') is gone too.
+    pub fn close_ingest(&mut self) {
+        self.compositor = None;
+    }
+
+    pub fn stats(&self) -> &Arc<Stats> {
+        &self.stats
+    }
+
+    /// Presents at the panel's refresh until the pipeline has drained (all
+    /// handles dropped and the last frame shown), the sink goes away, or
+    /// `control.stop` is set. Returns the counts and latencies.
+    pub fn present_loop(
+        &mut self,
+        sink: &mut dyn Sink,
+        control: &Control,
+    ) -> Result<Report, PresentError> {
+        use std::sync::atomic::Ordering::Relaxed;
+        let mut pacer = Pacer::new(self.panel.refresh_hz, self.clock.now_ns());
+        let mut last: Option<DisplayFrame> = None;
+        let progress = &control.progress;
+        progress.start("frames", 0);
+        loop {
+            if control.stop.load(Relaxed) || !sink.poll() {
+                break;
+            }
+            if control.report.swap(false, Relaxed) {
+                progress.note(&self.stats.snapshot().table());
+            }
+            let tick = pacer.next(self.clock.now_ns());
+            self.stats.missed_refreshes.fetch_add(tick.missed, Relaxed);
+            if !sink.paced_by_display() {
+                self.clock.sleep_until_ns(tick.vsync_ns);
+            }
+            let t = match self.slot.take() {
+                Some(t) => Some(t),
+                None => {
+                    // Read before the second look: once drained, no frame can
+                    // arrive after it.
+                    let drained = self.drained.load(Ordering::SeqCst);
+                    match self.slot.take() {
+                        Some(t) => Some(t),
+                        None if drained && !control.keep_open => break,
+                        None => {
+                            if drained && let Some(frame) = &last {
+                                // Keep the window's content (uncounted re-present).
+                                sink.present(frame)?;
+                            } else if sink.paced_by_display() {
+                                self.clock.sleep_until_ns(tick.vsync_ns);
+                            }
+                            None
+                        }
+                    }
+                }
+            };
+            let Some(t) = t else {
+                continue;
+            };
+            let t0 = self.clock.now_ns();
+            let shown = {
+                let _span =
+                    tracing::info_span!("stage", stage = %"present", frame = t.id).entered();
+                sink.present(&t.item)?
+            };
+            let now = self.clock.now_ns();
+            match shown {
+                Presented::Shown => {
+                    let present_ns = now - t0;
+                    let e2e = now.saturating_sub(t.start_ns);
+                    self.stats.record(Stage::Present, present_ns);
+                    self.stats.record(Stage::EndToEnd, e2e);
+                    self.stats
+                        .record(Stage::Queued, e2e.saturating_sub(t.work_ns + present_ns));
+                    let n = self.stats.presented.fetch_add(1, Relaxed) + 1;
+                    if n.is_multiple_of(RSS_EVERY) {
+                        self.stats.sample_rss();
+                    }
+                    if n.is_multiple_of(10) {
+                        let s = self.stats.snapshot();
+                        progress.status(&format!(
+                            "{} presented, {} dropped, {} rejected, e2e p50 {:.1} ms",
+                            s.presented,
+                            s.dropped_queued + s.dropped_at_present,
+                            s.rejected_total(),
+                            self.stats.histogram(Stage::EndToEnd).quantile_ns(0.5) as f64 / 1e6
+                        ));
+                    }
+                }
+                Presented::Skipped => {
+                    self.stats.skipped.fetch_add(1, Relaxed);
+                }
+            }
+            last = Some(t.item);
+        }
+        progress.finish();
+        self.stats
+            .dropped_at_present
+            .store(self.slot.dropped(), Relaxed);
+        Ok(self.stats.snapshot())
+    }
+
+    /// Drops the service's handle and joins the stage threads; the sources
+    /// must have stopped (dropped their handles) first.
+    pub fn shutdown(mut self) -> Report {
+        self.compositor = None;
+        for t in self.threads.drain(..) {
+            let _ = t.join();
+        }
+        self.stats.snapshot()
+    }
+}
+
+#[cfg(test)]
+#[path = "service_tests.rs"]
+mod tests;

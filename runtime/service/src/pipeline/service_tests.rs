@@ -1,0 +1,170 @@
+//! Tests of the service with fake engines and sinks: the fallback on a
+//! backend failure, rejection counting, delivery order.
+
+use super::*;
+use crate::pipeline::frame::{PixelFormat, RejectReason};
+use crate::pipeline::pacing::SystemClock;
+use crate::present::Presented;
+
+/// A backend that works for `ok` frames and then fails like a lost GPU.
+#[derive(Debug)]
+struct Failing {
+    ok: usize,
+}
+
+impl Preprocess for Failing {
+    fn describe(&self) -> String {
+        "failing test backend".into()
+    }
+    fn run(&mut self, frame: &Image) -> Result<Image, PreprocessError> {
+        if self.ok == 0 {
+            return Err(PreprocessError::Engine {
+                engine: "wgpu".into(),
+                reason: "device lost".into(),
+            });
+        }
+        self.ok -= 1;
+        // Inverts, so the test can tell which engine ran.
+        let mut out = frame.clone();
+        out.data_mut().iter_mut().for_each(|v| *v = 1.0 - *v);
+        Ok(out)
+    }
+}
+
+/// Collects presented frames.
+#[derive(Debug, Default)]
+struct Collect(Vec<DisplayFrame>);
+
+impl Sink for Collect {
+    fn describe(&self) -> String {
+        "collect".into()
+    }
+    fn present(&mut self, frame: &DisplayFrame) -> Result<Presented, PresentError> {
+        self.0.push(frame.clone());
+        Ok(Presented::Shown)
+    }
+}
+
+fn panel() -> PanelConfig {
+    PanelConfig {
+        width: 4,
+        height: 2,
+        refresh_hz: 1000.0,
+        transfer: Transfer::from_gamma([1.0, 1.0, 1.0]),
+    }
+}
+
+fn grey(id: u64, v: u8) -> SubmittedFrame {
+    SubmittedFrame {
+        id,
+        capture_ns: 0,
+        width: 4,
+        height: 2,
+        format: PixelFormat::Rgba8Linear,
+        payload: vec![v; 32],
+    }
+}
+
+/// Submits frames one at a time, waiting for each to be shown.
+fn run_one_by_one(
+    dcnn: DcnnStage,
+    frames: &[SubmittedFrame],
+) -> (Vec<DisplayFrame>, crate::pipeline::stats::Report) {
+    let mut service = Service::start(panel(), dcnn, Arc::new(SystemClock)).expect("start");
+    let compositor = service.compositor().expect("open");
+    service.close_ingest();
+    let control = Control::default();
+    let mut sink = Collect::default();
+    let feeder = {
+        let frames = frames.to_vec();
+        let stats = service.stats().clone();
+        std::thread::spawn(move || {
+            for (i, f) in frames.into_iter().enumerate() {
+                let _ = compositor.submit(f);
+                let t = std::time::Instant::now();
+                while stats.presented.load(Ordering::Relaxed) + stats.rejected_total()
+                    < i as u64 + 1
+                {
+                    assert!(t.elapsed().as_secs() < 30, "frame {i} never arrived");
+                    std::thread::sleep(std::time::Duration::from_millis(1));
+                }
+            }
+        })
+    };
+    let report = service.present_loop(&mut sink, &control).expect("present");
+    feeder.join().expect("feeder");
+    let report_after = service.shutdown();
+    assert_eq!(report.presented, report_after.presented);
+    (sink.0, report)
+}
+
+#[test]
+fn a_failing_backend_falls_back_without_losing_the_frame() {
+    let fallback: FallbackFactory = Box::new(|| Ok(Box::new(Identity) as Box<dyn Preprocess>));
+    let dcnn = DcnnStage {
+        primary: Box::new(Failing { ok: 2 }),
+        fallback: Some(fallback),
+    };
+    let frames: Vec<_> = (0..5).map(|i| grey(i, 51)).collect();
+    let (shown, report) = run_one_by_one(dcnn, &frames);
+    assert_eq!(
+        shown.len(),
+        5,
+        "the failing frame is re-run on the fallback"
+    );
+    // 51/255 = 0.2: inverted (0.8 → 204) by the primary, unchanged after the fallback.
+    let codes: Vec<u8> = shown.iter().map(|f| f.rgba8[0]).collect();
+    assert_eq!(codes, vec![204, 204, 51, 51, 51]);
+    assert_eq!(report.dcnn_failures, 1);
+    assert!(report.backend.starts_with("none"), "{}", report.backend);
+}
+
+#[test]
+fn without_a_fallback_factory_the_panel_gets_the_unprocessed_frame() {
+    let dcnn = DcnnStage {
+        primary: Box::new(Failing { ok: 0 }),
+        fallback: None,
+    };
+    let (shown, report) = run_one_by_one(dcnn, &[grey(0, 100)]);
+    assert_eq!(shown[0].rgba8[..3], [100, 100, 100]);
+    assert_eq!(report.dcnn_failures, 1);
+}
+
+#[test]
+fn rejected_frames_are_counted_and_the_rest_delivered_in_order() {
+    let dcnn = DcnnStage {
+        primary: Box::new(Identity),
+        fallback: None,
+    };
+    let mut frames = vec![grey(0, 10), grey(1, 20)];
+    let mut wrong = grey(2, 30);
+    wrong.width = 3;
+    frames.push(wrong);
+    let mut short = grey(3, 40);
+    short.payload.pop();
+    frames.push(short);
+    frames.push(grey(4, 50));
+    let (shown, report) = run_one_by_one(dcnn, &frames);
+    assert_eq!(
+        shown.iter().map(|f| f.id).collect::<Vec<_>>(),
+        vec![0, 1, 4]
+    );
+    assert_eq!(report.submitted, 5);
+    let count = |r: RejectReason| {
+        report
+            .rejected
+            .iter()
+            .find(|(n, _)| n == r.name())
+            .map_or(0, |p| p.1)
+    };
+    assert_eq!(count(RejectReason::WrongSize), 1);
+    assert_eq!(count(RejectReason::Truncated), 1);
+    assert_eq!(
+        report
+            .stages
+            .iter()
+            .find(|s| s.stage == "end-to-end")
+            .map(|s| s.count),
+        Some(3)
+    );
+}

@@ -1,0 +1,251 @@
+//! What the service counts: frames in, rejected (by reason), dropped (by
+//! hand-over), presented, and a latency histogram per stage and end to
+//! end. Counters are atomics; each histogram has its own lock, taken once
+//! per frame by one stage thread (uncontended).
+
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
+
+use serde::Serialize;
+
+use super::frame::RejectReason;
+use super::latency::Histogram;
+
+/// The pipeline's stages, in order, for latency accounting.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Stage {
+    /// Decoding the submitted payload to the network's planar linear input.
+    Upload,
+    /// The D-CNN (for wgpu: upload to the GPU, dispatches, read-back).
+    Dcnn,
+    /// The D-CNN's own GPU time (timestamp queries; part of `Dcnn`).
+    DcnnGpu,
+    /// Clamp and the panel's transfer curve.
+    Encode,
+    /// Drawing onto the sink (for a window: until the swapchain takes it).
+    Present,
+    /// Waiting between stages (queues and the wait for a refresh).
+    Queued,
+    /// Capture (or submission) to present.
+    EndToEnd,
+}
+
+impl Stage {
+    pub const ALL: [Stage; 7] = [
+        Stage::Upload,
+        Stage::Dcnn,
+        Stage::DcnnGpu,
+        Stage::Encode,
+        Stage::Present,
+        Stage::Queued,
+        Stage::EndToEnd,
+    ];
+
+    fn index(self) -> usize {
+        Stage::ALL.iter().position(|&s| s == self).unwrap_or(0)
+    }
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Stage::Upload => "upload",
+            Stage::Dcnn => "dcnn",
+            Stage::DcnnGpu => "dcnn-gpu",
+            Stage::Encode => "encode",
+            Stage::Present => "present",
+            Stage::Queued => "queued",
+            Stage::EndToEnd => "end-to-end",
+        }
+    }
+}
+
+/// Shared counters and histograms of a running service.
+#[derive(Debug, Default)]
+pub struct Stats {
+    pub submitted: AtomicU64,
+    pub rejected: [AtomicU64; 6],
+    /// Evicted from the ingest → upload, upload → D-CNN and D-CNN → encode queues.
+    pub dropped_queued: Arc<AtomicU64>,
+    /// Replaced in the present slot before a refresh showed them.
+    pub dropped_at_present: AtomicU64,
+    pub presented: AtomicU64,
+    /// Frames a sink could not take (occluded window, outdated surface).
+    pub skipped: AtomicU64,
+    pub missed_refreshes: AtomicU64,
+    /// Frames the D-CNN backend failed on (each also switches to the fallback).
+    pub dcnn_failures: AtomicU64,
+    /// Clients that disconnected with a frame half sent.
+    pub disconnects_mid_frame: AtomicU64,
+    histograms: [Mutex<Histogram>; 7],
+    /// Resident set size samples (KiB) taken every `RSS_EVERY` presents.
+    rss_kib: Mutex<Vec<u64>>,
+    pub backend: Mutex<String>,
+}
+
+/// Presents between resident-memory samples.
+pub const RSS_EVERY: u64 = 100;
+
+impl Stats {
+    pub fn reject(&self, reason: RejectReason) {
+        self.rejected[reason.index()].fetch_add(1, Ordering::Relaxed);
+    }
+
+    pub fn rejected_total(&self) -> u64 {
+        self.rejected
+            .iter()
+            .map(|a| a.load(Ordering::Relaxed))
+            .sum()
+    }
+
+    pub fn record(&self, stage: Stage, ns: u64) {
+        self.histograms[stage.index()]
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .record_ns(ns);
+    }
+
+    pub fn histogram(&self, stage: Stage) -> Histogram {
+        self.histograms[stage.index()]
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .clone()
+    }
+
+    pub fn sample_rss(&self) {
+        if let Some(kib) = resident_kib() {
+            self.rss_kib
+                .lock()
+                .unwrap_or_else(|p| p.into_inner())
+                .push(kib);
+        }
+    }
+
+    /// A snapshot for reports.
+    pub fn snapshot(&self) -> Report {
+        let load = |a: &AtomicU64| a.load(Ordering::Relaxed);
+        Report {
+            backend: self
+                .backend
+                .lock()
+                .unwrap_or_else(|p| p.into_inner())
+                .clone(),
+            submitted: load(&self.submitted),
+            rejected: RejectReason::ALL
+                .iter()
+                .map(|r| (r.name().to_string(), load(&self.rejected[r.index()])))
+                .collect(),
+            dropped_queued: load(&self.dropped_queued),
+            dropped_at_present: load(&self.dropped_at_present),
+            presented: load(&self.presented),
+            skipped: load(&self.skipped),
+            missed_refreshes: load(&self.missed_refreshes),
+            dcnn_failures: load(&self.dcnn_failures),
+            disconnects_mid_frame: load(&self.disconnects_mid_frame),
+            stages: Stage::ALL
+                .iter()
+                .map(|&s| {
+                    let h = self.histogram(s);
+                    StageReport {
+                        stage: s.name().to_string(),
+                        count: h.count(),
+                        mean_ms: h.mean_ns() / 1e6,
+                        p50_ms: h.quantile_ns(0.5) as f64 / 1e6,
+                        p99_ms: h.quantile_ns(0.99) as f64 / 1e6,
+                        max_ms: h.max_ns() as f64 / 1e6,
+                    }
+                })
+                .collect(),
+            rss_kib: self
+                .rss_kib
+                .lock()
+                .unwrap_or_else(|p| p.into_inner())
+                .clone(),
+        }
+    }
+}
+
+/// This process's resident set size in KiB (Linux `/proc/self/statm`).
+pub fn resident_kib() -> Option<u64> {
+    let statm = std::fs::read_to_string("/proc/self/statm").ok()?;
+    let pages: u64 = statm.split_whitespace().nth(1)?.parse().ok()?;
+    Some(pages * 4)
+}
+
+/// Latency of one stage, milliseconds.
+#[derive(Debug, Clone, Serialize)]
+pub struct StageReport {
+    pub stage: String,
+    pub count: u64,
+    pub mean_ms: f64,
+    pub p50_ms: f64,
+    pub p99_ms: f64,
+    pub max_ms: f64,
+}
+
+/// Everything the service counted.
+#[derive(Debug, Clone, Serialize)]
+pub struct Report {
+    pub backend: String,
+    pub submitted: u64,
+    pub rejected: Vec<(String, u64)>,
+    pub dropped_queued: u64,
+    pub dropped_at_present: u64,
+    pub presented: u64,
+    pub skipped: u64,
+    pub missed_refreshes: u64,
+    pub dcnn_failures: u64,
+    pub disconnects_mid_frame: u64,
+    pub stages: Vec<StageReport>,
+    pub rss_kib: Vec<u64>,
+}
+
+impl Report {
+    pub fn rejected_total(&self) -> u64 {
+        self.rejected.iter().map(|(_, n)| n).sum()
+    }
+
+    /// The human-readable table printed at exit and on SIGUSR1.
+    pub fn table(&self) -> String {
+        let mut s = format!(
+            "frames: {} submitted, {} presented, {} rejected, {} dropped in queues, \
+             {} replaced before a refresh, {} skipped by the sink; {} refreshes missed; \
+             preprocess: {} ({} failures)\n",
+            self.submitted,
+            self.presented,
+            self.rejected_total(),
+            self.dropped_queued,
+            self.dropped_at_present,
+            self.skipped,
+            self.missed_refreshes,
+            self.backend,
+            self.dcnn_failures
+        );
+        let rejected: Vec<String> = self
+            .rejected
+            .iter()
+            .filter(|(_, n)| *n > 0)
+            .map(|(r, n)| format!("{r} {n}"))
+            .collect();
+        if !rejected.is_empty() {
+            s += &format!("rejected: {}\n", rejected.join(", "));
+        }
+        let e2e = self
+            .stages
+            .iter()
+            .find(|r| r.stage == "end-to-end")
+            .map_or(0.0, |r| r.mean_ms);
+        s += "stage        count     p50 ms     p99 ms     max ms   share of end-to-end\n";
+        for r in &self.stages {
+            // dcnn-gpu is inside dcnn; end-to-end is the whole.
+            let share = if r.stage == "end-to-end" || r.stage == "dcnn-gpu" || e2e <= 0.0 {
+                String::new()
+            } else {
+                format!("{:>5.1} %", 100.0 * r.mean_ms / e2e)
+            };
+            s += &format!(
+                "{:<10} {:>7} {:>10.3} {:>10.3} {:>10.3}   {share}\n",
+                r.stage, r.count, r.p50_ms, r.p99_ms, r.max_ms
+            );
+        }
+        s
+    }
+}

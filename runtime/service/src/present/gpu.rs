@@ -1,0 +1,335 @@
+//! Draws encoded panel frames onto a wgpu render target
+//! (`shaders/panel_blit.wgsl`): the frame is uploaded once into a
+//! panel-sized RGBA8 texture and drawn with nearest-pixel scaling, so a
+//! panel-sized target receives every code value unchanged (the CPU twin is
+//! the identity; `headless` tests check it). The pipeline is built once per
+//! target format; a frame only uploads and records one pass.
+
+use super::{DisplayFrame, PresentError};
+use nedrt_gpu::map_and_wait;
+
+const SHADER: &str = include_str!("../../../../shaders/panel_blit.wgsl");
+
+fn err(sink: &'static str, reason: impl std::fmt::Display) -> PresentError {
+    PresentError::Sink {
+        sink,
+        reason: reason.to_string(),
+    }
+}
+
+/// The uniform block of `panel_blit.wgsl` (`Target`).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
+pub struct TargetUniform {
+    pub size: [f32; 2],
+}
+
+/// The panel frame's texture and the pipeline that draws it.
+#[derive(Debug)]
+pub struct PanelRenderer {
+    device: wgpu::Device,
+    queue: wgpu::Queue,
+    pipeline: wgpu::RenderPipeline,
+    panel: wgpu::Texture,
+    uniform: wgpu::Buffer,
+    bind_group: wgpu::BindGroup,
+    width: u32,
+    height: u32,
+    target_size: [u32; 2],
+}
+
+impl PanelRenderer {
+    /// Prepares drawing `width`×`height` panel frames onto targets of
+    /// `format` (a non-sRGB unorm format: the codes are already encoded).
+    pub fn new(
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        width: u32,
+        height: u32,
+        format: wgpu::TextureFormat,
+    ) -> Result<Self, PresentError> {
+        if format.is_srgb() {
+            return Err(err(
+                "gpu",
+                format!(
+                    "{format:?} would re-encode the panel's code values; a unorm target is needed"
+                ),
+            ));
+        }
+        let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some("panel_blit"),
+            source: wgpu::ShaderSource::Wgsl(SHADER.into()),
+        });
+        let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("panel_blit"),
+            entries: &[
+                wgpu::BindGroupLayoutEntry {
+                    binding: 0,
+                    visibility: wgpu::ShaderStages::FRAGMENT,
+                    ty: wgpu::BindingType::Texture {
+                        sample_type: wgpu::TextureSampleType::Float { filterable: false },
+                        view_dimension: wgpu::TextureViewDimension::D2,
+                        multisampled: false,
+                    },
+                    count: None,
+                },
+                wgpu::BindGroupLayoutEntry {
+                    binding: 1,
+                    visibility: wgpu::ShaderStages::FRAGMENT,
+                    ty: wgpu::BindingType::Buffer {
+                        ty: wgpu::BufferBindingType::Uniform,
+                        has_dynamic_offset: false,
+                        min_binding_size: None,
+                    },
+                    count: None,
+                },
+            ],
+        });
+        let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("panel_blit"),
+            bind_group_layouts: &[Some(&layout)],
+            immediate_size: 0,
+        });
+        let pipeline = device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+            label: Some("panel_blit"),
+            layout: Some(&pipeline_layout),
+            vertex: wgpu::VertexState {
+                module: &module,
+                entry_point: Some("vs_main"),
+                compilation_options: Default::default(),
+                buffers: &[],
+            },
+            primitive: wgpu::PrimitiveState::default(),
+            depth_stencil: None,
+            multisample: wgpu::MultisampleState::default(),
+            fragment: Some(wgpu::FragmentState {
+                module: &module,
+                entry_point: Some("fs_main"),
+                compilation_options: Default::default(),
+                targets: &[Some(wgpu::ColorTargetState {
+                    format,
+                    blend: None,
+                    write_mask: wgpu::ColorWrites::ALL,
+                })],
+            }),
+            multiview_mask: None,
+            cache: None,
+        });
+        let panel = device.create_texture(&wgpu::TextureDescriptor {
+            label: Some("panel frame"),
+            size: wgpu::Extent3d {
+                width,
+                height,
+                depth_or_array_layers: 1,
+            },
+            mip_level_count: 1,
+            sample_count: 1,
+            dimension: wgpu::TextureDimension::D2,
+            format: wgpu::TextureFormat::Rgba8Unorm,
+            usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
+            view_formats: &[],
+        });
+        let uniform = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("panel_blit target"),
+            size: std::mem::size_of::<TargetUniform>() as u64,
+            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let view = panel.create_view(&wgpu::TextureViewDescriptor::default());
+        let bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("panel_blit"),
+            layout: &layout,
+            entries: &[
+                wgpu::BindGroupEntry {
+                    binding: 0,
+                    resource: wgpu::BindingResource::TextureView(&view),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 1,
+                    resource: uniform.as_entire_binding(),
+                },
+            ],
+        });
+        if let Some(e) = pollster::block_on(scope.pop()) {
+            return Err(err("gpu", format!("building the panel pipeline: {e}")));
+        }
+        Ok(Self {
+            device: device.clone(),
+            queue: queue.clone(),
+            pipeline,
+            panel,
+            uniform,
+            bind_group,
+            width,
+            height,
+            target_size: [0, 0],
+        })
+    }
+
+    /// Uploads `frame` and draws it onto `target` (`size` pixels); returns
+    /// the submission to wait on.
+    pub fn draw(
+        &mut self,
+        frame: &DisplayFrame,
+        target: &wgpu::TextureView,
+        size: [u32; 2],
+    ) -> Result<wgpu::SubmissionIndex, PresentError> {
+        if (frame.width as u32, frame.height as u32) != (self.width, self.height)
+            || frame.rgba8.len() != 4 * frame.width * frame.height
+        {
+            return Err(err(
+                "gpu",
+                format!(
+                    "{}×{} frame ({} bytes) for a {}×{} panel",
+                    frame.width,
+                    frame.height,
+                    frame.rgba8.len(),
+                    self.width,
+                    self.height
+                ),
+            ));
+        }
+        if size != self.target_size {
+            let u = TargetUniform {
+                size: [size[0] as f32, size[1] as f32],
+            };
+            self.queue
+                .write_buffer(&self.uniform, 0, bytemuck::bytes_of(&u));
+            self.target_size = size;
+        }
+        self.queue.write_texture(
+            wgpu::TexelCopyTextureInfo {
+                texture: &self.panel,
+                mip_level: 0,
+                origin: wgpu::Origin3d::ZERO,
+                aspect: wgpu::TextureAspect::All,
+            },
+            &frame.rgba8,
+            wgpu::TexelCopyBufferLayout {
+                offset: 0,
+                bytes_per_row: Some(4 * self.width),
+                rows_per_image: Some(self.height),
+            },
+            wgpu::Extent3d {
+                width: self.width,
+                height: self.height,
+                depth_or_array_layers: 1,
+            },
+        );
+        let mut encoder = self
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some("present"),
+            });
+        {
+            let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
+                label: Some("present"),
+                color_attachments: &[Some(wgpu::RenderPassColorAttachment {
+                    view: target,
+                    depth_slice: None,
+                    resolve_target: None,
+                    ops: wgpu::Operations {
+                        load: wgpu::LoadOp::Clear(wgpu::Color::BLACK),
+                        store: wgpu::StoreOp::Store,
+                    },
+                })],
+                depth_stencil_attachment: None,
+                timestamp_writes: None,
+                occlusion_query_set: None,
+                multiview_mask: None,
+            });
+            pass.set_pipeline(&self.pipeline);
+            pass.set_bind_group(0, &self.bind_group, &[]);
+            pass.draw(0..3, 0..1);
+        }
+        Ok(self.queue.submit([encoder.finish()]))
+    }
+
+    pub fn device(&self) -> &wgpu::Device {
+        &self.device
+    }
+
+    pub fn queue(&self) -> &wgpu::Queue {
+        &self.queue
+    }
+}
+
+/// Reads an RGBA8/BGRA8 texture back as tightly packed rows (tests and
+/// checks only: it waits for the GPU).
+pub fn read_texture(
+    device: &wgpu::Device,
+    queue: &wgpu::Queue,
+    texture: &wgpu::Texture,
+) -> Result<Vec<u8>, PresentError> {
+    let (w, h) = (texture.width(), texture.height());
+    let row = (4 * w).next_multiple_of(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT);
+    let buffer = device.create_buffer(&wgpu::BufferDescriptor {
+        label: Some("readback"),
+        size: (row * h) as u64,
+        usage: wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::MAP_READ,
+        mapped_at_creation: false,
+    });
+    let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor {
+        label: Some("readback"),
+    });
+    encoder.copy_texture_to_buffer(
+        wgpu::TexelCopyTextureInfo {
+            texture,
+            mip_level: 0,
+            origin: wgpu::Origin3d::ZERO,
+            aspect: wgpu::TextureAspect::All,
+        },
+        wgpu::TexelCopyBufferInfo {
+            buffer: &buffer,
+            layout: wgpu::TexelCopyBufferLayout {
+                offset: 0,
+                bytes_per_row: Some(row),
+                rows_per_image: Some(h),
+            },
+        },
+        wgpu::Extent3d {
+            width: w,
+            height: h,
+            depth_or_array_layers: 1,
+        },
+    );
+    queue.submit([encoder.finish()]);
+    map_and_wait(device, &buffer).map_err(|e| err("gpu", e))?;
+    let view = buffer
+        .slice(..)
+        .get_mapped_range()
+        .map_err(|e| err("gpu", format!("reading back: {e}")))?;
+    let mut out = Vec::with_capacity((4 * w * h) as usize);
+    for y in 0..h as usize {
+        let start = y * row as usize;
+        out.extend_from_slice(&view[start..start + 4 * w as usize]);
+    }
+    drop(view);
+    buffer.unmap();
+    Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn target_uniform_matches_the_wgsl_block() {
+        let module = naga::front::wgsl::parse_str(SHADER).expect("panel_blit.wgsl parses");
+        let (_, ty) = module
+            .types
+            .iter()
+            .find(|(_, t)| t.name.as_deref() == Some("Target"))
+            .expect("struct Target");
+        let naga::TypeInner::Struct { members, span } = &ty.inner else {
+            panic!("Target is a struct")
+        };
+        assert_eq!(*span as usize, std::mem::size_of::<TargetUniform>());
+        assert_eq!(members[0].name.as_deref(), Some("size"));
+        assert_eq!(
+            members[0].offset as usize,
+            std::mem::offset_of!(TargetUniform, size)
+        );
+    }
+}

@@ -1,0 +1,159 @@
+//! The recorder sink: every presented frame is written as an 8-bit RGB PNG
+//! of the panel's code values, `frame-<id>.png` in a folder, by a writer
+//! thread (PNG encoding must not stall the present loop). Files are written
+//! atomically; `finish` waits for every write, so a clean shutdown leaves
+//! every presented frame on disk and never a half-written one.
+
+use std::path::{Path, PathBuf};
+use std::thread::JoinHandle;
+
+use crossbeam_channel::{Sender, bounded};
+
+use super::{DisplayFrame, PresentError, Presented, Sink};
+use nedrt_core::util::write_atomic;
+
+/// Frames that may wait for the writer before `present` waits for it.
+const QUEUE: usize = 8;
+
+fn err(reason: impl std::fmt::Display) -> PresentError {
+    PresentError::Sink {
+        sink: "recorder",
+        reason: reason.to_string(),
+    }
+}
+
+/// A PNG sequence writer.
+#[derive(Debug)]
+pub struct RecorderSink {
+    dir: PathBuf,
+    tx: Option<Sender<DisplayFrame>>,
+    writer: Option<JoinHandle<Result<u64, String>>>,
+}
+
+/// The file a frame is recorded in.
+pub fn frame_path(dir: &Path, id: u64) -> PathBuf {
+    dir.join(format!("frame-{id:08}.png"))
+}
+
+impl RecorderSink {
+    /// Records into `dir` (created if missing).
+    pub fn new(dir: &Path) -> Result<Self, PresentError> {
+        std::fs::create_dir_all(dir)
+            .map_err(|e| err(format!("cannot create {}: {e}", dir.display())))?;
+        let (tx, rx) = bounded::<DisplayFrame>(QUEUE);
+        let out = dir.to_path_buf();
+        let writer = std::thread::Builder::new()
+            .name("recorder".into())
+            .spawn(move || {
+                let mut written = 0u64;
+                for frame in rx {
+                    let _span = tracing::trace_span!("record", id = frame.id).entered();
+                    let rgb: Vec<u8> = frame
+                        .rgba8
+                        .chunks_exact(4)
+                        .flat_map(|p| [p[0], p[1], p[2]])
+                        .collect();
+                    let mut png = Vec::new();
+                    image::ImageEncoder::write_image(
+                        image::codecs::png::PngEncoder::new(&mut png),
+                        &rgb,
+                        frame.width as u32,
+                        frame.height as u32,
+                        image::ExtendedColorType::Rgb8,
+                    )
+                    .map_err(|e| format!("encoding frame {}: {e}", frame.id))?;
+                    let path = frame_path(&out, frame.id);
+                    write_atomic(&path, &png)
+                        .map_err(|e| format!("cannot write {}: {e}", path.display()))?;
+                    written += 1;
+                }
+                Ok(written)
+            })
+            .map_err(|e| err(format!("starting the writer: {e}")))?;
+        Ok(Self {
+            dir: dir.to_path_buf(),
+            tx: Some(tx),
+            writer: Some(writer),
+        })
+    }
+}
+
+impl Sink for RecorderSink {
+    fn describe(&self) -> String {
+        format!("recorder into {}", self.dir.display())
+    }
+
+    fn present(&mut self, frame: &DisplayFrame) -> Result<Presented, PresentError> {
+        let tx = self.tx.as_ref().ok_or_else(|| err("already finished"))?;
+        if tx.send(frame.clone()).is_err() {
+            // The writer stopped: finish() reports why.
+            return Err(self.finish().err().unwrap_or_else(|| err("writer stopped")));
+        }
+        Ok(Presented::Shown)
+    }
+
+    fn finish(&mut self) -> Result<(), PresentError> {
+        self.tx = None;
+        match self.writer.take() {
+            Some(w) => match w.join() {
+                Ok(Ok(n)) => {
+                    tracing::debug!("recorder wrote {n} frames to {}", self.dir.display());
+                    Ok(())
+                }
+                Ok(Err(e)) => Err(err(e)),
+                Err(_) => Err(err("the writer thread panicked")),
+            },
+            None => Ok(()),
+        }
+    }
+}
+
+impl Drop for RecorderSink {
+    fn drop(&mut self) {
+        if let Err(e) = self.finish() {
+            tracing::error!("{e}");
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn every_presented_frame_is_on_disk_after_finish() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let mut sink = RecorderSink::new(&dir.path().join("rec")).expect("sink");
+        let (w, h) = (5usize, 3usize);
+        for id in 0..20u64 {
+            let rgba8 = (0..4 * w * h).map(|i| (i as u64 * 13 + id) as u8).collect();
+            let frame = DisplayFrame {
+                id,
+                width: w,
+                height: h,
+                rgba8,
+            };
+            sink.present(&frame).expect("present");
+        }
+        sink.finish().expect("finish");
+        for id in 0..20u64 {
+            let img = image::open(frame_path(&dir.path().join("rec"), id))
+                .expect("png")
+                .to_rgb8();
+            let want: Vec<u8> = (0..4 * w * h)
+                .filter(|i| i % 4 != 3)
+                .map(|i| (i as u64 * 13 + id) as u8)
+                .collect();
+            assert_eq!(img.into_raw(), want, "frame {id}");
+        }
+    }
+
+    #[test]
+    fn an_unwritable_folder_is_an_error_naming_it() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let file = dir.path().join("file");
+        std::fs::write(&file, b"x").expect("write");
+        let e = RecorderSink::new(&file.join("sub")).unwrap_err();
+        assert!(e.to_string().contains("file"), "{e}");
+    }
+}

@@ -1,0 +1,297 @@
+//! The window sink: a winit window of the panel's size (or fullscreen on a
+//! named monitor) with a wgpu surface presenting with vsync (FIFO). The
+//! event loop is pumped from the present loop, so the window lives on the
+//! thread that presents and never needs a thread of its own. The surface's
+//! device is offered to the D-CNN (`device()`), so a wgpu backend and the
+//! window share one GPU context.
+
+use std::sync::Arc;
+use std::time::Duration;
+
+use winit::application::ApplicationHandler;
+use winit::dpi::PhysicalSize;
+use winit::event::WindowEvent;
+use winit::event_loop::{ActiveEventLoop, EventLoop};
+use winit::platform::pump_events::{EventLoopExtPumpEvents, PumpStatus};
+use winit::window::{Fullscreen, Window, WindowId};
+
+use super::gpu::PanelRenderer;
+use super::{DisplayFrame, PresentError, Presented, Sink};
+
+fn err(reason: impl std::fmt::Display) -> PresentError {
+    PresentError::Sink {
+        sink: "window",
+        reason: reason.to_string(),
+    }
+}
+
+/// How the window is opened.
+#[derive(Debug, Clone, Default)]
+pub struct WindowOptions {
+    pub title: String,
+    /// Borderless fullscreen (on `monitor`, else the primary monitor).
+    pub fullscreen: bool,
+    /// Monitor name as the windowing system reports it.
+    pub monitor: Option<String>,
+    /// Present with vsync (FIFO); without it, immediate where offered.
+    pub vsync: bool,
+    /// How wgpu's instance is made.
+    pub gpu: nedrt_gpu::GpuSettings,
+}
+
+#[derive(Debug)]
+struct App {
+    size: PhysicalSize<u32>,
+    options: WindowOptions,
+    window: Option<Arc<Window>>,
+    closed: bool,
+    resized: Option<PhysicalSize<u32>>,
+    error: Option<String>,
+}
+
+impl ApplicationHandler for App {
+    fn resumed(&mut self, event_loop: &ActiveEventLoop) {
+        if self.window.is_some() || self.error.is_some() {
+            return;
+        }
+        let mut attrs = Window::default_attributes()
+            .with_title(self.options.title.clone())
+            .with_inner_size(self.size)
+            .with_resizable(false);
+        if self.options.fullscreen {
+            let monitor = match &self.options.monitor {
+                Some(name) => {
+                    let found = event_loop
+                        .available_monitors()
+                        .find(|m| m.name().as_deref() == Some(name.as_str()));
+                    if found.is_none() {
+                        let names: Vec<String> = event_loop
+                            .available_monitors()
+                            .filter_map(|m| m.name())
+                            .collect();
+                        self.error = Some(format!(
+                            "no monitor named {name:?} (monitors: {})",
+                            names.join(", ")
+                        ));
+                        return;
+                    }
+                    found
+                }
+                None => event_loop.primary_monitor(),
+            };
+            attrs = attrs.with_fullscreen(Some(Fullscreen::Borderless(monitor)));
+        }
+        match event_loop.create_window(attrs) {
+            Ok(w) => self.window = Some(Arc::new(w)),
+            Err(e) => self.error = Some(format!("cannot create the window: {e}")),
+        }
+    }
+
+    fn window_event(&mut self, _: &ActiveEventLoop, _: WindowId, event: WindowEvent) {
+        match event {
+            WindowEvent::CloseRequested | WindowEvent::Destroyed => self.closed = true,
+            WindowEvent::Resized(size) => self.resized = Some(size),
+            _ => {}
+        }
+    }
+}
+
+/// A window showing the panel.
+#[derive(Debug)]
+pub struct WindowSink {
+    event_loop: EventLoop<()>,
+    app: App,
+    surface: wgpu::Surface<'static>,
+    config: wgpu::SurfaceConfiguration,
+    renderer: PanelRenderer,
+    adapter_name: String,
+}
+
+impl WindowSink {
+    /// Opens a window for a `width`×`height` panel on the default adapter.
+    pub fn open(width: u32, height: u32, options: WindowOptions) -> Result<Self, PresentError> {
+        let mut event_loop = EventLoop::new().map_err(|e| {
+            err(format!(
+                "no display ({e}); set DISPLAY (or run under xvfb-run), or use --sink headless"
+            ))
+        })?;
+        let mut app = App {
+            size: PhysicalSize::new(width, height),
+            options,
+            window: None,
+            closed: false,
+            resized: None,
+            error: None,
+        };
+        // The window is created in `resumed`, on the first pump.
+        for _ in 0..100 {
+            if let PumpStatus::Exit(code) =
+                event_loop.pump_app_events(Some(Duration::from_millis(10)), &mut app)
+            {
+                return Err(err(format!("the event loop exited ({code})")));
+            }
+            if app.window.is_some() || app.error.is_some() {
+                break;
+            }
+        }
+        if let Some(e) = app.error.take() {
+            return Err(err(e));
+        }
+        let window = app
+            .window
+            .clone()
+            .ok_or_else(|| err("no window was created"))?;
+        let instance = wgpu::Instance::new(
+            app.options
+                .gpu
+                .descriptor()
+                .with_display_handle(Box::new(event_loop.owned_display_handle())),
+        );
+        let surface = instance
+            .create_surface(window.clone())
+            .map_err(|e| err(format!("cannot create a surface: {e}")))?;
+        let adapter = pollster::block_on(instance.request_adapter(&wgpu::RequestAdapterOptions {
+            power_preference: wgpu::PowerPreference::HighPerformance,
+            force_fallback_adapter: false,
+            compatible_surface: Some(&surface),
+            apply_limit_buckets: false,
+        }))
+        .map_err(|e| err(format!("no GPU adapter can present to the window ({e})")))?;
+        let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
+            label: Some("nedrt window"),
+            required_features: adapter.features()
+                & (wgpu::Features::SHADER_F16 | wgpu::Features::TIMESTAMP_QUERY),
+            required_limits: adapter.limits(),
+            ..Default::default()
+        }))
+        .map_err(|e| err(format!("requesting a device: {e}")))?;
+        let caps = surface.get_capabilities(&adapter);
+        let format = caps
+            .formats
+            .iter()
+            .copied()
+            .find(|f| {
+                matches!(
+                    f,
+                    wgpu::TextureFormat::Bgra8Unorm | wgpu::TextureFormat::Rgba8Unorm
+                )
+            })
+            .ok_or_else(|| {
+                err(format!(
+                    "the surface offers no 8-bit unorm format (offers {:?})",
+                    caps.formats
+                ))
+            })?;
+        let vsync = app.options.vsync;
+        let present_mode = if !vsync && caps.present_modes.contains(&wgpu::PresentMode::Immediate) {
+            wgpu::PresentMode::Immediate
+        } else {
+            wgpu::PresentMode::Fifo
+        };
+        let inner = window.inner_size();
+        let config = wgpu::SurfaceConfiguration {
+            usage: wgpu::TextureUsages::RENDER_ATTACHMENT,
+            format,
+            width: inner.width.max(1),
+            height: inner.height.max(1),
+            present_mode,
+            desired_maximum_frame_latency: 2,
+            alpha_mode: caps
+                .alpha_modes
+                .first()
+                .copied()
+                .unwrap_or(wgpu::CompositeAlphaMode::Auto),
+            view_formats: vec![],
+            color_space: wgpu::SurfaceColorSpace::default(),
+        };
+        surface.configure(&device, &config);
+        let renderer = PanelRenderer::new(&device, &queue, width, height, format)?;
+        let info = adapter.get_info();
+        Ok(Self {
+            event_loop,
+            app,
+            surface,
+            config,
+            renderer,
+            adapter_name: format!("{} ({:?})", info.name, info.backend),
+        })
+    }
+
+    /// The window's GPU context, for a D-CNN backend to share.
+    pub fn device(&self) -> (wgpu::Device, wgpu::Queue, String) {
+        (
+            self.renderer.device().clone(),
+            self.renderer.queue().clone(),
+            self.adapter_name.clone(),
+        )
+    }
+
+    fn reconfigure(&mut self) {
+        if let Some(window) = &self.app.window {
+            let size = window.inner_size();
+            self.config.width = size.width.max(1);
+            self.config.height = size.height.max(1);
+        }
+        self.surface.configure(self.renderer.device(), &self.config);
+    }
+}
+
+impl Sink for WindowSink {
+    fn describe(&self) -> String {
+        format!(
+            "window {}×{} ({:?}, {:?}) on {}",
+            self.config.width,
+            self.config.height,
+            self.config.format,
+            self.config.present_mode,
+            self.adapter_name
+        )
+    }
+
+    fn paced_by_display(&self) -> bool {
+        self.config.present_mode == wgpu::PresentMode::Fifo
+    }
+
+    fn poll(&mut self) -> bool {
+        if let PumpStatus::Exit(_) = self
+            .event_loop
+            .pump_app_events(Some(Duration::ZERO), &mut self.app)
+        {
+            self.app.closed = true;
+        }
+        if self.app.resized.take().is_some() {
+            self.reconfigure();
+        }
+        !self.app.closed
+    }
+
+    fn present(&mut self, frame: &DisplayFrame) -> Result<Presented, PresentError> {
+        let texture = match self.surface.get_current_texture() {
+            wgpu::CurrentSurfaceTexture::Success(t) => t,
+            wgpu::CurrentSurfaceTexture::Suboptimal(t) => {
+                self.reconfigure();
+                t
+            }
+            wgpu::CurrentSurfaceTexture::Timeout | wgpu::CurrentSurfaceTexture::Occluded => {
+                return Ok(Presented::Skipped);
+            }
+            wgpu::CurrentSurfaceTexture::Outdated | wgpu::CurrentSurfaceTexture::Lost => {
+                self.reconfigure();
+                return Ok(Presented::Skipped);
+            }
+            wgpu::CurrentSurfaceTexture::Validation => {
+                return Err(err("acquiring the surface texture failed validation"));
+            }
+        };
+        let view = texture
+            .texture
+            .create_view(&wgpu::TextureViewDescriptor::default());
+        self.renderer
+            .draw(frame, &view, [self.config.width, self.config.height])?;
+        if let Some(window) = &self.app.window {
+            window.pre_present_notify();
+        }
+        self.renderer.queue().present(texture);
+        Ok(Presented::Shown)
+    }
+}

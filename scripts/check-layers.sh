@@ -1,0 +1,52 @@
+#!/usr/bin/env bash
+# The layering of docs/ARCHITECTURE.md, checked from Cargo's own view:
+# each library crate depends only on the nedrt crates below it, none of them
+# depends (directly) on clap, indicatif or anyhow, and none reads the
+# environment outside its tests. Exit 1 naming every violation.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+declare -A allowed=(
+    [nedrt-core]=""
+    [nedrt-gpu]=""
+    [nedrt-optics]="nedrt-core"
+    [nedrt-infer]="nedrt-core nedrt-gpu"
+    [nedrt-service]="nedrt-core nedrt-gpu"
+    [nedrt-app]="nedrt-core nedrt-gpu nedrt-optics nedrt-infer nedrt-service"
+)
+declare -A dir=(
+    [nedrt-core]=core [nedrt-gpu]=gpu [nedrt-optics]=optics
+    [nedrt-infer]=infer [nedrt-service]=service [nedrt-app]=app
+)
+status=0
+for crate in "${!allowed[@]}"; do
+    deps=$(cargo tree -p "$crate" -e normal --depth 1 --prefix none \
+        | tail -n +2 | awk '{print $1}')
+    for d in $deps; do
+        case "$d" in
+        clap | indicatif | anyhow)
+            echo "$crate depends on $d (command-line crates belong to the binary)"
+            status=1
+            ;;
+        nedrt*)
+            if [[ " ${allowed[$crate]} " != *" $d "* ]]; then
+                echo "$crate depends on $d, which is not below it"
+                status=1
+            fi
+            ;;
+        esac
+    done
+    # Reading the environment: only the binary (and test code) may.
+    hits=$(grep -rnE 'env::var|env::vars|current_dir\(\)|from_env\(|with_env\(' \
+        "runtime/${dir[$crate]}/src" --include='*.rs' \
+        | grep -vE '(/tests\.rs|_tests\.rs|/tests/):' || true)
+    if [ -n "$hits" ]; then
+        echo "$crate reads the environment:"
+        echo "$hits"
+        status=1
+    fi
+done
+if [ "$status" = 0 ]; then
+    echo "layers: every library crate depends only on the crates below it; none on clap, indicatif or anyhow; none reads the environment"
+fi
+exit "$status"

@@ -1,0 +1,94 @@
+//! End-to-end tests of the `nedrt` binary: the README's main command, every
+//! kind of bad input named in the issue (a clear one-line error, non-zero
+//! exit, nothing half-written), the PSF cache, eval and the plots. One test
+//! binary; a module per command family, the helpers here.
+
+mod dcnn;
+mod eval;
+mod run;
+mod sim;
+mod studies;
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+fn nedrt() -> Command {
+    let mut c = Command::new(env!("CARGO_BIN_EXE_nedrt"));
+    // One shared cache for the whole test run, inside the build folder.
+    c.env(
+        "NEDRT_CACHE_DIR",
+        Path::new(env!("CARGO_TARGET_TMPDIR")).join("psf-cache"),
+    );
+    c.env_remove("NEDRT_LOG");
+    c
+}
+
+fn repo() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
+}
+
+fn small_calib() -> PathBuf {
+    repo().join("tests/data/small-aperture.toml")
+}
+
+fn run(args: &[&str]) -> Output {
+    nedrt().args(args).output().expect("run nedrt")
+}
+
+/// `nedrt --sim --accom D --out OUT` with extra arguments.
+fn sim(accom: &str, out: &Path, extra: &[&str]) -> Output {
+    run(&[&["--sim", "--accom", accom, "--out", path(out)][..], extra].concat())
+}
+
+fn path(p: &Path) -> &str {
+    p.to_str().expect("utf8 path")
+}
+
+fn stdout(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stdout).into_owned()
+}
+
+fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+/// A failure: non-zero exit and exactly one `error:` line naming `needle`.
+fn assert_clean_error(o: &Output, needle: &str) {
+    let err = stderr(o);
+    assert!(
+        !o.status.success(),
+        "expected failure, got success; stderr: {err}"
+    );
+    assert!(!err.contains("panicked"), "panic: {err}");
+    let lines: Vec<&str> = err.lines().filter(|l| l.starts_with("error:")).collect();
+    assert_eq!(lines.len(), 1, "one error line expected: {err}");
+    assert!(
+        lines[0].contains(needle),
+        "error should mention {needle:?}: {}",
+        lines[0]
+    );
+}
+
+fn write_png(path: &Path, w: u32, h: u32) {
+    let img = image::RgbImage::from_fn(w, h, |x, y| {
+        image::Rgb([
+            (x * 7 % 256) as u8,
+            (y * 5 % 256) as u8,
+            ((x + y) % 256) as u8,
+        ])
+    });
+    img.save(path).expect("write png");
+}
+
+fn dcnn_model() -> PathBuf {
+    repo().join("models/dcnn.onnx")
+}
+
+/// The "vs sharp" line of a sim report.
+fn vs_sharp(o: &Output) -> String {
+    stdout(o)
+        .lines()
+        .find(|l| l.starts_with("vs sharp"))
+        .unwrap_or_default()
+        .to_string()
+}

@@ -1,0 +1,221 @@
+//! `nedrt run`: bad sources and sinks, recording, fallbacks, pacing.
+
+use super::*;
+
+#[test]
+fn run_refuses_bad_sources_sinks_and_models_with_one_error_line() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let panel = repo().join("tests/data/small-panel.toml");
+    let run_with = |extra: &[&str]| {
+        let mut c = nedrt();
+        c.current_dir(repo())
+            .args(["run", "--calib", path(&panel), "--backend", "cpu"])
+            .args(extra);
+        c.output().expect("run")
+    };
+    // An image of the wrong size is named before anything starts.
+    let big = dir.path().join("big.png");
+    image::RgbImage::new(65, 48).save(&big).expect("save");
+    let o = run_with(&["--source", "dir", "--input", path(&big), "--sink", "record"]);
+    assert_clean_error(&o, "big.png: 65×48 image for a 64×48 panel");
+    let o = run_with(&["--source", "dir", "--sink", "record"]);
+    assert_clean_error(&o, "--source dir needs --input");
+    // A socket path held by a regular file is not clobbered.
+    let file = dir.path().join("not-a-socket");
+    std::fs::write(&file, b"keep me").expect("write");
+    let o = run_with(&[
+        "--source",
+        "socket",
+        "--socket",
+        path(&file),
+        "--sink",
+        "record",
+    ]);
+    assert_clean_error(&o, "exists and is not a socket");
+    assert_eq!(std::fs::read(&file).expect("still there"), b"keep me");
+    // A missing or corrupt model.
+    let o = run_with(&[
+        "--frames",
+        "1",
+        "--sink",
+        "record",
+        "--dcnn",
+        path(&dir.path().join("none.onnx")),
+    ]);
+    assert_clean_error(&o, "none.onnx");
+    // No display for a window.
+    let o = nedrt()
+        .current_dir(repo())
+        .env_remove("DISPLAY")
+        .env_remove("WAYLAND_DISPLAY")
+        .args([
+            "run",
+            "--calib",
+            path(&panel),
+            "--backend",
+            "cpu",
+            "--frames",
+            "1",
+            "--sink",
+            "window",
+        ])
+        .output()
+        .expect("run");
+    assert_clean_error(&o, "window sink");
+    // A calibration whose panel makes no sense.
+    let bad = dir.path().join("bad-panel.toml");
+    let text = std::fs::read_to_string(&panel)
+        .expect("read")
+        .replace("refresh_hz = 240.0", "refresh_hz = 0.0");
+    std::fs::write(&bad, text).expect("write");
+    let o = nedrt()
+        .args(["run", "--calib", path(&bad), "--sink", "record"])
+        .output()
+        .expect("run");
+    assert_clean_error(&o, "panel.refresh_hz");
+}
+
+#[test]
+fn run_records_a_folder_and_writes_a_trace_and_report() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let panel = repo().join("tests/data/small-panel.toml");
+    let img = dir.path().join("in.png");
+    image::RgbImage::from_fn(64, 48, |x, y| {
+        image::Rgb([(x * 4) as u8, (y * 5) as u8, 128])
+    })
+    .save(&img)
+    .expect("save");
+    let rec = dir.path().join("rec");
+    let trace = dir.path().join("trace.json");
+    let report = dir.path().join("report.json");
+    let o = nedrt()
+        .current_dir(repo())
+        .args([
+            "run",
+            "--calib",
+            path(&panel),
+            "--backend",
+            "cpu",
+            "--source",
+            "dir",
+            "--input",
+            path(&img),
+        ])
+        .args([
+            "--frames",
+            "3",
+            // Slow enough that a loaded machine (a D-CNN frame took 128 ms
+            // here while other jobs ran) drops none as stale.
+            "--source-rate",
+            "4",
+            "--sink",
+            "record",
+            "--record-dir",
+            path(&rec),
+        ])
+        .args(["--trace", path(&trace), "--report-json", path(&report)])
+        .output()
+        .expect("run");
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(
+        stdout(&o).contains("3 submitted, 3 presented"),
+        "{}",
+        stdout(&o)
+    );
+    for id in 0..3 {
+        assert!(
+            rec.join(format!("frame-{id:08}.png")).exists(),
+            "frame {id}"
+        );
+    }
+    let trace: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&trace).expect("trace")).expect("trace JSON");
+    let names: Vec<String> = trace
+        .as_array()
+        .expect("events")
+        .iter()
+        .filter_map(|e| e["args"]["stage"].as_str().map(str::to_string))
+        .collect();
+    for stage in ["upload", "dcnn", "encode", "present"] {
+        assert!(
+            names.iter().any(|n| n == stage),
+            "no {stage} span in the trace: {names:?}"
+        );
+    }
+    let r: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&report).expect("report")).expect("JSON");
+    assert_eq!(r["presented"].as_u64(), Some(3));
+}
+
+#[test]
+fn run_falls_back_to_the_cpu_when_the_chosen_backend_cannot_start() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let panel = repo().join("tests/data/small-panel.toml");
+    // `--backend ort` with no ONNX Runtime to load, recording into `rec`.
+    let run_without_ort = |extra: &[&str], rec: &str| {
+        nedrt()
+            .current_dir(repo())
+            .env(
+                "ORT_DYLIB_PATH",
+                dir.path().join("no-such-libonnxruntime.so"),
+            )
+            .args([
+                "run",
+                "--calib",
+                path(&panel),
+                "--backend",
+                "ort",
+                "--frames",
+                "2",
+            ])
+            .args([
+                "--sink",
+                "record",
+                "--record-dir",
+                path(&dir.path().join(rec)),
+            ])
+            .args(extra)
+            .output()
+            .expect("run")
+    };
+    let o = run_without_ort(&[], "rec");
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(
+        stderr(&o).contains("running the D-CNN on the fallback"),
+        "{}",
+        stderr(&o)
+    );
+    assert!(stdout(&o).contains("preprocess: D-CNN"), "{}", stdout(&o));
+    assert!(stdout(&o).contains("on cpu (tract"), "{}", stdout(&o));
+    // Asked not to fall back to a network at all, it shows the frames unprocessed.
+    let o = run_without_ort(&["--fallback", "passthrough"], "rec2");
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(stdout(&o).contains("preprocess: none"), "{}", stdout(&o));
+}
+
+#[test]
+fn run_refuses_a_source_rate_it_cannot_pace() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let panel = repo().join("tests/data/small-panel.toml");
+    let rec = dir.path().join("rec");
+    for rate in ["nan", "inf", "1e-300", "0.001", "1e6"] {
+        let o = run(&[
+            "run",
+            "--calib",
+            path(&panel),
+            "--backend",
+            "cpu",
+            "--sink",
+            "record",
+            "--record-dir",
+            path(&rec),
+            "--frames",
+            "1",
+            "--source-rate",
+            rate,
+        ]);
+        assert_clean_error(&o, "--source-rate");
+        assert!(stderr(&o).contains("0 (unpaced)"), "{rate}: {}", stderr(&o));
+        assert!(!rec.exists(), "{rate}: the record folder was created");
+    }
+}

@@ -1,0 +1,310 @@
+//! `nedrt sim`: the README command, bad inputs, calibrations, designs.
+
+use super::*;
+
+#[test]
+fn readme_main_command_runs_on_shipped_defaults() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let out = dir.path().join("perceived.png");
+    let o = sim("1.0", &out, &[]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let s = stdout(&o);
+    for needle in [
+        "vs sharp",
+        "vs target",
+        "pupil step",
+        "window",
+        "veil",
+        "integrated",
+        "time",
+    ] {
+        assert!(s.contains(needle), "missing {needle:?} in:\n{s}");
+    }
+    let img = image::open(&out).expect("perceived image");
+    assert_eq!(
+        (img.width(), img.height()),
+        (1024, 1024),
+        "retinal grid is 2× the display"
+    );
+    // Second run: PSFs come from the cache.
+    let o = sim("1.0", &out, &[]);
+    assert!(stdout(&o).contains("from cache"), "{}", stdout(&o));
+}
+
+#[test]
+fn bad_images_are_clear_errors() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let out = dir.path().join("p.png");
+    let o = sim("1", &out, &["--input", "/no/such.png"]);
+    assert_clean_error(&o, "/no/such.png: cannot read image");
+    let junk = dir.path().join("junk.png");
+    std::fs::write(&junk, b"this is not an image").expect("write");
+    let o = sim("1", &out, &["--input", path(&junk)]);
+    assert_clean_error(&o, "cannot decode image");
+    let nan = dir.path().join("nan.tif");
+    let mut im = image::Rgb32FImage::from_pixel(16, 16, image::Rgb([0.5, 0.5, 0.5]));
+    im.put_pixel(3, 4, image::Rgb([f32::NAN, 0.5, 0.5]));
+    image::DynamicImage::ImageRgb32F(im)
+        .save(&nan)
+        .expect("tiff");
+    let o = sim("1", &out, &["--input", path(&nan)]);
+    assert_clean_error(&o, "pixel 3,4 channel 0 is NaN");
+    assert!(!out.exists(), "nothing written on failure");
+}
+
+#[test]
+fn odd_gray_and_16_bit_images_are_converted_and_said_so() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let odd = dir.path().join("odd.png");
+    write_png(&odd, 37, 29);
+    let out = dir.path().join("p.png");
+    let o = sim("0.5", &out, &["--input", path(&odd)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let img = image::open(&out).expect("out");
+    assert_eq!(
+        (img.width(), img.height()),
+        (74, 58),
+        "cropped back to 2× the input"
+    );
+
+    let g16 = dir.path().join("g16.png");
+    image::ImageBuffer::<image::Luma<u16>, Vec<u16>>::from_fn(24, 16, |x, _| {
+        image::Luma([x as u16 * 2000])
+    })
+    .save(&g16)
+    .expect("png16");
+    let o = sim("0.5", &out, &["--input", path(&g16)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let e = stderr(&o);
+    assert!(
+        e.contains("grayscale image converted to RGB") && e.contains("16-bit image converted"),
+        "{e}"
+    );
+}
+
+#[test]
+fn accommodation_is_checked() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let input = dir.path().join("in.png");
+    write_png(&input, 16, 16);
+    let out = dir.path().join("p.png");
+    let base = ["--sim", "--input", path(&input), "--out", path(&out)];
+    let o = run(&[&base[..], &["--accom", "-0.5"]].concat());
+    assert_clean_error(&o, "accommodation must be ≥ 0 D");
+    for huge in ["1e308", "20.5"] {
+        let o = run(&[&base[..], &["--accom", huge]].concat());
+        assert_clean_error(&o, "beyond what an eye accommodates (at most 20 D");
+    }
+    let o = run(&[&base[..], &["--accom", "4"]].concat());
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(
+        stderr(&o).contains("outside the calibrated range"),
+        "{}",
+        stderr(&o)
+    );
+    let o = run(&base);
+    assert_clean_error(&o, "--sim needs --accom");
+    let o = run(&[&base[..], &["--accom", "1", "--method", "proposed"]].concat());
+    assert!(
+        !o.status.success() && stderr(&o).contains("D-CNN"),
+        "{}",
+        stderr(&o)
+    );
+}
+
+#[test]
+fn malformed_calibration_and_doe_files_are_clear_errors() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let bad = dir.path().join("bad.toml");
+    std::fs::write(&bad, "[panel\npixel_pitch_um = 8.7").expect("write");
+    let o = run(&["--calib", path(&bad), "--sim", "--accom", "1"]);
+    assert_clean_error(&o, "bad.toml: malformed TOML");
+    let phys = dir.path().join("phys.toml");
+    let text = std::fs::read_to_string(repo().join("calib/default.toml")).expect("calib");
+    std::fs::write(
+        &phys,
+        text.replace("lens_distance_mm = 28.57", "lens_distance_mm = 31"),
+    )
+    .expect("write");
+    let o = run(&["--calib", path(&phys), "--sim", "--accom", "1"]);
+    assert_clean_error(&o, "no virtual image");
+
+    let doe = dir.path().join("doe.safetensors");
+    std::fs::write(&doe, b"\x08\x00\x00\x00\x00\x00\x00\x00{}      ").expect("write");
+    let o = run(&[
+        "--doe",
+        path(&doe),
+        "--sim",
+        "--accom",
+        "1",
+        "--method",
+        "doe-only",
+    ]);
+    assert_clean_error(&o, "invalid DOE file");
+    // A valid file whose grid is too coarse for the aperture it is used with.
+    let init = dir.path().join("init.safetensors");
+    let o = run(&[
+        "--calib",
+        small_calib().to_str().expect("utf8"),
+        "doe",
+        "--write-init",
+        path(&init),
+        "--out-dir",
+        path(dir.path()),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let o = run(&[
+        "--doe",
+        path(&init),
+        "--sim",
+        "--accom",
+        "1",
+        "--method",
+        "doe-only",
+    ]);
+    assert_clean_error(&o, "does not cover");
+}
+
+#[test]
+fn display_image_must_match_and_outputs_must_be_writable() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let input = dir.path().join("in.png");
+    let disp = dir.path().join("d.png");
+    write_png(&input, 16, 16);
+    write_png(&disp, 24, 16);
+    let o = run(&[
+        "--sim",
+        "--accom",
+        "1",
+        "--input",
+        path(&input),
+        "--display-image",
+        path(&disp),
+    ]);
+    assert_clean_error(&o, "must match");
+    let o = run(&[
+        "--sim",
+        "--accom",
+        "1",
+        "--input",
+        path(&input),
+        "--out",
+        "/no/such/dir/p.png",
+    ]);
+    assert_clean_error(&o, "cannot write image");
+    let o = run(&[
+        "--sim",
+        "--accom",
+        "1",
+        "--input",
+        path(&input),
+        "--out",
+        dir.path().join("p.jpg").to_str().expect("utf8"),
+    ]);
+    assert_clean_error(&o, "unsupported extension");
+}
+
+#[test]
+fn display_image_is_simulated_through_the_chosen_optics() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let input = dir.path().join("in.png");
+    write_png(&input, 16, 16);
+    let out = dir.path().join("p.png");
+    let calib = small_calib();
+    let o = run(&[
+        "--calib",
+        path(&calib),
+        "--sim",
+        "--accom",
+        "1.5",
+        "--input",
+        path(&input),
+        "--display-image",
+        path(&input),
+        "--out",
+        path(&out),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(stdout(&o).contains("through lens + DOE"), "{}", stdout(&o));
+}
+
+#[test]
+fn designs_are_selected_by_name_and_bad_selections_are_refused() {
+    let in_repo = |args: &[&str]| {
+        nedrt()
+            .current_dir(repo())
+            .args(args)
+            .output()
+            .expect("run nedrt")
+    };
+    for name in ["allsharp", "multifocal"] {
+        let o = in_repo(&["--design", name, "calib"]);
+        assert!(o.status.success(), "{name}: {}", stderr(&o));
+    }
+    let o = in_repo(&["--design", "no-such-design", "calib"]);
+    assert!(!o.status.success());
+    assert!(
+        stderr(&o).contains("designs/no-such-design.toml") && stderr(&o).contains("allsharp"),
+        "{}",
+        stderr(&o)
+    );
+    let o = in_repo(&["--design", "allsharp", "--doe", "x.safetensors", "calib"]);
+    assert!(!o.status.success(), "--design and --doe together");
+}
+
+#[test]
+fn sim_refuses_images_smaller_than_8_pixels_a_side_like_eval() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    for (w, h) in [(1, 1), (300, 1), (7, 64)] {
+        let img = dir.path().join(format!("{w}x{h}.png"));
+        write_png(&img, w, h);
+        let out = dir.path().join(format!("{w}x{h}-out.png"));
+        let o = sim("1.0", &out, &["--input", path(&img)]);
+        assert_clean_error(&o, "smaller than 8×8");
+        assert!(
+            stderr(&o).contains(&format!("{w}x{h}.png")),
+            "{}",
+            stderr(&o)
+        );
+        assert!(!out.exists(), "nothing written for {w}×{h}");
+    }
+    let img = dir.path().join("8x8.png");
+    write_png(&img, 8, 8);
+    let o = sim(
+        "1.0",
+        &dir.path().join("8x8-out.png"),
+        &["--input", path(&img)],
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(!stdout(&o).contains("NaN"), "{}", stdout(&o));
+}
+
+#[test]
+fn oversized_calibrations_and_endless_doe_files_are_refused_with_a_short_error() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let shipped = std::fs::read_to_string(repo().join("calib/default.toml")).expect("read");
+    // An unknown key with a 200 kB value: the error quotes it, bounded.
+    let big = dir.path().join("big-key.toml");
+    std::fs::write(
+        &big,
+        format!("{shipped}\n[extra]\nnote = \"{}\"\n", "x".repeat(200_000)),
+    )
+    .expect("write");
+    let o = run(&["--calib", path(&big), "calib"]);
+    assert_clean_error(&o, "big-key.toml");
+    assert!(
+        stderr(&o).len() < 2000,
+        "{} bytes of error",
+        stderr(&o).len()
+    );
+    // Past the 1 MiB cap the file is not parsed at all.
+    let huge = dir.path().join("huge.toml");
+    std::fs::write(&huge, format!("{shipped}\n# {}\n", "y".repeat(2 << 20))).expect("write");
+    let o = run(&["--calib", path(&huge), "calib"]);
+    assert_clean_error(&o, "larger than 1 MiB");
+    // /dev/zero as the DOE: refused at the cap, not read forever.
+    let out = dir.path().join("p.png");
+    let o = sim("1.0", &out, &["--doe", "/dev/zero", "--method", "doe-only"]);
+    assert_clean_error(&o, "larger than 512 MiB");
+    assert!(!out.exists());
+}

@@ -1,0 +1,148 @@
+//! The studies: stability and tradeoff (with the picker).
+
+use super::*;
+
+#[test]
+fn stability_refuses_a_missing_output_folder_before_the_work() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let missing = dir.path().join("missing");
+    let out = missing.join("stability.md");
+    let (images, model) = (repo().join("data/images/test"), dcnn_model());
+    let o = run(&[
+        "--dcnn",
+        path(&model),
+        "stability",
+        "--images",
+        path(&images),
+        "--no-cache",
+        "--out",
+        path(&out),
+    ]);
+    assert_clean_error(&o, "does not exist");
+    assert!(stderr(&o).contains("missing"), "{}", stderr(&o));
+    assert!(!missing.exists());
+}
+
+#[test]
+fn tradeoff_writes_the_chart_and_the_picker_reads_it() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let imgs = dir.path().join("imgs");
+    std::fs::create_dir(&imgs).expect("dir");
+    write_png(&imgs.join("a.png"), 24, 16);
+    write_png(&imgs.join("b.png"), 16, 16);
+    let out = dir.path().join("tradeoff");
+    let calib = small_calib();
+    let model = dcnn_model();
+    let base = ["--calib", path(&calib)];
+    let o = run(&[
+        &base[..],
+        &[
+            "tradeoff",
+            "--images",
+            path(&imgs),
+            "--out-dir",
+            path(&out),
+            "--size",
+            "32x24",
+            "--backends",
+            "cpu",
+            "--repeat",
+            "1",
+            "--no-fidelity",
+            "--models",
+            path(&model),
+        ],
+    ]
+    .concat());
+    assert!(o.status.success(), "{}", stderr(&o));
+    for f in [
+        "tradeoff.md",
+        "tradeoff.json",
+        "tradeoff.png",
+        "tradeoff.svg",
+    ] {
+        assert!(out.join(f).is_file(), "{f} missing");
+    }
+    let table = out.join("tradeoff.json");
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&table).expect("json")).expect("parse");
+    let records = json["records"].as_array().expect("records");
+    let names: Vec<&str> = records
+        .iter()
+        .map(|r| r["name"].as_str().expect("name"))
+        .collect();
+    for want in [
+        "conventional",
+        "ai",
+        "doe-only",
+        "doe+wiener",
+        "proposed dcnn cpu f32",
+    ] {
+        assert!(names.contains(&want), "{want} missing: {names:?}");
+    }
+    assert!(records.iter().any(|r| r["on_front"] == true));
+    let md = std::fs::read_to_string(out.join("tradeoff.md")).expect("md");
+    assert!(
+        md.contains("32×24") && md.contains("0bbffee9f270c792"),
+        "{md}"
+    );
+    // The fastest configuration meets an easy floor.
+    let fastest = records
+        .iter()
+        .min_by(|a, b| {
+            let ms = |r: &serde_json::Value| r["latency_ms"].as_f64().unwrap_or(f64::MAX);
+            ms(a).total_cmp(&ms(b))
+        })
+        .expect("one");
+    let pick = |floor: &str, budget: &str| {
+        run(&[
+            "pick",
+            "--table",
+            path(&table),
+            "--min-psnr",
+            floor,
+            "--budget-ms",
+            budget,
+        ])
+    };
+    let o = pick("0", "1e9");
+    assert!(o.status.success(), "{}", stderr(&o));
+    let fastest_name = fastest["name"].as_str().expect("name");
+    assert!(
+        stdout(&o).starts_with(&format!("{fastest_name}:")),
+        "{}",
+        stdout(&o)
+    );
+    assert_clean_error(
+        &pick("99", "1e9"),
+        "no configuration reaches the quality floor",
+    );
+    assert_clean_error(&pick("0", "0"), "no configuration meets both");
+    assert_clean_error(&pick("nan", "1"), "--min-psnr NaN: not a number");
+    std::fs::write(dir.path().join("bad.json"), "{\"records\": 3}").expect("write");
+    let o = run(&[
+        "pick",
+        "--table",
+        path(&dir.path().join("bad.json")),
+        "--min-psnr",
+        "1",
+        "--budget-ms",
+        "1",
+    ]);
+    assert_clean_error(&o, "not a table written by `nedrt tradeoff`");
+    // A D-CNN without its DOE is refused before any work.
+    let lonely = dir.path().join("lonely.onnx");
+    std::fs::copy(dcnn_model(), &lonely).expect("copy");
+    let o = run(&[
+        &base[..],
+        &[
+            "tradeoff",
+            "--images",
+            path(&imgs),
+            "--models",
+            path(&lonely),
+        ],
+    ]
+    .concat());
+    assert_clean_error(&o, "no DOE beside this D-CNN");
+}
