@@ -38,8 +38,19 @@ struct SimAndService {
     sim_codes: Vec<u8>,
     recorded: Vec<u8>,
     input: PathBuf,
-    encode: Box<dyn Fn(&nedrt_core::Image) -> Vec<u8>>,
+    transfer: nedrt_service::present::transfer::Transfer,
     _dir: tempfile::TempDir,
+}
+
+impl SimAndService {
+    /// The panel's RGB codes for a display frame.
+    fn codes(&self, frame: &nedrt_core::Image) -> Vec<u8> {
+        let mut rgba = Vec::new();
+        self.transfer.encode_rgba8(frame, &mut rgba);
+        rgba.chunks_exact(4)
+            .flat_map(|p| [p[0], p[1], p[2]])
+            .collect()
+    }
 }
 
 const ODD: (usize, usize) = (61, 45);
@@ -90,24 +101,19 @@ fn sim_and_service(method: &str) -> SimAndService {
         .expect("calib")
         .panel;
     let transfer = nedrt_service::present::transfer::Transfer::from_panel(&panel);
-    let encode = move |frame: &Image| {
-        let mut rgba = Vec::new();
-        transfer.encode_rgba8(frame, &mut rgba);
-        rgba.chunks_exact(4)
-            .flat_map(|p| [p[0], p[1], p[2]])
-            .collect::<Vec<u8>>()
-    };
     let rgb = image::open(&display).expect("tif").to_rgb32f().into_raw();
     let planar: Vec<f32> = (0..3)
         .flat_map(|c| rgb.iter().skip(c).step_by(3).copied().collect::<Vec<_>>())
         .collect();
-    SimAndService {
-        sim_codes: encode(&Image::rgb(w, h, planar)),
+    let mut s = SimAndService {
+        sim_codes: Vec::new(),
         recorded,
         input,
-        encode: Box::new(encode),
+        transfer,
         _dir: dir,
-    }
+    };
+    s.sim_codes = s.codes(&Image::rgb(w, h, planar));
+    s
 }
 
 /// One image type, one padding rule: for a frame whose sides are not
@@ -134,7 +140,7 @@ fn sim_and_service_show_the_same_display_frame_for_an_odd_sized_frame() {
         .expect("runs")
         .crop(0, 0, w, h);
     assert_ne!(
-        (s.encode)(&symmetric),
+        s.codes(&symmetric),
         s.recorded,
         "the padding rule matters here"
     );
@@ -149,7 +155,7 @@ fn the_service_runs_the_wiener_prefilter_the_simulator_renders() {
     assert_eq!(s.sim_codes, s.recorded, "sim and service differ");
     let source = nedrt_core::image_io::load(&s.input).expect("input").image;
     assert_ne!(
-        (s.encode)(&source),
+        s.codes(&source),
         s.recorded,
         "the prefilter changed the frame"
     );

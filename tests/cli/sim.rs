@@ -172,36 +172,30 @@ fn display_image_must_match_and_outputs_must_be_writable() {
     let disp = dir.path().join("d.png");
     write_png(&input, 16, 16);
     write_png(&disp, 24, 16);
-    let o = run(&[
-        "--sim",
-        "--accom",
-        "1",
-        "--input",
-        path(&input),
-        "--display-image",
-        path(&disp),
-    ]);
+    let sim_on = |extra: &[&str]| {
+        run(&[
+            &["--sim", "--accom", "1", "--input", path(&input)][..],
+            extra,
+        ]
+        .concat())
+    };
+    let o = sim_on(&["--display-image", path(&disp)]);
     assert_clean_error(&o, "must match");
-    let o = run(&[
-        "--sim",
-        "--accom",
-        "1",
-        "--input",
-        path(&input),
-        "--out",
-        "/no/such/dir/p.png",
-    ]);
+    let o = sim_on(&["--out", "/no/such/dir/p.png"]);
     assert_clean_error(&o, "cannot write image");
-    let o = run(&[
-        "--sim",
-        "--accom",
-        "1",
-        "--input",
-        path(&input),
-        "--out",
-        dir.path().join("p.jpg").to_str().expect("utf8"),
-    ]);
+    let o = sim_on(&["--out", path(&dir.path().join("p.jpg"))]);
     assert_clean_error(&o, "unsupported extension");
+    // A display frame in a format that would lose it is refused before any
+    // work, so the perceived image is not written either.
+    let out = dir.path().join("p.png");
+    let o = sim_on(&[
+        "--out",
+        path(&out),
+        "--display-out",
+        path(&dir.path().join("d.jpg")),
+    ]);
+    assert_clean_error(&o, "d.jpg: cannot write image: unsupported extension");
+    assert!(!out.exists(), "nothing written on failure");
 }
 
 #[test]

@@ -13,6 +13,7 @@ use serde_json::json;
 use super::{AppError, CommonOptions, create_dir};
 use nedrt_core::image_io::{DEFAULT_INPUT_NAME, DEFAULT_INPUT_PNG, decode};
 use nedrt_optics::propagate::{crop_centred, exact_period_cells, fft_period_cells, mft_cells};
+use nedrt_optics::psf::max_difference_of_peak;
 use nedrt_optics::pupil::{PupilGrid, pupil_field};
 use nedrt_optics::sim::{Method, Simulator, perceive};
 use nedrt_optics::{PsfRequest, PsfSpec, SamplingReport, compute_psfs};
@@ -287,24 +288,7 @@ pub fn radial(common: &CommonOptions, dump: &Path) -> Result<String, AppError> {
             None => (r.window_cells - 1) / 2,
         };
         let (j0, flops) = radial_work(r, specs, half);
-        let diff = radial
-            .psfs
-            .iter()
-            .zip(&flat.psfs)
-            .map(|(a, b)| {
-                let w = a.window.min(b.window);
-                let (a, b) = (
-                    crop_centred(&a.cells, a.window, w),
-                    crop_centred(&b.cells, b.window, w),
-                );
-                let peak = b.iter().cloned().fold(0.0, f64::max);
-                a.iter()
-                    .zip(&b)
-                    .map(|(x, y)| (x - y).abs())
-                    .fold(0.0, f64::max)
-                    / peak
-            })
-            .fold(0.0, f64::max);
+        let diff = max_difference_of_peak(&radial, &flat);
         let info = json!({
             "kind": "radial", "request": name, "psfs": specs.len(),
             "radial_s": t_radial, "two_d_s": t_2d, "ratio": t_2d / t_radial,

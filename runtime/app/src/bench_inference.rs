@@ -13,7 +13,7 @@ use super::AppError;
 use super::bench::median;
 use crate::CommonOptions;
 use nedrt_core::Image;
-use nedrt_infer::{BackendKind, BackendOptions, Dcnn, ModelFile, Precision, synth};
+use nedrt_infer::{BackendKind, BackendOptions, Dcnn, ModelFile, synth};
 
 /// What to time.
 #[derive(Debug, Clone)]
@@ -37,11 +37,7 @@ pub fn run(
     on_record: &mut dyn FnMut(&serde_json::Value),
 ) -> Result<String, AppError> {
     let bar = common.phase("cases");
-    let variants: usize = b
-        .backends
-        .iter()
-        .map(|&k| if k == BackendKind::Wgpu { 2 } else { 1 })
-        .sum();
+    let variants: usize = b.backends.iter().map(|&k| k.precisions().len()).sum();
     bar.set_length((b.models.len() * variants * b.sizes.len()) as u64);
     let mut table = String::from(
         "| model | backend | precision | frame | median ms | min ms | GMAC/s |\n| --- | --- | --- | --- | --- | --- | --- |\n",
@@ -53,12 +49,7 @@ pub fn run(
             synth::encode(&proto),
         )?;
         for &kind in &b.backends {
-            let precisions: &[Precision] = if kind == BackendKind::Wgpu {
-                &[Precision::F32, Precision::F16]
-            } else {
-                &[Precision::F32]
-            };
-            for &precision in precisions {
+            for &precision in kind.precisions() {
                 let options = BackendOptions {
                     threads: b.threads,
                     precision,

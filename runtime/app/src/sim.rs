@@ -27,6 +27,9 @@ pub struct SimOptions {
     pub display_out: Option<PathBuf>,
 }
 
+/// What `--display-out` writes: 16-bit PNG, or 32-bit float TIFF (exact).
+const DISPLAY_OUT_FORMATS: &[&str] = &["png", "tif", "tiff"];
+
 /// PSNR and SSIM of a perceived image against one reference.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
 pub struct Score {
@@ -78,6 +81,9 @@ pub fn run(common: &CommonOptions, opts: &SimOptions) -> Result<SimReport, AppEr
     let (loaded, input_name) = load_input(opts.input.as_deref())?;
     for n in &loaded.notes {
         tracing::warn!("{n}");
+    }
+    if let Some(p) = &opts.display_out {
+        image_io::check_extension(p, DISPLAY_OUT_FORMATS)?;
     }
     let input = loaded.image;
     // Below 8 pixels a side the scores mean nothing (SSIM needs an 11×11
@@ -152,7 +158,7 @@ pub fn run(common: &CommonOptions, opts: &SimOptions) -> Result<SimReport, AppEr
     let (rw, rh) = (sharp.width, sharp.height);
     image_io::save_png16(&perceived, &opts.out)?;
     if let Some(p) = &opts.display_out {
-        image_io::save(&display, p, &["png", "tif", "tiff"])?;
+        image_io::save(&display, p, DISPLAY_OUT_FORMATS)?;
     }
     let vs_sharp = Score::of(&perceived, &sharp);
     let vs_target = Score::of(&perceived, &target);

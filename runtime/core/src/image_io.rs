@@ -126,28 +126,35 @@ pub fn save_png16(image: &Image, path: &Path) -> Result<(), ImageError> {
     save(image, path, &["png"])
 }
 
+/// The lower-case extension of `path` if it is one of `allowed`, else an
+/// error naming the file and the formats it could be.
+pub fn check_extension(path: &Path, allowed: &[&str]) -> Result<String, ImageError> {
+    let ext = path
+        .extension()
+        .map(|e| e.to_string_lossy().to_ascii_lowercase())
+        .unwrap_or_default();
+    if allowed.contains(&ext.as_str()) {
+        return Ok(ext);
+    }
+    Err(ImageError::Write {
+        path: path.display().to_string(),
+        reason: format!(
+            "unsupported extension {ext:?}; write {}",
+            allowed
+                .iter()
+                .map(|e| format!(".{e}"))
+                .collect::<Vec<_>>()
+                .join(" or ")
+        ),
+    })
+}
+
 /// Writes an RGB image, atomically: `.png` as 16-bit PNG (clamped to
 /// [0, 1]), `.tif`/`.tiff` as 32-bit float TIFF (exact: every f32 value as
 /// computed, for comparing display frames bit for bit).
 pub fn save(image: &Image, path: &Path, allowed: &[&str]) -> Result<(), ImageError> {
     let name = path.display().to_string();
-    let ext = path
-        .extension()
-        .map(|e| e.to_string_lossy().to_ascii_lowercase())
-        .unwrap_or_default();
-    if !allowed.contains(&ext.as_str()) {
-        return Err(ImageError::Write {
-            path: name,
-            reason: format!(
-                "unsupported extension {ext:?}; write {}",
-                allowed
-                    .iter()
-                    .map(|e| format!(".{e}"))
-                    .collect::<Vec<_>>()
-                    .join(" or ")
-            ),
-        });
-    }
+    let ext = check_extension(path, allowed)?;
     if image.channels() != 3 {
         return Err(ImageError::Write {
             path: name,

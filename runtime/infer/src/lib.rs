@@ -76,6 +76,14 @@ impl BackendKind {
     pub fn name(self) -> &'static str {
         Named::name(self)
     }
+
+    /// The precisions the backend offers (f16 on wgpu only).
+    pub fn precisions(self) -> &'static [Precision] {
+        match self {
+            BackendKind::Wgpu => &[Precision::F32, Precision::F16],
+            BackendKind::Cpu | BackendKind::Ort => &[Precision::F32],
+        }
+    }
 }
 
 /// Arithmetic precision of the GPU backend.

@@ -396,6 +396,29 @@ fn compute_periods(
         .collect()
 }
 
+/// Largest |a − b| over the common (smaller) window of each pair, as a
+/// fraction of `b`'s peak cell, over every PSF of two sets of the same
+/// request (how far the radial path is from the 2-D one).
+pub fn max_difference_of_peak(a: &PsfSet, b: &PsfSet) -> f64 {
+    a.psfs
+        .iter()
+        .zip(&b.psfs)
+        .map(|(a, b)| {
+            let w = a.window.min(b.window);
+            let (a, b) = (
+                crop_centred(&a.cells, a.window, w),
+                crop_centred(&b.cells, b.window, w),
+            );
+            let peak = b.iter().cloned().fold(0.0, f64::max);
+            a.iter()
+                .zip(&b)
+                .map(|(x, y)| (x - y).abs())
+                .fold(0.0, f64::max)
+                / peak
+        })
+        .fold(0.0, f64::max)
+}
+
 #[cfg(test)]
 mod radial_tests;
 #[cfg(test)]

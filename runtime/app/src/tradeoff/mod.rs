@@ -22,7 +22,7 @@ pub use quality::{Quality, Scorer};
 use super::bench::median;
 use super::eval::{list_images, load_cropped};
 use super::{AppError, CommonOptions, create_dir, write_text};
-use nedrt_infer::{BackendKind, BackendOptions, Dcnn, Precision};
+use nedrt_infer::{BackendKind, BackendOptions, Dcnn};
 use nedrt_optics::sim::{Image, Method, Simulator};
 use pareto::{Point, pareto_front};
 
@@ -259,12 +259,7 @@ pub fn run(common: &CommonOptions, o: &TradeoffOptions) -> Result<String, AppErr
             .file_stem()
             .map_or_else(|| "dcnn".into(), |s| s.to_string_lossy().into_owned());
         for &kind in &o.backends {
-            let precisions: &[Precision] = if kind == BackendKind::Wgpu {
-                &[Precision::F32, Precision::F16]
-            } else {
-                &[Precision::F32]
-            };
-            for &precision in precisions {
+            for &precision in kind.precisions() {
                 let options = BackendOptions {
                     threads: o.threads,
                     precision,

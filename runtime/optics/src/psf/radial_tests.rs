@@ -48,29 +48,6 @@ fn specs(c: &Calibration, depths_d: &[f64]) -> Vec<PsfSpec> {
         .collect()
 }
 
-/// Largest |radial − 2-D| over the common (smaller) window, as a fraction
-/// of the 2-D PSF's peak cell, over every PSF of the two sets.
-fn max_difference_of_peak(radial: &PsfSet, two_d: &PsfSet) -> f64 {
-    radial
-        .psfs
-        .iter()
-        .zip(&two_d.psfs)
-        .map(|(a, b)| {
-            let w = a.window.min(b.window);
-            let (a, b) = (
-                crop_centred(&a.cells, a.window, w),
-                crop_centred(&b.cells, b.window, w),
-            );
-            let peak = b.iter().cloned().fold(0.0, f64::max);
-            a.iter()
-                .zip(&b)
-                .map(|(x, y)| (x - y).abs())
-                .fold(0.0, f64::max)
-                / peak
-        })
-        .fold(0.0, f64::max)
-}
-
 #[test]
 fn the_propagator_follows_the_pupil_and_the_setting() {
     let c = calib();

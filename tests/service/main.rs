@@ -1,0 +1,163 @@
+//! Integration tests of `nedrt run` on the small test panel
+//! (tests/data/small-panel.toml, 64×48 at 240 Hz): frames streamed over the
+//! socket protocol are recorded bit for bit as the backend computes them,
+//! every kind of bad frame is rejected while good ones get through, a soak
+//! of thousands of frames keeps its memory flat, and a real window under
+//! Xvfb shows the expected frame. The last two need a GPU adapter (and an
+//! X display): `#[ignore]`d, in modules named after what they need, and run
+//! by `scripts/test.sh` where the machine has it.
+
+mod hardware;
+mod socket;
+
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Output, Stdio};
+use std::time::{Duration, Instant};
+
+use nedrt_core::Image;
+use nedrt_core::calib::Calibration;
+use nedrt_infer::{BackendKind, BackendOptions, Dcnn};
+use nedrt_service::pipeline::frame::{PixelFormat, RejectReason, planar_payload};
+use nedrt_service::pipeline::protocol::{Client, FrameHeader, HEADER_LEN, STATUS_OK};
+use nedrt_service::present::recorder::frame_path;
+use nedrt_service::present::transfer::Transfer;
+
+const W: usize = 64;
+const H: usize = 48;
+
+fn repo() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
+}
+
+fn small_panel() -> PathBuf {
+    repo().join("tests/data/small-panel.toml")
+}
+
+/// A running service with its scratch folder.
+struct Service {
+    child: Child,
+    dir: tempfile::TempDir,
+}
+
+impl Service {
+    fn start(args: &[&str], dir: tempfile::TempDir) -> Self {
+        let child = Command::new(env!("CARGO_BIN_EXE_nedrt"))
+            .current_dir(repo())
+            .env("NEDRT_LOG", "nedrt=info")
+            .arg("run")
+            .arg("--calib")
+            .arg(small_panel())
+            .args(args)
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .expect("start nedrt run");
+        Self { child, dir }
+    }
+
+    fn socket(dir: &Path) -> PathBuf {
+        dir.join("nedrt.sock")
+    }
+
+    /// Starts a socket service recording into `<dir>/rec`.
+    fn socket_recorder() -> Self {
+        let dir = tempfile::tempdir().expect("tempdir");
+        std::fs::create_dir_all(dir.path().join("shm")).expect("shm dir");
+        let socket = Self::socket(dir.path());
+        let args = [
+            "--backend".to_string(),
+            "cpu".into(),
+            "--source".into(),
+            "socket".into(),
+            "--socket".into(),
+            socket.display().to_string(),
+            "--shm-dir".into(),
+            dir.path().join("shm").display().to_string(),
+            "--sink".into(),
+            "record".into(),
+            "--record-dir".into(),
+            dir.path().join("rec").display().to_string(),
+            "--report-json".into(),
+            dir.path().join("report.json").display().to_string(),
+        ];
+        let args: Vec<&str> = args.iter().map(String::as_str).collect();
+        let s = Self::start(&args, dir);
+        wait_until("the socket to appear", || socket.exists());
+        s
+    }
+
+    fn client(&self, shm_bytes: usize) -> Client {
+        Client::connect(
+            &Self::socket(self.dir.path()),
+            &self.dir.path().join("shm"),
+            shm_bytes as u64,
+        )
+        .expect("connect")
+    }
+
+    /// SIGTERM, then the exit status and output.
+    fn stop(self) -> (Output, tempfile::TempDir) {
+        let status = Command::new("kill")
+            .args(["-TERM", &self.child.id().to_string()])
+            .status()
+            .expect("kill");
+        assert!(status.success());
+        let out = self.child.wait_with_output().expect("wait");
+        (out, self.dir)
+    }
+}
+
+fn wait_until(what: &str, mut ok: impl FnMut() -> bool) {
+    let start = Instant::now();
+    while !ok() {
+        assert!(
+            start.elapsed() < Duration::from_secs(120),
+            "timed out waiting for {what}"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+fn report(dir: &Path) -> serde_json::Value {
+    let text = std::fs::read_to_string(dir.join("report.json")).expect("report.json");
+    serde_json::from_str(&text).expect("report JSON")
+}
+
+/// A distinct, smooth test frame per id, values in [0, 1].
+fn test_frame(id: u64) -> Image {
+    let mut data = Vec::with_capacity(3 * W * H);
+    for c in 0..3 {
+        for y in 0..H {
+            for x in 0..W {
+                let v = 0.5
+                    + 0.45
+                        * ((x as f32 * 0.21 + id as f32 * 0.7 + c as f32).sin()
+                            * (y as f32 * 0.13 - id as f32 * 0.3).cos());
+                data.push(v);
+            }
+        }
+    }
+    Image::rgb(W, H, data)
+}
+
+/// What the panel must show for `frame`: the shipped D-CNN on tract, then
+/// the small panel's transfer curve, as RGB.
+fn expected_rgb(dcnn: &mut Dcnn, transfer: &Transfer, frame: &Image) -> Vec<u8> {
+    let out = dcnn.run_frame(frame).expect("D-CNN");
+    let mut rgba = Vec::new();
+    transfer.encode_rgba8(&out, &mut rgba);
+    rgba.chunks_exact(4)
+        .flat_map(|p| [p[0], p[1], p[2]])
+        .collect()
+}
+
+fn reference() -> (Dcnn, Transfer) {
+    let calib = Calibration::load(&small_panel()).expect("calib");
+    let dcnn = Dcnn::load(
+        &repo().join("models/dcnn.onnx"),
+        BackendKind::Cpu,
+        &BackendOptions::default(),
+    )
+    .expect("model");
+    (dcnn, Transfer::from_panel(&calib.panel))
+}

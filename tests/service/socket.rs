@@ -1,0 +1,210 @@
+//! The socket protocol end to end: exact recording, every kind of bad frame.
+
+use super::*;
+
+#[test]
+fn socket_frames_are_recorded_exactly_as_the_backend_computes_them() {
+    let service = Service::socket_recorder();
+    let mut client = service.client(W * H * 12);
+    assert_eq!(client.panel, (W, H));
+    let n = 12u64;
+    for id in 0..n {
+        let frame = test_frame(id);
+        let header = FrameHeader::new(PixelFormat::Rgb32fPlanar, W, H, id, 0);
+        let reply = client.send(&header, &planar_payload(&frame)).expect("send");
+        assert_eq!(
+            (reply.status, reply.frame_id),
+            (STATUS_OK, id),
+            "{}",
+            reply.message
+        );
+    }
+    let rec = service.dir.path().join("rec");
+    wait_until("the last frame to be recorded", || {
+        frame_path(&rec, n - 1).exists()
+    });
+    let (out, dir) = service.stop();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let r = report(dir.path());
+    let presented = r["presented"].as_u64().expect("presented");
+    let dropped = r["dropped_queued"].as_u64().expect("dropped")
+        + r["dropped_at_present"].as_u64().expect("dropped");
+    assert_eq!(r["submitted"].as_u64(), Some(n));
+    assert_eq!(
+        presented + dropped,
+        n,
+        "every frame presented or counted as dropped"
+    );
+    let (mut dcnn, transfer) = reference();
+    let mut checked = 0;
+    for id in 0..n {
+        let path = frame_path(&dir.path().join("rec"), id);
+        if !path.exists() {
+            continue;
+        }
+        let got = image::open(&path).expect("png").to_rgb8().into_raw();
+        assert_eq!(
+            got,
+            expected_rgb(&mut dcnn, &transfer, &test_frame(id)),
+            "frame {id}"
+        );
+        checked += 1;
+    }
+    assert_eq!(checked as u64, presented);
+    assert!(checked >= 1);
+}
+
+#[test]
+fn every_kind_of_bad_frame_is_rejected_and_good_frames_still_arrive() {
+    let service = Service::socket_recorder();
+    let shm = W * H * 12;
+    let mut client = service.client(shm);
+    let good = |id| {
+        (
+            FrameHeader::new(PixelFormat::Rgb32fPlanar, W, H, id, 0),
+            planar_payload(&test_frame(id)),
+        )
+    };
+    let mut nan = test_frame(0);
+    nan.data_mut()[100] = f32::NAN;
+    let mut bright = test_frame(0);
+    bright.data_mut()[7] = 1.5;
+    let mut bad_magic = FrameHeader::new(PixelFormat::Rgb32fPlanar, W, H, 901, 0).to_bytes();
+    bad_magic[0] = b'X';
+    let mut bad_version = FrameHeader::new(PixelFormat::Rgb32fPlanar, W, H, 902, 0).to_bytes();
+    bad_version[4] = 9;
+    let mut unknown_format = FrameHeader::new(PixelFormat::Rgb32fPlanar, W, H, 903, 0);
+    unknown_format.format = 77;
+    let wrong_size = FrameHeader::new(PixelFormat::Rgb32fPlanar, W / 2, H, 904, 0);
+    let mut short = FrameHeader::new(PixelFormat::Rgb32fPlanar, W, H, 905, 0);
+    short.length -= 4;
+    let mut outside = FrameHeader::new(PixelFormat::Rgb32fPlanar, W, H, 906, 0);
+    outside.offset = 8;
+    let cases: Vec<(Vec<u8>, Option<Vec<u8>>, RejectReason)> = vec![
+        (bad_magic.to_vec(), None, RejectReason::Malformed),
+        (bad_version.to_vec(), None, RejectReason::Malformed),
+        (
+            unknown_format.to_bytes().to_vec(),
+            None,
+            RejectReason::UnsupportedFormat,
+        ),
+        (
+            wrong_size.to_bytes().to_vec(),
+            None,
+            RejectReason::WrongSize,
+        ),
+        (short.to_bytes().to_vec(), None, RejectReason::Truncated),
+        (outside.to_bytes().to_vec(), None, RejectReason::Truncated),
+        (
+            FrameHeader::new(PixelFormat::Rgb32fPlanar, W, H, 907, 0)
+                .to_bytes()
+                .to_vec(),
+            Some(planar_payload(&nan)),
+            RejectReason::NonFinite,
+        ),
+        (
+            FrameHeader::new(PixelFormat::Rgb32fPlanar, W, H, 908, 0)
+                .to_bytes()
+                .to_vec(),
+            Some(planar_payload(&bright)),
+            RejectReason::OutOfRange,
+        ),
+    ];
+    let mut id = 0u64;
+    let send_good = |client: &mut Client, id: &mut u64| {
+        let (h, p) = good(*id);
+        let r = client.send(&h, &p).expect("good frame");
+        assert_eq!(r.status, STATUS_OK, "good frame {id}: {}", r.message);
+        *id += 1;
+        // Far slower than the pipeline, so no good frame is dropped.
+        std::thread::sleep(Duration::from_millis(150));
+    };
+    for (header, body, reason) in &cases {
+        send_good(&mut client, &mut id);
+        let r = match body {
+            Some(b) => {
+                let mut h = [0u8; HEADER_LEN];
+                h.copy_from_slice(header);
+                client
+                    .send(&FrameHeader::parse(&h).expect("header"), b)
+                    .expect("reply")
+            }
+            None => client.send_header_bytes(header).expect("reply"),
+        };
+        assert_eq!(
+            RejectReason::from_code(r.status),
+            Some(*reason),
+            "{}",
+            r.message
+        );
+        assert!(!r.message.is_empty());
+    }
+    // A client that vanishes mid-header, and one with a bad hello.
+    {
+        let mut half = service.client(16);
+        use std::io::Write;
+        half.stream()
+            .write_all(&good(0).0.to_bytes()[..10])
+            .expect("half a header");
+    }
+    {
+        use std::io::{Read, Write};
+        let mut raw = std::os::unix::net::UnixStream::connect(Service::socket(service.dir.path()))
+            .expect("connect");
+        raw.write_all(b"HELLO, this is not the protocol")
+            .expect("write");
+        let mut buf = Vec::new();
+        let _ = raw.read_to_end(&mut buf);
+        assert!(
+            String::from_utf8_lossy(&buf).contains("bad hello"),
+            "{:?}",
+            String::from_utf8_lossy(&buf)
+        );
+    }
+    send_good(&mut client, &mut id);
+    let last = id - 1;
+    let rec = service.dir.path().join("rec");
+    wait_until("the last good frame", || frame_path(&rec, last).exists());
+    let (out, dir) = service.stop();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    for good_id in 0..id {
+        assert!(
+            frame_path(&dir.path().join("rec"), good_id).exists(),
+            "good frame {good_id} was not delivered"
+        );
+    }
+    let r = report(dir.path());
+    let rejected: std::collections::HashMap<String, u64> = r["rejected"]
+        .as_array()
+        .expect("rejected")
+        .iter()
+        .map(|p| {
+            (
+                p[0].as_str().expect("name").to_string(),
+                p[1].as_u64().expect("n"),
+            )
+        })
+        .collect();
+    assert_eq!(rejected["malformed"], 2);
+    assert_eq!(rejected["unsupported-format"], 1);
+    assert_eq!(rejected["wrong-size"], 1);
+    assert_eq!(rejected["truncated"], 2);
+    assert_eq!(rejected["non-finite"], 1);
+    assert_eq!(rejected["out-of-range"], 1);
+    assert_eq!(r["disconnects_mid_frame"].as_u64(), Some(1));
+    assert_eq!(r["submitted"].as_u64(), Some(id + cases.len() as u64));
+    assert_eq!(
+        r["presented"].as_u64(),
+        Some(id),
+        "{}",
+        serde_json::to_string(&r).unwrap_or_default()
+    );
+}
