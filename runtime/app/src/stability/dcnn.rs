@@ -77,7 +77,7 @@ pub(super) fn dcnn_depths_and_content(
         "\nFindings:\n- The D-CNN's margin over doe-only is {} at trained depths, {} at untrained depths inside the calibrated range, \
          {} beyond it: it neither breaks nor helps more off its training depths; beyond {hi} D every system loses quality to defocus alone.\n\
          - Guard: an accommodation outside the calibration's range is simulated with a warning naming the range, a negative one is an error \
-         (test `accommodation_is_checked` in tests/cli.rs).",
+         (test `accommodation_is_checked` in tests/cli/sim.rs).",
         margin(&|d| trained(d)),
         margin(&|d| !trained(d) && d <= hi),
         margin(&|d| d > hi),
@@ -146,8 +146,8 @@ pub(super) fn dcnn_depths_and_content(
          - On text, line art, saturated colours and noise its margin over doe-only is as the table shows; where it is negative the content is \
          outside what it learned, a quality finding rather than an instability.\n\
          - Guards: loading a D-CNN measures its flat-field shift and warns above one 8-bit code, test \
-         `inference::tests::a_model_that_moves_flat_fields_is_warned_about`; non-finite input values and empty frames are refused with an error, \
-         test `frames_with_nan_or_the_wrong_size_are_refused`; the service refuses out-of-range frames (tests/service.rs fault test).",
+         `nedrt_infer::tests::a_model_that_moves_flat_fields_is_warned_about`; non-finite input values and empty frames are refused with an error, \
+         test `frames_with_nan_or_the_wrong_size_are_refused`; the service refuses out-of-range frames (tests/service/socket.rs fault test).",
         if all_finite {
             "finite"
         } else {
@@ -210,7 +210,7 @@ pub(super) fn dcnn_sizes(dcnn: &mut Dcnn, image: &Image) -> Result<(String, Valu
         "\nFindings:\n- Every size runs, down to 1×1: sides that are not multiples of 8 are padded by reflection (edge replication below the pad) and cropped back.\n\
          - Small frames differ from the same pixels seen in a large frame only near their edges, where the network sees the padding; \
          deep inside a large enough crop the output is the same to float round-off.\n\
-         - Guard: test `frames_of_any_size_are_padded_by_reflection_and_cropped_back` (inference) and the GPU test at sizes not multiple of 8.\n",
+         - Guard: test `frames_of_any_size_are_padded_by_reflection_and_cropped_back` (nedrt_infer) and the GPU test at sizes not multiple of 8.\n",
     );
     Ok((md, json!(rows)))
 }
@@ -281,7 +281,7 @@ pub(super) fn f16_against_f32(
     let _ = writeln!(
         md,
         "\nFindings:\n- The largest f16 error is {:.5} ({}), {verdict}.\n\
-         - Guard: test `inference::gpu_tests::f16_holds_on_the_worst_conditioned_content` runs the shipped D-CNN in both precisions on this content set.",
+         - Guard: test `nedrt_infer::gpu_tests::f16_holds_on_the_worst_conditioned_content` runs the shipped D-CNN in both precisions on this content set.",
         worst.1, worst.0
     );
     Ok((md, json!(rows)))

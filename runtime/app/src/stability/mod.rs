@@ -226,9 +226,9 @@ fn wiener_sweep(
     let _ = writeln!(
         md,
         "- Guards: every Wiener prefilter measures what the clamp cuts and warns past {:.0} % of the values (\"… rings … raise K\"), \
-         test `sim::wiener::tests::small_k_rings_past_the_panel_range_and_warns`; a K at or above the system's |H(0)| warns that the \
-         prefilter only blurs, test `sim::wiener::tests::k_at_or_above_the_dc_transfer_only_blurs_and_warns`; K ≤ 0 or non-finite is \
-         refused when the calibration loads, test `calib::tests::wiener_constants_must_be_positive_and_finite`.",
+         test `nedrt_optics::sim::wiener::tests::small_k_rings_past_the_panel_range_and_warns`; a K at or above the system's |H(0)| warns that the \
+         prefilter only blurs, test `nedrt_optics::sim::wiener::tests::k_at_or_above_the_dc_transfer_only_blurs_and_warns`; K ≤ 0 or non-finite is \
+         refused when the calibration loads, test `nedrt_core::calib::tests::wiener_constants_must_be_positive_and_finite`.",
         100.0 * CLIP_WARN_FRACTION
     );
     Ok((

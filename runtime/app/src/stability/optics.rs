@@ -72,7 +72,7 @@ pub fn section(sim: &Simulator) -> Result<(String, Value), AppError> {
         md,
         "\nFindings:\n- Up to the grid limit the planner refines the pupil step automatically (rule 2, and rule 3 by halving when the blur outgrows the period); \
          from {} D on the request is refused with an error naming `max_pupil_samples`, never aliased.\n\
-         - Guards: tests `large_defocus_refines_the_pupil_instead_of_aliasing` and `psi_beyond_the_largest_pupil_grid_is_an_error_not_an_alias` (optics::psf).",
+         - Guards: tests `large_defocus_refines_the_pupil_instead_of_aliasing` and `psi_beyond_the_largest_pupil_grid_is_an_error_not_an_alias` (nedrt_optics::psf).",
         first_error.map_or("no swept".into(), |d| format!("{d}"))
     );
 
@@ -149,7 +149,7 @@ pub fn section(sim: &Simulator) -> Result<(String, Value), AppError> {
          - For the lens alone the planner refines the step until the window holds the light; a forced step that cannot is refused: \
          `simulation.pupil_step_um = 30` at 3 D gives \"{lens_error}\".\n\
          - Guards: tests `doe_window_is_capped_by_its_period_and_the_rest_is_veil`, `lens_psfs_keep_all_light_in_window_plus_veil`, \
-         `forced_step_breaking_a_rule_is_an_error` (optics::psf).",
+         `forced_step_breaking_a_rule_is_an_error` (nedrt_optics::psf).",
         if any_capped {
             "Where a DOE spreads light beyond one period (every row marked capped: its higher orders fall off only as 1/m²), \
              the window is capped by the period and the light it cannot hold is kept as a uniform veil, reported with every result, \
@@ -199,7 +199,7 @@ pub fn section(sim: &Simulator) -> Result<(String, Value), AppError> {
     md.push_str(
         "\nFindings:\n- Every out-of-range profile is refused when the file loads, with the row, column and height named; \
          the trainer keeps heights inside [0, max] by construction (a sigmoid), so only hand-made files reach this check.\n\
-         - Guard: test `inconsistent_files_are_rejected_with_reasons` (optics::doe_file) and the file fuzz tests beside it.\n",
+         - Guard: test `inconsistent_files_are_rejected_with_reasons` (nedrt_optics::doe_file) and the file fuzz tests beside it.\n",
     );
     Ok((
         md,
