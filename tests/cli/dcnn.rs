@@ -202,32 +202,23 @@ fn bad_dcnn_inputs_are_clear_errors() {
     let out = dir.path().join("p.png");
     let corrupt = dir.path().join("corrupt.onnx");
     std::fs::write(&corrupt, b"\x08\x07garbage").expect("write");
-    let o = sim(
-        "1.0",
-        &out,
-        &[
-            "--calib",
-            path(&calib),
-            "--method",
-            "proposed",
-            "--dcnn",
-            path(&corrupt),
-        ],
-    );
+    let sim_with = |method: &str, model_flag: &str, model: &Path| {
+        sim(
+            "1.0",
+            &out,
+            &[
+                "--calib",
+                path(&calib),
+                "--method",
+                method,
+                model_flag,
+                path(model),
+            ],
+        )
+    };
+    let o = sim_with("proposed", "--dcnn", &corrupt);
     assert_clean_error(&o, "corrupt.onnx");
-    let missing = dir.path().join("none.onnx");
-    let o = sim(
-        "1.0",
-        &out,
-        &[
-            "--calib",
-            path(&calib),
-            "--method",
-            "lens+dcnn",
-            "--dcnn-lens",
-            path(&missing),
-        ],
-    );
+    let o = sim_with("lens+dcnn", "--dcnn-lens", &dir.path().join("none.onnx"));
     assert_clean_error(&o, "none.onnx");
     // A backend that cannot start: its environment variable says why.
     let model = dcnn_model();

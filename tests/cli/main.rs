@@ -92,3 +92,17 @@ fn vs_sharp(o: &Output) -> String {
         .unwrap_or_default()
         .to_string()
 }
+
+/// The small test panel (64×48 at 240 Hz) for the service.
+fn small_panel() -> PathBuf {
+    repo().join("tests/data/small-panel.toml")
+}
+
+/// `nedrt run --calib <small panel> --backend cpu` from the repository root
+/// (where the shipped model is), to be given its source and sink.
+fn run_on_small_panel() -> Command {
+    let mut c = nedrt();
+    c.current_dir(repo())
+        .args(["run", "--calib", path(&small_panel()), "--backend", "cpu"]);
+    c
+}

@@ -5,14 +5,8 @@ use super::*;
 #[test]
 fn run_refuses_bad_sources_sinks_and_models_with_one_error_line() {
     let dir = tempfile::tempdir().expect("tempdir");
-    let panel = repo().join("tests/data/small-panel.toml");
-    let run_with = |extra: &[&str]| {
-        let mut c = nedrt();
-        c.current_dir(repo())
-            .args(["run", "--calib", path(&panel), "--backend", "cpu"])
-            .args(extra);
-        c.output().expect("run")
-    };
+    let panel = small_panel();
+    let run_with = |extra: &[&str]| run_on_small_panel().args(extra).output().expect("run");
     // An image of the wrong size is named before anything starts.
     let big = dir.path().join("big.png");
     image::RgbImage::new(65, 48).save(&big).expect("save");
@@ -44,21 +38,10 @@ fn run_refuses_bad_sources_sinks_and_models_with_one_error_line() {
     ]);
     assert_clean_error(&o, "none.onnx");
     // No display for a window.
-    let o = nedrt()
-        .current_dir(repo())
+    let o = run_on_small_panel()
         .env_remove("DISPLAY")
         .env_remove("WAYLAND_DISPLAY")
-        .args([
-            "run",
-            "--calib",
-            path(&panel),
-            "--backend",
-            "cpu",
-            "--frames",
-            "1",
-            "--sink",
-            "window",
-        ])
+        .args(["--frames", "1", "--sink", "window"])
         .output()
         .expect("run");
     assert_clean_error(&o, "window sink");
@@ -78,7 +61,6 @@ fn run_refuses_bad_sources_sinks_and_models_with_one_error_line() {
 #[test]
 fn run_records_a_folder_and_writes_a_trace_and_report() {
     let dir = tempfile::tempdir().expect("tempdir");
-    let panel = repo().join("tests/data/small-panel.toml");
     let img = dir.path().join("in.png");
     image::RgbImage::from_fn(64, 48, |x, y| {
         image::Rgb([(x * 4) as u8, (y * 5) as u8, 128])
@@ -88,19 +70,8 @@ fn run_records_a_folder_and_writes_a_trace_and_report() {
     let rec = dir.path().join("rec");
     let trace = dir.path().join("trace.json");
     let report = dir.path().join("report.json");
-    let o = nedrt()
-        .current_dir(repo())
-        .args([
-            "run",
-            "--calib",
-            path(&panel),
-            "--backend",
-            "cpu",
-            "--source",
-            "dir",
-            "--input",
-            path(&img),
-        ])
+    let o = run_on_small_panel()
+        .args(["--source", "dir", "--input", path(&img)])
         .args([
             "--frames",
             "3",
@@ -150,7 +121,7 @@ fn run_records_a_folder_and_writes_a_trace_and_report() {
 #[test]
 fn run_falls_back_to_the_cpu_when_the_chosen_backend_cannot_start() {
     let dir = tempfile::tempdir().expect("tempdir");
-    let panel = repo().join("tests/data/small-panel.toml");
+    let panel = small_panel();
     // `--backend ort` with no ONNX Runtime to load, recording into `rec`.
     let run_without_ort = |extra: &[&str], rec: &str| {
         nedrt()
@@ -196,7 +167,7 @@ fn run_falls_back_to_the_cpu_when_the_chosen_backend_cannot_start() {
 #[test]
 fn run_refuses_a_source_rate_it_cannot_pace() {
     let dir = tempfile::tempdir().expect("tempdir");
-    let panel = repo().join("tests/data/small-panel.toml");
+    let panel = small_panel();
     let rec = dir.path().join("rec");
     for rate in ["nan", "inf", "1e-300", "0.001", "1e6"] {
         let o = run(&[

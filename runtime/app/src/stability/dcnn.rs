@@ -1,22 +1,71 @@
-//! The D-CNN's sections of the stability study: accommodations and content
-//! off its training distribution, frame sizes, and f16 against f32 on the
-//! GPU.
+//! The D-CNN's sections of the stability study, as typed rows:
+//! accommodations and content off its training distribution, frame sizes,
+//! and f16 against f32 on the GPU.
 
-use std::fmt::Write as _;
 use std::path::Path;
 
-use serde_json::{Value, json};
+use serde::Serialize;
 
-use super::*;
+use super::DEPTHS_D;
+use crate::AppError;
+use nedrt_infer::content::content_set;
+use nedrt_infer::{BackendKind, BackendOptions, Dcnn, Precision};
+use nedrt_optics::sim::metrics::psnr;
+use nedrt_optics::sim::{Image, Method, Simulator};
+
+/// Mean PSNR vs sharp at one accommodation.
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct DepthRow {
+    pub accommodation_d: f64,
+    pub proposed: f64,
+    pub doe_only: f64,
+    pub conventional: f64,
+}
+
+/// The D-CNN on one synthetic content frame.
+#[derive(Debug, Clone, Serialize)]
+pub struct ContentRow {
+    pub content: String,
+    /// Mean PSNR over 0–2.5 D.
+    pub proposed: f64,
+    pub doe_only: f64,
+    /// Mean |D-CNN(I) − I|.
+    pub changed: f64,
+    pub finite: bool,
+    /// Share of the output's and the input's values at 0 or 1.
+    #[serde(skip)]
+    pub at_bounds: [f64; 2],
+}
+
+/// Range (lowest, highest) of the proposed − doe-only margin over a set of
+/// accommodations.
+pub type Margin = (f64, f64);
+
+/// The D-CNN off its training accommodations and content.
+#[derive(Debug, Clone, Serialize)]
+pub struct DcnnSection {
+    pub accommodations: Vec<DepthRow>,
+    pub content: Vec<ContentRow>,
+    /// Margins at trained depths, untrained ones inside the calibrated
+    /// range, and beyond it.
+    #[serde(skip)]
+    pub margins: [Margin; 3],
+    #[serde(skip)]
+    pub range_max_d: f64,
+    #[serde(skip)]
+    pub content_size: usize,
+    #[serde(skip)]
+    pub flat_shift: f32,
+}
 
 /// The D-CNN at accommodations it was not trained at, and on content
 /// unlike its training data.
-pub(super) fn dcnn_depths_and_content(
+pub fn depths_and_content(
     sim: &Simulator,
     dcnn: &mut Dcnn,
     inputs: &[Image],
     content_size: usize,
-) -> Result<(String, Value), AppError> {
+) -> Result<DcnnSection, AppError> {
     let methods = [Method::Proposed, Method::DoeOnly, Method::Conventional];
     let depths = crate::tradeoff::quality::headline_depths(&sim.calib);
     let mut all_depths = DEPTHS_D.to_vec();
@@ -26,11 +75,7 @@ pub(super) fn dcnn_depths_and_content(
         .iter()
         .map(|i| dcnn.run_frame(i))
         .collect::<Result<_, _>>()?;
-    let mut md = String::from(
-        "\n## D-CNN at accommodations it was not trained at\n\nTrained at 0.5, 1.5, 2.5 D (sharp targets) and 0, 1, 2, 3 D (blurred targets); \
-         the calibrated range is 0–3 D. PSNR vs sharp.\n\n| D | proposed | doe-only | conventional | proposed − doe-only |\n| --- | --- | --- | --- | --- |\n",
-    );
-    let mut rows = Vec::new();
+    let mut accommodations = Vec::new();
     for &d in &DEPTHS_D {
         let mut s = [0.0; 3];
         for (i, input) in inputs.iter().enumerate() {
@@ -43,56 +88,36 @@ pub(super) fn dcnn_depths_and_content(
             s[2] += psnr(&prepared.perceived(Method::Conventional, input, d)?, &sharp);
         }
         s.iter_mut().for_each(|v| *v /= inputs.len() as f64);
-        let _ = writeln!(
-            md,
-            "| {d} | {:.2} | {:.2} | {:.2} | {:+.2} |",
-            s[0],
-            s[1],
-            s[2],
-            s[0] - s[1]
-        );
-        rows.push(
-            json!({"accommodation_d": d, "proposed": s[0], "doe_only": s[1], "conventional": s[2]}),
-        );
+        accommodations.push(DepthRow {
+            accommodation_d: d,
+            proposed: s[0],
+            doe_only: s[1],
+            conventional: s[2],
+        });
     }
-    let margin = |pick: &dyn Fn(f64) -> bool| {
-        let m: Vec<f64> = rows
-            .iter()
-            .filter(|r| pick(r["accommodation_d"].as_f64().unwrap_or(f64::NAN)))
-            .map(|r| {
-                r["proposed"].as_f64().unwrap_or(f64::NAN)
-                    - r["doe_only"].as_f64().unwrap_or(f64::NAN)
-            })
-            .collect();
-        let lo = m.iter().copied().fold(f64::INFINITY, f64::min);
-        let hi = m.iter().copied().fold(f64::NEG_INFINITY, f64::max);
-        format!("{lo:+.2} to {hi:+.2} dB")
-    };
     let c = &sim.calib;
     let hi = c.range_d[1];
     let trained =
         |d: f64| c.is_main_depth(d) || c.intermediate_d.iter().any(|x| (x - d).abs() < 1e-9);
-    let _ = writeln!(
-        md,
-        "\nFindings:\n- The D-CNN's margin over doe-only is {} at trained depths, {} at untrained depths inside the calibrated range, \
-         {} beyond it: it neither breaks nor helps more off its training depths; beyond {hi} D every system loses quality to defocus alone.\n\
-         - Guard: an accommodation outside the calibration's range is simulated with a warning naming the range, a negative one is an error \
-         (test `accommodation_is_checked` in tests/cli/sim.rs).",
+    let margin = |pick: &dyn Fn(f64) -> bool| {
+        let m: Vec<f64> = accommodations
+            .iter()
+            .filter(|r| pick(r.accommodation_d))
+            .map(|r| r.proposed - r.doe_only)
+            .collect();
+        (
+            m.iter().copied().fold(f64::INFINITY, f64::min),
+            m.iter().copied().fold(f64::NEG_INFINITY, f64::max),
+        )
+    };
+    let margins = [
         margin(&|d| trained(d)),
         margin(&|d| !trained(d) && d <= hi),
         margin(&|d| d > hi),
-    );
+    ];
 
-    // Content unlike the training data.
-    let set = content_set(content_size);
-    let _ = writeln!(
-        md,
-        "\n## D-CNN on content unlike its training data\n\n{content_size}×{content_size} frames; mean PSNR over 0–2.5 D; \
-         \"changed\": mean |D-CNN(I) − I|; \"at bounds\": share of output values the clamp holds at 0 or 1 (input's share in brackets).\n\n\
-         | content | proposed | doe-only | proposed − doe-only | changed | at bounds |\n| --- | --- | --- | --- | --- | --- |"
-    );
-    let mut content_rows = Vec::new();
-    for c in &set {
+    let mut content = Vec::new();
+    for c in &content_set(content_size) {
         let out = dcnn.run_frame(&c.image)?;
         let sharp = c.image.up2();
         let mean_psnr = |m: Method, d: &Image| -> Result<f64, AppError> {
@@ -102,84 +127,56 @@ pub(super) fn dcnn_depths_and_content(
             }
             Ok(s / depths.len() as f64)
         };
-        let p = mean_psnr(Method::Proposed, &out)?;
-        let base = mean_psnr(Method::DoeOnly, &c.image)?;
         let n = (3 * content_size * content_size) as f64;
         let changed = out
-            .planes()
-            .flatten()
+            .data()
+            .iter()
             .zip(c.image.data().iter())
             .map(|(a, b)| f64::from((a - b).abs()))
             .sum::<f64>()
             / n;
         let bounds = |im: &Image| {
-            im.planes()
-                .flatten()
+            im.data()
+                .iter()
                 .filter(|v| **v <= 0.0 || **v >= 1.0)
                 .count() as f64
                 / n
         };
-        let finite = out.data().iter().all(|v| v.is_finite());
-        let _ = writeln!(
-            md,
-            "| {} | {} | {} | {} | {changed:.4} | {:.1} % ({:.1} %) |",
-            c.name,
-            fmt_db(p),
-            fmt_db(base),
-            if p.is_finite() && base.is_finite() {
-                format!("{:+.2}", p - base)
-            } else {
-                "–".into()
-            },
-            100.0 * bounds(&out),
-            100.0 * bounds(&c.image)
-        );
-        content_rows.push(json!({"content": c.name, "proposed": p, "doe_only": base, "changed": changed, "finite": finite}));
+        content.push(ContentRow {
+            content: c.name.to_string(),
+            proposed: mean_psnr(Method::Proposed, &out)?,
+            doe_only: mean_psnr(Method::DoeOnly, &c.image)?,
+            changed,
+            finite: out.data().iter().all(|v| v.is_finite()),
+            at_bounds: [bounds(&out), bounds(&c.image)],
+        });
     }
-    let flat_shift = dcnn.flat_field_shift()?;
-    let all_finite = content_rows.iter().all(|r| r["finite"] == true);
-    let _ = writeln!(
-        md,
-        "\nFindings:\n- Every output is {} and inside [0, 1] (the frame is clamped).\n\
-         - Flat fields need no preprocessing (any energy-conserving optics shows them unchanged), yet this D-CNN moves flat black, grey and white \
-         by {flat_shift:.4} on average ({:.1} 8-bit codes): {}\n\
-         - On text, line art, saturated colours and noise its margin over doe-only is as the table shows; where it is negative the content is \
-         outside what it learned, a quality finding rather than an instability.\n\
-         - Guards: loading a D-CNN measures its flat-field shift and warns above one 8-bit code, test \
-         `nedrt_infer::tests::a_model_that_moves_flat_fields_is_warned_about`; non-finite input values and empty frames are refused with an error, \
-         test `frames_with_nan_or_the_wrong_size_are_refused`; the service refuses out-of-range frames (tests/service/socket.rs fault test).",
-        if all_finite {
-            "finite"
-        } else {
-            "**not** finite"
-        },
-        flat_shift * 255.0,
-        if flat_shift > nedrt_infer::FLAT_FIELD_TOLERANCE {
-            "a failure of the shipped preliminary model (it darkens white, so full white is unreachable); training longer (issue 3) is the fix"
-        } else {
-            "within one code"
-        }
-    );
-    Ok((md, json!({"accommodations": rows, "content": content_rows})))
+    Ok(DcnnSection {
+        accommodations,
+        content,
+        margins,
+        range_max_d: hi,
+        content_size,
+        flat_shift: dcnn.flat_field_shift()?,
+    })
 }
 
-fn fmt_db(v: f64) -> String {
-    if v.is_finite() {
-        format!("{v:.2}")
-    } else {
-        "∞".into()
-    }
+/// A crop run alone against the same pixels of the whole image's output.
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct SizeRow {
+    pub width: usize,
+    pub height: usize,
+    pub max_abs: f32,
+    pub mean_abs: f64,
+    /// Largest difference ≥ 32 px from the crop's edges (none when the
+    /// crop is too small to have such pixels).
+    pub inner_max_abs: Option<f32>,
 }
 
 /// The D-CNN on frame sizes it never saw: crops of an image against the
 /// same region of the whole image's output.
-pub(super) fn dcnn_sizes(dcnn: &mut Dcnn, image: &Image) -> Result<(String, Value), AppError> {
+pub fn sizes(dcnn: &mut Dcnn, image: &Image) -> Result<Vec<SizeRow>, AppError> {
     let whole = dcnn.run_frame(image)?;
-    let mut md = String::from(
-        "\n## D-CNN on frame sizes it never saw\n\nTrained on 128×128 patches. Each crop (top-left at 200, 200 of the first image) \
-         is run alone and compared with the same pixels of the whole image's output: the difference is the U-Net's border effect \
-         (reflection padding instead of the real surroundings).\n\n| size | runs | max |Δ| | mean |Δ| | max |Δ| ≥ 32 px from the crop's edges |\n| --- | --- | --- | --- | --- |\n",
-    );
     let mut rows = Vec::new();
     for (w, h) in [(1, 1), (7, 5), (8, 8), (36, 20), (100, 75), (160, 160)] {
         let crop = image.crop(200, 200, w, h);
@@ -198,30 +195,48 @@ pub(super) fn dcnn_sizes(dcnn: &mut Dcnn, image: &Image) -> Result<(String, Valu
                 }
             }
         }
-        let mean = sum / (3 * w * h) as f64;
-        let _ = writeln!(
-            md,
-            "| {w}×{h} | yes | {max:.4} | {mean:.4} | {} |",
-            inner.map_or("– (crop too small)".into(), |v| format!("{v:.4}"))
-        );
-        rows.push(json!({"width": w, "height": h, "max_abs": max, "mean_abs": mean, "inner_max_abs": inner}));
+        rows.push(SizeRow {
+            width: w,
+            height: h,
+            max_abs: max,
+            mean_abs: sum / (3 * w * h) as f64,
+            inner_max_abs: inner,
+        });
     }
-    md.push_str(
-        "\nFindings:\n- Every size runs, down to 1×1: sides that are not multiples of 8 are padded by reflection (edge replication below the pad) and cropped back.\n\
-         - Small frames differ from the same pixels seen in a large frame only near their edges, where the network sees the padding; \
-         deep inside a large enough crop the output is the same to float round-off.\n\
-         - Guard: test `frames_of_any_size_are_padded_by_reflection_and_cropped_back` (nedrt_infer) and the GPU test at sizes not multiple of 8.\n",
-    );
-    Ok((md, json!(rows)))
+    Ok(rows)
+}
+
+/// f16 against f32 on one frame.
+#[derive(Debug, Clone, Serialize)]
+pub struct F16Row {
+    pub content: String,
+    pub max_abs: f32,
+    pub psnr_db: f64,
+}
+
+/// f16 against f32 on the wgpu adapter, or why it was not measured.
+#[derive(Debug, Clone)]
+pub enum F16Section {
+    Measured { adapter: String, rows: Vec<F16Row> },
+    NotMeasured(String),
+    Skipped,
+}
+
+impl Serialize for F16Section {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        match self {
+            F16Section::Measured { rows, .. } => rows.serialize(s),
+            _ => s.serialize_none(),
+        }
+    }
 }
 
 /// f16 against f32 on the wgpu adapter for the worst-conditioned inputs.
-pub(super) fn f16_against_f32(
+pub fn f16_against_f32(
     model: &Path,
     image: &Image,
     content_size: usize,
-) -> Result<(String, Value), AppError> {
-    let mut md = String::from("\n## Numerics: f16 against f32 on the GPU\n\n");
+) -> Result<F16Section, AppError> {
     let open = |precision| {
         Dcnn::load(
             model,
@@ -234,17 +249,8 @@ pub(super) fn f16_against_f32(
     };
     let (mut f32_net, mut f16_net) = match (open(Precision::F32), open(Precision::F16)) {
         (Ok(a), Ok(b)) => (a, b),
-        (Err(e), _) | (_, Err(e)) => {
-            let _ = writeln!(md, "Not measured: {e}.");
-            return Ok((md, Value::Null));
-        }
+        (Err(e), _) | (_, Err(e)) => return Ok(F16Section::NotMeasured(e.to_string())),
     };
-    let _ = writeln!(
-        md,
-        "Adapter: {}. The D-CNN's output in f16 storage (f32 accumulation) against f32, on the content set and a crop of the first image.\n\n\
-         | content | max |Δ| | PSNR f16 vs f32 dB |\n| --- | --- | --- |",
-        f16_net.describe()
-    );
     let mut frames: Vec<(String, Image)> = content_set(content_size)
         .into_iter()
         .map(|c| (c.name.to_string(), c.image))
@@ -254,35 +260,23 @@ pub(super) fn f16_against_f32(
         image.crop(0, 0, content_size, content_size),
     ));
     let mut rows = Vec::new();
-    let mut worst = (String::new(), 0.0f32);
     for (name, frame) in &frames {
         let a = f32_net.run_frame(frame)?;
         let b = f16_net.run_frame(frame)?;
         let max = a
-            .planes()
-            .flatten()
+            .data()
+            .iter()
             .zip(b.data().iter())
             .map(|(x, y)| (x - y).abs())
             .fold(0.0f32, f32::max);
-        if max >= worst.1 {
-            worst = (name.clone(), max);
-        }
-        let p = psnr(&b, &a);
-        let _ = writeln!(md, "| {name} | {max:.5} | {} |", fmt_db(p));
-        rows.push(json!({"content": name, "max_abs": max, "psnr_db": p}));
+        rows.push(F16Row {
+            content: name.clone(),
+            max_abs: max,
+            psnr_db: psnr(&b, &a),
+        });
     }
-    let verdict = if worst.1 < 1.0 / 255.0 {
-        "below one 8-bit code (1/255), so f16 changes no code the panel shows by more than one step"
-    } else if worst.1 <= 2e-2 {
-        "above one 8-bit code (1/255) but within the parity tolerance of 2e-2: f16 can move a displayed code by a few steps"
-    } else {
-        "**beyond the parity tolerance of 2e-2: f16 is not safe for this model**"
-    };
-    let _ = writeln!(
-        md,
-        "\nFindings:\n- The largest f16 error is {:.5} ({}), {verdict}.\n\
-         - Guard: test `nedrt_infer::gpu_tests::f16_holds_on_the_worst_conditioned_content` runs the shipped D-CNN in both precisions on this content set.",
-        worst.1, worst.0
-    );
-    Ok((md, json!(rows)))
+    Ok(F16Section::Measured {
+        adapter: f16_net.describe(),
+        rows,
+    })
 }
