@@ -208,3 +208,55 @@ fn every_kind_of_bad_frame_is_rejected_and_good_frames_still_arrive() {
         serde_json::to_string(&r).unwrap_or_default()
     );
 }
+
+/// A hello naming anything but the client's own regular file in the
+/// shared-memory folder is refused at once with the reason, and the service
+/// goes on and stops promptly: a link to another file (the service must
+/// never read it: docs/protocol.md) and a FIFO (a blocking open would hold
+/// the client's thread, and shutdown, forever).
+#[test]
+fn shared_memory_that_is_a_link_or_a_fifo_is_refused_at_once() {
+    use nedrt_service::pipeline::protocol::{HELLO_MAGIC, Reply, STATUS_BAD_HELLO, VERSION};
+    use std::io::Write;
+    let service = Service::socket_recorder();
+    let shm = service.dir.path().join("shm");
+    std::os::unix::fs::symlink(repo().join("models/dcnn.onnx"), shm.join("link")).expect("symlink");
+    let made = Command::new("mkfifo")
+        .arg(shm.join("fifo"))
+        .status()
+        .expect("mkfifo");
+    assert!(made.success());
+    for (name, reason) in [("link", "a symbolic link"), ("fifo", "not a regular file")] {
+        let mut raw = std::os::unix::net::UnixStream::connect(Service::socket(service.dir.path()))
+            .expect("connect");
+        raw.set_read_timeout(Some(Duration::from_secs(10)))
+            .expect("timeout");
+        let mut hello = HELLO_MAGIC.to_vec();
+        hello.extend_from_slice(&VERSION.to_le_bytes());
+        hello.extend_from_slice(&(name.len() as u16).to_le_bytes());
+        hello.extend_from_slice(&64u64.to_le_bytes());
+        hello.extend_from_slice(name.as_bytes());
+        raw.write_all(&hello).expect("hello");
+        let reply = Reply::read_from(&mut raw).expect("an answer, not a hang");
+        assert_eq!(reply.status, STATUS_BAD_HELLO, "{name}: {}", reply.message);
+        assert!(reply.message.contains(reason), "{name}: {}", reply.message);
+    }
+    // A well-behaved client still gets through.
+    let mut client = service.client(3 * W * H * 4);
+    let payload = planar_payload(&test_frame(0));
+    let header = FrameHeader::new(PixelFormat::Rgb32fPlanar, W, H, 0, 0);
+    let r = client.send(&header, &payload).expect("good frame");
+    assert_eq!(r.status, STATUS_OK, "{}", r.message);
+    let started = Instant::now();
+    let (out, _dir) = service.stop();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(
+        started.elapsed() < Duration::from_secs(10),
+        "stopped in {:?}",
+        started.elapsed()
+    );
+}

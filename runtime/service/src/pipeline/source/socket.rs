@@ -134,6 +134,63 @@ fn read_full(stream: &mut UnixStream, buf: &mut [u8], stop: &AtomicBool) -> std:
     Ok(Fill::Full)
 }
 
+/// Opens a client's shared memory for reading so that a client can point
+/// the service at nothing but a file of its own: the last path component
+/// is not followed if it is a link, opening never blocks (a FIFO would hold
+/// the client's thread, and shutdown, forever), and the opened object must
+/// be a regular file, owned by the connecting peer (where the socket says
+/// who that is), holding at least the announced size.
+pub fn open_shared_memory(
+    path: &Path,
+    peer_uid: Option<u32>,
+    announced: u64,
+) -> Result<std::fs::File, String> {
+    use rustix::fs::{Mode, OFlags};
+    let fd = rustix::fs::open(
+        path,
+        OFlags::RDONLY | OFlags::NOFOLLOW | OFlags::NONBLOCK | OFlags::CLOEXEC,
+        Mode::empty(),
+    )
+    .map_err(|e| {
+        if e == rustix::io::Errno::LOOP {
+            format!(
+                "{}: a symbolic link; shared memory must be a regular file",
+                path.display()
+            )
+        } else {
+            format!("cannot open {}: {e}", path.display())
+        }
+    })?;
+    let file = std::fs::File::from(fd);
+    let meta = file
+        .metadata()
+        .map_err(|e| format!("{}: {e}", path.display()))?;
+    if !meta.file_type().is_file() {
+        return Err(format!(
+            "{}: not a regular file; shared memory must be one",
+            path.display()
+        ));
+    }
+    if let Some(uid) = peer_uid {
+        use std::os::unix::fs::MetadataExt;
+        if meta.uid() != uid {
+            return Err(format!(
+                "{}: owned by uid {}, not by the connecting client (uid {uid})",
+                path.display(),
+                meta.uid()
+            ));
+        }
+    }
+    if meta.len() < announced {
+        return Err(format!(
+            "{} holds {} bytes, not the {announced} announced",
+            path.display(),
+            meta.len()
+        ));
+    }
+    Ok(file)
+}
+
 /// One client, from hello to hang-up.
 fn serve(
     mut stream: UnixStream,
@@ -195,26 +252,13 @@ fn serve(
             format!("{name:?} is not a shared-memory name (letters, digits, '.', '_', '-')"),
         );
     }
-    let shm_path = shm_dir.join(&name);
-    let shm = match std::fs::File::open(&shm_path) {
+    let peer_uid = rustix::net::sockopt::socket_peercred(&stream)
+        .map(|c| c.uid.as_raw())
+        .ok();
+    let shm = match open_shared_memory(&shm_dir.join(&name), peer_uid, shm_size) {
         Ok(f) => f,
-        Err(e) => {
-            return refuse(
-                &mut stream,
-                format!("cannot open {}: {e}", shm_path.display()),
-            );
-        }
+        Err(why) => return refuse(&mut stream, why),
     };
-    let actual = shm.metadata()?.len();
-    if actual < shm_size {
-        return refuse(
-            &mut stream,
-            format!(
-                "{} holds {actual} bytes, not the {shm_size} announced",
-                shm_path.display()
-            ),
-        );
-    }
     reply(&mut stream, STATUS_OK, 0, format!("panel {w}×{h}"))?;
 
     loop {
@@ -291,5 +335,61 @@ fn serve(
             }
             return Err(e);
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn own_uid() -> u32 {
+        use std::os::unix::fs::MetadataExt;
+        std::fs::metadata(std::env::temp_dir())
+            .map(|m| m.uid())
+            .unwrap_or(0)
+    }
+
+    #[test]
+    fn a_regular_file_of_the_client_opens() {
+        let dir = tempfile::tempdir().expect("tmp");
+        let shm = dir.path().join("frame");
+        std::fs::write(&shm, vec![0u8; 64]).expect("write");
+        let uid = {
+            use std::os::unix::fs::MetadataExt;
+            std::fs::metadata(&shm).expect("meta").uid()
+        };
+        assert!(open_shared_memory(&shm, Some(uid), 64).is_ok());
+        let e = open_shared_memory(&shm, Some(uid), 65).expect_err("short");
+        assert!(e.contains("holds 64 bytes, not the 65 announced"), "{e}");
+        let e = open_shared_memory(&shm, Some(uid.wrapping_add(1)), 64).expect_err("owner");
+        assert!(e.contains("not by the connecting client"), "{e}");
+    }
+
+    #[test]
+    fn a_link_to_another_file_is_refused_not_followed() {
+        let dir = tempfile::tempdir().expect("tmp");
+        let secret = dir.path().join("secret");
+        std::fs::write(&secret, vec![7u8; 64]).expect("write");
+        let link = dir.path().join("frame");
+        std::os::unix::fs::symlink(&secret, &link).expect("symlink");
+        let e = open_shared_memory(&link, Some(own_uid()), 64).expect_err("link");
+        assert!(e.contains("a symbolic link"), "{e}");
+    }
+
+    #[test]
+    fn a_fifo_is_refused_at_once_instead_of_blocking() {
+        let dir = tempfile::tempdir().expect("tmp");
+        let fifo = dir.path().join("frame");
+        rustix::fs::mknodat(
+            rustix::fs::CWD,
+            &fifo,
+            rustix::fs::FileType::Fifo,
+            rustix::fs::Mode::RUSR | rustix::fs::Mode::WUSR,
+            0,
+        )
+        .expect("mkfifo");
+        // A blocking open(2) would wait here for a writer, forever.
+        let e = open_shared_memory(&fifo, Some(own_uid()), 0).expect_err("fifo");
+        assert!(e.contains("not a regular file"), "{e}");
     }
 }
