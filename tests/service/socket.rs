@@ -260,3 +260,45 @@ fn shared_memory_that_is_a_link_or_a_fifo_is_refused_at_once() {
         started.elapsed()
     );
 }
+
+/// A client that sends and never reads its replies fills the socket's
+/// buffer; the service drops it after the reply deadline, counts it, and
+/// still stops promptly with its report.
+#[test]
+fn a_client_that_never_reads_its_replies_is_dropped_and_counted() {
+    use std::io::Write;
+    let service = Service::socket_recorder();
+    let mut client = service.client(16);
+    let mut stream = client.stream().try_clone().expect("clone");
+    // Malformed headers: each gets a rejection reply nobody reads.
+    let junk = [0u8; HEADER_LEN];
+    let writer = std::thread::spawn(move || {
+        for _ in 0..200_000 {
+            if stream.write_all(&junk).is_err() {
+                break;
+            }
+        }
+    });
+    let deadline = nedrt_service::pipeline::source::socket::REPLY_DEADLINE;
+    std::thread::sleep(deadline * 3);
+    let started = Instant::now();
+    let (out, dir) = service.stop();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(
+        started.elapsed() < Duration::from_secs(10),
+        "stopped in {:?}",
+        started.elapsed()
+    );
+    assert!(
+        String::from_utf8_lossy(&out.stderr).contains("read none of its replies"),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert_eq!(report(dir.path())["clients_dropped"].as_u64(), Some(1));
+    drop(client);
+    writer.join().expect("writer");
+}

@@ -169,6 +169,13 @@ impl Compositor {
         tracing::warn!("frame {id} rejected ({}): {detail}", reason.name());
     }
 
+    /// Counts a client dropped for not reading its replies.
+    pub fn count_client_dropped(&self) {
+        self.stats
+            .clients_dropped
+            .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    }
+
     /// Counts a client that vanished with a frame half sent.
     pub fn count_disconnect_mid_frame(&self) {
         self.stats

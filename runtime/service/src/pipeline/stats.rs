@@ -75,6 +75,8 @@ pub struct Stats {
     pub dcnn_failures: AtomicU64,
     /// Clients that disconnected with a frame half sent.
     pub disconnects_mid_frame: AtomicU64,
+    /// Clients dropped for not reading their replies within the deadline.
+    pub clients_dropped: AtomicU64,
     histograms: [Mutex<Histogram>; 7],
     /// Resident set size samples (KiB) taken every `RSS_EVERY` presents.
     rss_kib: Mutex<Vec<u64>>,
@@ -140,6 +142,7 @@ impl Stats {
             missed_refreshes: load(&self.missed_refreshes),
             dcnn_failures: load(&self.dcnn_failures),
             disconnects_mid_frame: load(&self.disconnects_mid_frame),
+            clients_dropped: load(&self.clients_dropped),
             stages: Stage::ALL
                 .iter()
                 .map(|&s| {
@@ -194,6 +197,7 @@ pub struct Report {
     pub missed_refreshes: u64,
     pub dcnn_failures: u64,
     pub disconnects_mid_frame: u64,
+    pub clients_dropped: u64,
     pub stages: Vec<StageReport>,
     pub rss_kib: Vec<u64>,
 }

@@ -24,6 +24,11 @@ use crate::pipeline::service::Compositor;
 /// How often blocked reads and accepts look at the stop flag.
 const POLL: Duration = Duration::from_millis(50);
 
+/// How long a reply may wait for a client to make room by reading: a
+/// client that stops reading is dropped after this, so it can hold off
+/// neither the others nor shutdown.
+pub const REPLY_DEADLINE: Duration = Duration::from_secs(2);
+
 /// The listening socket.
 #[derive(Debug)]
 pub struct SocketSource {
@@ -85,8 +90,21 @@ impl Source for SocketSource {
                         let spawned = std::thread::Builder::new()
                             .name(format!("client-{clients}"))
                             .spawn_scoped(scope, move || {
-                                if let Err(e) = serve(stream, &compositor, &shm_dir, stop) {
-                                    tracing::warn!("client {clients}: {e}");
+                                match serve(stream, &compositor, &shm_dir, stop) {
+                                    Err(e)
+                                        if matches!(
+                                            e.kind(),
+                                            ErrorKind::WouldBlock | ErrorKind::TimedOut
+                                        ) =>
+                                    {
+                                        compositor.count_client_dropped();
+                                        tracing::warn!(
+                                            "client {clients} read none of its replies for \
+                                             {REPLY_DEADLINE:?}; dropped"
+                                        );
+                                    }
+                                    Err(e) => tracing::warn!("client {clients}: {e}"),
+                                    Ok(()) => {}
                                 }
                             });
                         if let Err(e) = spawned {
@@ -200,6 +218,7 @@ fn serve(
 ) -> std::io::Result<()> {
     stream.set_nonblocking(false)?;
     stream.set_read_timeout(Some(POLL))?;
+    stream.set_write_timeout(Some(REPLY_DEADLINE))?;
     let (w, h) = compositor.panel_size();
     let reply = |stream: &mut UnixStream, status: u32, frame_id: u64, message: String| {
         let r = Reply {
