@@ -39,6 +39,16 @@ pub enum InferenceError {
     },
     #[error("frame: {0}")]
     Frame(String),
+    #[error(
+        "{engine}: the network's output holds {count} non-finite values (NaN or ±inf) for a \
+         {width}×{height} frame"
+    )]
+    NonFinite {
+        engine: String,
+        count: usize,
+        width: usize,
+        height: usize,
+    },
 }
 
 /// Which engine runs the network.
@@ -298,6 +308,18 @@ impl Dcnn {
                 .run(&frame.pad_reflect(pw, ph))?
                 .crop(0, 0, frame.width, frame.height)
         };
+        // The clamp would turn ±inf into 0 or 1 and pass NaN on: a network
+        // that overflows is a failure of the engine, said and counted, not
+        // a black or white pixel.
+        let non_finite = out.data().iter().filter(|v| !v.is_finite()).count();
+        if non_finite > 0 {
+            return Err(InferenceError::NonFinite {
+                engine: self.backend.describe(),
+                count: non_finite,
+                width: frame.width,
+                height: frame.height,
+            });
+        }
         Ok(out.clamped())
     }
 }

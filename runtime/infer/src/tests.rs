@@ -308,3 +308,45 @@ fn a_model_that_moves_flat_fields_is_warned_about() {
     assert!(w.contains("m.onnx") && w.contains("flat"), "{w}");
     assert!(flat_field_warning("m.onnx", 0.5 / 255.0).is_none());
 }
+
+/// A backend whose network overflows: every value +inf, one NaN.
+#[derive(Debug)]
+struct Overflowing;
+
+impl Backend for Overflowing {
+    fn describe(&self) -> String {
+        "overflowing test backend".into()
+    }
+    fn run(&mut self, frame: &Image) -> Result<Image, InferenceError> {
+        let mut out = Image::rgb(
+            frame.width,
+            frame.height,
+            vec![f32::INFINITY; 3 * frame.width * frame.height],
+        );
+        out.data_mut()[0] = f32::NAN;
+        Ok(out)
+    }
+}
+
+#[test]
+fn a_network_output_that_overflows_is_an_engine_failure_not_white_pixels() {
+    let model = model_from(&synth::unet(4, 3, 1), "small.onnx");
+    let network = model.lower().expect("lowers");
+    let mut dcnn = Dcnn {
+        model,
+        network,
+        backend: Box::new(Overflowing),
+    };
+    let e = dcnn
+        .run_frame(&random_frame(8, 8, 3))
+        .expect_err("overflow");
+    assert!(
+        e.to_string()
+            .contains("output holds 192 non-finite values (NaN or ±inf) for a 8×8 frame"),
+        "{e}"
+    );
+    // Through the one interface the service uses: an engine failure (the
+    // service counts it and switches to its fallback), not a bad frame.
+    let e = Preprocess::run(&mut dcnn, &random_frame(8, 8, 3)).expect_err("overflow");
+    assert!(matches!(e, PreprocessError::Engine { .. }), "{e}");
+}
