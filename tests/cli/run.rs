@@ -26,6 +26,19 @@ fn run_refuses_bad_sources_sinks_and_models_with_one_error_line() {
         "record",
     ]);
     assert_clean_error(&o, "exists and is not a socket");
+    // A shared-memory folder that is not there is named at start.
+    let o = run_with(&[
+        "--source",
+        "socket",
+        "--socket",
+        path(&dir.path().join("s.sock")),
+        "--shm-dir",
+        "/no/such/shm",
+        "--sink",
+        "record",
+    ]);
+    assert_clean_error(&o, "/no/such/shm: --shm-dir: not a folder");
+    assert!(!dir.path().join("s.sock").exists(), "nothing listened");
     assert_eq!(std::fs::read(&file).expect("still there"), b"keep me");
     // A missing or corrupt model.
     let o = run_with(&[

@@ -45,6 +45,13 @@ impl SocketSource {
             path: path.to_path_buf(),
             reason,
         };
+        // Checked before listening: every client would be refused later.
+        if !shm_dir.is_dir() {
+            return Err(SourceError::Input {
+                path: shm_dir.to_path_buf(),
+                reason: "--shm-dir: not a folder (the clients' shared memory lives there)".into(),
+            });
+        }
         if let Ok(meta) = std::fs::symlink_metadata(path) {
             if !meta.file_type().is_socket() {
                 return Err(fail("exists and is not a socket; not removing it".into()));
