@@ -203,3 +203,41 @@ fn run_refuses_a_source_rate_it_cannot_pace() {
         assert!(!rec.exists(), "{rate}: the record folder was created");
     }
 }
+
+/// `timeout` signals the child and then its process group: two SIGTERMs
+/// within microseconds are one request to stop, and the report is written.
+#[test]
+fn two_stop_signals_at_once_still_write_the_report() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let (rec, report) = (dir.path().join("rec"), dir.path().join("report.json"));
+    let child = run_on_small_panel()
+        .args(["--source", "pattern", "--sink", "record", "--record-dir"])
+        .args([path(&rec), "--report-json", path(&report)])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("start");
+    let started = std::time::Instant::now();
+    while !rec.join("frame-00000000.png").exists() {
+        assert!(
+            started.elapsed() < std::time::Duration::from_secs(60),
+            "no frame recorded"
+        );
+        std::thread::sleep(std::time::Duration::from_millis(50));
+    }
+    let pid = child.id().to_string();
+    for _ in 0..2 {
+        let killed = Command::new("kill")
+            .args(["-TERM", &pid])
+            .status()
+            .expect("kill");
+        assert!(killed.success());
+    }
+    let out = child.wait_with_output().expect("wait");
+    assert!(out.status.success(), "{}", stderr(&out));
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&report).expect("report written"))
+            .expect("json");
+    assert!(json["presented"].as_u64().is_some_and(|n| n > 0), "{json}");
+    assert!(stdout(&out).contains("presented"), "{}", stdout(&out));
+}

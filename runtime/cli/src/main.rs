@@ -78,14 +78,41 @@ fn main() -> ExitCode {
     }
 }
 
-/// Ctrl-C and SIGTERM stop the service cleanly (a second one exits at
-/// once); SIGUSR1 prints the latency table.
+/// Signals that arrive within this of the first stop signal are the same
+/// request (`timeout` signals the child and then its process group, so
+/// nedrt gets SIGTERM twice within microseconds): only a later one exits
+/// at once.
+const SIGNAL_COALESCE: std::time::Duration = std::time::Duration::from_secs(1);
+
+/// Ctrl-C and SIGTERM stop the service cleanly, with its report; a second
+/// one more than [`SIGNAL_COALESCE`] later exits at once (status 130).
+/// SIGUSR1 prints the latency table. Handled on a thread of their own.
 pub(crate) fn install_signals(control: &nedrt_service::pipeline::service::Control) -> Result<()> {
     use signal_hook::consts::{SIGINT, SIGTERM, SIGUSR1};
-    for sig in [SIGINT, SIGTERM] {
-        signal_hook::flag::register_conditional_shutdown(sig, 1, control.stop.clone())?;
-        signal_hook::flag::register(sig, control.stop.clone())?;
-    }
-    signal_hook::flag::register(SIGUSR1, control.report.clone())?;
+    use std::sync::atomic::Ordering;
+    let mut signals = signal_hook::iterator::Signals::new([SIGINT, SIGTERM, SIGUSR1])?;
+    let (stop, report) = (control.stop.clone(), control.report.clone());
+    std::thread::Builder::new()
+        .name("signals".into())
+        .spawn(move || {
+            let mut first_stop: Option<std::time::Instant> = None;
+            for sig in signals.forever() {
+                if sig == SIGUSR1 {
+                    report.store(true, Ordering::Relaxed);
+                    continue;
+                }
+                match first_stop {
+                    None => {
+                        first_stop = Some(std::time::Instant::now());
+                        stop.store(true, Ordering::Relaxed);
+                    }
+                    Some(t) if t.elapsed() > SIGNAL_COALESCE => {
+                        eprintln!("second stop signal: exiting at once, without the report");
+                        std::process::exit(130);
+                    }
+                    Some(_) => {}
+                }
+            }
+        })?;
     Ok(())
 }

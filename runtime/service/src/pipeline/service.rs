@@ -369,6 +369,11 @@ impl Service {
                 break;
             }
             if control.report.swap(false, Relaxed) {
+                // The slot counts its replacements itself; bring the
+                // count up to date for a mid-run table.
+                self.stats
+                    .dropped_at_present
+                    .store(self.slot.dropped(), Relaxed);
                 progress.note(&self.stats.snapshot().table());
             }
             let tick = pacer.next(self.clock.now_ns());
