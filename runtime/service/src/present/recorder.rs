@@ -1,5 +1,7 @@
 //! The recorder sink: every presented frame is written as an 8-bit RGB PNG
-//! of the panel's code values, `frame-<id>.png` in a folder, by a writer
+//! of the panel's code values, `frame-<id>.png` in a folder (a later frame
+//! with an id already recorded in this run goes to `frame-<id>-<n>.png`,
+//! never over the first), by a writer
 //! thread (PNG encoding must not stall the present loop). Files are written
 //! atomically; `finish` waits for every write, so a clean shutdown leaves
 //! every presented frame on disk and never a half-written one.
@@ -35,6 +37,11 @@ pub fn frame_path(dir: &Path, id: u64) -> PathBuf {
     dir.join(format!("frame-{id:08}.png"))
 }
 
+/// The file of the `n`-th frame (from 1) of a run that reused `id`.
+pub fn repeated_frame_path(dir: &Path, id: u64, n: u64) -> PathBuf {
+    dir.join(format!("frame-{id:08}-{n}.png"))
+}
+
 impl RecorderSink {
     /// Records into `dir` (created if missing).
     pub fn new(dir: &Path) -> Result<Self, PresentError> {
@@ -46,6 +53,8 @@ impl RecorderSink {
             .name("recorder".into())
             .spawn(move || {
                 let mut written = 0u64;
+                // Ids are the clients' own; a repeated one gets a new name.
+                let mut seen = std::collections::HashMap::<u64, u64>::new();
                 for frame in rx {
                     let _span = tracing::trace_span!("record", id = frame.id).entered();
                     let rgb: Vec<u8> = frame
@@ -62,7 +71,21 @@ impl RecorderSink {
                         image::ExtendedColorType::Rgb8,
                     )
                     .map_err(|e| format!("encoding frame {}: {e}", frame.id))?;
-                    let path = frame_path(&out, frame.id);
+                    let repeats = seen.entry(frame.id).or_insert(0);
+                    let path = match *repeats {
+                        0 => frame_path(&out, frame.id),
+                        n => {
+                            if n == 1 {
+                                tracing::warn!(
+                                    "frame id {} presented again; recorded as {}",
+                                    frame.id,
+                                    repeated_frame_path(&out, frame.id, n).display()
+                                );
+                            }
+                            repeated_frame_path(&out, frame.id, n)
+                        }
+                    };
+                    *repeats += 1;
                     write_atomic(&path, &png)
                         .map_err(|e| format!("cannot write {}: {e}", path.display()))?;
                     written += 1;
@@ -146,6 +169,27 @@ mod tests {
                 .collect();
             assert_eq!(img.into_raw(), want, "frame {id}");
         }
+    }
+
+    #[test]
+    fn a_repeated_frame_id_is_recorded_beside_the_first_not_over_it() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let rec = dir.path().join("rec");
+        let mut sink = RecorderSink::new(&rec).expect("sink");
+        for (id, level) in [(7u64, 10u8), (7, 20), (7, 30)] {
+            let frame = DisplayFrame {
+                id,
+                width: 1,
+                height: 1,
+                rgba8: vec![level, level, level, 255],
+            };
+            sink.present(&frame).expect("present");
+        }
+        sink.finish().expect("finish");
+        let level = |p: PathBuf| image::open(p).expect("png").to_rgb8().into_raw()[0];
+        assert_eq!(level(frame_path(&rec, 7)), 10);
+        assert_eq!(level(repeated_frame_path(&rec, 7, 1)), 20);
+        assert_eq!(level(repeated_frame_path(&rec, 7, 2)), 30);
     }
 
     #[test]
