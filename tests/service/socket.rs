@@ -247,18 +247,7 @@ fn shared_memory_that_is_a_link_or_a_fifo_is_refused_at_once() {
     let header = FrameHeader::new(PixelFormat::Rgb32fPlanar, W, H, 0, 0);
     let r = client.send(&header, &payload).expect("good frame");
     assert_eq!(r.status, STATUS_OK, "{}", r.message);
-    let started = Instant::now();
-    let (out, _dir) = service.stop();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    assert!(
-        started.elapsed() < Duration::from_secs(10),
-        "stopped in {:?}",
-        started.elapsed()
-    );
+    stop_promptly(service);
 }
 
 /// A client that sends and never reads its replies fills the socket's
@@ -281,6 +270,20 @@ fn a_client_that_never_reads_its_replies_is_dropped_and_counted() {
     });
     let deadline = nedrt_service::pipeline::source::socket::REPLY_DEADLINE;
     std::thread::sleep(deadline * 3);
+    let (out, dir) = stop_promptly(service);
+    assert!(
+        String::from_utf8_lossy(&out.stderr).contains("read none of its replies"),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert_eq!(report(dir.path())["clients_dropped"].as_u64(), Some(1));
+    drop(client);
+    writer.join().expect("writer");
+}
+
+/// SIGTERM, which must end the service cleanly within 10 s whatever its
+/// clients do.
+fn stop_promptly(service: Service) -> (Output, tempfile::TempDir) {
     let started = Instant::now();
     let (out, dir) = service.stop();
     assert!(
@@ -293,12 +296,5 @@ fn a_client_that_never_reads_its_replies_is_dropped_and_counted() {
         "stopped in {:?}",
         started.elapsed()
     );
-    assert!(
-        String::from_utf8_lossy(&out.stderr).contains("read none of its replies"),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    assert_eq!(report(dir.path())["clients_dropped"].as_u64(), Some(1));
-    drop(client);
-    writer.join().expect("writer");
+    (out, dir)
 }
