@@ -241,3 +241,40 @@ fn two_stop_signals_at_once_still_write_the_report() {
     assert!(json["presented"].as_u64().is_some_and(|n| n > 0), "{json}");
     assert!(stdout(&out).contains("presented"), "{}", stdout(&out));
 }
+
+/// A recorder that fails mid-run (its folder removed) ends the run with an
+/// error naming the file, and the report and its JSON are still written:
+/// the counts matter most when the sink failed.
+#[test]
+fn a_failing_recorder_still_leaves_the_report() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let (rec, report) = (dir.path().join("rec"), dir.path().join("report.json"));
+    let child = run_on_small_panel()
+        .args(["--source", "pattern", "--sink", "record", "--record-dir"])
+        .args([path(&rec), "--report-json", path(&report)])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("start");
+    let started = std::time::Instant::now();
+    while !rec.join("frame-00000000.png").exists() {
+        assert!(
+            started.elapsed() < std::time::Duration::from_secs(60),
+            "no frame recorded"
+        );
+        std::thread::sleep(std::time::Duration::from_millis(50));
+    }
+    std::fs::remove_dir_all(&rec).expect("remove the recording folder");
+    let out = child.wait_with_output().expect("wait");
+    assert!(!out.status.success(), "the run must fail");
+    assert!(stderr(&out).contains("cannot write"), "{}", stderr(&out));
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&report).expect("report written"))
+            .expect("json");
+    assert!(json["presented"].as_u64().is_some_and(|n| n > 0), "{json}");
+    assert!(
+        stderr(&out).contains("presented"),
+        "the table: {}",
+        stderr(&out)
+    );
+}

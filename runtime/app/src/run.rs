@@ -334,17 +334,29 @@ fn serve(
     let source_result = source_thread.join();
     let report = service.shutdown();
     let finished = sink.finish();
-    presented?;
-    finished?;
-    match source_result {
-        Ok(Ok(n)) => tracing::debug!("source submitted {n} frames"),
-        Ok(Err(e)) => return Err(e.into()),
-        Err(_) => return Err(AppError::Usage("the source thread panicked".into())),
-    }
+    // The report and its JSON are written on every exit path that can
+    // write them: a failed sink (a recorder whose disk filled or folder
+    // vanished) is when the counts matter most.
     if let Some(path) = &opts.report_json {
         let json = serde_json::to_string_pretty(&report).map_err(|e| AppError::output(path, e))?;
         nedrt_core::util::write_atomic(path, json.as_bytes())
             .map_err(|e| AppError::output(path, e))?;
+    }
+    let failed = presented
+        .err()
+        .or(finished.err())
+        .map(AppError::from)
+        .or(match source_result {
+            Ok(Ok(n)) => {
+                tracing::debug!("source submitted {n} frames");
+                None
+            }
+            Ok(Err(e)) => Some(e.into()),
+            Err(_) => Some(AppError::Usage("the source thread panicked".into())),
+        });
+    if let Some(e) = failed {
+        control.progress.note(&report.table());
+        return Err(e);
     }
     Ok(report)
 }
