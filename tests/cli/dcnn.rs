@@ -45,12 +45,17 @@ struct SimAndService {
 impl SimAndService {
     /// The panel's RGB codes for a display frame.
     fn codes(&self, frame: &nedrt_core::Image) -> Vec<u8> {
-        let mut rgba = Vec::new();
-        self.transfer.encode_rgba8(frame, &mut rgba);
-        rgba.chunks_exact(4)
-            .flat_map(|p| [p[0], p[1], p[2]])
-            .collect()
+        panel_codes(&self.transfer, frame)
     }
+}
+
+fn panel_codes(
+    transfer: &nedrt_service::present::transfer::Transfer,
+    frame: &nedrt_core::Image,
+) -> Vec<u8> {
+    let mut rgba = Vec::new();
+    transfer.encode_rgba8(frame, &mut rgba);
+    nedrt_service::present::rgb8_of_rgba8(&rgba)
 }
 
 const ODD: (usize, usize) = (61, 45);
@@ -105,15 +110,13 @@ fn sim_and_service(method: &str) -> SimAndService {
     let planar: Vec<f32> = (0..3)
         .flat_map(|c| rgb.iter().skip(c).step_by(3).copied().collect::<Vec<_>>())
         .collect();
-    let mut s = SimAndService {
-        sim_codes: Vec::new(),
+    SimAndService {
+        sim_codes: panel_codes(&transfer, &Image::rgb(w, h, planar)),
         recorded,
         input,
         transfer,
         _dir: dir,
-    };
-    s.sim_codes = s.codes(&Image::rgb(w, h, planar));
-    s
+    }
 }
 
 /// One image type, one padding rule: for a frame whose sides are not

@@ -204,15 +204,15 @@ fn run_refuses_a_source_rate_it_cannot_pace() {
     }
 }
 
-/// `timeout` signals the child and then its process group: two SIGTERMs
-/// within microseconds are one request to stop, and the report is written.
-#[test]
-fn two_stop_signals_at_once_still_write_the_report() {
+/// `nedrt run` of the test pattern into `<dir>/rec` with its report in
+/// `<dir>/report.json`, once its first frame is on disk.
+fn recording_pattern() -> (std::process::Child, tempfile::TempDir) {
     let dir = tempfile::tempdir().expect("tempdir");
-    let (rec, report) = (dir.path().join("rec"), dir.path().join("report.json"));
+    let rec = dir.path().join("rec");
     let child = run_on_small_panel()
         .args(["--source", "pattern", "--sink", "record", "--record-dir"])
-        .args([path(&rec), "--report-json", path(&report)])
+        .args([path(&rec), "--report-json"])
+        .arg(dir.path().join("report.json"))
         .stdout(std::process::Stdio::piped())
         .stderr(std::process::Stdio::piped())
         .spawn()
@@ -225,6 +225,15 @@ fn two_stop_signals_at_once_still_write_the_report() {
         );
         std::thread::sleep(std::time::Duration::from_millis(50));
     }
+    (child, dir)
+}
+
+/// `timeout` signals the child and then its process group: two SIGTERMs
+/// within microseconds are one request to stop, and the report is written.
+#[test]
+fn two_stop_signals_at_once_still_write_the_report() {
+    let (child, dir) = recording_pattern();
+    let report = dir.path().join("report.json");
     let pid = child.id().to_string();
     for _ in 0..2 {
         let killed = Command::new("kill")
@@ -247,23 +256,8 @@ fn two_stop_signals_at_once_still_write_the_report() {
 /// the counts matter most when the sink failed.
 #[test]
 fn a_failing_recorder_still_leaves_the_report() {
-    let dir = tempfile::tempdir().expect("tempdir");
+    let (child, dir) = recording_pattern();
     let (rec, report) = (dir.path().join("rec"), dir.path().join("report.json"));
-    let child = run_on_small_panel()
-        .args(["--source", "pattern", "--sink", "record", "--record-dir"])
-        .args([path(&rec), "--report-json", path(&report)])
-        .stdout(std::process::Stdio::piped())
-        .stderr(std::process::Stdio::piped())
-        .spawn()
-        .expect("start");
-    let started = std::time::Instant::now();
-    while !rec.join("frame-00000000.png").exists() {
-        assert!(
-            started.elapsed() < std::time::Duration::from_secs(60),
-            "no frame recorded"
-        );
-        std::thread::sleep(std::time::Duration::from_millis(50));
-    }
     std::fs::remove_dir_all(&rec).expect("remove the recording folder");
     let out = child.wait_with_output().expect("wait");
     assert!(!out.status.success(), "the run must fail");

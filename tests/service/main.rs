@@ -146,9 +146,7 @@ fn expected_rgb(dcnn: &mut Dcnn, transfer: &Transfer, frame: &Image) -> Vec<u8> 
     let out = dcnn.run_frame(frame).expect("D-CNN");
     let mut rgba = Vec::new();
     transfer.encode_rgba8(&out, &mut rgba);
-    rgba.chunks_exact(4)
-        .flat_map(|p| [p[0], p[1], p[2]])
-        .collect()
+    nedrt_service::present::rgb8_of_rgba8(&rgba)
 }
 
 fn reference() -> (Dcnn, Transfer) {

@@ -301,7 +301,7 @@ impl Dcnn {
         })?;
         let m = self.network.multiple;
         let (pw, ph) = (frame.width.div_ceil(m) * m, frame.height.div_ceil(m) * m);
-        let out = if (pw, ph) == (frame.width, frame.height) {
+        let mut out = if (pw, ph) == (frame.width, frame.height) {
             self.backend.run(frame)?
         } else {
             self.backend
@@ -310,8 +310,12 @@ impl Dcnn {
         };
         // The clamp would turn ±inf into 0 or 1 and pass NaN on: a network
         // that overflows is a failure of the engine, said and counted, not
-        // a black or white pixel.
-        let non_finite = out.data().iter().filter(|v| !v.is_finite()).count();
+        // a black or white pixel. Counted in the clamp's own pass.
+        let mut non_finite = 0;
+        for v in out.data_mut() {
+            non_finite += usize::from(!v.is_finite());
+            *v = v.clamp(0.0, 1.0);
+        }
         if non_finite > 0 {
             return Err(InferenceError::NonFinite {
                 engine: self.backend.describe(),
@@ -320,7 +324,7 @@ impl Dcnn {
                 height: frame.height,
             });
         }
-        Ok(out.clamped())
+        Ok(out)
     }
 }
 

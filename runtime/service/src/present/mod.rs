@@ -21,6 +21,15 @@ pub struct DisplayFrame {
     pub rgba8: Vec<u8>,
 }
 
+/// Interleaved RGB8 from interleaved RGBA8 (alpha dropped): what a recording
+/// holds, and what tests compare recordings with.
+pub fn rgb8_of_rgba8(rgba8: &[u8]) -> Vec<u8> {
+    rgba8
+        .chunks_exact(4)
+        .flat_map(|p| [p[0], p[1], p[2]])
+        .collect()
+}
+
 /// Errors of the present stage.
 #[derive(Debug, thiserror::Error)]
 pub enum PresentError {

@@ -57,11 +57,7 @@ impl RecorderSink {
                 let mut seen = std::collections::HashMap::<u64, u64>::new();
                 for frame in rx {
                     let _span = tracing::trace_span!("record", id = frame.id).entered();
-                    let rgb: Vec<u8> = frame
-                        .rgba8
-                        .chunks_exact(4)
-                        .flat_map(|p| [p[0], p[1], p[2]])
-                        .collect();
+                    let rgb = super::rgb8_of_rgba8(&frame.rgba8);
                     let mut png = Vec::new();
                     image::ImageEncoder::write_image(
                         image::codecs::png::PngEncoder::new(&mut png),
