@@ -251,14 +251,16 @@ fn two_stop_signals_at_once_still_write_the_report() {
     assert!(stdout(&out).contains("presented"), "{}", stdout(&out));
 }
 
-/// A recorder that fails mid-run (its folder removed) ends the run with an
+/// A recorder that fails mid-run (its folder gone) ends the run with an
 /// error naming the file, and the report and its JSON are still written:
 /// the counts matter most when the sink failed.
 #[test]
 fn a_failing_recorder_still_leaves_the_report() {
     let (child, dir) = recording_pattern();
     let (rec, report) = (dir.path().join("rec"), dir.path().join("report.json"));
-    std::fs::remove_dir_all(&rec).expect("remove the recording folder");
+    // Moved away in one step (removing it would race the writer's next
+    // file): every later write into `rec` fails.
+    std::fs::rename(&rec, dir.path().join("gone")).expect("move the recording folder away");
     let out = child.wait_with_output().expect("wait");
     assert!(!out.status.success(), "the run must fail");
     assert!(stderr(&out).contains("cannot write"), "{}", stderr(&out));
