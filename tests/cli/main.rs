@@ -3,6 +3,7 @@
 //! exit, nothing half-written), the PSF cache, eval and the plots. One test
 //! binary; a module per command family, the helpers here.
 
+mod bad_input;
 mod dcnn;
 mod eval;
 mod run;

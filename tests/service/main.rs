@@ -7,6 +7,7 @@
 //! X display): `#[ignore]`d, in modules named after what they need, and run
 //! by `scripts/test.sh` where the machine has it.
 
+mod faults;
 mod hardware;
 mod socket;
 

@@ -175,6 +175,19 @@ fn draw_all<DB: DrawingBackend>(
     root.present().map_err(|x| x.to_string())
 }
 
+/// A chart file drawn in full beside `path` and renamed into place, so a
+/// stopped or failed run never leaves half a chart.
+fn atomically(path: &Path, draw: impl FnOnce(&Path) -> Result<(), String>) -> Result<(), String> {
+    struct Failed(String);
+    impl From<std::io::Error> for Failed {
+        fn from(e: std::io::Error) -> Self {
+            Failed(e.to_string())
+        }
+    }
+    nedrt_core::util::write_atomic_with(path, |tmp| draw(tmp).map_err(Failed))
+        .map_err(|Failed(e)| format!("{}: {e}", path.display()))
+}
+
 /// Writes `panels` in a rows×cols grid to `stem`.png and `stem`.svg.
 /// Heat maps with many cells are written as PNG only (`svg` = false).
 pub fn write_figure(
@@ -186,21 +199,23 @@ pub fn write_figure(
 ) -> Result<Vec<String>, String> {
     register_font();
     let png = stem.with_extension("png");
-    draw_all(
-        BitMapBackend::new(&png, size).into_drawing_area(),
-        layout,
-        panels,
-    )
-    .map_err(|e| format!("{}: {e}", png.display()))?;
-    let mut written = vec![png.display().to_string()];
-    if svg {
-        let svg_path = stem.with_extension("svg");
+    atomically(&png, |tmp| {
         draw_all(
-            SVGBackend::new(&svg_path, size).into_drawing_area(),
+            BitMapBackend::new(tmp, size).into_drawing_area(),
             layout,
             panels,
         )
-        .map_err(|e| format!("{}: {e}", svg_path.display()))?;
+    })?;
+    let mut written = vec![png.display().to_string()];
+    if svg {
+        let svg_path = stem.with_extension("svg");
+        atomically(&svg_path, |tmp| {
+            draw_all(
+                SVGBackend::new(tmp, size).into_drawing_area(),
+                layout,
+                panels,
+            )
+        })?;
         written.push(svg_path.display().to_string());
     }
     Ok(written)
@@ -389,9 +404,11 @@ pub fn write_scatter(
     register_font();
     let png = stem.with_extension("png");
     let svg = stem.with_extension("svg");
-    draw_scatter(BitMapBackend::new(&png, size).into_drawing_area(), figure)
-        .map_err(|e| format!("{}: {e}", png.display()))?;
-    draw_scatter(SVGBackend::new(&svg, size).into_drawing_area(), figure)
-        .map_err(|e| format!("{}: {e}", svg.display()))?;
+    atomically(&png, |tmp| {
+        draw_scatter(BitMapBackend::new(tmp, size).into_drawing_area(), figure)
+    })?;
+    atomically(&svg, |tmp| {
+        draw_scatter(SVGBackend::new(tmp, size).into_drawing_area(), figure)
+    })?;
     Ok(vec![png.display().to_string(), svg.display().to_string()])
 }

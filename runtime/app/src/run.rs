@@ -134,6 +134,37 @@ pub struct RunOptions {
     pub window: WindowOptions,
     pub fallback: FallbackKind,
     pub report_json: Option<PathBuf>,
+    /// Fault injection: the D-CNN backend fails, as a lost GPU makes it
+    /// fail, from this frame on (0: the first).
+    pub inject_device_loss_after: Option<u64>,
+}
+
+/// A preprocessor that fails like a lost device after `frames_left`
+/// frames: the service must switch to its fallback without losing a frame.
+#[derive(Debug)]
+struct LosesDeviceAfter {
+    inner: Box<dyn Preprocess>,
+    frames_left: u64,
+}
+
+impl Preprocess for LosesDeviceAfter {
+    fn describe(&self) -> String {
+        self.inner.describe()
+    }
+
+    fn run(
+        &mut self,
+        input: &nedrt_core::Image,
+    ) -> Result<nedrt_core::Image, nedrt_core::PreprocessError> {
+        if self.frames_left == 0 {
+            return Err(nedrt_core::PreprocessError::Engine {
+                engine: self.inner.describe(),
+                reason: "device lost (injected fault)".into(),
+            });
+        }
+        self.frames_left -= 1;
+        self.inner.run(input)
+    }
 }
 
 fn fallback_factory(
@@ -293,6 +324,13 @@ pub fn run(
             f
         }
     };
+    let primary = match opts.inject_device_loss_after {
+        Some(frames_left) => Box::new(LosesDeviceAfter {
+            inner: primary,
+            frames_left,
+        }),
+        None => primary,
+    };
     serve(opts, control, panel, clock, source, sink, primary, fallback)
 }
 
@@ -332,8 +370,9 @@ fn serve(
     // However the loop ended: stop the source, drain the stages, flush the sink.
     sources_stop.store(true, Ordering::Relaxed);
     let source_result = source_thread.join();
-    let report = service.shutdown();
+    let mut report = service.shutdown();
     let finished = sink.finish();
+    report.lost_by_sink = sink.lost_frames();
     // The report and its JSON are written on every exit path that can
     // write them: a failed sink (a recorder whose disk filled or folder
     // vanished) is when the counts matter most.

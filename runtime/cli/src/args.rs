@@ -302,6 +302,10 @@ pub struct RunArgs {
     /// Write the counts and latency histograms as JSON to FILE.
     #[arg(long, value_name = "FILE")]
     pub report_json: Option<PathBuf>,
+    /// Fault injection for the fault tests (docs/reliability.md): the D-CNN
+    /// backend fails as a lost GPU does after N frames.
+    #[arg(long, value_name = "N", hide = true)]
+    pub inject_device_loss_after: Option<u64>,
 }
 
 #[derive(Args, Debug)]

@@ -131,6 +131,7 @@ pub fn run(cli: Cli) -> Result<()> {
                 },
                 fallback: a.fallback,
                 report_json: a.report_json,
+                inject_device_loss_after: a.inject_device_loss_after,
             };
             let report = app::run::run(&common, &opts, &control)?;
             print!("{}", report.table());

@@ -60,6 +60,14 @@ fn main() -> ExitCode {
         Some(Command::Run(a)) => a.trace.clone(),
         _ => None,
     };
+    // `run` stops cleanly on a signal ([`install_signals`]); every other
+    // command stops at once, leaving no output half-written.
+    if !matches!(cli.command, Some(Command::Run(_)))
+        && let Err(e) = exit_cleanly_on_signals()
+    {
+        eprintln!("error: cannot install the signal handler: {e}");
+        return ExitCode::FAILURE;
+    }
     let guard = match init_logging(cli.global.verbose, trace.as_deref()) {
         Ok(g) => g,
         Err(e) => {
@@ -72,10 +80,45 @@ fn main() -> ExitCode {
     match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!("error: {}", format!("{e:#}").replace('\n', " "));
+            eprintln!("error: {}", error_line(&e));
             ExitCode::FAILURE
         }
     }
+}
+
+/// The error and its causes on one line, leaving out a cause whose text an
+/// outer message already quotes (library errors name their source in
+/// their own message).
+fn error_line(e: &anyhow::Error) -> String {
+    let mut line = String::new();
+    for cause in e.chain() {
+        let text = cause.to_string().replace('\n', " ");
+        if line.contains(&text) {
+            continue;
+        }
+        if !line.is_empty() {
+            line += ": ";
+        }
+        line += &text;
+    }
+    line
+}
+
+/// SIGINT and SIGTERM end a command at once: the temporaries of unfinished
+/// atomic writes are removed first, so every output file is either whole
+/// (written before) or absent. Exit status 128 + the signal, as the shell's.
+fn exit_cleanly_on_signals() -> std::io::Result<()> {
+    use signal_hook::consts::{SIGINT, SIGTERM};
+    let mut signals = signal_hook::iterator::Signals::new([SIGINT, SIGTERM])?;
+    std::thread::Builder::new()
+        .name("signals".into())
+        .spawn(move || {
+            if let Some(sig) = signals.forever().next() {
+                eprintln!("error: stopped by signal {sig}; no output was left half-written");
+                nedrt_core::util::exit_removing_temp_files(128 + sig);
+            }
+        })?;
+    Ok(())
 }
 
 /// Signals that arrive within this of the first stop signal are the same
@@ -108,7 +151,7 @@ pub(crate) fn install_signals(control: &nedrt_service::pipeline::service::Contro
                     }
                     Some(t) if t.elapsed() > SIGNAL_COALESCE => {
                         eprintln!("second stop signal: exiting at once, without the report");
-                        std::process::exit(130);
+                        nedrt_core::util::exit_removing_temp_files(130);
                     }
                     Some(_) => {}
                 }

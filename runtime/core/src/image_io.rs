@@ -36,12 +36,23 @@ pub struct LoadedImage {
     pub notes: Vec<String>,
 }
 
+/// The largest image file read (a 16-bit 8K TIFF is about 200 MB).
+pub const MAX_IMAGE_FILE_BYTES: u64 = 512 << 20;
+/// The largest image decoded: 8K UHD (7680×4320 = 33.2 Mpx) fits; the
+/// loader holds about 24 bytes a pixel, so this bounds it near 800 MB
+/// whatever a header claims.
+pub const MAX_IMAGE_PIXELS: u64 = 1 << 25;
+/// The longest image side (the panel's own limit, `calib::MAX_PANEL_SIDE_PX`).
+pub const MAX_IMAGE_SIDE_PX: u32 = crate::calib::MAX_PANEL_SIDE_PX as u32;
+
 /// Reads an RGB image as linear intensity in [0, 1].
 pub fn load(path: &Path) -> Result<LoadedImage, ImageError> {
     let name = path.display().to_string();
-    let bytes = std::fs::read(path).map_err(|source| ImageError::Read {
-        path: name.clone(),
-        source,
+    let bytes = crate::util::read_capped(path, MAX_IMAGE_FILE_BYTES).map_err(|source| {
+        ImageError::Read {
+            path: name.clone(),
+            source,
+        }
     })?;
     decode(&bytes, &name)
 }
@@ -52,17 +63,34 @@ pub fn decode(bytes: &[u8], name: &str) -> Result<LoadedImage, ImageError> {
         path: name.to_string(),
         reason,
     };
-    let img = image::ImageReader::new(std::io::Cursor::new(bytes))
-        .with_guessed_format()
-        .map_err(|e| ImageError::Decode {
-            path: name.to_string(),
-            reason: e.to_string(),
-        })?
-        .decode()
-        .map_err(|e| ImageError::Decode {
-            path: name.to_string(),
-            reason: e.to_string(),
-        })?;
+    let undecodable = |e: &dyn std::fmt::Display| ImageError::Decode {
+        path: name.to_string(),
+        reason: crate::util::bounded(&e.to_string(), 300),
+    };
+    let open = || {
+        image::ImageReader::new(std::io::Cursor::new(bytes))
+            .with_guessed_format()
+            .map_err(|e| undecodable(&e))
+    };
+    // The header's size is checked before anything is allocated for it.
+    let (w, h) = open()?.into_dimensions().map_err(|e| undecodable(&e))?;
+    if w > MAX_IMAGE_SIDE_PX
+        || h > MAX_IMAGE_SIDE_PX
+        || u64::from(w) * u64::from(h) > MAX_IMAGE_PIXELS
+    {
+        return Err(invalid(format!(
+            "{w}×{h} image is larger than this loader takes (at most {MAX_IMAGE_SIDE_PX} px a \
+             side and {MAX_IMAGE_PIXELS} pixels)"
+        )));
+    }
+    let mut limits = image::Limits::default();
+    limits.max_image_width = Some(MAX_IMAGE_SIDE_PX);
+    limits.max_image_height = Some(MAX_IMAGE_SIDE_PX);
+    // A 16-bit RGBA frame of the largest size, with room for the decoder's own buffers.
+    limits.max_alloc = Some(MAX_IMAGE_PIXELS * 8 * 2);
+    let mut reader = open()?;
+    reader.limits(limits);
+    let img = reader.decode().map_err(|e| undecodable(&e))?;
     let (w, h) = (img.width() as usize, img.height() as usize);
     if w == 0 || h == 0 {
         return Err(invalid("image is empty".into()));

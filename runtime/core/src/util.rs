@@ -2,12 +2,39 @@
 //! atomic file output, bounded messages.
 
 use std::io::{Read, Write};
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
-/// Writes `bytes` to `path` through a temporary file in the same folder and a
-/// rename, so readers never see a half-written file and a failure leaves any
-/// previous file intact.
-pub fn write_atomic(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
+/// Temporary files being written now, so that a stop signal can remove
+/// them before the process exits ([`remove_pending_temp_files`]).
+static PENDING: std::sync::Mutex<Vec<PathBuf>> = std::sync::Mutex::new(Vec::new());
+
+fn pending() -> std::sync::MutexGuard<'static, Vec<PathBuf>> {
+    PENDING.lock().unwrap_or_else(|p| p.into_inner())
+}
+
+/// Removes every temporary file an unfinished [`write_atomic`] or
+/// [`write_atomic_with`] holds and exits with `code`, still holding the
+/// list, so no write can start or finish in between: for a signal
+/// handler, so that a stopped command leaves neither a half-written output
+/// nor its temporary.
+pub fn exit_removing_temp_files(code: i32) -> ! {
+    let mut list = pending();
+    for tmp in list.drain(..) {
+        let _ = std::fs::remove_file(tmp);
+    }
+    std::process::exit(code)
+}
+
+/// Writes `path` through `write`, which is given a temporary path in the
+/// same folder (a hidden name ending in the same extension, so writers that
+/// pick their format by extension still work); the temporary is renamed
+/// into place only when `write` succeeded, and removed otherwise. Readers
+/// never see a half-written file and a failure leaves any previous file
+/// intact.
+pub fn write_atomic_with<E: From<std::io::Error>>(
+    path: &Path,
+    write: impl FnOnce(&Path) -> Result<(), E>,
+) -> Result<(), E> {
     let dir = match path.parent() {
         Some(d) if !d.as_os_str().is_empty() => d,
         _ => Path::new("."),
@@ -16,21 +43,35 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
         .file_name()
         .ok_or_else(|| std::io::Error::new(std::io::ErrorKind::InvalidInput, "no file name"))?;
     let tmp = dir.join(format!(
-        ".{}.tmp{}",
-        file_name.to_string_lossy(),
-        std::process::id()
+        ".tmp{}.{}",
+        std::process::id(),
+        file_name.to_string_lossy()
     ));
-    let result = (|| {
-        let mut f = std::fs::File::create(&tmp)?;
-        f.write_all(bytes)?;
-        f.sync_all()?;
-        std::fs::rename(&tmp, path)
-    })();
+    {
+        // Created under the list's lock: a stop either sees it or comes first.
+        let mut list = pending();
+        std::fs::File::create(&tmp)?;
+        list.push(tmp.clone());
+    }
+    let result = write(&tmp).and_then(|()| Ok(std::fs::rename(&tmp, path)?));
+    let mut list = pending();
     if result.is_err() {
         let _ = std::fs::remove_file(&tmp);
     }
+    list.retain(|p| p != &tmp);
     result
 }
+
+/// Writes `bytes` to `path` atomically ([`write_atomic_with`]), synced to
+/// the disk before the rename.
+pub fn write_atomic(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
+    write_atomic_with(path, |tmp| {
+        let mut f = std::fs::File::create(tmp)?;
+        f.write_all(bytes)?;
+        f.sync_all()
+    })
+}
+
 /// Reads at most `max_bytes` of `path`; a longer file (or an endless one,
 /// such as `/dev/zero`) is an `InvalidData` error naming the cap, so a
 /// wrong path cannot exhaust memory.
@@ -65,6 +106,40 @@ pub fn bounded(text: &str, max_chars: usize) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_failed_atomic_write_leaves_the_old_file_and_no_temporary() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let p = dir.path().join("out.png");
+        write_atomic(&p, b"old").expect("first write");
+        let e = write_atomic_with(&p, |tmp| {
+            std::fs::write(tmp, b"half")?;
+            Err(std::io::Error::other("disk full"))
+        });
+        assert!(e.is_err());
+        assert_eq!(std::fs::read(&p).expect("kept"), b"old");
+        let names: Vec<_> = std::fs::read_dir(dir.path())
+            .expect("list")
+            .map(|e| e.expect("entry").file_name())
+            .collect();
+        assert_eq!(names, vec![std::ffi::OsString::from("out.png")]);
+        assert!(!pending().iter().any(|t| t.starts_with(dir.path())));
+    }
+
+    #[test]
+    fn an_unfinished_write_lists_its_temporary_until_it_ends() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let p = dir.path().join("chart.svg");
+        write_atomic_with(&p, |tmp| -> std::io::Result<()> {
+            assert!(tmp.extension().is_some_and(|e| e == "svg"), "{tmp:?}");
+            assert!(tmp.exists(), "created before the writer runs");
+            assert!(pending().contains(&tmp.to_path_buf()));
+            std::fs::write(tmp, b"<svg/>")
+        })
+        .expect("write");
+        assert_eq!(std::fs::read(&p).expect("written"), b"<svg/>");
+        assert!(!pending().iter().any(|t| t.starts_with(dir.path())));
+    }
 
     #[test]
     fn bounded_keeps_short_text_and_counts_what_it_cuts() {

@@ -6,7 +6,8 @@
 //! to make malformed models for the bad-input tests.
 
 use prost::Message;
-use tract_onnx::pb;
+/// The ONNX protobuf types, for tests that edit a model.
+pub use tract_onnx::pb;
 
 /// Deterministic uniform numbers (SplitMix64), so a seed names a model.
 #[derive(Debug, Clone)]

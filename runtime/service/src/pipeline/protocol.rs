@@ -33,6 +33,49 @@ pub const STATUS_BAD_HELLO: u32 = 100;
 /// Longest shared-memory name.
 pub const MAX_NAME: usize = 255;
 
+/// A client's hello: which shared-memory object it made and how big.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Hello {
+    /// Length of the shared-memory name that follows the hello.
+    pub name_len: usize,
+    /// Announced size of the shared memory, bytes.
+    pub shm_size: u64,
+}
+
+impl Hello {
+    pub fn to_bytes(&self) -> [u8; HELLO_LEN] {
+        let mut b = [0u8; HELLO_LEN];
+        b[0..4].copy_from_slice(&HELLO_MAGIC);
+        b[4..6].copy_from_slice(&VERSION.to_le_bytes());
+        b[6..8].copy_from_slice(&(self.name_len.min(u16::MAX as usize) as u16).to_le_bytes());
+        b[8..16].copy_from_slice(&self.shm_size.to_le_bytes());
+        b
+    }
+
+    /// Parses a hello; `Err` is the reason the service replies with.
+    pub fn parse(b: &[u8; HELLO_LEN]) -> Result<Self, String> {
+        let version = u16::from_le_bytes([b[4], b[5]]);
+        if b[0..4] != HELLO_MAGIC || version != VERSION {
+            return Err(format!(
+                "bad hello (magic {:?}, version {version}; expected \"NEDH\", {VERSION})",
+                &b[0..4]
+            ));
+        }
+        let name_len = u16::from_le_bytes([b[6], b[7]]) as usize;
+        if name_len == 0 || name_len > MAX_NAME {
+            return Err(format!(
+                "shared-memory name of {name_len} bytes (1 to {MAX_NAME})"
+            ));
+        }
+        let mut size = [0u8; 8];
+        size.copy_from_slice(&b[8..16]);
+        Ok(Self {
+            name_len,
+            shm_size: u64::from_le_bytes(size),
+        })
+    }
+}
+
 /// A frame header as sent.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct FrameHeader {
@@ -216,11 +259,12 @@ impl Client {
             .open(&path)?;
         let result = (|| {
             shm.set_len(shm_size)?;
-            let mut hello = Vec::with_capacity(HELLO_LEN + name.len());
-            hello.extend_from_slice(&HELLO_MAGIC);
-            hello.extend_from_slice(&VERSION.to_le_bytes());
-            hello.extend_from_slice(&(name.len() as u16).to_le_bytes());
-            hello.extend_from_slice(&shm_size.to_le_bytes());
+            let mut hello = Hello {
+                name_len: name.len(),
+                shm_size,
+            }
+            .to_bytes()
+            .to_vec();
             hello.extend_from_slice(name.as_bytes());
             (&stream).write_all(&hello)?;
             Reply::read_from(&mut &stream)

@@ -63,6 +63,9 @@ impl DcnnStage {
                 Err(PreprocessError::Frame(e)) => {
                     // Validated at submit, so this is a bug, not the client's fault.
                     tracing::error!("D-CNN refused a validated frame: {e}");
+                    stats
+                        .failed
+                        .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
                     return None;
                 }
                 Err(e) => {
@@ -218,7 +221,19 @@ pub struct Service {
     clock: Arc<dyn Clock>,
     /// Set when the last stage has finished (every sender dropped).
     drained: Arc<AtomicBool>,
+    /// Set when the present loop has ended: stages then pass frames on
+    /// unprocessed and count them as in flight at stop, so a stop never
+    /// waits for a D-CNN run whose result nobody will see.
+    stopping: Arc<AtomicBool>,
     threads: Vec<JoinHandle<()>>,
+}
+
+/// What every stage thread shares besides its channels.
+#[derive(Clone)]
+struct StageContext {
+    stats: Arc<Stats>,
+    clock: Arc<dyn Clock>,
+    stopping: Arc<AtomicBool>,
 }
 
 fn spawn_stage<I: Send + 'static, O: Send + 'static>(
@@ -226,14 +241,21 @@ fn spawn_stage<I: Send + 'static, O: Send + 'static>(
     stage: Stage,
     rx: Receiver<Timed<I>>,
     out: impl Fn(Timed<O>) + Send + 'static,
-    stats: Arc<Stats>,
-    clock: Arc<dyn Clock>,
+    StageContext {
+        stats,
+        clock,
+        stopping,
+    }: StageContext,
     mut work: impl FnMut(u64, I, &Stats) -> Option<O> + Send + 'static,
 ) -> std::io::Result<JoinHandle<()>> {
     std::thread::Builder::new()
         .name(name.into())
         .spawn(move || {
             for t in rx {
+                if stopping.load(Ordering::SeqCst) {
+                    stats.in_flight_at_stop.fetch_add(1, Ordering::Relaxed);
+                    continue;
+                }
                 let span = tracing::info_span!("stage", stage = %name, frame = t.id).entered();
                 let t0 = clock.now_ns();
                 let result = work(t.id, t.item, &stats);
@@ -269,14 +291,19 @@ impl Service {
         let (dcnn_tx, dcnn_rx) = newest_channel(1, queued.clone());
         let slot = Arc::new(NewestSlot::<Timed<DisplayFrame>>::new());
         let drained = Arc::new(AtomicBool::new(false));
+        let stopping = Arc::new(AtomicBool::new(false));
+        let context = StageContext {
+            stats: stats.clone(),
+            clock: clock.clone(),
+            stopping: stopping.clone(),
+        };
         let mut threads = Vec::new();
         threads.push(spawn_stage(
             "upload",
             Stage::Upload,
             ingest_rx,
             move |t| upload_tx.send(t),
-            stats.clone(),
-            clock.clone(),
+            context.clone(),
             |_, f: SubmittedFrame, _| Some(decode(&f)),
         )?);
         threads.push(spawn_stage(
@@ -284,8 +311,7 @@ impl Service {
             Stage::Dcnn,
             upload_rx,
             move |t| dcnn_tx.send(t),
-            stats.clone(),
-            clock.clone(),
+            context.clone(),
             move |_, f: Image, stats| dcnn.run(&f, stats),
         )?);
         let transfer = panel.transfer.clone();
@@ -295,8 +321,7 @@ impl Service {
             Stage::Encode,
             dcnn_rx,
             move |t| slot_in.put(t),
-            stats.clone(),
-            clock.clone(),
+            context,
             move |id, f: Image, _| {
                 let mut rgba8 = Vec::new();
                 transfer.encode_rgba8(&f, &mut rgba8);
@@ -332,6 +357,7 @@ impl Service {
             stats,
             clock,
             drained,
+            stopping,
             threads,
         })
     }
@@ -409,7 +435,14 @@ impl Service {
             let shown = {
                 let _span =
                     tracing::info_span!("stage", stage = %"present", frame = t.id).entered();
-                sink.present(&t.item)?
+                match sink.present(&t.item) {
+                    Ok(shown) => shown,
+                    Err(e) => {
+                        self.stats.failed.fetch_add(1, Relaxed);
+                        self.stop_stages();
+                        return Err(e);
+                    }
+                }
             };
             let now = self.clock.now_ns();
             match shown {
@@ -442,19 +475,35 @@ impl Service {
             last = Some(t.item);
         }
         progress.finish();
-        self.stats
-            .dropped_at_present
-            .store(self.slot.dropped(), Relaxed);
+        self.stop_stages();
         Ok(self.stats.snapshot())
     }
 
+    /// Ends presenting: the slot's replacements so far are counted, and
+    /// from here on the stages count frames as in flight at stop.
+    fn stop_stages(&self) {
+        self.stopping.store(true, Ordering::SeqCst);
+        self.stats
+            .dropped_at_present
+            .store(self.slot.dropped(), Ordering::Relaxed);
+    }
+
     /// Drops the service's handle and joins the stage threads; the sources
-    /// must have stopped (dropped their handles) first.
+    /// must have stopped (dropped their handles) first. Every submitted
+    /// frame is then in one bucket of the report ([`Report::accounted`]).
     pub fn shutdown(mut self) -> Report {
+        self.stop_stages();
+        let counted_at_present = self.stats.dropped_at_present.load(Ordering::Relaxed);
         self.compositor = None;
         for t in self.threads.drain(..) {
             let _ = t.join();
         }
+        // A frame the encode stage finished as the loop ended is still in
+        // the slot (or replaced one there): in flight, never shown.
+        let late = self.slot.dropped() - counted_at_present + u64::from(self.slot.take().is_some());
+        self.stats
+            .in_flight_at_stop
+            .fetch_add(late, Ordering::Relaxed);
         self.stats.snapshot()
     }
 }

@@ -168,3 +168,60 @@ fn rejected_frames_are_counted_and_the_rest_delivered_in_order() {
         Some(3)
     );
 }
+
+/// A backend that holds every frame until the test lets it go.
+#[derive(Debug)]
+struct Gate(Arc<std::sync::Barrier>);
+
+impl Preprocess for Gate {
+    fn describe(&self) -> String {
+        "gated test backend".into()
+    }
+    fn run(&mut self, frame: &Image) -> Result<Image, PreprocessError> {
+        self.0.wait();
+        Ok(frame.clone())
+    }
+}
+
+#[test]
+fn frames_inside_the_stages_at_a_stop_are_counted_in_flight_not_lost() {
+    let gate = Arc::new(std::sync::Barrier::new(2));
+    let dcnn = DcnnStage {
+        primary: Box::new(Gate(gate.clone())),
+        fallback: None,
+    };
+    let mut service = Service::start(panel(), dcnn, Arc::new(SystemClock)).expect("start");
+    let compositor = service.compositor().expect("open");
+    service.close_ingest();
+    // One frame held inside the D-CNN, the next ones queued behind it (a
+    // queue keeps only the newest, so each waits for the one before).
+    let uploaded = |n: u64| {
+        while service.stats().histogram(Stage::Upload).count() < n {
+            std::thread::sleep(std::time::Duration::from_millis(1));
+        }
+    };
+    compositor.submit(grey(0, 9)).expect("valid");
+    uploaded(1);
+    compositor.submit(grey(1, 9)).expect("valid");
+    uploaded(2);
+    for id in 2..4 {
+        compositor.submit(grey(id, 9)).expect("valid");
+    }
+    let control = Control::default();
+    control.stop.store(true, Ordering::Relaxed);
+    let mut sink = Collect::default();
+    let mid = service.present_loop(&mut sink, &control).expect("present");
+    assert_eq!(mid.presented, 0);
+    assert!(
+        mid.accounted() < mid.submitted,
+        "frames still inside: {mid:?}"
+    );
+    drop(compositor);
+    // The held frame finishes its D-CNN run; nothing after it runs.
+    gate.wait();
+    let report = service.shutdown();
+    assert_eq!(report.submitted, 4);
+    assert_eq!(report.accounted(), 4, "{}", report.table());
+    assert!(report.in_flight_at_stop >= 1, "{}", report.table());
+    assert!(sink.0.is_empty());
+}

@@ -77,6 +77,16 @@ pub struct Stats {
     pub disconnects_mid_frame: AtomicU64,
     /// Clients dropped for not reading their replies within the deadline.
     pub clients_dropped: AtomicU64,
+    /// Accepted frames still inside the pipeline (a queue, a stage, the
+    /// present slot) when it stopped: never shown, and never processed
+    /// further once the stop was seen.
+    pub in_flight_at_stop: AtomicU64,
+    /// Accepted frames a stage could not process (the D-CNN refusing a
+    /// validated frame, a sink failing on it).
+    pub failed: AtomicU64,
+    /// Presented frames the sink then lost (a recorder's writes after its
+    /// disk filled); these are also in `presented`.
+    pub lost_by_sink: AtomicU64,
     histograms: [Mutex<Histogram>; 7],
     /// Resident set size samples (KiB) taken every `RSS_EVERY` presents.
     rss_kib: Mutex<Vec<u64>>,
@@ -143,6 +153,9 @@ impl Stats {
             dcnn_failures: load(&self.dcnn_failures),
             disconnects_mid_frame: load(&self.disconnects_mid_frame),
             clients_dropped: load(&self.clients_dropped),
+            in_flight_at_stop: load(&self.in_flight_at_stop),
+            failed: load(&self.failed),
+            lost_by_sink: load(&self.lost_by_sink),
             stages: Stage::ALL
                 .iter()
                 .map(|&s| {
@@ -198,6 +211,9 @@ pub struct Report {
     pub dcnn_failures: u64,
     pub disconnects_mid_frame: u64,
     pub clients_dropped: u64,
+    pub in_flight_at_stop: u64,
+    pub failed: u64,
+    pub lost_by_sink: u64,
     pub stages: Vec<StageReport>,
     pub rss_kib: Vec<u64>,
 }
@@ -207,22 +223,47 @@ impl Report {
         self.rejected.iter().map(|(_, n)| n).sum()
     }
 
+    /// Every frame in exactly one bucket: the sum of the buckets. Once the
+    /// service has shut down this equals `submitted`; while it runs the
+    /// difference is the frames in flight.
+    pub fn accounted(&self) -> u64 {
+        self.presented
+            + self.rejected_total()
+            + self.dropped_queued
+            + self.dropped_at_present
+            + self.skipped
+            + self.in_flight_at_stop
+            + self.failed
+    }
+
     /// The human-readable table printed at exit and on SIGUSR1.
     pub fn table(&self) -> String {
         let mut s = format!(
             "frames: {} submitted, {} presented, {} rejected, {} dropped in queues, \
-             {} replaced before a refresh, {} skipped by the sink; {} refreshes missed; \
-             preprocess: {} ({} failures)\n",
+             {} replaced before a refresh, {} skipped by the sink, {} in flight at stop, \
+             {} failed; {} refreshes missed; preprocess: {} ({} failures)\n",
             self.submitted,
             self.presented,
             self.rejected_total(),
             self.dropped_queued,
             self.dropped_at_present,
             self.skipped,
+            self.in_flight_at_stop,
+            self.failed,
             self.missed_refreshes,
             self.backend,
             self.dcnn_failures
         );
+        let pending = self.submitted.saturating_sub(self.accounted());
+        if pending > 0 {
+            s += &format!("{pending} frames in the pipeline now\n");
+        }
+        if self.lost_by_sink > 0 {
+            s += &format!(
+                "{} presented frames lost by the sink (not recorded)\n",
+                self.lost_by_sink
+            );
+        }
         let rejected: Vec<String> = self
             .rejected
             .iter()

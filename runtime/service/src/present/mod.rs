@@ -66,4 +66,9 @@ pub trait Sink: std::fmt::Debug {
     fn finish(&mut self) -> Result<(), PresentError> {
         Ok(())
     }
+    /// Frames `present` took that the sink then failed to deliver (known
+    /// after `finish`): the recorder's queue when its disk filled.
+    fn lost_frames(&self) -> u64 {
+        0
+    }
 }

@@ -29,7 +29,12 @@ fn err(reason: impl std::fmt::Display) -> PresentError {
 pub struct RecorderSink {
     dir: PathBuf,
     tx: Option<Sender<DisplayFrame>>,
-    writer: Option<JoinHandle<Result<u64, String>>>,
+    /// The frames written and, if it stopped early, why.
+    writer: Option<JoinHandle<(u64, Result<(), String>)>>,
+    /// Frames handed to the writer.
+    sent: u64,
+    /// Frames written, once the writer has ended.
+    written: Option<u64>,
 }
 
 /// The file a frame is recorded in.
@@ -55,7 +60,7 @@ impl RecorderSink {
                 let mut written = 0u64;
                 // Ids are the clients' own; a repeated one gets a new name.
                 let mut seen = std::collections::HashMap::<u64, u64>::new();
-                for frame in rx {
+                let mut write = |frame: DisplayFrame| -> Result<(), String> {
                     let _span = tracing::trace_span!("record", id = frame.id).entered();
                     let rgb = super::rgb8_of_rgba8(&frame.rgba8);
                     let mut png = Vec::new();
@@ -85,14 +90,18 @@ impl RecorderSink {
                     write_atomic(&path, &png)
                         .map_err(|e| format!("cannot write {}: {e}", path.display()))?;
                     written += 1;
-                }
-                Ok(written)
+                    Ok(())
+                };
+                let result = rx.into_iter().try_for_each(&mut write);
+                (written, result)
             })
             .map_err(|e| err(format!("starting the writer: {e}")))?;
         Ok(Self {
             dir: dir.to_path_buf(),
             tx: Some(tx),
             writer: Some(writer),
+            sent: 0,
+            written: None,
         })
     }
 }
@@ -108,22 +117,33 @@ impl Sink for RecorderSink {
             // The writer stopped: finish() reports why.
             return Err(self.finish().err().unwrap_or_else(|| err("writer stopped")));
         }
+        self.sent += 1;
         Ok(Presented::Shown)
     }
 
     fn finish(&mut self) -> Result<(), PresentError> {
         self.tx = None;
         match self.writer.take() {
-            Some(w) => match w.join() {
-                Ok(Ok(n)) => {
-                    tracing::debug!("recorder wrote {n} frames to {}", self.dir.display());
-                    Ok(())
-                }
-                Ok(Err(e)) => Err(err(e)),
-                Err(_) => Err(err("the writer thread panicked")),
-            },
+            Some(w) => {
+                let (written, result) = w
+                    .join()
+                    .unwrap_or_else(|_| (0, Err("the writer thread panicked".into())));
+                self.written = Some(written);
+                tracing::debug!("recorder wrote {written} frames to {}", self.dir.display());
+                result.map_err(|e| {
+                    err(format!(
+                        "{e} ({} of {} frames not recorded)",
+                        self.sent - written,
+                        self.sent
+                    ))
+                })
+            }
             None => Ok(()),
         }
+    }
+
+    fn lost_frames(&self) -> u64 {
+        self.written.map_or(0, |w| self.sent.saturating_sub(w))
     }
 }
 

@@ -14,10 +14,9 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
 
 use super::{Source, SourceError};
-use crate::pipeline::frame::{PixelFormat, RejectReason, SubmittedFrame, check_shape};
+use crate::pipeline::frame::{FrameError, PixelFormat, RejectReason, SubmittedFrame, check_shape};
 use crate::pipeline::protocol::{
-    FrameHeader, HEADER_LEN, HELLO_LEN, HELLO_MAGIC, Reply, STATUS_BAD_HELLO, STATUS_OK, VERSION,
-    valid_shm_name,
+    FrameHeader, HEADER_LEN, HELLO_LEN, Hello, Reply, STATUS_BAD_HELLO, STATUS_OK, valid_shm_name,
 };
 use crate::pipeline::service::Compositor;
 
@@ -110,6 +109,9 @@ impl Source for SocketSource {
                                              {REPLY_DEADLINE:?}; dropped"
                                         );
                                     }
+                                    Err(e) if e.kind() == ErrorKind::Interrupted => {
+                                        tracing::debug!("client {clients}: {e}");
+                                    }
                                     Err(e) => tracing::warn!("client {clients}: {e}"),
                                     Ok(()) => {}
                                 }
@@ -140,6 +142,11 @@ enum Fill {
 fn read_full(stream: &mut UnixStream, buf: &mut [u8], stop: &AtomicBool) -> std::io::Result<Fill> {
     let mut n = 0;
     while n < buf.len() {
+        // Looked at on every read, not only when one times out: a client
+        // that never pauses must not hold off shutdown either.
+        if stop.load(Ordering::Relaxed) {
+            return Ok(Fill::Stopped);
+        }
         match stream.read(&mut buf[n..]) {
             Ok(0) => return Ok(if n == 0 { Fill::Closed } else { Fill::Partial }),
             Ok(k) => n += k,
@@ -147,16 +154,48 @@ fn read_full(stream: &mut UnixStream, buf: &mut [u8], stop: &AtomicBool) -> std:
                 if matches!(
                     e.kind(),
                     ErrorKind::WouldBlock | ErrorKind::TimedOut | ErrorKind::Interrupted
+                ) => {}
+            Err(e) => return Err(e),
+        }
+    }
+    Ok(Fill::Full)
+}
+
+/// Writes all of `bytes` within `deadline`, looking at the stop flag
+/// every [`POLL`]: a client that does not read can delay neither shutdown
+/// (the write gives up at once) nor, past the deadline, anything else
+/// (`TimedOut`: the client is dropped).
+fn write_all_until(
+    stream: &mut UnixStream,
+    mut bytes: &[u8],
+    stop: &AtomicBool,
+    deadline: Duration,
+) -> std::io::Result<()> {
+    let started = std::time::Instant::now();
+    while !bytes.is_empty() {
+        match stream.write(bytes) {
+            Ok(0) => return Err(ErrorKind::WriteZero.into()),
+            Ok(k) => bytes = &bytes[k..],
+            Err(e)
+                if matches!(
+                    e.kind(),
+                    ErrorKind::WouldBlock | ErrorKind::TimedOut | ErrorKind::Interrupted
                 ) =>
             {
                 if stop.load(Ordering::Relaxed) {
-                    return Ok(Fill::Stopped);
+                    return Err(std::io::Error::new(
+                        ErrorKind::Interrupted,
+                        "stopping with a reply unsent",
+                    ));
+                }
+                if started.elapsed() >= deadline {
+                    return Err(ErrorKind::TimedOut.into());
                 }
             }
             Err(e) => return Err(e),
         }
     }
-    Ok(Fill::Full)
+    Ok(())
 }
 
 /// Opens a client's shared memory for reading so that a client can point
@@ -216,6 +255,62 @@ pub fn open_shared_memory(
     Ok(file)
 }
 
+/// A frame header the service accepted: where its payload lies in the
+/// client's shared memory.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Admitted {
+    pub format: PixelFormat,
+    pub capture_ns: u64,
+    pub offset: u64,
+    pub length: usize,
+}
+
+/// Checks a frame header against a `panel`-sized display and a
+/// `shm_size`-byte shared memory before any payload is read; pure, so the
+/// fuzz target `protocol` runs exactly what the service runs.
+pub fn admit(
+    header: &[u8; HEADER_LEN],
+    panel: (usize, usize),
+    shm_size: u64,
+) -> Result<Admitted, FrameError> {
+    let id = FrameHeader::id_of(header);
+    let fail = |reason, detail: String| FrameError { id, reason, detail };
+    let hd = FrameHeader::parse(header).map_err(|d| fail(RejectReason::Malformed, d))?;
+    let format = PixelFormat::from_code(hd.format).ok_or_else(|| {
+        fail(
+            RejectReason::UnsupportedFormat,
+            format!("pixel format {}", hd.format),
+        )
+    })?;
+    check_shape(
+        id,
+        (hd.width as usize, hd.height as usize),
+        format,
+        hd.length,
+        panel,
+    )?;
+    if hd
+        .offset
+        .checked_add(hd.length)
+        .is_none_or(|e| e > shm_size)
+    {
+        return Err(fail(
+            RejectReason::Truncated,
+            format!(
+                "payload at {}+{} lies outside the {shm_size}-byte shared memory",
+                hd.offset, hd.length
+            ),
+        ));
+    }
+    Ok(Admitted {
+        format,
+        capture_ns: hd.capture_ns,
+        offset: hd.offset,
+        // check_shape bounded it by the panel's frame size.
+        length: hd.length as usize,
+    })
+}
+
 /// One client, from hello to hang-up.
 fn serve(
     mut stream: UnixStream,
@@ -225,7 +320,7 @@ fn serve(
 ) -> std::io::Result<()> {
     stream.set_nonblocking(false)?;
     stream.set_read_timeout(Some(POLL))?;
-    stream.set_write_timeout(Some(REPLY_DEADLINE))?;
+    stream.set_write_timeout(Some(POLL))?;
     let (w, h) = compositor.panel_size();
     let reply = |stream: &mut UnixStream, status: u32, frame_id: u64, message: String| {
         let r = Reply {
@@ -235,7 +330,7 @@ fn serve(
             panel_height: h as u32,
             message,
         };
-        stream.write_all(&r.to_bytes())
+        write_all_until(stream, &r.to_bytes(), stop, REPLY_DEADLINE)
     };
 
     let mut hello = [0u8; HELLO_LEN];
@@ -243,30 +338,14 @@ fn serve(
         Fill::Full => {}
         _ => return Ok(()),
     }
-    let version = u16::from_le_bytes([hello[4], hello[5]]);
-    let name_len = u16::from_le_bytes([hello[6], hello[7]]) as usize;
-    let mut size = [0u8; 8];
-    size.copy_from_slice(&hello[8..16]);
-    let shm_size = u64::from_le_bytes(size);
     let refuse = |stream: &mut UnixStream, why: String| {
         tracing::warn!("refused a client: {why}");
         reply(stream, STATUS_BAD_HELLO, 0, why)
     };
-    if hello[0..4] != HELLO_MAGIC || version != VERSION {
-        return refuse(
-            &mut stream,
-            format!(
-                "bad hello (magic {:?}, version {version}; expected \"NEDH\", {VERSION})",
-                &hello[0..4]
-            ),
-        );
-    }
-    if name_len == 0 || name_len > crate::pipeline::protocol::MAX_NAME {
-        return refuse(
-            &mut stream,
-            format!("shared-memory name of {name_len} bytes"),
-        );
-    }
+    let Hello { name_len, shm_size } = match Hello::parse(&hello) {
+        Ok(h) => h,
+        Err(why) => return refuse(&mut stream, why),
+    };
     let mut name = vec![0u8; name_len];
     if !matches!(read_full(&mut stream, &mut name, stop)?, Fill::Full) {
         return Ok(());
@@ -299,61 +378,32 @@ fn serve(
             }
         }
         let id = FrameHeader::id_of(&header);
-        let rejected = |reason: RejectReason, detail: String| {
-            compositor.reject_before_submit(reason, id, &detail);
-            (reason.code(), detail)
-        };
-        let (status, message) = match FrameHeader::parse(&header) {
-            Err(detail) => rejected(RejectReason::Malformed, detail),
-            Ok(hd) => match PixelFormat::from_code(hd.format) {
-                None => rejected(
-                    RejectReason::UnsupportedFormat,
-                    format!("pixel format {}", hd.format),
-                ),
-                Some(format) => {
-                    let shape = check_shape(
-                        id,
-                        (hd.width as usize, hd.height as usize),
-                        format,
-                        hd.length,
-                        (w, h),
-                    );
-                    if let Err(e) = shape {
-                        rejected(e.reason, e.detail)
-                    } else if hd
-                        .offset
-                        .checked_add(hd.length)
-                        .is_none_or(|e| e > shm_size)
-                    {
-                        rejected(
-                            RejectReason::Truncated,
-                            format!(
-                                "payload at {}+{} lies outside the {shm_size}-byte shared memory",
-                                hd.offset, hd.length
-                            ),
-                        )
-                    } else {
-                        let mut payload = vec![0u8; hd.length as usize];
-                        match shm.read_exact_at(&mut payload, hd.offset) {
-                            Err(e) => rejected(
-                                RejectReason::Truncated,
-                                format!("reading the shared memory: {e}"),
-                            ),
-                            Ok(()) => match compositor.submit(SubmittedFrame {
-                                id,
-                                capture_ns: hd.capture_ns,
-                                width: w,
-                                height: h,
-                                format,
-                                payload,
-                            }) {
-                                Ok(()) => (STATUS_OK, String::new()),
-                                Err(e) => (e.reason.code(), e.detail),
-                            },
-                        }
+        let (status, message) = match admit(&header, (w, h), shm_size) {
+            Err(e) => {
+                compositor.reject_before_submit(e.reason, id, &e.detail);
+                (e.reason.code(), e.detail)
+            }
+            Ok(req) => {
+                let mut payload = vec![0u8; req.length];
+                match shm.read_exact_at(&mut payload, req.offset) {
+                    Err(e) => {
+                        let detail = format!("reading the shared memory: {e}");
+                        compositor.reject_before_submit(RejectReason::Truncated, id, &detail);
+                        (RejectReason::Truncated.code(), detail)
                     }
+                    Ok(()) => match compositor.submit(SubmittedFrame {
+                        id,
+                        capture_ns: req.capture_ns,
+                        width: w,
+                        height: h,
+                        format: req.format,
+                        payload,
+                    }) {
+                        Ok(()) => (STATUS_OK, String::new()),
+                        Err(e) => (e.reason.code(), e.detail),
+                    },
                 }
-            },
+            }
         };
         if let Err(e) = reply(&mut stream, status, id, message) {
             if matches!(e.kind(), ErrorKind::BrokenPipe | ErrorKind::ConnectionReset) {
