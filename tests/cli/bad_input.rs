@@ -72,12 +72,25 @@ const ROWS: &[Row] = &[
     row(
         "image: 30000×1 pixels",
         &["--input", "{dir}/line.png"],
-        "line.png: 30000×1 image is larger than this loader takes",
+        "line.png: 30000×1 image is larger than the 1920×1080 panel that shows it",
     ),
     row(
         "image: header claims 20000×20000",
         &["--input", "{dir}/claims.png"],
         "claims.png: 20000×20000 image is larger",
+    ),
+    row(
+        "image: 224-byte JPEG claiming 2048×9734 (found by fuzzing)",
+        &[
+            "--input",
+            "{repo}/fuzz/seeds/image/found-timeout-progressive-jpeg-2048x9734.jpg",
+        ],
+        "2048×9734 image is larger than the 1920×1080 panel that shows it",
+    ),
+    row(
+        "image: larger than the panel",
+        &["--input", "{dir}/wide-photo.png"],
+        "wide-photo.png: 2000×16 image is larger than the 1920×1080 panel",
     ),
     row(
         "image: NaN in a float TIFF",
@@ -540,6 +553,7 @@ fn command_line(r: &Row, dir: &Path, out: &Path) -> Vec<String> {
         a.replace("{dir}", path(dir))
             .replace("{out}", path(out))
             .replace("{panel}", path(&small_panel()))
+            .replace("{repo}", path(&repo()))
     };
     if !own_command {
         args.extend(SIM.iter().map(|a| fill(a)));
@@ -596,6 +610,7 @@ fn prepare(dir: &Path) {
         .expect("alpha");
     write_png(&dir.join("tiny.png"), 1, 1);
     write_png(&dir.join("line.png"), 30000, 1);
+    write_png(&dir.join("wide-photo.png"), 2000, 16);
     // A PNG signature and an IHDR chunk claiming 20000×20000, nothing after.
     let mut claims = b"\x89PNG\r\n\x1a\n\x00\x00\x00\x0dIHDR".to_vec();
     let ihdr = [

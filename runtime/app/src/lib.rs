@@ -122,6 +122,16 @@ impl DcnnOptions {
 impl CommonOptions {
     /// The calibration, with a selected design's Wiener K (marked as tuned
     /// for the design's DOE).
+    /// The panel's resolution, the largest image it can show (read without
+    /// loading a design's DOE).
+    pub fn panel_px(&self) -> Result<(usize, usize), AppError> {
+        let calib = match &self.calib {
+            Some(p) => Calibration::load(p)?,
+            None => Calibration::default_embedded()?,
+        };
+        Ok((calib.panel.width_px, calib.panel.height_px))
+    }
+
     pub fn calibration(&self) -> Result<Calibration, AppError> {
         let mut calib = match &self.calib {
             Some(p) => Calibration::load(p)?,

@@ -60,11 +60,14 @@ impl std::fmt::Display for SimReport {
     }
 }
 
-pub fn load_input(input: Option<&std::path::Path>) -> Result<(LoadedImage, String), AppError> {
+pub fn load_input(
+    input: Option<&std::path::Path>,
+    panel: (usize, usize),
+) -> Result<(LoadedImage, String), AppError> {
     Ok(match input {
-        Some(p) => (image_io::load(p)?, p.display().to_string()),
+        Some(p) => (image_io::load_for_panel(p, panel)?, p.display().to_string()),
         None => (
-            image_io::decode(DEFAULT_INPUT_PNG, DEFAULT_INPUT_NAME)?,
+            image_io::decode_for_panel(DEFAULT_INPUT_PNG, DEFAULT_INPUT_NAME, panel)?,
             DEFAULT_INPUT_NAME.to_string(),
         ),
     })
@@ -78,7 +81,8 @@ pub fn run(common: &CommonOptions, opts: &SimOptions) -> Result<SimReport, AppEr
     if let Some(w) = check_accommodation(&calib, opts.accommodation_d)? {
         tracing::warn!("{w}");
     }
-    let (loaded, input_name) = load_input(opts.input.as_deref())?;
+    let panel = (calib.panel.width_px, calib.panel.height_px);
+    let (loaded, input_name) = load_input(opts.input.as_deref(), panel)?;
     for n in &loaded.notes {
         tracing::warn!("{n}");
     }
@@ -96,7 +100,7 @@ pub fn run(common: &CommonOptions, opts: &SimOptions) -> Result<SimReport, AppEr
     }
     let display_loaded = match &opts.display_image {
         Some(p) => {
-            let l = image_io::load(p)?;
+            let l = image_io::load_for_panel(p, panel)?;
             for n in &l.notes {
                 tracing::warn!("{n}");
             }

@@ -6,7 +6,7 @@
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
-use super::eval::{HEADLINE_MAX_D, list_images, load_cropped};
+use super::eval::{HEADLINE_MAX_D, list_images, load_all};
 use super::{AppError, CommonOptions, write_text};
 use nedrt_core::calib::DEFAULT_CALIBRATION_NAME;
 use nedrt_optics::sim::metrics::psnr;
@@ -32,10 +32,7 @@ pub fn run(
         )));
     }
     let files = list_images(images_dir)?;
-    let images: Vec<_> = files
-        .iter()
-        .map(|f| load_cropped(f))
-        .collect::<Result<_, _>>()?;
+    let images = load_all(&files, common.panel_px()?)?;
     let sim = Simulator::new(common.calibration()?, common.doe_path(), common.cache())?;
     let depths: Vec<f64> = sim
         .calib

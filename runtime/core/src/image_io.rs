@@ -47,6 +47,17 @@ pub const MAX_IMAGE_SIDE_PX: u32 = crate::calib::MAX_PANEL_SIDE_PX as u32;
 
 /// Reads an RGB image as linear intensity in [0, 1].
 pub fn load(path: &Path) -> Result<LoadedImage, ImageError> {
+    load_limited(path, None)
+}
+
+/// Reads an image that a `width`×`height` panel is to show: a larger one
+/// is refused from its header, before anything is decoded (a 224-byte
+/// JPEG can claim 20 megapixels, and simulating those takes 10 GB).
+pub fn load_for_panel(path: &Path, panel: (usize, usize)) -> Result<LoadedImage, ImageError> {
+    load_limited(path, Some(panel))
+}
+
+fn load_limited(path: &Path, panel: Option<(usize, usize)>) -> Result<LoadedImage, ImageError> {
     let name = path.display().to_string();
     let bytes = crate::util::read_capped(path, MAX_IMAGE_FILE_BYTES).map_err(|source| {
         ImageError::Read {
@@ -54,11 +65,28 @@ pub fn load(path: &Path) -> Result<LoadedImage, ImageError> {
             source,
         }
     })?;
-    decode(&bytes, &name)
+    decode_limited(&bytes, &name, panel)
 }
 
 /// Decodes image bytes; `name` is used in messages.
 pub fn decode(bytes: &[u8], name: &str) -> Result<LoadedImage, ImageError> {
+    decode_limited(bytes, name, None)
+}
+
+/// Decodes image bytes for a `width`×`height` panel ([`load_for_panel`]).
+pub fn decode_for_panel(
+    bytes: &[u8],
+    name: &str,
+    panel: (usize, usize),
+) -> Result<LoadedImage, ImageError> {
+    decode_limited(bytes, name, Some(panel))
+}
+
+fn decode_limited(
+    bytes: &[u8],
+    name: &str,
+    panel: Option<(usize, usize)>,
+) -> Result<LoadedImage, ImageError> {
     let invalid = |reason: String| ImageError::Invalid {
         path: name.to_string(),
         reason,
@@ -74,6 +102,13 @@ pub fn decode(bytes: &[u8], name: &str) -> Result<LoadedImage, ImageError> {
     };
     // The header's size is checked before anything is allocated for it.
     let (w, h) = open()?.into_dimensions().map_err(|e| undecodable(&e))?;
+    if let Some((pw, ph)) = panel
+        && (w as usize > pw || h as usize > ph)
+    {
+        return Err(invalid(format!(
+            "{w}×{h} image is larger than the {pw}×{ph} panel that shows it; crop or scale it"
+        )));
+    }
     if w > MAX_IMAGE_SIDE_PX
         || h > MAX_IMAGE_SIDE_PX
         || u64::from(w) * u64::from(h) > MAX_IMAGE_PIXELS
@@ -226,6 +261,33 @@ mod tests {
         img.write_to(&mut std::io::Cursor::new(&mut b), format)
             .expect("encode");
         b
+    }
+
+    #[test]
+    fn sizes_are_refused_from_the_header_before_decoding() {
+        // 40000×1: past the loader's own side cap; 30×20: past a 24×16 panel.
+        let wide = encode(
+            DynamicImage::ImageLuma8(GrayImage::new(40000, 1)),
+            image::ImageFormat::Png,
+        );
+        let e = decode(&wide, "wide.png").expect_err("past the cap");
+        assert!(
+            e.to_string()
+                .contains("wide.png: 40000×1 image is larger than this loader takes"),
+            "{e}"
+        );
+        let small = encode(
+            DynamicImage::ImageLuma8(GrayImage::new(30, 20)),
+            image::ImageFormat::Png,
+        );
+        assert!(decode(&small, "small.png").is_ok());
+        let e = decode_for_panel(&small, "small.png", (24, 16)).expect_err("past the panel");
+        assert!(
+            e.to_string()
+                .contains("30×20 image is larger than the 24×16 panel that shows it"),
+            "{e}"
+        );
+        assert!(decode_for_panel(&small, "small.png", (30, 20)).is_ok());
     }
 
     #[test]

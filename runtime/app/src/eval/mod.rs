@@ -46,9 +46,15 @@ pub fn list_images(dir: &Path) -> Result<Vec<PathBuf>, AppError> {
     Ok(files)
 }
 
-/// Loads an image and crops it to multiples of 8 (docs/model.md §17), saying so.
-pub fn load_cropped(path: &Path) -> Result<Image, AppError> {
-    let l = image_io::load(path)?;
+/// Loads every image of `files` ([`load_cropped`]).
+pub fn load_all(files: &[PathBuf], panel: (usize, usize)) -> Result<Vec<Image>, AppError> {
+    files.iter().map(|f| load_cropped(f, panel)).collect()
+}
+
+/// Loads an image the `panel` (width, height) can show and crops it to
+/// multiples of 8 (docs/model.md §17), saying so.
+pub fn load_cropped(path: &Path, panel: (usize, usize)) -> Result<Image, AppError> {
+    let l = image_io::load_for_panel(path, panel)?;
     for n in &l.notes {
         tracing::warn!("{n}");
     }
@@ -169,7 +175,8 @@ impl ExternalDisplays {
             .file_name()
             .ok_or_else(|| AppError::Usage("input without a file name".into()))?;
         let path = self.dir.join(name);
-        let im = load_cropped(&path)?;
+        // Its size must equal the input's after cropping: nothing larger is decoded.
+        let im = load_cropped(&path, (input.width + 7, input.height + 7))?;
         if (im.width, im.height) != (input.width, input.height) {
             return Err(AppError::Usage(format!(
                 "{}: display image is {}×{}, its input {} is {}×{} after cropping to multiples of 8; the sizes must match",
@@ -225,10 +232,7 @@ pub fn run(
     let external = extras.external.as_ref();
     let start = Instant::now();
     let files = list_images(images_dir)?;
-    let images: Vec<Image> = files
-        .iter()
-        .map(|f| load_cropped(f))
-        .collect::<Result<_, _>>()?;
+    let images = load_all(&files, common.panel_px()?)?;
     create_dir(out_dir)?;
     let methods: Vec<Method> = if methods.is_empty() {
         Method::BUILT_IN.to_vec()

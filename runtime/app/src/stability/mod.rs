@@ -21,7 +21,7 @@ use std::time::Instant;
 
 use serde::Serialize;
 
-use super::eval::{list_images, load_cropped};
+use super::eval::{list_images, load_all};
 use super::{AppError, CommonOptions, check_output_folder, write_text};
 use nedrt_infer::synth::SplitMix;
 use nedrt_infer::{BackendKind, BackendOptions, Dcnn};
@@ -84,10 +84,7 @@ pub struct StabilityStudy {
 pub fn run(common: &CommonOptions, o: &StabilityOptions) -> Result<String, AppError> {
     let start = Instant::now();
     let files = list_images(&o.images_dir)?;
-    let inputs: Vec<Image> = files
-        .iter()
-        .map(|f| load_cropped(f))
-        .collect::<Result<_, _>>()?;
+    let inputs = load_all(&files, common.panel_px()?)?;
     let doe = o.model.with_extension("doe.safetensors");
     if !doe.exists() {
         return Err(AppError::Usage(format!(

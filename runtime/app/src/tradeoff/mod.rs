@@ -20,7 +20,7 @@ use serde::{Deserialize, Serialize};
 pub use quality::{Quality, Scorer};
 
 use super::bench::median;
-use super::eval::{list_images, load_cropped};
+use super::eval::{list_images, load_all};
 use super::{AppError, CommonOptions, create_dir, write_text};
 use nedrt_infer::{BackendKind, BackendOptions, Dcnn};
 use nedrt_optics::sim::{Image, Method, Simulator};
@@ -186,10 +186,7 @@ pub fn run(common: &CommonOptions, o: &TradeoffOptions) -> Result<String, AppErr
         ));
     }
     let files = list_images(&o.images_dir)?;
-    let inputs: Vec<Image> = files
-        .iter()
-        .map(|f| load_cropped(f))
-        .collect::<Result<_, _>>()?;
+    let inputs = load_all(&files, common.panel_px()?)?;
     create_dir(&o.out_dir)?;
     let dcnn_doe = companion_doe(&o.models[0])?;
     let calib = common.calibration()?;

@@ -65,7 +65,7 @@ impl DirSource {
         }
         let mut payloads = Vec::with_capacity(files.len());
         for f in &files {
-            let loaded = image_io::load(f)?;
+            let loaded = image_io::load_for_panel(f, (width, height))?;
             for note in &loaded.notes {
                 tracing::info!("{note}");
             }
