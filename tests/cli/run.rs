@@ -11,7 +11,7 @@ fn run_refuses_bad_sources_sinks_and_models_with_one_error_line() {
     let big = dir.path().join("big.png");
     image::RgbImage::new(65, 48).save(&big).expect("save");
     let o = run_with(&["--source", "dir", "--input", path(&big), "--sink", "record"]);
-    assert_clean_error(&o, "big.png: 65×48 image for a 64×48 panel");
+    assert_clean_error(&o, "big.png: 65×48 image is larger than the 64×48 panel");
     let o = run_with(&["--source", "dir", "--sink", "record"]);
     assert_clean_error(&o, "--source dir needs --input");
     // A socket path held by a regular file is not clobbered.
