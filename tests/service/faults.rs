@@ -57,6 +57,23 @@ fn assert_whole_recording(rec: &Path) -> usize {
     n
 }
 
+/// `nedrt run` on the small panel (cpu backend, pattern source) with
+/// `extra` options, recording into `<dir>/rec` and reporting into
+/// `<dir>/report.json`.
+fn recording_run(dir: &Path, extra: &[&str]) -> Command {
+    let mut c = Command::new(env!("CARGO_BIN_EXE_nedrt"));
+    c.current_dir(repo())
+        .args(["run", "--calib"])
+        .arg(small_panel())
+        .args(["--backend", "cpu", "--source", "pattern"])
+        .args(extra)
+        .args(["--sink", "record", "--record-dir"])
+        .arg(dir.join("rec"))
+        .arg("--report-json")
+        .arg(dir.join("report.json"));
+    c
+}
+
 /// Sends each of `signals` and waits; the exit must come within
 /// [`STOP_WITHIN`] (past 20 s the child is killed and the test fails).
 fn signal_and_wait(mut child: Child, signals: &[&str]) -> Output {
@@ -261,16 +278,7 @@ fn a_full_disk_ends_the_recording_with_every_frame_accounted_and_no_half_file() 
         eprintln!("skipped: cannot mount a tmpfs here (needs root)");
         return;
     };
-    let report_path = dir.path().join("report.json");
-    let child = Command::new(env!("CARGO_BIN_EXE_nedrt"))
-        .current_dir(repo())
-        .args(["run", "--calib"])
-        .arg(small_panel())
-        .args(["--backend", "cpu", "--source", "pattern", "--frames", "400"])
-        .args(["--sink", "record", "--record-dir"])
-        .arg(&rec)
-        .arg("--report-json")
-        .arg(&report_path)
+    let child = recording_run(dir.path(), &["--frames", "400"])
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
         .spawn()
@@ -309,20 +317,20 @@ fn a_gpu_lost_mid_run_falls_back_without_losing_a_frame() {
     let dir = tempfile::tempdir().expect("tempdir");
     let rec = dir.path().join("rec");
     let frames = 30u64;
-    let out = Command::new(env!("CARGO_BIN_EXE_nedrt"))
-        .current_dir(repo())
-        .env("NEDRT_LOG", "nedrt=info")
-        .args(["run", "--calib"])
-        .arg(small_panel())
-        .args(["--backend", "cpu", "--source", "pattern", "--frames"])
-        .arg(frames.to_string())
-        .args(["--source-rate", "60", "--inject-device-loss-after", "5"])
-        .args(["--sink", "record", "--record-dir"])
-        .arg(&rec)
-        .arg("--report-json")
-        .arg(dir.path().join("report.json"))
-        .output()
-        .expect("run");
+    let out = recording_run(
+        dir.path(),
+        &[
+            "--frames",
+            &frames.to_string(),
+            "--source-rate",
+            "60",
+            "--inject-device-loss-after",
+            "5",
+        ],
+    )
+    .env("NEDRT_LOG", "nedrt=info")
+    .output()
+    .expect("run");
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success(), "{err}");
     assert!(err.contains("device lost (injected fault)"), "{err}");
@@ -352,22 +360,7 @@ fn stop_signals_during_a_recording_end_it_cleanly_with_every_frame_accounted() {
     for signals in [&["-INT"][..], &["-TERM", "-TERM"][..]] {
         let dir = tempfile::tempdir().expect("tempdir");
         let rec = dir.path().join("rec");
-        let child = Command::new(env!("CARGO_BIN_EXE_nedrt"))
-            .current_dir(repo())
-            .args(["run", "--calib"])
-            .arg(small_panel())
-            .args([
-                "--backend",
-                "cpu",
-                "--source",
-                "pattern",
-                "--source-rate",
-                "0",
-            ])
-            .args(["--sink", "record", "--record-dir"])
-            .arg(&rec)
-            .arg("--report-json")
-            .arg(dir.path().join("report.json"))
+        let child = recording_run(dir.path(), &["--source-rate", "0"])
             .stdout(Stdio::piped())
             .stderr(Stdio::piped())
             .spawn()
@@ -459,32 +452,14 @@ fn stop_signals_during_eval_leave_no_half_written_output() {
 fn a_mid_run_table_counts_frames_replaced_before_a_refresh() {
     let dir = tempfile::tempdir().expect("tempdir");
     let rec = dir.path().join("rec");
-    let child = Command::new(env!("CARGO_BIN_EXE_nedrt"))
-        .current_dir(repo())
-        .args(["run", "--calib"])
-        .arg(small_panel())
-        .args([
-            "--backend",
-            "cpu",
-            "--source",
-            "pattern",
-            "--source-rate",
-            "0",
-        ])
-        .args([
-            "--preprocess",
-            "conventional",
-            "--sink",
-            "record",
-            "--record-dir",
-        ])
-        .arg(&rec)
-        .arg("--report-json")
-        .arg(dir.path().join("report.json"))
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .expect("start");
+    let child = recording_run(
+        dir.path(),
+        &["--source-rate", "0", "--preprocess", "conventional"],
+    )
+    .stdout(Stdio::piped())
+    .stderr(Stdio::piped())
+    .spawn()
+    .expect("start");
     wait_until("a frame to be recorded", || {
         std::fs::read_dir(&rec).is_ok_and(|mut d| d.next().is_some())
     });
