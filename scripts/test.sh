@@ -80,13 +80,16 @@ if [ -n "${VK_ICD_FILENAMES:-}${VK_DRIVER_FILES:-}" ]; then vulkan_icd=1; fi
 ort_lib=0
 if [ -n "${ORT_DYLIB_PATH:-}" ] && [ -f "$ORT_DYLIB_PATH" ]; then ort_lib=1; fi
 x_display=0
-if [ -n "${DISPLAY:-}" ]; then x_display=1; fi
+# The viewer's window test also presses keys (xdotool) and takes screenshots (xwd).
+if [ -n "${DISPLAY:-}" ] && command -v xdotool >/dev/null 2>&1 && command -v xwd >/dev/null 2>&1; then
+    x_display=1
+fi
 hw_part gpu "$vulkan_icd" "${NEDRT_REQUIRE_GPU:-}" \
     "a Vulkan adapter: no ICD file in /usr/share/vulkan/icd.d; apt-get install mesa-vulkan-drivers, or NEDRT_REQUIRE_GPU=1 to run them anyway"
 hw_part ort "$ort_lib" "${NEDRT_REQUIRE_ORT:-}" \
     "ONNX Runtime: ORT_DYLIB_PATH names no file and .venv has no onnxruntime wheel"
 hw_part window "$x_display" "${NEDRT_REQUIRE_WINDOW:-}" \
-    "an X display: DISPLAY is not set and Xvfb is not installed; apt-get install xvfb x11-apps"
+    "an X display with xwd and xdotool: DISPLAY is not set (Xvfb is not installed) or a tool is missing; apt-get install xvfb x11-apps xdotool"
 if [ "${#hw_run[@]}" -gt 0 ]; then
     echo "== cargo test --release -- --ignored needs_ (the hardware tests: ${hw_run[*]})"
     # One at a time: a software adapter (lavapipe) spreads each test over every

@@ -407,6 +407,72 @@ const ROWS: &[Row] = &[
         "none.png: cannot read image: No such file or directory (os error 2)",
     ),
     row(
+        "view: image missing",
+        &[
+            "view",
+            "--headless",
+            "--screenshot",
+            "{out}",
+            "--input",
+            "{dir}/none.png",
+        ],
+        "none.png: cannot read image",
+    ),
+    row(
+        "view: unknown method",
+        &[
+            "view",
+            "--headless",
+            "--screenshot",
+            "{out}",
+            "--methods",
+            "conventional,holographic",
+        ],
+        "'holographic'",
+    ),
+    row(
+        "view: --headless without --screenshot",
+        &["view", "--headless"],
+        "--headless needs --screenshot",
+    ),
+    row(
+        "view: accommodation NaN",
+        &[
+            "view",
+            "--headless",
+            "--screenshot",
+            "{out}",
+            "--accom",
+            "nan",
+        ],
+        "--accom NaN",
+    ),
+    row(
+        "view: screenshot not a PNG",
+        &["view", "--headless", "--screenshot", "{out}.jpg"],
+        "out.png.jpg: cannot write image: unsupported extension",
+    ),
+    row(
+        "sweep: animation format unknown",
+        &["sweep", "--out", "{out}.mp4"],
+        "out.png.mp4: cannot write image: unsupported extension",
+    ),
+    row(
+        "sweep: step 0",
+        &["sweep", "--step", "0", "--out", "{out}"],
+        "the step must be > 0",
+    ),
+    row(
+        "sweep: range reversed",
+        &["sweep", "--from", "2", "--to", "1", "--out", "{out}"],
+        "the range ascending",
+    ),
+    row(
+        "sweep: fps NaN",
+        &["sweep", "--fps", "nan", "--out", "{out}"],
+        "--fps NaN",
+    ),
+    row(
         "run: source rate NaN",
         &[
             "run",
@@ -543,7 +609,7 @@ fn command_line(r: &Row, dir: &Path, out: &Path) -> Vec<String> {
     let own_command = r
         .args
         .iter()
-        .any(|a| ["--sim", "run", "eval", "pick"].contains(a));
+        .any(|a| ["--sim", "run", "eval", "pick", "view", "sweep"].contains(a));
     let own_calib = r.args.contains(&"--calib");
     let mut args: Vec<String> = Vec::new();
     if !own_calib && !own_command {

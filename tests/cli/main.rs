@@ -9,6 +9,9 @@ mod eval;
 mod run;
 mod sim;
 mod studies;
+mod view;
+#[path = "../common/xwd.rs"]
+mod xwd;
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};

@@ -83,30 +83,6 @@ mod needs_gpu {
     }
 }
 
-/// Reads an XWD (X Window Dump) of a 24/32-bit TrueColor window as RGB.
-fn parse_xwd(b: &[u8]) -> (usize, usize, Vec<u8>) {
-    let be = |i: usize| u32::from_be_bytes([b[4 * i], b[4 * i + 1], b[4 * i + 2], b[4 * i + 3]]);
-    let (header, w, h) = (be(0) as usize, be(4) as usize, be(5) as usize);
-    let (byte_order, bpp, stride) = (be(7), be(11) as usize, be(12) as usize);
-    let (rm, gm, bm, ncolors) = (be(14), be(15), be(16), be(19) as usize);
-    assert_eq!(bpp, 32, "expected a 32-bit visual");
-    let data = &b[header + 12 * ncolors..];
-    let chan = |p: u32, m: u32| ((p & m) >> m.trailing_zeros()) as u8;
-    let mut rgb = Vec::with_capacity(3 * w * h);
-    for y in 0..h {
-        for x in 0..w {
-            let q = &data[y * stride + 4 * x..y * stride + 4 * x + 4];
-            let p = if byte_order == 0 {
-                u32::from_le_bytes([q[0], q[1], q[2], q[3]])
-            } else {
-                u32::from_be_bytes([q[0], q[1], q[2], q[3]])
-            };
-            rgb.extend([chan(p, rm), chan(p, gm), chan(p, bm)]);
-        }
-    }
-    (w, h, rgb)
-}
-
 mod needs_gpu_and_window {
     use super::*;
 
@@ -158,19 +134,15 @@ mod needs_gpu_and_window {
         let start = Instant::now();
         let mut last;
         loop {
-            let shot = Command::new("xwd")
-                .args(["-name", "nedrt", "-silent"])
-                .output()
-                .expect("xwd (x11-apps)");
-            if shot.status.success() && shot.stdout.len() > 100 {
-                let (w, h, rgb) = parse_xwd(&shot.stdout);
-                if (w, h) == (W, H) && rgb == want {
-                    break;
+            match super::xwd::screenshot("nedrt") {
+                Ok((w, h, rgb)) => {
+                    if (w, h) == (W, H) && rgb == want {
+                        break;
+                    }
+                    let differ = rgb.iter().zip(&want).filter(|(a, b)| a != b).count();
+                    last = format!("{w}×{h}, {differ} values differ");
                 }
-                let differ = rgb.iter().zip(&want).filter(|(a, b)| a != b).count();
-                last = format!("{w}×{h}, {differ} values differ");
-            } else {
-                last = String::from_utf8_lossy(&shot.stderr).into_owned();
+                Err(e) => last = e,
             }
             assert!(
                 start.elapsed() < Duration::from_secs(60),

@@ -10,6 +10,8 @@
 mod faults;
 mod hardware;
 mod socket;
+#[path = "../common/xwd.rs"]
+mod xwd;
 
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Output, Stdio};

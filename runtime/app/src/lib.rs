@@ -23,6 +23,7 @@ pub mod sim;
 pub mod stability;
 pub mod tradeoff;
 pub mod tune;
+pub mod view;
 
 use std::path::{Path, PathBuf};
 

@@ -27,7 +27,7 @@ pub struct SimOptions {
     pub display_out: Option<PathBuf>,
 }
 
-/// What `--display-out` writes: 16-bit PNG, or 32-bit float TIFF (exact).
+/// What `--out` and `--display-out` write: 16-bit PNG, or 32-bit float TIFF (exact).
 const DISPLAY_OUT_FORMATS: &[&str] = &["png", "tif", "tiff"];
 
 /// PSNR and SSIM of a perceived image against one reference.
@@ -86,6 +86,7 @@ pub fn run(common: &CommonOptions, opts: &SimOptions) -> Result<SimReport, AppEr
     for n in &loaded.notes {
         tracing::warn!("{n}");
     }
+    image_io::check_extension(&opts.out, DISPLAY_OUT_FORMATS)?;
     if let Some(p) = &opts.display_out {
         image_io::check_extension(p, DISPLAY_OUT_FORMATS)?;
     }
@@ -160,7 +161,7 @@ pub fn run(common: &CommonOptions, opts: &SimOptions) -> Result<SimReport, AppEr
     let target = prepared.target(&input, opts.accommodation_d)?;
     let sharp = input.up2();
     let (rw, rh) = (sharp.width, sharp.height);
-    image_io::save_png16(&perceived, &opts.out)?;
+    image_io::save(&perceived, &opts.out, DISPLAY_OUT_FORMATS)?;
     if let Some(p) = &opts.display_out {
         image_io::save(&display, p, DISPLAY_OUT_FORMATS)?;
     }
@@ -199,11 +200,16 @@ pub fn run(common: &CommonOptions, opts: &SimOptions) -> Result<SimReport, AppEr
     );
     let _ = writeln!(
         t,
-        "wrote     {} ({}×{}, retinal grid {:.3} arcmin, 16-bit PNG)",
+        "wrote     {} ({}×{}, retinal grid {:.3} arcmin, {})",
         opts.out.display(),
         rw,
         rh,
-        c.retinal_step_rad().to_degrees() * 60.0
+        c.retinal_step_rad().to_degrees() * 60.0,
+        if image_io::check_extension(&opts.out, &["png"]).is_ok() {
+            "16-bit PNG"
+        } else {
+            "32-bit float TIFF"
+        }
     );
     let target_kind = if c.is_main_depth(opts.accommodation_d) {
         "sharp input: a main depth"

@@ -113,7 +113,8 @@ pub struct SimArgs {
     /// Display system: conventional, ai, doe-only, doe+wiener, proposed, lens+dcnn.
     #[arg(long, default_value = "conventional", value_parser = named::<Method>())]
     pub method: Method,
-    /// Output PNG (16-bit) of the perceived image on the retinal grid.
+    /// The perceived image on the retinal grid: .png (16-bit) or .tif
+    /// (32-bit float, exact).
     #[arg(long, default_value = "perceived.png", value_name = "FILE")]
     pub out: PathBuf,
     /// Also write the display frame the panel shows (after the method's
@@ -155,6 +156,12 @@ pub enum Command {
     Doe(DoeArgs),
     /// The Fig. 6 table: every method × 0…3 D on a folder of images.
     Eval(EvalArgs),
+    /// A window showing each method's perceived image side by side as the
+    /// eye's accommodation moves (wheel, arrow keys, slider).
+    View(ViewArgs),
+    /// The side-by-side view over a sweep of accommodations, as an animated
+    /// PNG or GIF with the labels burnt in.
+    Sweep(SweepArgs),
     /// Search the Wiener constant K on training images (quarter decades).
     TuneWiener(TuneArgs),
     /// Print the resolved calibration and the quantities derived from it.
@@ -359,6 +366,89 @@ pub struct EvalArgs {
     /// DOE and K (names in designs/ or design files).
     #[arg(long, value_delimiter = ',', value_name = "NAME|FILE")]
     pub designs: Vec<String>,
+    /// Also write a focus sweep of every image into DIR: DIR/NAME.png, an
+    /// animated PNG of the evaluated methods side by side over 0–3 D in
+    /// 0.1 D steps (`nedrt sweep`).
+    #[arg(long, value_name = "DIR")]
+    pub sweeps: Option<PathBuf>,
+}
+
+/// What the panels show first (keys s, t, p switch in the window).
+#[derive(ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ShownArg {
+    Perceived,
+    Sharp,
+    Target,
+}
+
+#[derive(Args, Debug)]
+pub struct ViewArgs {
+    /// Input image (default: the shipped data/images/test/astronaut.png).
+    #[arg(long, value_name = "IMG")]
+    pub input: Option<PathBuf>,
+    /// Display systems side by side.
+    #[arg(long, value_delimiter = ',', value_parser = named::<Method>(), default_values = ["conventional", "ai", "proposed"])]
+    pub methods: Vec<Method>,
+    /// Where the eye focuses first, in diopters.
+    #[arg(
+        long,
+        value_name = "D",
+        default_value_t = 1.5,
+        allow_negative_numbers = true
+    )]
+    pub accom: f64,
+    /// Step of the accommodation grid over 0–3 D (PSFs for every step are
+    /// computed once and cached).
+    #[arg(long, value_name = "D", default_value_t = 0.05)]
+    pub step: f64,
+    #[arg(long, value_enum, default_value = "perceived")]
+    pub show: ShownArg,
+    /// Open no window: render the picture at --accom to --screenshot.
+    #[arg(long)]
+    pub headless: bool,
+    /// The PNG --headless writes.
+    #[arg(long, value_name = "FILE")]
+    pub screenshot: Option<PathBuf>,
+    /// Where key `c` saves screenshots of the window.
+    #[arg(long, value_name = "DIR", default_value = ".")]
+    pub screenshot_dir: PathBuf,
+    /// The largest window; a larger picture is scaled down into it.
+    #[arg(long, value_parser = parse_size, default_value = "1600x1000", value_name = "WxH")]
+    pub max_window: (usize, usize),
+}
+
+#[derive(Args, Debug)]
+pub struct SweepArgs {
+    /// Input image (default: the shipped data/images/test/astronaut.png).
+    #[arg(long, value_name = "IMG")]
+    pub input: Option<PathBuf>,
+    /// Display systems side by side.
+    #[arg(long, value_delimiter = ',', value_parser = named::<Method>(), default_values = ["conventional", "ai", "proposed"])]
+    pub methods: Vec<Method>,
+    /// First accommodation, diopters.
+    #[arg(
+        long,
+        value_name = "D",
+        default_value_t = 0.0,
+        allow_negative_numbers = true
+    )]
+    pub from: f64,
+    /// Last accommodation, diopters.
+    #[arg(
+        long,
+        value_name = "D",
+        default_value_t = 3.0,
+        allow_negative_numbers = true
+    )]
+    pub to: f64,
+    #[arg(long, value_name = "D", default_value_t = 0.1)]
+    pub step: f64,
+    /// Frames a second of the animation.
+    #[arg(long, default_value_t = 8.0)]
+    pub fps: f64,
+    /// The animation: .png (animated PNG, lossless) or .gif.
+    #[arg(long, value_name = "FILE", default_value = "sweep.png")]
+    pub out: PathBuf,
 }
 
 #[derive(Args, Debug)]

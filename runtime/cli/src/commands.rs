@@ -9,7 +9,7 @@ use nedrt_infer::{BackendKind, BackendOptions, OrtLibrary};
 use nedrt_service::pipeline::service::Control;
 use nedrt_service::present::window::WindowOptions;
 
-use crate::args::{BenchKind, Cli, Command};
+use crate::args::{BenchKind, Cli, Command, ShownArg};
 use crate::console::Console;
 use crate::install_signals;
 use crate::settings::Environment;
@@ -96,9 +96,45 @@ pub fn run(cli: Cli) -> Result<()> {
                             .map(|n| app::design::Design::resolve(n))
                             .collect::<Result<_, _>>()?,
                         focus_cues: a.focus_cues,
+                        sweeps: a.sweeps,
                     }
                 )?
             )
+        }
+        Some(Command::View(a)) => {
+            let opts = app::view::ViewOptions {
+                input: a.input,
+                methods: a.methods,
+                step_d: a.step,
+                accommodation_d: a.accom,
+                shown: match a.show {
+                    ShownArg::Perceived => app::view::scene::Shown::Perceived,
+                    ShownArg::Sharp => app::view::scene::Shown::Sharp,
+                    ShownArg::Target => app::view::scene::Shown::Target,
+                },
+                headless: a.headless,
+                screenshot: a.screenshot,
+                screenshot_dir: a.screenshot_dir,
+                max_window: (a.max_window.0 as u32, a.max_window.1 as u32),
+                window: WindowOptions {
+                    gpu: env.gpu.clone(),
+                    vsync: true,
+                    ..Default::default()
+                },
+            };
+            print!("{}", app::view::view(&common, &opts)?);
+        }
+        Some(Command::Sweep(a)) => {
+            let opts = app::view::SweepOptions {
+                input: a.input,
+                methods: a.methods,
+                from_d: a.from,
+                to_d: a.to,
+                step_d: a.step,
+                fps: a.fps,
+                out: a.out,
+            };
+            print!("{}", app::view::sweep(&common, &opts)?);
         }
         Some(Command::TuneWiener(a)) => {
             print!("{}", app::tune::run(&common, &a.images, a.method, a.write)?)
@@ -128,6 +164,7 @@ pub fn run(cli: Cli) -> Result<()> {
                     fullscreen: a.fullscreen,
                     monitor: a.monitor,
                     vsync: !a.no_vsync,
+                    ..Default::default()
                 },
                 fallback: a.fallback,
                 report_json: a.report_json,

@@ -209,6 +209,8 @@ pub struct EvalExtras {
     pub designs: Vec<Design>,
     /// Also measure the focus cues.
     pub focus_cues: bool,
+    /// Also write a focus sweep of every image into this folder.
+    pub sweeps: Option<PathBuf>,
 }
 
 /// One row of the tables: a method seen through one simulator.
@@ -234,6 +236,9 @@ pub fn run(
     let files = list_images(images_dir)?;
     let images = load_all(&files, common.panel_px()?)?;
     create_dir(out_dir)?;
+    if let Some(dir) = &extras.sweeps {
+        create_dir(dir)?;
+    }
     let methods: Vec<Method> = if methods.is_empty() {
         Method::BUILT_IN.to_vec()
     } else {
@@ -435,6 +440,24 @@ pub fn run(
         json_path.display().to_string(),
     ];
     written.extend(result.charts.iter().cloned());
+    if let Some(dir) = &extras.sweeps {
+        for (file, image) in files.iter().zip(&images) {
+            let stem = file.file_stem().map(|s| s.to_string_lossy().into_owned());
+            let out = dir.join(format!("{}.png", stem.unwrap_or_else(|| "image".into())));
+            let opts = crate::view::SweepOptions {
+                input: Some(file.clone()),
+                methods: methods.clone(),
+                from_d: sim.calib.range_d[0],
+                to_d: sim.calib.range_d[1],
+                step_d: 0.1,
+                fps: 8.0,
+                out: out.clone(),
+            };
+            let name = file.display().to_string();
+            crate::view::sweep_image(common, image.clone(), name, &opts)?;
+            written.push(out.display().to_string());
+        }
+    }
     Ok(format!("{md}\nwrote {}\n", written.join(", ")))
 }
 

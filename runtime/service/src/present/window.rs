@@ -10,8 +10,9 @@ use std::time::Duration;
 
 use winit::application::ApplicationHandler;
 use winit::dpi::PhysicalSize;
-use winit::event::WindowEvent;
+use winit::event::{ElementState, MouseButton, MouseScrollDelta, WindowEvent};
 use winit::event_loop::{ActiveEventLoop, EventLoop};
+use winit::keyboard::{Key, NamedKey};
 use winit::platform::pump_events::{EventLoopExtPumpEvents, PumpStatus};
 use winit::window::{Fullscreen, Window, WindowId};
 
@@ -37,6 +38,63 @@ pub struct WindowOptions {
     pub vsync: bool,
     /// How wgpu's instance is made.
     pub gpu: nedrt_gpu::GpuSettings,
+    /// Keep keyboard and mouse input for [`WindowSink::take_inputs`]
+    /// (an interactive window; the service's window ignores input).
+    pub collect_inputs: bool,
+    /// What to suggest when there is no display (default: `--sink headless`).
+    pub no_display_hint: Option<String>,
+    /// The window's inner size when it differs from the frames' (frames are
+    /// drawn to it with nearest-pixel scaling).
+    pub window_size: Option<(u32, u32)>,
+}
+
+/// Keyboard and mouse input of an interactive window, free of winit's types.
+#[derive(Debug, Clone, PartialEq)]
+pub enum WindowInput {
+    /// A key pressed (repeats included).
+    Key(KeyName),
+    /// Mouse wheel, in lines (positive: away from the user).
+    Wheel { lines: f64 },
+    /// The cursor at a position in the window's physical pixels.
+    Cursor { x: f64, y: f64 },
+    /// The left mouse button pressed or released.
+    LeftButton { pressed: bool },
+}
+
+/// The keys an interactive window tells apart.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum KeyName {
+    Left,
+    Right,
+    Up,
+    Down,
+    PageUp,
+    PageDown,
+    Home,
+    End,
+    Space,
+    Escape,
+    Enter,
+    /// A printable key, lower-cased.
+    Char(char),
+}
+
+fn key_name(key: &Key) -> Option<KeyName> {
+    Some(match key {
+        Key::Named(NamedKey::ArrowLeft) => KeyName::Left,
+        Key::Named(NamedKey::ArrowRight) => KeyName::Right,
+        Key::Named(NamedKey::ArrowUp) => KeyName::Up,
+        Key::Named(NamedKey::ArrowDown) => KeyName::Down,
+        Key::Named(NamedKey::PageUp) => KeyName::PageUp,
+        Key::Named(NamedKey::PageDown) => KeyName::PageDown,
+        Key::Named(NamedKey::Home) => KeyName::Home,
+        Key::Named(NamedKey::End) => KeyName::End,
+        Key::Named(NamedKey::Space) => KeyName::Space,
+        Key::Named(NamedKey::Escape) => KeyName::Escape,
+        Key::Named(NamedKey::Enter) => KeyName::Enter,
+        Key::Character(s) => KeyName::Char(s.chars().next()?.to_ascii_lowercase()),
+        _ => return None,
+    })
 }
 
 #[derive(Debug)]
@@ -47,6 +105,7 @@ struct App {
     closed: bool,
     resized: Option<PhysicalSize<u32>>,
     error: Option<String>,
+    inputs: Vec<WindowInput>,
 }
 
 impl ApplicationHandler for App {
@@ -91,6 +150,31 @@ impl ApplicationHandler for App {
         match event {
             WindowEvent::CloseRequested | WindowEvent::Destroyed => self.closed = true,
             WindowEvent::Resized(size) => self.resized = Some(size),
+            _ if !self.options.collect_inputs => {}
+            WindowEvent::KeyboardInput { event, .. } if event.state == ElementState::Pressed => {
+                if let Some(k) = key_name(&event.logical_key) {
+                    self.inputs.push(WindowInput::Key(k));
+                }
+            }
+            WindowEvent::MouseWheel { delta, .. } => {
+                let lines = match delta {
+                    MouseScrollDelta::LineDelta(_, y) => f64::from(y),
+                    // Pixel deltas (touchpads): about 20 pixels a line.
+                    MouseScrollDelta::PixelDelta(p) => p.y / 20.0,
+                };
+                self.inputs.push(WindowInput::Wheel { lines });
+            }
+            WindowEvent::CursorMoved { position, .. } => self.inputs.push(WindowInput::Cursor {
+                x: position.x,
+                y: position.y,
+            }),
+            WindowEvent::MouseInput {
+                state,
+                button: MouseButton::Left,
+                ..
+            } => self.inputs.push(WindowInput::LeftButton {
+                pressed: state == ElementState::Pressed,
+            }),
             _ => {}
         }
     }
@@ -112,16 +196,22 @@ impl WindowSink {
     pub fn open(width: u32, height: u32, options: WindowOptions) -> Result<Self, PresentError> {
         let mut event_loop = EventLoop::new().map_err(|e| {
             err(format!(
-                "no display ({e}); set DISPLAY (or run under xvfb-run), or use --sink headless"
+                "no display ({e}); set DISPLAY (or run under xvfb-run), or use {}",
+                options
+                    .no_display_hint
+                    .as_deref()
+                    .unwrap_or("--sink headless")
             ))
         })?;
+        let (window_w, window_h) = options.window_size.unwrap_or((width, height));
         let mut app = App {
-            size: PhysicalSize::new(width, height),
+            size: PhysicalSize::new(window_w, window_h),
             options,
             window: None,
             closed: false,
             resized: None,
             error: None,
+            inputs: Vec::new(),
         };
         // The window is created in `resumed`, on the first pump.
         for _ in 0..100 {
@@ -224,6 +314,17 @@ impl WindowSink {
             self.renderer.queue().clone(),
             self.adapter_name.clone(),
         )
+    }
+
+    /// The input gathered since the last call (pumped by [`Sink::poll`]);
+    /// empty unless `collect_inputs` was set.
+    pub fn take_inputs(&mut self) -> Vec<WindowInput> {
+        std::mem::take(&mut self.app.inputs)
+    }
+
+    /// The surface's size in physical pixels (cursor positions are in these).
+    pub fn surface_size(&self) -> (u32, u32) {
+        (self.config.width, self.config.height)
     }
 
     fn reconfigure(&mut self) {

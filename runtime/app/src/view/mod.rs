@@ -1,0 +1,300 @@
+//! `nedrt view` and `nedrt sweep`: what the eye sees through each method as
+//! it focuses from far to near. The viewer is a window whose accommodation
+//! follows the wheel, the arrow keys or a slider; a sweep renders the same
+//! side-by-side picture over a range of accommodations into an animated
+//! file. Both show one [`scene::FocusScene`] through [`compose::compose`].
+
+pub mod animation;
+pub mod compose;
+pub mod scene;
+pub mod window;
+
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use nedrt_optics::sim::{Image, Method};
+use nedrt_service::present::window::WindowOptions;
+
+use crate::{AppError, CommonOptions};
+use compose::{Layout, Picture};
+use scene::{FocusScene, Shown};
+
+/// The methods shown unless asked otherwise: the two baselines and the
+/// paper's system.
+pub const DEFAULT_METHODS: [Method; 3] = [Method::Conventional, Method::Ai, Method::Proposed];
+
+/// Most accommodations one scene prepares (each is a PSF per channel and optics).
+const MAX_DEPTHS: usize = 601;
+
+/// `from`, `from + step`, … up to `to` (inclusive within 1e-9 D), rounded
+/// to 1e-12 D so that 15 × 0.1 is the 1.5 D of the calibration's lists.
+pub fn depth_grid(from_d: f64, to_d: f64, step_d: f64) -> Result<Vec<f64>, AppError> {
+    if !(from_d.is_finite() && to_d.is_finite() && step_d.is_finite()) {
+        return Err(AppError::Usage(format!(
+            "accommodations {from_d}..{to_d} step {step_d}: not numbers of diopters"
+        )));
+    }
+    if step_d <= 0.0 || to_d < from_d {
+        return Err(AppError::Usage(format!(
+            "accommodations {from_d}..{to_d} step {step_d}: the step must be > 0 and the range ascending"
+        )));
+    }
+    let n = ((to_d - from_d) / step_d + 1e-9).floor() as usize + 1;
+    if n > MAX_DEPTHS {
+        return Err(AppError::Usage(format!(
+            "accommodations {from_d}..{to_d} step {step_d}: {n} depths, at most {MAX_DEPTHS}; take a larger step"
+        )));
+    }
+    Ok((0..n)
+        .map(|i| ((from_d + i as f64 * step_d) * 1e12).round() / 1e12)
+        .collect())
+}
+
+/// What `nedrt view` shows and how.
+#[derive(Debug, Clone)]
+pub struct ViewOptions {
+    /// Input image; `None` = the shipped test image.
+    pub input: Option<PathBuf>,
+    pub methods: Vec<Method>,
+    /// Step of the accommodation grid over the calibrated range.
+    pub step_d: f64,
+    /// Where the eye focuses first.
+    pub accommodation_d: f64,
+    pub shown: Shown,
+    /// Render one picture to `screenshot` and open no window.
+    pub headless: bool,
+    /// Headless: the picture's file (PNG). In the window, key `c` saves
+    /// into `screenshot_dir` instead.
+    pub screenshot: Option<PathBuf>,
+    pub screenshot_dir: PathBuf,
+    /// The largest window; a larger picture is drawn scaled down into it.
+    pub max_window: (u32, u32),
+    pub window: WindowOptions,
+}
+
+/// `nedrt sweep`: the picture over a range of accommodations.
+#[derive(Debug, Clone)]
+pub struct SweepOptions {
+    pub input: Option<PathBuf>,
+    pub methods: Vec<Method>,
+    pub from_d: f64,
+    pub to_d: f64,
+    pub step_d: f64,
+    pub fps: f64,
+    /// `.png`/`.apng` (animated PNG) or `.gif`.
+    pub out: PathBuf,
+}
+
+fn load_scene(
+    common: &CommonOptions,
+    input: Option<&Path>,
+    methods: &[Method],
+    depths_d: &[f64],
+) -> Result<FocusScene, AppError> {
+    let (loaded, name) = crate::sim::load_input(input, common.panel_px()?)?;
+    for n in &loaded.notes {
+        tracing::warn!("{n}");
+    }
+    scene_of(common, loaded.image, name, methods, depths_d)
+}
+
+fn scene_of(
+    common: &CommonOptions,
+    image: Image,
+    name: String,
+    methods: &[Method],
+    depths_d: &[f64],
+) -> Result<FocusScene, AppError> {
+    if image.width < 8 || image.height < 8 {
+        return Err(AppError::Usage(format!(
+            "{name}: {}×{} pixels, smaller than 8×8",
+            image.width, image.height
+        )));
+    }
+    let short = Path::new(&name)
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or(name);
+    FocusScene::new(common, image, short, methods, depths_d)
+}
+
+/// The picture of a scene at grid depth `depth`.
+pub fn picture_at(
+    scene: &FocusScene,
+    layout: &Layout,
+    depth: usize,
+    shown: Shown,
+) -> Result<Picture, AppError> {
+    let rendered = scene.render_all(depth)?;
+    compose::compose(scene, layout, depth, shown, &rendered)
+}
+
+/// Writes a picture as an 8-bit PNG, atomically.
+pub fn save_picture(picture: &Picture, path: &Path) -> Result<(), AppError> {
+    nedrt_core::image_io::check_extension(path, &["png"])?;
+    let image = image::RgbImage::from_raw(
+        picture.width as u32,
+        picture.height as u32,
+        picture.rgb8.clone(),
+    )
+    .ok_or_else(|| AppError::output(path, "picture buffer of the wrong size"))?;
+    let mut bytes = Vec::new();
+    image
+        .write_to(
+            &mut std::io::Cursor::new(&mut bytes),
+            image::ImageFormat::Png,
+        )
+        .map_err(|e| AppError::output(path, e))?;
+    nedrt_core::util::write_atomic(path, &bytes).map_err(|e| AppError::output(path, e))
+}
+
+/// `nedrt view`: the window, or with `headless` one picture to a file.
+pub fn view(common: &CommonOptions, opts: &ViewOptions) -> Result<String, AppError> {
+    let calib = common.calibration()?;
+    let [lo, hi] = calib.range_d;
+    if opts.headless {
+        match &opts.screenshot {
+            Some(p) => {
+                nedrt_core::image_io::check_extension(p, &["png"])?;
+            }
+            None => {
+                return Err(AppError::Usage(
+                    "--headless needs --screenshot FILE.png (the picture it renders)".into(),
+                ));
+            }
+        }
+    }
+    crate::check_accommodation(&calib, opts.accommodation_d)?;
+    let depths = depth_grid(lo, hi, opts.step_d)?;
+    let start = Instant::now();
+    let scene = load_scene(common, opts.input.as_deref(), &opts.methods, &depths)?;
+    let prepared_s = start.elapsed().as_secs_f64();
+    let depth = scene.nearest_depth(opts.accommodation_d);
+    let mut text = String::new();
+    let _ = writeln!(
+        text,
+        "nedrt view: {} through {} at {} accommodations ({lo}–{hi} D, step {} D); prepared in {prepared_s:.1} s",
+        scene.input_name,
+        names(&scene.methods),
+        scene.depths_d.len(),
+        opts.step_d
+    );
+    if opts.headless {
+        let layout = Layout::of(&scene, false);
+        let picture = picture_at(&scene, &layout, depth, opts.shown)?;
+        let path = opts.screenshot.as_deref().unwrap_or(Path::new("view.png"));
+        save_picture(&picture, path)?;
+        let _ = writeln!(
+            text,
+            "wrote {} ({}×{}, {} at {:.2} D)",
+            path.display(),
+            picture.width,
+            picture.height,
+            opts.shown.label(),
+            scene.depths_d[depth]
+        );
+        return Ok(text);
+    }
+    let summary = window::interactive(&scene, opts, depth)?;
+    let _ = write!(text, "{summary}");
+    Ok(text)
+}
+
+fn names(methods: &[Method]) -> String {
+    methods
+        .iter()
+        .map(|m| m.name())
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
+/// `nedrt sweep`: renders the picture at every accommodation of the range
+/// and writes the animation.
+pub fn sweep(common: &CommonOptions, opts: &SweepOptions) -> Result<String, AppError> {
+    animation::check_request(&opts.out, opts.fps)?;
+    let depths = depth_grid(opts.from_d, opts.to_d, opts.step_d)?;
+    let scene = load_scene(common, opts.input.as_deref(), &opts.methods, &depths)?;
+    sweep_scene(common, &scene, opts)
+}
+
+/// The sweep of an already loaded image (`nedrt eval --sweeps`).
+pub fn sweep_image(
+    common: &CommonOptions,
+    image: Image,
+    name: String,
+    opts: &SweepOptions,
+) -> Result<String, AppError> {
+    animation::check_request(&opts.out, opts.fps)?;
+    let depths = depth_grid(opts.from_d, opts.to_d, opts.step_d)?;
+    let scene = scene_of(common, image, name, &opts.methods, &depths)?;
+    sweep_scene(common, &scene, opts)
+}
+
+fn sweep_scene(
+    common: &CommonOptions,
+    scene: &FocusScene,
+    opts: &SweepOptions,
+) -> Result<String, AppError> {
+    let layout = Layout::of(scene, false);
+    let progress = common.progress();
+    progress.start("sweep frames", scene.depths_d.len() as u64);
+    let start = Instant::now();
+    let mut frames = Vec::with_capacity(scene.depths_d.len());
+    for depth in 0..scene.depths_d.len() {
+        frames.push(picture_at(scene, &layout, depth, Shown::Perceived)?);
+        progress.advance(1);
+    }
+    progress.finish();
+    let render_s = start.elapsed().as_secs_f64();
+    animation::write(&opts.out, &frames, opts.fps)?;
+    let perceived = frames.len() * scene.methods.len();
+    let bytes = std::fs::metadata(&opts.out).map(|m| m.len()).unwrap_or(0);
+    Ok(format!(
+        "nedrt sweep: {} through {}, {} frames ({:.2}–{:.2} D, step {} D) at {} fps\n\
+         wrote {} ({}×{}, {:.1} MB)\n\
+         rendered {perceived} perceived images ({}×{}) in {render_s:.2} s: {:.1} a second on {} threads\n",
+        scene.input_name,
+        names(&scene.methods),
+        frames.len(),
+        scene.depths_d[0],
+        scene.depths_d[scene.depths_d.len() - 1],
+        opts.step_d,
+        opts.fps,
+        opts.out.display(),
+        layout.width,
+        layout.height,
+        bytes as f64 / 1e6,
+        scene.width,
+        scene.height,
+        perceived as f64 / render_s.max(1e-9),
+        rayon::current_num_threads()
+    ))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_grid_holds_the_listed_depths_exactly() {
+        let g = depth_grid(0.0, 3.0, 0.05).expect("grid");
+        assert_eq!(g.len(), 61);
+        assert!(g.contains(&0.5) && g.contains(&1.5) && g.contains(&2.5));
+        assert_eq!(g[60], 3.0);
+        assert_eq!(depth_grid(1.0, 1.0, 0.1).expect("one"), vec![1.0]);
+    }
+
+    #[test]
+    fn bad_grids_are_refused_with_the_reason() {
+        for (a, b, s) in [
+            (0.0, 3.0, 0.0),
+            (2.0, 1.0, 0.1),
+            (0.0, f64::NAN, 0.1),
+            (0.0, 3.0, 1e-4),
+        ] {
+            let e = depth_grid(a, b, s).expect_err("refused");
+            assert!(e.to_string().contains("accommodations"), "{e}");
+        }
+    }
+}

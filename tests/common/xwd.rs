@@ -1,0 +1,39 @@
+//! Screenshots of X windows for the window tests (tests/service and
+//! tests/cli include this file): `xwd` output parsed to RGB.
+
+/// Reads an XWD (X Window Dump) of a 24/32-bit TrueColor window as RGB.
+fn parse_xwd(b: &[u8]) -> (usize, usize, Vec<u8>) {
+    let be = |i: usize| u32::from_be_bytes([b[4 * i], b[4 * i + 1], b[4 * i + 2], b[4 * i + 3]]);
+    let (header, w, h) = (be(0) as usize, be(4) as usize, be(5) as usize);
+    let (byte_order, bpp, stride) = (be(7), be(11) as usize, be(12) as usize);
+    let (rm, gm, bm, ncolors) = (be(14), be(15), be(16), be(19) as usize);
+    assert_eq!(bpp, 32, "expected a 32-bit visual");
+    let data = &b[header + 12 * ncolors..];
+    let chan = |p: u32, m: u32| ((p & m) >> m.trailing_zeros()) as u8;
+    let mut rgb = Vec::with_capacity(3 * w * h);
+    for y in 0..h {
+        for x in 0..w {
+            let q = &data[y * stride + 4 * x..y * stride + 4 * x + 4];
+            let p = if byte_order == 0 {
+                u32::from_le_bytes([q[0], q[1], q[2], q[3]])
+            } else {
+                u32::from_be_bytes([q[0], q[1], q[2], q[3]])
+            };
+            rgb.extend([chan(p, rm), chan(p, gm), chan(p, bm)]);
+        }
+    }
+    (w, h, rgb)
+}
+
+/// A screenshot of the window named `name` (`xwd`, x11-apps), or why not.
+pub fn screenshot(name: &str) -> Result<(usize, usize, Vec<u8>), String> {
+    let shot = std::process::Command::new("xwd")
+        .args(["-name", name, "-silent"])
+        .output()
+        .map_err(|e| format!("xwd (x11-apps): {e}"))?;
+    if shot.status.success() && shot.stdout.len() > 100 {
+        Ok(parse_xwd(&shot.stdout))
+    } else {
+        Err(String::from_utf8_lossy(&shot.stderr).into_owned())
+    }
+}
