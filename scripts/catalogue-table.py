@@ -15,7 +15,7 @@ print("|---|---|---|---|")
 n = 0
 for name, args, needle in rows:
     n += 1
-    args = " ".join(a.strip().strip('"') for a in args.replace("\n", " ").split(",") if a.strip())
+    args = " ".join(re.findall(r'"((?:[^"\\]|\\.)*)"', args))
     print(f"| {n} | {name} | `{args}` | `{needle}` |")
 for name, needle in protocol:
     n += 1
