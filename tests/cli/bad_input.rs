@@ -453,6 +453,30 @@ const ROWS: &[Row] = &[
         "out.png.jpg: cannot write image: unsupported extension",
     ),
     row(
+        "view: crop outside the image",
+        &[
+            "view",
+            "--headless",
+            "--screenshot",
+            "{out}",
+            "--crop",
+            "600x10+0+0",
+        ],
+        "--crop 600x10+0+0: outside data/images/test/astronaut.png (512×512)",
+    ),
+    row(
+        "view: crop malformed",
+        &[
+            "view",
+            "--headless",
+            "--screenshot",
+            "{out}",
+            "--crop",
+            "10x10",
+        ],
+        "expected WxH+X+Y",
+    ),
+    row(
         "sweep: animation format unknown",
         &["sweep", "--out", "{out}.mp4"],
         "out.png.mp4: cannot write image: unsupported extension",

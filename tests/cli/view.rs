@@ -125,6 +125,29 @@ fn a_sweep_has_a_frame_per_depth_each_panel_the_simulators_image() {
             assert_same_codes(&shown, &want, &format!("{method} at {accom} D"));
         }
     }
+    // The sweep's frame at 1.0 D is the viewer's picture there, bit for bit
+    // (the same PSFs, from one cached request on the viewer's grid).
+    let shot = dir.path().join("view.png");
+    let o = run(&[
+        "--calib",
+        path(&small_calib()),
+        "view",
+        "--headless",
+        "--input",
+        path(&input),
+        "--methods",
+        "conventional,ai",
+        "--accom",
+        "1.0",
+        "--screenshot",
+        path(&shot),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let view = image::open(&shot).expect("view").into_rgb8();
+    assert!(
+        view.as_raw() == &rgb[1],
+        "the headless view at 1.0 D is the sweep's frame"
+    );
     // The labels follow the depth.
     let (lx, ly, lw, lh) = layout.label_area(0);
     assert_ne!(

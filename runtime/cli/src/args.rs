@@ -142,6 +142,21 @@ fn parse_size(s: &str) -> Result<(usize, usize), String> {
     Ok((parse(w)?, parse(h)?))
 }
 
+/// `WxH+X+Y` (a region `W`×`H` at `X`, `Y`; as ImageMagick's geometry).
+fn parse_crop(s: &str) -> Result<nedrt_app::view::Crop, String> {
+    let bad = || format!("{s:?}: expected WxH+X+Y, e.g. 128x128+200+100");
+    let (size, offset) = s.split_once('+').ok_or_else(bad)?;
+    let (x, y) = offset.split_once('+').ok_or_else(bad)?;
+    let (width, height) = parse_size(size)?;
+    let number = |v: &str| v.parse::<usize>().map_err(|_| bad());
+    Ok(nedrt_app::view::Crop {
+        x: number(x)?,
+        y: number(y)?,
+        width,
+        height,
+    })
+}
+
 #[derive(Subcommand, Debug)]
 pub enum Command {
     /// The perceived image at one accommodation, scored against the sharp
@@ -412,6 +427,9 @@ pub struct ViewArgs {
     /// Where key `c` saves screenshots of the window.
     #[arg(long, value_name = "DIR", default_value = ".")]
     pub screenshot_dir: PathBuf,
+    /// Show only this region of the input, WxH+X+Y (every retinal pixel 1:1).
+    #[arg(long, value_parser = parse_crop, value_name = "WxH+X+Y")]
+    pub crop: Option<nedrt_app::view::Crop>,
     /// The largest window; a larger picture is scaled down into it.
     #[arg(long, value_parser = parse_size, default_value = "1600x1000", value_name = "WxH")]
     pub max_window: (usize, usize),
@@ -425,6 +443,9 @@ pub struct SweepArgs {
     /// Display systems side by side.
     #[arg(long, value_delimiter = ',', value_parser = named::<Method>(), default_values = ["conventional", "ai", "proposed"])]
     pub methods: Vec<Method>,
+    /// Show only this region of the input, WxH+X+Y.
+    #[arg(long, value_parser = parse_crop, value_name = "WxH+X+Y")]
+    pub crop: Option<nedrt_app::view::Crop>,
     /// First accommodation, diopters.
     #[arg(
         long,

@@ -104,6 +104,7 @@ pub fn run(cli: Cli) -> Result<()> {
         Some(Command::View(a)) => {
             let opts = app::view::ViewOptions {
                 input: a.input,
+                crop: a.crop,
                 methods: a.methods,
                 step_d: a.step,
                 accommodation_d: a.accom,
@@ -127,6 +128,7 @@ pub fn run(cli: Cli) -> Result<()> {
         Some(Command::Sweep(a)) => {
             let opts = app::view::SweepOptions {
                 input: a.input,
+                crop: a.crop,
                 methods: a.methods,
                 from_d: a.from,
                 to_d: a.to,

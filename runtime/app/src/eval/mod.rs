@@ -446,6 +446,7 @@ pub fn run(
             let out = dir.join(format!("{}.png", stem.unwrap_or_else(|| "image".into())));
             let opts = crate::view::SweepOptions {
                 input: Some(file.clone()),
+                crop: None,
                 methods: methods.clone(),
                 from_d: sim.calib.range_d[0],
                 to_d: sim.calib.range_d[1],

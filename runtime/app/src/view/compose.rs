@@ -153,7 +153,7 @@ pub fn compose(
 ) -> Result<Picture, AppError> {
     crate::charts::register_font();
     let accommodation_d = scene.depths_d[depth];
-    let max_d = scene.depths_d.last().copied().unwrap_or(3.0).max(1e-9);
+    let max_d = scene.slider_max_d();
     let (w, h) = (layout.width, layout.height);
     let mut rgb8 = vec![0u8; 3 * w * h];
     {

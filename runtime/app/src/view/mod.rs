@@ -24,6 +24,21 @@ use scene::{FocusScene, Shown};
 /// paper's system.
 pub const DEFAULT_METHODS: [Method; 3] = [Method::Conventional, Method::Ai, Method::Proposed];
 
+/// The viewer's grid step: PSFs for every 0.05 D of the calibrated range.
+pub const VIEW_STEP_D: f64 = 0.05;
+
+/// The PSF depths for showing `depths_d`: the viewer's grid when they all
+/// lie on it (the viewer, and sweeps in steps of 0.05 D, 0.1 D, …, then share
+/// one cached request and show identical pictures), else `depths_d`.
+fn psf_depths(common: &CommonOptions, depths_d: &[f64]) -> Result<Vec<f64>, AppError> {
+    let [lo, hi] = common.calibration()?.range_d;
+    let grid = depth_grid(lo, hi, VIEW_STEP_D)?;
+    let on_grid = depths_d
+        .iter()
+        .all(|d| grid.iter().any(|g| (g - d).abs() < 1e-9));
+    Ok(if on_grid { grid } else { depths_d.to_vec() })
+}
+
 /// Most accommodations one scene prepares (each is a PSF per channel and optics).
 const MAX_DEPTHS: usize = 601;
 
@@ -51,11 +66,22 @@ pub fn depth_grid(from_d: f64, to_d: f64, step_d: f64) -> Result<Vec<f64>, AppEr
         .collect())
 }
 
+/// A region of the input: `width`×`height` pixels at (`x`, `y`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Crop {
+    pub x: usize,
+    pub y: usize,
+    pub width: usize,
+    pub height: usize,
+}
+
 /// What `nedrt view` shows and how.
 #[derive(Debug, Clone)]
 pub struct ViewOptions {
     /// Input image; `None` = the shipped test image.
     pub input: Option<PathBuf>,
+    /// Only this region of the input.
+    pub crop: Option<Crop>,
     pub methods: Vec<Method>,
     /// Step of the accommodation grid over the calibrated range.
     pub step_d: f64,
@@ -77,6 +103,7 @@ pub struct ViewOptions {
 #[derive(Debug, Clone)]
 pub struct SweepOptions {
     pub input: Option<PathBuf>,
+    pub crop: Option<Crop>,
     pub methods: Vec<Method>,
     pub from_d: f64,
     pub to_d: f64,
@@ -89,6 +116,7 @@ pub struct SweepOptions {
 fn load_scene(
     common: &CommonOptions,
     input: Option<&Path>,
+    crop: Option<Crop>,
     methods: &[Method],
     depths_d: &[f64],
 ) -> Result<FocusScene, AppError> {
@@ -96,7 +124,23 @@ fn load_scene(
     for n in &loaded.notes {
         tracing::warn!("{n}");
     }
-    scene_of(common, loaded.image, name, methods, depths_d)
+    let image = match crop {
+        Some(c) => crop_image(&loaded.image, c, &name)?,
+        None => loaded.image,
+    };
+    scene_of(common, image, name, methods, depths_d)
+}
+
+fn crop_image(image: &Image, c: Crop, name: &str) -> Result<Image, AppError> {
+    let fits = c.x.checked_add(c.width).is_some_and(|r| r <= image.width)
+        && c.y.checked_add(c.height).is_some_and(|b| b <= image.height);
+    if !fits {
+        return Err(AppError::Usage(format!(
+            "--crop {}x{}+{}+{}: outside {name} ({}×{})",
+            c.width, c.height, c.x, c.y, image.width, image.height
+        )));
+    }
+    Ok(image.crop(c.x, c.y, c.width, c.height))
 }
 
 fn scene_of(
@@ -116,7 +160,8 @@ fn scene_of(
         .file_name()
         .map(|n| n.to_string_lossy().into_owned())
         .unwrap_or(name);
-    FocusScene::new(common, image, short, methods, depths_d)
+    let psf_depths_d = psf_depths(common, depths_d)?;
+    FocusScene::new(common, image, short, methods, depths_d, &psf_depths_d)
 }
 
 /// The picture of a scene at grid depth `depth`.
@@ -168,7 +213,13 @@ pub fn view(common: &CommonOptions, opts: &ViewOptions) -> Result<String, AppErr
     crate::check_accommodation(&calib, opts.accommodation_d)?;
     let depths = depth_grid(lo, hi, opts.step_d)?;
     let start = Instant::now();
-    let scene = load_scene(common, opts.input.as_deref(), &opts.methods, &depths)?;
+    let scene = load_scene(
+        common,
+        opts.input.as_deref(),
+        opts.crop,
+        &opts.methods,
+        &depths,
+    )?;
     let prepared_s = start.elapsed().as_secs_f64();
     let depth = scene.nearest_depth(opts.accommodation_d);
     let mut text = String::new();
@@ -214,7 +265,13 @@ fn names(methods: &[Method]) -> String {
 pub fn sweep(common: &CommonOptions, opts: &SweepOptions) -> Result<String, AppError> {
     animation::check_request(&opts.out, opts.fps)?;
     let depths = depth_grid(opts.from_d, opts.to_d, opts.step_d)?;
-    let scene = load_scene(common, opts.input.as_deref(), &opts.methods, &depths)?;
+    let scene = load_scene(
+        common,
+        opts.input.as_deref(),
+        opts.crop,
+        &opts.methods,
+        &depths,
+    )?;
     sweep_scene(common, &scene, opts)
 }
 

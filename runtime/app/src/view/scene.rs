@@ -114,13 +114,16 @@ const MEMO_BYTES: usize = 512 << 20;
 
 impl FocusScene {
     /// Prepares `methods` over `depths_d` for `input` (already loaded and
-    /// checked against the panel).
+    /// checked against the panel), with the PSFs of `psf_depths_d` (a
+    /// superset of `depths_d`: one request, so one cache entry, serves the
+    /// viewer and every sweep on its grid).
     pub fn new(
         common: &CommonOptions,
         input: Image,
         input_name: String,
         methods: &[Method],
         depths_d: &[f64],
+        psf_depths_d: &[f64],
     ) -> Result<Self, AppError> {
         if methods.is_empty() {
             return Err(AppError::Usage("no methods to show".into()));
@@ -140,7 +143,13 @@ impl FocusScene {
             common.doe_path_for(methods).as_deref(),
             common.cache(),
         )?;
-        let prepared = sim.prepare(methods, depths_d, common.progress())?;
+        let mut requested = psf_depths_d.to_vec();
+        requested.extend(
+            depths_d
+                .iter()
+                .filter(|d| !psf_depths_d.iter().any(|p| (p - *d).abs() < 1e-9)),
+        );
+        let prepared = sim.prepare(methods, &requested, common.progress())?;
         let displays = methods
             .iter()
             .map(|&m| -> Result<Image, AppError> {
@@ -172,19 +181,19 @@ impl FocusScene {
         })
     }
 
+    /// The far end of the slider: the calibrated range's (the same for
+    /// every sweep, whatever part of the range it covers).
+    pub fn slider_max_d(&self) -> f64 {
+        self.calib.range_d[1].max(1e-9)
+    }
+
     pub fn is_main_depth(&self, accommodation_d: f64) -> bool {
         self.calib.is_main_depth(accommodation_d)
     }
 
     /// The grid index nearest to `accommodation_d`.
     pub fn nearest_depth(&self, accommodation_d: f64) -> usize {
-        let mut best = 0;
-        for (i, d) in self.depths_d.iter().enumerate() {
-            if (d - accommodation_d).abs() < (self.depths_d[best] - accommodation_d).abs() {
-                best = i;
-            }
-        }
-        best
+        nearest_index(&self.depths_d, accommodation_d)
     }
 
     /// The display frame a method shows (after its preprocessing).
@@ -262,6 +271,17 @@ impl FocusScene {
         // and their byte count are updated together.
         self.memo.lock().unwrap_or_else(|e| e.into_inner())
     }
+}
+
+/// The index of the value of `grid` nearest to `value` (0 for an empty grid).
+pub fn nearest_index(grid: &[f64], value: f64) -> usize {
+    let mut best = 0;
+    for (i, g) in grid.iter().enumerate() {
+        if (g - value).abs() < (grid[best] - value).abs() {
+            best = i;
+        }
+    }
+    best
 }
 
 /// The channel PSFs as one RGB picture: the central cells of the window,

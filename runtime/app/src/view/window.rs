@@ -73,6 +73,7 @@ pub struct ViewState {
     /// A screenshot was asked for and not yet taken.
     pub screenshot: bool,
     depths: usize,
+    depths_d: Vec<f64>,
     /// Grid steps of PageUp/PageDown (0.5 D).
     big_step: usize,
     sweep_up: bool,
@@ -95,6 +96,7 @@ impl ViewState {
             quit: false,
             screenshot: false,
             depths: depths_d.len(),
+            depths_d: depths_d.to_vec(),
             big_step: ((0.5 / step).round() as usize).max(1),
             sweep_up: true,
             dragging: false,
@@ -158,8 +160,7 @@ impl ViewState {
     fn slide(&mut self, layout: &Layout, max_d: f64) -> bool {
         match layout.accommodation_at(self.cursor.0, self.cursor.1, max_d) {
             Some(d) => {
-                let last = self.depths.saturating_sub(1);
-                self.depth = ((d / max_d) * last as f64).round() as usize;
+                self.depth = super::scene::nearest_index(&self.depths_d, d);
                 self.sweeping = false;
                 true
             }
@@ -245,7 +246,7 @@ fn ui_loop(
     rx: &crossbeam_channel::Receiver<Result<Drawn, AppError>>,
     depth: usize,
 ) -> Result<String, AppError> {
-    let max_d = scene.depths_d.last().copied().unwrap_or(3.0).max(1e-9);
+    let max_d = scene.slider_max_d();
     let mut state = ViewState::new(depth, opts.shown, &scene.depths_d);
     let mut requested = state.request();
     latest.put(requested);
