@@ -231,6 +231,9 @@ pub fn view(common: &CommonOptions, opts: &ViewOptions) -> Result<String, AppErr
         scene.depths_d.len(),
         opts.step_d
     );
+    for line in scene.psf_reports() {
+        let _ = writeln!(text, "{line}");
+    }
     if opts.headless {
         let layout = Layout::of(&scene, false);
         let picture = picture_at(&scene, &layout, depth, opts.shown)?;
@@ -307,10 +310,16 @@ fn sweep_scene(
     animation::write(&opts.out, &frames, opts.fps)?;
     let perceived = frames.len() * scene.methods.len();
     let bytes = std::fs::metadata(&opts.out).map(|m| m.len()).unwrap_or(0);
+    let reports: String = scene
+        .psf_reports()
+        .iter()
+        .map(|l| format!("{l}\n"))
+        .collect();
     Ok(format!(
         "nedrt sweep: {} through {}, {} frames ({:.2}–{:.2} D, step {} D) at {} fps\n\
          wrote {} ({}×{}, {:.1} MB)\n\
-         rendered {perceived} perceived images ({}×{}) in {render_s:.2} s: {:.1} a second on {} threads\n",
+         rendered {perceived} perceived images ({}×{}) in {render_s:.2} s: {:.1} a second on {} threads\n\
+         {reports}",
         scene.input_name,
         names(&scene.methods),
         frames.len(),

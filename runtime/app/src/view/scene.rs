@@ -196,6 +196,15 @@ impl FocusScene {
         nearest_index(&self.depths_d, accommodation_d)
     }
 
+    /// What the PSF model chose, per optics ("lens", "lens + DOE").
+    pub fn psf_reports(&self) -> Vec<String> {
+        self.prepared
+            .reports
+            .iter()
+            .map(|(name, r)| format!("PSF model, {name}: {}", r.summary()))
+            .collect()
+    }
+
     /// The display frame a method shows (after its preprocessing).
     pub fn display(&self, method: usize) -> &Image {
         &self.displays[method]

@@ -254,6 +254,7 @@ fn ui_loop(
     let mut last_present = Instant::now();
     let mut last_sweep = Instant::now();
     let mut render_ms: Vec<f64> = Vec::new();
+    let mut present_ms: Vec<f64> = Vec::new();
     let mut saved: Vec<PathBuf> = Vec::new();
     let opened = Instant::now();
     while sink.poll() {
@@ -301,7 +302,9 @@ fn ui_loop(
                 height: picture.height,
                 rgba8: picture.rgba8(),
             };
+            let start = Instant::now();
             sink.present(&frame)?;
+            present_ms.push(start.elapsed().as_secs_f64() * 1e3);
             last_present = Instant::now();
             shown = Some((req, frame, picture));
         } else if last_present.elapsed() >= Duration::from_millis(500)
@@ -313,15 +316,20 @@ fn ui_loop(
         }
         std::thread::sleep(Duration::from_millis(8));
     }
-    render_ms.sort_by(f64::total_cmp);
+    let median = |v: &mut Vec<f64>| {
+        v.sort_by(f64::total_cmp);
+        v.get(v.len() / 2).copied().unwrap_or(0.0)
+    };
     let mut t = String::new();
     let _ = writeln!(
         t,
-        "closed after {:.1} s: {} pictures drawn, median {:.0} ms each ({} methods)",
+        "closed after {:.1} s: {} pictures drawn, median {:.0} ms each to render ({} methods, \
+         memo included) and {:.1} ms to present",
         opened.elapsed().as_secs_f64(),
         render_ms.len(),
-        render_ms.get(render_ms.len() / 2).copied().unwrap_or(0.0),
-        scene.methods.len()
+        median(&mut render_ms),
+        scene.methods.len(),
+        median(&mut present_ms)
     );
     for p in &saved {
         let _ = writeln!(t, "saved {}", p.display());
