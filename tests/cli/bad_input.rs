@@ -492,6 +492,26 @@ const ROWS: &[Row] = &[
         "the range ascending",
     ),
     row(
+        "sweep: negative start",
+        &["sweep", "--from", "-0.5", "--out", "{out}"],
+        "--from -0.5: accommodation must be ≥ 0 D",
+    ),
+    row(
+        "sweep: GIF faster than 50 fps",
+        &["sweep", "--fps", "60", "--out", "{out}.gif"],
+        "a GIF plays at most 50 frames a second",
+    ),
+    row(
+        "view: --screenshot without --headless",
+        &["view", "--screenshot", "{out}"],
+        "--screenshot FILE needs --headless",
+    ),
+    row(
+        "view: screenshot folder missing",
+        &["view", "--screenshot-dir", "{dir}/no-shots"],
+        "no-shots: --screenshot-dir: not a folder",
+    ),
+    row(
         "sweep: fps NaN",
         &["sweep", "--fps", "nan", "--out", "{out}"],
         "--fps NaN",

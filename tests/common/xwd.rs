@@ -1,14 +1,22 @@
 //! Screenshots of X windows for the window tests (tests/service and
 //! tests/cli include this file): `xwd` output parsed to RGB.
 
-/// Reads an XWD (X Window Dump) of a 24/32-bit TrueColor window as RGB.
-fn parse_xwd(b: &[u8]) -> (usize, usize, Vec<u8>) {
+/// Reads an XWD (X Window Dump) of a 24/32-bit TrueColor window as RGB;
+/// `None` for a dump shorter than its header says (taken while the window
+/// was mapping), which the caller retries.
+fn parse_xwd(b: &[u8]) -> Option<(usize, usize, Vec<u8>)> {
+    if b.len() < 100 {
+        return None;
+    }
     let be = |i: usize| u32::from_be_bytes([b[4 * i], b[4 * i + 1], b[4 * i + 2], b[4 * i + 3]]);
     let (header, w, h) = (be(0) as usize, be(4) as usize, be(5) as usize);
     let (byte_order, bpp, stride) = (be(7), be(11) as usize, be(12) as usize);
     let (rm, gm, bm, ncolors) = (be(14), be(15), be(16), be(19) as usize);
     assert_eq!(bpp, 32, "expected a 32-bit visual");
-    let data = &b[header + 12 * ncolors..];
+    let data = b.get(header + 12 * ncolors..)?;
+    if h > 0 && data.len() < (h - 1) * stride + 4 * w {
+        return None;
+    }
     let chan = |p: u32, m: u32| ((p & m) >> m.trailing_zeros()) as u8;
     let mut rgb = Vec::with_capacity(3 * w * h);
     for y in 0..h {
@@ -22,7 +30,7 @@ fn parse_xwd(b: &[u8]) -> (usize, usize, Vec<u8>) {
             rgb.extend([chan(p, rm), chan(p, gm), chan(p, bm)]);
         }
     }
-    (w, h, rgb)
+    Some((w, h, rgb))
 }
 
 /// A screenshot of the window named `name` (`xwd`, x11-apps), or why not.
@@ -31,8 +39,8 @@ pub fn screenshot(name: &str) -> Result<(usize, usize, Vec<u8>), String> {
         .args(["-name", name, "-silent"])
         .output()
         .map_err(|e| format!("xwd (x11-apps): {e}"))?;
-    if shot.status.success() && shot.stdout.len() > 100 {
-        Ok(parse_xwd(&shot.stdout))
+    if shot.status.success() {
+        parse_xwd(&shot.stdout).ok_or_else(|| "a truncated dump".to_string())
     } else {
         Err(String::from_utf8_lossy(&shot.stderr).into_owned())
     }

@@ -421,7 +421,7 @@ pub struct ViewArgs {
     /// Open no window: render the picture at --accom to --screenshot.
     #[arg(long)]
     pub headless: bool,
-    /// The PNG --headless writes.
+    /// The PNG --headless writes (in the window, key c saves into --screenshot-dir).
     #[arg(long, value_name = "FILE")]
     pub screenshot: Option<PathBuf>,
     /// Where key `c` saves screenshots of the window.

@@ -441,9 +441,22 @@ pub fn run(
     ];
     written.extend(result.charts.iter().cloned());
     if let Some(dir) = &extras.sweeps {
+        let stem = |f: &PathBuf| {
+            f.file_stem()
+                .map(|s| s.to_string_lossy().into_owned())
+                .unwrap_or_else(|| "image".into())
+        };
         for (file, image) in files.iter().zip(&images) {
-            let stem = file.file_stem().map(|s| s.to_string_lossy().into_owned());
-            let out = dir.join(format!("{}.png", stem.unwrap_or_else(|| "image".into())));
+            // a.png and a.jpg would share a stem: then the whole name.
+            let shared = files.iter().filter(|f| stem(f) == stem(file)).count() > 1;
+            let name = if shared {
+                file.file_name()
+                    .map(|n| n.to_string_lossy().into_owned())
+                    .unwrap_or_else(|| stem(file))
+            } else {
+                stem(file)
+            };
+            let out = dir.join(format!("{name}.png"));
             let opts = crate::view::SweepOptions {
                 input: Some(file.clone()),
                 crop: None,

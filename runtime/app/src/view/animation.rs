@@ -18,6 +18,12 @@ pub fn check_request(path: &Path, fps: f64) -> Result<String, AppError> {
             "--fps {fps}: frames a second must lie in [0.1, 100]"
         )));
     }
+    if ext == "gif" && fps > 50.0 {
+        return Err(AppError::Usage(format!(
+            "--fps {fps}: a GIF plays at most 50 frames a second (delays in hundredths of a second); \
+             write .png for more"
+        )));
+    }
     Ok(ext)
 }
 
@@ -76,7 +82,10 @@ fn gif(frames: &[Picture], fps: f64) -> Result<Vec<u8>, String> {
         encoder
             .set_repeat(Repeat::Infinite)
             .map_err(|e| e.to_string())?;
-        let delay = Delay::from_numer_denom_ms((1000.0 / fps).round().max(10.0) as u32, 1);
+        // GIF counts delays in hundredths of a second, and players treat
+        // one hundredth as ten: whole hundredths, at least two.
+        let hundredths = (100.0 / fps).round().max(2.0) as u32;
+        let delay = Delay::from_numer_denom_ms(10 * hundredths, 1);
         for f in frames {
             let rgba = RgbaImage::from_raw(f.width as u32, f.height as u32, f.rgba8())
                 .ok_or("frame buffer of the wrong size")?;

@@ -14,7 +14,9 @@ use crate::AppError;
 
 const PAD: usize = 8;
 const HEADER: usize = 26;
-const FOOTER: usize = PSF_INSET_PX + 2 * PAD;
+/// The labels and the PSF inset (its caption above it: `INSET_TOP`).
+const FOOTER: usize = INSET_TOP + PSF_INSET_PX + PAD;
+const INSET_TOP: usize = PAD + 10;
 const SLIDER: usize = 64;
 const HELP: usize = 22;
 /// The narrowest column: room for the labels beside the PSF inset.
@@ -256,7 +258,7 @@ pub fn compose(
         let (lx, ly, lw, _) = layout.label_area(i);
         blit(
             lx + lw - PSF_INSET_PX,
-            ly + PAD + 10,
+            ly + INSET_TOP,
             PSF_INSET_PX,
             PSF_INSET_PX,
             &r.psf_inset_rgb8,
@@ -298,6 +300,10 @@ mod tests {
             assert!(x + l.image_width <= lx + lw && x >= lx);
             assert_eq!(ly, y + l.image_height);
             assert!(ly + lh <= l.slider_y());
+            assert!(
+                ly + INSET_TOP + PSF_INSET_PX <= ly + lh,
+                "the PSF inset ends inside the label area"
+            );
             if i + 1 < 3 {
                 assert!(lx + lw < l.label_area(i + 1).0);
             }

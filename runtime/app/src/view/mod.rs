@@ -32,7 +32,10 @@ pub const VIEW_STEP_D: f64 = 0.05;
 /// one cached request and show identical pictures), else `depths_d`.
 fn psf_depths(common: &CommonOptions, depths_d: &[f64]) -> Result<Vec<f64>, AppError> {
     let [lo, hi] = common.calibration()?.range_d;
-    let grid = depth_grid(lo, hi, VIEW_STEP_D)?;
+    // A calibrated range too long for the grid: the depths asked for alone.
+    let Ok(grid) = depth_grid(lo, hi, VIEW_STEP_D) else {
+        return Ok(depths_d.to_vec());
+    };
     let on_grid = depths_d
         .iter()
         .all(|d| grid.iter().any(|g| (g - d).abs() < 1e-9));
@@ -55,12 +58,15 @@ pub fn depth_grid(from_d: f64, to_d: f64, step_d: f64) -> Result<Vec<f64>, AppEr
             "accommodations {from_d}..{to_d} step {step_d}: the step must be > 0 and the range ascending"
         )));
     }
-    let n = ((to_d - from_d) / step_d + 1e-9).floor() as usize + 1;
-    if n > MAX_DEPTHS {
+    // Counted in floating point first: a tiny step makes the count overflow.
+    let steps = ((to_d - from_d) / step_d + 1e-9).floor();
+    if steps.is_nan() || steps >= MAX_DEPTHS as f64 {
         return Err(AppError::Usage(format!(
-            "accommodations {from_d}..{to_d} step {step_d}: {n} depths, at most {MAX_DEPTHS}; take a larger step"
+            "accommodations {from_d}..{to_d} step {step_d}: {} depths, at most {MAX_DEPTHS}; take a larger step",
+            steps + 1.0
         )));
     }
+    let n = steps as usize + 1;
     Ok((0..n)
         .map(|i| ((from_d + i as f64 * step_d) * 1e12).round() / 1e12)
         .collect())
@@ -198,6 +204,12 @@ pub fn save_picture(picture: &Picture, path: &Path) -> Result<(), AppError> {
 pub fn view(common: &CommonOptions, opts: &ViewOptions) -> Result<String, AppError> {
     let calib = common.calibration()?;
     let [lo, hi] = calib.range_d;
+    if !opts.headless && opts.screenshot.is_some() {
+        return Err(AppError::Usage(
+            "--screenshot FILE needs --headless (in the window, key c saves into --screenshot-dir)"
+                .into(),
+        ));
+    }
     if opts.headless {
         match &opts.screenshot {
             Some(p) => {
@@ -211,6 +223,12 @@ pub fn view(common: &CommonOptions, opts: &ViewOptions) -> Result<String, AppErr
         }
     }
     crate::check_accommodation(&calib, opts.accommodation_d)?;
+    if !opts.headless && !opts.screenshot_dir.is_dir() {
+        return Err(AppError::Usage(format!(
+            "{}: --screenshot-dir: not a folder",
+            opts.screenshot_dir.display()
+        )));
+    }
     let depths = depth_grid(lo, hi, opts.step_d)?;
     let start = Instant::now();
     let scene = load_scene(
@@ -267,6 +285,7 @@ fn names(methods: &[Method]) -> String {
 /// and writes the animation.
 pub fn sweep(common: &CommonOptions, opts: &SweepOptions) -> Result<String, AppError> {
     animation::check_request(&opts.out, opts.fps)?;
+    check_range(common, opts)?;
     let depths = depth_grid(opts.from_d, opts.to_d, opts.step_d)?;
     let scene = load_scene(
         common,
@@ -277,6 +296,20 @@ pub fn sweep(common: &CommonOptions, opts: &SweepOptions) -> Result<String, AppE
     )?;
     sweep_scene(common, &scene, opts)
 }
+
+/// `--from` and `--to` as accommodations, named in the errors.
+fn check_range(common: &CommonOptions, opts: &SweepOptions) -> Result<(), AppError> {
+    let calib = common.calibration()?;
+    for (flag, d) in [("--from", opts.from_d), ("--to", opts.to_d)] {
+        if let Err(e) = crate::check_accommodation(&calib, d) {
+            return Err(AppError::Usage(e.to_string().replacen("--accom", flag, 1)));
+        }
+    }
+    Ok(())
+}
+
+/// The most bytes a sweep's frames may take before they are encoded.
+const MAX_SWEEP_BYTES: usize = 4 << 30;
 
 /// The sweep of an already loaded image (`nedrt eval --sweeps`).
 pub fn sweep_image(
@@ -297,6 +330,19 @@ fn sweep_scene(
     opts: &SweepOptions,
 ) -> Result<String, AppError> {
     let layout = Layout::of(scene, false);
+    let bytes = 3 * layout.width * layout.height * scene.depths_d.len();
+    if bytes > MAX_SWEEP_BYTES {
+        return Err(AppError::Usage(format!(
+            "{}: {} frames of {}×{} are {:.1} GB, more than the {} GB a sweep holds; take a larger --step, \
+             fewer --methods or a --crop",
+            opts.out.display(),
+            scene.depths_d.len(),
+            layout.width,
+            layout.height,
+            bytes as f64 / 1e9,
+            MAX_SWEEP_BYTES >> 30
+        )));
+    }
     let progress = common.progress();
     progress.start("sweep frames", scene.depths_d.len() as u64);
     let start = Instant::now();
@@ -358,6 +404,9 @@ mod tests {
             (2.0, 1.0, 0.1),
             (0.0, f64::NAN, 0.1),
             (0.0, 3.0, 1e-4),
+            // A count past usize: refused, not wrapped.
+            (0.0, 3.0, 5e-324),
+            (0.0, 1e300, 1e-300),
         ] {
             let e = depth_grid(a, b, s).expect_err("refused");
             assert!(e.to_string().contains("accommodations"), "{e}");

@@ -190,6 +190,15 @@ pub fn fitted_window(layout: &Layout, max: (u32, u32)) -> (u32, u32) {
     )
 }
 
+/// `DIR/nedrt-view-<D>D-<n>.png` with the first `n` not taken, so an
+/// earlier session's screenshots stay.
+fn unused_screenshot_path(dir: &std::path::Path, accommodation_d: f64) -> PathBuf {
+    (1..)
+        .map(|n| dir.join(format!("nedrt-view-{accommodation_d:.2}D-{n}.png")))
+        .find(|p| !p.exists())
+        .unwrap_or_else(|| dir.join("nedrt-view.png"))
+}
+
 /// A rendered picture with what it shows and how long it took.
 type Drawn = (Request, Picture, Duration);
 
@@ -269,17 +278,20 @@ fn ui_loop(
         if state.quit {
             break;
         }
-        if std::mem::take(&mut state.screenshot)
+        // A press before the first picture waits for it.
+        if state.screenshot
             && let Some((req, _, picture)) = &shown
         {
-            let path = opts.screenshot_dir.join(format!(
-                "nedrt-view-{:.2}D-{}.png",
-                scene.depths_d[req.depth],
-                saved.len() + 1
-            ));
-            save_picture(picture, &path)?;
-            tracing::info!("saved {}", path.display());
-            saved.push(path);
+            state.screenshot = false;
+            let path = unused_screenshot_path(&opts.screenshot_dir, scene.depths_d[req.depth]);
+            // A failed save is reported and the viewer goes on.
+            match save_picture(picture, &path) {
+                Ok(()) => {
+                    tracing::info!("saved {}", path.display());
+                    saved.push(path);
+                }
+                Err(e) => tracing::warn!("screenshot not saved: {e}"),
+            }
         }
         let caught_up = shown.as_ref().is_some_and(|(r, _, _)| *r == requested);
         if state.sweeping && caught_up && last_sweep.elapsed() >= Duration::from_millis(60) {
@@ -291,8 +303,16 @@ fn ui_loop(
             latest.put(requested);
         }
         let mut newest = None;
-        while let Ok(drawn) = rx.try_recv() {
-            newest = Some(drawn?);
+        loop {
+            match rx.try_recv() {
+                Ok(drawn) => newest = Some(drawn?),
+                Err(crossbeam_channel::TryRecvError::Empty) => break,
+                Err(crossbeam_channel::TryRecvError::Disconnected) => {
+                    return Err(AppError::Usage(
+                        "the viewer's render thread stopped (panicked)".into(),
+                    ));
+                }
+            }
         }
         if let Some((req, picture, took)) = newest {
             render_ms.push(took.as_secs_f64() * 1e3);
