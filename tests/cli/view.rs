@@ -40,6 +40,27 @@ fn simulated_rgb8(dir: &Path, input: &Path, method: &str, accom: &str) -> (usize
     (w as usize, h as usize, rgb)
 }
 
+/// `nedrt view --headless` on the small aperture: the picture it writes to
+/// `out`, with `args` after the input's.
+fn headless_picture(input: &Path, out: &Path, args: &[&str]) -> image::RgbImage {
+    let o = run(&[
+        &[
+            "--calib",
+            path(&small_calib()),
+            "view",
+            "--headless",
+            "--input",
+            path(input),
+            "--screenshot",
+            path(out),
+        ][..],
+        args,
+    ]
+    .concat());
+    assert!(o.status.success(), "{}", stderr(&o));
+    image::open(out).expect("the picture").into_rgb8()
+}
+
 /// The `w`×`h` block at (`x`, `y`) of an RGB picture `width` wide.
 fn block(rgb: &[u8], width: usize, (x, y): (usize, usize), w: usize, h: usize) -> Vec<u8> {
     (y..y + h)
@@ -127,23 +148,11 @@ fn a_sweep_has_a_frame_per_depth_each_panel_the_simulators_image() {
     }
     // The sweep's frame at 1.0 D is the viewer's picture there, bit for bit
     // (the same PSFs, from one cached request on the viewer's grid).
-    let shot = dir.path().join("view.png");
-    let o = run(&[
-        "--calib",
-        path(&small_calib()),
-        "view",
-        "--headless",
-        "--input",
-        path(&input),
-        "--methods",
-        "conventional,ai",
-        "--accom",
-        "1.0",
-        "--screenshot",
-        path(&shot),
-    ]);
-    assert!(o.status.success(), "{}", stderr(&o));
-    let view = image::open(&shot).expect("view").into_rgb8();
+    let view = headless_picture(
+        &input,
+        &dir.path().join("view.png"),
+        &["--methods", "conventional,ai", "--accom", "1.0"],
+    );
     assert!(
         view.as_raw() == &rgb[1],
         "the headless view at 1.0 D is the sweep's frame"
@@ -163,27 +172,20 @@ fn the_headless_view_shows_the_sharp_input_and_the_perceived_image() {
     let input = input(dir.path());
     let layout = Layout::new(1, 64, 64, false);
     let shot = |show: &str| {
-        let out = dir.path().join(format!("{show}.png"));
-        let o = run(&[
-            "--calib",
-            path(&small_calib()),
-            "view",
-            "--headless",
-            "--input",
-            path(&input),
-            "--methods",
-            "conventional",
-            "--step",
-            "0.5",
-            "--accom",
-            "2.5",
-            "--show",
-            show,
-            "--screenshot",
-            path(&out),
-        ]);
-        assert!(o.status.success(), "{}", stderr(&o));
-        let im = image::open(&out).expect("screenshot").into_rgb8();
+        let im = headless_picture(
+            &input,
+            &dir.path().join(format!("{show}.png")),
+            &[
+                "--methods",
+                "conventional",
+                "--step",
+                "0.5",
+                "--accom",
+                "2.5",
+                "--show",
+                show,
+            ],
+        );
         assert_eq!(im.dimensions(), (layout.width as u32, layout.height as u32));
         block(im.as_raw(), layout.width, layout.image_origin(0), 64, 64)
     };

@@ -396,14 +396,34 @@ pub enum ShownArg {
     Target,
 }
 
+/// What `view` and `sweep` show: the input and the methods.
 #[derive(Args, Debug)]
-pub struct ViewArgs {
+pub struct SceneArgs {
     /// Input image (default: the shipped data/images/test/astronaut.png).
     #[arg(long, value_name = "IMG")]
     pub input: Option<PathBuf>,
     /// Display systems side by side.
     #[arg(long, value_delimiter = ',', value_parser = named::<Method>(), default_values = ["conventional", "ai", "proposed"])]
     pub methods: Vec<Method>,
+    /// Show only this region of the input, WxH+X+Y (every retinal pixel 1:1).
+    #[arg(long, value_parser = parse_crop, value_name = "WxH+X+Y")]
+    pub crop: Option<nedrt_app::view::Crop>,
+}
+
+impl From<SceneArgs> for nedrt_app::view::SceneSource {
+    fn from(a: SceneArgs) -> Self {
+        Self {
+            input: a.input,
+            crop: a.crop,
+            methods: a.methods,
+        }
+    }
+}
+
+#[derive(Args, Debug)]
+pub struct ViewArgs {
+    #[command(flatten)]
+    pub scene: SceneArgs,
     /// Where the eye focuses first, in diopters.
     #[arg(
         long,
@@ -427,9 +447,6 @@ pub struct ViewArgs {
     /// Where key `c` saves screenshots of the window.
     #[arg(long, value_name = "DIR", default_value = ".")]
     pub screenshot_dir: PathBuf,
-    /// Show only this region of the input, WxH+X+Y (every retinal pixel 1:1).
-    #[arg(long, value_parser = parse_crop, value_name = "WxH+X+Y")]
-    pub crop: Option<nedrt_app::view::Crop>,
     /// The largest window; a larger picture is scaled down into it.
     #[arg(long, value_parser = parse_size, default_value = "1600x1000", value_name = "WxH")]
     pub max_window: (usize, usize),
@@ -437,15 +454,8 @@ pub struct ViewArgs {
 
 #[derive(Args, Debug)]
 pub struct SweepArgs {
-    /// Input image (default: the shipped data/images/test/astronaut.png).
-    #[arg(long, value_name = "IMG")]
-    pub input: Option<PathBuf>,
-    /// Display systems side by side.
-    #[arg(long, value_delimiter = ',', value_parser = named::<Method>(), default_values = ["conventional", "ai", "proposed"])]
-    pub methods: Vec<Method>,
-    /// Show only this region of the input, WxH+X+Y.
-    #[arg(long, value_parser = parse_crop, value_name = "WxH+X+Y")]
-    pub crop: Option<nedrt_app::view::Crop>,
+    #[command(flatten)]
+    pub scene: SceneArgs,
     /// First accommodation, diopters.
     #[arg(
         long,

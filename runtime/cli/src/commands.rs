@@ -103,9 +103,6 @@ pub fn run(cli: Cli) -> Result<()> {
         }
         Some(Command::View(a)) => {
             let opts = app::view::ViewOptions {
-                input: a.input,
-                crop: a.crop,
-                methods: a.methods,
                 step_d: a.step,
                 accommodation_d: a.accom,
                 shown: match a.show {
@@ -123,20 +120,17 @@ pub fn run(cli: Cli) -> Result<()> {
                     ..Default::default()
                 },
             };
-            print!("{}", app::view::view(&common, &opts)?);
+            print!("{}", app::view::view(&common, &a.scene.into(), &opts)?);
         }
         Some(Command::Sweep(a)) => {
             let opts = app::view::SweepOptions {
-                input: a.input,
-                crop: a.crop,
-                methods: a.methods,
                 from_d: a.from,
                 to_d: a.to,
                 step_d: a.step,
                 fps: a.fps,
                 out: a.out,
             };
-            print!("{}", app::view::sweep(&common, &opts)?);
+            print!("{}", app::view::sweep(&common, &a.scene.into(), &opts)?);
         }
         Some(Command::TuneWiener(a)) => {
             print!("{}", app::tune::run(&common, &a.images, a.method, a.write)?)

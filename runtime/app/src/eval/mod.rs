@@ -458,9 +458,6 @@ pub fn run(
             };
             let out = dir.join(format!("{name}.png"));
             let opts = crate::view::SweepOptions {
-                input: Some(file.clone()),
-                crop: None,
-                methods: methods.clone(),
                 from_d: sim.calib.range_d[0],
                 to_d: sim.calib.range_d[1],
                 step_d: 0.1,
@@ -468,7 +465,7 @@ pub fn run(
                 out: out.clone(),
             };
             let name = file.display().to_string();
-            crate::view::sweep_image(common, image.clone(), name, &opts)?;
+            crate::view::sweep_image(common, &sim.calib, image.clone(), name, &methods, &opts)?;
             written.push(out.display().to_string());
         }
     }

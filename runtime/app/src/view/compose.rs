@@ -254,7 +254,7 @@ pub fn compose(
     for (i, r) in rendered.iter().enumerate() {
         let (x, y) = layout.image_origin(i);
         let image = scene.shown_rgb8(shown, r, depth);
-        blit(x, y, layout.image_width, layout.image_height, &image);
+        blit(x, y, layout.image_width, layout.image_height, image);
         let (lx, ly, lw, _) = layout.label_area(i);
         blit(
             lx + lw - PSF_INSET_PX,

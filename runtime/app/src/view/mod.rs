@@ -13,6 +13,7 @@ use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
+use nedrt_core::calib::Calibration;
 use nedrt_optics::sim::{Image, Method};
 use nedrt_service::present::window::WindowOptions;
 
@@ -20,26 +21,22 @@ use crate::{AppError, CommonOptions};
 use compose::{Layout, Picture};
 use scene::{FocusScene, Shown};
 
-/// The methods shown unless asked otherwise: the two baselines and the
-/// paper's system.
-pub const DEFAULT_METHODS: [Method; 3] = [Method::Conventional, Method::Ai, Method::Proposed];
-
 /// The viewer's grid step: PSFs for every 0.05 D of the calibrated range.
 pub const VIEW_STEP_D: f64 = 0.05;
 
 /// The PSF depths for showing `depths_d`: the viewer's grid when they all
 /// lie on it (the viewer, and sweeps in steps of 0.05 D, 0.1 D, …, then share
 /// one cached request and show identical pictures), else `depths_d`.
-fn psf_depths(common: &CommonOptions, depths_d: &[f64]) -> Result<Vec<f64>, AppError> {
-    let [lo, hi] = common.calibration()?.range_d;
+fn psf_depths(calib: &Calibration, depths_d: &[f64]) -> Vec<f64> {
+    let [lo, hi] = calib.range_d;
     // A calibrated range too long for the grid: the depths asked for alone.
     let Ok(grid) = depth_grid(lo, hi, VIEW_STEP_D) else {
-        return Ok(depths_d.to_vec());
+        return depths_d.to_vec();
     };
     let on_grid = depths_d
         .iter()
         .all(|d| grid.iter().any(|g| (g - d).abs() < 1e-9));
-    Ok(if on_grid { grid } else { depths_d.to_vec() })
+    if on_grid { grid } else { depths_d.to_vec() }
 }
 
 /// Most accommodations one scene prepares (each is a PSF per channel and optics).
@@ -81,14 +78,19 @@ pub struct Crop {
     pub height: usize,
 }
 
-/// What `nedrt view` shows and how.
+/// The input and the methods a view or a sweep shows.
 #[derive(Debug, Clone)]
-pub struct ViewOptions {
+pub struct SceneSource {
     /// Input image; `None` = the shipped test image.
     pub input: Option<PathBuf>,
     /// Only this region of the input.
     pub crop: Option<Crop>,
     pub methods: Vec<Method>,
+}
+
+/// How `nedrt view` shows its scene.
+#[derive(Debug, Clone)]
+pub struct ViewOptions {
     /// Step of the accommodation grid over the calibrated range.
     pub step_d: f64,
     /// Where the eye focuses first.
@@ -108,9 +110,6 @@ pub struct ViewOptions {
 /// `nedrt sweep`: the picture over a range of accommodations.
 #[derive(Debug, Clone)]
 pub struct SweepOptions {
-    pub input: Option<PathBuf>,
-    pub crop: Option<Crop>,
-    pub methods: Vec<Method>,
     pub from_d: f64,
     pub to_d: f64,
     pub step_d: f64,
@@ -121,20 +120,20 @@ pub struct SweepOptions {
 
 fn load_scene(
     common: &CommonOptions,
-    input: Option<&Path>,
-    crop: Option<Crop>,
-    methods: &[Method],
+    calib: &Calibration,
+    source: &SceneSource,
     depths_d: &[f64],
 ) -> Result<FocusScene, AppError> {
-    let (loaded, name) = crate::sim::load_input(input, common.panel_px()?)?;
+    let panel = (calib.panel.width_px, calib.panel.height_px);
+    let (loaded, name) = crate::sim::load_input(source.input.as_deref(), panel)?;
     for n in &loaded.notes {
         tracing::warn!("{n}");
     }
-    let image = match crop {
+    let image = match source.crop {
         Some(c) => crop_image(&loaded.image, c, &name)?,
         None => loaded.image,
     };
-    scene_of(common, image, name, methods, depths_d)
+    scene_of(common, calib, image, name, &source.methods, depths_d)
 }
 
 fn crop_image(image: &Image, c: Crop, name: &str) -> Result<Image, AppError> {
@@ -151,6 +150,7 @@ fn crop_image(image: &Image, c: Crop, name: &str) -> Result<Image, AppError> {
 
 fn scene_of(
     common: &CommonOptions,
+    calib: &Calibration,
     image: Image,
     name: String,
     methods: &[Method],
@@ -166,8 +166,16 @@ fn scene_of(
         .file_name()
         .map(|n| n.to_string_lossy().into_owned())
         .unwrap_or(name);
-    let psf_depths_d = psf_depths(common, depths_d)?;
-    FocusScene::new(common, image, short, methods, depths_d, &psf_depths_d)
+    let psf_depths_d = psf_depths(calib, depths_d);
+    FocusScene::new(
+        common,
+        calib,
+        image,
+        short,
+        methods,
+        depths_d,
+        &psf_depths_d,
+    )
 }
 
 /// The picture of a scene at grid depth `depth`.
@@ -183,47 +191,49 @@ pub fn picture_at(
 
 /// Writes a picture as an 8-bit PNG, atomically.
 pub fn save_picture(picture: &Picture, path: &Path) -> Result<(), AppError> {
+    use image::ImageEncoder as _;
     nedrt_core::image_io::check_extension(path, &["png"])?;
-    let image = image::RgbImage::from_raw(
-        picture.width as u32,
-        picture.height as u32,
-        picture.rgb8.clone(),
-    )
-    .ok_or_else(|| AppError::output(path, "picture buffer of the wrong size"))?;
     let mut bytes = Vec::new();
-    image
-        .write_to(
-            &mut std::io::Cursor::new(&mut bytes),
-            image::ImageFormat::Png,
+    image::codecs::png::PngEncoder::new(&mut bytes)
+        .write_image(
+            &picture.rgb8,
+            picture.width as u32,
+            picture.height as u32,
+            image::ExtendedColorType::Rgb8,
         )
         .map_err(|e| AppError::output(path, e))?;
     nedrt_core::util::write_atomic(path, &bytes).map_err(|e| AppError::output(path, e))
 }
 
 /// `nedrt view`: the window, or with `headless` one picture to a file.
-pub fn view(common: &CommonOptions, opts: &ViewOptions) -> Result<String, AppError> {
+pub fn view(
+    common: &CommonOptions,
+    source: &SceneSource,
+    opts: &ViewOptions,
+) -> Result<String, AppError> {
     let calib = common.calibration()?;
     let [lo, hi] = calib.range_d;
-    if !opts.headless && opts.screenshot.is_some() {
-        return Err(AppError::Usage(
-            "--screenshot FILE needs --headless (in the window, key c saves into --screenshot-dir)"
-                .into(),
-        ));
-    }
-    if opts.headless {
-        match &opts.screenshot {
-            Some(p) => {
-                nedrt_core::image_io::check_extension(p, &["png"])?;
-            }
-            None => {
-                return Err(AppError::Usage(
-                    "--headless needs --screenshot FILE.png (the picture it renders)".into(),
-                ));
-            }
+    // Headless: the file the picture goes to. In the window: none.
+    let headless_out = match (opts.headless, &opts.screenshot) {
+        (true, Some(p)) => {
+            nedrt_core::image_io::check_extension(p, &["png"])?;
+            Some(p.as_path())
         }
-    }
+        (true, None) => {
+            return Err(AppError::Usage(
+                "--headless needs --screenshot FILE.png (the picture it renders)".into(),
+            ));
+        }
+        (false, Some(_)) => {
+            return Err(AppError::Usage(
+                "--screenshot FILE needs --headless (in the window, key c saves into --screenshot-dir)"
+                    .into(),
+            ));
+        }
+        (false, None) => None,
+    };
     crate::check_accommodation(&calib, opts.accommodation_d)?;
-    if !opts.headless && !opts.screenshot_dir.is_dir() {
+    if headless_out.is_none() && !opts.screenshot_dir.is_dir() {
         return Err(AppError::Usage(format!(
             "{}: --screenshot-dir: not a folder",
             opts.screenshot_dir.display()
@@ -231,13 +241,7 @@ pub fn view(common: &CommonOptions, opts: &ViewOptions) -> Result<String, AppErr
     }
     let depths = depth_grid(lo, hi, opts.step_d)?;
     let start = Instant::now();
-    let scene = load_scene(
-        common,
-        opts.input.as_deref(),
-        opts.crop,
-        &opts.methods,
-        &depths,
-    )?;
+    let scene = load_scene(common, &calib, source, &depths)?;
     let prepared_s = start.elapsed().as_secs_f64();
     let depth = scene.nearest_depth(opts.accommodation_d);
     let mut text = String::new();
@@ -252,10 +256,9 @@ pub fn view(common: &CommonOptions, opts: &ViewOptions) -> Result<String, AppErr
     for line in scene.psf_reports() {
         let _ = writeln!(text, "{line}");
     }
-    if opts.headless {
+    if let Some(path) = headless_out {
         let layout = Layout::of(&scene, false);
         let picture = picture_at(&scene, &layout, depth, opts.shown)?;
-        let path = opts.screenshot.as_deref().unwrap_or(Path::new("view.png"));
         save_picture(&picture, path)?;
         let _ = writeln!(
             text,
@@ -283,25 +286,23 @@ fn names(methods: &[Method]) -> String {
 
 /// `nedrt sweep`: renders the picture at every accommodation of the range
 /// and writes the animation.
-pub fn sweep(common: &CommonOptions, opts: &SweepOptions) -> Result<String, AppError> {
+pub fn sweep(
+    common: &CommonOptions,
+    source: &SceneSource,
+    opts: &SweepOptions,
+) -> Result<String, AppError> {
     animation::check_request(&opts.out, opts.fps)?;
-    check_range(common, opts)?;
+    let calib = common.calibration()?;
+    check_range(&calib, opts)?;
     let depths = depth_grid(opts.from_d, opts.to_d, opts.step_d)?;
-    let scene = load_scene(
-        common,
-        opts.input.as_deref(),
-        opts.crop,
-        &opts.methods,
-        &depths,
-    )?;
+    let scene = load_scene(common, &calib, source, &depths)?;
     sweep_scene(common, &scene, opts)
 }
 
 /// `--from` and `--to` as accommodations, named in the errors.
-fn check_range(common: &CommonOptions, opts: &SweepOptions) -> Result<(), AppError> {
-    let calib = common.calibration()?;
+fn check_range(calib: &Calibration, opts: &SweepOptions) -> Result<(), AppError> {
     for (flag, d) in [("--from", opts.from_d), ("--to", opts.to_d)] {
-        if let Err(e) = crate::check_accommodation(&calib, d) {
+        if let Err(e) = crate::check_accommodation(calib, d) {
             return Err(AppError::Usage(e.to_string().replacen("--accom", flag, 1)));
         }
     }
@@ -314,13 +315,15 @@ const MAX_SWEEP_BYTES: usize = 4 << 30;
 /// The sweep of an already loaded image (`nedrt eval --sweeps`).
 pub fn sweep_image(
     common: &CommonOptions,
+    calib: &Calibration,
     image: Image,
     name: String,
+    methods: &[Method],
     opts: &SweepOptions,
 ) -> Result<String, AppError> {
     animation::check_request(&opts.out, opts.fps)?;
     let depths = depth_grid(opts.from_d, opts.to_d, opts.step_d)?;
-    let scene = scene_of(common, image, name, &opts.methods, &depths)?;
+    let scene = scene_of(common, calib, image, name, methods, &depths)?;
     sweep_scene(common, &scene, opts)
 }
 

@@ -114,11 +114,12 @@ const MEMO_BYTES: usize = 512 << 20;
 
 impl FocusScene {
     /// Prepares `methods` over `depths_d` for `input` (already loaded and
-    /// checked against the panel), with the PSFs of `psf_depths_d` (a
-    /// superset of `depths_d`: one request, so one cache entry, serves the
-    /// viewer and every sweep on its grid).
+    /// checked against the panel), with the PSFs of `psf_depths_d`, which
+    /// must hold every depth of `depths_d` (one request, so one cache entry,
+    /// serves the viewer and every sweep on its grid).
     pub fn new(
         common: &CommonOptions,
+        calib: &Calibration,
         input: Image,
         input_name: String,
         methods: &[Method],
@@ -131,9 +132,8 @@ impl FocusScene {
         if depths_d.is_empty() {
             return Err(AppError::Usage("no accommodations to show".into()));
         }
-        let calib = common.calibration()?;
         for &d in depths_d {
-            if let Some(w) = crate::check_accommodation(&calib, d)? {
+            if let Some(w) = crate::check_accommodation(calib, d)? {
                 tracing::warn!("{w}");
             }
         }
@@ -143,13 +143,7 @@ impl FocusScene {
             common.doe_path_for(methods).as_deref(),
             common.cache(),
         )?;
-        let mut requested = psf_depths_d.to_vec();
-        requested.extend(
-            depths_d
-                .iter()
-                .filter(|d| !psf_depths_d.iter().any(|p| (p - *d).abs() < 1e-9)),
-        );
-        let prepared = sim.prepare(methods, &requested, common.progress())?;
+        let prepared = sim.prepare(methods, psf_depths_d, common.progress())?;
         let displays = methods
             .iter()
             .map(|&m| -> Result<Image, AppError> {
@@ -172,7 +166,7 @@ impl FocusScene {
             height: sharp.height,
             sharp_rgb8: rgb8_of(&sharp),
             blurred_target_rgb8: blurred_target.as_ref().map(rgb8_of),
-            calib,
+            calib: calib.clone(),
             prepared,
             displays,
             sharp,
@@ -210,24 +204,38 @@ impl FocusScene {
         &self.displays[method]
     }
 
+    /// The blurred target's when `depth` is not a main depth, else the sharp
+    /// image's: `sharp` or `blurred` of the same kind (float or 8-bit).
+    fn at_target<'a, T: ?Sized>(
+        &self,
+        depth: usize,
+        sharp: &'a T,
+        blurred: Option<&'a T>,
+    ) -> &'a T {
+        blurred
+            .filter(|_| !self.is_main_depth(self.depths_d[depth]))
+            .unwrap_or(sharp)
+    }
+
     fn target(&self, depth: usize) -> &Image {
-        if self.is_main_depth(self.depths_d[depth]) {
-            &self.sharp
-        } else {
-            self.blurred_target.as_ref().unwrap_or(&self.sharp)
-        }
+        self.at_target(depth, &self.sharp, self.blurred_target.as_ref())
     }
 
     /// The image `shown` asks for, as RGB8, for a method at a depth.
-    pub fn shown_rgb8(&self, shown: Shown, rendered: &Rendered, depth: usize) -> Vec<u8> {
+    pub fn shown_rgb8<'a>(
+        &'a self,
+        shown: Shown,
+        rendered: &'a Rendered,
+        depth: usize,
+    ) -> &'a [u8] {
         match shown {
-            Shown::Perceived => rendered.perceived_rgb8.clone(),
-            Shown::Sharp => self.sharp_rgb8.clone(),
-            Shown::Target if self.is_main_depth(self.depths_d[depth]) => self.sharp_rgb8.clone(),
-            Shown::Target => self
-                .blurred_target_rgb8
-                .clone()
-                .unwrap_or_else(|| self.sharp_rgb8.clone()),
+            Shown::Perceived => &rendered.perceived_rgb8,
+            Shown::Sharp => &self.sharp_rgb8,
+            Shown::Target => self.at_target(
+                depth,
+                &self.sharp_rgb8[..],
+                self.blurred_target_rgb8.as_deref(),
+            ),
         }
     }
 

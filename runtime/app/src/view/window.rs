@@ -10,7 +10,7 @@ use std::sync::{Condvar, Mutex};
 use std::time::{Duration, Instant};
 
 use nedrt_service::present::window::{KeyName, WindowInput, WindowOptions, WindowSink};
-use nedrt_service::present::{DisplayFrame, Sink};
+use nedrt_service::present::{DisplayFrame, Sink, rgb8_of_rgba8};
 
 use super::compose::{Layout, Picture};
 use super::scene::{FocusScene, Shown};
@@ -72,7 +72,6 @@ pub struct ViewState {
     pub quit: bool,
     /// A screenshot was asked for and not yet taken.
     pub screenshot: bool,
-    depths: usize,
     depths_d: Vec<f64>,
     /// Grid steps of PageUp/PageDown (0.5 D).
     big_step: usize,
@@ -95,7 +94,6 @@ impl ViewState {
             sweeping: false,
             quit: false,
             screenshot: false,
-            depths: depths_d.len(),
             depths_d: depths_d.to_vec(),
             big_step: ((0.5 / step).round() as usize).max(1),
             sweep_up: true,
@@ -112,8 +110,13 @@ impl ViewState {
         }
     }
 
+    /// The grid's last index.
+    fn last(&self) -> usize {
+        self.depths_d.len().saturating_sub(1)
+    }
+
     fn step(&mut self, by: isize) {
-        let last = self.depths.saturating_sub(1) as isize;
+        let last = self.last() as isize;
         self.depth = (self.depth as isize + by).clamp(0, last) as usize;
     }
 
@@ -128,7 +131,7 @@ impl ViewState {
                 KeyName::PageDown => self.step(-big),
                 KeyName::PageUp => self.step(big),
                 KeyName::Home => self.depth = 0,
-                KeyName::End => self.depth = self.depths.saturating_sub(1),
+                KeyName::End => self.depth = self.last(),
                 KeyName::Space => self.sweeping = !self.sweeping,
                 KeyName::Escape | KeyName::Char('q') => self.quit = true,
                 KeyName::Char('s') => self.shown = Shown::Sharp,
@@ -170,8 +173,7 @@ impl ViewState {
 
     /// The sweep's next step: across the range and back.
     pub fn tick_sweep(&mut self) {
-        let last = self.depths.saturating_sub(1);
-        if self.sweep_up && self.depth >= last {
+        if self.sweep_up && self.depth >= self.last() {
             self.sweep_up = false;
         } else if !self.sweep_up && self.depth == 0 {
             self.sweep_up = true;
@@ -259,7 +261,7 @@ fn ui_loop(
     let mut state = ViewState::new(depth, opts.shown, &scene.depths_d);
     let mut requested = state.request();
     latest.put(requested);
-    let mut shown: Option<(Request, DisplayFrame, Picture)> = None;
+    let mut shown: Option<(Request, DisplayFrame)> = None;
     let mut last_present = Instant::now();
     let mut last_sweep = Instant::now();
     let mut render_ms: Vec<f64> = Vec::new();
@@ -280,12 +282,17 @@ fn ui_loop(
         }
         // A press before the first picture waits for it.
         if state.screenshot
-            && let Some((req, _, picture)) = &shown
+            && let Some((req, frame)) = &shown
         {
             state.screenshot = false;
             let path = unused_screenshot_path(&opts.screenshot_dir, scene.depths_d[req.depth]);
             // A failed save is reported and the viewer goes on.
-            match save_picture(picture, &path) {
+            let picture = Picture {
+                width: frame.width,
+                height: frame.height,
+                rgb8: rgb8_of_rgba8(&frame.rgba8),
+            };
+            match save_picture(&picture, &path) {
                 Ok(()) => {
                     tracing::info!("saved {}", path.display());
                     saved.push(path);
@@ -293,7 +300,7 @@ fn ui_loop(
                 Err(e) => tracing::warn!("screenshot not saved: {e}"),
             }
         }
-        let caught_up = shown.as_ref().is_some_and(|(r, _, _)| *r == requested);
+        let caught_up = shown.as_ref().is_some_and(|(r, _)| *r == requested);
         if state.sweeping && caught_up && last_sweep.elapsed() >= Duration::from_millis(60) {
             state.tick_sweep();
             last_sweep = Instant::now();
@@ -326,9 +333,9 @@ fn ui_loop(
             sink.present(&frame)?;
             present_ms.push(start.elapsed().as_secs_f64() * 1e3);
             last_present = Instant::now();
-            shown = Some((req, frame, picture));
+            shown = Some((req, frame));
         } else if last_present.elapsed() >= Duration::from_millis(500)
-            && let Some((_, frame, _)) = &shown
+            && let Some((_, frame)) = &shown
         {
             // Redrawn now and then: a window uncovered shows the picture again.
             sink.present(frame)?;
