@@ -201,6 +201,43 @@ fn the_headless_view_shows_the_sharp_input_and_the_perceived_image() {
 }
 
 #[test]
+fn eval_writes_a_sweep_per_image_over_zero_to_three_diopters() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let images = dir.path().join("images");
+    std::fs::create_dir(&images).expect("images");
+    write_png(&images.join("a.png"), 32, 32);
+    let sweeps = dir.path().join("sweeps");
+    let o = run(&[
+        "--calib",
+        path(&small_calib()),
+        "eval",
+        "--images",
+        path(&images),
+        "--out-dir",
+        path(&dir.path().join("eval")),
+        "--methods",
+        "conventional",
+        "--sweeps",
+        path(&sweeps),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let file = std::io::BufReader::new(std::fs::File::open(sweeps.join("a.png")).expect("sweep"));
+    let frames = image::codecs::png::PngDecoder::new(file)
+        .expect("png")
+        .apng()
+        .expect("animated")
+        .into_frames()
+        .collect_frames()
+        .expect("frames");
+    assert_eq!(frames.len(), 31, "0–3 D in 0.1 D steps");
+    let layout = Layout::new(1, 64, 64, false);
+    assert_eq!(
+        frames[0].buffer().dimensions(),
+        (layout.width as u32, layout.height as u32)
+    );
+}
+
+#[test]
 fn without_a_display_the_viewer_says_to_use_headless() {
     let dir = tempfile::tempdir().expect("tempdir");
     let input = input(dir.path());
