@@ -6,12 +6,18 @@ pub mod convolve;
 pub mod focus;
 pub mod methods;
 pub mod metrics;
+pub mod optimal;
 pub mod simulator;
 pub mod wiener;
 
 pub use methods::{Method, Optics};
 pub use nedrt_core::Image;
-pub use simulator::{Prepared, Simulator, perceive};
+pub use optimal::{DisplayProblem, Objective, SolveMode, SolveOptions, SolvedPrefilter};
+pub use simulator::{Prepared, Simulator, objective_depths_d, perceive};
+
+/// Upper end of the headline depth range (docs/model.md §17: 0–2.5 D), the
+/// depths the optimal display image is solved over.
+pub const HEADLINE_MAX_D: f64 = 2.5;
 
 /// A simulation that cannot run, naming the input at fault.
 #[derive(Debug, thiserror::Error)]

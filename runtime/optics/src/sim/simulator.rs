@@ -7,6 +7,7 @@ use std::path::Path;
 use std::sync::Arc;
 
 use super::methods::{Method, Optics, psf_terms, target_blur_spec};
+use super::optimal::{DisplayProblem, Objective};
 use super::wiener::{WienerFilter, WienerPrefilter};
 use super::{SimError, convolve::PreparedKernel};
 use crate::cache::PsfCache;
@@ -328,6 +329,49 @@ impl Prepared {
         ))
     }
 
+    /// The bounded least-squares problem of `method`'s optics for
+    /// `objective` over [`objective_depths_d`] (`lsq`, `refine:k`,
+    /// `optimal`; those depths must have been prepared). The linear
+    /// prefilter's K is the method's Wiener K, else the calibration's for
+    /// the optics (`wiener.ai_k` for the lens, `wiener.doe_k` with the DOE).
+    pub fn display_problem(
+        &self,
+        method: Method,
+        objective: Objective,
+    ) -> Result<DisplayProblem, SimError> {
+        let c = &self.calib;
+        let depths = objective_depths_d(c);
+        let mut psfs = vec![Vec::new(); c.channels.len()];
+        for d in &depths {
+            for (ch, p) in self.system_psfs(method, *d)?.into_iter().enumerate() {
+                psfs[ch].push(p);
+            }
+        }
+        let blurred: Vec<bool> = depths
+            .iter()
+            .map(|d| objective == Objective::Target && !c.is_main_depth(*d))
+            .collect();
+        let blur = if blurred.iter().any(|&b| b) {
+            Some(
+                (0..c.channels.len())
+                    .map(|ch| self.lookup(Optics::Lens, target_blur_spec(c, ch)).cloned())
+                    .collect::<Result<Vec<_>, _>>()?,
+            )
+        } else {
+            None
+        };
+        let k_reg = self
+            .wiener
+            .get(&method)
+            .map(|f| f.k_reg)
+            .unwrap_or(match method.optics() {
+                Optics::Lens => c.wiener.ai_k,
+                Optics::Doe => c.wiener.doe_k,
+            });
+        DisplayProblem::new(objective, depths, psfs, blurred, blur, k_reg)
+            .map_err(SimError::Invalid)
+    }
+
     /// The multifocal target: up2(I) at a main depth, up2(I) ∗ h_b elsewhere.
     pub fn target(&self, input: &Image, accommodation_d: f64) -> Result<Image, SimError> {
         if self.calib.is_main_depth(accommodation_d) {
@@ -341,6 +385,16 @@ impl Prepared {
             .collect::<Result<_, _>>()?;
         Ok(perceive(input, &blur))
     }
+}
+
+/// The depths the optimal display image is solved over: the evaluation
+/// depths of the headline range (docs/model.md §17).
+pub fn objective_depths_d(calib: &Calibration) -> Vec<f64> {
+    calib
+        .evaluation_depths_d()
+        .into_iter()
+        .filter(|d| *d <= super::HEADLINE_MAX_D + 1e-9)
+        .collect()
 }
 
 /// Î_p = up2(I_d) ∗ h + veil · mean(I_d), per channel, on the retinal grid.

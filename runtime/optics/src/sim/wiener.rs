@@ -98,10 +98,23 @@ impl WienerPlan {
         }
     }
 
+    /// Any per-channel gains over the half spectrum of `fft`, which must be
+    /// the mirrored 2·`width`×2·`height` grid (the linear least-squares
+    /// prefilter of `optimal.rs`).
+    pub(crate) fn from_gains(fft: Fft2, width: usize, height: usize, gains: Vec<Vec<c32>>) -> Self {
+        debug_assert_eq!((fft.width, fft.height), (2 * width, 2 * height));
+        Self {
+            width,
+            height,
+            fft,
+            gains,
+        }
+    }
+
     /// The prefiltered frame before the panel's clamp. The frame is
     /// mirrored to 2w×2h, which is exactly periodic, so the FFT's circular
     /// convolution equals convolution of the symmetrically extended frame.
-    fn apply_unclamped(&self, image: &Image) -> Image {
+    pub(crate) fn apply_unclamped(&self, image: &Image) -> Image {
         let (w, h) = (self.width, self.height);
         let planes = image
             .planes()

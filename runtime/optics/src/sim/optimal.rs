@@ -1,0 +1,636 @@
+//! The best display image a preprocessor can put on the panel, and the
+//! points between it and a linear filter (docs/optimal.md).
+//!
+//! For fixed optics the perceived image at depth D is linear in the display
+//! image d: A_D d = crop(up2(d) ∗ h_D) + veil_D · mean(d), exactly as the
+//! simulator renders it (symmetric extension, no wrap-around). The best
+//! display image for a frame is the bounded least-squares solution
+//!
+//!   d* = argmin_{d ∈ [0, 1]} ½ Σ_D ‖A_D d − t_D‖²,
+//!
+//! t_D the sharp image up2(I) (sharp objective) or the multifocal target
+//! (target objective), over the headline depths. Channels are independent.
+//! It is solved by accelerated projected gradient (FISTA with gradient
+//! restart, O'Donoghue & Candès 2015) with the exact adjoint of A_D, so a
+//! step costs 2 + 2·depths real FFTs per channel on the padded retinal grid.
+//!
+//! Between the linear filter and d*:
+//! - `lsq`: the best linear prefilter for the objective on the display grid,
+//!   G = Σ_D K_D* T_D / (Σ_D |K_D|² + N_D·K) at unit gain at zero frequency
+//!   (K_D the display-grid transfer of h_D, T_D the target's), clamped;
+//! - `refine:k`: the `lsq` output improved by k projected-gradient steps.
+
+use std::sync::{Arc, Mutex};
+
+use num_complex::Complex32 as c32;
+use rayon::prelude::*;
+
+use super::convolve::Fft2;
+use super::wiener::{WienerPlan, display_kernel};
+use crate::Psf;
+use crate::sampling::smooth_size_at_least;
+use nedrt_core::image::{Image, extend_plane, symmetric_index};
+use nedrt_core::preprocess::{Preprocess, PreprocessError, check_frame};
+
+/// What the perceived images are compared with.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Objective {
+    /// The sharp image up2(I) at every depth.
+    Sharp,
+    /// The multifocal target: sharp at the main depths, h_b-blurred between.
+    Target,
+}
+
+impl Objective {
+    pub fn name(self) -> &'static str {
+        match self {
+            Objective::Sharp => "sharp",
+            Objective::Target => "target",
+        }
+    }
+}
+
+impl std::str::FromStr for Objective {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "sharp" => Ok(Objective::Sharp),
+            "target" => Ok(Objective::Target),
+            _ => Err(format!("unknown objective {s:?}; choose sharp or target")),
+        }
+    }
+}
+
+/// When the solver stops.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SolveOptions {
+    /// Most projected-gradient steps.
+    pub max_steps: usize,
+    /// Stop when the objective, as a PSNR, rose by less than this over the
+    /// last [`SolveOptions::window`] steps (0 = always take `max_steps`).
+    pub tolerance_db: f64,
+    pub window: usize,
+}
+
+impl SolveOptions {
+    /// `optimal`: converged to 0.001 dB (the accuracy the issue's
+    /// independent L-BFGS-B reference reached), at most 1000 steps.
+    pub const CONVERGED: SolveOptions = SolveOptions {
+        max_steps: 1000,
+        tolerance_db: 1e-3,
+        window: 10,
+    };
+
+    /// Exactly `steps` steps (`refine:k`).
+    pub fn steps(steps: usize) -> Self {
+        SolveOptions {
+            max_steps: steps,
+            tolerance_db: 0.0,
+            window: 1,
+        }
+    }
+}
+
+/// What a solve did, per channel.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct SolveReport {
+    pub steps: Vec<usize>,
+    /// ½ Σ_D ‖A_D d − t_D‖² at the start and at the last evaluated point.
+    pub start_objective: Vec<f64>,
+    pub final_objective: Vec<f64>,
+}
+
+/// The bounded least-squares problem of one display system and objective.
+#[derive(Debug)]
+pub struct DisplayProblem {
+    pub objective: Objective,
+    pub depths_d: Vec<f64>,
+    /// System PSFs, [channel][depth].
+    psfs: Vec<Vec<Psf>>,
+    /// Per depth: whether its target is the h_b-blurred image.
+    blurred: Vec<bool>,
+    /// h_b per channel, when any depth's target is blurred.
+    blur: Option<Vec<Psf>>,
+    /// K of the linear prefilter (the starting point).
+    pub k_reg: f64,
+    plans: Mutex<Vec<Arc<ProblemPlan>>>,
+}
+
+/// Frame sizes whose plans a problem keeps (a 1080p plan holds the PSF
+/// spectra of every depth and channel, about 0.7 GB).
+const PLANS_KEPT: usize = 2;
+
+impl DisplayProblem {
+    /// `psfs[channel][depth]` at `depths_d`; `blurred[depth]` when that
+    /// depth's target is up2(I) ∗ h_b (then `blur` holds h_b per channel).
+    pub fn new(
+        objective: Objective,
+        depths_d: Vec<f64>,
+        psfs: Vec<Vec<Psf>>,
+        blurred: Vec<bool>,
+        blur: Option<Vec<Psf>>,
+        k_reg: f64,
+    ) -> Result<Self, String> {
+        if depths_d.is_empty() || psfs.is_empty() {
+            return Err("a display problem needs at least one depth and channel".into());
+        }
+        if psfs.iter().any(|p| p.len() != depths_d.len()) || blurred.len() != depths_d.len() {
+            return Err("one PSF per channel and depth, one target per depth".into());
+        }
+        if blurred.iter().any(|&b| b) && blur.as_ref().is_none_or(|b| b.len() != psfs.len()) {
+            return Err("blurred targets need h_b for every channel".into());
+        }
+        if !(k_reg.is_finite() && k_reg >= 0.0) {
+            return Err(format!("K = {k_reg} is not a finite value ≥ 0"));
+        }
+        Ok(Self {
+            objective,
+            depths_d,
+            psfs,
+            blurred,
+            blur,
+            k_reg,
+            plans: Mutex::new(Vec::new()),
+        })
+    }
+
+    pub fn channels(&self) -> usize {
+        self.psfs.len()
+    }
+
+    /// The plan for `width`×`height` frames (kept for the sizes used last).
+    pub fn plan(&self, width: usize, height: usize) -> Arc<ProblemPlan> {
+        let mut plans = self.plans.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(i) = plans
+            .iter()
+            .position(|p| (p.width, p.height) == (width, height))
+        {
+            let plan = plans.remove(i);
+            plans.push(plan.clone());
+            return plan;
+        }
+        let plan = Arc::new(ProblemPlan::new(self, width, height));
+        if plans.len() == PLANS_KEPT {
+            plans.remove(0);
+        }
+        plans.push(plan.clone());
+        plan
+    }
+
+    /// The targets t_D of `input`, [depth] (retinal grid), exactly as the
+    /// simulator's `Prepared::target` makes them.
+    pub fn targets(&self, input: &Image) -> Vec<Arc<Image>> {
+        let sharp = Arc::new(input.up2());
+        let blurred = match (&self.blur, self.blurred.iter().any(|&b| b)) {
+            (Some(blur), true) => Some(Arc::new(super::perceive(input, blur))),
+            _ => None,
+        };
+        self.blurred
+            .iter()
+            .map(|&b| match (&blurred, b) {
+                (Some(t), true) => t.clone(),
+                _ => sharp.clone(),
+            })
+            .collect()
+    }
+
+    /// The `lsq` display image of `input` before the panel's clamp.
+    pub fn linear_unclamped(&self, input: &Image) -> Image {
+        self.plan(input.width, input.height)
+            .linear
+            .apply_unclamped(input)
+    }
+
+    /// Improves `start` (clamped to [0, 1] first) towards the bounded
+    /// least-squares optimum for `input`.
+    pub fn solve(
+        &self,
+        input: &Image,
+        start: &Image,
+        options: &SolveOptions,
+    ) -> (Image, SolveReport) {
+        let plan = self.plan(input.width, input.height);
+        let targets = self.targets(input);
+        let mut report = SolveReport::default();
+        let planes = (0..self.channels())
+            .map(|c| {
+                let t: Vec<&[f32]> = targets.iter().map(|t| t.plane(c)).collect();
+                let (plane, steps, f0, f1) = plan.fista(c, start.plane(c), &t, options);
+                report.steps.push(steps);
+                report.start_objective.push(f0);
+                report.final_objective.push(f1);
+                plane
+            })
+            .collect();
+        (
+            Image::from_planes(input.width, input.height, planes),
+            report,
+        )
+    }
+
+    /// ½ Σ_D ‖A_D d − t_D‖² per channel (for reports and tests).
+    pub fn objective_value(&self, input: &Image, display: &Image) -> Vec<f64> {
+        let plan = self.plan(input.width, input.height);
+        let targets = self.targets(input);
+        (0..self.channels())
+            .map(|c| {
+                let t: Vec<&[f32]> = targets.iter().map(|t| t.plane(c)).collect();
+                plan.value_and_gradient(c, display.plane(c), &t, None)
+            })
+            .collect()
+    }
+}
+
+/// A problem prepared for frames of one size.
+#[derive(Debug)]
+pub struct ProblemPlan {
+    pub width: usize,
+    pub height: usize,
+    /// Transform of the padded retinal grid: the retinal image extended by
+    /// `half` (the widest PSF's half-window) on every side, at least.
+    fft: Fft2,
+    half: usize,
+    /// PSF spectra on `fft`'s grid and veils, [channel][depth].
+    spectra: Vec<Vec<Vec<c32>>>,
+    veils: Vec<Vec<f32>>,
+    /// Lipschitz constant of the gradient, per channel.
+    lipschitz: Vec<f64>,
+    /// The linear least-squares prefilter at this size.
+    linear: WienerPlan,
+}
+
+impl ProblemPlan {
+    fn new(problem: &DisplayProblem, width: usize, height: usize) -> Self {
+        let half = problem
+            .psfs
+            .iter()
+            .flatten()
+            .map(|p| p.window / 2)
+            .max()
+            .unwrap_or(0);
+        let (w2, h2) = (2 * width, 2 * height);
+        let fw = smooth_size_at_least((w2 + 2 * half) as f64);
+        let fh = smooth_size_at_least((h2 + 2 * half) as f64);
+        let fft = Fft2::new(fw, fh);
+        let spectra = problem
+            .psfs
+            .iter()
+            .map(|ch| {
+                ch.iter()
+                    .map(|p| fft.kernel_spectrum(&p.cells, p.window))
+                    .collect()
+            })
+            .collect();
+        let veils = problem
+            .psfs
+            .iter()
+            .map(|ch| ch.iter().map(|p| p.veil as f32).collect())
+            .collect();
+        // The largest eigenvalue of Σ_D A_Dᵀ A_D. For mirror-symmetric PSFs
+        // (every rotationally symmetric system) the symmetric extension
+        // makes A_D a cosine-transform multiplier, and no frequency passes
+        // more than zero frequency does (|H_D| ≤ H_D(0) for a non-negative
+        // PSF): a flat frame c is seen as the flat (Σh_D + veil_D)·c on four
+        // times as many cells. Otherwise the borders can pass a little more,
+        // and power iteration measures it.
+        let dc_bound: Vec<f64> = problem
+            .psfs
+            .iter()
+            .map(|ch| {
+                ch.iter()
+                    .map(|p| 4.0 * (p.cells.iter().sum::<f64>() + p.veil).powi(2))
+                    .sum()
+            })
+            .collect();
+        let linear = linear_plan(problem, width, height);
+        let mut plan = Self {
+            width,
+            height,
+            fft,
+            half,
+            spectra,
+            veils,
+            lipschitz: dc_bound.clone(),
+            linear,
+        };
+        for (c, bound) in dc_bound.iter().enumerate() {
+            if !problem.psfs[c].iter().all(mirror_symmetric) {
+                plan.lipschitz[c] = bound.max(POWER_MARGIN * plan.largest_eigenvalue(c));
+            }
+        }
+        plan
+    }
+
+    /// Power iteration on Σ_D A_Dᵀ A_D for channel `c`.
+    fn largest_eigenvalue(&self, c: usize) -> f64 {
+        let n = self.width * self.height;
+        let zero = vec![0.0f32; 4 * n];
+        let targets: Vec<&[f32]> = vec![&zero; self.spectra[c].len()];
+        let norm = |x: &[f32]| x.iter().map(|a| (*a as f64).powi(2)).sum::<f64>().sqrt();
+        // A pattern with every frequency, so no eigenvector is missed.
+        let mut v: Vec<f32> = (0..n)
+            .map(|i| 1.0 + ((i * 7919) % 101) as f32 / 101.0)
+            .collect();
+        let mut g = Vec::new();
+        let mut eig = 0.0;
+        for _ in 0..POWER_STEPS {
+            self.value_and_gradient(c, &v, &targets, Some(&mut g));
+            let (ng, nv) = (norm(&g), norm(&v));
+            if ng == 0.0 || nv == 0.0 {
+                break;
+            }
+            eig = ng / nv;
+            v = g.iter().map(|a| (*a as f64 / ng) as f32).collect();
+        }
+        eig
+    }
+
+    /// ½ Σ_D ‖A_D d − t_D‖² for channel `c`, and its gradient Σ_D A_Dᵀ r_D
+    /// into `gradient` when given.
+    fn value_and_gradient(
+        &self,
+        c: usize,
+        display: &[f32],
+        targets: &[&[f32]],
+        gradient: Option<&mut Vec<f32>>,
+    ) -> f64 {
+        let (w, h, a) = (self.width, self.height, self.half);
+        let (w2, h2) = (2 * w, 2 * h);
+        let (fw, fh) = (self.fft.width, self.fft.height);
+        let up = up2_plane(display, w, h);
+        let u = self.fft.forward(&extend_plane(&up, w2, h2, a, a, fw, fh));
+        let mean = display.iter().map(|&v| v as f64).sum::<f64>() / (w * h) as f64;
+        let want_gradient = gradient.is_some();
+        let mut acc = want_gradient.then(|| vec![c32::new(0.0, 0.0); u.len()]);
+        let mut veil_adjoint = 0.0f64;
+        let mut value = 0.0f64;
+        for (d, (spectrum, &veil)) in self.spectra[c].iter().zip(&self.veils[c]).enumerate() {
+            let mut s = u.clone();
+            s.par_iter_mut().zip(spectrum).for_each(|(x, k)| *x *= k);
+            let full = self.fft.inverse(s);
+            let lift = (veil as f64 * mean) as f32;
+            let mut placed = want_gradient.then(|| vec![0.0f32; fw * fh]);
+            let mut residual_sum = 0.0f64;
+            for y in 0..h2 {
+                let row = &full[(y + a) * fw + a..(y + a) * fw + a + w2];
+                let target = &targets[d][y * w2..(y + 1) * w2];
+                for x in 0..w2 {
+                    let r = row[x] + lift - target[x];
+                    value += (r as f64) * (r as f64);
+                    residual_sum += r as f64;
+                    if let Some(p) = placed.as_mut() {
+                        p[(y + a) * fw + a + x] = r;
+                    }
+                }
+            }
+            if let (Some(p), Some(acc)) = (placed, acc.as_mut()) {
+                let rs = self.fft.forward(&p);
+                acc.par_iter_mut()
+                    .zip(rs.par_iter().zip(spectrum))
+                    .for_each(|(o, (r, k))| *o += k.conj() * r);
+                veil_adjoint += veil as f64 * residual_sum;
+            }
+        }
+        if let (Some(g), Some(acc)) = (gradient, acc) {
+            let full = self.fft.inverse(acc);
+            // Adjoint of the symmetric extension: fold the padded grid back.
+            let xs: Vec<usize> = (0..w2 + 2 * a)
+                .map(|x| symmetric_index(x as isize - a as isize, w2))
+                .collect();
+            let mut retinal = vec![0.0f32; w2 * h2];
+            for y in 0..h2 + 2 * a {
+                let sy = symmetric_index(y as isize - a as isize, h2);
+                let dst = &mut retinal[sy * w2..(sy + 1) * w2];
+                for (x, &sx) in xs.iter().enumerate() {
+                    dst[sx] += full[y * fw + x];
+                }
+            }
+            // Adjoint of up2 (sum of each 2×2 block) and of the veil's mean.
+            let lift = (veil_adjoint / (w * h) as f64) as f32;
+            g.clear();
+            g.resize(w * h, 0.0);
+            for y in 0..h {
+                for x in 0..w {
+                    let i = 2 * y * w2 + 2 * x;
+                    g[y * w + x] =
+                        retinal[i] + retinal[i + 1] + retinal[i + w2] + retinal[i + w2 + 1] + lift;
+                }
+            }
+        }
+        0.5 * value
+    }
+
+    /// FISTA with gradient restart from `start` (clamped), channel `c`.
+    /// Returns (display plane, steps, objective at start, last objective).
+    fn fista(
+        &self,
+        c: usize,
+        start: &[f32],
+        targets: &[&[f32]],
+        options: &SolveOptions,
+    ) -> (Vec<f32>, usize, f64, f64) {
+        let step = (1.0 / self.lipschitz[c]) as f32;
+        let mut x: Vec<f32> = start.iter().map(|v| v.clamp(0.0, 1.0)).collect();
+        let mut y = x.clone();
+        let mut t = 1.0f64;
+        let mut gradient = Vec::new();
+        let mut history: Vec<f64> = Vec::new();
+        let mut steps = 0;
+        let mut x_next = vec![0.0f32; x.len()];
+        while steps < options.max_steps {
+            let f = self.value_and_gradient(c, &y, targets, Some(&mut gradient));
+            history.push(f);
+            steps += 1;
+            x_next
+                .par_iter_mut()
+                .zip(y.par_iter().zip(&gradient))
+                .for_each(|(o, (yv, g))| *o = (yv - step * g).clamp(0.0, 1.0));
+            // Restart when the momentum points uphill.
+            let uphill: f64 = y
+                .par_iter()
+                .zip(&x_next)
+                .zip(&x)
+                .map(|((yv, xn), xv)| ((yv - xn) * (xn - xv)) as f64)
+                .sum();
+            let t_next = if uphill > 0.0 {
+                1.0
+            } else {
+                (1.0 + (1.0 + 4.0 * t * t).sqrt()) / 2.0
+            };
+            let momentum = if uphill > 0.0 {
+                0.0
+            } else {
+                ((t - 1.0) / t_next) as f32
+            };
+            y.par_iter_mut()
+                .zip(x_next.par_iter().zip(&x))
+                .for_each(|(yv, (xn, xv))| *yv = xn + momentum * (xn - xv));
+            std::mem::swap(&mut x, &mut x_next);
+            t = t_next;
+            if converged(&history, options) {
+                break;
+            }
+        }
+        let last = self.value_and_gradient(c, &x, targets, None);
+        let first = history.first().copied().unwrap_or(last);
+        (x, steps, first, last)
+    }
+}
+
+/// Power-iteration steps and the margin on what they find (power iteration
+/// approaches the largest eigenvalue from below).
+const POWER_STEPS: usize = 30;
+const POWER_MARGIN: f64 = 1.05;
+
+/// Whether a PSF is its own mirror image in x and in y (to round-off).
+fn mirror_symmetric(p: &Psf) -> bool {
+    let w = p.window;
+    let peak = p.cells.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    let tol = 1e-9 * peak.max(f64::MIN_POSITIVE);
+    (0..w).all(|y| {
+        (0..w).all(|x| {
+            let v = p.cells[y * w + x];
+            (v - p.cells[y * w + (w - 1 - x)]).abs() <= tol
+                && (v - p.cells[(w - 1 - y) * w + x]).abs() <= tol
+        })
+    })
+}
+
+/// Whether the objective rose by less than the tolerance (as a PSNR) over
+/// the last `window` steps.
+fn converged(history: &[f64], options: &SolveOptions) -> bool {
+    if options.tolerance_db <= 0.0 || history.len() <= options.window {
+        return false;
+    }
+    let best = |s: &[f64]| s.iter().copied().fold(f64::INFINITY, f64::min);
+    let before = best(&history[..history.len() - options.window]);
+    let now = best(history);
+    if now <= 0.0 {
+        return true;
+    }
+    10.0 * (before / now).log10() < options.tolerance_db
+}
+
+fn up2_plane(p: &[f32], w: usize, h: usize) -> Vec<f32> {
+    let mut out = vec![0.0f32; 4 * w * h];
+    for y in 0..2 * h {
+        let src = &p[(y / 2) * w..(y / 2 + 1) * w];
+        let dst = &mut out[y * 2 * w..(y + 1) * 2 * w];
+        for (x, v) in src.iter().enumerate() {
+            dst[2 * x] = *v;
+            dst[2 * x + 1] = *v;
+        }
+    }
+    out
+}
+
+/// The display-grid least-squares gains G = Σ_D K_D* T_D / (Σ_D |K_D|² + N_D K)
+/// of each channel, scaled to unit gain at zero frequency, on the mirrored
+/// 2w×2h grid of the Wiener prefilter.
+fn linear_plan(problem: &DisplayProblem, width: usize, height: usize) -> WienerPlan {
+    let fft = Fft2::new(2 * width, 2 * height);
+    let spectrum = |p: &Psf| {
+        let (k, side) = display_kernel(p);
+        let mut s = fft.kernel_spectrum(&k, side);
+        s[0] += c32::new(p.veil as f32, 0.0);
+        s
+    };
+    let n_depths = problem.depths_d.len() as f32;
+    let gains = (0..problem.channels())
+        .map(|c| {
+            let blur = problem
+                .blur
+                .as_ref()
+                .filter(|_| problem.blurred.iter().any(|&b| b))
+                .map(|b| spectrum(&b[c]));
+            let mut num = vec![c32::new(0.0, 0.0); fft.bins() * fft.height];
+            let mut den = vec![n_depths * problem.k_reg as f32; num.len()];
+            for (p, &blurred) in problem.psfs[c].iter().zip(&problem.blurred) {
+                let k = spectrum(p);
+                for (i, kv) in k.iter().enumerate() {
+                    let t = match (&blur, blurred) {
+                        (Some(b), true) => b[i],
+                        _ => c32::new(1.0, 0.0),
+                    };
+                    num[i] += kv.conj() * t;
+                    den[i] += kv.norm_sqr();
+                }
+            }
+            let g0 = num[0].re / den[0];
+            num.iter()
+                .zip(&den)
+                .map(|(n, d)| n / (d * g0))
+                .collect::<Vec<_>>()
+        })
+        .collect();
+    WienerPlan::from_gains(fft, width, height, gains)
+}
+
+/// How a [`SolvedPrefilter`] makes the display image.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum SolveMode {
+    /// The linear least-squares prefilter, clamped.
+    Linear,
+    /// The linear output and `k` projected-gradient steps.
+    Refine(usize),
+    /// Solved to convergence.
+    Optimal,
+}
+
+/// `lsq`, `refine:k` and `optimal` as the preprocessing of a display system.
+#[derive(Debug, Clone)]
+pub struct SolvedPrefilter {
+    /// The display system whose optics the problem holds ("doe+wiener").
+    pub method: String,
+    pub problem: Arc<DisplayProblem>,
+    pub mode: SolveMode,
+    /// The last frame's solve, for reports.
+    pub last: Option<SolveReport>,
+}
+
+impl SolvedPrefilter {
+    pub fn new(method: impl Into<String>, problem: Arc<DisplayProblem>, mode: SolveMode) -> Self {
+        Self {
+            method: method.into(),
+            problem,
+            mode,
+            last: None,
+        }
+    }
+}
+
+impl Preprocess for SolvedPrefilter {
+    fn describe(&self) -> String {
+        let p = &self.problem;
+        let what = match self.mode {
+            SolveMode::Linear => "linear least-squares prefilter".to_string(),
+            SolveMode::Refine(k) => {
+                format!("least-squares prefilter + {k} projected-gradient steps")
+            }
+            SolveMode::Optimal => "bounded least-squares optimum".to_string(),
+        };
+        format!(
+            "{what} of {} ({} objective over {} depths, K = {:e})",
+            self.method,
+            p.objective.name(),
+            p.depths_d.len(),
+            p.k_reg
+        )
+    }
+
+    fn run(&mut self, input: &Image) -> Result<Image, PreprocessError> {
+        check_frame(input, self.problem.channels())?;
+        let linear = self.problem.linear_unclamped(input).clamped();
+        let options = match self.mode {
+            SolveMode::Linear => return Ok(linear),
+            SolveMode::Refine(k) => SolveOptions::steps(k),
+            SolveMode::Optimal => SolveOptions::CONVERGED,
+        };
+        let (display, report) = self.problem.solve(input, &linear, &options);
+        self.last = Some(report);
+        Ok(display)
+    }
+}
+
+#[cfg(test)]
+mod tests;
