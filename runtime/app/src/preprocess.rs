@@ -6,10 +6,14 @@
 //! engine, plus one arm in [`for_method`].
 
 use std::collections::HashMap;
+use std::sync::Arc;
 
-use nedrt_core::{Image, Preprocess};
+use nedrt_core::Preprocess;
+use nedrt_core::calib::Calibration;
 use nedrt_infer::Dcnn;
-use nedrt_optics::sim::{Method, Prepared};
+use nedrt_optics::sim::{
+    Method, Objective, Prepared, SolveMode, SolvedPrefilter, objective_depths_d,
+};
 
 use crate::AppError;
 
@@ -47,34 +51,168 @@ pub fn dcnn_lines(dcnns: &HashMap<Method, Dcnn>, methods: &[Method]) -> Vec<Stri
         .collect()
 }
 
-/// The preprocessing of each method of a run, built once.
-#[derive(Debug)]
-pub struct Preprocessors {
-    engines: Vec<(Method, Box<dyn Preprocess>)>,
+/// How the display image is made from a frame, given a method's optics
+/// (`--prefilter`): the method's own preprocessing, or one of the
+/// least-squares family of nedrt-optics' `optimal` module, which solve for
+/// the display image against `objective` over the headline depths.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Prefilter {
+    /// The method's own: none, its Wiener prefilter, or its D-CNN.
+    Native,
+    /// The linear least-squares prefilter, clamped.
+    Lsq(Objective),
+    /// `lsq` and this many projected-gradient steps.
+    Refine(usize, Objective),
+    /// The bounded least-squares optimum (to 0.001 dB).
+    Optimal(Objective),
 }
 
-impl Preprocessors {
-    /// Builds every method's preprocessing (see [`for_method`]).
-    pub fn new(
-        methods: &[Method],
-        prepared: &Prepared,
-        mut dcnns: HashMap<Method, Dcnn>,
-    ) -> Result<Self, AppError> {
-        let engines = methods
-            .iter()
-            .map(|&m| Ok((m, for_method(m, prepared, &mut dcnns)?)))
-            .collect::<Result<_, AppError>>()?;
-        Ok(Self { engines })
+/// Most refinement steps `refine:K` takes (past it, use `optimal`).
+pub const MAX_REFINE_STEPS: usize = 1000;
+
+impl Prefilter {
+    /// The objective of the least-squares family when none is named: the
+    /// multifocal target, the quantity training optimises
+    /// (evaluation protocol).
+    pub const DEFAULT_OBJECTIVE: Objective = Objective::Target;
+
+    pub fn is_native(self) -> bool {
+        self == Prefilter::Native
     }
 
-    /// The display frame `method` puts on the panel for `input`.
-    pub fn display(&mut self, method: Method, input: &Image) -> Result<Image, AppError> {
-        let engine = self
-            .engines
-            .iter_mut()
-            .find(|(m, _)| *m == method)
-            .map(|(_, e)| e)
-            .ok_or_else(|| AppError::Usage(format!("{method} was not prepared")))?;
-        Ok(engine.run(input)?)
+    /// The depths its PSFs must be prepared at (none for `native`).
+    pub fn depths_d(self, calib: &Calibration) -> Vec<f64> {
+        if self.is_native() {
+            Vec::new()
+        } else {
+            objective_depths_d(calib)
+        }
+    }
+
+    /// The depths every one of `prefilters` needs, deduplicated.
+    pub fn all_depths_d(prefilters: &[Prefilter], calib: &Calibration) -> Vec<f64> {
+        if prefilters.iter().all(|p| p.is_native()) {
+            Vec::new()
+        } else {
+            objective_depths_d(calib)
+        }
+    }
+
+    /// The row name of `method` with this prefilter ("ai", "ai optimal@target").
+    pub fn label(self, method_name: &str) -> String {
+        match self {
+            Prefilter::Native => method_name.to_string(),
+            other => format!("{method_name} {other}"),
+        }
+    }
+}
+
+impl std::fmt::Display for Prefilter {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Prefilter::Native => f.write_str("native"),
+            Prefilter::Lsq(o) => write!(f, "lsq@{}", o.name()),
+            Prefilter::Refine(k, o) => write!(f, "refine:{k}@{}", o.name()),
+            Prefilter::Optimal(o) => write!(f, "optimal@{}", o.name()),
+        }
+    }
+}
+
+impl std::str::FromStr for Prefilter {
+    type Err = String;
+    /// `native`, `lsq`, `refine:K` or `optimal`, the last three with an
+    /// optional `@sharp` or `@target`.
+    fn from_str(s: &str) -> Result<Self, String> {
+        const CHOICES: &str = "choose native, lsq, refine:K or optimal (K ≥ 1 steps), the last \
+             three optionally with @sharp or @target";
+        let (kind, objective) = match s.split_once('@') {
+            Some((k, o)) => (
+                k,
+                o.parse::<Objective>()
+                    .map_err(|e| format!("prefilter {s:?}: {e}"))?,
+            ),
+            None => (s, Self::DEFAULT_OBJECTIVE),
+        };
+        match kind {
+            "native" if !s.contains('@') => Ok(Prefilter::Native),
+            "lsq" => Ok(Prefilter::Lsq(objective)),
+            "optimal" => Ok(Prefilter::Optimal(objective)),
+            _ => match kind.strip_prefix("refine:") {
+                Some(k) => match k.parse::<usize>() {
+                    Ok(k) if (1..=MAX_REFINE_STEPS).contains(&k) => {
+                        Ok(Prefilter::Refine(k, objective))
+                    }
+                    _ => Err(format!(
+                        "prefilter {s:?}: the number of steps must be a whole number from 1 to \
+                         {MAX_REFINE_STEPS}"
+                    )),
+                },
+                None => Err(format!("unknown prefilter {s:?}; {CHOICES}")),
+            },
+        }
+    }
+}
+
+/// The preprocessing of `method` with `prefilter`: [`for_method`] for
+/// `native`, else the method's optics' least-squares problem solved as asked.
+pub fn for_system(
+    method: Method,
+    prefilter: Prefilter,
+    prepared: &Prepared,
+    dcnns: &mut HashMap<Method, Dcnn>,
+) -> Result<Box<dyn Preprocess>, AppError> {
+    let (mode, objective) = match prefilter {
+        Prefilter::Native => return for_method(method, prepared, dcnns),
+        Prefilter::Lsq(o) => (SolveMode::Linear, o),
+        Prefilter::Refine(k, o) => (SolveMode::Refine(k), o),
+        Prefilter::Optimal(o) => (SolveMode::Optimal, o),
+    };
+    let problem = prepared.display_problem(method, objective)?;
+    Ok(Box::new(SolvedPrefilter::new(
+        method.name(),
+        Arc::new(problem),
+        mode,
+    )))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn prefilter_names_round_trip_and_bad_ones_explain() {
+        for p in [
+            Prefilter::Native,
+            Prefilter::Lsq(Objective::Sharp),
+            Prefilter::Refine(3, Objective::Target),
+            Prefilter::Optimal(Objective::Sharp),
+        ] {
+            assert_eq!(p.to_string().parse::<Prefilter>(), Ok(p));
+        }
+        assert_eq!(
+            "optimal".parse::<Prefilter>(),
+            Ok(Prefilter::Optimal(Objective::Target))
+        );
+        assert_eq!(
+            "refine:10".parse::<Prefilter>(),
+            Ok(Prefilter::Refine(10, Objective::Target))
+        );
+        for (bad, says) in [
+            ("wiener", "choose native"),
+            ("refine:0", "from 1 to"),
+            ("refine:", "from 1 to"),
+            ("refine:x", "whole number"),
+            ("refine:1001", "1000"),
+            ("optimal@blurry", "sharp or target"),
+            ("native@sharp", "choose native"),
+        ] {
+            let e = bad.parse::<Prefilter>().unwrap_err();
+            assert!(e.contains(says) && e.contains(bad), "{bad}: {e}");
+        }
+        assert_eq!(Prefilter::Native.label("ai"), "ai");
+        assert_eq!(
+            Prefilter::Lsq(Objective::Sharp).label("doe+wiener"),
+            "doe+wiener lsq@sharp"
+        );
     }
 }

@@ -6,6 +6,7 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use super::{AppError, CommonOptions, check_accommodation};
+use crate::preprocess::Prefilter;
 use nedrt_core::image_io::{self, DEFAULT_INPUT_NAME, DEFAULT_INPUT_PNG, LoadedImage};
 use nedrt_optics::sim::metrics::{psnr, ssim};
 use nedrt_optics::sim::{Image, Method, Optics, Simulator};
@@ -25,6 +26,8 @@ pub struct SimOptions {
     /// Also write the display frame (what the panel shows) here: `.png`
     /// 16-bit or `.tif` 32-bit float.
     pub display_out: Option<PathBuf>,
+    /// How the display image is made from the input (not with `display_image`).
+    pub prefilter: Prefilter,
 }
 
 /// What `--out` and `--display-out` write: 16-bit PNG, or 32-bit float TIFF (exact).
@@ -120,6 +123,12 @@ pub fn run(common: &CommonOptions, opts: &SimOptions) -> Result<SimReport, AppEr
         None => None,
     };
 
+    if display_loaded.is_some() && !opts.prefilter.is_native() {
+        return Err(AppError::Usage(format!(
+            "--prefilter {} makes a display image, --display-image gives one; use one of them",
+            opts.prefilter
+        )));
+    }
     let method = match display_loaded {
         Some(_) => Method::unprocessed(opts.optics),
         None => opts.method,
@@ -152,10 +161,21 @@ pub fn run(common: &CommonOptions, opts: &SimOptions) -> Result<SimReport, AppEr
         common.doe_path_for(&[method]).as_deref(),
         common.cache(),
     )?;
-    let prepared = sim.prepare(&[method], &[opts.accommodation_d], common.progress())?;
+    let mut depths = opts.prefilter.depths_d(&sim.calib);
+    depths.push(opts.accommodation_d);
+    let prepared = sim.prepare(&[method], &depths, common.progress())?;
+    let mut engine = None;
     let display = match &display_loaded {
         Some(d) => d.clone(),
-        None => crate::preprocess::for_method(method, &prepared, &mut dcnns)?.run(&input)?,
+        None => {
+            let e = engine.insert(crate::preprocess::for_system(
+                method,
+                opts.prefilter,
+                &prepared,
+                &mut dcnns,
+            )?);
+            e.run(&input)?
+        }
     };
     let perceived = prepared.perceived(method, &display, opts.accommodation_d)?;
     let target = prepared.target(&input, opts.accommodation_d)?;
@@ -180,7 +200,7 @@ pub fn run(common: &CommonOptions, opts: &SimOptions) -> Result<SimReport, AppEr
                 "lens"
             }
         ),
-        None => format!("method {method}"),
+        None => format!("method {}", opts.prefilter.label(method.name())),
     };
     let _ = writeln!(
         t,
@@ -192,6 +212,9 @@ pub fn run(common: &CommonOptions, opts: &SimOptions) -> Result<SimReport, AppEr
     }
     if let Some(line) = &dcnn_line {
         let _ = writeln!(t, "{line}");
+    }
+    if let Some(e) = engine.as_ref().filter(|_| !opts.prefilter.is_native()) {
+        let _ = writeln!(t, "display   {}", e.describe());
     }
     let _ = writeln!(
         t,

@@ -127,6 +127,14 @@ pub struct SimArgs {
     /// Optics that --display-image is seen through.
     #[arg(long, value_parser = named::<Optics>(), default_value = "doe")]
     pub optics: Optics,
+    /// How the display image is made from the frame, given the method's
+    /// optics: native (the method's own: none, Wiener or D-CNN), lsq (the
+    /// linear least-squares prefilter), refine:K (lsq and K projected-gradient
+    /// steps) or optimal (the bounded least-squares optimum); the last three
+    /// against the target (default) or, with @sharp, the sharp image over
+    /// 0–2.5 D (docs/optimal.md).
+    #[arg(long, default_value = "native", value_name = "PREFILTER")]
+    pub prefilter: nedrt_app::preprocess::Prefilter,
 }
 
 fn parse_size(s: &str) -> Result<(usize, usize), String> {
@@ -386,6 +394,20 @@ pub struct EvalArgs {
     /// 0.1 D steps (`nedrt sweep`).
     #[arg(long, value_name = "DIR")]
     pub sweeps: Option<PathBuf>,
+    /// How each display image is made from the frame, given the method's
+    /// optics: native (the method's own: none, Wiener or D-CNN), lsq (the
+    /// linear least-squares prefilter), refine:K (lsq and K projected-gradient
+    /// steps) or optimal (the bounded least-squares optimum); the last three
+    /// against the target (default) or, with @sharp, the sharp image over
+    /// 0–2.5 D (docs/optimal.md).
+    /// A list gives one row per method (and design) and prefilter.
+    #[arg(
+        long,
+        value_delimiter = ',',
+        default_value = "native",
+        value_name = "PREFILTER"
+    )]
+    pub prefilter: Vec<nedrt_app::preprocess::Prefilter>,
 }
 
 /// What the panels show first (keys s, t, p switch in the window).

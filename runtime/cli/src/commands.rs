@@ -97,6 +97,7 @@ pub fn run(cli: Cli) -> Result<()> {
                             .collect::<Result<_, _>>()?,
                         focus_cues: a.focus_cues,
                         sweeps: a.sweeps,
+                        prefilters: dedup(a.prefilter),
                     }
                 )?
             )
@@ -270,6 +271,7 @@ pub fn run(cli: Cli) -> Result<()> {
                 display_image: s.display_image,
                 optics: s.optics,
                 display_out: s.display_out,
+                prefilter: s.prefilter,
             };
             println!("{}", app::sim::run(&common, &opts)?);
         }
@@ -278,4 +280,15 @@ pub fn run(cli: Cli) -> Result<()> {
         }
     }
     Ok(())
+}
+
+/// A list without repeats, first occurrences in order.
+fn dedup<T: PartialEq>(items: Vec<T>) -> Vec<T> {
+    let mut out = Vec::with_capacity(items.len());
+    for i in items {
+        if !out.contains(&i) {
+            out.push(i);
+        }
+    }
+    out
 }

@@ -14,7 +14,8 @@ use super::design::Design;
 use super::focus_cues::{self, FocusCueDefinition, FocusCues, FocusSweep};
 use super::sim::Score;
 use super::{AppError, CommonOptions, create_dir, write_text};
-use crate::preprocess::Preprocessors;
+use crate::preprocess::{Prefilter, for_system};
+use nedrt_core::Preprocess;
 use nedrt_core::image_io;
 use nedrt_optics::sim::{Image, Method, Optics, Prepared, Simulator};
 
@@ -211,14 +212,19 @@ pub struct EvalExtras {
     pub focus_cues: bool,
     /// Also write a focus sweep of every image into this folder.
     pub sweeps: Option<PathBuf>,
+    /// How each method's and design's display image is made, one row per
+    /// method (or design) and prefilter, in this order; empty = native.
+    pub prefilters: Vec<Prefilter>,
 }
 
-/// One row of the tables: a method seen through one simulator.
+/// One row of the tables: a method seen through one simulator, its display
+/// image made by `engine` (none: loaded from the external folder).
 struct Row<'a> {
     name: String,
     method: Method,
     prepared: &'a Prepared,
     doe_hash: Option<String>,
+    engine: Option<Box<dyn Preprocess>>,
 }
 
 /// Runs the evaluation and writes `eval.md` and `eval.json` into `out_dir`;
@@ -256,55 +262,68 @@ pub fn run(
         .iter()
         .map(|d| d.simulator(sim.calib.clone(), common.cache()))
         .collect::<Result<Vec<_>, _>>()?;
+    let prefilters = if extras.prefilters.is_empty() {
+        vec![Prefilter::Native]
+    } else {
+        extras.prefilters.clone()
+    };
     let depths = sim.calib.evaluation_depths_d();
-    let rows = methods.len() + usize::from(external.is_some()) + design_sims.len();
+    let rows =
+        (methods.len() + design_sims.len()) * prefilters.len() + usize::from(external.is_some());
     let mut sweep = extras.focus_cues.then(|| FocusSweep::new(&sim.calib, rows));
     // Every depth rendered: the table's, and the sweep's; the PSFs of both
-    // go into one request per optics, so a later run loads them.
+    // (and of the prefilters' objective) go into one request per optics, so
+    // a later run loads them.
     let rendered = match &sweep {
         Some(s) => union_d(&depths, &s.depths_d),
         None => depths.clone(),
     };
+    let prepared_depths = union_d(&rendered, &Prefilter::all_depths_d(&prefilters, &sim.calib));
     let mut needed = methods.clone();
     needed.extend(external.map(|e| e.psf_method()));
-    let prepared = sim.prepare(&needed, &rendered, common.progress())?;
+    let prepared = sim.prepare(&needed, &prepared_depths, common.progress())?;
     let design_prepared = design_sims
         .iter()
-        .map(|s| s.prepare(&[Method::DoeWiener], &rendered, common.progress()))
+        .map(|s| s.prepare(&[Method::DoeWiener], &prepared_depths, common.progress()))
         .collect::<Result<Vec<_>, _>>()?;
-    let mut preprocessors = Preprocessors::new(&methods, &prepared, dcnns)?;
-    let mut design_preprocessors = design_prepared
-        .iter()
-        .map(|p| p.preprocessor(Method::DoeWiener))
-        .collect::<Result<Vec<_>, _>>()?;
+    let mut dcnns = dcnns;
     let doe_hash = |optics: Optics| (optics == Optics::Doe).then(|| sim.doe_hash.clone());
-    let mut row_specs: Vec<Row> = methods
-        .iter()
-        .map(|&m| Row {
-            name: m.name().to_string(),
-            method: m,
+    let mut row_specs: Vec<Row> = Vec::with_capacity(rows);
+    for &m in &methods {
+        for &p in &prefilters {
+            row_specs.push(Row {
+                name: p.label(m.name()),
+                method: m,
+                prepared: &prepared,
+                doe_hash: doe_hash(m.optics()),
+                engine: Some(for_system(m, p, &prepared, &mut dcnns)?),
+            });
+        }
+    }
+    if let Some(e) = external {
+        row_specs.push(Row {
+            name: e.name.clone(),
+            method: e.psf_method(),
             prepared: &prepared,
-            doe_hash: doe_hash(m.optics()),
-        })
-        .collect();
-    row_specs.extend(external.map(|e| Row {
-        name: e.name.clone(),
-        method: e.psf_method(),
-        prepared: &prepared,
-        doe_hash: doe_hash(e.optics),
-    }));
+            doe_hash: doe_hash(e.optics),
+            engine: None,
+        });
+    }
     for ((d, s), p) in extras
         .designs
         .iter()
         .zip(&design_sims)
         .zip(&design_prepared)
     {
-        row_specs.push(Row {
-            name: format!("{} {}", Method::DoeWiener.name(), d.name),
-            method: Method::DoeWiener,
-            prepared: p,
-            doe_hash: Some(s.doe_hash.clone()),
-        });
+        for &pf in &prefilters {
+            row_specs.push(Row {
+                name: pf.label(&format!("{} {}", Method::DoeWiener.name(), d.name)),
+                method: Method::DoeWiener,
+                prepared: p,
+                doe_hash: Some(s.doe_hash.clone()),
+                engine: Some(for_system(Method::DoeWiener, pf, p, &mut dcnns)?),
+            });
+        }
     }
 
     let bar = common.phase(if sweep.is_some() {
@@ -324,16 +343,16 @@ pub fn run(
             .iter()
             .map(|d| prepared.target(input, *d))
             .collect::<Result<_, _>>()?;
-        let mut displays: Vec<Image> = methods
-            .iter()
-            .map(|&m| preprocessors.display(m, input))
+        let displays: Vec<Image> = row_specs
+            .iter_mut()
+            .map(|row| match &mut row.engine {
+                Some(engine) => Ok(engine.run(input)?),
+                None => match external {
+                    Some(e) => e.load(file, input),
+                    None => Err(AppError::Usage("a row without a display image".into())),
+                },
+            })
             .collect::<Result<_, AppError>>()?;
-        if let Some(e) = external {
-            displays.push(e.load(file, input)?);
-        }
-        for engine in &mut design_preprocessors {
-            displays.push(engine.run(input)?);
-        }
         for (mi, (row, display)) in row_specs.iter().zip(&displays).enumerate() {
             for &d in &rendered {
                 let perceived = row.prepared.perceived(row.method, display, d)?;

@@ -11,8 +11,11 @@
 //! t_D the sharp image up2(I) (sharp objective) or the multifocal target
 //! (target objective), over the headline depths. Channels are independent.
 //! It is solved by accelerated projected gradient (FISTA with gradient
-//! restart, O'Donoghue & Candès 2015) with the exact adjoint of A_D, so a
-//! step costs 2 + 2·depths real FFTs per channel on the padded retinal grid.
+//! restart, O'Donoghue & Candès 2015). With mirror-symmetric PSFs (every
+//! rotationally symmetric system) Σ_D A_Dᵀ A_D is a convolution of the
+//! mirrored frame, and a step costs one FFT pair on the Wiener prefilter's
+//! grid; otherwise each depth is rendered, cropped and taken back through
+//! the exact adjoint, 2 + 2·depths FFTs of the padded retinal grid.
 //!
 //! Between the linear filter and d*:
 //! - `lsq`: the best linear prefilter for the objective on the display grid,
@@ -95,7 +98,8 @@ impl SolveOptions {
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct SolveReport {
     pub steps: Vec<usize>,
-    /// ½ Σ_D ‖A_D d − t_D‖² at the start and at the last evaluated point.
+    /// ½ Σ_D ‖A_D d − t_D‖² at the start and at the end, where measured
+    /// (empty otherwise).
     pub start_objective: Vec<f64>,
     pub final_objective: Vec<f64>,
 }
@@ -202,7 +206,9 @@ impl DisplayProblem {
     }
 
     /// Improves `start` (clamped to [0, 1] first) towards the bounded
-    /// least-squares optimum for `input`.
+    /// least-squares optimum for `input`. The objective values of the
+    /// report are measured only when the stopping rule needs them (or the
+    /// cropped path runs): otherwise they are `None`.
     pub fn solve(
         &self,
         input: &Image,
@@ -210,15 +216,18 @@ impl DisplayProblem {
         options: &SolveOptions,
     ) -> (Image, SolveReport) {
         let plan = self.plan(input.width, input.height);
-        let targets = self.targets(input);
+        let targets =
+            (options.tolerance_db > 0.0 || plan.needs_targets()).then(|| self.targets(input));
         let mut report = SolveReport::default();
         let planes = (0..self.channels())
             .map(|c| {
-                let t: Vec<&[f32]> = targets.iter().map(|t| t.plane(c)).collect();
-                let (plane, steps, f0, f1) = plan.fista(c, start.plane(c), &t, options);
+                let objective = plan.channel_objective(c, input.plane(c), targets.as_deref());
+                let (plane, steps, f0, f1) = plan.fista(c, &objective, start.plane(c), options);
                 report.steps.push(steps);
-                report.start_objective.push(f0);
-                report.final_objective.push(f1);
+                if targets.is_some() {
+                    report.start_objective.push(f0);
+                    report.final_objective.push(f1);
+                }
                 plane
             })
             .collect();
@@ -234,8 +243,7 @@ impl DisplayProblem {
         let targets = self.targets(input);
         (0..self.channels())
             .map(|c| {
-                let t: Vec<&[f32]> = targets.iter().map(|t| t.plane(c)).collect();
-                plan.value_and_gradient(c, display.plane(c), &t, None)
+                plan.channel_objective(c, input.plane(c), Some(&targets))(display.plane(c), None)
             })
             .collect()
     }
@@ -246,20 +254,334 @@ impl DisplayProblem {
 pub struct ProblemPlan {
     pub width: usize,
     pub height: usize,
-    /// Transform of the padded retinal grid: the retinal image extended by
-    /// `half` (the widest PSF's half-window) on every side, at least.
-    fft: Fft2,
-    half: usize,
-    /// PSF spectra on `fft`'s grid and veils, [channel][depth].
-    spectra: Vec<Vec<Vec<c32>>>,
-    veils: Vec<Vec<f32>>,
+    operator: Operator,
     /// Lipschitz constant of the gradient, per channel.
     lipschitz: Vec<f64>,
     /// The linear least-squares prefilter at this size.
     linear: WienerPlan,
 }
 
+/// Σ_D A_Dᵀ A_D and Σ_D A_Dᵀ t_D, two ways.
+#[derive(Debug)]
+enum Operator {
+    /// Mirror-symmetric PSFs (every rotationally symmetric system): on the
+    /// frame mirrored to 2w×2h, which is exactly periodic, the perceived
+    /// image of the mirrored frame is the mirror image of the perceived
+    /// image, so the objective is four times the frame's, and both sums are
+    /// convolutions on the display grid. A step is one FFT pair of the
+    /// Wiener prefilter's size, whatever the PSF window.
+    Mirrored(MirroredOperator),
+    /// Any PSFs: each depth's perceived image rendered as the simulator
+    /// does, cropped, and its residual taken back through the exact
+    /// adjoint; 2 + 2·depths FFTs of the padded retinal grid per step.
+    Cropped(CroppedOperator),
+}
+
+#[derive(Debug)]
+struct MirroredOperator {
+    /// The mirrored 2w×2h display grid.
+    fft: Fft2,
+    /// Spectrum of Σ_D A_Dᵀ A_D, per channel (real: the operator is symmetric).
+    normal: Vec<Vec<f32>>,
+    /// Spectrum of the filter I ↦ Σ_D A_Dᵀ t_D(I), per channel.
+    adjoint_target: Vec<Vec<c32>>,
+}
+
+#[derive(Debug)]
+struct CroppedOperator {
+    /// The retinal grid extended by `half` (the widest PSF's half-window)
+    /// on every side, at least.
+    fft: Fft2,
+    half: usize,
+    /// PSF spectra on `fft`'s grid and veils, [channel][depth].
+    spectra: Vec<Vec<Vec<c32>>>,
+    veils: Vec<Vec<f32>>,
+}
+
+/// One channel's objective for one frame: value, and gradient when asked.
+type ChannelObjective<'a> = Box<dyn Fn(&[f32], Option<&mut Vec<f32>>) -> f64 + Sync + 'a>;
+
 impl ProblemPlan {
+    fn new(problem: &DisplayProblem, width: usize, height: usize) -> Self {
+        let symmetric = problem.psfs.iter().flatten().all(mirror_symmetric)
+            && problem.blur.iter().flatten().all(mirror_symmetric);
+        let linear = linear_plan(problem, width, height);
+        if symmetric {
+            let (operator, lipschitz) = MirroredOperator::new(problem, width, height);
+            return Self {
+                width,
+                height,
+                operator: Operator::Mirrored(operator),
+                lipschitz,
+                linear,
+            };
+        }
+        Self::cropped(problem, width, height, linear)
+    }
+
+    /// The plan on the cropped path whatever the PSFs (tests compare the two).
+    fn cropped(problem: &DisplayProblem, width: usize, height: usize, linear: WienerPlan) -> Self {
+        let operator = CroppedOperator::new(problem, width, height);
+        // The zero-frequency bound of the mirrored path, and above it what
+        // power iteration finds: asymmetric PSFs pass a little more at the
+        // borders.
+        let dc_bound: Vec<f64> = problem
+            .psfs
+            .iter()
+            .map(|ch| {
+                ch.iter()
+                    .map(|p| 4.0 * (p.cells.iter().sum::<f64>() + p.veil).powi(2))
+                    .sum()
+            })
+            .collect();
+        let lipschitz = dc_bound
+            .iter()
+            .enumerate()
+            .map(|(c, bound)| {
+                bound.max(POWER_MARGIN * operator.largest_eigenvalue(c, width, height))
+            })
+            .collect();
+        Self {
+            width,
+            height,
+            operator: Operator::Cropped(operator),
+            lipschitz,
+            linear,
+        }
+    }
+
+    /// Channel `c`'s objective ½ Σ_D ‖A_D d − t_D‖² for the frame `input`;
+    /// `targets` (from [`DisplayProblem::targets`]) are needed for its value
+    /// on the mirrored path and for everything on the cropped one; without
+    /// them the value is the objective less the constant ½ Σ_D ‖t_D‖².
+    fn channel_objective<'a>(
+        &'a self,
+        c: usize,
+        input: &[f32],
+        targets: Option<&'a [Arc<Image>]>,
+    ) -> ChannelObjective<'a> {
+        match &self.operator {
+            Operator::Mirrored(op) => {
+                let (w, h) = (self.width, self.height);
+                let b = op.adjoint_target(c, input, w, h);
+                let constant = targets.map_or(0.0, |t| {
+                    0.5 * t
+                        .iter()
+                        .flat_map(|t| t.plane(c))
+                        .map(|v| (*v as f64).powi(2))
+                        .sum::<f64>()
+                });
+                Box::new(move |d, gradient| {
+                    op.value_and_gradient(c, d, w, h, &b, constant, gradient)
+                })
+            }
+            Operator::Cropped(op) => {
+                let (w, h) = (self.width, self.height);
+                let targets: Vec<&[f32]> = targets
+                    .expect("the cropped path needs the targets")
+                    .iter()
+                    .map(|t| t.plane(c))
+                    .collect();
+                Box::new(move |d, gradient| op.value_and_gradient(c, d, w, h, &targets, gradient))
+            }
+        }
+    }
+
+    fn needs_targets(&self) -> bool {
+        matches!(self.operator, Operator::Cropped(_))
+    }
+
+    /// FISTA with gradient restart from `start` (clamped).
+    /// Returns (display plane, steps, objective at start, last objective).
+    fn fista(
+        &self,
+        c: usize,
+        objective: &ChannelObjective,
+        start: &[f32],
+        options: &SolveOptions,
+    ) -> (Vec<f32>, usize, f64, f64) {
+        let step = (1.0 / self.lipschitz[c]) as f32;
+        let mut x: Vec<f32> = start.iter().map(|v| v.clamp(0.0, 1.0)).collect();
+        let mut y = x.clone();
+        let mut t = 1.0f64;
+        let mut gradient = Vec::new();
+        let mut history: Vec<f64> = Vec::new();
+        let mut steps = 0;
+        let mut x_next = vec![0.0f32; x.len()];
+        while steps < options.max_steps {
+            let f = objective(&y, Some(&mut gradient));
+            history.push(f);
+            steps += 1;
+            x_next
+                .par_iter_mut()
+                .zip(y.par_iter().zip(&gradient))
+                .for_each(|(o, (yv, g))| *o = (yv - step * g).clamp(0.0, 1.0));
+            // Restart when the momentum points uphill.
+            let uphill: f64 = y
+                .par_iter()
+                .zip(&x_next)
+                .zip(&x)
+                .map(|((yv, xn), xv)| ((yv - xn) * (xn - xv)) as f64)
+                .sum();
+            let t_next = if uphill > 0.0 {
+                1.0
+            } else {
+                (1.0 + (1.0 + 4.0 * t * t).sqrt()) / 2.0
+            };
+            let momentum = if uphill > 0.0 {
+                0.0
+            } else {
+                ((t - 1.0) / t_next) as f32
+            };
+            y.par_iter_mut()
+                .zip(x_next.par_iter().zip(&x))
+                .for_each(|(yv, (xn, xv))| *yv = xn + momentum * (xn - xv));
+            std::mem::swap(&mut x, &mut x_next);
+            t = t_next;
+            if converged(&history, options) {
+                break;
+            }
+        }
+        let last = objective(&x, None);
+        let first = history.first().copied().unwrap_or(last);
+        (x, steps, first, last)
+    }
+}
+
+/// The kernel on the w×h display grid of I ↦ up2ᵀ(k ⊛ up2(I)), k given by
+/// its spectrum on the 2w×2h retinal grid (both periodic):
+/// κ[n, m] = Σ_{a,b ∈ {−1,0,1}} w_a w_b k[2n + a, 2m + b], w = (1, 2, 1).
+fn fold_to_display(retinal: &Fft2, spectrum: Vec<c32>, display: &Fft2) -> Vec<c32> {
+    let k = retinal.inverse(spectrum);
+    let (rw, rh) = (retinal.width, retinal.height);
+    let (dw, dh) = (display.width, display.height);
+    let weight = |a: isize| if a == 0 { 2.0f32 } else { 1.0 };
+    let mut out = vec![0.0f32; dw * dh];
+    out.par_chunks_mut(dw).enumerate().for_each(|(n, row)| {
+        for (m, o) in row.iter_mut().enumerate() {
+            let mut acc = 0.0f32;
+            for a in -1isize..=1 {
+                let y = (2 * n as isize + a).rem_euclid(rh as isize) as usize;
+                for b in -1isize..=1 {
+                    let x = (2 * m as isize + b).rem_euclid(rw as isize) as usize;
+                    acc += weight(a) * weight(b) * k[y * rw + x];
+                }
+            }
+            *o = acc;
+        }
+    });
+    display.forward(&out)
+}
+
+impl MirroredOperator {
+    fn new(problem: &DisplayProblem, width: usize, height: usize) -> (Self, Vec<f64>) {
+        let fft = Fft2::new(2 * width, 2 * height);
+        let retinal = Fft2::new(4 * width, 4 * height);
+        // The veil is uniform light: on the periodic grid a constant kernel,
+        // i.e. its weight at zero frequency.
+        let spectrum = |p: &Psf| {
+            let mut s = retinal.kernel_spectrum(&p.cells, p.window);
+            s[0] += c32::new(p.veil as f32, 0.0);
+            s
+        };
+        let mut normal = Vec::new();
+        let mut adjoint_target = Vec::new();
+        let mut lipschitz = Vec::new();
+        for c in 0..problem.channels() {
+            let blur = problem
+                .blur
+                .as_ref()
+                .filter(|_| problem.blurred.iter().any(|&b| b))
+                .map(|b| spectrum(&b[c]));
+            let n = retinal.bins() * retinal.height;
+            let mut gram = vec![c32::new(0.0, 0.0); n];
+            let mut cross = vec![c32::new(0.0, 0.0); n];
+            for (p, &blurred) in problem.psfs[c].iter().zip(&problem.blurred) {
+                let h = spectrum(p);
+                gram.par_iter_mut()
+                    .zip(&h)
+                    .for_each(|(g, hv)| *g += hv.norm_sqr());
+                match (&blur, blurred) {
+                    (Some(b), true) => cross
+                        .par_iter_mut()
+                        .zip(h.par_iter().zip(b))
+                        .for_each(|(o, (hv, bv))| *o += hv.conj() * bv),
+                    _ => cross
+                        .par_iter_mut()
+                        .zip(&h)
+                        .for_each(|(o, hv)| *o += hv.conj()),
+                }
+            }
+            let m: Vec<f32> = fold_to_display(&retinal, gram, &fft)
+                .into_iter()
+                .map(|v| v.re)
+                .collect();
+            lipschitz.push(m.iter().fold(0.0f32, |a, v| a.max(*v)) as f64);
+            normal.push(m);
+            adjoint_target.push(fold_to_display(&retinal, cross, &fft));
+        }
+        (
+            Self {
+                fft,
+                normal,
+                adjoint_target,
+            },
+            lipschitz,
+        )
+    }
+
+    fn mirror(plane: &[f32], w: usize, h: usize) -> Vec<f32> {
+        extend_plane(plane, w, h, 0, 0, 2 * w, 2 * h)
+    }
+
+    /// Σ_D A_Dᵀ t_D(I) on the frame (the mirrored result's first quadrant).
+    fn adjoint_target(&self, c: usize, input: &[f32], w: usize, h: usize) -> Vec<f32> {
+        let mut s = self.fft.forward(&Self::mirror(input, w, h));
+        s.par_iter_mut()
+            .zip(&self.adjoint_target[c])
+            .for_each(|(x, k)| *x *= k);
+        first_quadrant(&self.fft.inverse(s), w, h)
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    fn value_and_gradient(
+        &self,
+        c: usize,
+        display: &[f32],
+        w: usize,
+        h: usize,
+        adjoint_target: &[f32],
+        constant: f64,
+        gradient: Option<&mut Vec<f32>>,
+    ) -> f64 {
+        let mut s = self.fft.forward(&Self::mirror(display, w, h));
+        s.par_iter_mut()
+            .zip(&self.normal[c])
+            .for_each(|(x, m)| *x *= *m);
+        let normal = first_quadrant(&self.fft.inverse(s), w, h);
+        let value: f64 = display
+            .iter()
+            .zip(&normal)
+            .zip(adjoint_target)
+            .map(|((d, m), b)| (*d as f64) * (0.5 * *m as f64 - *b as f64))
+            .sum();
+        if let Some(g) = gradient {
+            g.clear();
+            g.extend(normal.iter().zip(adjoint_target).map(|(m, b)| m - b));
+        }
+        value + constant
+    }
+}
+
+fn first_quadrant(full: &[f32], w: usize, h: usize) -> Vec<f32> {
+    let mut out = Vec::with_capacity(w * h);
+    for y in 0..h {
+        out.extend_from_slice(&full[y * 2 * w..y * 2 * w + w]);
+    }
+    out
+}
+
+impl CroppedOperator {
     fn new(problem: &DisplayProblem, width: usize, height: usize) -> Self {
         let half = problem
             .psfs
@@ -268,9 +590,8 @@ impl ProblemPlan {
             .map(|p| p.window / 2)
             .max()
             .unwrap_or(0);
-        let (w2, h2) = (2 * width, 2 * height);
-        let fw = smooth_size_at_least((w2 + 2 * half) as f64);
-        let fh = smooth_size_at_least((h2 + 2 * half) as f64);
+        let fw = smooth_size_at_least((2 * width + 2 * half) as f64);
+        let fh = smooth_size_at_least((2 * height + 2 * half) as f64);
         let fft = Fft2::new(fw, fh);
         let spectra = problem
             .psfs
@@ -286,44 +607,17 @@ impl ProblemPlan {
             .iter()
             .map(|ch| ch.iter().map(|p| p.veil as f32).collect())
             .collect();
-        // The largest eigenvalue of Σ_D A_Dᵀ A_D. For mirror-symmetric PSFs
-        // (every rotationally symmetric system) the symmetric extension
-        // makes A_D a cosine-transform multiplier, and no frequency passes
-        // more than zero frequency does (|H_D| ≤ H_D(0) for a non-negative
-        // PSF): a flat frame c is seen as the flat (Σh_D + veil_D)·c on four
-        // times as many cells. Otherwise the borders can pass a little more,
-        // and power iteration measures it.
-        let dc_bound: Vec<f64> = problem
-            .psfs
-            .iter()
-            .map(|ch| {
-                ch.iter()
-                    .map(|p| 4.0 * (p.cells.iter().sum::<f64>() + p.veil).powi(2))
-                    .sum()
-            })
-            .collect();
-        let linear = linear_plan(problem, width, height);
-        let mut plan = Self {
-            width,
-            height,
+        Self {
             fft,
             half,
             spectra,
             veils,
-            lipschitz: dc_bound.clone(),
-            linear,
-        };
-        for (c, bound) in dc_bound.iter().enumerate() {
-            if !problem.psfs[c].iter().all(mirror_symmetric) {
-                plan.lipschitz[c] = bound.max(POWER_MARGIN * plan.largest_eigenvalue(c));
-            }
         }
-        plan
     }
 
     /// Power iteration on Σ_D A_Dᵀ A_D for channel `c`.
-    fn largest_eigenvalue(&self, c: usize) -> f64 {
-        let n = self.width * self.height;
+    fn largest_eigenvalue(&self, c: usize, w: usize, h: usize) -> f64 {
+        let n = w * h;
         let zero = vec![0.0f32; 4 * n];
         let targets: Vec<&[f32]> = vec![&zero; self.spectra[c].len()];
         let norm = |x: &[f32]| x.iter().map(|a| (*a as f64).powi(2)).sum::<f64>().sqrt();
@@ -334,7 +628,7 @@ impl ProblemPlan {
         let mut g = Vec::new();
         let mut eig = 0.0;
         for _ in 0..POWER_STEPS {
-            self.value_and_gradient(c, &v, &targets, Some(&mut g));
+            self.value_and_gradient(c, &v, w, h, &targets, Some(&mut g));
             let (ng, nv) = (norm(&g), norm(&v));
             if ng == 0.0 || nv == 0.0 {
                 break;
@@ -351,10 +645,12 @@ impl ProblemPlan {
         &self,
         c: usize,
         display: &[f32],
+        w: usize,
+        h: usize,
         targets: &[&[f32]],
         gradient: Option<&mut Vec<f32>>,
     ) -> f64 {
-        let (w, h, a) = (self.width, self.height, self.half);
+        let a = self.half;
         let (w2, h2) = (2 * w, 2 * h);
         let (fw, fh) = (self.fft.width, self.fft.height);
         let up = up2_plane(display, w, h);
@@ -418,62 +714,6 @@ impl ProblemPlan {
             }
         }
         0.5 * value
-    }
-
-    /// FISTA with gradient restart from `start` (clamped), channel `c`.
-    /// Returns (display plane, steps, objective at start, last objective).
-    fn fista(
-        &self,
-        c: usize,
-        start: &[f32],
-        targets: &[&[f32]],
-        options: &SolveOptions,
-    ) -> (Vec<f32>, usize, f64, f64) {
-        let step = (1.0 / self.lipschitz[c]) as f32;
-        let mut x: Vec<f32> = start.iter().map(|v| v.clamp(0.0, 1.0)).collect();
-        let mut y = x.clone();
-        let mut t = 1.0f64;
-        let mut gradient = Vec::new();
-        let mut history: Vec<f64> = Vec::new();
-        let mut steps = 0;
-        let mut x_next = vec![0.0f32; x.len()];
-        while steps < options.max_steps {
-            let f = self.value_and_gradient(c, &y, targets, Some(&mut gradient));
-            history.push(f);
-            steps += 1;
-            x_next
-                .par_iter_mut()
-                .zip(y.par_iter().zip(&gradient))
-                .for_each(|(o, (yv, g))| *o = (yv - step * g).clamp(0.0, 1.0));
-            // Restart when the momentum points uphill.
-            let uphill: f64 = y
-                .par_iter()
-                .zip(&x_next)
-                .zip(&x)
-                .map(|((yv, xn), xv)| ((yv - xn) * (xn - xv)) as f64)
-                .sum();
-            let t_next = if uphill > 0.0 {
-                1.0
-            } else {
-                (1.0 + (1.0 + 4.0 * t * t).sqrt()) / 2.0
-            };
-            let momentum = if uphill > 0.0 {
-                0.0
-            } else {
-                ((t - 1.0) / t_next) as f32
-            };
-            y.par_iter_mut()
-                .zip(x_next.par_iter().zip(&x))
-                .for_each(|(yv, (xn, xv))| *yv = xn + momentum * (xn - xv));
-            std::mem::swap(&mut x, &mut x_next);
-            t = t_next;
-            if converged(&history, options) {
-                break;
-            }
-        }
-        let last = self.value_and_gradient(c, &x, targets, None);
-        let first = history.first().copied().unwrap_or(last);
-        (x, steps, first, last)
     }
 }
 
@@ -609,13 +849,25 @@ impl Preprocess for SolvedPrefilter {
             }
             SolveMode::Optimal => "bounded least-squares optimum".to_string(),
         };
-        format!(
+        let mut s = format!(
             "{what} of {} ({} objective over {} depths, K = {:e})",
             self.method,
             p.objective.name(),
             p.depths_d.len(),
             p.k_reg
-        )
+        );
+        if let Some(r) = self
+            .last
+            .as_ref()
+            .filter(|_| self.mode == SolveMode::Optimal)
+        {
+            let steps: Vec<String> = r.steps.iter().map(|n| n.to_string()).collect();
+            s.push_str(&format!(
+                "; last frame {} steps per channel",
+                steps.join("/")
+            ));
+        }
+        s
     }
 
     fn run(&mut self, input: &Image) -> Result<Image, PreprocessError> {

@@ -352,11 +352,7 @@ impl Prepared {
             .map(|d| objective == Objective::Target && !c.is_main_depth(*d))
             .collect();
         let blur = if blurred.iter().any(|&b| b) {
-            Some(
-                (0..c.channels.len())
-                    .map(|ch| self.lookup(Optics::Lens, target_blur_spec(c, ch)).cloned())
-                    .collect::<Result<Vec<_>, _>>()?,
-            )
+            Some(self.target_blur_psfs()?)
         } else {
             None
         };
@@ -372,18 +368,23 @@ impl Prepared {
             .map_err(SimError::Invalid)
     }
 
+    /// The target blur h_b, one PSF per channel (prepared with any depth
+    /// that is not a main depth).
+    pub fn target_blur_psfs(&self) -> Result<Vec<Psf>, SimError> {
+        (0..self.calib.channels.len())
+            .map(|ch| {
+                self.lookup(Optics::Lens, target_blur_spec(&self.calib, ch))
+                    .cloned()
+            })
+            .collect()
+    }
+
     /// The multifocal target: up2(I) at a main depth, up2(I) ∗ h_b elsewhere.
     pub fn target(&self, input: &Image, accommodation_d: f64) -> Result<Image, SimError> {
         if self.calib.is_main_depth(accommodation_d) {
             return Ok(input.up2());
         }
-        let blur: Vec<Psf> = (0..self.calib.channels.len())
-            .map(|ch| {
-                self.lookup(Optics::Lens, target_blur_spec(&self.calib, ch))
-                    .cloned()
-            })
-            .collect::<Result<_, _>>()?;
-        Ok(perceive(input, &blur))
+        Ok(perceive(input, &self.target_blur_psfs()?))
     }
 }
 
