@@ -17,7 +17,9 @@
 //! `cells` (row-major, rows along y), `veil`; `objective_value[channel]`:
 //! ½ Σ_D ‖A_D d − t_D‖² at `optimum`, A_D d = crop(up2(d) ∗ h_D) +
 //! veil_D · mean(d) with symmetric (half-sample) extension, t_D = up2(I) or,
-//! where `blurred`, crop(up2(I) ∗ h_b) + veil_b · mean(I).
+//! where `blurred`, crop(up2(I) ∗ h_b) + veil_b · mean(I); `kernels`: the
+//! same objective as `nedrt prefilter --operator` writes it for the trainer
+//! (`normal`, `adjoint_target`, `target_gram`, each [channel][2h][2w]).
 
 use std::path::PathBuf;
 
@@ -104,6 +106,10 @@ fn main() -> anyhow::Result<()> {
         "steps {:?}, objective {:?} (start {:?})",
         report.steps, value, report.start_objective
     );
+    let kernels = problem
+        .mirrored_kernels(w, h)
+        .ok_or_else(|| anyhow::anyhow!("the design's PSFs are not mirror-symmetric"))?;
+    let kernel = |i: usize| -> Vec<f32> { kernels.iter().flat_map(|k| k[i].clone()).collect() };
     let v = json!({
         "source": format!("{INPUT} crop {w}x{h}+{x}+{y}; multifocal design, PSFs cut to {WINDOW} cells"),
         "width": w,
@@ -117,6 +123,11 @@ fn main() -> anyhow::Result<()> {
         "objective_value": value,
         "psfs": psfs.iter().map(|ch| ch.iter().map(psf_json).collect::<Vec<_>>()).collect::<Vec<_>>(),
         "blur": blur.iter().map(psf_json).collect::<Vec<_>>(),
+        "kernels": {
+            "normal": kernel(0),
+            "adjoint_target": kernel(1),
+            "target_gram": kernel(2),
+        },
     });
     nedrt_core::util::write_atomic(&out, serde_json::to_string(&v)?.as_bytes())?;
     println!("wrote {}", out.display());

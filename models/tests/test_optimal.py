@@ -131,3 +131,21 @@ def test_nedrts_optimum_matches_lbfgsb_to_five_hundredths_of_a_db(solved):
     assert abs(ours_db.mean() - theirs_db.mean()) <= 0.05, (ours_db, theirs_db)
     # And the clamp is active: the problem is not an unbounded one in disguise.
     assert np.mean((theirs <= 1e-9) | (theirs >= 1 - 1e-9)) > 0.01
+
+
+def test_the_trainers_loss_is_this_objective():
+    """nedrt_train.distill.Objective on nedrt's kernels of the golden problem
+    (`kernels`, what `nedrt prefilter --operator` writes) against the direct
+    sums above, at the optimum and at an arbitrary display image."""
+    import torch
+
+    from nedrt_train.distill import Objective
+    kernels = {k: np.asarray(v, dtype=np.float64).reshape(CHANNELS, 2 * H, 2 * W)
+               for k, v in GOLDEN["kernels"].items()}
+    loss = Objective(kernels, len(GOLDEN["depths_d"]))
+    image = planes(GOLDEN["input"])
+    rng = np.random.default_rng(3)
+    for display in (planes(GOLDEN["optimum"]), rng.uniform(0, 1, (CHANNELS, H, W))):
+        direct = sum(objective(display[c], image[c], c)[0] for c in range(CHANNELS))
+        ours = loss(torch.from_numpy(display[None]).float(), torch.from_numpy(image[None]).float()).item()
+        assert ours == pytest.approx(direct, rel=2e-4)

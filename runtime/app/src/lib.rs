@@ -17,6 +17,7 @@ pub mod design;
 pub mod eval;
 pub mod focus_cues;
 pub mod plots;
+pub mod prefilter_batch;
 pub mod preprocess;
 pub mod run;
 pub mod sim;

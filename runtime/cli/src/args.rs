@@ -187,6 +187,10 @@ pub enum Command {
     Sweep(SweepArgs),
     /// Search the Wiener constant K on training images (quarter decades).
     TuneWiener(TuneArgs),
+    /// The display images of one method and prefilter for a folder of
+    /// images (32-bit float TIFF), and the objective's kernels for the
+    /// trainer: the D-CNN recipe's teacher (docs/optimal.md).
+    Prefilter(PrefilterArgs),
     /// Print the resolved calibration and the quantities derived from it.
     Calib,
     /// The real-time service: frames from a source, preprocessed by the
@@ -358,6 +362,26 @@ pub struct DoeArgs {
     /// Also write the DOE resampled (bicubic) to the fabrication pitch to this file.
     #[arg(long, value_name = "FILE")]
     pub write_fabrication: Option<PathBuf>,
+}
+
+#[derive(Args, Debug)]
+pub struct PrefilterArgs {
+    /// Folder of images (PNG, JPEG, TIFF).
+    #[arg(long, value_name = "DIR")]
+    pub images: PathBuf,
+    /// Where DIR/NAME.tif, prefilter.json and the kernels go.
+    #[arg(long, value_name = "DIR")]
+    pub out_dir: PathBuf,
+    /// Display system whose optics (and K) the prefilter uses.
+    #[arg(long, default_value = "doe+wiener", value_parser = named::<Method>())]
+    pub method: Method,
+    /// lsq, refine:K or optimal, @sharp or @target (see `nedrt sim --help`).
+    #[arg(long, default_value = "optimal", value_name = "PREFILTER")]
+    pub prefilter: nedrt_app::preprocess::Prefilter,
+    /// Also write the objective as kernels for WxH patches
+    /// (operator-WxH.safetensors; repeat or comma-separate for more sizes).
+    #[arg(long, value_delimiter = ',', value_parser = parse_size, value_name = "WxH")]
+    pub operator: Vec<(usize, usize)>,
 }
 
 #[derive(Args, Debug)]

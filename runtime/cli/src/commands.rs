@@ -259,6 +259,16 @@ pub fn run(cli: Cli) -> Result<()> {
             };
             print!("{}", app::stability::run(&common, &opts)?);
         }
+        Some(Command::Prefilter(a)) => {
+            let opts = app::prefilter_batch::PrefilterOptions {
+                images: a.images,
+                out_dir: a.out_dir,
+                method: a.method,
+                prefilter: a.prefilter,
+                operator_sizes: a.operator,
+            };
+            println!("{}", app::prefilter_batch::run(&common, &opts)?);
+        }
         Some(Command::Sim(s)) => {
             let accommodation_d = s
                 .accom

@@ -237,6 +237,31 @@ impl DisplayProblem {
         )
     }
 
+    /// The objective as convolution kernels on the mirrored 2w×2h display
+    /// grid, for the trainer (`nedrt prefilter --operator`): per channel
+    /// (κ_M, κ_C, κ_T), row-major 2h×2w, periodic, origin at [0, 0], such
+    /// that with d̃, Ĩ the mirrored display image and input,
+    /// ½ Σ_D ‖A_D d − t_D‖² = ¼ (½ d̃·(κ_M ⊛ d̃) − d̃·(κ_C ⊛ Ĩ) + ½ Ĩ·(κ_T ⊛ Ĩ)).
+    /// `None` when the PSFs are not mirror-symmetric (no such form exists).
+    pub fn mirrored_kernels(&self, width: usize, height: usize) -> Option<Vec<[Vec<f32>; 3]>> {
+        let plan = self.plan(width, height);
+        let Operator::Mirrored(op) = &plan.operator else {
+            return None;
+        };
+        let real = |s: &[f32]| s.iter().map(|v| c32::new(*v, 0.0)).collect::<Vec<_>>();
+        Some(
+            (0..self.channels())
+                .map(|c| {
+                    [
+                        op.fft.inverse(real(&op.normal[c])),
+                        op.fft.inverse(op.adjoint_target[c].clone()),
+                        op.fft.inverse(real(&op.target_gram[c])),
+                    ]
+                })
+                .collect(),
+        )
+    }
+
     /// ½ Σ_D ‖A_D d − t_D‖² per channel (for reports and tests).
     pub fn objective_value(&self, input: &Image, display: &Image) -> Vec<f64> {
         let plan = self.plan(input.width, input.height);
@@ -285,6 +310,9 @@ struct MirroredOperator {
     normal: Vec<Vec<f32>>,
     /// Spectrum of the filter I ↦ Σ_D A_Dᵀ t_D(I), per channel.
     adjoint_target: Vec<Vec<c32>>,
+    /// Spectrum of Σ_D T_Dᵀ T_D (the objective's constant ½ Σ_D ‖t_D‖² as
+    /// a quadratic form in I), per channel; only the trainer needs it.
+    target_gram: Vec<Vec<f32>>,
 }
 
 #[derive(Debug)]
@@ -486,6 +514,7 @@ impl MirroredOperator {
         };
         let mut normal = Vec::new();
         let mut adjoint_target = Vec::new();
+        let mut target_gram = Vec::new();
         let mut lipschitz = Vec::new();
         for c in 0..problem.channels() {
             let blur = problem
@@ -496,20 +525,30 @@ impl MirroredOperator {
             let n = retinal.bins() * retinal.height;
             let mut gram = vec![c32::new(0.0, 0.0); n];
             let mut cross = vec![c32::new(0.0, 0.0); n];
+            let mut targets = vec![c32::new(0.0, 0.0); n];
             for (p, &blurred) in problem.psfs[c].iter().zip(&problem.blurred) {
                 let h = spectrum(p);
                 gram.par_iter_mut()
                     .zip(&h)
                     .for_each(|(g, hv)| *g += hv.norm_sqr());
                 match (&blur, blurred) {
-                    (Some(b), true) => cross
-                        .par_iter_mut()
-                        .zip(h.par_iter().zip(b))
-                        .for_each(|(o, (hv, bv))| *o += hv.conj() * bv),
-                    _ => cross
-                        .par_iter_mut()
-                        .zip(&h)
-                        .for_each(|(o, hv)| *o += hv.conj()),
+                    (Some(b), true) => {
+                        cross
+                            .par_iter_mut()
+                            .zip(h.par_iter().zip(b))
+                            .for_each(|(o, (hv, bv))| *o += hv.conj() * bv);
+                        targets
+                            .par_iter_mut()
+                            .zip(b)
+                            .for_each(|(o, bv)| *o += bv.norm_sqr());
+                    }
+                    _ => {
+                        cross
+                            .par_iter_mut()
+                            .zip(&h)
+                            .for_each(|(o, hv)| *o += hv.conj());
+                        targets.par_iter_mut().for_each(|o| *o += 1.0);
+                    }
                 }
             }
             let m: Vec<f32> = fold_to_display(&retinal, gram, &fft)
@@ -519,12 +558,19 @@ impl MirroredOperator {
             lipschitz.push(m.iter().fold(0.0f32, |a, v| a.max(*v)) as f64);
             normal.push(m);
             adjoint_target.push(fold_to_display(&retinal, cross, &fft));
+            target_gram.push(
+                fold_to_display(&retinal, targets, &fft)
+                    .into_iter()
+                    .map(|v| v.re)
+                    .collect(),
+            );
         }
         (
             Self {
                 fft,
                 normal,
                 adjoint_target,
+                target_gram,
             },
             lipschitz,
         )

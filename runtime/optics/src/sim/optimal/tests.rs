@@ -444,3 +444,38 @@ fn the_golden_optimum_is_what_the_solver_gives() {
         assert!(db < 0.01, "channel {c}: CONVERGED stops {db} dB short");
     }
 }
+
+#[test]
+fn the_exported_kernels_give_the_objective() {
+    // What the trainer computes from `mirrored_kernels`, by direct sums here.
+    let p = symmetric_problem(Objective::Target);
+    let (w, h) = (8, 6);
+    let input = frame(w, h, 1);
+    let d = frame(w, h, 1).map_planes(|q| q.iter().map(|v| 1.0 - v * 0.7).collect());
+    let kernels = p.mirrored_kernels(w, h).expect("symmetric PSFs");
+    let (mw, mh) = (2 * w, 2 * h);
+    let mirror = |x: &[f32]| extend_plane(x, w, h, 0, 0, mw, mh);
+    let (dm, im) = (mirror(d.plane(0)), mirror(input.plane(0)));
+    // x·(κ ⊛ y) on the periodic grid.
+    let form = |x: &[f32], k: &[f32], y: &[f32]| -> f64 {
+        let mut acc = 0.0f64;
+        for n in 0..mh {
+            for m in 0..mw {
+                let mut conv = 0.0f64;
+                for a in 0..mh {
+                    for b in 0..mw {
+                        let (ky, kx) = ((n + mh - a) % mh, (m + mw - b) % mw);
+                        conv += k[ky * mw + kx] as f64 * y[a * mw + b] as f64;
+                    }
+                }
+                acc += x[n * mw + m] as f64 * conv;
+            }
+        }
+        acc
+    };
+    let [km, kc, kt] = &kernels[0];
+    let value = 0.25 * (0.5 * form(&dm, km, &dm) - form(&dm, kc, &im) + 0.5 * form(&im, kt, &im));
+    let want = p.objective_value(&input, &d)[0];
+    assert!((value - want).abs() < 1e-4 * want, "{value} vs {want}");
+    assert!(problem(Objective::Sharp).mirrored_kernels(w, h).is_none());
+}

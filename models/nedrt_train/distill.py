@@ -1,0 +1,310 @@
+"""The D-CNN stage with the DOE frozen (issue 16, docs/training.md):
+
+    nedrt prefilter --design multifocal --images data/images/train \\
+        --out-dir out/teacher/train --operator 128x128,256x256
+    nedrt prefilter --design multifocal --images data/images/val --out-dir out/teacher/val
+    nedrt-train dcnn --teacher out/teacher --width 16 --steps 6000 --out models/runs/dcnn-half
+
+The loss is the exact objective nedrt's `optimal` prefilter minimises: the
+squared error of the perceived images against the targets summed over the
+headline depths (all of them every step), computed from the kernels
+`nedrt prefilter --operator` writes (one FFT pair per channel on the
+mirrored patch, however wide the PSFs), on the clamped display image; plus
+the distance to the teacher (the optimal display image of the whole
+photograph, cropped and turned like the patch) and a penalty on output
+outside [0, 1]. The network is the residual U-Net of unet.py, exported as
+the runtime's ONNX. Checkpoints every `--checkpoint-every` steps; `--resume`
+continues a run exactly (optimiser, schedule, random state).
+"""
+import argparse
+import dataclasses
+import json
+import math
+import os
+import random
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from tqdm import tqdm
+
+from .data import load_photos, photo_folder, resolve_root
+from .unet import UNet
+
+
+@dataclass
+class DistillConfig:
+    width: int = 16
+    levels: int = 4
+    patch: int = 128
+    batch: int = 8
+    steps: int = 6000
+    lr: float = 1e-3
+    # Weight of the distance to the teacher (mean squared, display units)
+    # against the objective's mean squared error (retinal, per depth).
+    distill: float = 1.0
+    # Weight of the squared excursion outside [0, 1] of the raw output.
+    range_penalty: float = 1.0
+    seed: int = 0
+    teacher: str | None = None
+    images: str | None = None
+    validate_every: int = 500
+    checkpoint_every: int = 250
+    threads: int = 0
+
+
+class Objective:
+    """½ Σ_D ‖A_D d − t_D‖² of P×P frames from nedrt's kernels
+    (`operator-PxP.safetensors`, runtime/app/src/prefilter_batch.rs): on the
+    mirrored 2P×2P grid, ¼ (½ d̃·(κ_M ⊛ d̃) − d̃·(κ_C ⊛ Ĩ) + ½ Ĩ·(κ_T ⊛ Ĩ))."""
+
+    NAMES = ("normal", "adjoint_target", "target_gram")
+
+    def __init__(self, kernels: dict, depths: int):
+        """`kernels`: the three kernels, each channels × 2h × 2w."""
+        shape = kernels["normal"].shape
+        self.size = (shape[-2] // 2, shape[-1] // 2)
+        self.depths = depths
+        self.spectra = {k: torch.fft.rfft2(torch.as_tensor(kernels[k]).double()).to(torch.complex64)
+                        for k in self.NAMES}
+
+    @classmethod
+    def load(cls, path: Path) -> "Objective":
+        from safetensors import safe_open
+        if not path.is_file():
+            raise FileNotFoundError(f"{path}: no kernel file (nedrt prefilter --operator WxH writes it)")
+        with safe_open(str(path), framework="pt") as f:
+            meta = f.metadata() or {}
+            if meta.get("format") != "nedrt objective kernels 1":
+                raise ValueError(f"{path}: not a kernel file of nedrt prefilter --operator")
+            kernels = {k: f.get_tensor(k) for k in cls.NAMES}
+        objective = cls(kernels, len(json.loads(meta["depths_d"])))
+        objective.meta = meta
+        return objective
+
+    @staticmethod
+    def mirror(x: torch.Tensor) -> torch.Tensor:
+        x = torch.cat([x, x.flip(-1)], dim=-1)
+        return torch.cat([x, x.flip(-2)], dim=-2)
+
+    def _conv(self, x: torch.Tensor, name: str) -> torch.Tensor:
+        s = x.shape[-2:]
+        return torch.fft.irfft2(torch.fft.rfft2(x) * self.spectra[name], s=s)
+
+    def __call__(self, display: torch.Tensor, image: torch.Tensor) -> torch.Tensor:
+        """Per frame (B,): the objective."""
+        if tuple(display.shape[-2:]) != self.size:
+            raise ValueError(f"frames of {tuple(display.shape[-2:])}, kernels for {self.size}")
+        d, i = self.mirror(display), self.mirror(image)
+        value = (0.5 * (d * self._conv(d, "normal")) - d * self._conv(i, "adjoint_target")
+                 + 0.5 * (i * self._conv(i, "target_gram"))).sum(dim=(1, 2, 3))
+        return 0.25 * value
+
+    def mse(self, display: torch.Tensor, image: torch.Tensor) -> torch.Tensor:
+        """Per frame: the mean squared error per depth, channel and retinal value."""
+        h, w = self.size
+        return 2 * self(display, image) / (self.depths * display.shape[1] * 4 * h * w)
+
+
+def db(mse) -> float:
+    return float(-10 * math.log10(max(float(mse), 1e-30)))
+
+
+def load_teacher(folder: Path, names: list) -> dict:
+    """The teacher's display images (`displays.safetensors` of nedrt
+    prefilter), by photograph name."""
+    from safetensors.torch import load_file
+    path = folder / "displays.safetensors"
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no teacher display images (run nedrt prefilter --out-dir {folder})")
+    t = load_file(str(path))
+    missing = [n for n in names if n not in t]
+    if missing:
+        raise ValueError(f"{path}: no display image for {', '.join(missing[:5])}")
+    return {n: t[n].float() for n in names}
+
+
+def photo_names(folder: Path) -> list:
+    return [p.stem for p in sorted(photo_folder(folder).glob("*.png"))]
+
+
+class Patches:
+    """Random P×P crops of the training photographs under one of the eight
+    symmetries of the square (the PSFs are rotationally symmetric, so the
+    teacher turns with its photograph), with the teacher cropped alike."""
+
+    def __init__(self, photos: list, teachers: list, patch: int, seed: int):
+        self.photos = [torch.from_numpy(p).permute(2, 0, 1).contiguous() for p in photos]
+        self.teachers = teachers
+        self.patch = patch
+        self.rng = np.random.default_rng(seed)
+
+    def batch(self, size: int):
+        xs, ts = [], []
+        n = self.patch
+        for _ in range(size):
+            k = self.rng.integers(len(self.photos))
+            p, t = self.photos[k], self.teachers[k]
+            y = self.rng.integers(p.shape[1] - n + 1)
+            x = self.rng.integers(p.shape[2] - n + 1)
+            p, t = p[:, y:y + n, x:x + n], t[:, y:y + n, x:x + n]
+            turn, flip = int(self.rng.integers(4)), bool(self.rng.integers(2))
+            p, t = torch.rot90(p, turn, (1, 2)), torch.rot90(t, turn, (1, 2))
+            if flip:
+                p, t = p.flip(-1), t.flip(-1)
+            xs.append(p)
+            ts.append(t)
+        return torch.stack(xs).contiguous(), torch.stack(ts).contiguous()
+
+
+def losses(net, objective: Objective, image, teacher, cfg: DistillConfig):
+    raw = net(image)
+    display = raw.clamp(0, 1)
+    mse = objective.mse(display, image).mean()
+    distill = F.mse_loss(display, teacher)
+    excursion = (F.relu(raw - 1) ** 2 + F.relu(-raw) ** 2).mean()
+    total = mse + cfg.distill * distill + cfg.range_penalty * excursion
+    return total, {"mse": mse, "distill": distill, "range": excursion}
+
+
+@torch.no_grad()
+def validate(net, objective: Objective, images: torch.Tensor, teacher: torch.Tensor, wiener: torch.Tensor | None):
+    """Objective dB (−10 log10 of the mean squared error over depths) on the
+    validation photographs: the network, the teacher (the optimum), and the
+    Wiener prefilter where given."""
+    net.eval()
+    display = torch.cat([net.forward_padded(images[i:i + 1]).clamp(0, 1) for i in range(len(images))])
+    net.train()
+    out = {"dcnn_db": db(objective.mse(display, images).mean()),
+           "optimal_db": db(objective.mse(teacher, images).mean())}
+    if wiener is not None:
+        out["wiener_db"] = db(objective.mse(wiener, images).mean())
+    return out
+
+
+def lr_at(cfg: DistillConfig, step: int) -> float:
+    """Linear warm-up over 200 steps, then cosine decay to 1 % of the peak."""
+    warm = min(1.0, (step + 1) / 200)
+    progress = step / max(cfg.steps, 1)
+    return cfg.lr * warm * (0.01 + 0.99 * 0.5 * (1 + math.cos(math.pi * progress)))
+
+
+def save_checkpoint(path: Path, net, opt, step: int, cfg: DistillConfig, rng: np.random.Generator, seconds: float):
+    tmp = Path(str(path) + ".tmp")
+    torch.save({"net": net.state_dict(), "optimizer": opt.state_dict(), "step": step,
+                "config": dataclasses.asdict(cfg), "data_rng": rng.bit_generator.state,
+                "torch_rng": torch.get_rng_state(), "python_rng": random.getstate(),
+                "seconds": seconds}, tmp)
+    os.replace(tmp, path)
+
+
+def train(cfg: DistillConfig, out: Path, resume: bool = False) -> dict:
+    if cfg.threads:
+        torch.set_num_threads(cfg.threads)
+    torch.manual_seed(cfg.seed)
+    random.seed(cfg.seed)
+    teacher_root, images_root = Path(cfg.teacher), Path(cfg.images)
+    objective = Objective.load(teacher_root / "train" / f"operator-{cfg.patch}x{cfg.patch}.safetensors")
+    names = photo_names(images_root / "train")
+    photos = load_photos(images_root / "train")
+    teachers = load_teacher(teacher_root / "train", names)
+    data = Patches(photos, [teachers[n] for n in names], cfg.patch, cfg.seed)
+    val_names = photo_names(images_root / "val")
+    val_images = torch.from_numpy(np.stack(load_photos(images_root / "val"))).permute(0, 3, 1, 2).contiguous()
+    val_teacher = torch.stack([t for t in load_teacher(teacher_root / "val", val_names).values()])
+    vh, vw = val_images.shape[-2:]
+    val_objective = Objective.load(teacher_root / "train" / f"operator-{vw}x{vh}.safetensors")
+    wiener_dir = teacher_root / "val-wiener"
+    val_wiener = (torch.stack(list(load_teacher(wiener_dir, val_names).values()))
+                  if (wiener_dir / "displays.safetensors").is_file() else None)
+
+    net = UNet(cfg.width, cfg.levels)
+    opt = torch.optim.Adam(net.parameters(), lr=cfg.lr)
+    out.mkdir(parents=True, exist_ok=True)
+    checkpoint = out / "checkpoint.pt"
+    step, seconds_before = 0, 0.0
+    if resume and checkpoint.exists():
+        state = torch.load(checkpoint, map_location="cpu", weights_only=False)
+        saved = DistillConfig(**state["config"])
+        if dataclasses.replace(saved, steps=cfg.steps, threads=cfg.threads) != cfg:
+            raise SystemExit(f"error: {checkpoint} was made with another configuration: {saved}")
+        net.load_state_dict(state["net"])
+        opt.load_state_dict(state["optimizer"])
+        step = state["step"]
+        data.rng.bit_generator.state = state["data_rng"]
+        torch.set_rng_state(state["torch_rng"])
+        random.setstate(state["python_rng"])
+        seconds_before = state["seconds"]
+    log_path = out / "metrics.csv"
+    new_log = step == 0 or not log_path.exists()
+    log = open(log_path, "w" if step == 0 else "a")
+    if new_log:
+        log.write("step,lr,loss,mse_db,distill,range,val_dcnn_db,val_optimal_db,val_wiener_db,seconds\n")
+    start = time.time()
+    bar = tqdm(range(step, cfg.steps), initial=step, total=cfg.steps, desc="dcnn")
+    history = []
+    for step in bar:
+        for g in opt.param_groups:
+            g["lr"] = lr_at(cfg, step)
+        image, teacher = data.batch(cfg.batch)
+        loss, terms = losses(net, objective, image, teacher, cfg)
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        val = {}
+        if (step + 1) % cfg.validate_every == 0 or step + 1 == cfg.steps:
+            val = validate(net, val_objective, val_images, val_teacher, val_wiener)
+            history.append({"step": step + 1, **val})
+            bar.write(json.dumps(history[-1]))
+        elapsed = seconds_before + time.time() - start
+        log.write(f"{step + 1},{lr_at(cfg, step):.3g},{loss.item():.6g},{db(terms['mse'].item()):.4f},"
+                  f"{terms['distill'].item():.4g},{terms['range'].item():.3g},{val.get('dcnn_db', '')},"
+                  f"{val.get('optimal_db', '')},{val.get('wiener_db', '')},{elapsed:.1f}\n")
+        log.flush()
+        bar.set_postfix(mse_db=f"{db(terms['mse'].item()):.2f}", distill=f"{terms['distill'].item():.2e}")
+        if (step + 1) % cfg.checkpoint_every == 0 or step + 1 == cfg.steps:
+            save_checkpoint(checkpoint, net, opt, step + 1, cfg, data.rng, elapsed)
+    log.close()
+    result = {"config": dataclasses.asdict(cfg), "steps": cfg.steps,
+              "seconds": seconds_before + time.time() - start, "validation": history,
+              "teacher": {"train": json.loads((teacher_root / "train" / "prefilter.json").read_text())}}
+    (out / "result.json").write_text(json.dumps(result, indent=1))
+    return result
+
+
+def main(argv=None, prog=None):
+    ap = argparse.ArgumentParser(prog=prog, description=__doc__.split("\n\n")[0])
+    defaults = DistillConfig()
+    for f in dataclasses.fields(DistillConfig):
+        if f.name in ("teacher", "images"):
+            continue
+        ap.add_argument("--" + f.name.replace("_", "-"), type=type(getattr(defaults, f.name)),
+                        default=getattr(defaults, f.name))
+    ap.add_argument("--teacher", metavar="DIR", required=True, type=Path,
+                    help="nedrt prefilter's folders: DIR/train (with the kernels), DIR/val, optionally DIR/val-wiener")
+    ap.add_argument("--images", metavar="DIR",
+                    help="image root with train/ and val/ (default: data/images under the current directory)")
+    ap.add_argument("--out", required=True, type=Path)
+    ap.add_argument("--resume", action="store_true")
+    args = ap.parse_args(argv)
+    try:
+        images = resolve_root(args.images)
+        if not args.teacher.is_dir():
+            raise FileNotFoundError(f"{args.teacher}: teacher folder not found")
+    except FileNotFoundError as e:
+        raise SystemExit(f"error: {e}")
+    values = {f.name: getattr(args, f.name) for f in dataclasses.fields(DistillConfig)
+              if f.name not in ("teacher", "images")}
+    cfg = DistillConfig(**values, teacher=str(args.teacher.resolve()), images=str(images))
+    try:
+        result = train(cfg, args.out, args.resume)
+    except (ValueError, FileNotFoundError) as e:
+        raise SystemExit(f"error: {e}")
+    print(json.dumps(result["validation"][-1:], indent=1))
+
+
+if __name__ == "__main__":
+    main()

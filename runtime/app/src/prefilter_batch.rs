@@ -1,0 +1,208 @@
+//! `nedrt prefilter`: the display images one method and prefilter make for
+//! a folder of images, as 32-bit float TIFFs (and all in one
+//! `displays.safetensors`), and the objective's kernels
+//! for the trainer (docs/optimal.md). The D-CNN recipe distils the
+//! `optimal` images of the training photographs and trains on the exact
+//! objective through the kernels (docs/training.md).
+
+use std::collections::HashMap;
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use safetensors::Dtype;
+use safetensors::tensor::TensorView;
+
+use super::eval::{list_images, load_all};
+use super::{AppError, CommonOptions, create_dir, write_text};
+use crate::preprocess::{Prefilter, for_system};
+use nedrt_core::image_io;
+use nedrt_optics::sim::{Method, Objective, Simulator};
+
+/// Options of `nedrt prefilter`.
+#[derive(Debug, Clone)]
+pub struct PrefilterOptions {
+    pub images: PathBuf,
+    pub out_dir: PathBuf,
+    pub method: Method,
+    pub prefilter: Prefilter,
+    /// Also write the objective's kernels for patches of these sizes.
+    pub operator_sizes: Vec<(usize, usize)>,
+}
+
+/// The objective of a prefilter (the default one for `native`).
+fn objective_of(p: Prefilter) -> Objective {
+    match p {
+        Prefilter::Native => Prefilter::DEFAULT_OBJECTIVE,
+        Prefilter::Lsq(o) | Prefilter::Refine(_, o) | Prefilter::Optimal(o) => o,
+    }
+}
+
+pub fn run(common: &CommonOptions, o: &PrefilterOptions) -> Result<String, AppError> {
+    let start = Instant::now();
+    if o.method.uses_dcnn() && o.prefilter.is_native() {
+        return Err(AppError::Usage(format!(
+            "nedrt prefilter makes display images without a network; {} needs --prefilter lsq, \
+             refine:K or optimal",
+            o.method
+        )));
+    }
+    let files = list_images(&o.images)?;
+    let images = load_all(&files, common.panel_px()?)?;
+    let sim = Simulator::new(
+        common.calibration()?,
+        common.doe_path_for(&[o.method]).as_deref(),
+        common.cache(),
+    )?;
+    let depths = nedrt_optics::sim::objective_depths_d(&sim.calib);
+    let prepared = sim.prepare(&[o.method], &depths, common.progress())?;
+    create_dir(&o.out_dir)?;
+    let objective = objective_of(o.prefilter);
+    let problem = prepared.display_problem(o.method, objective)?;
+    let mut operators = Vec::new();
+    for &(w, h) in &o.operator_sizes {
+        let kernels = problem.mirrored_kernels(w, h).ok_or_else(|| {
+            AppError::Usage(format!(
+                "{}: its PSFs are not mirror-symmetric, so the objective has no kernel form \
+                 (--operator needs a rotationally symmetric system)",
+                o.method
+            ))
+        })?;
+        let path = o.out_dir.join(format!("operator-{w}x{h}.safetensors"));
+        write_kernels(
+            &path,
+            &kernels,
+            w,
+            h,
+            &sim,
+            o,
+            &problem.depths_d,
+            problem.k_reg,
+        )?;
+        operators.push(path);
+    }
+    let mut engine = for_system(o.method, o.prefilter, &prepared, &mut Default::default())?;
+    let bar = common.phase("display images");
+    bar.set_length(images.len() as u64);
+    let mut written = Vec::new();
+    let mut tensors: Vec<(String, Vec<u8>, Vec<usize>)> = Vec::new();
+    for (file, input) in files.iter().zip(&images) {
+        let display = engine.run(input)?;
+        let stem = file
+            .file_stem()
+            .unwrap_or_default()
+            .to_string_lossy()
+            .into_owned();
+        let path = o.out_dir.join(format!("{stem}.tif"));
+        image_io::save(&display, &path, &["tif"])?;
+        written.push(path);
+        tensors.push((
+            stem,
+            display
+                .data()
+                .iter()
+                .flat_map(|v| v.to_le_bytes())
+                .collect(),
+            vec![display.channels(), display.height, display.width],
+        ));
+        bar.inc(1);
+    }
+    bar.finish_and_clear();
+    // All of them in one file for the trainer (planar f32, by file stem).
+    let path = o.out_dir.join("displays.safetensors");
+    let views = tensors
+        .iter()
+        .map(|(name, bytes, shape)| {
+            TensorView::new(Dtype::F32, shape.clone(), bytes)
+                .map(|v| (name.clone(), v))
+                .map_err(|e| AppError::output(&path, e.to_string()))
+        })
+        .collect::<Result<Vec<_>, _>>()?;
+    let data =
+        safetensors::serialize(views, None).map_err(|e| AppError::output(&path, e.to_string()))?;
+    nedrt_core::util::write_atomic(&path, &data).map_err(|e| AppError::output(&path, e))?;
+    let manifest = serde_json::json!({
+        "method": o.method.name(),
+        "prefilter": o.prefilter.to_string(),
+        "engine": engine.describe(),
+        "calibration": sim.calib.source,
+        "doe": sim.doe_hash,
+        "images": files.iter().map(|f| f.display().to_string()).collect::<Vec<_>>(),
+        "operators": operators.iter().map(|p| p.display().to_string()).collect::<Vec<_>>(),
+        "seconds": start.elapsed().as_secs_f64(),
+    });
+    write_text(
+        &o.out_dir.join("prefilter.json"),
+        &serde_json::to_string_pretty(&manifest).map_err(|e| AppError::Usage(e.to_string()))?,
+    )?;
+    let mut t = String::new();
+    let _ = writeln!(
+        t,
+        "nedrt prefilter: {} {} ({}), {} images → {}",
+        o.method,
+        o.prefilter,
+        engine.describe(),
+        written.len(),
+        o.out_dir.display()
+    );
+    for p in &operators {
+        let _ = writeln!(t, "operator  {}", p.display());
+    }
+    let _ = write!(t, "time      {:.1} s", start.elapsed().as_secs_f64());
+    Ok(t)
+}
+
+#[allow(clippy::too_many_arguments)]
+fn write_kernels(
+    path: &Path,
+    kernels: &[[Vec<f32>; 3]],
+    w: usize,
+    h: usize,
+    sim: &Simulator,
+    o: &PrefilterOptions,
+    depths_d: &[f64],
+    k_reg: f64,
+) -> Result<(), AppError> {
+    let names = ["normal", "adjoint_target", "target_gram"];
+    let bytes: Vec<Vec<u8>> = (0..3)
+        .map(|i| {
+            kernels
+                .iter()
+                .flat_map(|k| k[i].iter().flat_map(|v| v.to_le_bytes()))
+                .collect()
+        })
+        .collect();
+    let shape = vec![kernels.len(), 2 * h, 2 * w];
+    let views = names
+        .iter()
+        .zip(&bytes)
+        .map(|(n, b)| {
+            TensorView::new(Dtype::F32, shape.clone(), b)
+                .map(|v| (n.to_string(), v))
+                .map_err(|e| AppError::output(path, e.to_string()))
+        })
+        .collect::<Result<Vec<_>, _>>()?;
+    let meta: HashMap<String, String> = [
+        ("format", "nedrt objective kernels 1".to_string()),
+        ("method", o.method.name().to_string()),
+        ("objective", objective_of(o.prefilter).name().to_string()),
+        ("doe", sim.doe_hash.clone()),
+        ("calibration", sim.calib.source.clone()),
+        ("depths_d", format!("{depths_d:?}")),
+        ("k_reg", k_reg.to_string()),
+        ("width", w.to_string()),
+        ("height", h.to_string()),
+        (
+            "definition",
+            "per channel, on the mirrored 2h×2w display grid (periodic, origin at [0, 0]): \
+             ½ Σ_D ‖A_D d − t_D‖² = ¼ (½ d̃·(normal ⊛ d̃) − d̃·(adjoint_target ⊛ Ĩ) + ½ Ĩ·(target_gram ⊛ Ĩ))"
+                .to_string(),
+        ),
+    ]
+    .into_iter()
+    .map(|(k, v)| (k.to_string(), v))
+    .collect();
+    let data = safetensors::serialize(views, Some(meta))
+        .map_err(|e| AppError::output(path, e.to_string()))?;
+    nedrt_core::util::write_atomic(path, &data).map_err(|e| AppError::output(path, e))
+}

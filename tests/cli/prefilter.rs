@@ -1,0 +1,181 @@
+//! `--prefilter` (lsq, refine:K, optimal) in `sim` and `eval`, and `nedrt
+//! prefilter` (the trainer's teacher and kernels).
+
+use super::*;
+
+/// One image, `nedrt --calib <small> eval` of doe-only with every prefilter.
+#[test]
+fn eval_adds_a_row_per_prefilter_and_the_optimum_has_the_least_error() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let imgs = dir.path().join("imgs");
+    std::fs::create_dir(&imgs).expect("dir");
+    write_png(&imgs.join("a.png"), 24, 16);
+    let out = dir.path().join("eval");
+    let o = run(&[
+        "--calib",
+        path(&small_calib()),
+        "eval",
+        "--images",
+        path(&imgs),
+        "--out-dir",
+        path(&out),
+        "--methods",
+        "doe-only",
+        "--prefilter",
+        "native,lsq,refine:3,optimal,optimal",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("eval.json")).expect("json"))
+            .expect("parse");
+    let methods = json["methods"].as_array().expect("methods");
+    let names: Vec<&str> = methods
+        .iter()
+        .map(|m| m["method"].as_str().expect("name"))
+        .collect();
+    // Repeats are dropped; each row names its prefilter and objective.
+    assert_eq!(
+        names,
+        [
+            "doe-only",
+            "doe-only lsq@target",
+            "doe-only refine:3@target",
+            "doe-only optimal@target"
+        ]
+    );
+    // With one image, Σ_D 10^(−PSNR_D/10) over 0–2.5 D is the objective the
+    // prefilters minimise (up to a constant factor).
+    let objective = |m: &serde_json::Value| -> f64 {
+        m["rows"]
+            .as_array()
+            .expect("rows")
+            .iter()
+            .filter(|r| r["accommodation_d"].as_f64().expect("d") <= 2.5 + 1e-9)
+            .map(|r| 10f64.powf(-r["vs_target"]["psnr_db"].as_f64().expect("db") / 10.0))
+            .sum()
+    };
+    let e: Vec<f64> = methods.iter().map(objective).collect();
+    assert!(e[2] < e[1], "refine:3 {} not below lsq {}", e[2], e[1]);
+    assert!(e[3] <= e[2], "optimal {} above refine:3 {}", e[3], e[2]);
+    assert!(
+        e[3] < e[0],
+        "optimal {} not below no prefilter {}",
+        e[3],
+        e[0]
+    );
+}
+
+#[test]
+fn sim_describes_the_prefilter_and_writes_its_display_image() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let img = dir.path().join("a.png");
+    write_png(&img, 16, 16);
+    let display = dir.path().join("display.tif");
+    let o = run(&[
+        "--calib",
+        path(&small_calib()),
+        "sim",
+        "--accom",
+        "0.5",
+        "--input",
+        path(&img),
+        "--method",
+        "ai",
+        "--prefilter",
+        "optimal@sharp",
+        "--out",
+        path(&dir.path().join("p.png")),
+        "--display-out",
+        path(&display),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let s = stdout(&o);
+    assert!(s.contains("method ai optimal@sharp"), "{s}");
+    assert!(
+        s.contains("bounded least-squares optimum of ai (sharp objective over 6 depths"),
+        "{s}"
+    );
+    let d = image::open(&display).expect("display").into_rgb32f();
+    assert!(
+        d.pixels()
+            .flat_map(|p| p.0)
+            .all(|v| (0.0..=1.0).contains(&v))
+    );
+    // A display image cannot be both given and made.
+    let o = run(&[
+        "--calib",
+        path(&small_calib()),
+        "sim",
+        "--accom",
+        "0.5",
+        "--input",
+        path(&img),
+        "--display-image",
+        path(&display),
+        "--prefilter",
+        "lsq",
+        "--out",
+        path(&dir.path().join("q.png")),
+    ]);
+    assert_clean_error(&o, "--prefilter lsq@target makes a display image");
+    let o = run(&["sim", "--accom", "1", "--prefilter", "refine:0"]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("from 1 to 1000"), "{}", stderr(&o));
+}
+
+#[test]
+fn the_prefilter_command_writes_displays_kernels_and_a_manifest() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let imgs = dir.path().join("imgs");
+    std::fs::create_dir(&imgs).expect("dir");
+    write_png(&imgs.join("a.png"), 24, 16);
+    write_png(&imgs.join("b.png"), 16, 16);
+    let out = dir.path().join("teacher");
+    let o = run(&[
+        "--calib",
+        path(&small_calib()),
+        "prefilter",
+        "--images",
+        path(&imgs),
+        "--out-dir",
+        path(&out),
+        "--method",
+        "doe-only",
+        "--operator",
+        "8x8",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    for f in [
+        "a.tif",
+        "b.tif",
+        "displays.safetensors",
+        "operator-8x8.safetensors",
+    ] {
+        assert!(out.join(f).is_file(), "{f} missing");
+    }
+    let manifest: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("prefilter.json")).expect("json"))
+            .expect("parse");
+    assert_eq!(manifest["prefilter"], "optimal@target");
+    let bytes = std::fs::read(out.join("displays.safetensors")).expect("read");
+    let t = safetensors::SafeTensors::deserialize(&bytes).expect("safetensors");
+    assert_eq!(t.tensor("a").expect("a").shape(), &[3, 16, 24]);
+    let bytes = std::fs::read(out.join("operator-8x8.safetensors")).expect("read");
+    let t = safetensors::SafeTensors::deserialize(&bytes).expect("safetensors");
+    assert_eq!(t.tensor("normal").expect("normal").shape(), &[3, 16, 16]);
+    // A D-CNN method has no network-free display image of its own.
+    let o = run(&[
+        "--calib",
+        path(&small_calib()),
+        "prefilter",
+        "--images",
+        path(&imgs),
+        "--out-dir",
+        path(&dir.path().join("x")),
+        "--method",
+        "proposed",
+        "--prefilter",
+        "native",
+    ]);
+    assert_clean_error(&o, "needs --prefilter lsq, refine:K or optimal");
+}
