@@ -48,6 +48,10 @@ class DistillConfig:
     distill: float = 1.0
     # Weight of the squared excursion outside [0, 1] of the raw output.
     range_penalty: float = 1.0
+    # "mse": the summed squared error over the depths (what `optimal`
+    # minimises); "psnr": the mean over the depths of the per-depth PSNR,
+    # per frame (what the evaluation's headline averages).
+    loss: str = "mse"
     seed: int = 0
     teacher: str | None = None
     images: str | None = None
@@ -64,12 +68,15 @@ class Objective:
     NAMES = ("normal", "adjoint_target", "target_gram")
 
     def __init__(self, kernels: dict, depths: int):
-        """`kernels`: the three kernels, each channels × 2h × 2w."""
+        """`kernels`: the three kernels, each channels × 2h × 2w, and where
+        given the same per depth (`NAME_per_depth`, depths × channels × 2h × 2w)."""
         shape = kernels["normal"].shape
         self.size = (shape[-2] // 2, shape[-1] // 2)
         self.depths = depths
-        self.spectra = {k: torch.fft.rfft2(torch.as_tensor(kernels[k]).double()).to(torch.complex64)
-                        for k in self.NAMES}
+        spectrum = lambda k: torch.fft.rfft2(torch.as_tensor(k).double()).to(torch.complex64)
+        self.spectra = {k: spectrum(kernels[k]) for k in self.NAMES}
+        self.depth_spectra = ({k: spectrum(kernels[k + "_per_depth"]) for k in self.NAMES}
+                              if all(k + "_per_depth" in kernels for k in self.NAMES) else None)
 
     @classmethod
     def load(cls, path: Path) -> "Objective":
@@ -80,7 +87,7 @@ class Objective:
             meta = f.metadata() or {}
             if meta.get("format") != "nedrt objective kernels 1":
                 raise ValueError(f"{path}: not a kernel file of nedrt prefilter --operator")
-            kernels = {k: f.get_tensor(k) for k in cls.NAMES}
+            kernels = {k: f.get_tensor(k) for k in f.keys()}
         objective = cls(kernels, len(json.loads(meta["depths_d"])))
         objective.meta = meta
         return objective
@@ -102,6 +109,20 @@ class Objective:
         value = (0.5 * (d * self._conv(d, "normal")) - d * self._conv(i, "adjoint_target")
                  + 0.5 * (i * self._conv(i, "target_gram"))).sum(dim=(1, 2, 3))
         return 0.25 * value
+
+    def depth_mse(self, display: torch.Tensor, image: torch.Tensor) -> torch.Tensor:
+        """Per frame and depth (B × D): the mean squared error of the
+        perceived image against the target over channels and retinal
+        values, from which the evaluation's PSNR is −10 log10."""
+        if self.depth_spectra is None:
+            raise ValueError("these kernels have no per-depth terms (an older nedrt prefilter --operator)")
+        h, w = self.size
+        d, i = self.mirror(display)[:, None], self.mirror(image)[:, None]
+        s = d.shape[-2:]
+        conv = lambda x, k: torch.fft.irfft2(torch.fft.rfft2(x) * self.depth_spectra[k], s=s)
+        value = (0.5 * (d * conv(d, "normal")) - d * conv(i, "adjoint_target")
+                 + 0.5 * (i * conv(i, "target_gram"))).sum(dim=(2, 3, 4))
+        return 0.5 * value / (display.shape[1] * 4 * h * w)
 
     def mse(self, display: torch.Tensor, image: torch.Tensor) -> torch.Tensor:
         """Per frame: the mean squared error per depth, channel and retinal value."""
@@ -163,10 +184,18 @@ class Patches:
 def losses(net, objective: Objective, image, teacher, cfg: DistillConfig):
     raw = net(image)
     display = raw.clamp(0, 1)
-    mse = objective.mse(display, image).mean()
     distill = F.mse_loss(display, teacher)
     excursion = (F.relu(raw - 1) ** 2 + F.relu(-raw) ** 2).mean()
-    total = mse + cfg.distill * distill + cfg.range_penalty * excursion
+    if cfg.loss == "psnr":
+        per_depth = objective.depth_mse(display, image).clamp_min(1e-10)
+        mse = per_depth.mean()
+        # −mean PSNR, in units of 10 dB so that its size is that of the others.
+        fit = torch.log10(per_depth).mean()
+    elif cfg.loss == "mse":
+        mse = fit = objective.mse(display, image).mean()
+    else:
+        raise ValueError(f"loss {cfg.loss!r}: choose mse or psnr")
+    total = fit + cfg.distill * distill + cfg.range_penalty * excursion
     return total, {"mse": mse, "distill": distill, "range": excursion}
 
 
@@ -178,10 +207,17 @@ def validate(net, objective: Objective, images: torch.Tensor, teacher: torch.Ten
     net.eval()
     display = torch.cat([net.forward_padded(images[i:i + 1]).clamp(0, 1) for i in range(len(images))])
     net.train()
-    out = {"dcnn_db": db(objective.mse(display, images).mean()),
-           "optimal_db": db(objective.mse(teacher, images).mean())}
-    if wiener is not None:
-        out["wiener_db"] = db(objective.mse(wiener, images).mean())
+    out = {}
+    for name, d in [("dcnn", display), ("optimal", teacher), ("wiener", wiener)]:
+        if d is None:
+            continue
+        out[f"{name}_db"] = db(objective.mse(d, images).mean())
+        if objective.depth_spectra is not None:
+            # The evaluation's headline vs target: per-depth PSNR averaged
+            # over the photographs, then its mean and worst over the depths.
+            psnr = (-10 * torch.log10(objective.depth_mse(d, images))).mean(dim=0)
+            out[f"{name}_mean_db"] = float(psnr.mean())
+            out[f"{name}_worst_db"] = float(psnr.min())
     return out
 
 
@@ -242,7 +278,8 @@ def train(cfg: DistillConfig, out: Path, resume: bool = False) -> dict:
     new_log = step == 0 or not log_path.exists()
     log = open(log_path, "w" if step == 0 else "a")
     if new_log:
-        log.write("step,lr,loss,mse_db,distill,range,val_dcnn_db,val_optimal_db,val_wiener_db,seconds\n")
+        log.write("step,lr,loss,mse_db,distill,range,val_dcnn_db,val_optimal_db,val_wiener_db,"
+                  "val_dcnn_mean_db,val_dcnn_worst_db,val_wiener_mean_db,val_wiener_worst_db,seconds\n")
     start = time.time()
     bar = tqdm(range(step, cfg.steps), initial=step, total=cfg.steps, desc="dcnn")
     history = []
@@ -262,7 +299,9 @@ def train(cfg: DistillConfig, out: Path, resume: bool = False) -> dict:
         elapsed = seconds_before + time.time() - start
         log.write(f"{step + 1},{lr_at(cfg, step):.3g},{loss.item():.6g},{db(terms['mse'].item()):.4f},"
                   f"{terms['distill'].item():.4g},{terms['range'].item():.3g},{val.get('dcnn_db', '')},"
-                  f"{val.get('optimal_db', '')},{val.get('wiener_db', '')},{elapsed:.1f}\n")
+                  f"{val.get('optimal_db', '')},{val.get('wiener_db', '')},{val.get('dcnn_mean_db', '')},"
+                  f"{val.get('dcnn_worst_db', '')},{val.get('wiener_mean_db', '')},{val.get('wiener_worst_db', '')},"
+                  f"{elapsed:.1f}\n")
         log.flush()
         bar.set_postfix(mse_db=f"{db(terms['mse'].item()):.2f}", distill=f"{terms['distill'].item():.2e}")
         if (step + 1) % cfg.checkpoint_every == 0 or step + 1 == cfg.steps:

@@ -41,6 +41,16 @@ pub struct Design {
 }
 
 impl Design {
+    /// The objective the design was made for: the sharp image (`allsharp`)
+    /// or the multifocal target (anything else).
+    pub fn objective(&self) -> nedrt_optics::sim::Objective {
+        if self.target == "allsharp" {
+            nedrt_optics::sim::Objective::Sharp
+        } else {
+            nedrt_optics::sim::Objective::Target
+        }
+    }
+
     /// `arg` is a design name (`designs/NAME.toml`) or the path of a design file.
     pub fn resolve(arg: &str) -> Result<Self, AppError> {
         let as_path = Path::new(arg);

@@ -68,17 +68,17 @@ pub fn run(common: &CommonOptions, o: &PrefilterOptions) -> Result<String, AppEr
                 o.method
             ))
         })?;
+        let per_depth = problem
+            .mirrored_depth_kernels(w, h)
+            .ok_or_else(|| AppError::Usage("no per-depth kernels".into()))?;
         let path = o.out_dir.join(format!("operator-{w}x{h}.safetensors"));
-        write_kernels(
-            &path,
-            &kernels,
-            w,
-            h,
-            &sim,
-            o,
-            &problem.depths_d,
-            problem.k_reg,
-        )?;
+        let kernels = Kernels {
+            summed: &kernels,
+            per_depth: &per_depth,
+            width: w,
+            height: h,
+        };
+        write_kernels(&path, &kernels, &sim, o, &problem.depths_d, problem.k_reg)?;
         operators.push(path);
     }
     let mut engine = for_system(o.method, o.prefilter, &prepared, &mut Default::default())?;
@@ -152,33 +152,50 @@ pub fn run(common: &CommonOptions, o: &PrefilterOptions) -> Result<String, AppEr
     Ok(t)
 }
 
-#[allow(clippy::too_many_arguments)]
+/// The objective's kernels for one patch size: summed over the depths, and
+/// per depth.
+struct Kernels<'a> {
+    summed: &'a [[Vec<f32>; 3]],
+    per_depth: &'a [Vec<[Vec<f32>; 3]>],
+    width: usize,
+    height: usize,
+}
+
 fn write_kernels(
     path: &Path,
-    kernels: &[[Vec<f32>; 3]],
-    w: usize,
-    h: usize,
+    k: &Kernels,
     sim: &Simulator,
     o: &PrefilterOptions,
     depths_d: &[f64],
     k_reg: f64,
 ) -> Result<(), AppError> {
     let names = ["normal", "adjoint_target", "target_gram"];
-    let bytes: Vec<Vec<u8>> = (0..3)
-        .map(|i| {
-            kernels
+    let (w, h) = (k.width, k.height);
+    let channels = k.summed.len();
+    let mut tensors: Vec<(String, Vec<usize>, Vec<u8>)> = Vec::new();
+    for (i, name) in names.iter().enumerate() {
+        let bytes = |per_channel: &[[Vec<f32>; 3]]| -> Vec<u8> {
+            per_channel
                 .iter()
-                .flat_map(|k| k[i].iter().flat_map(|v| v.to_le_bytes()))
+                .flat_map(|c| c[i].iter().flat_map(|v| v.to_le_bytes()))
                 .collect()
-        })
-        .collect();
-    let shape = vec![kernels.len(), 2 * h, 2 * w];
-    let views = names
+        };
+        tensors.push((
+            name.to_string(),
+            vec![channels, 2 * h, 2 * w],
+            bytes(k.summed),
+        ));
+        tensors.push((
+            format!("{name}_per_depth"),
+            vec![k.per_depth.len(), channels, 2 * h, 2 * w],
+            k.per_depth.iter().flat_map(|d| bytes(d)).collect(),
+        ));
+    }
+    let views = tensors
         .iter()
-        .zip(&bytes)
-        .map(|(n, b)| {
+        .map(|(n, shape, b)| {
             TensorView::new(Dtype::F32, shape.clone(), b)
-                .map(|v| (n.to_string(), v))
+                .map(|v| (n.clone(), v))
                 .map_err(|e| AppError::output(path, e.to_string()))
         })
         .collect::<Result<Vec<_>, _>>()?;
@@ -195,7 +212,8 @@ fn write_kernels(
         (
             "definition",
             "per channel, on the mirrored 2h×2w display grid (periodic, origin at [0, 0]): \
-             ½ Σ_D ‖A_D d − t_D‖² = ¼ (½ d̃·(normal ⊛ d̃) − d̃·(adjoint_target ⊛ Ĩ) + ½ Ĩ·(target_gram ⊛ Ĩ))"
+             ½ Σ_D ‖A_D d − t_D‖² = ¼ (½ d̃·(normal ⊛ d̃) − d̃·(adjoint_target ⊛ Ĩ) + ½ Ĩ·(target_gram ⊛ Ĩ)); \
+             the *_per_depth tensors (depth × channel × 2h × 2w) give each depth's ½ ‖A_D d − t_D‖² alike"
                 .to_string(),
         ),
     ]

@@ -98,6 +98,16 @@ impl Prefilter {
         }
     }
 
+    /// The same prefilter against `objective` (`native` stays itself).
+    pub fn with_objective(self, objective: Objective) -> Self {
+        match self {
+            Prefilter::Native => Prefilter::Native,
+            Prefilter::Lsq(_) => Prefilter::Lsq(objective),
+            Prefilter::Refine(k, _) => Prefilter::Refine(k, objective),
+            Prefilter::Optimal(_) => Prefilter::Optimal(objective),
+        }
+    }
+
     /// The row name of `method` with this prefilter ("ai", "ai optimal@target").
     pub fn label(self, method_name: &str) -> String {
         match self {

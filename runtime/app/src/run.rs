@@ -120,6 +120,8 @@ pub struct RunOptions {
     /// The preprocessing on the panel: a method's (its D-CNN, its Wiener
     /// prefilter, or none).
     pub preprocess: Method,
+    /// Or a least-squares prefilter on that method's optics (not `native`).
+    pub prefilter: crate::preprocess::Prefilter,
     pub source: SourceKind,
     pub input: Option<PathBuf>,
     pub socket: PathBuf,
@@ -191,12 +193,14 @@ fn fallback_factory(
 }
 
 /// The preprocessing of a method without a network: its Wiener prefilter
-/// (the PSFs it averages come from the cache after the first run), or none.
+/// (the PSFs it averages come from the cache after the first run), none,
+/// or a least-squares prefilter on its optics.
 fn linear_preprocessor(
     common: &CommonOptions,
     method: Method,
+    prefilter: crate::preprocess::Prefilter,
 ) -> Result<Box<dyn Preprocess>, AppError> {
-    if !method.uses_wiener() {
+    if !method.uses_wiener() && prefilter.is_native() {
         return Ok(Box::new(Identity));
     }
     let sim = Simulator::new(
@@ -204,9 +208,13 @@ fn linear_preprocessor(
         common.doe_path_for(&[method]).as_deref(),
         common.cache(),
     )?;
-    let prepared = sim.prepare(&[method], &[], common.progress())?;
+    let prepared = sim.prepare(
+        &[method],
+        &prefilter.depths_d(&sim.calib),
+        common.progress(),
+    )?;
     let mut dcnns = std::collections::HashMap::new();
-    crate::preprocess::for_method(method, &prepared, &mut dcnns)
+    crate::preprocess::for_system(method, prefilter, &prepared, &mut dcnns)
 }
 
 /// Runs the service until its source ends (and the last frame is shown)
@@ -272,7 +280,7 @@ pub fn run(
     };
 
     let dcnn = &common.dcnn;
-    let uses_dcnn = opts.preprocess.uses_dcnn();
+    let uses_dcnn = opts.preprocess.uses_dcnn() && opts.prefilter.is_native();
     let model = if uses_dcnn {
         Some(ModelFile::read(match opts.preprocess {
             Method::LensDcnn => &dcnn.lens_path,
@@ -298,7 +306,7 @@ pub fn run(
         SinkKind::Record => (Box::new(RecorderSink::new(&opts.record_dir)?), None),
     };
     let Some(model) = model else {
-        let primary = linear_preprocessor(common, opts.preprocess)?;
+        let primary = linear_preprocessor(common, opts.preprocess, opts.prefilter)?;
         return serve(opts, control, panel, clock, source, sink, primary, None);
     };
     let primary: Result<Box<dyn Preprocess>, _> = match (dcnn.backend, &device) {

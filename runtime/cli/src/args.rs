@@ -260,6 +260,16 @@ pub struct TradeoffArgs {
     /// files); default: every design in designs/.
     #[arg(long, value_delimiter = ',', value_name = "NAME|FILE")]
     pub designs: Option<Vec<String>>,
+    /// Least-squares prefilters priced on each design's optics (lsq,
+    /// refine:K, optimal; each against the objective its design was made
+    /// for; `native` alone adds none).
+    #[arg(
+        long,
+        value_delimiter = ',',
+        default_value = "lsq,refine:1,refine:3,refine:10,optimal",
+        value_name = "PREFILTER"
+    )]
+    pub prefilter: Vec<nedrt_app::preprocess::Prefilter>,
 }
 
 #[derive(Args, Debug)]
@@ -289,6 +299,10 @@ pub struct RunArgs {
     /// prefilter on the panel.
     #[arg(long, value_parser = named::<Method>(), default_value = "proposed")]
     pub preprocess: Method,
+    /// Instead, a least-squares prefilter on --preprocess's optics: lsq,
+    /// refine:K or optimal (@sharp or @target; see `nedrt sim --help`).
+    #[arg(long, default_value = "native", value_name = "PREFILTER")]
+    pub prefilter: nedrt_app::preprocess::Prefilter,
     /// Where frames come from.
     #[arg(long, value_parser = named::<SourceKind>(), default_value = "pattern")]
     pub source: SourceKind,

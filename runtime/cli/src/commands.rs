@@ -147,6 +147,7 @@ pub fn run(cli: Cli) -> Result<()> {
             install_signals(&control)?;
             let opts = app::run::RunOptions {
                 preprocess: a.preprocess,
+                prefilter: a.prefilter,
                 source: a.source,
                 input: a.input,
                 socket: a.socket,
@@ -214,6 +215,7 @@ pub fn run(cli: Cli) -> Result<()> {
                 threads: g.threads,
                 fidelity: !a.no_fidelity,
                 designs: app::design::Design::resolve_list(a.designs.as_deref())?,
+                prefilters: dedup(a.prefilter),
             };
             print!("{}", app::tradeoff::run(&common, &opts)?);
         }

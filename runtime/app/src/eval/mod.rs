@@ -20,7 +20,7 @@ use nedrt_core::image_io;
 use nedrt_optics::sim::{Image, Method, Optics, Prepared, Simulator};
 
 /// Upper end of the headline depth range (docs/model.md §17: 0–2.5 D).
-pub const HEADLINE_MAX_D: f64 = 2.5;
+pub const HEADLINE_MAX_D: f64 = nedrt_optics::sim::HEADLINE_MAX_D;
 
 /// Image files in a folder, sorted by name.
 pub fn list_images(dir: &Path) -> Result<Vec<PathBuf>, AppError> {

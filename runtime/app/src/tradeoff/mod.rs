@@ -22,6 +22,7 @@ pub use quality::{Quality, Scorer};
 use super::bench::median;
 use super::eval::{list_images, load_all};
 use super::{AppError, CommonOptions, create_dir, write_text};
+use crate::preprocess::{Prefilter, for_system};
 use nedrt_infer::{BackendKind, BackendOptions, Dcnn};
 use nedrt_optics::sim::{Image, Method, Simulator};
 use pareto::{Point, pareto_front};
@@ -48,6 +49,9 @@ pub struct TradeoffOptions {
     /// Display designs whose DOE (with and without its Wiener) join the
     /// baselines, each with its own K.
     pub designs: Vec<super::design::Design>,
+    /// The least-squares prefilters priced for each design's optics (with
+    /// the objective the design was made for, whatever the spec says).
+    pub prefilters: Vec<Prefilter>,
 }
 
 /// Rewrites the Markdown and the charts from the JSON already in
@@ -219,26 +223,61 @@ pub fn run(common: &CommonOptions, o: &TradeoffOptions) -> Result<String, AppErr
         .map(|s| Scorer::new(s, &design_methods, &inputs, common.progress()))
         .collect::<Result<Vec<_>, _>>()?;
     let bar = common.phase("configs");
+    let prefilters: Vec<Prefilter> = o
+        .prefilters
+        .iter()
+        .filter(|p| !p.is_native())
+        .copied()
+        .collect();
     bar.set_length(
         (baselines.len()
-            + design_methods.len() * o.designs.len()
+            + (design_methods.len() + prefilters.len()) * o.designs.len()
             + o.models.len() * (o.backends.len() + 1)) as u64,
     );
     let run = LinearRun {
         inputs: &inputs,
         frame: &frame,
+        frame_size: o.size,
         repeat: o.repeat,
+        max_seconds: o.max_seconds,
         device: format!("{host} (rayon, {} threads)", rayon::current_num_threads()),
     };
     for m in baselines {
-        records.push(linear_record(&run, &scorer, &sim.doe_hash, m, m.name())?);
+        records.push(linear_record(
+            &run,
+            &scorer,
+            &sim.doe_hash,
+            m,
+            Prefilter::Native,
+            m.name(),
+        )?);
         bar.inc(1);
     }
     for ((design, sim), scorer) in o.designs.iter().zip(&design_sims).zip(&design_scorers) {
         let hash = &sim.doe_hash;
         for m in design_methods {
             let name = format!("{} {}", m.name(), design.name);
-            records.push(linear_record(&run, scorer, hash, m, &name)?);
+            records.push(linear_record(
+                &run,
+                scorer,
+                hash,
+                m,
+                Prefilter::Native,
+                &name,
+            )?);
+            bar.inc(1);
+        }
+        for p in &prefilters {
+            let p = p.with_objective(design.objective());
+            let name = p.label(&format!("{} {}", Method::DoeWiener.name(), design.name));
+            records.push(linear_record(
+                &run,
+                scorer,
+                hash,
+                Method::DoeWiener,
+                p,
+                &name,
+            )?);
             bar.inc(1);
         }
     }
@@ -336,31 +375,51 @@ pub fn run(common: &CommonOptions, o: &TradeoffOptions) -> Result<String, AppErr
     Ok(text)
 }
 
-/// The record of a method the simulator itself runs (no D-CNN): its
-/// quality on the images and its latency on `frame` on the CPU.
+/// The record of a method the simulator itself runs (no D-CNN), with
+/// `prefilter`: its quality on the images and its latency on the frame on
+/// the CPU (estimated from the images' time per pixel, and marked so, when
+/// measuring would take longer than `max_seconds`).
 fn linear_record(
     run: &LinearRun,
     scorer: &Scorer,
     doe_hash: &str,
     m: Method,
+    prefilter: Prefilter,
     name: &str,
 ) -> Result<Record, AppError> {
-    let mut engine = scorer.prepared.preprocessor(m)?;
+    let mut engine = for_system(m, prefilter, &scorer.prepared, &mut Default::default())?;
+    let mut seconds_per_pixel = 0.0;
     let displays: Vec<Image> = run
         .inputs
         .iter()
-        .map(|i| engine.run(i))
+        .map(|i| {
+            let t = Instant::now();
+            let d = engine.run(i);
+            seconds_per_pixel = t.elapsed().as_secs_f64() / (i.width * i.height) as f64;
+            d
+        })
         .collect::<Result<_, _>>()?;
     let q = scorer.quality(m, &displays)?;
-    let seconds = time_median(run.repeat, || {
-        std::hint::black_box(engine.run(run.frame)?);
-        Ok::<_, AppError>(())
-    })?;
+    let estimate = seconds_per_pixel * (run.frame_size.0 * run.frame_size.1) as f64;
+    let (latency_ms, estimated_ms) = if estimate * (run.repeat + 1) as f64 > run.max_seconds {
+        tracing::warn!(
+            "{name}: latency at {}×{} not measured (≈ {estimate:.1} s per frame, over --max-seconds)",
+            run.frame_size.0,
+            run.frame_size.1
+        );
+        (None, Some(estimate * 1e3))
+    } else {
+        let seconds = time_median(run.repeat, || {
+            std::hint::black_box(engine.run(run.frame)?);
+            Ok::<_, AppError>(())
+        })?;
+        (Some(seconds * 1e3), None)
+    };
     Ok(q.record(
         name,
         m,
-        Some(seconds * 1e3),
-        None,
+        latency_ms,
+        estimated_ms,
         (m.optics() == nedrt_optics::sim::Optics::Doe).then(|| doe_hash.to_string()),
         ("cpu", "f32", run.device.clone()),
     ))
@@ -371,7 +430,9 @@ struct LinearRun<'a> {
     inputs: &'a [Image],
     /// The latency frame.
     frame: &'a Image,
+    frame_size: (usize, usize),
     repeat: usize,
+    max_seconds: f64,
     device: String,
 }
 

@@ -5,7 +5,6 @@
 use super::Record;
 use super::pareto::Point;
 use crate::AppError;
-use crate::eval::HEADLINE_MAX_D;
 use crate::sim::Score;
 use nedrt_optics::sim::simulator::Prepared;
 use nedrt_optics::sim::{Image, Method, Simulator};
@@ -29,13 +28,10 @@ pub struct Quality {
     pub per_depth_psnr_db: Vec<(f64, f64)>,
 }
 
-/// The evaluation depths within the headline range 0–2.5 D.
+/// The evaluation depths within the headline range 0–2.5 D (those the
+/// least-squares prefilters are solved over, so one request serves both).
 pub fn headline_depths(calib: &nedrt_core::calib::Calibration) -> Vec<f64> {
-    calib
-        .evaluation_depths_d()
-        .into_iter()
-        .filter(|d| *d <= HEADLINE_MAX_D + 1e-9)
-        .collect()
+    nedrt_optics::sim::objective_depths_d(calib)
 }
 
 impl Scorer {

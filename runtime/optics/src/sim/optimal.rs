@@ -262,6 +262,39 @@ impl DisplayProblem {
         )
     }
 
+    /// [`DisplayProblem::mirrored_kernels`] for each depth on its own,
+    /// [depth][channel] (the trainer's per-depth PSNR loss); their sum over
+    /// the depths is `mirrored_kernels`.
+    pub fn mirrored_depth_kernels(
+        &self,
+        width: usize,
+        height: usize,
+    ) -> Option<Vec<Vec<[Vec<f32>; 3]>>> {
+        if !self.is_mirror_symmetric() {
+            return None;
+        }
+        let terms = RetinalTerms::new(self, width, height);
+        let fft = Fft2::new(2 * width, 2 * height);
+        Some(
+            (0..self.depths_d.len())
+                .map(|depth| {
+                    (0..self.channels())
+                        .map(|c| {
+                            terms
+                                .depth(c, depth)
+                                .map(|t| fft.inverse(terms.fold(t, &fft)))
+                        })
+                        .collect()
+                })
+                .collect(),
+        )
+    }
+
+    fn is_mirror_symmetric(&self) -> bool {
+        self.psfs.iter().flatten().all(mirror_symmetric)
+            && self.blur.iter().flatten().all(mirror_symmetric)
+    }
+
     /// ½ Σ_D ‖A_D d − t_D‖² per channel (for reports and tests).
     pub fn objective_value(&self, input: &Image, display: &Image) -> Vec<f64> {
         let plan = self.plan(input.width, input.height);
@@ -331,8 +364,7 @@ type ChannelObjective<'a> = Box<dyn Fn(&[f32], Option<&mut Vec<f32>>) -> f64 + S
 
 impl ProblemPlan {
     fn new(problem: &DisplayProblem, width: usize, height: usize) -> Self {
-        let symmetric = problem.psfs.iter().flatten().all(mirror_symmetric)
-            && problem.blur.iter().flatten().all(mirror_symmetric);
+        let symmetric = problem.is_mirror_symmetric();
         let linear = linear_plan(problem, width, height);
         if symmetric {
             let (operator, lipschitz) = MirroredOperator::new(problem, width, height);
@@ -501,65 +533,91 @@ fn fold_to_display(retinal: &Fft2, spectrum: Vec<c32>, display: &Fft2) -> Vec<c3
     display.forward(&out)
 }
 
+/// One depth's terms of the mirrored objective on the retinal grid:
+/// |H_D|², H_D* T_D and |T_D|² (T_D = 1 for the sharp image, h_b's spectrum
+/// for a blurred target), the veils at zero frequency.
+struct RetinalTerms<'a> {
+    problem: &'a DisplayProblem,
+    retinal: Fft2,
+    /// h_b's spectrum per channel, when a target is blurred.
+    blur: Option<Vec<Vec<c32>>>,
+}
+
+impl<'a> RetinalTerms<'a> {
+    fn new(problem: &'a DisplayProblem, width: usize, height: usize) -> Self {
+        let retinal = Fft2::new(4 * width, 4 * height);
+        let blur = problem
+            .blur
+            .as_ref()
+            .filter(|_| problem.blurred.iter().any(|&b| b))
+            .map(|b| b.iter().map(|p| Self::spectrum(&retinal, p)).collect());
+        Self {
+            problem,
+            retinal,
+            blur,
+        }
+    }
+
+    /// The veil is uniform light: on the periodic grid a constant kernel,
+    /// i.e. its weight at zero frequency.
+    fn spectrum(retinal: &Fft2, p: &Psf) -> Vec<c32> {
+        let mut s = retinal.kernel_spectrum(&p.cells, p.window);
+        s[0] += c32::new(p.veil as f32, 0.0);
+        s
+    }
+
+    fn depth(&self, c: usize, depth: usize) -> [Vec<c32>; 3] {
+        let h = Self::spectrum(&self.retinal, &self.problem.psfs[c][depth]);
+        let gram = h.par_iter().map(|v| c32::new(v.norm_sqr(), 0.0)).collect();
+        match (&self.blur, self.problem.blurred[depth]) {
+            (Some(b), true) => [
+                gram,
+                h.par_iter()
+                    .zip(&b[c])
+                    .map(|(hv, bv)| hv.conj() * bv)
+                    .collect(),
+                b[c].par_iter()
+                    .map(|v| c32::new(v.norm_sqr(), 0.0))
+                    .collect(),
+            ],
+            _ => [
+                gram,
+                h.par_iter().map(|v| v.conj()).collect(),
+                vec![c32::new(1.0, 0.0); h.len()],
+            ],
+        }
+    }
+
+    fn fold(&self, spectrum: Vec<c32>, display: &Fft2) -> Vec<c32> {
+        fold_to_display(&self.retinal, spectrum, display)
+    }
+}
+
 impl MirroredOperator {
     fn new(problem: &DisplayProblem, width: usize, height: usize) -> (Self, Vec<f64>) {
+        let terms = RetinalTerms::new(problem, width, height);
         let fft = Fft2::new(2 * width, 2 * height);
-        let retinal = Fft2::new(4 * width, 4 * height);
-        // The veil is uniform light: on the periodic grid a constant kernel,
-        // i.e. its weight at zero frequency.
-        let spectrum = |p: &Psf| {
-            let mut s = retinal.kernel_spectrum(&p.cells, p.window);
-            s[0] += c32::new(p.veil as f32, 0.0);
-            s
-        };
         let mut normal = Vec::new();
         let mut adjoint_target = Vec::new();
         let mut target_gram = Vec::new();
         let mut lipschitz = Vec::new();
         for c in 0..problem.channels() {
-            let blur = problem
-                .blur
-                .as_ref()
-                .filter(|_| problem.blurred.iter().any(|&b| b))
-                .map(|b| spectrum(&b[c]));
-            let n = retinal.bins() * retinal.height;
-            let mut gram = vec![c32::new(0.0, 0.0); n];
-            let mut cross = vec![c32::new(0.0, 0.0); n];
-            let mut targets = vec![c32::new(0.0, 0.0); n];
-            for (p, &blurred) in problem.psfs[c].iter().zip(&problem.blurred) {
-                let h = spectrum(p);
-                gram.par_iter_mut()
-                    .zip(&h)
-                    .for_each(|(g, hv)| *g += hv.norm_sqr());
-                match (&blur, blurred) {
-                    (Some(b), true) => {
-                        cross
-                            .par_iter_mut()
-                            .zip(h.par_iter().zip(b))
-                            .for_each(|(o, (hv, bv))| *o += hv.conj() * bv);
-                        targets
-                            .par_iter_mut()
-                            .zip(b)
-                            .for_each(|(o, bv)| *o += bv.norm_sqr());
-                    }
-                    _ => {
-                        cross
-                            .par_iter_mut()
-                            .zip(&h)
-                            .for_each(|(o, hv)| *o += hv.conj());
-                        targets.par_iter_mut().for_each(|o| *o += 1.0);
-                    }
+            // Summed over the depths on the retinal grid, folded once.
+            let n = terms.retinal.bins() * terms.retinal.height;
+            let mut sums = [(); 3].map(|_| vec![c32::new(0.0, 0.0); n]);
+            for depth in 0..problem.depths_d.len() {
+                for (sum, term) in sums.iter_mut().zip(terms.depth(c, depth)) {
+                    sum.par_iter_mut().zip(&term).for_each(|(o, v)| *o += v);
                 }
             }
-            let m: Vec<f32> = fold_to_display(&retinal, gram, &fft)
-                .into_iter()
-                .map(|v| v.re)
-                .collect();
+            let [gram, cross, targets] = sums;
+            let m: Vec<f32> = terms.fold(gram, &fft).into_iter().map(|v| v.re).collect();
             lipschitz.push(m.iter().fold(0.0f32, |a, v| a.max(*v)) as f64);
             normal.push(m);
-            adjoint_target.push(fold_to_display(&retinal, cross, &fft));
+            adjoint_target.push(terms.fold(cross, &fft));
             target_gram.push(
-                fold_to_display(&retinal, targets, &fft)
+                terms
+                    .fold(targets, &fft)
                     .into_iter()
                     .map(|v| v.re)
                     .collect(),

@@ -478,4 +478,16 @@ fn the_exported_kernels_give_the_objective() {
     let want = p.objective_value(&input, &d)[0];
     assert!((value - want).abs() < 1e-4 * want, "{value} vs {want}");
     assert!(problem(Objective::Sharp).mirrored_kernels(w, h).is_none());
+    // The per-depth kernels sum to these.
+    let per_depth = p.mirrored_depth_kernels(w, h).expect("symmetric PSFs");
+    assert_eq!(per_depth.len(), 3);
+    for i in 0..3 {
+        for (j, want) in kernels[0][i].iter().enumerate() {
+            let sum: f32 = per_depth.iter().map(|d| d[0][i][j]).sum();
+            assert!(
+                (sum - want).abs() < 1e-4 * want.abs().max(1e-2),
+                "kernel {i}[{j}]: {sum} vs {want}"
+            );
+        }
+    }
 }
