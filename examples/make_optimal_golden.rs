@@ -19,7 +19,8 @@
 //! veil_D · mean(d) with symmetric (half-sample) extension, t_D = up2(I) or,
 //! where `blurred`, crop(up2(I) ∗ h_b) + veil_b · mean(I); `kernels`: the
 //! same objective as `nedrt prefilter --operator` writes it for the trainer
-//! (`normal`, `adjoint_target`, `target_gram`, each [channel][2h][2w]).
+//! (`normal`, `adjoint_target`, `target_gram`, each [channel][2h][2w],
+//! and each per depth, `NAME_per_depth`, [depth][channel][2h][2w]).
 
 use std::path::PathBuf;
 
@@ -110,6 +111,15 @@ fn main() -> anyhow::Result<()> {
         .mirrored_kernels(w, h)
         .ok_or_else(|| anyhow::anyhow!("the design's PSFs are not mirror-symmetric"))?;
     let kernel = |i: usize| -> Vec<f32> { kernels.iter().flat_map(|k| k[i].clone()).collect() };
+    let per_depth = problem
+        .mirrored_depth_kernels(w, h)
+        .ok_or_else(|| anyhow::anyhow!("the design's PSFs are not mirror-symmetric"))?;
+    let depth_kernel = |i: usize| -> Vec<f32> {
+        per_depth
+            .iter()
+            .flat_map(|d| d.iter().flat_map(|k| k[i].clone()))
+            .collect()
+    };
     let v = json!({
         "source": format!("{INPUT} crop {w}x{h}+{x}+{y}; multifocal design, PSFs cut to {WINDOW} cells"),
         "width": w,
@@ -127,6 +137,9 @@ fn main() -> anyhow::Result<()> {
             "normal": kernel(0),
             "adjoint_target": kernel(1),
             "target_gram": kernel(2),
+            "normal_per_depth": depth_kernel(0),
+            "adjoint_target_per_depth": depth_kernel(1),
+            "target_gram_per_depth": depth_kernel(2),
         },
     });
     nedrt_core::util::write_atomic(&out, serde_json::to_string(&v)?.as_bytes())?;

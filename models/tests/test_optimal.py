@@ -140,12 +140,17 @@ def test_the_trainers_loss_is_this_objective():
     import torch
 
     from nedrt_train.distill import Objective
-    kernels = {k: np.asarray(v, dtype=np.float64).reshape(CHANNELS, 2 * H, 2 * W)
+    depths = len(GOLDEN["depths_d"])
+    kernels = {k: np.asarray(v, dtype=np.float64).reshape((depths,) * k.endswith("_per_depth") + (CHANNELS, 2 * H, 2 * W))
                for k, v in GOLDEN["kernels"].items()}
-    loss = Objective(kernels, len(GOLDEN["depths_d"]))
+    loss = Objective(kernels, depths)
     image = planes(GOLDEN["input"])
     rng = np.random.default_rng(3)
     for display in (planes(GOLDEN["optimum"]), rng.uniform(0, 1, (CHANNELS, H, W))):
         direct = sum(objective(display[c], image[c], c)[0] for c in range(CHANNELS))
-        ours = loss(torch.from_numpy(display[None]).float(), torch.from_numpy(image[None]).float()).item()
-        assert ours == pytest.approx(direct, rel=2e-4)
+        d, i = torch.from_numpy(display[None]).float(), torch.from_numpy(image[None]).float()
+        assert loss(d, i).item() == pytest.approx(direct, rel=2e-4)
+        # Per depth: the evaluation's PSNR of that depth (over all channels).
+        theirs = psnr_per_depth(display, image)
+        ours = (-10 * torch.log10(loss.depth_mse(d, i)))[0].numpy()
+        assert np.abs(ours - theirs).max() < 1e-3, (ours, theirs)
