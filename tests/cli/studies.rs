@@ -33,11 +33,18 @@ fn tradeoff_writes_the_chart_and_the_picker_reads_it() {
     let out = dir.path().join("tradeoff");
     let calib = small_calib();
     let model = dcnn_model();
+    let designs = format!(
+        "{},{}",
+        repo().join("designs/multifocal.toml").display(),
+        repo().join("designs/allsharp.toml").display()
+    );
     let base = ["--calib", path(&calib)];
     let o = run(&[
         &base[..],
         &[
             "tradeoff",
+            "--designs",
+            &designs,
             "--images",
             path(&imgs),
             "--out-dir",
@@ -77,6 +84,12 @@ fn tradeoff_writes_the_chart_and_the_picker_reads_it() {
         "doe-only",
         "doe+wiener",
         "proposed dcnn cpu f32",
+        // The least-squares prefilters on each design, with its own objective.
+        "doe+wiener multifocal lsq@target",
+        "doe+wiener multifocal refine:3@target",
+        "doe+wiener multifocal optimal@target",
+        "doe+wiener allsharp refine:10@sharp",
+        "doe+wiener allsharp optimal@sharp",
     ] {
         assert!(names.contains(&want), "{want} missing: {names:?}");
     }
