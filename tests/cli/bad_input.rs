@@ -502,6 +502,54 @@ const ROWS: &[Row] = &[
         "a GIF plays at most 50 frames a second",
     ),
     row(
+        "prefilter: unknown kind",
+        &["--prefilter", "wiener"],
+        "unknown prefilter \"wiener\"",
+    ),
+    row(
+        "prefilter: refinement of 0 steps",
+        &["--prefilter", "refine:0"],
+        "the number of steps must be a whole number from 1 to 1000",
+    ),
+    row(
+        "prefilter: objective unknown",
+        &["--prefilter", "optimal@blurry"],
+        "unknown objective \"blurry\"",
+    ),
+    row(
+        "prefilter command: image folder missing",
+        &["prefilter", "--images", "{dir}/none", "--out-dir", "{out}"],
+        "none: cannot read folder",
+    ),
+    row(
+        "prefilter command: a D-CNN method without a prefilter",
+        &[
+            "prefilter",
+            "--images",
+            "{dir}",
+            "--out-dir",
+            "{out}",
+            "--method",
+            "proposed",
+            "--prefilter",
+            "native",
+        ],
+        "needs --prefilter lsq, refine:K or optimal",
+    ),
+    row(
+        "prefilter command: kernel size 0",
+        &[
+            "prefilter",
+            "--images",
+            "{dir}",
+            "--out-dir",
+            "{out}",
+            "--operator",
+            "0x8",
+        ],
+        "sides must be integers in 1..=16384",
+    ),
+    row(
         "view: --screenshot without --headless",
         &["view", "--screenshot", "{out}"],
         "--screenshot FILE needs --headless",
@@ -653,7 +701,7 @@ fn command_line(r: &Row, dir: &Path, out: &Path) -> Vec<String> {
     let own_command = r
         .args
         .iter()
-        .any(|a| ["--sim", "run", "eval", "pick", "view", "sweep"].contains(a));
+        .any(|a| ["--sim", "run", "eval", "pick", "view", "sweep", "prefilter"].contains(a));
     let own_calib = r.args.contains(&"--calib");
     let mut args: Vec<String> = Vec::new();
     if !own_calib && !own_command {
