@@ -4,6 +4,8 @@
         --out-dir out/teacher/train --operator 128x128,256x256
     nedrt prefilter --design multifocal --images data/images/val --out-dir out/teacher/val
     nedrt-train dcnn --teacher out/teacher --width 16 --steps 6000 --out models/runs/dcnn-half
+    nedrt-train dcnn export --run models/runs/dcnn-half --name dcnn-half \
+        --doe designs/multifocal/doe-fabrication.safetensors
 
 The loss is the exact objective nedrt's `optimal` prefilter minimises: the
 squared error of the perceived images against the targets summed over the
@@ -314,7 +316,63 @@ def train(cfg: DistillConfig, out: Path, resume: bool = False) -> dict:
     return result
 
 
+def export(run: Path, out: Path, name: str, doe: Path) -> dict:
+    """A run's network as the runtime's model: `out/NAME.onnx`, the frozen
+    DOE it was trained for beside it (`out/NAME.doe.safetensors`, what
+    nedrt loads with a model), and `out/NAME.card.json`."""
+    import platform
+    import shutil
+
+    from .export import export_onnx, sha256
+    state = torch.load(run / "checkpoint.pt", map_location="cpu", weights_only=False)
+    cfg = DistillConfig(**state["config"])
+    if not doe.is_file():
+        raise FileNotFoundError(f"{doe}: DOE file not found")
+    net = UNet(cfg.width, cfg.levels)
+    net.load_state_dict(state["net"])
+    out.mkdir(parents=True, exist_ok=True)
+    onnx_path, doe_path = out / f"{name}.onnx", out / f"{name}.doe.safetensors"
+    export_onnx(net, onnx_path)
+    shutil.copyfile(doe, doe_path)
+    result = json.loads((run / "result.json").read_text()) if (run / "result.json").exists() else {}
+    card = {
+        "name": name, "recipe": "nedrt-train dcnn (docs/training.md, the D-CNN stage)",
+        "config": dataclasses.asdict(cfg), "steps": state["step"],
+        "wall_time_s": state.get("seconds"),
+        "hardware": {"platform": platform.platform(), "processor": platform.processor(),
+                     "cpu_count": os.cpu_count(), "torch_threads": cfg.threads or torch.get_num_threads(),
+                     "torch": torch.__version__,
+                     "cuda": torch.cuda.get_device_name(0) if torch.cuda.is_available() else None},
+        "doe": {"source": str(doe), "sha256": sha256(doe)},
+        "teacher": result.get("teacher"),
+        "validation": result.get("validation"),
+        "parameters": sum(p.numel() for p in net.parameters()),
+        "macs_per_pixel": net.macs_per_pixel(),
+        "files": {p.name: sha256(p) for p in [onnx_path, doe_path]},
+    }
+    (out / f"{name}.card.json").write_text(json.dumps(card, indent=1))
+    return card
+
+
 def main(argv=None, prog=None):
+    if argv is None:
+        import sys
+        argv = sys.argv[1:]
+    if argv and argv[0] == "export":
+        ap = argparse.ArgumentParser(prog=f"{prog} export" if prog else None,
+                                     description="A run as the runtime's model: ONNX, its DOE beside it, a card.")
+        ap.add_argument("--run", type=Path, required=True)
+        ap.add_argument("--out", type=Path, default=Path("models"))
+        ap.add_argument("--name", required=True)
+        ap.add_argument("--doe", type=Path, required=True,
+                        help="the DOE file the network was trained for (the design's fabrication file)")
+        args = ap.parse_args(argv[1:])
+        try:
+            card = export(args.run, args.out, args.name, args.doe)
+        except (ValueError, FileNotFoundError) as e:
+            raise SystemExit(f"error: {e}")
+        print(json.dumps(card["files"], indent=1))
+        return
     ap = argparse.ArgumentParser(prog=prog, description=__doc__.split("\n\n")[0])
     defaults = DistillConfig()
     for f in dataclasses.fields(DistillConfig):
