@@ -230,16 +230,21 @@ def lr_at(cfg: DistillConfig, step: int) -> float:
     return cfg.lr * warm * (0.01 + 0.99 * 0.5 * (1 + math.cos(math.pi * progress)))
 
 
-def save_checkpoint(path: Path, net, opt, step: int, cfg: DistillConfig, rng: np.random.Generator, seconds: float):
+def save_checkpoint(path: Path, net, opt, step: int, cfg: DistillConfig, rng: np.random.Generator, seconds: float,
+                    history: list):
     tmp = Path(str(path) + ".tmp")
     torch.save({"net": net.state_dict(), "optimizer": opt.state_dict(), "step": step,
                 "config": dataclasses.asdict(cfg), "data_rng": rng.bit_generator.state,
                 "torch_rng": torch.get_rng_state(), "python_rng": random.getstate(),
-                "seconds": seconds}, tmp)
+                "seconds": seconds, "history": history}, tmp)
     os.replace(tmp, path)
 
 
-def train(cfg: DistillConfig, out: Path, resume: bool = False) -> dict:
+def train(cfg: DistillConfig, out: Path, resume: bool = False, stop_after: int | None = None) -> dict:
+    """A run, or its continuation (`resume`); with `stop_after`, only up to
+    that step (checkpointed), as a session that ends would: `--resume`
+    then goes on exactly as an uninterrupted run (the schedule depends on
+    `steps`, so a resumed run must keep it)."""
     if cfg.threads:
         torch.set_num_threads(cfg.threads)
     torch.manual_seed(cfg.seed)
@@ -263,11 +268,11 @@ def train(cfg: DistillConfig, out: Path, resume: bool = False) -> dict:
     opt = torch.optim.Adam(net.parameters(), lr=cfg.lr)
     out.mkdir(parents=True, exist_ok=True)
     checkpoint = out / "checkpoint.pt"
-    step, seconds_before = 0, 0.0
+    step, seconds_before, history = 0, 0.0, []
     if resume and checkpoint.exists():
         state = torch.load(checkpoint, map_location="cpu", weights_only=False)
         saved = DistillConfig(**state["config"])
-        if dataclasses.replace(saved, steps=cfg.steps, threads=cfg.threads) != cfg:
+        if dataclasses.replace(saved, threads=cfg.threads) != cfg:
             raise SystemExit(f"error: {checkpoint} was made with another configuration: {saved}")
         net.load_state_dict(state["net"])
         opt.load_state_dict(state["optimizer"])
@@ -276,6 +281,7 @@ def train(cfg: DistillConfig, out: Path, resume: bool = False) -> dict:
         torch.set_rng_state(state["torch_rng"])
         random.setstate(state["python_rng"])
         seconds_before = state["seconds"]
+        history = state.get("history", [])
     log_path = out / "metrics.csv"
     new_log = step == 0 or not log_path.exists()
     log = open(log_path, "w" if step == 0 else "a")
@@ -283,8 +289,9 @@ def train(cfg: DistillConfig, out: Path, resume: bool = False) -> dict:
         log.write("step,lr,loss,mse_db,distill,range,val_dcnn_db,val_optimal_db,val_wiener_db,"
                   "val_dcnn_mean_db,val_dcnn_worst_db,val_wiener_mean_db,val_wiener_worst_db,seconds\n")
     start = time.time()
-    bar = tqdm(range(step, cfg.steps), initial=step, total=cfg.steps, desc="dcnn")
-    history = []
+    last = cfg.steps if stop_after is None else min(cfg.steps, stop_after)
+    done = max(step, last)
+    bar = tqdm(range(step, last), initial=step, total=cfg.steps, desc="dcnn")
     for step in bar:
         for g in opt.param_groups:
             g["lr"] = lr_at(cfg, step)
@@ -306,10 +313,10 @@ def train(cfg: DistillConfig, out: Path, resume: bool = False) -> dict:
                   f"{elapsed:.1f}\n")
         log.flush()
         bar.set_postfix(mse_db=f"{db(terms['mse'].item()):.2f}", distill=f"{terms['distill'].item():.2e}")
-        if (step + 1) % cfg.checkpoint_every == 0 or step + 1 == cfg.steps:
-            save_checkpoint(checkpoint, net, opt, step + 1, cfg, data.rng, elapsed)
+        if (step + 1) % cfg.checkpoint_every == 0 or step + 1 in (cfg.steps, last):
+            save_checkpoint(checkpoint, net, opt, step + 1, cfg, data.rng, elapsed, history)
     log.close()
-    result = {"config": dataclasses.asdict(cfg), "steps": cfg.steps,
+    result = {"config": dataclasses.asdict(cfg), "steps": done, "finished": done == cfg.steps,
               "seconds": seconds_before + time.time() - start, "validation": history,
               "teacher": {"train": json.loads((teacher_root / "train" / "prefilter.json").read_text())}}
     (out / "result.json").write_text(json.dumps(result, indent=1))
@@ -386,6 +393,8 @@ def main(argv=None, prog=None):
                     help="image root with train/ and val/ (default: data/images under the current directory)")
     ap.add_argument("--out", required=True, type=Path)
     ap.add_argument("--resume", action="store_true")
+    ap.add_argument("--stop-after", type=int, metavar="STEP",
+                    help="stop at this step (checkpointed), to go on later with --resume")
     args = ap.parse_args(argv)
     try:
         images = resolve_root(args.images)
@@ -397,7 +406,7 @@ def main(argv=None, prog=None):
               if f.name not in ("teacher", "images")}
     cfg = DistillConfig(**values, teacher=str(args.teacher.resolve()), images=str(images))
     try:
-        result = train(cfg, args.out, args.resume)
+        result = train(cfg, args.out, args.resume, args.stop_after)
     except (ValueError, FileNotFoundError) as e:
         raise SystemExit(f"error: {e}")
     print(json.dumps(result["validation"][-1:], indent=1))

@@ -1,0 +1,116 @@
+"""`nedrt-train dcnn` (nedrt_train/distill.py) on a tiny synthetic teacher:
+it trains, checkpoints, resumes exactly where an uninterrupted run would
+be, refuses a checkpoint of another configuration, and exports a model the
+runtime can load (ONNX with its DOE beside it and a card)."""
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from PIL import Image
+from safetensors.torch import save_file
+
+from nedrt_train import distill
+
+REPO = Path(__file__).resolve().parents[2]
+DEPTHS = 2
+PATCH = 16
+VAL = 24
+
+
+def kernels(size: int) -> dict:
+    """A blur seen at two depths: Σ_D A_Dᵀ A_D, Σ_D A_Dᵀ T_D and Σ_D T_Dᵀ T_D
+    of a 3-tap blur per axis on the mirrored 2size × 2size grid."""
+    n = 2 * size
+    k = torch.zeros(n, n)
+    for dy, wy in ((-1, 0.25), (0, 0.5), (1, 0.25)):
+        for dx, wx in ((-1, 0.25), (0, 0.5), (1, 0.25)):
+            k[dy % n, dx % n] = wy * wx
+    spec = torch.fft.rfft2(k)
+    gram = torch.fft.irfft2(spec.abs() ** 2, s=(n, n))
+    adjoint = torch.fft.irfft2(spec.conj(), s=(n, n))
+    delta = torch.zeros(n, n)
+    delta[0, 0] = 1
+    per = {"normal": gram * 4, "adjoint_target": adjoint * 4, "target_gram": delta * 4}
+    out = {}
+    for name, v in per.items():
+        one = v[None].repeat(3, 1, 1)
+        out[name + "_per_depth"] = one[None].repeat(DEPTHS, 1, 1, 1).contiguous()
+        out[name] = (one * DEPTHS).contiguous()
+    return out
+
+
+def write_teacher(root: Path):
+    rng = np.random.default_rng(0)
+    images = root / "images"
+    for part, count, size in (("train", 3, 32), ("val", 2, VAL)):
+        (images / part).mkdir(parents=True)
+        folder = root / "teacher" / part
+        folder.mkdir(parents=True)
+        displays = {}
+        for i in range(count):
+            pixels = (rng.random((size, size, 3)) * 255).astype(np.uint8)
+            Image.fromarray(pixels).save(images / part / f"p{i}.png")
+            displays[f"p{i}"] = torch.from_numpy(pixels / 255.0).permute(2, 0, 1).float().contiguous()
+        save_file(displays, str(folder / "displays.safetensors"))
+    meta = {"format": "nedrt objective kernels 1", "depths_d": json.dumps([0.0, 1.0])}
+    for size in (PATCH, VAL):
+        meta.update(width=str(size), height=str(size))
+        save_file(kernels(size), str(root / "teacher" / "train" / f"operator-{size}x{size}.safetensors"), metadata=meta)
+    (root / "teacher" / "train" / "prefilter.json").write_text(json.dumps({"prefilter": "optimal@target"}))
+    return images, root / "teacher"
+
+
+def config(images, teacher, steps, **kw):
+    return distill.DistillConfig(width=2, levels=2, patch=PATCH, batch=2, steps=steps, validate_every=2,
+                                 checkpoint_every=1, teacher=str(teacher), images=str(images), **kw)
+
+
+def test_the_objective_of_the_kernels_is_the_blur_error(tmp_path):
+    """The quadratic form of `kernels` is ½ Σ_D ‖b ∗ d − d‖²-like: zero where
+    the display is the blurred image's preimage; checked on a flat field,
+    which the blur keeps."""
+    images, teacher = write_teacher(tmp_path)
+    obj = distill.Objective.load(teacher / "train" / f"operator-{PATCH}x{PATCH}.safetensors")
+    flat = torch.full((1, 3, PATCH, PATCH), 0.4)
+    assert obj(flat, flat).abs().item() < 1e-4
+    assert obj.depth_mse(flat, flat).abs().max().item() < 1e-6
+    other = torch.rand(1, 3, PATCH, PATCH)
+    assert obj(other, flat).item() > 0
+    assert torch.allclose(obj.depth_mse(other, flat).sum(1), obj.mse(other, flat) * DEPTHS, rtol=1e-4)
+
+
+@pytest.mark.parametrize("loss", ["mse", "psnr"])
+def test_resume_continues_exactly(tmp_path, loss):
+    images, teacher = write_teacher(tmp_path)
+    straight = distill.train(config(images, teacher, 4, loss=loss), tmp_path / "straight")
+    distill.train(config(images, teacher, 4, loss=loss), tmp_path / "split", stop_after=2)
+    resumed = distill.train(config(images, teacher, 4, loss=loss), tmp_path / "split", resume=True)
+    a = torch.load(tmp_path / "straight" / "checkpoint.pt", weights_only=False)["net"]
+    b = torch.load(tmp_path / "split" / "checkpoint.pt", weights_only=False)["net"]
+    for k in a:
+        assert torch.equal(a[k], b[k]), k
+    assert straight["validation"][-1]["dcnn_db"] == resumed["validation"][-1]["dcnn_db"]
+    assert "dcnn_mean_db" in straight["validation"][-1]
+
+
+def test_a_checkpoint_of_another_configuration_is_refused(tmp_path):
+    images, teacher = write_teacher(tmp_path)
+    distill.train(config(images, teacher, 1), tmp_path / "run")
+    with pytest.raises(SystemExit, match="another configuration"):
+        distill.train(config(images, teacher, 2, lr=0.5), tmp_path / "run", resume=True)
+
+
+def test_export_writes_the_model_its_doe_and_a_card(tmp_path):
+    images, teacher = write_teacher(tmp_path)
+    distill.train(config(images, teacher, 1), tmp_path / "run")
+    doe = REPO / "designs" / "multifocal" / "doe-fabrication.safetensors"
+    card = distill.export(tmp_path / "run", tmp_path / "out", "tiny", doe)
+    for f in ("tiny.onnx", "tiny.doe.safetensors", "tiny.card.json"):
+        assert (tmp_path / "out" / f).is_file(), f
+    assert (tmp_path / "out" / "tiny.doe.safetensors").read_bytes() == doe.read_bytes()
+    assert card["steps"] == 1 and card["macs_per_pixel"] > 0
+    import onnx
+    model = onnx.load(str(tmp_path / "out" / "tiny.onnx"))
+    assert [i.name for i in model.graph.input] == ["image"]
