@@ -54,6 +54,10 @@ class DistillConfig:
     # minimises); "psnr": the mean over the depths of the per-depth PSNR,
     # per frame (what the evaluation's headline averages).
     loss: str = "mse"
+    # With --loss psnr: weight of the mean per-depth PSNR against the sharp
+    # image (kernels from DIR/train-sharp, nedrt prefilter
+    # --prefilter optimal@sharp --operator …) beside the one against the target.
+    sharp_weight: float = 0.0
     seed: int = 0
     teacher: str | None = None
     images: str | None = None
@@ -183,7 +187,7 @@ class Patches:
         return torch.stack(xs).contiguous(), torch.stack(ts).contiguous()
 
 
-def losses(net, objective: Objective, image, teacher, cfg: DistillConfig):
+def losses(net, objective: Objective, image, teacher, cfg: DistillConfig, sharp: Objective | None = None):
     raw = net(image)
     display = raw.clamp(0, 1)
     distill = F.mse_loss(display, teacher)
@@ -193,6 +197,8 @@ def losses(net, objective: Objective, image, teacher, cfg: DistillConfig):
         mse = per_depth.mean()
         # −mean PSNR, in units of 10 dB so that its size is that of the others.
         fit = torch.log10(per_depth).mean()
+        if cfg.sharp_weight:
+            fit = fit + cfg.sharp_weight * torch.log10(sharp.depth_mse(display, image).clamp_min(1e-10)).mean()
     elif cfg.loss == "mse":
         mse = fit = objective.mse(display, image).mean()
     else:
@@ -202,7 +208,8 @@ def losses(net, objective: Objective, image, teacher, cfg: DistillConfig):
 
 
 @torch.no_grad()
-def validate(net, objective: Objective, images: torch.Tensor, teacher: torch.Tensor, wiener: torch.Tensor | None):
+def validate(net, objective: Objective, images: torch.Tensor, teacher: torch.Tensor, wiener: torch.Tensor | None,
+             sharp: Objective | None = None):
     """Objective dB (−10 log10 of the mean squared error over depths) on the
     validation photographs: the network, the teacher (the optimum), and the
     Wiener prefilter where given."""
@@ -220,6 +227,10 @@ def validate(net, objective: Objective, images: torch.Tensor, teacher: torch.Ten
             psnr = (-10 * torch.log10(objective.depth_mse(d, images))).mean(dim=0)
             out[f"{name}_mean_db"] = float(psnr.mean())
             out[f"{name}_worst_db"] = float(psnr.min())
+        if sharp is not None and name != "optimal":
+            psnr = (-10 * torch.log10(sharp.depth_mse(d, images))).mean(dim=0)
+            out[f"{name}_sharp_mean_db"] = float(psnr.mean())
+            out[f"{name}_sharp_worst_db"] = float(psnr.min())
     return out
 
 
@@ -260,6 +271,13 @@ def train(cfg: DistillConfig, out: Path, resume: bool = False, stop_after: int |
     val_teacher = torch.stack([t for t in load_teacher(teacher_root / "val", val_names).values()])
     vh, vw = val_images.shape[-2:]
     val_objective = Objective.load(teacher_root / "train" / f"operator-{vw}x{vh}.safetensors")
+    sharp_root = teacher_root / "train-sharp"
+    has_sharp = (sharp_root / f"operator-{vw}x{vh}.safetensors").is_file()
+    if cfg.sharp_weight and not has_sharp:
+        raise FileNotFoundError(f"{sharp_root}: no kernels for the sharp objective (--sharp-weight needs "
+                                "nedrt prefilter --prefilter optimal@sharp --operator …)")
+    sharp = Objective.load(sharp_root / f"operator-{cfg.patch}x{cfg.patch}.safetensors") if cfg.sharp_weight else None
+    val_sharp = Objective.load(sharp_root / f"operator-{vw}x{vh}.safetensors") if has_sharp else None
     wiener_dir = teacher_root / "val-wiener"
     val_wiener = (torch.stack(list(load_teacher(wiener_dir, val_names).values()))
                   if (wiener_dir / "displays.safetensors").is_file() else None)
@@ -287,7 +305,9 @@ def train(cfg: DistillConfig, out: Path, resume: bool = False, stop_after: int |
     log = open(log_path, "w" if step == 0 else "a")
     if new_log:
         log.write("step,lr,loss,mse_db,distill,range,val_dcnn_db,val_optimal_db,val_wiener_db,"
-                  "val_dcnn_mean_db,val_dcnn_worst_db,val_wiener_mean_db,val_wiener_worst_db,seconds\n")
+                  "val_dcnn_mean_db,val_dcnn_worst_db,val_wiener_mean_db,val_wiener_worst_db,"
+                  "val_dcnn_sharp_mean_db,val_dcnn_sharp_worst_db,val_wiener_sharp_mean_db,val_wiener_sharp_worst_db,"
+                  "seconds\n")
     start = time.time()
     last = cfg.steps if stop_after is None else min(cfg.steps, stop_after)
     done = max(step, last)
@@ -296,13 +316,13 @@ def train(cfg: DistillConfig, out: Path, resume: bool = False, stop_after: int |
         for g in opt.param_groups:
             g["lr"] = lr_at(cfg, step)
         image, teacher = data.batch(cfg.batch)
-        loss, terms = losses(net, objective, image, teacher, cfg)
+        loss, terms = losses(net, objective, image, teacher, cfg, sharp)
         opt.zero_grad()
         loss.backward()
         opt.step()
         val = {}
         if (step + 1) % cfg.validate_every == 0 or step + 1 == cfg.steps:
-            val = validate(net, val_objective, val_images, val_teacher, val_wiener)
+            val = validate(net, val_objective, val_images, val_teacher, val_wiener, val_sharp)
             history.append({"step": step + 1, **val})
             bar.write(json.dumps(history[-1]))
         elapsed = seconds_before + time.time() - start
@@ -310,6 +330,8 @@ def train(cfg: DistillConfig, out: Path, resume: bool = False, stop_after: int |
                   f"{terms['distill'].item():.4g},{terms['range'].item():.3g},{val.get('dcnn_db', '')},"
                   f"{val.get('optimal_db', '')},{val.get('wiener_db', '')},{val.get('dcnn_mean_db', '')},"
                   f"{val.get('dcnn_worst_db', '')},{val.get('wiener_mean_db', '')},{val.get('wiener_worst_db', '')},"
+                  f"{val.get('dcnn_sharp_mean_db', '')},{val.get('dcnn_sharp_worst_db', '')},"
+                  f"{val.get('wiener_sharp_mean_db', '')},{val.get('wiener_sharp_worst_db', '')},"
                   f"{elapsed:.1f}\n")
         log.flush()
         bar.set_postfix(mse_db=f"{db(terms['mse'].item()):.2f}", distill=f"{terms['distill'].item():.2e}")
