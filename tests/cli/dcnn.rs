@@ -61,6 +61,11 @@ fn panel_codes(
 const ODD: (usize, usize) = (61, 45);
 
 fn sim_and_service(method: &str) -> SimAndService {
+    sim_and_service_with(method, &[])
+}
+
+/// [`sim_and_service`] with more arguments for both commands.
+fn sim_and_service_with(method: &str, extra: &[&str]) -> SimAndService {
     use nedrt_core::Image;
     let dir = tempfile::tempdir().expect("tempdir");
     let (w, h) = ODD;
@@ -81,6 +86,7 @@ fn sim_and_service(method: &str) -> SimAndService {
         .args(["--method", method, "--backend", "cpu", "--input"])
         .args([path(&input), "--out", path(&dir.path().join("p.png"))])
         .args(["--display-out", path(&display)])
+        .args(extra)
         .output()
         .expect("sim");
     assert!(o.status.success(), "{method}: {}", stderr(&o));
@@ -92,6 +98,7 @@ fn sim_and_service(method: &str) -> SimAndService {
         .args(["--preprocess", method, "--source", "dir", "--input"])
         .args([path(&input), "--frames", "1", "--source-rate", "0"])
         .args(["--sink", "record", "--record-dir", path(&record)])
+        .args(extra)
         .output()
         .expect("run");
     assert!(o.status.success(), "{method}: {}", stderr(&o));
@@ -155,6 +162,20 @@ fn sim_and_service_show_the_same_display_frame_for_an_odd_sized_frame() {
 #[test]
 fn the_service_runs_the_wiener_prefilter_the_simulator_renders() {
     let s = sim_and_service("ai");
+    assert_eq!(s.sim_codes, s.recorded, "sim and service differ");
+    let source = nedrt_core::image_io::load(&s.input).expect("input").image;
+    assert_ne!(
+        s.codes(&source),
+        s.recorded,
+        "the prefilter changed the frame"
+    );
+}
+
+/// `nedrt run --prefilter` puts on the panel the display image `nedrt sim
+/// --prefilter` renders, code for code.
+#[test]
+fn the_service_runs_the_least_squares_prefilter_the_simulator_renders() {
+    let s = sim_and_service_with("doe-only", &["--prefilter", "refine:2"]);
     assert_eq!(s.sim_codes, s.recorded, "sim and service differ");
     let source = nedrt_core::image_io::load(&s.input).expect("input").image;
     assert_ne!(

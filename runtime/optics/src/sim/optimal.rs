@@ -476,9 +476,11 @@ impl ProblemPlan {
                 .par_iter_mut()
                 .zip(y.par_iter().zip(&gradient))
                 .for_each(|(o, (yv, g))| *o = (yv - step * g).clamp(0.0, 1.0));
-            // Restart when the momentum points uphill.
+            // Restart when the momentum points uphill. A sequential sum:
+            // rayon's would split by work stealing, and the same frame
+            // must give the same display image every time.
             let uphill: f64 = y
-                .par_iter()
+                .iter()
                 .zip(&x_next)
                 .zip(&x)
                 .map(|((yv, xn), xv)| ((yv - xn) * (xn - xv)) as f64)
