@@ -64,6 +64,9 @@ class DistillConfig:
     validate_every: int = 500
     checkpoint_every: int = 250
     threads: int = 0
+    # Start from the network of another run's checkpoint (a fresh optimiser
+    # and schedule): distil first, then fine-tune on the metric.
+    init: str | None = None
 
 
 class Objective:
@@ -283,6 +286,16 @@ def train(cfg: DistillConfig, out: Path, resume: bool = False, stop_after: int |
                   if (wiener_dir / "displays.safetensors").is_file() else None)
 
     net = UNet(cfg.width, cfg.levels)
+    if cfg.init:
+        init = Path(cfg.init)
+        init = init / "checkpoint.pt" if init.is_dir() else init
+        if not init.is_file():
+            raise FileNotFoundError(f"{init}: no checkpoint to start from (--init)")
+        saved = torch.load(init, map_location="cpu", weights_only=False)
+        if (saved["config"]["width"], saved["config"]["levels"]) != (cfg.width, cfg.levels):
+            raise ValueError(f"{init}: a network of width {saved['config']['width']} and "
+                             f"{saved['config']['levels']} levels, this run's is {cfg.width} and {cfg.levels}")
+        net.load_state_dict(saved["net"])
     opt = torch.optim.Adam(net.parameters(), lr=cfg.lr)
     out.mkdir(parents=True, exist_ok=True)
     checkpoint = out / "checkpoint.pt"
@@ -407,6 +420,9 @@ def main(argv=None, prog=None):
     for f in dataclasses.fields(DistillConfig):
         if f.name in ("teacher", "images"):
             continue
+        if f.name == "init":
+            ap.add_argument("--init", metavar="RUN", help="start from this run's (or checkpoint file's) network")
+            continue
         ap.add_argument("--" + f.name.replace("_", "-"), type=type(getattr(defaults, f.name)),
                         default=getattr(defaults, f.name))
     ap.add_argument("--teacher", metavar="DIR", required=True, type=Path,
@@ -426,6 +442,8 @@ def main(argv=None, prog=None):
         raise SystemExit(f"error: {e}")
     values = {f.name: getattr(args, f.name) for f in dataclasses.fields(DistillConfig)
               if f.name not in ("teacher", "images")}
+    if values["init"]:
+        values["init"] = str(Path(values["init"]).resolve())
     cfg = DistillConfig(**values, teacher=str(args.teacher.resolve()), images=str(images))
     try:
         result = train(cfg, args.out, args.resume, args.stop_after)
