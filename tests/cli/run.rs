@@ -209,7 +209,7 @@ fn run_refuses_a_source_rate_it_cannot_pace() {
 fn recording_pattern() -> (std::process::Child, tempfile::TempDir) {
     let dir = tempfile::tempdir().expect("tempdir");
     let rec = dir.path().join("rec");
-    let child = run_on_small_panel()
+    let mut child = run_on_small_panel()
         .args(["--source", "pattern", "--sink", "record", "--record-dir"])
         .args([path(&rec), "--report-json"])
         .arg(dir.path().join("report.json"))
@@ -219,10 +219,12 @@ fn recording_pattern() -> (std::process::Child, tempfile::TempDir) {
         .expect("start");
     let started = std::time::Instant::now();
     while !rec.join("frame-00000000.png").exists() {
-        assert!(
-            started.elapsed() < std::time::Duration::from_secs(60),
-            "no frame recorded"
-        );
+        if started.elapsed() > std::time::Duration::from_secs(60) {
+            // Not left running to slow every later test.
+            let _ = child.kill();
+            let _ = child.wait();
+            panic!("no frame recorded in 60 s");
+        }
         std::thread::sleep(std::time::Duration::from_millis(50));
     }
     (child, dir)
