@@ -67,6 +67,11 @@ class DistillConfig:
     # Start from the network of another run's checkpoint (a fresh optimiser
     # and schedule): distil first, then fine-tune on the metric.
     init: str | None = None
+    # The residual's base: the input ("input", the runtime's network
+    # I + UNet(I)) or the Wiener prefilter's output of the design ("wiener",
+    # DIR/train-wiener and DIR/val-wiener; display = W(I) + UNet(I) − I,
+    # the last layer started at zero so that training starts at the Wiener).
+    base: str = "input"
 
 
 class Objective:
@@ -166,32 +171,40 @@ class Patches:
     symmetries of the square (the PSFs are rotationally symmetric, so the
     teacher turns with its photograph), with the teacher cropped alike."""
 
-    def __init__(self, photos: list, teachers: list, patch: int, seed: int):
+    def __init__(self, photos: list, teachers: list, patch: int, seed: int, bases: list | None = None):
         self.photos = [torch.from_numpy(p).permute(2, 0, 1).contiguous() for p in photos]
         self.teachers = teachers
+        self.bases = bases
         self.patch = patch
         self.rng = np.random.default_rng(seed)
 
     def batch(self, size: int):
-        xs, ts = [], []
+        """(images, teachers, bases or None), each B × 3 × P × P."""
+        out = [[], [], []]
         n = self.patch
         for _ in range(size):
             k = self.rng.integers(len(self.photos))
-            p, t = self.photos[k], self.teachers[k]
+            p = self.photos[k]
             y = self.rng.integers(p.shape[1] - n + 1)
             x = self.rng.integers(p.shape[2] - n + 1)
-            p, t = p[:, y:y + n, x:x + n], t[:, y:y + n, x:x + n]
             turn, flip = int(self.rng.integers(4)), bool(self.rng.integers(2))
-            p, t = torch.rot90(p, turn, (1, 2)), torch.rot90(t, turn, (1, 2))
-            if flip:
-                p, t = p.flip(-1), t.flip(-1)
-            xs.append(p)
-            ts.append(t)
-        return torch.stack(xs).contiguous(), torch.stack(ts).contiguous()
+            for i, stack in enumerate([self.photos, self.teachers, self.bases]):
+                if stack is None:
+                    continue
+                t = torch.rot90(stack[k][:, y:y + n, x:x + n], turn, (1, 2))
+                out[i].append(t.flip(-1) if flip else t)
+        return tuple(torch.stack(o).contiguous() if o else None for o in out)
 
 
-def losses(net, objective: Objective, image, teacher, cfg: DistillConfig, sharp: Objective | None = None):
-    raw = net(image)
+def forward(net, image, base=None):
+    """The raw display image: I + UNet(I), or base + UNet(I) − I."""
+    out = net(image)
+    return out if base is None else base + (out - image)
+
+
+def losses(net, objective: Objective, image, teacher, cfg: DistillConfig, sharp: Objective | None = None,
+           base=None):
+    raw = forward(net, image, base)
     display = raw.clamp(0, 1)
     distill = F.mse_loss(display, teacher)
     excursion = (F.relu(raw - 1) ** 2 + F.relu(-raw) ** 2).mean()
@@ -212,12 +225,15 @@ def losses(net, objective: Objective, image, teacher, cfg: DistillConfig, sharp:
 
 @torch.no_grad()
 def validate(net, objective: Objective, images: torch.Tensor, teacher: torch.Tensor, wiener: torch.Tensor | None,
-             sharp: Objective | None = None):
+             sharp: Objective | None = None, base: torch.Tensor | None = None):
     """Objective dB (−10 log10 of the mean squared error over depths) on the
     validation photographs: the network, the teacher (the optimum), and the
     Wiener prefilter where given."""
     net.eval()
-    display = torch.cat([net.forward_padded(images[i:i + 1]).clamp(0, 1) for i in range(len(images))])
+    display = torch.cat([net.forward_padded(images[i:i + 1]) for i in range(len(images))])
+    if base is not None:
+        display = base + (display - images)
+    display = display.clamp(0, 1)
     net.train()
     out = {}
     for name, d in [("dcnn", display), ("optimal", teacher), ("wiener", wiener)]:
@@ -268,7 +284,13 @@ def train(cfg: DistillConfig, out: Path, resume: bool = False, stop_after: int |
     names = photo_names(images_root / "train")
     photos = load_photos(images_root / "train")
     teachers = load_teacher(teacher_root / "train", names)
-    data = Patches(photos, [teachers[n] for n in names], cfg.patch, cfg.seed)
+    if cfg.base not in ("input", "wiener"):
+        raise ValueError(f"base {cfg.base!r}: choose input or wiener")
+    bases = None
+    if cfg.base == "wiener":
+        wiener_train = load_teacher(teacher_root / "train-wiener", names)
+        bases = [wiener_train[n] for n in names]
+    data = Patches(photos, [teachers[n] for n in names], cfg.patch, cfg.seed, bases)
     val_names = photo_names(images_root / "val")
     val_images = torch.from_numpy(np.stack(load_photos(images_root / "val"))).permute(0, 3, 1, 2).contiguous()
     val_teacher = torch.stack([t for t in load_teacher(teacher_root / "val", val_names).values()])
@@ -284,8 +306,16 @@ def train(cfg: DistillConfig, out: Path, resume: bool = False, stop_after: int |
     wiener_dir = teacher_root / "val-wiener"
     val_wiener = (torch.stack(list(load_teacher(wiener_dir, val_names).values()))
                   if (wiener_dir / "displays.safetensors").is_file() else None)
+    if cfg.base == "wiener" and val_wiener is None:
+        raise FileNotFoundError(f"{wiener_dir}: --base wiener needs the Wiener's validation images "
+                                "(nedrt prefilter --prefilter native)")
 
     net = UNet(cfg.width, cfg.levels)
+    if cfg.base == "wiener":
+        # Start exactly at the Wiener prefilter: the residual is zero.
+        with torch.no_grad():
+            net.out.weight.zero_()
+            net.out.bias.zero_()
     if cfg.init:
         init = Path(cfg.init)
         init = init / "checkpoint.pt" if init.is_dir() else init
@@ -328,14 +358,15 @@ def train(cfg: DistillConfig, out: Path, resume: bool = False, stop_after: int |
     for step in bar:
         for g in opt.param_groups:
             g["lr"] = lr_at(cfg, step)
-        image, teacher = data.batch(cfg.batch)
-        loss, terms = losses(net, objective, image, teacher, cfg, sharp)
+        image, teacher, base = data.batch(cfg.batch)
+        loss, terms = losses(net, objective, image, teacher, cfg, sharp, base)
         opt.zero_grad()
         loss.backward()
         opt.step()
         val = {}
         if (step + 1) % cfg.validate_every == 0 or step + 1 == cfg.steps:
-            val = validate(net, val_objective, val_images, val_teacher, val_wiener, val_sharp)
+            val = validate(net, val_objective, val_images, val_teacher, val_wiener, val_sharp,
+                           val_wiener if cfg.base == "wiener" else None)
             history.append({"step": step + 1, **val})
             bar.write(json.dumps(history[-1]))
         elapsed = seconds_before + time.time() - start

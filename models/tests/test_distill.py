@@ -54,6 +54,9 @@ def write_teacher(root: Path):
             Image.fromarray(pixels).save(images / part / f"p{i}.png")
             displays[f"p{i}"] = torch.from_numpy(pixels / 255.0).permute(2, 0, 1).float().contiguous()
         save_file(displays, str(folder / "displays.safetensors"))
+        wiener = root / "teacher" / f"{part}-wiener"
+        wiener.mkdir(parents=True)
+        save_file({k: (v * 0.9 + 0.05).contiguous() for k, v in displays.items()}, str(wiener / "displays.safetensors"))
     meta = {"format": "nedrt objective kernels 1", "depths_d": json.dumps([0.0, 1.0])}
     for size in (PATCH, VAL):
         meta.update(width=str(size), height=str(size))
@@ -114,3 +117,14 @@ def test_export_writes_the_model_its_doe_and_a_card(tmp_path):
     import onnx
     model = onnx.load(str(tmp_path / "out" / "tiny.onnx"))
     assert [i.name for i in model.graph.input] == ["image"]
+
+
+def test_the_wiener_base_starts_at_the_wiener(tmp_path):
+    """--base wiener: the residual's last layer starts at zero, so before
+    it learns anything the network's display image is the Wiener's."""
+    images, teacher = write_teacher(tmp_path)
+    result = distill.train(config(images, teacher, 1, base="wiener", lr=1e-12), tmp_path / "run")
+    v = result["validation"][-1]
+    assert v["dcnn_db"] == pytest.approx(v["wiener_db"], abs=1e-6)
+    with pytest.raises(ValueError, match="choose input or wiener"):
+        distill.train(config(images, teacher, 1, base="teacher"), tmp_path / "bad")
