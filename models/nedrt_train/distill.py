@@ -333,7 +333,9 @@ def train(cfg: DistillConfig, out: Path, resume: bool = False, stop_after: int |
     if resume and checkpoint.exists():
         state = torch.load(checkpoint, map_location="cpu", weights_only=False)
         saved = DistillConfig(**state["config"])
-        if dataclasses.replace(saved, threads=cfg.threads) != cfg:
+        # Where the data lie may change between machines; what is trained may not.
+        movable = {"threads": cfg.threads, "teacher": cfg.teacher, "images": cfg.images, "init": cfg.init}
+        if dataclasses.replace(saved, **movable) != cfg:
             raise SystemExit(f"error: {checkpoint} was made with another configuration: {saved}")
         net.load_state_dict(state["net"])
         opt.load_state_dict(state["optimizer"])
