@@ -60,6 +60,22 @@ fn panel_codes(
 
 const ODD: (usize, usize) = (61, 45);
 
+impl SimAndService {
+    /// The service showed the simulator's display frame, and it is not the
+    /// input's: the prefilter ran in both.
+    fn assert_same_changed_frame(&self) {
+        assert_eq!(self.sim_codes, self.recorded, "sim and service differ");
+        let source = nedrt_core::image_io::load(&self.input)
+            .expect("input")
+            .image;
+        assert_ne!(
+            self.codes(&source),
+            self.recorded,
+            "the prefilter changed the frame"
+        );
+    }
+}
+
 fn sim_and_service(method: &str) -> SimAndService {
     sim_and_service_with(method, &[])
 }
@@ -161,28 +177,14 @@ fn sim_and_service_show_the_same_display_frame_for_an_odd_sized_frame() {
 /// unprocessed frame.
 #[test]
 fn the_service_runs_the_wiener_prefilter_the_simulator_renders() {
-    let s = sim_and_service("ai");
-    assert_eq!(s.sim_codes, s.recorded, "sim and service differ");
-    let source = nedrt_core::image_io::load(&s.input).expect("input").image;
-    assert_ne!(
-        s.codes(&source),
-        s.recorded,
-        "the prefilter changed the frame"
-    );
+    sim_and_service("ai").assert_same_changed_frame();
 }
 
 /// `nedrt run --prefilter` puts on the panel the display image `nedrt sim
 /// --prefilter` renders, code for code.
 #[test]
 fn the_service_runs_the_least_squares_prefilter_the_simulator_renders() {
-    let s = sim_and_service_with("doe-only", &["--prefilter", "refine:2"]);
-    assert_eq!(s.sim_codes, s.recorded, "sim and service differ");
-    let source = nedrt_core::image_io::load(&s.input).expect("input").image;
-    assert_ne!(
-        s.codes(&source),
-        s.recorded,
-        "the prefilter changed the frame"
-    );
+    sim_and_service_with("doe-only", &["--prefilter", "refine:2"]).assert_same_changed_frame();
 }
 
 /// `--method proposed` on `backend` gives the same scores as on the CPU.

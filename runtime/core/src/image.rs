@@ -109,20 +109,11 @@ impl Image {
     /// up2: each pixel becomes a 2×2 block (the square pixel aperture on the retinal grid).
     pub fn up2(&self) -> Self {
         let (w, h) = (self.width, self.height);
-        let mut out = Self::zeros(2 * w, 2 * h, self.channels);
-        for c in 0..self.channels {
-            let p = self.plane(c);
-            let o = out.plane_mut(c);
-            for y in 0..2 * h {
-                let src = &p[(y / 2) * w..(y / 2 + 1) * w];
-                let dst = &mut o[y * 2 * w..(y + 1) * 2 * w];
-                for (x, v) in src.iter().enumerate() {
-                    dst[2 * x] = *v;
-                    dst[2 * x + 1] = *v;
-                }
-            }
-        }
-        out
+        Self::from_planes(
+            2 * w,
+            2 * h,
+            self.planes().map(|p| up2_plane(p, w, h)).collect(),
+        )
     }
 
     /// Symmetric (half-sample, edge repeated) extension to `width`×`height`,
@@ -205,6 +196,20 @@ pub fn symmetric_index(i: isize, n: usize) -> usize {
     } else {
         (period - 1 - k) as usize
     }
+}
+
+/// up2 of one `w`×`h` plane (see [`Image::up2`]).
+pub fn up2_plane(p: &[f32], w: usize, h: usize) -> Vec<f32> {
+    let mut out = vec![0.0f32; 4 * w * h];
+    for y in 0..2 * h {
+        let src = &p[(y / 2) * w..(y / 2 + 1) * w];
+        let dst = &mut out[y * 2 * w..(y + 1) * 2 * w];
+        for (x, v) in src.iter().enumerate() {
+            dst[2 * x] = *v;
+            dst[2 * x + 1] = *v;
+        }
+    }
+    out
 }
 
 /// Symmetric extension of one plane (see [`Image::extend_symmetric`]).

@@ -250,7 +250,7 @@ pub fn run(
     } else {
         methods.to_vec()
     };
-    let dcnns = common.dcnn.load_for(&methods)?;
+    let mut dcnns = common.dcnn.load_for(&methods)?;
     let dcnn_lines = crate::preprocess::dcnn_lines(&dcnns, &methods);
     let sim = Simulator::new(
         common.calibration()?,
@@ -286,7 +286,6 @@ pub fn run(
         .iter()
         .map(|s| s.prepare(&[Method::DoeWiener], &prepared_depths, common.progress()))
         .collect::<Result<Vec<_>, _>>()?;
-    let mut dcnns = dcnns;
     let doe_hash = |optics: Optics| (optics == Optics::Doe).then(|| sim.doe_hash.clone());
     let mut row_specs: Vec<Row> = Vec::with_capacity(rows);
     for &m in &methods {

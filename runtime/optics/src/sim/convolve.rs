@@ -123,6 +123,61 @@ fn transpose<T: Copy + Send + Sync + Default>(data: &[T], rows: usize, cols: usi
     out
 }
 
+/// Work prepared per frame size (plans, gain spectra), kept for the
+/// `kept` sizes used last, the most recent at the end: frames after the
+/// first of a size pay no planning.
+pub(crate) struct SizeCache<T> {
+    kept: usize,
+    items: std::sync::Mutex<Vec<Sized<T>>>,
+}
+
+/// A value and the (width, height) it was made for.
+type Sized<T> = ((usize, usize), Arc<T>);
+
+impl<T> SizeCache<T> {
+    pub(crate) fn new(kept: usize) -> Self {
+        Self {
+            kept,
+            items: std::sync::Mutex::new(Vec::new()),
+        }
+    }
+
+    /// The value for `width`×`height`, made by `make` if it is not kept.
+    pub(crate) fn get_or_make(
+        &self,
+        width: usize,
+        height: usize,
+        make: impl FnOnce() -> T,
+    ) -> Arc<T> {
+        // A poisoned lock only means another thread panicked mid-push; the
+        // list of finished values is still valid.
+        let mut items = self.items.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(i) = items.iter().position(|(size, _)| *size == (width, height)) {
+            let item = items.remove(i);
+            let value = item.1.clone();
+            items.push(item);
+            return value;
+        }
+        let value = Arc::new(make());
+        if items.len() == self.kept {
+            items.remove(0);
+        }
+        items.push(((width, height), value.clone()));
+        value
+    }
+
+    /// How many sizes are kept now.
+    pub(crate) fn len(&self) -> usize {
+        self.items.lock().unwrap_or_else(|e| e.into_inner()).len()
+    }
+}
+
+impl<T> std::fmt::Debug for SizeCache<T> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "SizeCache({} of {} sizes)", self.len(), self.kept)
+    }
+}
+
 /// A kernel prepared for frames of one size: the padded FFT size and its spectrum.
 #[derive(Debug)]
 pub struct PreparedKernel {

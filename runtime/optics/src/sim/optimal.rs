@@ -23,16 +23,16 @@
 //!   (K_D the display-grid transfer of h_D, T_D the target's), clamped;
 //! - `refine:k`: the `lsq` output improved by k projected-gradient steps.
 
-use std::sync::{Arc, Mutex};
+use std::sync::Arc;
 
 use num_complex::Complex32 as c32;
 use rayon::prelude::*;
 
-use super::convolve::Fft2;
-use super::wiener::{WienerPlan, display_kernel};
+use super::convolve::{Fft2, SizeCache};
+use super::wiener::{WienerPlan, display_kernel, first_quadrant};
 use crate::Psf;
 use crate::sampling::smooth_size_at_least;
-use nedrt_core::image::{Image, extend_plane, symmetric_index};
+use nedrt_core::image::{Image, extend_plane, symmetric_index, up2_plane};
 use nedrt_core::preprocess::{Preprocess, PreprocessError, check_frame};
 
 /// What the perceived images are compared with.
@@ -117,7 +117,7 @@ pub struct DisplayProblem {
     blur: Option<Vec<Psf>>,
     /// K of the linear prefilter (the starting point).
     pub k_reg: f64,
-    plans: Mutex<Vec<Arc<ProblemPlan>>>,
+    plans: SizeCache<ProblemPlan>,
 }
 
 /// Frame sizes whose plans a problem keeps (a 1080p plan holds the PSF
@@ -154,7 +154,7 @@ impl DisplayProblem {
             blurred,
             blur,
             k_reg,
-            plans: Mutex::new(Vec::new()),
+            plans: SizeCache::new(PLANS_KEPT),
         })
     }
 
@@ -164,21 +164,8 @@ impl DisplayProblem {
 
     /// The plan for `width`×`height` frames (kept for the sizes used last).
     pub fn plan(&self, width: usize, height: usize) -> Arc<ProblemPlan> {
-        let mut plans = self.plans.lock().unwrap_or_else(|e| e.into_inner());
-        if let Some(i) = plans
-            .iter()
-            .position(|p| (p.width, p.height) == (width, height))
-        {
-            let plan = plans.remove(i);
-            plans.push(plan.clone());
-            return plan;
-        }
-        let plan = Arc::new(ProblemPlan::new(self, width, height));
-        if plans.len() == PLANS_KEPT {
-            plans.remove(0);
-        }
-        plans.push(plan.clone());
-        plan
+        self.plans
+            .get_or_make(width, height, || ProblemPlan::new(self, width, height))
     }
 
     /// The targets t_D of `input`, [depth] (retinal grid), exactly as the
@@ -679,14 +666,6 @@ impl MirroredOperator {
     }
 }
 
-fn first_quadrant(full: &[f32], w: usize, h: usize) -> Vec<f32> {
-    let mut out = Vec::with_capacity(w * h);
-    for y in 0..h {
-        out.extend_from_slice(&full[y * 2 * w..y * 2 * w + w]);
-    }
-    out
-}
-
 impl CroppedOperator {
     fn new(problem: &DisplayProblem, width: usize, height: usize) -> Self {
         let half = problem
@@ -855,19 +834,6 @@ fn converged(history: &[f64], options: &SolveOptions) -> bool {
         return true;
     }
     10.0 * (before / now).log10() < options.tolerance_db
-}
-
-fn up2_plane(p: &[f32], w: usize, h: usize) -> Vec<f32> {
-    let mut out = vec![0.0f32; 4 * w * h];
-    for y in 0..2 * h {
-        let src = &p[(y / 2) * w..(y / 2 + 1) * w];
-        let dst = &mut out[y * 2 * w..(y + 1) * 2 * w];
-        for (x, v) in src.iter().enumerate() {
-            dst[2 * x] = *v;
-            dst[2 * x + 1] = *v;
-        }
-    }
-    out
 }
 
 /// The display-grid least-squares gains G = Σ_D K_D* T_D / (Σ_D |K_D|² + N_D K)

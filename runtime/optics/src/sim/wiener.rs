@@ -4,13 +4,13 @@
 //! and taken to the display grid by the exact 2×2 relation
 //! down2(up2(x) ∗ h) = x ∗ k.
 
-use std::sync::{Arc, Mutex};
+use std::sync::Arc;
 
 use num_complex::Complex32 as c32;
 
 use rayon::prelude::*;
 
-use super::convolve::Fft2;
+use super::convolve::{Fft2, SizeCache};
 use crate::Psf;
 use nedrt_core::image::{Image, extend_plane};
 use nedrt_core::preprocess::{Preprocess, PreprocessError, check_frame};
@@ -47,6 +47,15 @@ pub fn display_kernel(psf: &Psf) -> (Vec<f64>, usize) {
     (k, side)
 }
 
+/// The w×h first quadrant of a mirrored 2w×2h plane: the frame.
+pub(crate) fn first_quadrant(full: &[f32], w: usize, h: usize) -> Vec<f32> {
+    let mut out = Vec::with_capacity(w * h);
+    for y in 0..h {
+        out.extend_from_slice(&full[y * 2 * w..y * 2 * w + w]);
+    }
+    out
+}
+
 /// A Wiener prefilter for one display system: one display-grid kernel per channel.
 #[derive(Debug)]
 pub struct WienerFilter {
@@ -55,7 +64,7 @@ pub struct WienerFilter {
     /// Plans of the frame sizes seen last, newest at the end: the gain
     /// spectra depend only on the size, so frames after the first pay for
     /// two transforms per channel instead of three and no planning.
-    plans: Mutex<Vec<Arc<WienerPlan>>>,
+    plans: SizeCache<WienerPlan>,
 }
 
 /// Frame sizes whose plans a filter keeps (a 1080p plan holds 100 MB of
@@ -123,12 +132,7 @@ impl WienerPlan {
                 let extended = extend_plane(plane, w, h, 0, 0, 2 * w, 2 * h);
                 let mut spec = self.fft.forward(&extended);
                 spec.par_iter_mut().zip(gain).for_each(|(s, g)| *s *= g);
-                let full = self.fft.inverse(spec);
-                let mut out = Vec::with_capacity(w * h);
-                for y in 0..h {
-                    out.extend_from_slice(&full[y * 2 * w..y * 2 * w + w]);
-                }
-                out
+                first_quadrant(&self.fft.inverse(spec), w, h)
             })
             .collect();
         Image::from_planes(w, h, planes)
@@ -149,7 +153,7 @@ impl WienerFilter {
         Self {
             k_reg,
             kernels,
-            plans: Mutex::new(Vec::new()),
+            plans: SizeCache::new(PLANS_KEPT),
         }
     }
 
@@ -177,30 +181,16 @@ impl WienerFilter {
         Self {
             k_reg,
             kernels: self.kernels.clone(),
-            plans: Mutex::new(Vec::new()),
+            plans: SizeCache::new(PLANS_KEPT),
         }
     }
 
     /// The plan for `width`×`height` frames, made once per size and kept
     /// for the [`PLANS_KEPT`] sizes used last.
     pub fn plan(&self, width: usize, height: usize) -> Arc<WienerPlan> {
-        // A poisoned lock only means another thread panicked mid-push; the
-        // list of finished plans is still valid.
-        let mut plans = self.plans.lock().unwrap_or_else(|e| e.into_inner());
-        if let Some(i) = plans
-            .iter()
-            .position(|p| (p.width, p.height) == (width, height))
-        {
-            let plan = plans.remove(i);
-            plans.push(plan.clone());
-            return plan;
-        }
-        let plan = Arc::new(WienerPlan::new(&self.kernels, self.k_reg, width, height));
-        if plans.len() == PLANS_KEPT {
-            plans.remove(0);
-        }
-        plans.push(plan.clone());
-        plan
+        self.plans.get_or_make(width, height, || {
+            WienerPlan::new(&self.kernels, self.k_reg, width, height)
+        })
     }
 
     /// Prefilters a frame and clamps it to the panel's [0, 1].
@@ -446,7 +436,7 @@ mod tests {
         for s in 1..=PLANS_KEPT {
             f.apply_unclamped(&frame(12 + s, 10));
         }
-        assert_eq!(f.plans.lock().unwrap().len(), PLANS_KEPT);
+        assert_eq!(f.plans.len(), PLANS_KEPT);
         assert!(!Arc::ptr_eq(&plan, &f.plan(12, 10)));
         // Same size, same plan, without replanning.
         assert!(Arc::ptr_eq(&f.plan(12, 10), &f.plan(12, 10)));
