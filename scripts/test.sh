@@ -9,6 +9,9 @@ cd "$(dirname "$0")/.."
 if [ ! -x .venv/bin/python ]; then
     python3 -m venv .venv
 fi
+# No wheel cache: PyPI's torch pulls ~4 GB of CUDA wheels that would otherwise
+# stay cached next to the ~5.7 GB they install, and CI's disk is limited.
+export PIP_NO_CACHE_DIR=1
 .venv/bin/python -m pip install --quiet --disable-pip-version-check \
     -r tests/python/requirements.txt -r models/requirements.txt "setuptools>=70.1"
 # The trainer as a package (models/pyproject.toml, the `nedrt-train` command),
