@@ -4,6 +4,7 @@
     nedrt-train design --target allsharp --out models/runs/d     # python -m nedrt_train.design
     nedrt-train export --run models/runs/half --name half         # python -m nedrt_train.export
     nedrt-train dcnn --teacher out/teacher --out models/runs/dcnn # python -m nedrt_train.distill
+    nedrt-train ceiling --teacher out/teacher                     # python -m nedrt_train.ceiling
 
 Each subcommand takes exactly the arguments of its module (`nedrt-train
 train --help`); `python -m nedrt_train.X` and `python -m nedrt_train X` run
@@ -19,6 +20,7 @@ COMMANDS = {
     "design": ("nedrt_train.design", "the DOE stage: a radial DOE for a Wiener prefilter"),
     "export": ("nedrt_train.export", "a training run as ONNX, DOE files and a model card"),
     "dcnn": ("nedrt_train.distill", "the D-CNN for a frozen DOE, on nedrt's exact objective and optimum"),
+    "ceiling": ("nedrt_train.ceiling", "the per-frame optimum of the evaluation's mean PSNR: what no preprocessor beats"),
 }
 
 

@@ -72,6 +72,18 @@ class DistillConfig:
     # DIR/train-wiener and DIR/val-wiener; display = W(I) + UNet(I) − I,
     # the last layer started at zero so that training starts at the Wiener).
     base: str = "input"
+    # The network's input: the photograph ("image") or the design's Wiener
+    # output before the clamp ("wiener-raw", DIR/train-wiener-raw and
+    # DIR/val-wiener-raw from nedrt prefilter --prefilter native --unclamped;
+    # display = x + UNet(x) for x = W(I), the last layer started at zero,
+    # so that training starts at the clamped Wiener and the network sees
+    # where and by how much the clamp cuts).
+    input: str = "image"
+    # Gradient of the panel's clamp: "zero" outside [0, 1] (the clamp's
+    # own) or "straight" (straight-through: the loss at the clamped image,
+    # passed to the raw output as if unclamped, so that a value the clamp
+    # cuts still learns which way it should move).
+    clamp_grad: str = "zero"
 
 
 class Objective:
@@ -196,16 +208,27 @@ class Patches:
         return tuple(torch.stack(o).contiguous() if o else None for o in out)
 
 
-def forward(net, image, base=None):
-    """The raw display image: I + UNet(I), or base + UNet(I) − I."""
+def forward(net, image, base=None, cfg=None):
+    """The raw display image: I + UNet(I), base + UNet(I) − I (`--base
+    wiener`), or x + UNet(x) of the raw Wiener x = base (`--input wiener-raw`)."""
+    if cfg is not None and cfg.input == "wiener-raw":
+        return net(base)
     out = net(image)
     return out if base is None else base + (out - image)
 
 
+def clamp(raw, cfg=None):
+    """The panel's clamp, with the gradient `--clamp-grad` asks for."""
+    display = raw.clamp(0, 1)
+    if cfg is not None and cfg.clamp_grad == "straight":
+        return raw + (display - raw).detach()
+    return display
+
+
 def losses(net, objective: Objective, image, teacher, cfg: DistillConfig, sharp: Objective | None = None,
            base=None):
-    raw = forward(net, image, base)
-    display = raw.clamp(0, 1)
+    raw = forward(net, image, base, cfg)
+    display = clamp(raw, cfg)
     distill = F.mse_loss(display, teacher)
     excursion = (F.relu(raw - 1) ** 2 + F.relu(-raw) ** 2).mean()
     if cfg.loss == "psnr":
@@ -225,12 +248,14 @@ def losses(net, objective: Objective, image, teacher, cfg: DistillConfig, sharp:
 
 @torch.no_grad()
 def validate(net, objective: Objective, images: torch.Tensor, teacher: torch.Tensor, wiener: torch.Tensor | None,
-             sharp: Objective | None = None, base: torch.Tensor | None = None):
+             sharp: Objective | None = None, base: torch.Tensor | None = None, net_input: torch.Tensor | None = None):
     """Objective dB (−10 log10 of the mean squared error over depths) on the
     validation photographs: the network, the teacher (the optimum), and the
-    Wiener prefilter where given."""
+    Wiener prefilter where given. The network sees `net_input` where given
+    (the raw Wiener), else the photographs."""
     net.eval()
-    display = torch.cat([net.forward_padded(images[i:i + 1]) for i in range(len(images))])
+    x = images if net_input is None else net_input
+    display = torch.cat([net.forward_padded(x[i:i + 1]) for i in range(len(x))])
     if base is not None:
         display = base + (display - images)
     display = display.clamp(0, 1)
@@ -286,9 +311,16 @@ def train(cfg: DistillConfig, out: Path, resume: bool = False, stop_after: int |
     teachers = load_teacher(teacher_root / "train", names)
     if cfg.base not in ("input", "wiener"):
         raise ValueError(f"base {cfg.base!r}: choose input or wiener")
+    if cfg.input not in ("image", "wiener-raw"):
+        raise ValueError(f"input {cfg.input!r}: choose image or wiener-raw")
+    if cfg.input == "wiener-raw" and cfg.base != "input":
+        raise ValueError("--input wiener-raw is its own residual base: leave --base at input")
+    if cfg.clamp_grad not in ("zero", "straight"):
+        raise ValueError(f"clamp-grad {cfg.clamp_grad!r}: choose zero or straight")
     bases = None
-    if cfg.base == "wiener":
-        wiener_train = load_teacher(teacher_root / "train-wiener", names)
+    if cfg.base == "wiener" or cfg.input == "wiener-raw":
+        folder = "train-wiener" if cfg.base == "wiener" else "train-wiener-raw"
+        wiener_train = load_teacher(teacher_root / folder, names)
         bases = [wiener_train[n] for n in names]
     data = Patches(photos, [teachers[n] for n in names], cfg.patch, cfg.seed, bases)
     val_names = photo_names(images_root / "val")
@@ -309,9 +341,11 @@ def train(cfg: DistillConfig, out: Path, resume: bool = False, stop_after: int |
     if cfg.base == "wiener" and val_wiener is None:
         raise FileNotFoundError(f"{wiener_dir}: --base wiener needs the Wiener's validation images "
                                 "(nedrt prefilter --prefilter native)")
+    val_input = (torch.stack(list(load_teacher(teacher_root / "val-wiener-raw", val_names).values()))
+                 if cfg.input == "wiener-raw" else None)
 
     net = UNet(cfg.width, cfg.levels)
-    if cfg.base == "wiener":
+    if cfg.base == "wiener" or cfg.input == "wiener-raw":
         # Start exactly at the Wiener prefilter: the residual is zero.
         with torch.no_grad():
             net.out.weight.zero_()
@@ -368,7 +402,7 @@ def train(cfg: DistillConfig, out: Path, resume: bool = False, stop_after: int |
         val = {}
         if (step + 1) % cfg.validate_every == 0 or step + 1 == cfg.steps:
             val = validate(net, val_objective, val_images, val_teacher, val_wiener, val_sharp,
-                           val_wiener if cfg.base == "wiener" else None)
+                           val_wiener if cfg.base == "wiener" else None, val_input)
             history.append({"step": step + 1, **val})
             bar.write(json.dumps(history[-1]))
         elapsed = seconds_before + time.time() - start

@@ -128,3 +128,32 @@ def test_the_wiener_base_starts_at_the_wiener(tmp_path):
     assert v["dcnn_db"] == pytest.approx(v["wiener_db"], abs=1e-6)
     with pytest.raises(ValueError, match="choose input or wiener"):
         distill.train(config(images, teacher, 1, base="teacher"), tmp_path / "bad")
+
+
+def test_the_raw_wiener_input_starts_at_the_clamped_wiener_and_learns_through_the_clamp(tmp_path):
+    """--input wiener-raw: the network sees the Wiener before the clamp and
+    starts exactly at the clamped Wiener; with --clamp-grad straight a value
+    the clamp cuts still gets a gradient, with the clamp's own it gets none."""
+    from safetensors.torch import load_file, save_file
+    images, teacher = write_teacher(tmp_path)
+    for part in ("train", "val"):
+        clamped = load_file(str(teacher / f"{part}-wiener" / "displays.safetensors"))
+        raw = {k: (v * 1.6 - 0.3).contiguous() for k, v in clamped.items()}
+        (teacher / f"{part}-wiener-raw").mkdir()
+        save_file(raw, str(teacher / f"{part}-wiener-raw" / "displays.safetensors"))
+        save_file({k: v.clamp(0, 1).contiguous() for k, v in raw.items()},
+                  str(teacher / f"{part}-wiener" / "displays.safetensors"))
+    result = distill.train(config(images, teacher, 1, input="wiener-raw", lr=1e-12), tmp_path / "run")
+    v = result["validation"][-1]
+    assert v["dcnn_db"] == pytest.approx(v["wiener_db"], abs=1e-6)
+    raw = torch.tensor([-0.5, 0.5, 1.5], requires_grad=True)
+    for mode, expected in (("zero", [0.0, 1.0, 0.0]), ("straight", [1.0, 1.0, 1.0])):
+        raw.grad = None
+        cfg = config(images, teacher, 1, clamp_grad=mode)
+        distill.clamp(raw, cfg).sum().backward()
+        assert raw.grad.tolist() == expected
+        assert distill.clamp(raw, cfg).tolist() == [0.0, 0.5, 1.0]
+    with pytest.raises(ValueError, match="its own residual base"):
+        distill.train(config(images, teacher, 1, input="wiener-raw", base="wiener"), tmp_path / "bad")
+    with pytest.raises(ValueError, match="choose zero or straight"):
+        distill.train(config(images, teacher, 1, clamp_grad="soft"), tmp_path / "bad2")

@@ -537,6 +537,18 @@ const ROWS: &[Row] = &[
         "needs --prefilter lsq, refine:K or optimal",
     ),
     row(
+        "prefilter command: unclamped output of a prefilter without a clamp to undo",
+        &[
+            "prefilter",
+            "--images",
+            "{dir}",
+            "--out-dir",
+            "{out}",
+            "--unclamped",
+        ],
+        "--unclamped writes a Wiener prefilter's output before the clamp",
+    ),
+    row(
         "prefilter command: kernel size 0",
         &[
             "prefilter",

@@ -179,3 +179,56 @@ fn the_prefilter_command_writes_displays_kernels_and_a_manifest() {
     ]);
     assert_clean_error(&o, "needs --prefilter lsq, refine:K or optimal");
 }
+
+/// `--unclamped` writes the Wiener's output before the panel's clamp:
+/// clamped, it is the native prefilter's display image, and the clamp has
+/// something to cut.
+#[test]
+fn the_prefilter_command_writes_the_wiener_before_its_clamp() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let imgs = dir.path().join("imgs");
+    std::fs::create_dir(&imgs).expect("dir");
+    // A checkerboard: the prefilter's overshoot at every edge leaves [0, 1].
+    image::RgbImage::from_fn(24, 16, |x, y| {
+        image::Rgb([((x / 2 + y / 2) % 2 * 255) as u8; 3])
+    })
+    .save(imgs.join("a.png"))
+    .expect("write png");
+    let calib = small_calib();
+    let displays = |name: &str, extra: &[&str]| {
+        let out = dir.path().join(name);
+        let mut args = vec![
+            "--calib",
+            path(&calib),
+            "prefilter",
+            "--images",
+            path(&imgs),
+            "--out-dir",
+            path(&out),
+            "--method",
+            "ai",
+            "--prefilter",
+            "native",
+        ];
+        args.extend_from_slice(extra);
+        let o = run(&args);
+        assert!(o.status.success(), "{}", stderr(&o));
+        let bytes = std::fs::read(out.join("displays.safetensors")).expect("read");
+        let t = safetensors::SafeTensors::deserialize(&bytes).expect("safetensors");
+        let v = t.tensor("a").expect("a");
+        v.data()
+            .chunks_exact(4)
+            .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+            .collect::<Vec<f32>>()
+    };
+    let clamped = displays("clamped", &[]);
+    let raw = displays("raw", &["--unclamped"]);
+    assert_eq!(raw.len(), clamped.len());
+    assert!(
+        raw.iter().any(|v| !(0.0..=1.0).contains(v)),
+        "nothing to clamp"
+    );
+    for (r, c) in raw.iter().zip(&clamped) {
+        assert_eq!(r.clamp(0.0, 1.0), *c);
+    }
+}

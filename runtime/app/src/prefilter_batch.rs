@@ -28,6 +28,8 @@ pub struct PrefilterOptions {
     pub prefilter: Prefilter,
     /// Also write the objective's kernels for patches of these sizes.
     pub operator_sizes: Vec<(usize, usize)>,
+    /// The native Wiener prefilter's output before the panel's clamp.
+    pub unclamped: bool,
 }
 
 /// The objective of a prefilter (the default one for `native`).
@@ -45,6 +47,13 @@ pub fn run(common: &CommonOptions, o: &PrefilterOptions) -> Result<String, AppEr
             "nedrt prefilter makes display images without a network; {} needs --prefilter lsq, \
              refine:K or optimal",
             o.method
+        )));
+    }
+    if o.unclamped && !(o.prefilter.is_native() && o.method.uses_wiener()) {
+        return Err(AppError::Usage(format!(
+            "--unclamped writes a Wiener prefilter's output before the clamp; {} {} has none \
+             (use a Wiener method with --prefilter native)",
+            o.method, o.prefilter
         )));
     }
     let files = list_images(&o.images)?;
@@ -82,12 +91,26 @@ pub fn run(common: &CommonOptions, o: &PrefilterOptions) -> Result<String, AppEr
         operators.push(path);
     }
     let mut engine = for_system(o.method, o.prefilter, &prepared, &mut Default::default())?;
+    let wiener = if o.unclamped {
+        let filter = prepared.wiener(o.method).ok_or_else(|| {
+            AppError::Usage(format!(
+                "the Wiener filter of {} was not prepared",
+                o.method
+            ))
+        })?;
+        Some(filter)
+    } else {
+        None
+    };
     let bar = common.phase("display images");
     bar.set_length(images.len() as u64);
     let mut written = Vec::new();
     let mut tensors: Vec<(String, Vec<u8>, Vec<usize>)> = Vec::new();
     for (file, input) in files.iter().zip(&images) {
-        let display = engine.run(input)?;
+        let display = match wiener {
+            Some(filter) => filter.apply_unclamped(input),
+            None => engine.run(input)?,
+        };
         let stem = file
             .file_stem()
             .unwrap_or_default()
@@ -125,6 +148,7 @@ pub fn run(common: &CommonOptions, o: &PrefilterOptions) -> Result<String, AppEr
         "method": o.method.name(),
         "prefilter": o.prefilter.to_string(),
         "engine": engine.describe(),
+        "unclamped": o.unclamped,
         "calibration": sim.calib.source,
         "doe": sim.doe_hash,
         "images": files.iter().map(|f| f.display().to_string()).collect::<Vec<_>>(),
@@ -138,9 +162,10 @@ pub fn run(common: &CommonOptions, o: &PrefilterOptions) -> Result<String, AppEr
     let mut t = String::new();
     let _ = writeln!(
         t,
-        "nedrt prefilter: {} {} ({}), {} images → {}",
+        "nedrt prefilter: {} {}{} ({}), {} images → {}",
         o.method,
         o.prefilter,
+        if o.unclamped { " unclamped" } else { "" },
         engine.describe(),
         written.len(),
         o.out_dir.display()

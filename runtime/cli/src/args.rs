@@ -396,6 +396,11 @@ pub struct PrefilterArgs {
     /// (operator-WxH.safetensors; repeat or comma-separate for more sizes).
     #[arg(long, value_delimiter = ',', value_parser = parse_size, value_name = "WxH")]
     pub operator: Vec<(usize, usize)>,
+    /// Write the display images before the panel's clamp (the native
+    /// Wiener prefilter only): the input of a D-CNN that corrects the
+    /// Wiener's clamp (docs/training.md).
+    #[arg(long)]
+    pub unclamped: bool,
 }
 
 #[derive(Args, Debug)]

@@ -268,6 +268,7 @@ pub fn run(cli: Cli) -> Result<()> {
                 method: a.method,
                 prefilter: a.prefilter,
                 operator_sizes: a.operator,
+                unclamped: a.unclamped,
             };
             println!("{}", app::prefilter_batch::run(&common, &opts)?);
         }

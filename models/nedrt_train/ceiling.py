@@ -1,0 +1,193 @@
+"""The ceiling of the evaluation's own headline (issue 16, docs/training.md):
+per validation photograph, the display image in [0, 1] that maximises the
+mean over the headline depths of the PSNR vs target, plus `w` times the
+mean PSNR vs sharp, solved with scipy's L-BFGS-B from nedrt's optimum.
+
+    nedrt-train ceiling --teacher out/teacher --sharp-weight 0,0.5,1 --out ceiling.json
+
+`nedrt`'s `optimal` prefilter minimises the summed squared error over the
+depths, a convex problem; the headline averages PSNRs, i.e. logarithms of
+the per-depth errors, which weighs the well-focused blurred depths far
+more. No preprocessor of any kind (a D-CNN included) can beat this per-frame
+optimum on the quantity it maximises, so its numbers bound what the
+acceptance of issue 16 can ask of a network.
+
+The per-depth errors are quadratic forms of the display image with nedrt's
+kernels (`nedrt prefilter --operator`), evaluated by Parseval on one FFT of
+the mirrored frame: one forward and one inverse FFT per evaluation however
+many depths and objectives.
+"""
+import argparse
+import json
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from .data import load_photos, resolve_root
+from .distill import Objective, load_teacher, photo_names
+
+
+class DepthErrors:
+    """Per-depth mean squared errors of one photograph's perceived images
+    against one objective's targets, as functions of the display image."""
+
+    def __init__(self, objective: Objective, image: torch.Tensor):
+        if objective.depth_spectra is None:
+            raise ValueError("these kernels have no per-depth terms (an older nedrt prefilter --operator)")
+        c, h, w = image.shape
+        self.frame = (c, h, w)
+        spectra = {k: v.to(torch.complex128) for k, v in objective.depth_spectra.items()}
+        i_hat = torch.fft.rfft2(Objective.mirror(image.double()))
+        # rfft keeps half the last axis: every bin but the first (and the
+        # Nyquist one) stands for itself and its conjugate.
+        # The mirrored frame is 2w wide: bins 0 and w (Nyquist) are their own.
+        weight = torch.full((w + 1,), 2.0, dtype=torch.float64)
+        weight[0] = weight[-1] = 1.0
+        self.n = 4 * h * w
+        self.weight = weight / self.n
+        self.normal = spectra["normal"].real * self.weight  # D × C × 2h × (w+1)
+        self.cross = (spectra["adjoint_target"] * i_hat).conj() * self.weight
+        self.constant = 0.5 * ((spectra["target_gram"] * i_hat.abs() ** 2).real * self.weight).sum(dim=(1, 2, 3))
+        self.scale = 0.5 / (c * self.n)
+
+    def __call__(self, display_hat: torch.Tensor) -> torch.Tensor:
+        """D: the errors, from the rfft of the mirrored display image."""
+        power = display_hat.real ** 2 + display_hat.imag ** 2
+        quadratic = 0.5 * (self.normal * power).sum(dim=(1, 2, 3))
+        linear = (self.cross * display_hat).real.sum(dim=(1, 2, 3))
+        return self.scale * (quadratic - linear + self.constant)
+
+
+def psnr(errors: torch.Tensor) -> torch.Tensor:
+    return -10 * torch.log10(errors.clamp_min(1e-30))
+
+
+def solve(image: torch.Tensor, start: torch.Tensor, target: DepthErrors, sharp: DepthErrors, sharp_weight: float,
+          iterations: int) -> tuple:
+    """The display image maximising mean PSNR vs target + w · mean PSNR vs
+    sharp over [0, 1], and (iterations used, final objective)."""
+    from scipy.optimize import minimize
+    shape = start.shape
+
+    def value_and_gradient(x):
+        d = torch.from_numpy(x).view(shape).requires_grad_(True)
+        d_hat = torch.fft.rfft2(Objective.mirror(d))
+        loss = -psnr(target(d_hat)).mean()
+        if sharp_weight:
+            loss = loss - sharp_weight * psnr(sharp(d_hat)).mean()
+        loss.backward()
+        return float(loss.detach()), d.grad.numpy().ravel().copy()
+
+    x0 = start.double().clamp(0, 1).numpy().ravel().copy()
+    result = minimize(value_and_gradient, x0, jac=True, method="L-BFGS-B", bounds=[(0.0, 1.0)] * x0.size,
+                      options={"maxiter": iterations, "maxcor": 10, "ftol": 1e-12, "gtol": 1e-10})
+    return torch.from_numpy(result.x).view(shape).float(), result.nit, float(result.fun)
+
+
+def summary(per_image: list) -> dict:
+    """Per-depth PSNR averaged over the photographs, then mean and worst
+    over the depths, as `nedrt eval` reports them."""
+    by_depth = torch.stack(per_image).mean(dim=0)
+    return {"per_depth_db": [round(float(v), 3) for v in by_depth],
+            "mean_db": round(float(by_depth.mean()), 3), "worst_db": round(float(by_depth.min()), 3)}
+
+
+def ceiling(teacher_root: Path, images_root: Path, sharp_weights: list, iterations: int,
+            limit: int | None = None) -> dict:
+    names = photo_names(images_root / "val")
+    photos = load_photos(images_root / "val")
+    if limit:
+        names, photos = names[:limit], photos[:limit]
+    images = [torch.from_numpy(p).permute(2, 0, 1).contiguous() for p in photos]
+    h, w = images[0].shape[-2:]
+    kernels = teacher_root / "train" / f"operator-{w}x{h}.safetensors"
+    sharp_kernels = teacher_root / "train-sharp" / f"operator-{w}x{h}.safetensors"
+    target_obj, sharp_obj = Objective.load(kernels), Objective.load(sharp_kernels)
+    starts = load_teacher(teacher_root / "val", names)
+    wiener = load_teacher(teacher_root / "val-wiener", names)
+    rows = {"wiener": ([], []), "optimal@target": ([], [])}
+    rows.update({f"ceiling w={s:g}": ([], []) for s in sharp_weights})
+    seconds = {k: 0.0 for k in rows}
+    iters = {k: [] for k in rows}
+    for name, image in zip(names, images):
+        if tuple(image.shape[-2:]) != (h, w):
+            raise ValueError(f"{name}: validation photographs of different sizes")
+        target, sharp = DepthErrors(target_obj, image), DepthErrors(sharp_obj, image)
+
+        def score(key, display):
+            d_hat = torch.fft.rfft2(Objective.mirror(display.double()))
+            rows[key][0].append(psnr(target(d_hat)))
+            rows[key][1].append(psnr(sharp(d_hat)))
+
+        score("wiener", wiener[name])
+        score("optimal@target", starts[name])
+        for s in sharp_weights:
+            key = f"ceiling w={s:g}"
+            t0 = time.perf_counter()
+            display, nit, _ = solve(image, starts[name], target, sharp, s, iterations)
+            seconds[key] += time.perf_counter() - t0
+            iters[key].append(nit)
+            score(key, display)
+    out = {"photographs": names, "size": [w, h], "iterations": iterations,
+           "depths_d": json.loads(target_obj.meta["depths_d"]), "rows": {}}
+    for key, (vs_target, vs_sharp) in rows.items():
+        out["rows"][key] = {"vs_target": summary(vs_target), "vs_sharp": summary(vs_sharp)}
+        if iters[key]:
+            out["rows"][key]["solver"] = {"seconds": round(seconds[key], 1), "iterations": iters[key]}
+    base = out["rows"]["wiener"]
+    for row in out["rows"].values():
+        row["gain_over_wiener_db"] = {
+            f"{vs} {stat}": round(row[vs][f"{stat}_db"] - base[vs][f"{stat}_db"], 3)
+            for vs in ("vs_target", "vs_sharp") for stat in ("mean", "worst")}
+    return out
+
+
+def table(result: dict) -> str:
+    lines = ["| display image | mean / worst vs target (dB) | mean / worst vs sharp (dB) | gain over Wiener, "
+             "target mean / worst, sharp mean / worst |", "| --- | --- | --- | --- |"]
+    for key, row in result["rows"].items():
+        g = row["gain_over_wiener_db"]
+        lines.append(f"| {key} | {row['vs_target']['mean_db']:.2f} / {row['vs_target']['worst_db']:.2f} | "
+                     f"{row['vs_sharp']['mean_db']:.2f} / {row['vs_sharp']['worst_db']:.2f} | "
+                     + " / ".join(f"{v:+.2f}" for v in g.values()) + " |")
+    return "\n".join(lines)
+
+
+def main(argv=None, prog=None):
+    ap = argparse.ArgumentParser(prog=prog, description=__doc__.split("\n\n")[0])
+    ap.add_argument("--teacher", metavar="DIR", required=True, type=Path,
+                    help="nedrt prefilter's folders: DIR/train and DIR/train-sharp (kernels at the validation "
+                         "size), DIR/val (the optimum, the start), DIR/val-wiener")
+    ap.add_argument("--images", metavar="DIR", help="image root with val/ (default: data/images)")
+    ap.add_argument("--sharp-weight", default="0,1", help="comma-separated weights w of the PSNR vs sharp")
+    ap.add_argument("--iterations", type=int, default=150, help="L-BFGS-B iterations per photograph")
+    ap.add_argument("--limit", type=int, help="only the first N photographs")
+    ap.add_argument("--threads", type=int, default=1)
+    ap.add_argument("--out", type=Path, help="write the result as JSON here")
+    args = ap.parse_args(argv)
+    torch.set_num_threads(args.threads)
+    try:
+        bad = ValueError(f"--sharp-weight {args.sharp_weight!r}: non-negative numbers, comma-separated")
+        try:
+            weights = [float(v) for v in args.sharp_weight.split(",") if v.strip()]
+        except ValueError:
+            raise bad from None
+        if not weights or any(not math.isfinite(v) or v < 0 for v in weights):
+            raise bad
+        if args.iterations < 1:
+            raise ValueError("--iterations: at least 1")
+        result = ceiling(args.teacher, resolve_root(args.images), weights, args.iterations, args.limit)
+    except (ValueError, FileNotFoundError) as e:
+        raise SystemExit(f"error: {e}")
+    if args.out:
+        tmp = args.out.with_suffix(args.out.suffix + ".tmp")
+        tmp.write_text(json.dumps(result, indent=1))
+        tmp.replace(args.out)
+    print(table(result))
+
+
+if __name__ == "__main__":
+    main()
