@@ -437,6 +437,14 @@ def export(run: Path, out: Path, name: str, doe: Path) -> dict:
     cfg = DistillConfig(**state["config"])
     if not doe.is_file():
         raise FileNotFoundError(f"{doe}: DOE file not found")
+    wiener_k = None
+    if cfg.input == "wiener-raw":
+        manifest = Path(cfg.teacher) / "train-wiener-raw" / "prefilter.json"
+        k = json.loads(manifest.read_text()).get("wiener_k") if manifest.is_file() else None
+        if not (isinstance(k, (int, float)) and k > 0):
+            raise ValueError(f"{manifest}: no Wiener K (wiener_k); run nedrt prefilter --prefilter native "
+                             "--unclamped again")
+        wiener_k = float(k)
     net = UNet(cfg.width, cfg.levels)
     net.load_state_dict(state["net"])
     out.mkdir(parents=True, exist_ok=True)
@@ -459,6 +467,10 @@ def export(run: Path, out: Path, name: str, doe: Path) -> dict:
         "macs_per_pixel": net.macs_per_pixel(),
         "files": {p.name: sha256(p) for p in [onnx_path, doe_path]},
     }
+    if wiener_k is not None:
+        # The runtime runs the same Wiener in front of the network
+        # (nedrt-app's preprocess::dcnn_system reads these two fields).
+        card["input"], card["wiener_k"] = "wiener-raw", wiener_k
     (out / f"{name}.card.json").write_text(json.dumps(card, indent=1))
     return card
 

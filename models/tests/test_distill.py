@@ -153,6 +153,16 @@ def test_the_raw_wiener_input_starts_at_the_clamped_wiener_and_learns_through_th
         distill.clamp(raw, cfg).sum().backward()
         assert raw.grad.tolist() == expected
         assert distill.clamp(raw, cfg).tolist() == [0.0, 0.5, 1.0]
+    # The card tells the runtime to run the same Wiener in front; without
+    # the Wiener's K nothing is written.
+    doe = REPO / "designs" / "multifocal" / "doe-fabrication.safetensors"
+    with pytest.raises(ValueError, match="no Wiener K"):
+        distill.export(tmp_path / "run", tmp_path / "out", "w", doe)
+    assert not (tmp_path / "out" / "w.onnx").exists()
+    (teacher / "train-wiener-raw" / "prefilter.json").write_text(json.dumps({"wiener_k": 0.05}))
+    card = distill.export(tmp_path / "run", tmp_path / "out", "w", doe)
+    assert (card["input"], card["wiener_k"]) == ("wiener-raw", 0.05)
+    assert json.loads((tmp_path / "out" / "w.card.json").read_text())["input"] == "wiener-raw"
     with pytest.raises(ValueError, match="its own residual base"):
         distill.train(config(images, teacher, 1, input="wiener-raw", base="wiener"), tmp_path / "bad")
     with pytest.raises(ValueError, match="choose zero or straight"):

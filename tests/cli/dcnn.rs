@@ -281,3 +281,82 @@ fn bad_dcnn_inputs_are_clear_errors() {
     assert_clean_error(&o, "no GPU adapter");
     assert!(!out.exists(), "nothing written on error");
 }
+
+/// A copy of the shipped model (with its DOE) whose card says it takes
+/// the Wiener's output before the clamp, with `card` as the card's text.
+fn model_with_card(dir: &Path, card: &str) -> PathBuf {
+    let model = dir.join("w.onnx");
+    std::fs::copy(dcnn_model(), &model).expect("copy model");
+    std::fs::copy(
+        dcnn_model().with_extension("doe.safetensors"),
+        dir.join("w.doe.safetensors"),
+    )
+    .expect("copy DOE");
+    std::fs::write(dir.join("w.card.json"), card).expect("write card");
+    model
+}
+
+/// A network trained on the Wiener's output (`"input": "wiener-raw"` in
+/// its card) runs behind its optics' Wiener prefilter: said in the report,
+/// another display image than the network alone, and the same frame from
+/// `nedrt sim` and `nedrt run`, code for code.
+#[test]
+fn a_network_on_the_wiener_output_runs_behind_the_wiener_in_sim_and_service() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let model = model_with_card(dir.path(), r#"{"input": "wiener-raw", "wiener_k": 0.03}"#);
+    let both = sim_and_service_with("proposed", &["--dcnn", path(&model)]);
+    both.assert_same_changed_frame();
+    let alone = sim_and_service("proposed");
+    assert_ne!(
+        both.sim_codes, alone.sim_codes,
+        "the Wiener stage changed nothing"
+    );
+    let out = dir.path().join("p.png");
+    let o = sim(
+        "1.0",
+        &out,
+        &[
+            "--calib",
+            path(&small_calib()),
+            "--method",
+            "proposed",
+            "--dcnn",
+            path(&model),
+        ],
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(
+        stdout(&o).contains("behind its optics' Wiener prefilter (K = 3e-2) before the clamp"),
+        "{}",
+        stdout(&o)
+    );
+    for (card, says) in [
+        (r#"{"input": "wiener-raw"}"#, "needs \"wiener_k\""),
+        (
+            r#"{"input": "wiener-raw", "wiener_k": -1}"#,
+            "needs \"wiener_k\"",
+        ),
+        (
+            r#"{"input": "edges"}"#,
+            "\"input\": \"edges\" is not an input",
+        ),
+        ("{", "not a model card (JSON)"),
+    ] {
+        let model = model_with_card(dir.path(), card);
+        let o = sim(
+            "1.0",
+            &dir.path().join("bad.png"),
+            &[
+                "--calib",
+                path(&small_calib()),
+                "--method",
+                "proposed",
+                "--dcnn",
+                path(&model),
+            ],
+        );
+        assert_clean_error(&o, "w.card.json");
+        assert!(stderr(&o).contains(says), "{card}: {}", stderr(&o));
+        assert!(!dir.path().join("bad.png").exists());
+    }
+}

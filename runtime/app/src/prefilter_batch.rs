@@ -149,6 +149,7 @@ pub fn run(common: &CommonOptions, o: &PrefilterOptions) -> Result<String, AppEr
         "prefilter": o.prefilter.to_string(),
         "engine": engine.describe(),
         "unclamped": o.unclamped,
+        "wiener_k": wiener.map(|f| f.k_reg),
         "calibration": sim.calib.source,
         "doe": sim.doe_hash,
         "images": files.iter().map(|f| f.display().to_string()).collect::<Vec<_>>(),

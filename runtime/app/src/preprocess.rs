@@ -6,11 +6,14 @@
 //! engine, plus one arm in [`for_method`].
 
 use std::collections::HashMap;
+use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-use nedrt_core::Preprocess;
 use nedrt_core::calib::Calibration;
+use nedrt_core::preprocess::{PreprocessError, check_frame};
+use nedrt_core::{Image, Preprocess};
 use nedrt_infer::Dcnn;
+use nedrt_optics::sim::wiener::WienerFilter;
 use nedrt_optics::sim::{
     Method, Objective, Prepared, SolveMode, SolvedPrefilter, objective_depths_d,
 };
@@ -27,11 +30,127 @@ pub fn for_method(
 ) -> Result<Box<dyn Preprocess>, AppError> {
     if method.uses_dcnn() {
         return match dcnns.remove(&method) {
-            Some(d) => Ok(Box::new(d)),
+            Some(d) => dcnn_system(method, d, prepared),
             None => Err(AppError::Usage(format!("no D-CNN loaded for {method}"))),
         };
     }
     Ok(prepared.preprocessor(method)?)
+}
+
+/// What a D-CNN takes in, from its model card (`NAME.card.json` beside
+/// `NAME.onnx`, written by `nedrt-train dcnn export`): the frame itself
+/// (no card, or a card without `input`), or its optics' Wiener prefilter
+/// output before the panel's clamp (`"input": "wiener-raw"` with the
+/// filter's `"wiener_k"`), so that the network corrects the Wiener where
+/// the clamp cuts it (docs/training.md).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum DcnnInput {
+    Frame,
+    WienerRaw { k_reg: f64 },
+}
+
+/// Largest model card read.
+const MAX_CARD_BYTES: u64 = 1 << 20;
+
+/// The card of the model at `model`: `NAME.card.json` beside `NAME.onnx`.
+pub fn card_path(model: &Path) -> PathBuf {
+    model.with_extension("card.json")
+}
+
+/// The input the model at `model` was trained on, from its card.
+pub fn dcnn_input(model: &Path) -> Result<DcnnInput, AppError> {
+    let path = card_path(model);
+    if !path.is_file() {
+        return Ok(DcnnInput::Frame);
+    }
+    let bad = |reason: String| AppError::Usage(format!("{}: {reason}", path.display()));
+    let bytes = nedrt_core::util::read_capped(&path, MAX_CARD_BYTES)
+        .map_err(|e| bad(format!("cannot read the model card: {e}")))?;
+    let card: serde_json::Value =
+        serde_json::from_slice(&bytes).map_err(|e| bad(format!("not a model card (JSON): {e}")))?;
+    match card.get("input").and_then(|v| v.as_str()) {
+        None | Some("image") => Ok(DcnnInput::Frame),
+        Some("wiener-raw") => match card.get("wiener_k").and_then(|v| v.as_f64()) {
+            Some(k) if k.is_finite() && k > 0.0 => Ok(DcnnInput::WienerRaw { k_reg: k }),
+            _ => Err(bad(
+                "\"input\": \"wiener-raw\" needs \"wiener_k\", the Wiener filter's K (a positive number)"
+                    .into(),
+            )),
+        },
+        Some(other) => Err(bad(format!(
+            "\"input\": {other:?} is not an input nedrt knows (image or wiener-raw)"
+        ))),
+    }
+}
+
+/// For reports: ", behind its optics' Wiener prefilter …" where the model
+/// at `model` runs behind one, else nothing.
+pub fn stage_note(model: &Path) -> String {
+    match dcnn_input(model) {
+        Ok(DcnnInput::WienerRaw { k_reg }) => {
+            format!(", behind its optics' Wiener prefilter (K = {k_reg:e}) before the clamp")
+        }
+        _ => String::new(),
+    }
+}
+
+/// The preprocessing of a D-CNN method: the network alone, or, for a
+/// network trained on the Wiener's output, its optics' Wiener prefilter
+/// (before the clamp) and then the network.
+pub fn dcnn_system(
+    method: Method,
+    dcnn: Dcnn,
+    prepared: &Prepared,
+) -> Result<Box<dyn Preprocess>, AppError> {
+    Ok(match dcnn_input(&dcnn.model.path)? {
+        DcnnInput::Frame => Box::new(dcnn),
+        DcnnInput::WienerRaw { k_reg } => Box::new(BehindWiener::new(
+            method,
+            Arc::new(prepared.wiener_filter(method, k_reg)?),
+            Box::new(dcnn),
+        )),
+    })
+}
+
+/// A network that corrects its optics' Wiener prefilter: it sees the
+/// Wiener's output before the panel's clamp and returns the display image
+/// (clamped, as every [`Preprocess`]).
+#[derive(Debug)]
+pub struct BehindWiener {
+    method: Method,
+    filter: Arc<WienerFilter>,
+    network: Box<dyn Preprocess>,
+}
+
+impl BehindWiener {
+    pub fn new(method: Method, filter: Arc<WienerFilter>, network: Box<dyn Preprocess>) -> Self {
+        Self {
+            method,
+            filter,
+            network,
+        }
+    }
+}
+
+impl Preprocess for BehindWiener {
+    fn describe(&self) -> String {
+        format!(
+            "Wiener prefilter of {} (K = {:e}) before the clamp, then {}",
+            self.method,
+            self.filter.k_reg,
+            self.network.describe()
+        )
+    }
+
+    fn run(&mut self, input: &Image) -> Result<Image, PreprocessError> {
+        check_frame(input, self.filter.channels())?;
+        let raw = self.filter.apply_unclamped(input);
+        self.network.run(&raw)
+    }
+
+    fn last_gpu_ns(&self) -> Option<u64> {
+        self.network.last_gpu_ns()
+    }
 }
 
 /// One line per D-CNN for reports: model file, content hash and engine.
@@ -41,10 +160,11 @@ pub fn dcnn_lines(dcnns: &HashMap<Method, Dcnn>, methods: &[Method]) -> Vec<Stri
         .filter_map(|m| {
             dcnns.get(m).map(|d| {
                 format!(
-                    "{m}: {} ({}) on {}",
+                    "{m}: {} ({}) on {}{}",
                     d.model.path.display(),
                     d.model.hash,
-                    d.describe()
+                    d.describe(),
+                    stage_note(&d.model.path)
                 )
             })
         })

@@ -8,10 +8,12 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 
 use super::{AppError, CommonOptions};
+use crate::preprocess::{BehindWiener, DcnnInput};
 use nedrt_core::Named;
 use nedrt_core::preprocess::{Identity, Preprocess};
 use nedrt_infer::gpu::open_device;
 use nedrt_infer::{BackendKind, Dcnn, ModelFile};
+use nedrt_optics::sim::wiener::WienerFilter;
 use nedrt_optics::sim::{Method, Simulator};
 use nedrt_service::pipeline::pacing::{Clock, SystemClock};
 use nedrt_service::pipeline::service::{Control, DcnnStage, FallbackFactory, PanelConfig, Service};
@@ -169,10 +171,22 @@ impl Preprocess for LosesDeviceAfter {
     }
 }
 
+/// `network` behind its Wiener stage where the model has one.
+fn behind(
+    stage: &Option<(Method, Arc<WienerFilter>)>,
+    network: Box<dyn Preprocess>,
+) -> Box<dyn Preprocess> {
+    match stage {
+        Some((method, filter)) => Box::new(BehindWiener::new(*method, filter.clone(), network)),
+        None => network,
+    }
+}
+
 fn fallback_factory(
     kind: FallbackKind,
     model: ModelFile,
     common: &CommonOptions,
+    stage: Option<(Method, Arc<WienerFilter>)>,
 ) -> FallbackFactory {
     let options = nedrt_infer::BackendOptions {
         precision: nedrt_infer::Precision::F32,
@@ -186,9 +200,10 @@ fn fallback_factory(
                     reason: e.to_string(),
                 }
             })?;
-            Ok(Box::new(dcnn) as Box<dyn Preprocess>)
+            Ok(behind(&stage, Box::new(dcnn)))
         }),
-        FallbackKind::Passthrough => Box::new(|| Ok(Box::new(Identity) as Box<dyn Preprocess>)),
+        // Without the network a Wiener-stage system still shows its Wiener.
+        FallbackKind::Passthrough => Box::new(move || Ok(behind(&stage, Box::new(Identity)))),
     }
 }
 
@@ -309,6 +324,21 @@ pub fn run(
         let primary = linear_preprocessor(common, opts.preprocess, opts.prefilter)?;
         return serve(opts, control, panel, clock, source, sink, primary, None);
     };
+    // A network trained on its optics' Wiener output runs behind that
+    // Wiener (its card says so), on every engine and fallback alike.
+    let stage = match crate::preprocess::dcnn_input(&model.path)? {
+        DcnnInput::Frame => None,
+        DcnnInput::WienerRaw { k_reg } => {
+            let method = opts.preprocess;
+            let sim = Simulator::new(
+                common.calibration()?,
+                common.doe_path_for(&[method]).as_deref(),
+                common.cache(),
+            )?;
+            let prepared = sim.prepare(&[method], &[], common.progress())?;
+            Some((method, Arc::new(prepared.wiener_filter(method, k_reg)?)))
+        }
+    };
     let primary: Result<Box<dyn Preprocess>, _> = match (dcnn.backend, &device) {
         (BackendKind::Wgpu, Some((d, q, name)))
             if precision == nedrt_infer::Precision::F32
@@ -320,7 +350,8 @@ pub fn run(
         (kind, _) => Dcnn::from_model(model.clone(), kind, &dcnn.backend_options)
             .map(|x| Box::new(x) as Box<dyn Preprocess>),
     };
-    let mut fallback = Some(fallback_factory(opts.fallback, model, common));
+    let primary = primary.map(|p| behind(&stage, p));
+    let mut fallback = Some(fallback_factory(opts.fallback, model, common, stage));
     let primary = match primary {
         Ok(p) => p,
         Err(e) => {

@@ -136,11 +136,12 @@ pub fn run(common: &CommonOptions, opts: &SimOptions) -> Result<SimReport, AppEr
     let mut dcnns = common.dcnn.load_for(&[method])?;
     let dcnn_line = dcnns.get(&method).map(|d| {
         format!(
-            "D-CNN     {} ({}, {:.0} MAC/pixel) on {}",
+            "D-CNN     {} ({}, {:.0} MAC/pixel) on {}{}",
             d.model.path.display(),
             d.model.hash,
             d.network.macs_per_pixel,
-            d.describe()
+            d.describe(),
+            crate::preprocess::stage_note(&d.model.path)
         )
     });
     if let Some(d) = dcnns.get(&method) {

@@ -72,7 +72,9 @@ impl Simulator {
                 Optics::Lens => &mut lens,
                 Optics::Doe => &mut doe,
             };
-            let depths = if m.uses_wiener() {
+            // A D-CNN may take its optics' Wiener output as its input
+            // (`Prepared::wiener_filter`), which averages over the sweep.
+            let depths = if m.uses_wiener() || m.uses_dcnn() {
                 [depths_d, &sweep].concat()
             } else {
                 depths_d.to_vec()
@@ -293,6 +295,21 @@ impl Prepared {
     /// The Wiener filter of a method, if it uses one.
     pub fn wiener(&self, method: Method) -> Option<&WienerFilter> {
         self.wiener.get(&method).map(|f| &**f)
+    }
+
+    /// The Wiener filter of `method`'s optics with `k_reg`, as the
+    /// Wiener methods make theirs (the PSF averaged over the calibration's
+    /// accommodation sweep): the first stage of a D-CNN trained on the
+    /// Wiener's output (docs/training.md).
+    pub fn wiener_filter(&self, method: Method, k_reg: f64) -> Result<WienerFilter, SimError> {
+        if !(k_reg.is_finite() && k_reg > 0.0) {
+            return Err(SimError::Invalid(format!(
+                "Wiener K {k_reg}: must be a positive number"
+            )));
+        }
+        let c = &self.calib;
+        let mean = self.mean_psfs(method, &c.depth_sweep_d(c.wiener.average_step_d))?;
+        Ok(WienerFilter::new(&mean, k_reg))
     }
 
     /// The preprocessing of `method` when it needs no trained network:

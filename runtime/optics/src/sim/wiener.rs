@@ -193,6 +193,11 @@ impl WienerFilter {
         })
     }
 
+    /// The colour channels it filters.
+    pub fn channels(&self) -> usize {
+        self.kernels.len()
+    }
+
     /// Prefilters a frame and clamps it to the panel's [0, 1].
     pub fn apply(&self, image: &Image) -> Image {
         self.apply_unclamped(image).clamped()
