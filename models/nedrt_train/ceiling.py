@@ -4,6 +4,8 @@ mean over the headline depths of the PSNR vs target, plus `w` times the
 mean PSNR vs sharp, solved with scipy's L-BFGS-B from nedrt's optimum.
 
     nedrt-train ceiling --teacher out/teacher --sharp-weight 0,0.5,1 --out ceiling.json
+    nedrt-train ceiling --teacher out/teacher --split train --sharp-weight 1 \
+        --write out/teacher/train-ceiling     # a teacher for nedrt-train dcnn --teacher-set
 
 `nedrt`'s `optimal` prefilter minimises the summed squared error over the
 depths, a convex problem; the headline averages PSNRs, i.e. logarithms of
@@ -96,9 +98,14 @@ def summary(per_image: list) -> dict:
 
 
 def ceiling(teacher_root: Path, images_root: Path, sharp_weights: list, iterations: int,
-            limit: int | None = None) -> dict:
-    names = photo_names(images_root / "val")
-    photos = load_photos(images_root / "val")
+            limit: int | None = None, split: str = "val", write: Path | None = None) -> dict:
+    """The table on `split`'s photographs; with `write`, also the display
+    images of the (one) sharp weight, as a teacher folder for
+    `nedrt-train dcnn --teacher-set` (`displays.safetensors`, `prefilter.json`)."""
+    if write is not None and len(sharp_weights) != 1:
+        raise ValueError("--write keeps the display images of one --sharp-weight; give exactly one")
+    names = photo_names(images_root / split)
+    photos = load_photos(images_root / split)
     if limit:
         names, photos = names[:limit], photos[:limit]
     images = [torch.from_numpy(p).permute(2, 0, 1).contiguous() for p in photos]
@@ -106,15 +113,16 @@ def ceiling(teacher_root: Path, images_root: Path, sharp_weights: list, iteratio
     kernels = teacher_root / "train" / f"operator-{w}x{h}.safetensors"
     sharp_kernels = teacher_root / "train-sharp" / f"operator-{w}x{h}.safetensors"
     target_obj, sharp_obj = Objective.load(kernels), Objective.load(sharp_kernels)
-    starts = load_teacher(teacher_root / "val", names)
-    wiener = load_teacher(teacher_root / "val-wiener", names)
+    starts = load_teacher(teacher_root / split, names)
+    wiener = load_teacher(teacher_root / f"{split}-wiener", names)
+    written = {}
     rows = {"wiener": ([], []), "optimal@target": ([], [])}
     rows.update({f"ceiling w={s:g}": ([], []) for s in sharp_weights})
     seconds = {k: 0.0 for k in rows}
     iters = {k: [] for k in rows}
     for name, image in zip(names, images):
         if tuple(image.shape[-2:]) != (h, w):
-            raise ValueError(f"{name}: validation photographs of different sizes")
+            raise ValueError(f"{name}: the {split} photographs are of different sizes")
         target, sharp = DepthErrors(target_obj, image), DepthErrors(sharp_obj, image)
 
         def score(key, display):
@@ -131,7 +139,18 @@ def ceiling(teacher_root: Path, images_root: Path, sharp_weights: list, iteratio
             seconds[key] += time.perf_counter() - t0
             iters[key].append(nit)
             score(key, display)
-    out = {"photographs": names, "size": [w, h], "iterations": iterations,
+            if write is not None:
+                written[name] = display.contiguous()
+    if write is not None:
+        from safetensors.torch import save_file
+        write.mkdir(parents=True, exist_ok=True)
+        tmp = write / "displays.safetensors.tmp"
+        save_file(written, str(tmp))
+        tmp.replace(write / "displays.safetensors")
+        (write / "prefilter.json").write_text(json.dumps(
+            {"prefilter": f"ceiling w={sharp_weights[0]:g}", "sharp_weight": sharp_weights[0],
+             "iterations": iterations, "split": split, "images": names}, indent=1))
+    out = {"split": split, "photographs": names, "size": [w, h], "iterations": iterations,
            "depths_d": json.loads(target_obj.meta["depths_d"]), "rows": {}}
     for key, (vs_target, vs_sharp) in rows.items():
         out["rows"][key] = {"vs_target": summary(vs_target), "vs_sharp": summary(vs_sharp)}
@@ -165,6 +184,10 @@ def main(argv=None, prog=None):
     ap.add_argument("--sharp-weight", default="0,1", help="comma-separated weights w of the PSNR vs sharp")
     ap.add_argument("--iterations", type=int, default=150, help="L-BFGS-B iterations per photograph")
     ap.add_argument("--limit", type=int, help="only the first N photographs")
+    ap.add_argument("--split", choices=["val", "train"], default="val",
+                    help="the photographs (their kernels, optimum and Wiener under --teacher)")
+    ap.add_argument("--write", type=Path, metavar="DIR",
+                    help="also write the display images (one --sharp-weight) as a teacher folder")
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--out", type=Path, help="write the result as JSON here")
     args = ap.parse_args(argv)
@@ -179,7 +202,8 @@ def main(argv=None, prog=None):
             raise bad
         if args.iterations < 1:
             raise ValueError("--iterations: at least 1")
-        result = ceiling(args.teacher, resolve_root(args.images), weights, args.iterations, args.limit)
+        result = ceiling(args.teacher, resolve_root(args.images), weights, args.iterations, args.limit,
+                         args.split, args.write)
     except (ValueError, FileNotFoundError) as e:
         raise SystemExit(f"error: {e}")
     if args.out:

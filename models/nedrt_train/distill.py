@@ -84,6 +84,10 @@ class DistillConfig:
     # passed to the raw output as if unclamped, so that a value the clamp
     # cuts still learns which way it should move).
     clamp_grad: str = "zero"
+    # The folder under --teacher whose display images are distilled
+    # ("train": nedrt's optimum; "train-ceiling": nedrt-train ceiling
+    # --split train --write, the optimum of the evaluation's mean PSNR).
+    teacher_set: str = "train"
 
 
 class Objective:
@@ -308,7 +312,7 @@ def train(cfg: DistillConfig, out: Path, resume: bool = False, stop_after: int |
     objective = Objective.load(teacher_root / "train" / f"operator-{cfg.patch}x{cfg.patch}.safetensors")
     names = photo_names(images_root / "train")
     photos = load_photos(images_root / "train")
-    teachers = load_teacher(teacher_root / "train", names)
+    teachers = load_teacher(teacher_root / cfg.teacher_set, names)
     if cfg.base not in ("input", "wiener"):
         raise ValueError(f"base {cfg.base!r}: choose input or wiener")
     if cfg.input not in ("image", "wiener-raw"):
@@ -420,7 +424,7 @@ def train(cfg: DistillConfig, out: Path, resume: bool = False, stop_after: int |
     log.close()
     result = {"config": dataclasses.asdict(cfg), "steps": done, "finished": done == cfg.steps,
               "seconds": seconds_before + time.time() - start, "validation": history,
-              "teacher": {"train": json.loads((teacher_root / "train" / "prefilter.json").read_text())}}
+              "teacher": {"train": json.loads((teacher_root / cfg.teacher_set / "prefilter.json").read_text())}}
     (out / "result.json").write_text(json.dumps(result, indent=1))
     return result
 

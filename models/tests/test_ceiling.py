@@ -4,6 +4,8 @@ worse than an independent projected-gradient solution of the same problem
 and no worse than where it started."""
 import shutil
 
+import pytest
+
 import torch
 
 from nedrt_train import ceiling, distill
@@ -67,7 +69,6 @@ def test_the_command_reports_every_row(tmp_path, capsys):
 
 
 def test_bad_input_is_refused_by_name(tmp_path):
-    import pytest
     images, teacher, _ = setup(tmp_path)
     with pytest.raises(SystemExit, match="--sharp-weight"):
         ceiling.main(["--teacher", str(teacher), "--images", str(images), "--sharp-weight", "-1"])
@@ -76,3 +77,31 @@ def test_bad_input_is_refused_by_name(tmp_path):
     with pytest.raises(SystemExit, match="train-sharp.*no kernel file"):
         shutil.rmtree(teacher / "train-sharp")
         ceiling.main(["--teacher", str(teacher), "--images", str(images)])
+
+
+def test_the_training_split_ceiling_is_a_teacher_for_distillation(tmp_path):
+    """--split train --write DIR: the display images of every training
+    photograph in [0, 1], in a folder `nedrt-train dcnn --teacher-set` reads."""
+    import json
+
+    from safetensors.torch import load_file, save_file
+
+    from test_distill import DEPTHS, config, kernels
+    images, teacher, _ = setup(tmp_path)
+    meta = {"format": "nedrt objective kernels 1", "depths_d": json.dumps(list(range(DEPTHS))),
+            "width": "32", "height": "32"}
+    for folder in ("train", "train-sharp"):
+        save_file(kernels(32), str(teacher / folder / "operator-32x32.safetensors"), metadata=meta)
+    with pytest.raises(SystemExit, match="exactly one"):
+        ceiling.main(["--teacher", str(teacher), "--images", str(images), "--split", "train",
+                      "--sharp-weight", "0,1", "--write", str(teacher / "train-ceiling")])
+    assert not (teacher / "train-ceiling").exists()
+    ceiling.main(["--teacher", str(teacher), "--images", str(images), "--split", "train",
+                  "--sharp-weight", "1", "--iterations", "5", "--write", str(teacher / "train-ceiling")])
+    displays = load_file(str(teacher / "train-ceiling" / "displays.safetensors"))
+    assert sorted(displays) == ["p0", "p1", "p2"]
+    for d in displays.values():
+        assert d.shape == (3, 32, 32) and float(d.min()) >= 0 and float(d.max()) <= 1
+    assert json.loads((teacher / "train-ceiling" / "prefilter.json").read_text())["sharp_weight"] == 1
+    result = distill.train(config(images, teacher, 1, teacher_set="train-ceiling"), tmp_path / "run")
+    assert result["teacher"]["train"]["prefilter"] == "ceiling w=1"
