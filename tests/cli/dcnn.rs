@@ -358,5 +358,15 @@ fn a_network_on_the_wiener_output_runs_behind_the_wiener_in_sim_and_service() {
         assert_clean_error(&o, "w.card.json");
         assert!(stderr(&o).contains(says), "{card}: {}", stderr(&o));
         assert!(!dir.path().join("bad.png").exists());
+        let record = dir.path().join("rec");
+        let o = nedrt()
+            .args(["run", "--calib", path(&small_calib()), "--backend", "cpu"])
+            .args(["--preprocess", "proposed", "--dcnn", path(&model)])
+            .args(["--source", "pattern", "--frames", "1", "--source-rate", "0"])
+            .args(["--sink", "record", "--record-dir", path(&record)])
+            .output()
+            .expect("run");
+        assert_clean_error(&o, "w.card.json");
+        assert!(!record.exists(), "{card}: the recorder's folder was made");
     }
 }

@@ -304,6 +304,26 @@ pub fn run(
     } else {
         None
     };
+    // A network trained on its optics' Wiener output runs behind that
+    // Wiener (its card says so), on every engine and fallback alike; read
+    // before the sink opens, so that a bad card leaves nothing behind.
+    let stage = match model
+        .as_ref()
+        .map(|m| crate::preprocess::dcnn_input(&m.path))
+        .transpose()?
+    {
+        None | Some(DcnnInput::Frame) => None,
+        Some(DcnnInput::WienerRaw { k_reg }) => {
+            let method = opts.preprocess;
+            let sim = Simulator::new(
+                common.calibration()?,
+                common.doe_path_for(&[method]).as_deref(),
+                common.cache(),
+            )?;
+            let prepared = sim.prepare(&[method], &[], common.progress())?;
+            Some((method, Arc::new(prepared.wiener_filter(method, k_reg)?)))
+        }
+    };
     let precision = dcnn.backend_options.precision;
     // The sink, and a GPU for the D-CNN to share with it.
     let (sink, device): (Box<dyn Sink>, _) = match opts.sink {
@@ -323,21 +343,6 @@ pub fn run(
     let Some(model) = model else {
         let primary = linear_preprocessor(common, opts.preprocess, opts.prefilter)?;
         return serve(opts, control, panel, clock, source, sink, primary, None);
-    };
-    // A network trained on its optics' Wiener output runs behind that
-    // Wiener (its card says so), on every engine and fallback alike.
-    let stage = match crate::preprocess::dcnn_input(&model.path)? {
-        DcnnInput::Frame => None,
-        DcnnInput::WienerRaw { k_reg } => {
-            let method = opts.preprocess;
-            let sim = Simulator::new(
-                common.calibration()?,
-                common.doe_path_for(&[method]).as_deref(),
-                common.cache(),
-            )?;
-            let prepared = sim.prepare(&[method], &[], common.progress())?;
-            Some((method, Arc::new(prepared.wiener_filter(method, k_reg)?)))
-        }
     };
     let primary: Result<Box<dyn Preprocess>, _> = match (dcnn.backend, &device) {
         (BackendKind::Wgpu, Some((d, q, name)))
