@@ -311,19 +311,22 @@ fn a_network_on_the_wiener_output_runs_behind_the_wiener_in_sim_and_service() {
         both.sim_codes, alone.sim_codes,
         "the Wiener stage changed nothing"
     );
-    let out = dir.path().join("p.png");
-    let o = sim(
-        "1.0",
-        &out,
-        &[
-            "--calib",
-            path(&small_calib()),
-            "--method",
-            "proposed",
-            "--dcnn",
-            path(&model),
-        ],
-    );
+    let calib = small_calib();
+    let sim_with = |model: &Path, out: &Path| {
+        sim(
+            "1.0",
+            out,
+            &[
+                "--calib",
+                path(&calib),
+                "--method",
+                "proposed",
+                "--dcnn",
+                path(model),
+            ],
+        )
+    };
+    let o = sim_with(&model, &dir.path().join("p.png"));
     assert!(o.status.success(), "{}", stderr(&o));
     assert!(
         stdout(&o).contains("behind its optics' Wiener prefilter (K = 3e-2) before the clamp"),
@@ -343,18 +346,7 @@ fn a_network_on_the_wiener_output_runs_behind_the_wiener_in_sim_and_service() {
         ("{", "not a model card (JSON)"),
     ] {
         let model = model_with_card(dir.path(), card);
-        let o = sim(
-            "1.0",
-            &dir.path().join("bad.png"),
-            &[
-                "--calib",
-                path(&small_calib()),
-                "--method",
-                "proposed",
-                "--dcnn",
-                path(&model),
-            ],
-        );
+        let o = sim_with(&model, &dir.path().join("bad.png"));
         assert_clean_error(&o, "w.card.json");
         assert!(stderr(&o).contains(says), "{card}: {}", stderr(&o));
         assert!(!dir.path().join("bad.png").exists());

@@ -123,6 +123,23 @@ fn sim_describes_the_prefilter_and_writes_its_display_image() {
     assert!(stderr(&o).contains("from 1 to 1000"), "{}", stderr(&o));
 }
 
+/// `nedrt prefilter` with the small calibration on the images in `imgs`,
+/// writing to `out`, with `extra` arguments.
+fn prefilter_in(imgs: &Path, out: &Path, extra: &[&str]) -> Output {
+    let calib = small_calib();
+    let mut args = vec![
+        "--calib",
+        path(&calib),
+        "prefilter",
+        "--images",
+        path(imgs),
+        "--out-dir",
+        path(out),
+    ];
+    args.extend_from_slice(extra);
+    run(&args)
+}
+
 #[test]
 fn the_prefilter_command_writes_displays_kernels_and_a_manifest() {
     let dir = tempfile::tempdir().expect("tmp");
@@ -131,19 +148,7 @@ fn the_prefilter_command_writes_displays_kernels_and_a_manifest() {
     write_png(&imgs.join("a.png"), 24, 16);
     write_png(&imgs.join("b.png"), 16, 16);
     let out = dir.path().join("teacher");
-    let o = run(&[
-        "--calib",
-        path(&small_calib()),
-        "prefilter",
-        "--images",
-        path(&imgs),
-        "--out-dir",
-        path(&out),
-        "--method",
-        "doe-only",
-        "--operator",
-        "8x8",
-    ]);
+    let o = prefilter_in(&imgs, &out, &["--method", "doe-only", "--operator", "8x8"]);
     assert!(o.status.success(), "{}", stderr(&o));
     for f in [
         "a.tif",
@@ -164,19 +169,11 @@ fn the_prefilter_command_writes_displays_kernels_and_a_manifest() {
     let t = safetensors::SafeTensors::deserialize(&bytes).expect("safetensors");
     assert_eq!(t.tensor("normal").expect("normal").shape(), &[3, 16, 16]);
     // A D-CNN method has no network-free display image of its own.
-    let o = run(&[
-        "--calib",
-        path(&small_calib()),
-        "prefilter",
-        "--images",
-        path(&imgs),
-        "--out-dir",
-        path(&dir.path().join("x")),
-        "--method",
-        "proposed",
-        "--prefilter",
-        "native",
-    ]);
+    let o = prefilter_in(
+        &imgs,
+        &dir.path().join("x"),
+        &["--method", "proposed", "--prefilter", "native"],
+    );
     assert_clean_error(&o, "needs --prefilter lsq, refine:K or optimal");
 }
 
@@ -194,24 +191,11 @@ fn the_prefilter_command_writes_the_wiener_before_its_clamp() {
     })
     .save(imgs.join("a.png"))
     .expect("write png");
-    let calib = small_calib();
     let displays = |name: &str, extra: &[&str]| {
         let out = dir.path().join(name);
-        let mut args = vec![
-            "--calib",
-            path(&calib),
-            "prefilter",
-            "--images",
-            path(&imgs),
-            "--out-dir",
-            path(&out),
-            "--method",
-            "ai",
-            "--prefilter",
-            "native",
-        ];
+        let mut args = vec!["--method", "ai", "--prefilter", "native"];
         args.extend_from_slice(extra);
-        let o = run(&args);
+        let o = prefilter_in(&imgs, &out, &args);
         assert!(o.status.success(), "{}", stderr(&o));
         let bytes = std::fs::read(out.join("displays.safetensors")).expect("read");
         let t = safetensors::SafeTensors::deserialize(&bytes).expect("safetensors");

@@ -83,6 +83,18 @@ pub fn dcnn_input(model: &Path) -> Result<DcnnInput, AppError> {
     }
 }
 
+/// The methods among `dcnns` whose network runs behind its optics' Wiener
+/// (for [`nedrt_optics::sim::Simulator::with_wiener_stages`]).
+pub fn wiener_stages(dcnns: &HashMap<Method, Dcnn>) -> Result<Vec<Method>, AppError> {
+    let mut out = Vec::new();
+    for (m, d) in dcnns {
+        if let DcnnInput::WienerRaw { .. } = dcnn_input(&d.model.path)? {
+            out.push(*m);
+        }
+    }
+    Ok(out)
+}
+
 /// For reports: ", behind its optics' Wiener prefilter …" where the model
 /// at `model` runs behind one, else nothing.
 pub fn stage_note(model: &Path) -> String {

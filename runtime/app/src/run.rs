@@ -319,7 +319,8 @@ pub fn run(
                 common.calibration()?,
                 common.doe_path_for(&[method]).as_deref(),
                 common.cache(),
-            )?;
+            )?
+            .with_wiener_stages(vec![method]);
             let prepared = sim.prepare(&[method], &[], common.progress())?;
             Some((method, Arc::new(prepared.wiener_filter(method, k_reg)?)))
         }

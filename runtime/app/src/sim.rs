@@ -161,7 +161,8 @@ pub fn run(common: &CommonOptions, opts: &SimOptions) -> Result<SimReport, AppEr
         calib,
         common.doe_path_for(&[method]).as_deref(),
         common.cache(),
-    )?;
+    )?
+    .with_wiener_stages(crate::preprocess::wiener_stages(&dcnns)?);
     let mut depths = opts.prefilter.depths_d(&sim.calib);
     depths.push(opts.accommodation_d);
     let prepared = sim.prepare(&[method], &depths, common.progress())?;

@@ -256,7 +256,8 @@ pub fn run(
         common.calibration()?,
         common.doe_path_for(&methods).as_deref(),
         common.cache(),
-    )?;
+    )?
+    .with_wiener_stages(crate::preprocess::wiener_stages(&dcnns)?);
     let design_sims = extras
         .designs
         .iter()

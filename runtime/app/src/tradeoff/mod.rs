@@ -284,7 +284,14 @@ pub fn run(common: &CommonOptions, o: &TradeoffOptions) -> Result<String, AppErr
 
     for model in &o.models {
         let doe = companion_doe(model)?;
-        let sim = Simulator::new(calib.clone(), Some(&doe), common.cache())?;
+        let staged = crate::preprocess::dcnn_input(model)? != crate::preprocess::DcnnInput::Frame;
+        let sim = Simulator::new(calib.clone(), Some(&doe), common.cache())?.with_wiener_stages(
+            if staged {
+                vec![Method::Proposed]
+            } else {
+                Vec::new()
+            },
+        );
         let scorer = Scorer::new(
             &sim,
             &[Method::Proposed],

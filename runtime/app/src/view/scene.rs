@@ -142,7 +142,8 @@ impl FocusScene {
             calib.clone(),
             common.doe_path_for(methods).as_deref(),
             common.cache(),
-        )?;
+        )?
+        .with_wiener_stages(crate::preprocess::wiener_stages(&dcnns)?);
         let prepared = sim.prepare(methods, psf_depths_d, common.progress())?;
         let displays = methods
             .iter()

@@ -24,6 +24,10 @@ pub struct Simulator {
     pub doe: HeightMap,
     pub doe_hash: String,
     pub cache: PsfCache,
+    /// Methods whose network runs behind their optics' Wiener
+    /// ([`Prepared::wiener_filter`]): [`Simulator::prepare`] also gives
+    /// them the accommodation sweep that filter averages over.
+    wiener_stages: Vec<Method>,
 }
 
 impl Simulator {
@@ -51,7 +55,15 @@ impl Simulator {
             doe,
             doe_hash,
             cache,
+            wiener_stages: Vec::new(),
         })
+    }
+
+    /// The same simulator, preparing `methods` for a Wiener stage in front
+    /// of their network (the sweep's PSFs, which only such a stage needs).
+    pub fn with_wiener_stages(mut self, methods: Vec<Method>) -> Self {
+        self.wiener_stages = methods;
+        self
     }
 
     /// Computes (or loads) every PSF that `methods` at `depths_d` need,
@@ -72,9 +84,7 @@ impl Simulator {
                 Optics::Lens => &mut lens,
                 Optics::Doe => &mut doe,
             };
-            // A D-CNN may take its optics' Wiener output as its input
-            // (`Prepared::wiener_filter`), which averages over the sweep.
-            let depths = if m.uses_wiener() || m.uses_dcnn() {
+            let depths = if m.uses_wiener() || self.wiener_stages.contains(&m) {
                 [depths_d, &sweep].concat()
             } else {
                 depths_d.to_vec()
