@@ -67,7 +67,7 @@ def psnr(errors: torch.Tensor) -> torch.Tensor:
     return -10 * torch.log10(errors.clamp_min(1e-30))
 
 
-def solve(image: torch.Tensor, start: torch.Tensor, target: DepthErrors, sharp: DepthErrors, sharp_weight: float,
+def solve(start: torch.Tensor, target: DepthErrors, sharp: DepthErrors, sharp_weight: float,
           iterations: int) -> tuple:
     """The display image maximising mean PSNR vs target + w · mean PSNR vs
     sharp over [0, 1], and (iterations used, final objective)."""
@@ -135,7 +135,7 @@ def ceiling(teacher_root: Path, images_root: Path, sharp_weights: list, iteratio
         for s in sharp_weights:
             key = f"ceiling w={s:g}"
             t0 = time.perf_counter()
-            display, nit, _ = solve(image, starts[name], target, sharp, s, iterations)
+            display, nit, _ = solve(starts[name], target, sharp, s, iterations)
             seconds[key] += time.perf_counter() - t0
             iters[key].append(nit)
             score(key, display)

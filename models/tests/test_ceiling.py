@@ -39,7 +39,7 @@ def test_the_ceiling_beats_projected_adam_and_its_start(tmp_path):
     def loss(d):
         return -ceiling.psnr(errors(torch.fft.rfft2(distill.Objective.mirror(d.double())))).mean()
 
-    best, _, value = ceiling.solve(image, start, errors, errors, 0.0, 200)
+    best, _, value = ceiling.solve(start, errors, errors, 0.0, 200)
     assert float(best.min()) >= 0 and float(best.max()) <= 1
     assert value == float(loss(best)) or abs(value - float(loss(best))) < 1e-3
     assert value < float(loss(start)) - 1.0
