@@ -6,6 +6,8 @@ mean PSNR vs sharp, solved with scipy's L-BFGS-B from nedrt's optimum.
     nedrt-train ceiling --teacher out/teacher --sharp-weight 0,0.5,1 --out ceiling.json
     nedrt-train ceiling --teacher out/teacher --split train --sharp-weight 1 \
         --write out/teacher/train-ceiling     # a teacher for nedrt-train dcnn --teacher-set
+    # the same on two cores: two processes, each a share of the photographs
+    nedrt-train ceiling ... --shard 1/2 & nedrt-train ceiling ... --shard 2/2
 
 `nedrt`'s `optimal` prefilter minimises the summed squared error over the
 depths, a convex problem; the headline averages PSNRs, i.e. logarithms of
@@ -98,16 +100,23 @@ def summary(per_image: list) -> dict:
 
 
 def ceiling(teacher_root: Path, images_root: Path, sharp_weights: list, iterations: int,
-            limit: int | None = None, split: str = "val", write: Path | None = None) -> dict:
+            limit: int | None = None, split: str = "val", write: Path | None = None,
+            shard: tuple = (1, 1)) -> dict:
     """The table on `split`'s photographs; with `write`, also the display
     images of the (one) sharp weight, as a teacher folder for
-    `nedrt-train dcnn --teacher-set` (`displays.safetensors`, `prefilter.json`)."""
+    `nedrt-train dcnn --teacher-set` (`displays.safetensors`, `prefilter.json`).
+    `shard` (k, n) takes every n-th photograph from the k-th; its display
+    images go to `displays-k-of-n.safetensors`, which `load_teacher` joins."""
     if write is not None and len(sharp_weights) != 1:
         raise ValueError("--write keeps the display images of one --sharp-weight; give exactly one")
     names = photo_names(images_root / split)
     photos = load_photos(images_root / split)
     if limit:
         names, photos = names[:limit], photos[:limit]
+    k, n = shard
+    names, photos = names[k - 1::n], photos[k - 1::n]
+    if not names:
+        raise ValueError(f"--shard {k}/{n}: no photographs in this share")
     images = [torch.from_numpy(p).permute(2, 0, 1).contiguous() for p in photos]
     h, w = images[0].shape[-2:]
     kernels = teacher_root / "train" / f"operator-{w}x{h}.safetensors"
@@ -144,12 +153,20 @@ def ceiling(teacher_root: Path, images_root: Path, sharp_weights: list, iteratio
     if write is not None:
         from safetensors.torch import save_file
         write.mkdir(parents=True, exist_ok=True)
-        tmp = write / "displays.safetensors.tmp"
+        stem = "displays" if n == 1 else f"displays-{k}-of-{n}"
+        tmp = write / f"{stem}.safetensors.tmp"
         save_file(written, str(tmp))
-        tmp.replace(write / "displays.safetensors")
-        (write / "prefilter.json").write_text(json.dumps(
-            {"prefilter": f"ceiling w={sharp_weights[0]:g}", "sharp_weight": sharp_weights[0],
-             "iterations": iterations, "split": split, "images": names}, indent=1))
+        tmp.replace(write / f"{stem}.safetensors")
+        # Every share writes the same manifest; the photographs are in the files.
+        manifest = {"prefilter": f"ceiling w={sharp_weights[0]:g}", "sharp_weight": sharp_weights[0],
+                    "iterations": iterations, "split": split}
+        if n == 1:
+            manifest["images"] = names
+        else:
+            manifest["shards"] = n
+        tmp = write / f"prefilter.json.{k}.tmp"
+        tmp.write_text(json.dumps(manifest, indent=1))
+        tmp.replace(write / "prefilter.json")
     out = {"split": split, "photographs": names, "size": [w, h], "iterations": iterations,
            "depths_d": json.loads(target_obj.meta["depths_d"]), "rows": {}}
     for key, (vs_target, vs_sharp) in rows.items():
@@ -162,6 +179,17 @@ def ceiling(teacher_root: Path, images_root: Path, sharp_weights: list, iteratio
             f"{vs} {stat}": round(row[vs][f"{stat}_db"] - base[vs][f"{stat}_db"], 3)
             for vs in ("vs_target", "vs_sharp") for stat in ("mean", "worst")}
     return out
+
+
+def parse_shard(text: str) -> tuple:
+    bad = ValueError(f"--shard {text!r}: K/N with 1 <= K <= N, e.g. 1/2")
+    try:
+        k, n = (int(v) for v in text.split("/"))
+    except ValueError:
+        raise bad from None
+    if not 1 <= k <= n:
+        raise bad
+    return k, n
 
 
 def table(result: dict) -> str:
@@ -188,6 +216,8 @@ def main(argv=None, prog=None):
                     help="the photographs (their kernels, optimum and Wiener under --teacher)")
     ap.add_argument("--write", type=Path, metavar="DIR",
                     help="also write the display images (one --sharp-weight) as a teacher folder")
+    ap.add_argument("--shard", default="1/1", metavar="K/N",
+                    help="only every N-th photograph from the K-th (run N processes for N cores)")
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--out", type=Path, help="write the result as JSON here")
     args = ap.parse_args(argv)
@@ -202,8 +232,9 @@ def main(argv=None, prog=None):
             raise bad
         if args.iterations < 1:
             raise ValueError("--iterations: at least 1")
+        shard = parse_shard(args.shard)
         result = ceiling(args.teacher, resolve_root(args.images), weights, args.iterations, args.limit,
-                         args.split, args.write)
+                         args.split, args.write, shard)
     except (ValueError, FileNotFoundError) as e:
         raise SystemExit(f"error: {e}")
     if args.out:

@@ -166,15 +166,23 @@ def db(mse) -> float:
 
 def load_teacher(folder: Path, names: list) -> dict:
     """The teacher's display images (`displays.safetensors` of nedrt
-    prefilter), by photograph name."""
+    prefilter, or the shares `displays-K-of-N.safetensors` of a sharded
+    `nedrt-train ceiling`), by photograph name."""
     from safetensors.torch import load_file
     path = folder / "displays.safetensors"
-    if not path.is_file():
+    files = [path] if path.is_file() else sorted(folder.glob("displays-*-of-*.safetensors"))
+    if not files:
         raise FileNotFoundError(f"{path}: no teacher display images (run nedrt prefilter --out-dir {folder})")
-    t = load_file(str(path))
+    t = {}
+    for f in files:
+        for name, display in load_file(str(f)).items():
+            if name in t:
+                raise ValueError(f"{f}: {name} is also in another share of {folder}")
+            t[name] = display
     missing = [n for n in names if n not in t]
     if missing:
-        raise ValueError(f"{path}: no display image for {', '.join(missing[:5])}")
+        where = path if len(files) == 1 and files[0] == path else f"{folder}'s {len(files)} shares"
+        raise ValueError(f"{where}: no display image for {', '.join(missing[:5])}")
     return {n: t[n].float() for n in names}
 
 

@@ -105,3 +105,23 @@ def test_the_training_split_ceiling_is_a_teacher_for_distillation(tmp_path):
     assert json.loads((teacher / "train-ceiling" / "prefilter.json").read_text())["sharp_weight"] == 1
     result = distill.train(config(images, teacher, 1, teacher_set="train-ceiling"), tmp_path / "run")
     assert result["teacher"]["train"]["prefilter"] == "ceiling w=1"
+
+
+def test_shards_together_are_the_whole_teacher(tmp_path):
+    """--shard 1/2 and 2/2 split the photographs; the teacher they leave is
+    the unsharded one, photograph for photograph."""
+    images, teacher, _ = setup(tmp_path)
+    args = ["--teacher", str(teacher), "--images", str(images), "--sharp-weight", "1", "--iterations", "5"]
+    ceiling.main(args + ["--write", str(tmp_path / "whole")])
+    for k in (1, 2):
+        ceiling.main(args + ["--shard", f"{k}/2", "--write", str(tmp_path / "shared")])
+    names = distill.photo_names(images / "val")
+    assert len(names) >= 2
+    whole = distill.load_teacher(tmp_path / "whole", names)
+    shared = distill.load_teacher(tmp_path / "shared", names)
+    assert not (tmp_path / "shared" / "displays.safetensors").exists()
+    for name in names:
+        assert torch.equal(whole[name], shared[name]), name
+    for bad in ("0/2", "3/2", "x", "1/0"):
+        with pytest.raises(SystemExit, match="--shard"):
+            ceiling.main(args + ["--shard", bad])
