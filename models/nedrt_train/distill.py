@@ -88,6 +88,13 @@ class DistillConfig:
     # ("train": nedrt's optimum; "train-ceiling": nedrt-train ceiling
     # --split train --write, the optimum of the evaluation's mean PSNR).
     teacher_set: str = "train"
+    # How the distance to the teacher is measured: in display values
+    # ("display"), or as the eye sees it ("perceived": the mean squared
+    # difference of the perceived images summed over the depths, through the
+    # objective's normal kernel). The ceiling's display image carries
+    # content the optics do not pass (its start's, unconstrained by the
+    # objective); "perceived" does not ask the network to learn that.
+    distill_metric: str = "display"
 
 
 class Objective:
@@ -153,6 +160,16 @@ class Objective:
         value = (0.5 * (d * conv(d, "normal")) - d * conv(i, "adjoint_target")
                  + 0.5 * (i * conv(i, "target_gram"))).sum(dim=(2, 3, 4))
         return 0.5 * value / (display.shape[1] * 4 * h * w)
+
+    def seen_distance(self, display: torch.Tensor, other: torch.Tensor) -> torch.Tensor:
+        """Per frame: the mean squared difference of the two display
+        images' perceived images, per depth, channel and retinal value (the
+        objective's scale: `mse` of `display` against a target that `other`
+        meets exactly)."""
+        h, w = self.size
+        e = self.mirror(display - other)
+        value = 0.125 * (e * self._conv(e, "normal")).sum(dim=(1, 2, 3))
+        return 2 * value / (self.depths * display.shape[1] * 4 * h * w)
 
     def mse(self, display: torch.Tensor, image: torch.Tensor) -> torch.Tensor:
         """Per frame: the mean squared error per depth, channel and retinal value."""
@@ -241,7 +258,10 @@ def losses(net, objective: Objective, image, teacher, cfg: DistillConfig, sharp:
            base=None):
     raw = forward(net, image, base, cfg)
     display = clamp(raw, cfg)
-    distill = F.mse_loss(display, teacher)
+    if cfg.distill_metric == "perceived":
+        distill = objective.seen_distance(display, teacher).mean()
+    else:
+        distill = F.mse_loss(display, teacher)
     excursion = (F.relu(raw - 1) ** 2 + F.relu(-raw) ** 2).mean()
     if cfg.loss == "psnr":
         per_depth = objective.depth_mse(display, image).clamp_min(1e-10)
@@ -327,6 +347,8 @@ def train(cfg: DistillConfig, out: Path, resume: bool = False, stop_after: int |
         raise ValueError(f"input {cfg.input!r}: choose image or wiener-raw")
     if cfg.input == "wiener-raw" and cfg.base != "input":
         raise ValueError("--input wiener-raw is its own residual base: leave --base at input")
+    if cfg.distill_metric not in ("display", "perceived"):
+        raise ValueError(f"distill-metric {cfg.distill_metric!r}: choose display or perceived")
     if cfg.clamp_grad not in ("zero", "straight"):
         raise ValueError(f"clamp-grad {cfg.clamp_grad!r}: choose zero or straight")
     bases = None

@@ -84,6 +84,25 @@ def test_the_objective_of_the_kernels_is_the_blur_error(tmp_path):
     assert torch.allclose(obj.depth_mse(other, flat).sum(1), obj.mse(other, flat) * DEPTHS, rtol=1e-4)
 
 
+def test_the_perceived_distance_is_the_blurred_difference(tmp_path):
+    """`seen_distance` is the mean squared blurred difference (each depth of
+    the test kernels sees the 3-tap blur, symmetric extension), computed
+    here by direct sums; the ceiling's invisible content costs nothing."""
+    images, teacher = write_teacher(tmp_path)
+    obj = distill.Objective.load(teacher / "train" / f"operator-{PATCH}x{PATCH}.safetensors")
+    gen = torch.Generator().manual_seed(4)
+    a, b = torch.rand(2, 3, PATCH, PATCH, generator=gen), torch.rand(2, 3, PATCH, PATCH, generator=gen)
+    e = torch.nn.functional.pad(a - b, (1, 1, 1, 1), mode="replicate")
+    taps = torch.tensor([0.25, 0.5, 0.25])
+    blurred = sum(wy * wx * e[..., 1 + dy:1 + dy + PATCH, 1 + dx:1 + dx + PATCH]
+                  for dy, wy in zip((-1, 0, 1), taps) for dx, wx in zip((-1, 0, 1), taps))
+    want = (blurred ** 2).mean(dim=(1, 2, 3))
+    assert torch.allclose(obj.seen_distance(a, b), want, rtol=1e-4), (obj.seen_distance(a, b), want)
+    assert config(images, teacher, 1, distill_metric="perceived").distill_metric == "perceived"
+    with pytest.raises(ValueError, match="distill-metric"):
+        distill.train(config(images, teacher, 1, distill_metric="retinal"), tmp_path / "bad")
+
+
 @pytest.mark.parametrize("loss", ["mse", "psnr"])
 def test_resume_continues_exactly(tmp_path, loss):
     images, teacher = write_teacher(tmp_path)

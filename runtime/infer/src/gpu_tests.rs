@@ -224,6 +224,56 @@ mod needs_gpu {
 
     #[test]
     #[ignore = "needs a GPU adapter (run: scripts/test.sh, or cargo test -- --include-ignored)"]
+    fn a_frame_in_bands_is_the_whole_frame_bit_for_bit() {
+        // Narrow random U-Nets of the shipped depth (4 levels, so the
+        // shipped receptive radius) and of 3: lavapipe is slow.
+        let nets: Vec<Network> = [(3, 31), (4, 32)]
+            .iter()
+            .map(|&(levels, seed)| {
+                model_from(&synth::unet(4, levels, seed), "random.onnx")
+                    .lower()
+                    .expect("lowers")
+            })
+            .collect();
+        for precision in [Precision::F32, Precision::F16] {
+            let (device, queue) = gpu_device(precision);
+            for net in &nets {
+                let name = format!("{} levels", net.multiple.trailing_zeros());
+                let open = || {
+                    GpuBackend::new(&device, &queue, "test".into(), net, precision).expect("builds")
+                };
+                let mut whole = open();
+                let m = net.multiple;
+                let halo = net.receptive_radius().next_multiple_of(m);
+                // Bands keeping two multiples each; a frame of three bands
+                // and a short one, so every kind of band occurs.
+                let rows = 2 * halo + 2 * m;
+                let (w, h) = (2 * m, 3 * rows + m);
+                let limit = whole.largest_activation_bytes(w, rows);
+                let mut banded = open().with_binding_limit(limit);
+                assert_eq!(whole.window_rows(w, h).expect("fits"), h, "{name}");
+                assert_eq!(banded.window_rows(w, h).expect("bands"), rows, "{name}");
+                let frame = random_frame(w, h, 9);
+                let want = whole.run_tensor(frame.data(), w, h).expect("whole");
+                let got = banded.run_tensor(frame.data(), w, h).expect("banded");
+                assert!(
+                    want == got,
+                    "{name} {precision:?}: {}",
+                    max_abs_diff(&want, &got)
+                );
+                // Too small for any band: a clear error, not a wrong image.
+                let e = open()
+                    .with_binding_limit(64)
+                    .run_tensor(frame.data(), w, h)
+                    .expect_err("no band fits")
+                    .to_string();
+                assert!(e.contains("even a band of") && e.contains("MiB"), "{e}");
+            }
+        }
+    }
+
+    #[test]
+    #[ignore = "needs a GPU adapter (run: scripts/test.sh, or cargo test -- --include-ignored)"]
     fn random_unets_match_the_cpu_twin() {
         random_unets_on_the_gpu_match("twin", |_, net, frame| {
             reference::run(net, frame.data(), frame.height, frame.width)

@@ -149,3 +149,33 @@ impl Layer {
         }
     }
 }
+
+impl Network {
+    /// How far, in frame pixels, an output pixel can see: a bound on the
+    /// distance from which any input pixel changes it (what a band of the
+    /// frame needs around it to give the whole frame's result exactly).
+    /// Conservative at pools and transposed convs (a whole cell of the
+    /// coarser level counts).
+    pub fn receptive_radius(&self) -> usize {
+        let mut radius = vec![0usize; self.values.len()];
+        let level = |v: ValueId| self.values[v].level;
+        for layer in &self.layers {
+            let reach = match layer {
+                Layer::Conv(c) => {
+                    let own = radius[c.input] + ((c.kernel / 2) << level(c.input));
+                    c.residual.map_or(own, |r| own.max(radius[r]))
+                }
+                Layer::MaxPool { input, output }
+                | Layer::ConvTranspose(ConvTranspose { input, output, .. }) => {
+                    radius[*input] + (1usize << level(*input).max(level(*output)))
+                }
+                Layer::Concat { inputs, .. } => {
+                    inputs.iter().map(|&i| radius[i]).max().unwrap_or(0)
+                }
+            };
+            let out = layer.output();
+            radius[out] = radius[out].max(reach);
+        }
+        radius[self.output]
+    }
+}

@@ -5,6 +5,13 @@
 //! per network; buffers and bind groups once per frame size; a frame only
 //! uploads, records the dispatches and reads back.
 //!
+//! A frame whose largest activation does not fit one storage binding of
+//! the adapter (lavapipe and wgpu's defaults bind 128 MiB; the full-width
+//! network's first activation is 253 MiB in f32 at 1920×1080) runs in
+//! horizontal bands, each with a halo of the network's receptive radius
+//! and aligned to its multiple, so every band's kept rows equal the whole
+//! frame's result exactly.
+//!
 //! f16 mode stores weights and intermediate activations as f16 and
 //! accumulates in f32; the frame in and the display out stay f32.
 
@@ -61,6 +68,11 @@ pub struct GpuBackend {
     /// Start/end timestamps of the network's pass, where the device has them.
     timer: Option<GpuTimer>,
     last_gpu_ns: Option<u64>,
+    /// The most bytes one activation buffer may have (the adapter's storage
+    /// binding and buffer limits, or a smaller one set for tests).
+    binding_cap: u64,
+    /// Rows a band carries above and below the rows it keeps.
+    halo: usize,
 }
 
 /// A timestamp query pair and the buffers that bring it back.
@@ -296,6 +308,8 @@ impl GpuBackend {
         if let Some(e) = pollster::block_on(scope.pop()) {
             return Err(err(format!("building the kernels: {e}")));
         }
+        let limits = device.limits();
+        let m = network.multiple.max(1);
         Ok(Self {
             device: device.clone(),
             queue: queue.clone(),
@@ -312,7 +326,61 @@ impl GpuBackend {
             plan: None,
             timer: GpuTimer::new(device, queue),
             last_gpu_ns: None,
+            binding_cap: limits
+                .max_storage_buffer_binding_size
+                .min(limits.max_buffer_size),
+            halo: network.receptive_radius().next_multiple_of(m),
         })
+    }
+
+    /// Caps each activation buffer at `bytes` (at most the adapter's own
+    /// limit): frames whose activations are larger run in bands. For tests
+    /// of the banding on adapters with large limits.
+    pub fn with_binding_limit(mut self, bytes: u64) -> Self {
+        self.binding_cap = self.binding_cap.min(bytes);
+        self.plan = None;
+        self
+    }
+
+    /// The largest activation buffer a `width`×`height` frame needs, bytes.
+    pub(crate) fn largest_activation_bytes(&self, width: usize, height: usize) -> u64 {
+        let net = &self.network;
+        (0..net.values.len())
+            .filter(|v| !self.alias.contains_key(v))
+            .map(|v| {
+                let level = net.values[v].level;
+                let elems = net.values[v].channels * (width >> level) * (height >> level);
+                (elems * self.dtype(v).bytes()).next_multiple_of(4).max(4) as u64
+            })
+            .max()
+            .unwrap_or(4)
+    }
+
+    /// How many rows of a `width`×`height` frame run at once: all of them
+    /// where the activations fit, else the tallest band (a multiple of the
+    /// network's multiple) that fits and keeps rows beyond its two halos.
+    pub fn window_rows(&self, width: usize, height: usize) -> Result<usize, InferenceError> {
+        if self.largest_activation_bytes(width, height) <= self.binding_cap {
+            return Ok(height);
+        }
+        let m = self.network.multiple.max(1);
+        let smallest = 2 * self.halo + m;
+        let mut rows = height - height % m;
+        while rows >= smallest {
+            if self.largest_activation_bytes(width, rows) <= self.binding_cap {
+                return Ok(rows);
+            }
+            rows -= m;
+        }
+        Err(err(format!(
+            "a {width}×{height} frame needs a {:.0} MiB activation buffer, and even a band of \
+             {smallest} rows (the network sees {} rows either side) needs {:.0} MiB; the adapter \
+             binds at most {:.0} MiB (try --precision f16 or a smaller frame)",
+            self.largest_activation_bytes(width, height) as f64 / 1048576.0,
+            self.halo,
+            self.largest_activation_bytes(width, smallest) as f64 / 1048576.0,
+            self.binding_cap as f64 / 1048576.0
+        )))
     }
 
     fn dtype(&self, root: ValueId) -> Dtype {
@@ -324,20 +392,64 @@ impl GpuBackend {
     }
 
     /// Runs on a CHW tensor with the network's input channels; returns the
-    /// output value (any channel count) as CHW f32.
+    /// output value (any channel count) as CHW f32. In bands where the
+    /// whole frame's activations do not fit the adapter (module docs).
     pub fn run_tensor(
         &mut self,
         data: &[f32],
         width: usize,
         height: usize,
     ) -> Result<Vec<f32>, InferenceError> {
-        let expected = self.network.values[0].channels * width * height;
-        if data.len() != expected {
+        let cin = self.network.values[0].channels;
+        if data.len() != cin * width * height {
             return Err(err(format!(
                 "{} values for a {width}×{height} input",
                 data.len()
             )));
         }
+        let rows = self.window_rows(width, height)?;
+        if rows == height {
+            let (out, gpu_ns) = self.run_window(data, width, height)?;
+            self.last_gpu_ns = gpu_ns;
+            return Ok(out);
+        }
+        let cout = self.network.values[self.network.output].channels;
+        let keep = rows - 2 * self.halo;
+        let (plane, band_plane) = (width * height, width * rows);
+        let mut out = vec![0.0f32; cout * plane];
+        let mut window = vec![0.0f32; cin * band_plane];
+        let mut gpu_ns = Some(0u64);
+        let mut y0 = 0;
+        while y0 < height {
+            let y1 = (y0 + keep).min(height);
+            // Both are multiples of the network's multiple, so the pooling
+            // grid of the band is the frame's.
+            let top = y0.saturating_sub(self.halo).min(height - rows);
+            for c in 0..cin {
+                window[c * band_plane..][..band_plane]
+                    .copy_from_slice(&data[c * plane + top * width..][..band_plane]);
+            }
+            let (band, ns) = self.run_window(&window, width, rows)?;
+            gpu_ns = gpu_ns.zip(ns).map(|(a, b)| a + b);
+            let kept = (y1 - y0) * width;
+            for c in 0..cout {
+                out[c * plane + y0 * width..][..kept]
+                    .copy_from_slice(&band[c * band_plane + (y0 - top) * width..][..kept]);
+            }
+            y0 = y1;
+        }
+        self.last_gpu_ns = gpu_ns;
+        Ok(out)
+    }
+
+    /// One dispatch of the network over a `width`×`height` tensor that fits
+    /// the adapter; the output and the device's time for it.
+    fn run_window(
+        &mut self,
+        data: &[f32],
+        width: usize,
+        height: usize,
+    ) -> Result<(Vec<f32>, Option<u64>), InferenceError> {
         if self
             .plan
             .as_ref()
@@ -404,7 +516,7 @@ impl GpuBackend {
             bytemuck::cast_slice::<u8, f32>(&view[..plan.output_elems * 4]).to_vec()
         };
         plan.readback.unmap();
-        self.last_gpu_ns = self.timer.as_ref().and_then(|t| {
+        let gpu_ns = self.timer.as_ref().and_then(|t| {
             let view = t.readback.slice(..).get_mapped_range().ok()?;
             let [start, end]: [u64; 2] = bytemuck::pod_read_unaligned(&view[..16]);
             drop(view);
@@ -414,7 +526,7 @@ impl GpuBackend {
         if let Some(e) = pollster::block_on(scope.pop()) {
             return Err(err(format!("running: {e}")));
         }
-        Ok(out)
+        Ok((out, gpu_ns))
     }
 }
 

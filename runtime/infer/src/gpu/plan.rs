@@ -49,6 +49,7 @@ impl GpuBackend {
         }
         let plane = |v: ValueId| (width >> net.values[v].level) * (height >> net.values[v].level);
         let limits = self.device.limits();
+        let cap = self.binding_cap;
         // Buffers: one per root value; aliased values sit at a channel offset.
         let mut buffers = Vec::new();
         let mut root_place: Vec<Option<Place>> = vec![None; net.values.len()];
@@ -66,9 +67,6 @@ impl GpuBackend {
                 None => {
                     let elems = net.values[r].channels * plane(r);
                     let bytes = (elems * self.dtype(r).bytes()).next_multiple_of(4).max(4) as u64;
-                    let cap = limits
-                        .max_storage_buffer_binding_size
-                        .min(limits.max_buffer_size);
                     if bytes > cap {
                         return Err(err(format!(
                             "a {width}×{height} frame needs a {:.0} MiB activation buffer; the \
