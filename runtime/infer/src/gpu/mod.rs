@@ -73,6 +73,8 @@ pub struct GpuBackend {
     binding_cap: u64,
     /// Rows a band carries above and below the rows it keeps.
     halo: usize,
+    /// The frame size whose banding was last reported.
+    banded_size: Option<(usize, usize)>,
 }
 
 /// A timestamp query pair and the buffers that bring it back.
@@ -330,6 +332,7 @@ impl GpuBackend {
                 .max_storage_buffer_binding_size
                 .min(limits.max_buffer_size),
             halo: network.receptive_radius().next_multiple_of(m),
+            banded_size: None,
         })
     }
 
@@ -415,6 +418,18 @@ impl GpuBackend {
         }
         let cout = self.network.values[self.network.output].channels;
         let keep = rows - 2 * self.halo;
+        if self.banded_size != Some((width, height)) {
+            self.banded_size = Some((width, height));
+            tracing::info!(
+                "wgpu: a {width}×{height} frame runs in {} bands of {rows} rows (each keeps {keep}, \
+                 the network sees {} rows either side): its largest activation needs {:.0} MiB, \
+                 the adapter binds {:.0} MiB",
+                height.div_ceil(keep),
+                self.halo,
+                self.largest_activation_bytes(width, height) as f64 / 1048576.0,
+                self.binding_cap as f64 / 1048576.0
+            );
+        }
         let (plane, band_plane) = (width * height, width * rows);
         let mut out = vec![0.0f32; cout * plane];
         let mut window = vec![0.0f32; cin * band_plane];
