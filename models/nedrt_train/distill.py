@@ -198,7 +198,7 @@ def load_teacher(folder: Path, names: list) -> dict:
             t[name] = display
     missing = [n for n in names if n not in t]
     if missing:
-        where = path if len(files) == 1 and files[0] == path else f"{folder}'s {len(files)} shares"
+        where = path if files == [path] else f"{folder}'s {len(files)} shares"
         raise ValueError(f"{where}: no display image for {', '.join(missing[:5])}")
     return {n: t[n].float() for n in names}
 

@@ -6,8 +6,8 @@
 //! uploads, records the dispatches and reads back.
 //!
 //! A frame whose largest activation does not fit one storage binding of
-//! the adapter (lavapipe and wgpu's defaults bind 128 MiB; the full-width
-//! network's first activation is 253 MiB in f32 at 1920×1080) runs in
+//! the adapter (lavapipe and wgpu's defaults bind 128 MiB; the shipped
+//! network's largest activation is 253 MiB in f32 at 1920×1080) runs in
 //! horizontal bands, each with a halo of the network's receptive radius
 //! and aligned to its multiple, so every band's kept rows equal the whole
 //! frame's result exactly.
@@ -345,16 +345,19 @@ impl GpuBackend {
         self
     }
 
+    /// Bytes of the buffer of root value `v` (one not placed inside a
+    /// concat) for a `width`×`height` frame.
+    fn activation_bytes(&self, v: ValueId, width: usize, height: usize) -> u64 {
+        let info = &self.network.values[v];
+        let elems = info.channels * (width >> info.level) * (height >> info.level);
+        (elems * self.dtype(v).bytes()).next_multiple_of(4).max(4) as u64
+    }
+
     /// The largest activation buffer a `width`×`height` frame needs, bytes.
     pub(crate) fn largest_activation_bytes(&self, width: usize, height: usize) -> u64 {
-        let net = &self.network;
-        (0..net.values.len())
+        (0..self.network.values.len())
             .filter(|v| !self.alias.contains_key(v))
-            .map(|v| {
-                let level = net.values[v].level;
-                let elems = net.values[v].channels * (width >> level) * (height >> level);
-                (elems * self.dtype(v).bytes()).next_multiple_of(4).max(4) as u64
-            })
+            .map(|v| self.activation_bytes(v, width, height))
             .max()
             .unwrap_or(4)
     }

@@ -65,8 +65,7 @@ impl GpuBackend {
             let base = match root_place[r] {
                 Some(p) => p,
                 None => {
-                    let elems = net.values[r].channels * plane(r);
-                    let bytes = (elems * self.dtype(r).bytes()).next_multiple_of(4).max(4) as u64;
+                    let bytes = self.activation_bytes(r, width, height);
                     if bytes > cap {
                         return Err(err(format!(
                             "a {width}×{height} frame needs a {:.0} MiB activation buffer; the \
