@@ -495,8 +495,11 @@ def export(run: Path, out: Path, name: str, doe: Path) -> dict:
                      "torch": torch.__version__,
                      "cuda": torch.cuda.get_device_name(0) if torch.cuda.is_available() else None},
         "doe": {"source": str(doe), "sha256": sha256(doe)},
-        "teacher": result.get("teacher"),
-        "validation": result.get("validation"),
+        "teacher": result.get("teacher") or teacher_manifest(cfg),
+        # A run stopped before its last step has no result.json: its
+        # checkpoint's history holds the validations it did make.
+        "validation": result.get("validation", state.get("history")),
+        "finished": state["step"] >= cfg.steps,
         "parameters": sum(p.numel() for p in net.parameters()),
         "macs_per_pixel": net.macs_per_pixel(),
         "files": {p.name: sha256(p) for p in [onnx_path, doe_path]},
@@ -507,6 +510,12 @@ def export(run: Path, out: Path, name: str, doe: Path) -> dict:
         card["input"], card["wiener_k"] = "wiener-raw", wiener_k
     (out / f"{name}.card.json").write_text(json.dumps(card, indent=1))
     return card
+
+
+def teacher_manifest(cfg: DistillConfig) -> dict | None:
+    """The teacher's prefilter.json, as a run records it in result.json."""
+    path = Path(cfg.teacher) / cfg.teacher_set / "prefilter.json"
+    return {"train": json.loads(path.read_text())} if path.is_file() else None
 
 
 def main(argv=None, prog=None):

@@ -136,6 +136,19 @@ def test_export_writes_the_model_its_doe_and_a_card(tmp_path):
     import onnx
     model = onnx.load(str(tmp_path / "out" / "tiny.onnx"))
     assert [i.name for i in model.graph.input] == ["image"]
+    assert card["finished"] and card["validation"]
+
+
+def test_the_card_of_a_stopped_run_keeps_its_validations(tmp_path):
+    """A run stopped before its last step (no result.json) is exported with
+    the validations its checkpoint holds, and the card says it is unfinished."""
+    images, teacher = write_teacher(tmp_path)
+    distill.train(config(images, teacher, 4), tmp_path / "run", stop_after=2)
+    (tmp_path / "run" / "result.json").unlink()  # as when the process is killed
+    doe = REPO / "designs" / "multifocal" / "doe-fabrication.safetensors"
+    card = distill.export(tmp_path / "run", tmp_path / "out", "stopped", doe)
+    assert card["steps"] == 2 and not card["finished"]
+    assert [v["step"] for v in card["validation"]] == [2]
 
 
 def test_the_wiener_base_starts_at_the_wiener(tmp_path):
