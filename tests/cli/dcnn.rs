@@ -26,8 +26,10 @@ fn proposed_method_runs_the_dcnn_with_its_companion_doe() {
     assert!(cpu.status.success(), "{}", stderr(&cpu));
     assert!(stdout(&cpu).contains("D-CNN"), "{}", stdout(&cpu));
     assert!(
-        stdout(&cpu).contains("nedrt_train run cpu"),
-        "the companion DOE is used"
+        // models/dcnn.doe.safetensors is the multifocal design's DOE.
+        stdout(&cpu).contains("nedrt_train.design multifocal"),
+        "the companion DOE is used: {}",
+        stdout(&cpu)
     );
 }
 

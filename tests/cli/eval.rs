@@ -88,6 +88,42 @@ fn eval_writes_fig6_tables() {
 }
 
 #[test]
+fn eval_runs_the_built_in_methods_and_the_shipped_dcnn_by_default() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let imgs = image_folder(dir.path(), &[("a.png", 32, 32)]);
+    let out = dir.path().join("eval");
+    // From the repository root, where the shipped model is.
+    let o = nedrt()
+        .current_dir(repo())
+        .args([
+            "--calib",
+            path(&small_calib()),
+            "eval",
+            "--images",
+            path(&imgs),
+        ])
+        .args(["--out-dir", path(&out)])
+        .output()
+        .expect("eval");
+    assert!(o.status.success(), "{}", stderr(&o));
+    let md = std::fs::read_to_string(out.join("eval.md")).expect("md");
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("eval.json")).expect("json"))
+            .expect("parse");
+    let names: Vec<String> = json["methods"]
+        .as_array()
+        .expect("methods")
+        .iter()
+        .map(|m| m["method"].as_str().expect("name").to_string())
+        .collect();
+    assert_eq!(
+        names,
+        ["conventional", "ai", "doe-only", "doe+wiener", "proposed"]
+    );
+    assert!(md.contains("D-CNN proposed: models/dcnn.onnx"), "{md}");
+}
+
+#[test]
 fn eval_measures_focus_cues_and_charts_them() {
     let dir = tempfile::tempdir().expect("tmp");
     let imgs = image_folder(dir.path(), &[("a.png", 64, 64)]);

@@ -169,12 +169,24 @@ fn run_falls_back_to_the_cpu_when_the_chosen_backend_cannot_start() {
         "{}",
         stderr(&o)
     );
-    assert!(stdout(&o).contains("preprocess: D-CNN"), "{}", stdout(&o));
+    // The shipped network runs behind its Wiener stage.
+    assert!(
+        stdout(&o).contains("preprocess: Wiener prefilter of proposed")
+            && stdout(&o).contains("then D-CNN models/dcnn.onnx"),
+        "{}",
+        stdout(&o)
+    );
     assert!(stdout(&o).contains("on cpu (tract"), "{}", stdout(&o));
-    // Asked not to fall back to a network at all, it shows the frames unprocessed.
+    // Asked not to fall back to a network at all, it shows the frames
+    // without one: the shipped network's Wiener stage alone.
     let o = run_without_ort(&["--fallback", "passthrough"], "rec2");
     assert!(o.status.success(), "{}", stderr(&o));
-    assert!(stdout(&o).contains("preprocess: none"), "{}", stdout(&o));
+    assert!(
+        stdout(&o).contains("preprocess: Wiener prefilter of proposed")
+            && stdout(&o).contains("then none (the frame as it comes"),
+        "{}",
+        stdout(&o)
+    );
 }
 
 #[test]

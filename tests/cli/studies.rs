@@ -96,7 +96,7 @@ fn tradeoff_writes_the_chart_and_the_picker_reads_it() {
     assert!(records.iter().any(|r| r["on_front"] == true));
     let md = std::fs::read_to_string(out.join("tradeoff.md")).expect("md");
     assert!(
-        md.contains("32×24") && md.contains("0bbffee9f270c792"),
+        md.contains("32×24") && md.contains("models/dcnn.onnx ("),
         "{md}"
     );
     // The fastest configuration meets an easy floor.

@@ -44,12 +44,19 @@ struct Service {
 
 impl Service {
     fn start(args: &[&str], dir: tempfile::TempDir) -> Self {
+        // The shipped network without its card, so it sees the frame
+        // itself: these tests compare the service with the backend
+        // ([`reference`]), not with the Wiener stage the card adds.
+        let network = dir.path().join("network.onnx");
+        std::fs::copy(repo().join("models/dcnn.onnx"), &network).expect("copy the model");
         let child = Command::new(env!("CARGO_BIN_EXE_nedrt"))
             .current_dir(repo())
             .env("NEDRT_LOG", "nedrt=info")
             .arg("run")
             .arg("--calib")
             .arg(small_panel())
+            .arg("--dcnn")
+            .arg(&network)
             .args(args)
             .stdout(Stdio::piped())
             .stderr(Stdio::piped())

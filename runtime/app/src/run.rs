@@ -92,7 +92,8 @@ impl Named for SinkKind {
 pub enum FallbackKind {
     /// The same network on the CPU (tract).
     Cpu,
-    /// No preprocessing: the frame as submitted.
+    /// No network: the frame as submitted, or, for a network behind a
+    /// Wiener stage, that Wiener prefilter alone (clamped).
     Passthrough,
 }
 
@@ -107,7 +108,9 @@ impl Named for FallbackKind {
     fn help(self) -> &'static str {
         match self {
             FallbackKind::Cpu => "the same network on the CPU (tract)",
-            FallbackKind::Passthrough => "no preprocessing: the frame as submitted",
+            FallbackKind::Passthrough => {
+                "no network: the frame as submitted (or the model's Wiener stage alone, clamped)"
+            }
         }
     }
 }

@@ -299,11 +299,13 @@ fn frames_with_nan_or_the_wrong_size_are_refused() {
 
 #[test]
 fn a_model_that_moves_flat_fields_is_warned_about() {
-    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/dcnn.onnx");
-    let mut dcnn = Dcnn::load(&path, BackendKind::Cpu, &BackendOptions::default()).expect("loads");
-    // docs/stability.md: the preliminary model darkens white by ≈ 0.02.
+    // An untrained U-Net (random weights) adds its own pattern to any
+    // frame, flat ones included.
+    let model = model_from(&synth::unet(4, 3, 7), "random.onnx");
+    let mut dcnn =
+        Dcnn::from_model(model, BackendKind::Cpu, &BackendOptions::default()).expect("loads");
     let shift = dcnn.flat_field_shift().expect("runs");
-    assert!(shift > FLAT_FIELD_TOLERANCE && shift < 0.1, "{shift}");
+    assert!(shift > FLAT_FIELD_TOLERANCE && shift.is_finite(), "{shift}");
     let w = flat_field_warning("m.onnx", shift).expect("warns");
     assert!(w.contains("m.onnx") && w.contains("flat"), "{w}");
     assert!(flat_field_warning("m.onnx", 0.5 / 255.0).is_none());

@@ -23,6 +23,17 @@ use nedrt_optics::sim::{Image, Method, Optics, Prepared, Simulator};
 pub const HEADLINE_MAX_D: f64 = nedrt_optics::sim::HEADLINE_MAX_D;
 
 /// Image files in a folder, sorted by name.
+/// `eval`'s methods when none are named: the built-in displays and the
+/// shipped D-CNN (`proposed`, whose DOE then serves every DOE method of the
+/// run, so doe-only and doe+wiener show that DOE without and with the
+/// Wiener).
+fn default_methods() -> Vec<Method> {
+    Method::BUILT_IN
+        .into_iter()
+        .chain([Method::Proposed])
+        .collect()
+}
+
 pub fn list_images(dir: &Path) -> Result<Vec<PathBuf>, AppError> {
     let entries = std::fs::read_dir(dir)
         .map_err(|e| AppError::output(dir, format!("cannot read folder: {e}")))?;
@@ -246,7 +257,7 @@ pub fn run(
         create_dir(dir)?;
     }
     let methods: Vec<Method> = if methods.is_empty() {
-        Method::BUILT_IN.to_vec()
+        default_methods()
     } else {
         methods.to_vec()
     };

@@ -3,6 +3,7 @@
 //! and f16 against f32 on the GPU.
 
 use std::path::Path;
+use std::sync::Arc;
 
 use serde::Serialize;
 
@@ -11,14 +12,53 @@ use crate::AppError;
 use nedrt_infer::content::content_set;
 use nedrt_infer::{BackendKind, BackendOptions, Dcnn, Precision};
 use nedrt_optics::sim::metrics::psnr;
+use nedrt_optics::sim::wiener::WienerFilter;
 use nedrt_optics::sim::{Image, Method, Simulator};
+
+/// What a D-CNN is built on: its input, and the display image the panel
+/// would show without the network (what its margin is measured against).
+#[derive(Debug, Clone)]
+pub enum Base {
+    /// The network sees the frame; without it the DOE shows the frame (doe-only).
+    Frame,
+    /// The network sees its optics' Wiener prefilter before the clamp;
+    /// without it the DOE shows the clamped Wiener.
+    Wiener(Arc<WienerFilter>),
+}
+
+impl Base {
+    /// The network's input for `frame`.
+    pub fn network_input(&self, frame: &Image) -> Image {
+        match self {
+            Base::Frame => frame.clone(),
+            Base::Wiener(w) => w.apply_unclamped(frame),
+        }
+    }
+
+    /// The display image without the network.
+    pub fn display(&self, frame: &Image) -> Image {
+        match self {
+            Base::Frame => frame.clone(),
+            Base::Wiener(w) => w.apply(frame),
+        }
+    }
+
+    /// The base's name in tables.
+    pub fn name(&self) -> String {
+        match self {
+            Base::Frame => "doe-only".into(),
+            Base::Wiener(w) => format!("doe+wiener (K = {:.3})", w.k_reg),
+        }
+    }
+}
 
 /// Mean PSNR vs sharp at one accommodation.
 #[derive(Debug, Clone, Copy, Serialize)]
 pub struct DepthRow {
     pub accommodation_d: f64,
     pub proposed: f64,
-    pub doe_only: f64,
+    /// The same DOE without the network (its [`Base`]).
+    pub base: f64,
     pub conventional: f64,
 }
 
@@ -28,8 +68,8 @@ pub struct ContentRow {
     pub content: String,
     /// Mean PSNR over 0–2.5 D.
     pub proposed: f64,
-    pub doe_only: f64,
-    /// Mean |D-CNN(I) − I|.
+    pub base: f64,
+    /// Mean |display − base display|: what the network changed.
     pub changed: f64,
     pub finite: bool,
     /// Share of the output's and the input's values at 0 or 1.
@@ -37,13 +77,15 @@ pub struct ContentRow {
     pub at_bounds: [f64; 2],
 }
 
-/// Range (lowest, highest) of the proposed − doe-only margin over a set of
+/// Range (lowest, highest) of the proposed − base margin over a set of
 /// accommodations.
 pub type Margin = (f64, f64);
 
 /// The D-CNN off its training accommodations and content.
 #[derive(Debug, Clone, Serialize)]
 pub struct DcnnSection {
+    /// What the margins are measured against ([`Base::name`]).
+    pub base: String,
     pub accommodations: Vec<DepthRow>,
     pub content: Vec<ContentRow>,
     /// Margins at trained depths, untrained ones inside the calibrated
@@ -60,38 +102,52 @@ pub struct DcnnSection {
 
 /// The D-CNN at accommodations it was not trained at, and on content
 /// unlike its training data.
+/// `wiener_k`: the K of the Wiener stage in front of the network (its
+/// model card's), or `None` for a network that sees the frame. Returns the
+/// section and the network's [`Base`], for the other sections.
 pub fn depths_and_content(
     sim: &Simulator,
     dcnn: &mut Dcnn,
+    wiener_k: Option<f64>,
     inputs: &[Image],
     content_size: usize,
-) -> Result<DcnnSection, AppError> {
-    let methods = [Method::Proposed, Method::DoeOnly, Method::Conventional];
+) -> Result<(DcnnSection, Base), AppError> {
+    // The base display is seen through the D-CNN's own optics (its DOE),
+    // as doe-only would be.
+    let methods = [Method::Proposed, Method::Conventional];
     let depths = crate::tradeoff::quality::headline_depths(&sim.calib);
     let mut all_depths = DEPTHS_D.to_vec();
     all_depths.extend(depths.iter().filter(|d| !DEPTHS_D.contains(d)));
     let prepared = sim.prepare(&methods, &all_depths, &nedrt_core::progress::Silent)?;
-    let displays: Vec<Image> = inputs
-        .iter()
-        .map(|i| dcnn.run_frame(i))
-        .collect::<Result<_, _>>()?;
+    let base = match wiener_k {
+        None => Base::Frame,
+        Some(k) => Base::Wiener(Arc::new(prepared.wiener_filter(Method::Proposed, k)?)),
+    };
+    let mut run = |frame: &Image| -> Result<(Image, Image), AppError> {
+        Ok((
+            dcnn.run_frame(&base.network_input(frame))?,
+            base.display(frame),
+        ))
+    };
+    let displays: Vec<(Image, Image)> = inputs.iter().map(&mut run).collect::<Result<_, _>>()?;
     let mut accommodations = Vec::new();
     for &d in &DEPTHS_D {
         let mut s = [0.0; 3];
         for (i, input) in inputs.iter().enumerate() {
             let sharp = input.up2();
-            s[0] += psnr(
-                &prepared.perceived(Method::Proposed, &displays[i], d)?,
+            let (display, base_display) = &displays[i];
+            s[0] += psnr(&prepared.perceived(Method::Proposed, display, d)?, &sharp);
+            s[1] += psnr(
+                &prepared.perceived(Method::Proposed, base_display, d)?,
                 &sharp,
             );
-            s[1] += psnr(&prepared.perceived(Method::DoeOnly, input, d)?, &sharp);
             s[2] += psnr(&prepared.perceived(Method::Conventional, input, d)?, &sharp);
         }
         s.iter_mut().for_each(|v| *v /= inputs.len() as f64);
         accommodations.push(DepthRow {
             accommodation_d: d,
             proposed: s[0],
-            doe_only: s[1],
+            base: s[1],
             conventional: s[2],
         });
     }
@@ -103,7 +159,7 @@ pub fn depths_and_content(
         let m: Vec<f64> = accommodations
             .iter()
             .filter(|r| pick(r.accommodation_d))
-            .map(|r| r.proposed - r.doe_only)
+            .map(|r| r.proposed - r.base)
             .collect();
         (
             m.iter().copied().fold(f64::INFINITY, f64::min),
@@ -118,7 +174,7 @@ pub fn depths_and_content(
 
     let mut content = Vec::new();
     for c in &content_set(content_size) {
-        let out = dcnn.run_frame(&c.image)?;
+        let (out, base_display) = run(&c.image)?;
         let sharp = c.image.up2();
         let mean_psnr = |m: Method, d: &Image| -> Result<f64, AppError> {
             let mut s = 0.0;
@@ -131,7 +187,7 @@ pub fn depths_and_content(
         let changed = out
             .data()
             .iter()
-            .zip(c.image.data().iter())
+            .zip(base_display.data().iter())
             .map(|(a, b)| f64::from((a - b).abs()))
             .sum::<f64>()
             / n;
@@ -145,20 +201,25 @@ pub fn depths_and_content(
         content.push(ContentRow {
             content: c.name.to_string(),
             proposed: mean_psnr(Method::Proposed, &out)?,
-            doe_only: mean_psnr(Method::DoeOnly, &c.image)?,
+            base: mean_psnr(Method::Proposed, &base_display)?,
             changed,
             finite: out.data().iter().all(|v| v.is_finite()),
             at_bounds: [bounds(&out), bounds(&c.image)],
         });
     }
-    Ok(DcnnSection {
-        accommodations,
-        content,
-        margins,
-        range_max_d: hi,
-        content_size,
-        flat_shift: dcnn.flat_field_shift()?,
-    })
+    let flat_shift = dcnn.flat_field_shift()?;
+    Ok((
+        DcnnSection {
+            base: base.name(),
+            accommodations,
+            content,
+            margins,
+            range_max_d: hi,
+            content_size,
+            flat_shift,
+        },
+        base,
+    ))
 }
 
 /// A crop run alone against the same pixels of the whole image's output.
@@ -173,8 +234,10 @@ pub struct SizeRow {
     pub inner_max_abs: Option<f32>,
 }
 
-/// The D-CNN on frame sizes it never saw: crops of an image against the
-/// same region of the whole image's output.
+/// The D-CNN on frame sizes it never saw: crops of an image (the
+/// network's input: for a network behind a Wiener stage, the Wiener's
+/// output of the whole image) against the same region of the whole
+/// image's output.
 pub fn sizes(dcnn: &mut Dcnn, image: &Image) -> Result<Vec<SizeRow>, AppError> {
     let whole = dcnn.run_frame(image)?;
     let mut rows = Vec::new();
@@ -234,6 +297,7 @@ impl Serialize for F16Section {
 /// f16 against f32 on the wgpu adapter for the worst-conditioned inputs.
 pub fn f16_against_f32(
     model: &Path,
+    base: &Base,
     image: &Image,
     content_size: usize,
 ) -> Result<F16Section, AppError> {
@@ -261,8 +325,9 @@ pub fn f16_against_f32(
     ));
     let mut rows = Vec::new();
     for (name, frame) in &frames {
-        let a = f32_net.run_frame(frame)?;
-        let b = f16_net.run_frame(frame)?;
+        let input = base.network_input(frame);
+        let a = f32_net.run_frame(&input)?;
+        let b = f16_net.run_frame(&input)?;
         let max = a
             .data()
             .iter()

@@ -94,7 +94,16 @@ pub fn run(common: &CommonOptions, o: &StabilityOptions) -> Result<String, AppEr
         )));
     }
     check_output_folder(&o.out)?;
-    let sim = Simulator::new(common.calibration()?, Some(&doe), common.cache())?;
+    let wiener_k = match crate::preprocess::dcnn_input(&o.model)? {
+        crate::preprocess::DcnnInput::Frame => None,
+        crate::preprocess::DcnnInput::WienerRaw { k_reg } => Some(k_reg),
+    };
+    let sim = Simulator::new(common.calibration()?, Some(&doe), common.cache())?
+        .with_wiener_stages(if wiener_k.is_some() {
+            vec![Method::Proposed]
+        } else {
+            Vec::new()
+        });
     let mut dcnn = Dcnn::load(&o.model, BackendKind::Cpu, &BackendOptions::default())?;
     let bar = common.phase("sections");
     bar.set_length(5);
@@ -112,14 +121,15 @@ pub fn run(common: &CommonOptions, o: &StabilityOptions) -> Result<String, AppEr
     sweeps.extend(design_sims.iter().map(|(n, s)| (*n, s, Method::DoeWiener)));
     let wiener = wiener::sweep(&sweeps, &inputs)?;
     bar.inc(1);
-    let dcnn_section = dcnn::depths_and_content(&sim, &mut dcnn, &inputs, o.content_size)?;
+    let (dcnn_section, base) =
+        dcnn::depths_and_content(&sim, &mut dcnn, wiener_k, &inputs, o.content_size)?;
     bar.inc(1);
-    let sizes = dcnn::sizes(&mut dcnn, &inputs[0])?;
+    let sizes = dcnn::sizes(&mut dcnn, &base.network_input(&inputs[0]))?;
     bar.inc(1);
     let optics = optics::section(&sim)?;
     bar.inc(1);
     let f16 = if o.gpu {
-        dcnn::f16_against_f32(&o.model, &inputs[0], o.content_size)?
+        dcnn::f16_against_f32(&o.model, &base, &inputs[0], o.content_size)?
     } else {
         dcnn::F16Section::Skipped
     };

@@ -81,9 +81,12 @@ fn wiener(w: &WienerSection) -> String {
 }
 
 fn dcnn(d: &DcnnSection) -> String {
-    let mut md = String::from(
+    let base = &d.base;
+    let mut md = format!(
         "\n## D-CNN at accommodations it was not trained at\n\nTrained at 0.5, 1.5, 2.5 D (sharp targets) and 0, 1, 2, 3 D (blurred targets); \
-         the calibrated range is 0–3 D. PSNR vs sharp.\n\n| D | proposed | doe-only | conventional | proposed − doe-only |\n| --- | --- | --- | --- | --- |\n",
+         the calibrated range is 0–3 D. PSNR vs sharp. The network's base, {base}, is its DOE without the network \
+         (for a network behind a Wiener stage: that Wiener, clamped): the margin is what the network adds.\n\n\
+         | D | proposed | {base} | conventional | proposed − base |\n| --- | --- | --- | --- | --- |\n",
     );
     for r in &d.accommodations {
         let _ = writeln!(
@@ -91,16 +94,16 @@ fn dcnn(d: &DcnnSection) -> String {
             "| {} | {:.2} | {:.2} | {:.2} | {:+.2} |",
             r.accommodation_d,
             r.proposed,
-            r.doe_only,
+            r.base,
             r.conventional,
-            r.proposed - r.doe_only
+            r.proposed - r.base
         );
     }
     let margin = |m: Margin| format!("{:+.2} to {:+.2} dB", m.0, m.1);
     let hi = d.range_max_d;
     let _ = writeln!(
         md,
-        "\nFindings:\n- The D-CNN's margin over doe-only is {} at trained depths, {} at untrained depths inside the calibrated range, \
+        "\nFindings:\n- The D-CNN's margin over {base} is {} at trained depths, {} at untrained depths inside the calibrated range, \
          {} beyond it: it neither breaks nor helps more off its training depths; beyond {hi} D every system loses quality to defocus alone.\n\
          - Guard: an accommodation outside the calibration's range is simulated with a warning naming the range, a negative one is an error \
          (test `accommodation_is_checked` in tests/cli/sim.rs).",
@@ -112,8 +115,8 @@ fn dcnn(d: &DcnnSection) -> String {
     let _ = writeln!(
         md,
         "\n## D-CNN on content unlike its training data\n\n{size}×{size} frames; mean PSNR over 0–2.5 D; \
-         \"changed\": mean |D-CNN(I) − I|; \"at bounds\": share of output values the clamp holds at 0 or 1 (input's share in brackets).\n\n\
-         | content | proposed | doe-only | proposed − doe-only | changed | at bounds |\n| --- | --- | --- | --- | --- | --- |"
+         \"changed\": mean |display − {base} display|, what the network changed; \"at bounds\": share of output values the clamp holds at 0 or 1 (input's share in brackets).\n\n\
+         | content | proposed | {base} | proposed − base | changed | at bounds |\n| --- | --- | --- | --- | --- | --- |"
     );
     for c in &d.content {
         let _ = writeln!(
@@ -121,9 +124,9 @@ fn dcnn(d: &DcnnSection) -> String {
             "| {} | {} | {} | {} | {:.4} | {:.1} % ({:.1} %) |",
             c.content,
             fmt_db(c.proposed),
-            fmt_db(c.doe_only),
-            if c.proposed.is_finite() && c.doe_only.is_finite() {
-                format!("{:+.2}", c.proposed - c.doe_only)
+            fmt_db(c.base),
+            if c.proposed.is_finite() && c.base.is_finite() {
+                format!("{:+.2}", c.proposed - c.base)
             } else {
                 "–".into()
             },
@@ -136,9 +139,9 @@ fn dcnn(d: &DcnnSection) -> String {
     let _ = writeln!(
         md,
         "\nFindings:\n- Every output is {} and inside [0, 1] (the frame is clamped).\n\
-         - Flat fields need no preprocessing (any energy-conserving optics shows them unchanged), yet this D-CNN moves flat black, grey and white \
+         - Flat fields need no preprocessing (any energy-conserving optics shows them unchanged); this D-CNN moves flat black, grey and white \
          by {flat_shift:.4} on average ({:.1} 8-bit codes): {}\n\
-         - On text, line art, saturated colours and noise its margin over doe-only is as the table shows; where it is negative the content is \
+         - On text, line art, saturated colours and noise its margin over {base} is as the table shows; where it is negative the content is \
          outside what it learned, a quality finding rather than an instability.\n\
          - Guards: loading a D-CNN measures its flat-field shift and warns above one 8-bit code, test \
          `nedrt_infer::tests::a_model_that_moves_flat_fields_is_warned_about`; non-finite input values and empty frames are refused with an error, \
@@ -150,7 +153,7 @@ fn dcnn(d: &DcnnSection) -> String {
         },
         flat_shift * 255.0,
         if flat_shift > nedrt_infer::FLAT_FIELD_TOLERANCE {
-            "a failure of the shipped preliminary model (it darkens white, so full white is unreachable); training longer (issue 3) is the fix"
+            "more than one code, a flaw of this model (the loader warns about it)"
         } else {
             "within one code"
         }
