@@ -163,6 +163,10 @@ impl Preprocess for BehindWiener {
     fn last_gpu_ns(&self) -> Option<u64> {
         self.network.last_gpu_ns()
     }
+
+    fn last_traffic(&self) -> nedrt_core::preprocess::HostTraffic {
+        self.network.last_traffic()
+    }
 }
 
 /// One line per D-CNN for reports: model file, content hash and engine.

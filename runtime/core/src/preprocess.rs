@@ -20,6 +20,26 @@ pub enum PreprocessError {
     Engine { engine: String, reason: String },
 }
 
+/// What crossed between the host and a device for one frame: the figures
+/// that show a path keeping frames on the GPU (or not) without a profiler.
+#[derive(Debug, Default, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+pub struct HostTraffic {
+    /// Bytes written from host memory into device buffers or textures.
+    pub to_device_bytes: u64,
+    /// Bytes copied from device memory back to the host.
+    pub to_host_bytes: u64,
+    /// Times the host waited for a device buffer to be mapped for reading.
+    pub read_backs: u64,
+}
+
+impl HostTraffic {
+    pub fn add(&mut self, other: HostTraffic) {
+        self.to_device_bytes += other.to_device_bytes;
+        self.to_host_bytes += other.to_host_bytes;
+        self.read_backs += other.read_backs;
+    }
+}
+
 /// Turns an input frame into the display frame.
 pub trait Preprocess: Send + std::fmt::Debug {
     /// What runs, for reports: "wiener (doe+wiener, K = 0.02)", "D-CNN … on wgpu f16 on …".
@@ -30,6 +50,10 @@ pub trait Preprocess: Send + std::fmt::Debug {
     /// The device's own time for the last run, where the engine measures it.
     fn last_gpu_ns(&self) -> Option<u64> {
         None
+    }
+    /// Host↔device traffic of the last run (none for an engine on the host).
+    fn last_traffic(&self) -> HostTraffic {
+        HostTraffic::default()
     }
 }
 

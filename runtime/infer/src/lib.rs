@@ -19,7 +19,7 @@ use std::path::{Path, PathBuf};
 
 pub use network::{ModelFile, Network};
 
-use nedrt_core::preprocess::{Preprocess, PreprocessError, check_frame};
+use nedrt_core::preprocess::{HostTraffic, Preprocess, PreprocessError, check_frame};
 use nedrt_core::{Image, Named};
 
 /// Errors of loading or running the D-CNN.
@@ -135,6 +135,10 @@ pub trait Backend: Send + std::fmt::Debug {
     /// the device can measure it.
     fn last_gpu_ns(&self) -> Option<u64> {
         None
+    }
+    /// Host↔device traffic of the last run (none for a host engine).
+    fn last_traffic(&self) -> HostTraffic {
+        HostTraffic::default()
     }
 }
 
@@ -291,6 +295,11 @@ impl Dcnn {
         self.backend.last_gpu_ns()
     }
 
+    /// Host↔device traffic of the last frame's network.
+    pub fn last_traffic(&self) -> HostTraffic {
+        self.backend.last_traffic()
+    }
+
     /// Preprocesses one frame: pad to the network's multiple by reflection
     /// ([`Image::pad_reflect`], the trainer's rule), run, crop back, clamp
     /// to [0, 1].
@@ -347,6 +356,9 @@ impl Preprocess for Dcnn {
     }
     fn last_gpu_ns(&self) -> Option<u64> {
         self.backend.last_gpu_ns()
+    }
+    fn last_traffic(&self) -> HostTraffic {
+        self.backend.last_traffic()
     }
 }
 

@@ -29,6 +29,7 @@ use wgpu::util::DeviceExt;
 use super::network::{Layer, Network, ValueId};
 use super::{Backend, BackendOptions, InferenceError, Precision};
 use nedrt_core::Image;
+use nedrt_core::preprocess::HostTraffic;
 
 fn err(reason: impl std::fmt::Display) -> InferenceError {
     InferenceError::Backend {
@@ -68,6 +69,8 @@ pub struct GpuBackend {
     /// Start/end timestamps of the network's pass, where the device has them.
     timer: Option<GpuTimer>,
     last_gpu_ns: Option<u64>,
+    /// What the last frame moved between host and device (every band).
+    last_traffic: HostTraffic,
     /// The most bytes one activation buffer may have (the adapter's storage
     /// binding and buffer limits, or a smaller one set for tests).
     binding_cap: u64,
@@ -328,6 +331,7 @@ impl GpuBackend {
             plan: None,
             timer: GpuTimer::new(device, queue),
             last_gpu_ns: None,
+            last_traffic: HostTraffic::default(),
             binding_cap: limits
                 .max_storage_buffer_binding_size
                 .min(limits.max_buffer_size),
@@ -414,6 +418,7 @@ impl GpuBackend {
             )));
         }
         let rows = self.window_rows(width, height)?;
+        self.last_traffic = HostTraffic::default();
         if rows == height {
             let (out, gpu_ns) = self.run_window(data, width, height)?;
             self.last_gpu_ns = gpu_ns;
@@ -485,6 +490,11 @@ impl GpuBackend {
             (plan.input.offset * 4) as u64,
             bytemuck::cast_slice(data),
         );
+        let mut traffic = HostTraffic {
+            to_device_bytes: std::mem::size_of_val(data) as u64,
+            to_host_bytes: (plan.output_elems * 4) as u64,
+            read_backs: 1,
+        };
         let mut encoder = self
             .device
             .create_command_encoder(&wgpu::CommandEncoderDescriptor {
@@ -523,6 +533,8 @@ impl GpuBackend {
         self.queue.submit([encoder.finish()]);
         if let Some(t) = &self.timer {
             t.readback.slice(..).map_async(wgpu::MapMode::Read, |_| {});
+            traffic.to_host_bytes += 16;
+            traffic.read_backs += 1;
         }
         map_and_wait(&self.device, &plan.readback).map_err(err)?;
         let out = {
@@ -544,6 +556,7 @@ impl GpuBackend {
         if let Some(e) = pollster::block_on(scope.pop()) {
             return Err(err(format!("running: {e}")));
         }
+        self.last_traffic.add(traffic);
         Ok((out, gpu_ns))
     }
 }
@@ -582,6 +595,10 @@ impl Backend for GpuBackend {
 
     fn last_gpu_ns(&self) -> Option<u64> {
         self.last_gpu_ns
+    }
+
+    fn last_traffic(&self) -> HostTraffic {
+        self.last_traffic
     }
 
     fn run(&mut self, frame: &Image) -> Result<Image, InferenceError> {

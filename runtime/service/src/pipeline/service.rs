@@ -58,6 +58,7 @@ impl DcnnStage {
                     if let Some(ns) = self.primary.last_gpu_ns() {
                         stats.record(Stage::DcnnGpu, ns);
                     }
+                    stats.dcnn_traffic.record(self.primary.last_traffic());
                     return Some(out);
                 }
                 Err(PreprocessError::Frame(e)) => {
@@ -447,6 +448,7 @@ impl Service {
             let now = self.clock.now_ns();
             match shown {
                 Presented::Shown => {
+                    self.stats.present_traffic.record(sink.last_traffic());
                     let present_ns = now - t0;
                     let e2e = now.saturating_sub(t.start_ns);
                     self.stats.record(Stage::Present, present_ns);

@@ -5,6 +5,7 @@ use super::*;
 use crate::pipeline::frame::{PixelFormat, RejectReason};
 use crate::pipeline::pacing::SystemClock;
 use crate::present::Presented;
+use nedrt_core::preprocess::HostTraffic;
 
 /// A backend that works for `ok` frames and then fails like a lost GPU.
 #[derive(Debug)]
@@ -42,6 +43,13 @@ impl Sink for Collect {
     fn present(&mut self, frame: &DisplayFrame) -> Result<Presented, PresentError> {
         self.0.push(frame.clone());
         Ok(Presented::Shown)
+    }
+    /// As a GPU sink: the frame's codes go up, nothing comes back.
+    fn last_traffic(&self) -> HostTraffic {
+        HostTraffic {
+            to_device_bytes: self.0.last().map_or(0, |f| f.rgba8.len() as u64),
+            ..HostTraffic::default()
+        }
     }
 }
 
@@ -224,4 +232,60 @@ fn frames_inside_the_stages_at_a_stop_are_counted_in_flight_not_lost() {
     assert_eq!(report.accounted(), 4, "{}", report.table());
     assert!(report.in_flight_at_stop >= 1, "{}", report.table());
     assert!(sink.0.is_empty());
+}
+
+/// An engine on a device that uploads the planar f32 frame and reads the
+/// display image back, as the wgpu backend does today.
+#[derive(Debug)]
+struct OnDevice;
+
+impl Preprocess for OnDevice {
+    fn describe(&self) -> String {
+        "device test backend".into()
+    }
+    fn run(&mut self, frame: &Image) -> Result<Image, PreprocessError> {
+        Ok(frame.clone())
+    }
+    fn last_traffic(&self) -> HostTraffic {
+        // 4×2 pixels, 3 planes of f32 each way.
+        HostTraffic {
+            to_device_bytes: 96,
+            to_host_bytes: 96,
+            read_backs: 1,
+        }
+    }
+}
+
+#[test]
+fn the_report_counts_host_traffic_per_frame_by_stage() {
+    let frames: Vec<_> = (0..3).map(|i| grey(i, 77)).collect();
+    let dcnn = DcnnStage {
+        primary: Box::new(OnDevice),
+        fallback: None,
+    };
+    let (_, report) = run_one_by_one(dcnn, &frames);
+    let per_frame = report.traffic_per_frame();
+    assert_eq!(per_frame.to_device_bytes, 96.0 + 32.0);
+    assert_eq!(per_frame.to_host_bytes, 96.0);
+    assert_eq!(per_frame.read_backs, 1.0);
+    assert_eq!(
+        report.traffic.iter().map(|t| t.frames).collect::<Vec<_>>(),
+        [3, 3]
+    );
+    assert!(
+        report
+            .table()
+            .contains("host traffic per frame: 0.0 MB to the device, 0.0 MB back, 1.00 read-backs"),
+        "{}",
+        report.table()
+    );
+    // A host engine moves nothing: only the sink's upload is left.
+    let dcnn = DcnnStage {
+        primary: Box::new(Identity),
+        fallback: None,
+    };
+    let (_, report) = run_one_by_one(dcnn, &frames);
+    let per_frame = report.traffic_per_frame();
+    assert_eq!(per_frame.to_device_bytes, 32.0);
+    assert_eq!((per_frame.to_host_bytes, per_frame.read_backs), (0.0, 0.0));
 }

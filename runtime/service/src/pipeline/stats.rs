@@ -10,6 +10,7 @@ use serde::Serialize;
 
 use super::frame::RejectReason;
 use super::latency::Histogram;
+use nedrt_core::preprocess::HostTraffic;
 
 /// The pipeline's stages, in order, for latency accounting.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -87,10 +88,47 @@ pub struct Stats {
     /// Presented frames the sink then lost (a recorder's writes after its
     /// disk filled); these are also in `presented`.
     pub lost_by_sink: AtomicU64,
+    /// Host↔device traffic of the D-CNN stage's frames.
+    pub dcnn_traffic: TrafficCounter,
+    /// Host↔device traffic of the sink's presented frames.
+    pub present_traffic: TrafficCounter,
     histograms: [Mutex<Histogram>; 7],
     /// Resident set size samples (KiB) taken every `RSS_EVERY` presents.
     rss_kib: Mutex<Vec<u64>>,
     pub backend: Mutex<String>,
+}
+
+/// Host↔device traffic summed over the frames one stage handled.
+#[derive(Debug, Default)]
+pub struct TrafficCounter {
+    totals: Mutex<(HostTraffic, u64)>,
+}
+
+impl TrafficCounter {
+    /// One frame's traffic.
+    pub fn record(&self, traffic: HostTraffic) {
+        let mut t = self.totals.lock().unwrap_or_else(|p| p.into_inner());
+        t.0.add(traffic);
+        t.1 += 1;
+    }
+
+    fn report(&self, stage: &str) -> TrafficReport {
+        let (t, frames) = *self.totals.lock().unwrap_or_else(|p| p.into_inner());
+        let per = |v: u64| {
+            if frames == 0 {
+                0.0
+            } else {
+                v as f64 / frames as f64
+            }
+        };
+        TrafficReport {
+            stage: stage.to_string(),
+            frames,
+            to_device_bytes_per_frame: per(t.to_device_bytes),
+            to_host_bytes_per_frame: per(t.to_host_bytes),
+            read_backs_per_frame: per(t.read_backs),
+        }
+    }
 }
 
 /// Presents between resident-memory samples.
@@ -170,6 +208,10 @@ impl Stats {
                     }
                 })
                 .collect(),
+            traffic: vec![
+                self.dcnn_traffic.report("dcnn"),
+                self.present_traffic.report("present"),
+            ],
             rss_kib: self
                 .rss_kib
                 .lock()
@@ -186,6 +228,14 @@ pub fn resident_kib() -> Option<u64> {
     Some(pages * 4)
 }
 
+/// Mean host↔device traffic of one frame.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct HostTrafficMean {
+    pub to_device_bytes: f64,
+    pub to_host_bytes: f64,
+    pub read_backs: f64,
+}
+
 /// Latency of one stage, milliseconds.
 #[derive(Debug, Clone, Serialize)]
 pub struct StageReport {
@@ -195,6 +245,16 @@ pub struct StageReport {
     pub p50_ms: f64,
     pub p99_ms: f64,
     pub max_ms: f64,
+}
+
+/// Host↔device traffic of one stage, per frame it handled.
+#[derive(Debug, Clone, Serialize)]
+pub struct TrafficReport {
+    pub stage: String,
+    pub frames: u64,
+    pub to_device_bytes_per_frame: f64,
+    pub to_host_bytes_per_frame: f64,
+    pub read_backs_per_frame: f64,
 }
 
 /// Everything the service counted.
@@ -215,10 +275,55 @@ pub struct Report {
     pub failed: u64,
     pub lost_by_sink: u64,
     pub stages: Vec<StageReport>,
+    /// Host↔device traffic per frame, by stage (the decode and encode
+    /// stages run on the host and move nothing).
+    pub traffic: Vec<TrafficReport>,
     pub rss_kib: Vec<u64>,
 }
 
 impl Report {
+    /// Host↔device traffic of a frame through the whole pipeline: the sum
+    /// of the stages' per-frame means.
+    pub fn traffic_per_frame(&self) -> HostTrafficMean {
+        let mut m = HostTrafficMean::default();
+        for t in &self.traffic {
+            m.to_device_bytes += t.to_device_bytes_per_frame;
+            m.to_host_bytes += t.to_host_bytes_per_frame;
+            m.read_backs += t.read_backs_per_frame;
+        }
+        m
+    }
+
+    fn traffic_line(&self) -> String {
+        let m = self.traffic_per_frame();
+        let parts: Vec<String> = self
+            .traffic
+            .iter()
+            .filter(|t| t.frames > 0)
+            .map(|t| {
+                format!(
+                    "{} {:.1} MB up, {:.1} MB down, {:.2} read-backs over {} frames",
+                    t.stage,
+                    t.to_device_bytes_per_frame / 1e6,
+                    t.to_host_bytes_per_frame / 1e6,
+                    t.read_backs_per_frame,
+                    t.frames
+                )
+            })
+            .collect();
+        format!(
+            "host traffic per frame: {:.1} MB to the device, {:.1} MB back, {:.2} read-backs ({})\n",
+            m.to_device_bytes / 1e6,
+            m.to_host_bytes / 1e6,
+            m.read_backs,
+            if parts.is_empty() {
+                "no device stage".to_string()
+            } else {
+                parts.join("; ")
+            }
+        )
+    }
+
     pub fn rejected_total(&self) -> u64 {
         self.rejected.iter().map(|(_, n)| n).sum()
     }
@@ -278,6 +383,7 @@ impl Report {
             .iter()
             .find(|r| r.stage == "end-to-end")
             .map_or(0.0, |r| r.mean_ms);
+        s += &self.traffic_line();
         s += "stage        count     p50 ms     p99 ms     max ms   share of end-to-end\n";
         for r in &self.stages {
             // dcnn-gpu is inside dcnn; end-to-end is the whole.

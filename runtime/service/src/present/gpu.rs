@@ -6,6 +6,7 @@
 //! target format; a frame only uploads and records one pass.
 
 use super::{DisplayFrame, PresentError};
+use nedrt_core::preprocess::HostTraffic;
 use nedrt_gpu::map_and_wait;
 
 const SHADER: &str = include_str!("../../../../shaders/panel_blit.wgsl");
@@ -36,6 +37,8 @@ pub struct PanelRenderer {
     width: u32,
     height: u32,
     target_size: [u32; 2],
+    /// What the last draw uploaded.
+    last_traffic: HostTraffic,
 }
 
 impl PanelRenderer {
@@ -164,6 +167,7 @@ impl PanelRenderer {
             width,
             height,
             target_size: [0, 0],
+            last_traffic: HostTraffic::default(),
         })
     }
 
@@ -190,7 +194,12 @@ impl PanelRenderer {
                 ),
             ));
         }
+        self.last_traffic = HostTraffic {
+            to_device_bytes: frame.rgba8.len() as u64,
+            ..HostTraffic::default()
+        };
         if size != self.target_size {
+            self.last_traffic.to_device_bytes += std::mem::size_of::<TargetUniform>() as u64;
             let u = TargetUniform {
                 size: [size[0] as f32, size[1] as f32],
             };
@@ -244,6 +253,12 @@ impl PanelRenderer {
             pass.draw(0..3, 0..1);
         }
         Ok(self.queue.submit([encoder.finish()]))
+    }
+
+    /// Host→device bytes of the last draw (the frame's codes, and the
+    /// target's size when it changed); a draw reads nothing back.
+    pub fn last_traffic(&self) -> HostTraffic {
+        self.last_traffic
     }
 
     pub fn device(&self) -> &wgpu::Device {

@@ -66,6 +66,10 @@ impl Sink for HeadlessSink {
         )
     }
 
+    fn last_traffic(&self) -> nedrt_core::preprocess::HostTraffic {
+        self.renderer.last_traffic()
+    }
+
     fn present(&mut self, frame: &DisplayFrame) -> Result<Presented, PresentError> {
         let size = [self.target.width(), self.target.height()];
         let submission = self.renderer.draw(frame, &self.view, size)?;

@@ -3,8 +3,10 @@
 //! (an off-screen wgpu target of the panel's size), [`recorder`] (a PNG
 //! sequence). [`transfer`] is the panel's transfer curve that the encode
 //! stage applies before any sink sees the frame; [`gpu`] draws an encoded
-//! frame onto a wgpu target for the window and headless sinks.
+//! frame onto a wgpu target for the window and headless sinks; [`encode_gpu`]
+//! is the encode stage as a compute kernel, for frames that stay on the GPU.
 
+pub mod encode_gpu;
 pub mod gpu;
 pub mod headless;
 pub mod recorder;
@@ -65,6 +67,10 @@ pub trait Sink: std::fmt::Debug {
     /// Flushes anything still pending (the recorder's writes).
     fn finish(&mut self) -> Result<(), PresentError> {
         Ok(())
+    }
+    /// Host↔device traffic of the last `present` (a GPU sink's upload).
+    fn last_traffic(&self) -> nedrt_core::preprocess::HostTraffic {
+        nedrt_core::preprocess::HostTraffic::default()
     }
     /// Frames `present` took that the sink then failed to deliver (known
     /// after `finish`): the recorder's queue when its disk filled.

@@ -50,6 +50,12 @@ impl Transfer {
         Self::from_gamma([g(0), g(1), g(2)])
     }
 
+    /// The decision thresholds of `channel` (255, ascending): what a GPU
+    /// encoder searches to give the same codes.
+    pub fn thresholds(&self, channel: usize) -> &[f32] {
+        &self.thresholds[channel]
+    }
+
     /// The code of linear intensity `x` in channel `channel`; values outside
     /// [0, 1] clamp (the panel cannot show them), NaN is black.
     pub fn code(&self, channel: usize, x: f32) -> u8 {

@@ -366,6 +366,10 @@ impl Sink for WindowSink {
         !self.app.closed
     }
 
+    fn last_traffic(&self) -> nedrt_core::preprocess::HostTraffic {
+        self.renderer.last_traffic()
+    }
+
     fn present(&mut self, frame: &DisplayFrame) -> Result<Presented, PresentError> {
         let texture = match self.surface.get_current_texture() {
             wgpu::CurrentSurfaceTexture::Success(t) => t,

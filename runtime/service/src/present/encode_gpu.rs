@@ -1,0 +1,330 @@
+//! The encode stage on the GPU (`shaders/panel_encode.wgsl`): a planar f32
+//! display image already in a device buffer becomes the panel's RGBA8
+//! codes in another, by the same 255 decision thresholds per channel as
+//! [`Transfer`], so a frame that stays on the device is encoded to the
+//! codes the CPU path gives, bit for bit. The thresholds and the output
+//! buffer are made once per panel size; a frame records one dispatch.
+
+use super::PresentError;
+use super::transfer::{CODES, Transfer};
+
+const SHADER: &str = include_str!("../../../../shaders/panel_encode.wgsl");
+const WORKGROUP: u32 = 64;
+const MAX_GROUPS_X: u32 = 65535;
+
+fn err(reason: impl std::fmt::Display) -> PresentError {
+    PresentError::Sink {
+        sink: "gpu encode",
+        reason: reason.to_string(),
+    }
+}
+
+/// The uniform block of `panel_encode.wgsl` (`Frame`).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
+struct FrameUniform {
+    width: u32,
+    height: u32,
+    plane_stride: u32,
+    _pad: u32,
+}
+
+/// Encodes planar f32 display images of one panel size on one device.
+#[derive(Debug)]
+pub struct PanelEncoder {
+    device: wgpu::Device,
+    pipeline: wgpu::ComputePipeline,
+    layout: wgpu::BindGroupLayout,
+    thresholds: wgpu::Buffer,
+    frame: wgpu::Buffer,
+    codes: wgpu::Buffer,
+    width: u32,
+    height: u32,
+}
+
+impl PanelEncoder {
+    /// Prepares encoding `width`×`height` frames whose planes lie
+    /// `plane_stride` elements apart, with `transfer`'s thresholds.
+    pub fn new(
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        width: u32,
+        height: u32,
+        plane_stride: u32,
+        transfer: &Transfer,
+    ) -> Result<Self, PresentError> {
+        let pixels = u64::from(width) * u64::from(height);
+        if pixels == 0 || u64::from(plane_stride) < pixels {
+            return Err(err(format!(
+                "a {width}×{height} frame with planes {plane_stride} values apart"
+            )));
+        }
+        if pixels.div_ceil(u64::from(WORKGROUP)) > u64::from(MAX_GROUPS_X) * u64::from(MAX_GROUPS_X)
+        {
+            return Err(err(format!(
+                "a {width}×{height} frame is too large to dispatch"
+            )));
+        }
+        let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some("panel_encode"),
+            source: wgpu::ShaderSource::Wgsl(SHADER.into()),
+        });
+        let storage = |binding, read_only| wgpu::BindGroupLayoutEntry {
+            binding,
+            visibility: wgpu::ShaderStages::COMPUTE,
+            ty: wgpu::BindingType::Buffer {
+                ty: wgpu::BufferBindingType::Storage { read_only },
+                has_dynamic_offset: false,
+                min_binding_size: None,
+            },
+            count: None,
+        };
+        let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("panel_encode"),
+            entries: &[
+                storage(0, true),
+                storage(1, true),
+                wgpu::BindGroupLayoutEntry {
+                    binding: 2,
+                    visibility: wgpu::ShaderStages::COMPUTE,
+                    ty: wgpu::BindingType::Buffer {
+                        ty: wgpu::BufferBindingType::Uniform,
+                        has_dynamic_offset: false,
+                        min_binding_size: None,
+                    },
+                    count: None,
+                },
+                storage(3, false),
+            ],
+        });
+        let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("panel_encode"),
+            bind_group_layouts: &[Some(&layout)],
+            immediate_size: 0,
+        });
+        let pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+            label: Some("panel_encode"),
+            layout: Some(&pipeline_layout),
+            module: &module,
+            entry_point: Some("main"),
+            compilation_options: Default::default(),
+            cache: None,
+        });
+        let table: Vec<f32> = (0..3)
+            .flat_map(|c| transfer.thresholds(c).iter().copied())
+            .collect();
+        debug_assert_eq!(table.len(), 3 * (CODES - 1));
+        let buffer = |label, size: u64, usage| {
+            device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some(label),
+                size,
+                usage,
+                mapped_at_creation: false,
+            })
+        };
+        let thresholds = buffer(
+            "panel thresholds",
+            (table.len() * 4) as u64,
+            wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
+        );
+        queue.write_buffer(&thresholds, 0, bytemuck::cast_slice(&table));
+        let frame = buffer(
+            "panel frame",
+            std::mem::size_of::<FrameUniform>() as u64,
+            wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+        );
+        let u = FrameUniform {
+            width,
+            height,
+            plane_stride,
+            _pad: 0,
+        };
+        queue.write_buffer(&frame, 0, bytemuck::bytes_of(&u));
+        let codes = buffer(
+            "panel codes",
+            pixels * 4,
+            wgpu::BufferUsages::STORAGE
+                | wgpu::BufferUsages::COPY_SRC
+                | wgpu::BufferUsages::COPY_DST,
+        );
+        if let Some(e) = pollster::block_on(scope.pop()) {
+            return Err(err(format!("building the encode kernel: {e}")));
+        }
+        Ok(Self {
+            device: device.clone(),
+            pipeline,
+            layout,
+            thresholds,
+            frame,
+            codes,
+            width,
+            height,
+        })
+    }
+
+    /// Records the encode of `display` (three f32 planes as given to
+    /// [`PanelEncoder::new`]) into [`PanelEncoder::codes`].
+    pub fn record(&self, encoder: &mut wgpu::CommandEncoder, display: &wgpu::Buffer) {
+        let bind_group = self.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("panel_encode"),
+            layout: &self.layout,
+            entries: &[
+                wgpu::BindGroupEntry {
+                    binding: 0,
+                    resource: display.as_entire_binding(),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 1,
+                    resource: self.thresholds.as_entire_binding(),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 2,
+                    resource: self.frame.as_entire_binding(),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 3,
+                    resource: self.codes.as_entire_binding(),
+                },
+            ],
+        });
+        let groups = (self.width * self.height).div_ceil(WORKGROUP);
+        let (x, y) = if groups <= MAX_GROUPS_X {
+            (groups, 1)
+        } else {
+            (MAX_GROUPS_X, groups.div_ceil(MAX_GROUPS_X))
+        };
+        let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+            label: Some("panel_encode"),
+            timestamp_writes: None,
+        });
+        pass.set_pipeline(&self.pipeline);
+        pass.set_bind_group(0, &bind_group, &[]);
+        pass.dispatch_workgroups(x, y, 1);
+    }
+
+    /// The encoded frame: one RGBA8 texel per pixel (red in the low byte),
+    /// row-major, tightly packed.
+    pub fn codes(&self) -> &wgpu::Buffer {
+        &self.codes
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nedrt_gpu::{map_and_wait, test_device};
+    use wgpu::util::DeviceExt;
+
+    /// Encodes a `width`×`height` planar frame on the GPU and reads the
+    /// codes back (the test's only read-back).
+    fn encode_on_gpu(transfer: &Transfer, planes: [&[f32]; 3], width: u32) -> Vec<[u8; 4]> {
+        let (device, queue) = test_device(false);
+        let n = planes[0].len();
+        assert!(planes.iter().all(|p| p.len() == n) && n.is_multiple_of(width as usize));
+        let height = (n / width as usize) as u32;
+        let data: Vec<f32> = planes.concat();
+        let display = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("display"),
+            contents: bytemuck::cast_slice(&data),
+            usage: wgpu::BufferUsages::STORAGE,
+        });
+        let enc =
+            PanelEncoder::new(&device, &queue, width, height, n as u32, transfer).expect("encoder");
+        let readback = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("readback"),
+            size: (n * 4) as u64,
+            usage: wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::MAP_READ,
+            mapped_at_creation: false,
+        });
+        let mut encoder = device.create_command_encoder(&Default::default());
+        enc.record(&mut encoder, &display);
+        encoder.copy_buffer_to_buffer(enc.codes(), 0, &readback, 0, (n * 4) as u64);
+        queue.submit([encoder.finish()]);
+        map_and_wait(&device, &readback).expect("read back");
+        let view = readback.slice(..).get_mapped_range().expect("mapped");
+        view.chunks_exact(4)
+            .map(|p| [p[0], p[1], p[2], p[3]])
+            .collect()
+    }
+
+    /// Every threshold of `channel` and the floats either side of it, and
+    /// the values the clamp and the NaN rule decide.
+    fn probes(transfer: &Transfer, channel: usize) -> Vec<f32> {
+        let mut v = vec![
+            0.0,
+            -0.0,
+            -1.0,
+            1.0,
+            2.0,
+            f32::NAN,
+            f32::INFINITY,
+            f32::NEG_INFINITY,
+            f32::MIN_POSITIVE,
+            1e-30,
+        ];
+        for &t in transfer.thresholds(channel) {
+            v.extend([
+                f32::from_bits(t.to_bits() - 1),
+                t,
+                f32::from_bits(t.to_bits() + 1),
+            ]);
+        }
+        v
+    }
+
+    mod needs_gpu {
+        use super::*;
+
+        #[test]
+        #[ignore = "needs a GPU adapter (run: scripts/test.sh, or cargo test -- --include-ignored)"]
+        fn the_gpu_encode_equals_the_transfer_at_every_threshold_and_either_side() {
+            // A different curve per channel, each probed at its own thresholds.
+            let transfer = Transfer::from_gamma([2.2, 1.0, 2.4]);
+            let probes: Vec<Vec<f32>> = (0..3).map(|c| probes(&transfer, c)).collect();
+            let n = probes[0].len();
+            assert!(probes.iter().all(|p| p.len() == n));
+            // 5 rows: the row length is not a multiple of the workgroup.
+            let width = (n / 5) as u32;
+            assert_eq!(width as usize * 5, n);
+            let codes = encode_on_gpu(&transfer, [&probes[0], &probes[1], &probes[2]], width);
+            for (i, px) in codes.iter().enumerate() {
+                for c in 0..3 {
+                    let x = probes[c][i];
+                    assert_eq!(
+                        px[c],
+                        transfer.code(c, x),
+                        "channel {c}, x = {x:e} ({:#x})",
+                        x.to_bits()
+                    );
+                }
+                assert_eq!(px[3], 255);
+            }
+        }
+
+        #[test]
+        #[ignore = "needs a GPU adapter (run: scripts/test.sh, or cargo test -- --include-ignored)"]
+        fn a_frame_encodes_as_the_cpu_path_and_bad_sizes_are_refused() {
+            let transfer = Transfer::from_gamma([2.2, 2.2, 2.2]);
+            let (w, h) = (37usize, 21usize);
+            let planes: Vec<Vec<f32>> = (0..3)
+                .map(|c| {
+                    (0..w * h)
+                        .map(|i| ((i * 31 + c * 7) % 1000) as f32 / 900.0 - 0.05)
+                        .collect()
+                })
+                .collect();
+            let codes = encode_on_gpu(&transfer, [&planes[0], &planes[1], &planes[2]], w as u32);
+            let frame = nedrt_core::Image::rgb(w, h, planes.concat());
+            let mut cpu = Vec::new();
+            transfer.encode_rgba8(&frame, &mut cpu);
+            assert_eq!(codes.concat(), cpu);
+            let (device, queue) = test_device(false);
+            for (w, h, stride) in [(0, 4, 16), (4, 4, 15)] {
+                let e = PanelEncoder::new(&device, &queue, w, h, stride, &transfer)
+                    .expect_err("refused");
+                assert!(e.to_string().contains("planes"), "{e}");
+            }
+        }
+    }
+}
