@@ -8,7 +8,13 @@
 //!   else the one `python3` imports. Looked up only when a command may run
 //!   the `ort` backend (it can spawn Python).
 //! - wgpu's instance: its own variables (`WGPU_BACKEND`, `WGPU_DEBUG`, …),
-//!   read by wgpu's `with_env` helpers here, once.
+//!   read by wgpu's `with_env` helpers here, once. Without `WGPU_BACKEND`
+//!   the backends are wgpu's primary ones (Vulkan, Metal, DX12), not GL:
+//!   on a machine without a Vulkan driver, wgpu 30's GL backend panics
+//!   ("Could not lock adapter context") once the D-CNN and a panel sink
+//!   each hold a device (`nedrt run --backend wgpu --sink headless`, seen
+//!   on llvmpipe over EGL), where no adapter at all gives a clear error and
+//!   the CPU fallback. `WGPU_BACKEND=gl` still selects it.
 
 use std::ffi::OsString;
 use std::path::{Path, PathBuf};
@@ -38,7 +44,7 @@ impl Environment {
             ort_dylib_path: std::env::var_os("ORT_DYLIB_PATH"),
             current_dir: std::env::current_dir().unwrap_or_default(),
             gpu: GpuSettings {
-                backends: wgpu::Backends::default().with_env(),
+                backends: wgpu::Backends::PRIMARY.with_env(),
                 flags: wgpu::InstanceFlags::default().with_env(),
                 backend_options: wgpu::BackendOptions::default().with_env(),
             },
@@ -149,6 +155,18 @@ mod tests {
         env.nedrt_cache_dir = Some("/n".into());
         assert_eq!(env.cache_dir(), Some(PathBuf::from("/n")));
         assert_eq!(Environment::default().cache_dir(), None);
+    }
+
+    #[test]
+    fn wgpu_gl_is_used_only_when_asked_for() {
+        let backends = Environment::capture().gpu.backends;
+        match std::env::var("WGPU_BACKEND") {
+            Err(_) => {
+                assert!(!backends.contains(wgpu::Backends::GL), "{backends:?}");
+                assert!(backends.contains(wgpu::Backends::VULKAN), "{backends:?}");
+            }
+            Ok(asked) => assert_eq!(backends, wgpu::Backends::from_comma_list(&asked), "{asked}"),
+        }
     }
 
     #[test]
