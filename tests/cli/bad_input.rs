@@ -693,6 +693,19 @@ const ROWS: &[Row] = &[
         "empty-folder",
     ),
     row(
+        "bench: a per-layer peak rate that is not positive",
+        &[
+            "bench",
+            "inference",
+            "--per-layer",
+            "--sizes",
+            "32x32",
+            "--peak-gmacs",
+            "0",
+        ],
+        "--peak-gmacs 0: must be a positive rate",
+    ),
+    row(
         "pick: tradeoff table missing",
         &[
             "pick",
@@ -710,10 +723,19 @@ const ROWS: &[Row] = &[
 /// Rows that take the small-aperture calibration and the `--sim` arguments
 /// unless they name their own command.
 fn command_line(r: &Row, dir: &Path, out: &Path) -> Vec<String> {
-    let own_command = r
-        .args
-        .iter()
-        .any(|a| ["--sim", "run", "eval", "pick", "view", "sweep", "prefilter"].contains(a));
+    let own_command = r.args.iter().any(|a| {
+        [
+            "--sim",
+            "run",
+            "eval",
+            "pick",
+            "view",
+            "sweep",
+            "prefilter",
+            "bench",
+        ]
+        .contains(a)
+    });
     let own_calib = r.args.contains(&"--calib");
     let mut args: Vec<String> = Vec::new();
     if !own_calib && !own_command {

@@ -581,4 +581,16 @@ pub struct BenchArgs {
     /// Timed repetitions (median reported).
     #[arg(long, default_value_t = 3)]
     pub repeat: usize,
+    /// inference: time each layer on the wgpu backend (timestamp queries)
+    /// and say which sit furthest from the floor.
+    #[arg(long)]
+    pub per_layer: bool,
+    /// inference --per-layer: the adapter's peak multiply-add rate, GMAC/s
+    /// (default: the best any layer reaches in the run).
+    #[arg(long, value_name = "GMAC/S")]
+    pub peak_gmacs: Option<f64>,
+    /// inference --per-layer: the adapter's peak memory bandwidth, GB/s
+    /// (default: the best any layer reaches in the run).
+    #[arg(long, value_name = "GB/S")]
+    pub peak_gbps: Option<f64>,
 }

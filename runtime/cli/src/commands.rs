@@ -186,9 +186,17 @@ pub fn run(cli: Cli) -> Result<()> {
                     repeat: a.repeat,
                     max_seconds: a.max_seconds,
                     threads: g.threads,
+                    per_layer: a.per_layer,
+                    peak_gmacs: a.peak_gmacs,
+                    peak_gbps: a.peak_gbps,
                 };
-                let table = app::bench_inference::run(&bench, &common, &mut |r| println!("{r}"))?;
-                print!("{table}");
+                if bench.per_layer {
+                    print!("{}", app::bench_inference::per_layer(&bench, &common)?);
+                } else {
+                    let table =
+                        app::bench_inference::run(&bench, &common, &mut |r| println!("{r}"))?;
+                    print!("{table}");
+                }
             }
             BenchKind::Ceilings => {
                 let (gflops, gbps) = app::bench::ceilings();

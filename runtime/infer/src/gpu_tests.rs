@@ -274,6 +274,50 @@ mod needs_gpu {
 
     #[test]
     #[ignore = "needs a GPU adapter (run: scripts/test.sh, or cargo test -- --include-ignored)"]
+    fn every_layer_is_timed_with_its_work() {
+        let model = model_from(&synth::unet(4, 3, 5), "random.onnx");
+        let net = model.lower().expect("lowers");
+        let (device, queue) = gpu_device(Precision::F32);
+        let mut gpu =
+            GpuBackend::new(&device, &queue, "test".into(), &net, Precision::F32).expect("builds");
+        let (w, h) = (64, 48);
+        let rows = gpu
+            .layer_timings(&random_frame(w, h, 3))
+            .expect("lavapipe has timestamp queries");
+        // One row per dispatched layer (concats are free), in order.
+        let dispatched = net
+            .layers
+            .iter()
+            .filter(|l| !matches!(l, Layer::Concat { .. }))
+            .count();
+        assert_eq!(rows.len(), dispatched);
+        assert!(rows.windows(2).all(|r| r[0].layer < r[1].layer));
+        let macs: u64 = rows.iter().map(|r| r.macs).sum();
+        assert_eq!(macs as f64, net.macs_per_pixel * (w * h) as f64);
+        assert!(rows.iter().map(|r| r.gpu_ns).sum::<u64>() > 0);
+        let last = rows.last().expect("rows");
+        assert_eq!(last.output, [3, h, w]);
+        assert!(last.kind.contains("residual"), "{}", last.kind);
+        // A 3×3 conv of 3 → 4 channels at full size moves at least its
+        // input, output and weights.
+        let first = &rows[0];
+        assert_eq!(first.kind, "conv 3×3 + relu");
+        assert_eq!(first.macs, (3 * 4 * 9 * w * h) as u64);
+        assert!(first.bytes >= (4 * (3 + 4) * w * h) as u64);
+        // A frame that runs in bands is refused, naming why.
+        let limit = gpu.largest_activation_bytes(w, 128);
+        let mut small = GpuBackend::new(&device, &queue, "test".into(), &net, Precision::F32)
+            .expect("builds")
+            .with_binding_limit(limit);
+        let e = small
+            .layer_timings(&random_frame(w, 256, 3))
+            .expect_err("banded")
+            .to_string();
+        assert!(e.contains("runs in bands"), "{e}");
+    }
+
+    #[test]
+    #[ignore = "needs a GPU adapter (run: scripts/test.sh, or cargo test -- --include-ignored)"]
     fn random_unets_match_the_cpu_twin() {
         random_unets_on_the_gpu_match("twin", |_, net, frame| {
             reference::run(net, frame.data(), frame.height, frame.width)

@@ -124,6 +124,24 @@ impl Named for Precision {
     }
 }
 
+/// One layer's device time on one frame, with what it computes and moves
+/// (`nedrt bench inference --per-layer`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct LayerTiming {
+    /// Index into the lowered network's layers.
+    pub layer: usize,
+    /// "conv 3×3 + relu", "max pool 2×2", …
+    pub kind: String,
+    /// Output channels, height, width.
+    pub output: [usize; 3],
+    /// Multiply-adds.
+    pub macs: u64,
+    /// Activations read and written and weights read, at their storage
+    /// precision: the least memory traffic the layer can have.
+    pub bytes: u64,
+    pub gpu_ns: u64,
+}
+
 /// An engine that runs the lowered network on frames whose sides are
 /// multiples of the network's multiple.
 pub trait Backend: Send + std::fmt::Debug {
@@ -139,6 +157,13 @@ pub trait Backend: Send + std::fmt::Debug {
     /// Host↔device traffic of the last run (none for a host engine).
     fn last_traffic(&self) -> HostTraffic {
         HostTraffic::default()
+    }
+    /// Each layer's device time on `frame` (engines with timestamp queries).
+    fn layer_timings(&mut self, _frame: &Image) -> Result<Vec<LayerTiming>, InferenceError> {
+        Err(InferenceError::Backend {
+            backend: "per-layer",
+            reason: format!("{} cannot time single layers (wgpu can)", self.describe()),
+        })
     }
 }
 
@@ -298,6 +323,19 @@ impl Dcnn {
     /// Host↔device traffic of the last frame's network.
     pub fn last_traffic(&self) -> HostTraffic {
         self.backend.last_traffic()
+    }
+
+    /// Each layer's device time on `frame`, whose sides must be multiples
+    /// of the network's (no padding here: the layers' sizes are the frame's).
+    pub fn layer_timings(&mut self, frame: &Image) -> Result<Vec<LayerTiming>, InferenceError> {
+        let m = self.network.multiple;
+        if !frame.width.is_multiple_of(m) || !frame.height.is_multiple_of(m) {
+            return Err(InferenceError::Frame(format!(
+                "{}×{} is not a multiple of {m}",
+                frame.width, frame.height
+            )));
+        }
+        self.backend.layer_timings(frame)
     }
 
     /// Preprocesses one frame: pad to the network's multiple by reflection

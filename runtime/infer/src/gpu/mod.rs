@@ -18,6 +18,7 @@
 pub mod codegen;
 pub mod params;
 mod plan;
+mod profile;
 
 use std::collections::HashMap;
 
@@ -599,6 +600,10 @@ impl Backend for GpuBackend {
 
     fn last_traffic(&self) -> HostTraffic {
         self.last_traffic
+    }
+
+    fn layer_timings(&mut self, frame: &Image) -> Result<Vec<crate::LayerTiming>, InferenceError> {
+        GpuBackend::layer_timings(self, frame)
     }
 
     fn run(&mut self, frame: &Image) -> Result<Image, InferenceError> {

@@ -21,6 +21,8 @@ pub(super) struct Place {
 /// One recorded dispatch.
 #[derive(Debug)]
 pub(super) struct Dispatch {
+    /// The layer of the network it runs.
+    pub(super) layer: usize,
     pub(super) pipeline: usize,
     pub(super) bind_group: wgpu::BindGroup,
     pub(super) workgroups: [u32; 3],
@@ -196,6 +198,7 @@ impl GpuBackend {
                 )));
             }
             dispatches.push(Dispatch {
+                layer: li,
                 pipeline,
                 bind_group,
                 workgroups,
