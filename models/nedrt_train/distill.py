@@ -486,6 +486,9 @@ def export(run: Path, out: Path, name: str, doe: Path) -> dict:
     export_onnx(net, onnx_path)
     shutil.copyfile(doe, doe_path)
     result = json.loads((run / "result.json").read_text()) if (run / "result.json").exists() else {}
+    if result.get("steps") != state["step"]:
+        # Written by an earlier stop of a run resumed since: the checkpoint is newer.
+        result = {}
     card = {
         "name": name, "recipe": "nedrt-train dcnn (docs/training.md, the D-CNN stage)",
         "config": dataclasses.asdict(cfg), "steps": state["step"],

@@ -121,6 +121,15 @@ fn eval_runs_the_built_in_methods_and_the_shipped_dcnn_by_default() {
         ["conventional", "ai", "doe-only", "doe+wiener", "proposed"]
     );
     assert!(md.contains("D-CNN proposed: models/dcnn.onnx"), "{md}");
+    // Elsewhere (no models/dcnn.onnx under the working folder) the
+    // built-in methods still run, and the log says why proposed is not.
+    let elsewhere = eval_run(&imgs, &dir.path().join("elsewhere"), &[], &[]);
+    assert_eq!(elsewhere.methods().len(), 4);
+    assert!(
+        stderr(&elsewhere.o).contains("proposed is left out"),
+        "{}",
+        stderr(&elsewhere.o)
+    );
 }
 
 #[test]

@@ -73,16 +73,15 @@ pub fn per_layer(b: &InferenceBench, common: &CommonOptions) -> Result<String, A
                 let mut best = dcnn.layer_timings(&frame);
                 for _ in 0..b.repeat.max(1) {
                     let Ok(prev) = &best else { break };
-                    let next = dcnn.layer_timings(&frame)?;
-                    let merged = prev
-                        .iter()
-                        .zip(next)
-                        .map(|(a, mut n)| {
-                            n.gpu_ns = n.gpu_ns.min(a.gpu_ns);
-                            n
-                        })
-                        .collect();
-                    best = Ok(merged);
+                    best = dcnn.layer_timings(&frame).map(|next| {
+                        prev.iter()
+                            .zip(next)
+                            .map(|(a, mut n)| {
+                                n.gpu_ns = n.gpu_ns.min(a.gpu_ns);
+                                n
+                            })
+                            .collect()
+                    });
                 }
                 match best {
                     Ok(rows) => {
@@ -115,20 +114,33 @@ fn layer_table(
     let gbps = |r: &nedrt_infer::LayerTiming| r.bytes as f64 / secs(r) / 1e9;
     let best =
         |f: &dyn Fn(&nedrt_infer::LayerTiming) -> f64| rows.iter().map(f).fold(0.0f64, f64::max);
-    let (pm, pb, whence) = match (peak_gmacs, peak_gbps) {
-        (Some(m), Some(b)) => (m, b, "as given"),
-        _ => (
-            peak_gmacs.unwrap_or_else(|| best(&gmacs)),
-            peak_gbps.unwrap_or_else(|| best(&gbps)),
-            "the best any layer reached here (give --peak-gmacs and --peak-gbps for the adapter's own)",
-        ),
+    let whence = |given: Option<f64>| {
+        if given.is_some() {
+            "as given"
+        } else {
+            "the best any layer reached here"
+        }
     };
+    let (pm, pb) = (
+        peak_gmacs.unwrap_or_else(|| best(&gmacs)),
+        peak_gbps.unwrap_or_else(|| best(&gbps)),
+    );
+    let whence = format!(
+        "MAC rate {}, bandwidth {}{}",
+        whence(peak_gmacs),
+        whence(peak_gbps),
+        if peak_gmacs.is_some() && peak_gbps.is_some() {
+            ""
+        } else {
+            " (--peak-gmacs and --peak-gbps give the adapter's own)"
+        }
+    );
     let floor_s = |r: &nedrt_infer::LayerTiming| {
         (r.macs as f64 / (pm * 1e9)).max(r.bytes as f64 / (pb * 1e9))
     };
     let total: f64 = rows.iter().map(secs).sum();
     let mut md = format!(
-        "\n### {title}\n\nFloor = max(MACs / {pm:.2} GMAC/s, bytes / {pb:.2} GB/s), peaks {whence}. \
+        "\n### {title}\n\nFloor = max(MACs / {pm:.2} GMAC/s, bytes / {pb:.2} GB/s); {whence}. \
          Layers in passes of their own: {:.2} ms in all.\n\n\
          | # | layer | output C×H×W | MMAC | MB | ms | share | GMAC/s | GB/s | × floor |\n\
          | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |\n",

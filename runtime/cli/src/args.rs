@@ -411,7 +411,8 @@ pub struct EvalArgs {
     #[arg(long, default_value = "out/eval", value_name = "DIR")]
     pub out_dir: PathBuf,
     /// Methods to evaluate (default: conventional, ai, doe-only, doe+wiener
-    /// and proposed; with proposed, every DOE method uses its DOE).
+    /// and, where the --dcnn model exists, proposed; with proposed, every
+    /// DOE method uses its DOE).
     #[arg(long, value_delimiter = ',', value_parser = named::<Method>())]
     pub methods: Vec<Method>,
     /// Also evaluate display images made elsewhere (e.g. the trainer's

@@ -28,7 +28,8 @@ pub struct HostTraffic {
     pub to_device_bytes: u64,
     /// Bytes copied from device memory back to the host.
     pub to_host_bytes: u64,
-    /// Times the host waited for a device buffer to be mapped for reading.
+    /// Times the host waited for the device to hand buffers back for
+    /// reading (one wait may map several buffers).
     pub read_backs: u64,
 }
 

@@ -8,12 +8,24 @@
 
 /// How wgpu's instance is made: which backends it may use, its flags and
 /// per-backend options. The binary fills it from wgpu's environment
-/// variables (`WGPU_BACKEND`, …); the default is wgpu's own.
-#[derive(Debug, Clone, Default)]
+/// variables (`WGPU_BACKEND`, …); the default is wgpu's primary backends
+/// (Vulkan, Metal, DX12), not GL, whose wgpu 30 backend panics once two
+/// devices are open (nedrt's settings.rs says more).
+#[derive(Debug, Clone)]
 pub struct GpuSettings {
     pub backends: wgpu::Backends,
     pub flags: wgpu::InstanceFlags,
     pub backend_options: wgpu::BackendOptions,
+}
+
+impl Default for GpuSettings {
+    fn default() -> Self {
+        Self {
+            backends: wgpu::Backends::PRIMARY,
+            flags: wgpu::InstanceFlags::default(),
+            backend_options: wgpu::BackendOptions::default(),
+        }
+    }
 }
 
 impl GpuSettings {

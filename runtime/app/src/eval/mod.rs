@@ -22,18 +22,25 @@ use nedrt_optics::sim::{Image, Method, Optics, Prepared, Simulator};
 /// Upper end of the headline depth range (docs/model.md §17: 0–2.5 D).
 pub const HEADLINE_MAX_D: f64 = nedrt_optics::sim::HEADLINE_MAX_D;
 
-/// Image files in a folder, sorted by name.
-/// `eval`'s methods when none are named: the built-in displays and the
-/// shipped D-CNN (`proposed`, whose DOE then serves every DOE method of the
-/// run, so doe-only and doe+wiener show that DOE without and with the
-/// Wiener).
-fn default_methods() -> Vec<Method> {
-    Method::BUILT_IN
-        .into_iter()
-        .chain([Method::Proposed])
-        .collect()
+/// `eval`'s methods when none are named: the built-in displays and, where
+/// its model is there (`models/dcnn.onnx` is relative to the working
+/// folder), the D-CNN (`proposed`, whose DOE then serves every DOE method
+/// of the run, so doe-only and doe+wiener show that DOE without and with
+/// the Wiener).
+fn default_methods(common: &CommonOptions) -> Vec<Method> {
+    let mut methods = Method::BUILT_IN.to_vec();
+    if common.dcnn.path.is_file() {
+        methods.push(Method::Proposed);
+    } else {
+        tracing::warn!(
+            "{}: no D-CNN here, so proposed is left out (give --dcnn FILE or --methods)",
+            common.dcnn.path.display()
+        );
+    }
+    methods
 }
 
+/// Image files in a folder, sorted by name.
 pub fn list_images(dir: &Path) -> Result<Vec<PathBuf>, AppError> {
     let entries = std::fs::read_dir(dir)
         .map_err(|e| AppError::output(dir, format!("cannot read folder: {e}")))?;
@@ -257,7 +264,7 @@ pub fn run(
         create_dir(dir)?;
     }
     let methods: Vec<Method> = if methods.is_empty() {
-        default_methods()
+        default_methods(common)
     } else {
         methods.to_vec()
     };

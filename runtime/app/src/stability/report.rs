@@ -115,7 +115,7 @@ fn dcnn(d: &DcnnSection) -> String {
     let _ = writeln!(
         md,
         "\n## D-CNN on content unlike its training data\n\n{size}×{size} frames; mean PSNR over 0–2.5 D; \
-         \"changed\": mean |display − {base} display|, what the network changed; \"at bounds\": share of output values the clamp holds at 0 or 1 (input's share in brackets).\n\n\
+         \"changed\": mean |display − {base} display|, what the network changed; \"at bounds\": share of output values the clamp holds at 0 or 1 (the frame's share in brackets).\n\n\
          | content | proposed | {base} | proposed − base | changed | at bounds |\n| --- | --- | --- | --- | --- | --- |"
     );
     for c in &d.content {

@@ -533,9 +533,9 @@ impl GpuBackend {
         }
         self.queue.submit([encoder.finish()]);
         if let Some(t) = &self.timer {
+            // Mapped by the same wait as the image: bytes, not another wait.
             t.readback.slice(..).map_async(wgpu::MapMode::Read, |_| {});
             traffic.to_host_bytes += 16;
-            traffic.read_backs += 1;
         }
         map_and_wait(&self.device, &plan.readback).map_err(err)?;
         let out = {

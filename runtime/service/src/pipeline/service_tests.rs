@@ -273,9 +273,9 @@ fn the_report_counts_host_traffic_per_frame_by_stage() {
         [3, 3]
     );
     assert!(
-        report
-            .table()
-            .contains("host traffic per frame: 0.0 MB to the device, 0.0 MB back, 1.00 read-backs"),
+        report.table().contains(
+            "host traffic per presented frame: 0.0 MB to the device, 0.0 MB back, 1.00 read-backs"
+        ),
         "{}",
         report.table()
     );

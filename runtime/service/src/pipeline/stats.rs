@@ -124,6 +124,7 @@ impl TrafficCounter {
         TrafficReport {
             stage: stage.to_string(),
             frames,
+            total: t,
             to_device_bytes_per_frame: per(t.to_device_bytes),
             to_host_bytes_per_frame: per(t.to_host_bytes),
             read_backs_per_frame: per(t.read_backs),
@@ -251,7 +252,9 @@ pub struct StageReport {
 #[derive(Debug, Clone, Serialize)]
 pub struct TrafficReport {
     pub stage: String,
+    /// Frames the stage handled (a frame dropped later still counts here).
     pub frames: u64,
+    pub total: HostTraffic,
     pub to_device_bytes_per_frame: f64,
     pub to_host_bytes_per_frame: f64,
     pub read_backs_per_frame: f64,
@@ -282,14 +285,19 @@ pub struct Report {
 }
 
 impl Report {
-    /// Host↔device traffic of a frame through the whole pipeline: the sum
-    /// of the stages' per-frame means.
+    /// Host↔device traffic per presented frame: every stage's total over
+    /// the frames presented, so the work on frames dropped on the way is
+    /// charged to the ones shown.
     pub fn traffic_per_frame(&self) -> HostTrafficMean {
         let mut m = HostTrafficMean::default();
+        if self.presented == 0 {
+            return m;
+        }
+        let n = self.presented as f64;
         for t in &self.traffic {
-            m.to_device_bytes += t.to_device_bytes_per_frame;
-            m.to_host_bytes += t.to_host_bytes_per_frame;
-            m.read_backs += t.read_backs_per_frame;
+            m.to_device_bytes += t.total.to_device_bytes as f64 / n;
+            m.to_host_bytes += t.total.to_host_bytes as f64 / n;
+            m.read_backs += t.total.read_backs as f64 / n;
         }
         m
     }
@@ -312,7 +320,8 @@ impl Report {
             })
             .collect();
         format!(
-            "host traffic per frame: {:.1} MB to the device, {:.1} MB back, {:.2} read-backs ({})\n",
+            "host traffic per presented frame: {:.1} MB to the device, {:.1} MB back, {:.2} \
+             read-backs (per frame each stage handled: {})\n",
             m.to_device_bytes / 1e6,
             m.to_host_bytes / 1e6,
             m.read_backs,

@@ -40,6 +40,18 @@ pub struct PanelEncoder {
     codes: wgpu::Buffer,
     width: u32,
     height: u32,
+    plane_stride: u32,
+}
+
+/// Workgroups for `pixels` threads: a row of at most 65535 groups, and as
+/// many rows as needed (the shader's pixel is x + y · 65535 · 64).
+fn workgroups(pixels: u32) -> [u32; 2] {
+    let groups = pixels.div_ceil(WORKGROUP);
+    if groups <= MAX_GROUPS_X {
+        [groups, 1]
+    } else {
+        [MAX_GROUPS_X, groups.div_ceil(MAX_GROUPS_X)]
+    }
 }
 
 impl PanelEncoder {
@@ -59,10 +71,12 @@ impl PanelEncoder {
                 "a {width}×{height} frame with planes {plane_stride} values apart"
             )));
         }
-        if pixels.div_ceil(u64::from(WORKGROUP)) > u64::from(MAX_GROUPS_X) * u64::from(MAX_GROUPS_X)
-        {
+        // The shader indexes in u32: three planes and the codes must fit,
+        // and the codes one binding.
+        let binding = device.limits().max_storage_buffer_binding_size;
+        if 3 * u64::from(plane_stride) > u64::from(u32::MAX) || 4 * pixels > binding {
             return Err(err(format!(
-                "a {width}×{height} frame is too large to dispatch"
+                "a {width}×{height} frame is too large to encode in one dispatch on this adapter"
             )));
         }
         let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
@@ -160,12 +174,25 @@ impl PanelEncoder {
             codes,
             width,
             height,
+            plane_stride,
         })
     }
 
     /// Records the encode of `display` (three f32 planes as given to
-    /// [`PanelEncoder::new`]) into [`PanelEncoder::codes`].
-    pub fn record(&self, encoder: &mut wgpu::CommandEncoder, display: &wgpu::Buffer) {
+    /// [`PanelEncoder::new`], a storage buffer) into [`PanelEncoder::codes`].
+    pub fn record(
+        &self,
+        encoder: &mut wgpu::CommandEncoder,
+        display: &wgpu::Buffer,
+    ) -> Result<(), PresentError> {
+        let needed = 3 * 4 * u64::from(self.plane_stride);
+        if display.size() < needed || !display.usage().contains(wgpu::BufferUsages::STORAGE) {
+            return Err(err(format!(
+                "the display buffer ({} bytes, {:?}) is not a storage buffer of {needed} bytes",
+                display.size(),
+                display.usage()
+            )));
+        }
         let bind_group = self.device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("panel_encode"),
             layout: &self.layout,
@@ -188,12 +215,7 @@ impl PanelEncoder {
                 },
             ],
         });
-        let groups = (self.width * self.height).div_ceil(WORKGROUP);
-        let (x, y) = if groups <= MAX_GROUPS_X {
-            (groups, 1)
-        } else {
-            (MAX_GROUPS_X, groups.div_ceil(MAX_GROUPS_X))
-        };
+        let [x, y] = workgroups(self.width * self.height);
         let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
             label: Some("panel_encode"),
             timestamp_writes: None,
@@ -201,6 +223,7 @@ impl PanelEncoder {
         pass.set_pipeline(&self.pipeline);
         pass.set_bind_group(0, &bind_group, &[]);
         pass.dispatch_workgroups(x, y, 1);
+        Ok(())
     }
 
     /// The encoded frame: one RGBA8 texel per pixel (red in the low byte),
@@ -238,7 +261,7 @@ mod tests {
             mapped_at_creation: false,
         });
         let mut encoder = device.create_command_encoder(&Default::default());
-        enc.record(&mut encoder, &display);
+        enc.record(&mut encoder, &display).expect("records");
         encoder.copy_buffer_to_buffer(enc.codes(), 0, &readback, 0, (n * 4) as u64);
         queue.submit([encoder.finish()]);
         map_and_wait(&device, &readback).expect("read back");
@@ -271,6 +294,33 @@ mod tests {
             ]);
         }
         v
+    }
+
+    #[test]
+    fn the_dispatch_covers_every_pixel_once_in_rows_of_at_most_65535_groups() {
+        for pixels in [
+            1,
+            63,
+            64,
+            65,
+            65535 * 64,
+            65535 * 64 + 1,
+            1920 * 1080,
+            7680 * 4320,
+        ] {
+            let [x, y] = workgroups(pixels);
+            assert!(x <= MAX_GROUPS_X && y >= 1, "{pixels}");
+            let threads = u64::from(x) * u64::from(y) * u64::from(WORKGROUP);
+            assert!(threads >= u64::from(pixels), "{pixels}: {x}×{y}");
+            // No row of groups is wholly past the frame.
+            assert!(
+                threads - u64::from(pixels) < u64::from(x) * u64::from(WORKGROUP),
+                "{pixels}"
+            );
+            if y > 1 {
+                assert_eq!(x, MAX_GROUPS_X, "{pixels}: rows before the last are full");
+            }
+        }
     }
 
     mod needs_gpu {
@@ -325,6 +375,16 @@ mod tests {
                     .expect_err("refused");
                 assert!(e.to_string().contains("planes"), "{e}");
             }
+            let enc = PanelEncoder::new(&device, &queue, 4, 4, 16, &transfer).expect("encoder");
+            let short = device.create_buffer(&wgpu::BufferDescriptor {
+                label: None,
+                size: 3 * 4 * 15,
+                usage: wgpu::BufferUsages::STORAGE,
+                mapped_at_creation: false,
+            });
+            let mut encoder = device.create_command_encoder(&Default::default());
+            let e = enc.record(&mut encoder, &short).expect_err("too short");
+            assert!(e.to_string().contains("192 bytes"), "{e}");
         }
     }
 }
