@@ -50,11 +50,7 @@ pub fn per_layer(b: &InferenceBench, common: &CommonOptions) -> Result<String, A
     }
     let mut md = String::new();
     for (name, width) in &b.models {
-        let proto = synth::unet(*width, 4, 1);
-        let model = ModelFile::from_bytes(
-            std::path::Path::new(&format!("synth-{name}.onnx")),
-            synth::encode(&proto),
-        )?;
+        let model = synth_model(name, *width)?;
         for &precision in BackendKind::Wgpu.precisions() {
             let options = BackendOptions {
                 precision,
@@ -189,6 +185,14 @@ fn layer_table(
     md
 }
 
+/// The trainer's 4-level U-Net of first-level `width`, random weights.
+fn synth_model(name: &str, width: i64) -> Result<ModelFile, AppError> {
+    Ok(ModelFile::from_bytes(
+        std::path::Path::new(&format!("synth-{name}.onnx")),
+        synth::encode(&synth::unet(width, 4, 1)),
+    )?)
+}
+
 /// The frame every case runs: a deterministic ramp pattern.
 fn bench_frame(w: usize, h: usize) -> Image {
     Image::rgb(
@@ -214,11 +218,7 @@ pub fn run(
         "| model | backend | precision | frame | median ms | min ms | GMAC/s |\n| --- | --- | --- | --- | --- | --- | --- |\n",
     );
     for (name, width) in &b.models {
-        let proto = synth::unet(*width, 4, 1);
-        let model = ModelFile::from_bytes(
-            std::path::Path::new(&format!("synth-{name}.onnx")),
-            synth::encode(&proto),
-        )?;
+        let model = synth_model(name, *width)?;
         for &kind in &b.backends {
             for &precision in kind.precisions() {
                 let options = BackendOptions {

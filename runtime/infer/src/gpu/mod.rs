@@ -81,7 +81,7 @@ pub struct GpuBackend {
     banded_size: Option<(usize, usize)>,
 }
 
-/// A timestamp query pair and the buffers that bring it back.
+/// Timestamp query pairs (start, end) and the buffers that bring them back.
 #[derive(Debug)]
 struct GpuTimer {
     queries: wgpu::QuerySet,
@@ -91,14 +91,20 @@ struct GpuTimer {
 }
 
 impl GpuTimer {
+    /// One pair: the network's pass.
     fn new(device: &wgpu::Device, queue: &wgpu::Queue) -> Option<Self> {
+        Self::with_pairs(device, queue, 1)
+    }
+
+    /// `pairs` start/end pairs, where the device has timestamp queries.
+    fn with_pairs(device: &wgpu::Device, queue: &wgpu::Queue, pairs: usize) -> Option<Self> {
         if !device.features().contains(wgpu::Features::TIMESTAMP_QUERY) {
             return None;
         }
         let buffer = |label, usage| {
             device.create_buffer(&wgpu::BufferDescriptor {
                 label: Some(label),
-                size: 16,
+                size: (16 * pairs) as u64,
                 usage,
                 mapped_at_creation: false,
             })
@@ -107,7 +113,7 @@ impl GpuTimer {
             queries: device.create_query_set(&wgpu::QuerySetDescriptor {
                 label: Some("dcnn timestamps"),
                 ty: wgpu::QueryType::Timestamp,
-                count: 2,
+                count: (2 * pairs) as u32,
             }),
             resolve: buffer(
                 "dcnn timestamps",
@@ -150,10 +156,7 @@ impl GpuBackend {
             tracing::error!("wgpu: {e}");
         }));
         let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
-        let t = match precision {
-            Precision::F32 => Dtype::F32,
-            Precision::F16 => Dtype::F16,
-        };
+        let t = storage_dtype(precision);
         let dtype = |v: ValueId| {
             if v == 0 || v == network.output {
                 Dtype::F32
@@ -395,11 +398,24 @@ impl GpuBackend {
     }
 
     fn dtype(&self, root: ValueId) -> Dtype {
-        if root == 0 || root == self.network.output || self.precision == Precision::F32 {
+        if root == 0 || root == self.network.output {
             Dtype::F32
         } else {
-            Dtype::F16
+            storage_dtype(self.precision)
         }
+    }
+
+    /// Makes (or keeps) the plan for `width`×`height` windows.
+    fn ensure_plan(&mut self, width: usize, height: usize) -> Result<(), InferenceError> {
+        if self
+            .plan
+            .as_ref()
+            .is_none_or(|p| (p.width, p.height) != (width, height))
+        {
+            self.plan = None;
+            self.plan = Some(self.prepare(width, height)?);
+        }
+        Ok(())
     }
 
     /// Runs on a CHW tensor with the network's input channels; returns the
@@ -474,14 +490,7 @@ impl GpuBackend {
         width: usize,
         height: usize,
     ) -> Result<(Vec<f32>, Option<u64>), InferenceError> {
-        if self
-            .plan
-            .as_ref()
-            .is_none_or(|p| (p.width, p.height) != (width, height))
-        {
-            self.plan = None;
-            self.plan = Some(self.prepare(width, height)?);
-        }
+        self.ensure_plan(width, height)?;
         let Some(plan) = &self.plan else {
             return Err(err("no plan"));
         };
@@ -559,6 +568,14 @@ impl GpuBackend {
         }
         self.last_traffic.add(traffic);
         Ok((out, gpu_ns))
+    }
+}
+
+/// How weights and intermediate activations are stored at `precision`.
+fn storage_dtype(precision: Precision) -> Dtype {
+    match precision {
+        Precision::F32 => Dtype::F32,
+        Precision::F16 => Dtype::F16,
     }
 }
 

@@ -4,7 +4,7 @@
 //! pass boundary costs a little, so the layers sum to somewhat more than
 //! the one-pass frame; the frame's own time is `last_gpu_ns`.
 
-use super::{GpuBackend, err};
+use super::{GpuBackend, GpuTimer, err};
 use crate::network::Layer;
 use crate::{InferenceError, LayerTiming};
 use nedrt_gpu::map_and_wait;
@@ -17,52 +17,24 @@ impl GpuBackend {
         frame: &nedrt_core::Image,
     ) -> Result<Vec<LayerTiming>, InferenceError> {
         let (width, height) = (frame.width, frame.height);
-        let Some(period_ns) = self.timer.as_ref().map(|t| t.period_ns) else {
-            return Err(err(format!(
-                "{} has no timestamp queries: per-layer times need them",
-                self.adapter_name
-            )));
-        };
         if self.window_rows(width, height)? != height {
             return Err(err(format!(
                 "a {width}×{height} frame runs in bands on this adapter; time the layers at a \
                  size whose activations fit one binding"
             )));
         }
-        if self
-            .plan
-            .as_ref()
-            .is_none_or(|p| (p.width, p.height) != (width, height))
-        {
-            self.plan = None;
-            self.plan = Some(self.prepare(width, height)?);
-        }
+        self.ensure_plan(width, height)?;
         let Some(plan) = &self.plan else {
             return Err(err("no plan"));
         };
         let n = plan.dispatches.len();
-        let scope = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
-        let queries = self.device.create_query_set(&wgpu::QuerySetDescriptor {
-            label: Some("dcnn layer timestamps"),
-            ty: wgpu::QueryType::Timestamp,
-            count: (2 * n) as u32,
-        });
-        let buffer = |label, usage| {
-            self.device.create_buffer(&wgpu::BufferDescriptor {
-                label: Some(label),
-                size: (16 * n) as u64,
-                usage,
-                mapped_at_creation: false,
-            })
+        let Some(timer) = GpuTimer::with_pairs(&self.device, &self.queue, n) else {
+            return Err(err(format!(
+                "{} has no timestamp queries: per-layer times need them",
+                self.adapter_name
+            )));
         };
-        let resolve = buffer(
-            "dcnn layer timestamps",
-            wgpu::BufferUsages::QUERY_RESOLVE | wgpu::BufferUsages::COPY_SRC,
-        );
-        let readback = buffer(
-            "dcnn layer timestamps readback",
-            wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
-        );
+        let scope = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
         self.queue.write_buffer(
             &plan.buffers[plan.input.buffer],
             (plan.input.offset * 4) as u64,
@@ -77,7 +49,7 @@ impl GpuBackend {
             let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
                 label: Some("dcnn layer"),
                 timestamp_writes: Some(wgpu::ComputePassTimestampWrites {
-                    query_set: &queries,
+                    query_set: &timer.queries,
                     beginning_of_pass_write_index: Some((2 * i) as u32),
                     end_of_pass_write_index: Some((2 * i + 1) as u32),
                 }),
@@ -87,28 +59,26 @@ impl GpuBackend {
             let [x, y, z] = d.workgroups;
             pass.dispatch_workgroups(x, y, z);
         }
-        encoder.resolve_query_set(&queries, 0..(2 * n) as u32, &resolve, 0);
-        encoder.copy_buffer_to_buffer(&resolve, 0, &readback, 0, (16 * n) as u64);
+        encoder.resolve_query_set(&timer.queries, 0..(2 * n) as u32, &timer.resolve, 0);
+        encoder.copy_buffer_to_buffer(&timer.resolve, 0, &timer.readback, 0, (16 * n) as u64);
         self.queue.submit([encoder.finish()]);
-        map_and_wait(&self.device, &readback).map_err(err)?;
+        map_and_wait(&self.device, &timer.readback).map_err(err)?;
         let stamps: Vec<u64> = {
-            let view = readback
+            let view = timer
+                .readback
                 .slice(..)
                 .get_mapped_range()
                 .map_err(|e| err(format!("reading the timestamps: {e}")))?;
             bytemuck::pod_collect_to_vec(&view[..16 * n])
         };
-        readback.unmap();
+        timer.readback.unmap();
         if let Some(e) = pollster::block_on(scope.pop()) {
             return Err(err(format!("timing the layers: {e}")));
         }
         let net = &self.network;
         let act = |v: usize| self.dtype(v).bytes() as u64;
         // Weights are stored at the backend's precision.
-        let weight_bytes: u64 = match self.precision {
-            crate::Precision::F32 => 4,
-            crate::Precision::F16 => 2,
-        };
+        let weight_bytes = super::storage_dtype(self.precision).bytes() as u64;
         let mut rows = Vec::with_capacity(n);
         for (i, d) in plan.dispatches.iter().enumerate() {
             let layer = &net.layers[d.layer];
@@ -164,7 +134,7 @@ impl GpuBackend {
                 output: [net.values[out].channels, height >> l, width >> l],
                 macs,
                 bytes,
-                gpu_ns: (ticks as f64 * period_ns) as u64,
+                gpu_ns: (ticks as f64 * timer.period_ns) as u64,
             });
         }
         Ok(rows)

@@ -113,21 +113,11 @@ impl TrafficCounter {
     }
 
     fn report(&self, stage: &str) -> TrafficReport {
-        let (t, frames) = *self.totals.lock().unwrap_or_else(|p| p.into_inner());
-        let per = |v: u64| {
-            if frames == 0 {
-                0.0
-            } else {
-                v as f64 / frames as f64
-            }
-        };
+        let (total, frames) = *self.totals.lock().unwrap_or_else(|p| p.into_inner());
         TrafficReport {
             stage: stage.to_string(),
             frames,
-            total: t,
-            to_device_bytes_per_frame: per(t.to_device_bytes),
-            to_host_bytes_per_frame: per(t.to_host_bytes),
-            read_backs_per_frame: per(t.read_backs),
+            total,
         }
     }
 }
@@ -237,6 +227,21 @@ pub struct HostTrafficMean {
     pub read_backs: f64,
 }
 
+impl HostTrafficMean {
+    /// `total` over `frames` (nothing when there were none).
+    pub fn of(total: HostTraffic, frames: u64) -> Self {
+        if frames == 0 {
+            return Self::default();
+        }
+        let n = frames as f64;
+        Self {
+            to_device_bytes: total.to_device_bytes as f64 / n,
+            to_host_bytes: total.to_host_bytes as f64 / n,
+            read_backs: total.read_backs as f64 / n,
+        }
+    }
+}
+
 /// Latency of one stage, milliseconds.
 #[derive(Debug, Clone, Serialize)]
 pub struct StageReport {
@@ -255,9 +260,6 @@ pub struct TrafficReport {
     /// Frames the stage handled (a frame dropped later still counts here).
     pub frames: u64,
     pub total: HostTraffic,
-    pub to_device_bytes_per_frame: f64,
-    pub to_host_bytes_per_frame: f64,
-    pub read_backs_per_frame: f64,
 }
 
 /// Everything the service counted.
@@ -289,17 +291,11 @@ impl Report {
     /// the frames presented, so the work on frames dropped on the way is
     /// charged to the ones shown.
     pub fn traffic_per_frame(&self) -> HostTrafficMean {
-        let mut m = HostTrafficMean::default();
-        if self.presented == 0 {
-            return m;
-        }
-        let n = self.presented as f64;
+        let mut total = HostTraffic::default();
         for t in &self.traffic {
-            m.to_device_bytes += t.total.to_device_bytes as f64 / n;
-            m.to_host_bytes += t.total.to_host_bytes as f64 / n;
-            m.read_backs += t.total.read_backs as f64 / n;
+            total.add(t.total);
         }
-        m
+        HostTrafficMean::of(total, self.presented)
     }
 
     fn traffic_line(&self) -> String {
@@ -309,12 +305,13 @@ impl Report {
             .iter()
             .filter(|t| t.frames > 0)
             .map(|t| {
+                let m = HostTrafficMean::of(t.total, t.frames);
                 format!(
                     "{} {:.1} MB up, {:.1} MB down, {:.2} read-backs over {} frames",
                     t.stage,
-                    t.to_device_bytes_per_frame / 1e6,
-                    t.to_host_bytes_per_frame / 1e6,
-                    t.read_backs_per_frame,
+                    m.to_device_bytes / 1e6,
+                    m.to_host_bytes / 1e6,
+                    m.read_backs,
                     t.frames
                 )
             })
