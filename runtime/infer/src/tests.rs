@@ -160,6 +160,12 @@ fn unsupported_operators_and_wrong_signatures_are_refused() {
         .truncate(8);
     assert!(lowering_error(&m).contains("bytes"));
 
+    // Dims whose product overflows: an error, not a panic or a wrapped size.
+    let mut m = synth::unet(4, 3, 1);
+    m.graph.as_mut().expect("graph").initializer[0].dims = vec![1 << 32, 1 << 32, 3, 3];
+    let e = lowering_error(&m);
+    assert!(e.contains("more values than can be addressed"), "{e}");
+
     let mut m = synth::unet(4, 3, 1);
     let g = m.graph.as_mut().expect("graph");
     let conv = g

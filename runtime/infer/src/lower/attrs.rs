@@ -51,7 +51,18 @@ pub(super) fn tensor_data(t: &pb::TensorProto) -> Result<Initializer, String> {
         .iter()
         .map(|&d| usize::try_from(d).map_err(|_| format!("initializer '{}' has dim {d}", t.name)))
         .collect::<Result<_, _>>()?;
-    let n: usize = dims.iter().product();
+    // Checked: a file's dims can ask for more values than any memory holds
+    // (found by the onnx_model fuzz target).
+    let n = dims
+        .iter()
+        .try_fold(1usize, |n, &d| n.checked_mul(d))
+        .filter(|n| n.checked_mul(4).is_some())
+        .ok_or_else(|| {
+            format!(
+                "initializer '{}' has dims {dims:?}: more values than can be addressed",
+                t.name
+            )
+        })?;
     let data: Vec<f32> = if !t.raw_data.is_empty() {
         if t.raw_data.len() != 4 * n {
             return Err(format!(
