@@ -221,7 +221,14 @@ fn run_refuses_a_source_rate_it_cannot_pace() {
 fn recording_pattern() -> (std::process::Child, tempfile::TempDir) {
     let dir = tempfile::tempdir().expect("tempdir");
     let rec = dir.path().join("rec");
+    // The shipped network without its card: no Wiener stage to prepare
+    // before the first frame (its PSFs can take most of the 60 s below on
+    // a loaded machine with a cold cache), as these tests are about the stop.
+    let network = dir.path().join("network.onnx");
+    std::fs::copy(repo().join("models/dcnn.onnx"), &network).expect("copy the model");
     let mut child = run_on_small_panel()
+        .arg("--dcnn")
+        .arg(&network)
         .args(["--source", "pattern", "--sink", "record", "--record-dir"])
         .args([path(&rec), "--report-json"])
         .arg(dir.path().join("report.json"))
