@@ -103,3 +103,36 @@ pub fn test_device(shader_f16: bool) -> (wgpu::Device, wgpu::Queue) {
         Err(e) => panic!("this test needs a GPU adapter and found none: {e}"),
     }
 }
+
+/// Preprocessing that runs on a wgpu device from one device buffer into
+/// another, so that a frame need not leave the GPU between the client's
+/// upload and the panel (the D-CNN on the wgpu backend). The service owns
+/// both buffers and submits; a stage only records.
+pub trait DeviceStage: Send + std::fmt::Debug {
+    /// For reports: "D-CNN models/dcnn.onnx on wgpu f32 on …".
+    fn describe(&self) -> String;
+    /// Records into `encoder` the display image of the frame in `input`
+    /// written to `output`. Both hold three f32 planes of `width`×`height`,
+    /// row-major, planes `width * height` values apart; `output` need not be
+    /// clamped (the encode clamps). Every buffer the stage needs per frame
+    /// size is made on the first call for that size, none per frame.
+    fn record(
+        &mut self,
+        encoder: &mut wgpu::CommandEncoder,
+        input: &wgpu::Buffer,
+        output: &wgpu::Buffer,
+        width: usize,
+        height: usize,
+    ) -> Result<(), String>;
+}
+
+/// Waits until the GPU has finished `submission` (no data is read back).
+pub fn wait_for(device: &wgpu::Device, submission: wgpu::SubmissionIndex) -> Result<(), String> {
+    device
+        .poll(wgpu::PollType::Wait {
+            submission_index: Some(submission),
+            timeout: None,
+        })
+        .map(|_| ())
+        .map_err(|e| format!("waiting for the GPU: {e}"))
+}

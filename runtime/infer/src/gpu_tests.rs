@@ -274,6 +274,93 @@ mod needs_gpu {
 
     #[test]
     #[ignore = "needs a GPU adapter (run: scripts/test.sh, or cargo test -- --include-ignored)"]
+    fn a_frame_on_the_device_is_the_host_path_bit_for_bit() {
+        use wgpu::util::DeviceExt;
+        let model = model_from(&synth::unet(4, 4, 33), "random.onnx");
+        let net = model.lower().expect("lowers");
+        let (m, halo) = (
+            net.multiple,
+            net.receptive_radius().next_multiple_of(net.multiple),
+        );
+        let rows = 2 * halo + 2 * m;
+        // Neither side a multiple of the network's: padding on both, and
+        // with the small limit three bands and a short one.
+        let (w, h) = (2 * m + 5, 3 * rows + m - 3);
+        for precision in [Precision::F32, Precision::F16] {
+            let (device, queue) = gpu_device(precision);
+            let open = || {
+                GpuBackend::new(&device, &queue, "test".into(), &net, precision).expect("builds")
+            };
+            let frame = random_frame(w, h, 12);
+            let (pw, ph) = (w.div_ceil(m) * m, h.div_ceil(m) * m);
+            let padded = frame.pad_reflect(pw, ph);
+            let mut host = open();
+            let want = Image::rgb(pw, ph, host.run_tensor(padded.data(), pw, ph).expect("host"))
+                .crop(0, 0, w, h)
+                .clamped();
+            let limit = host.largest_activation_bytes(pw, rows);
+            for (label, mut gpu) in [
+                ("whole", open()),
+                ("banded", open().with_binding_limit(limit)),
+            ] {
+                let usage = wgpu::BufferUsages::STORAGE
+                    | wgpu::BufferUsages::COPY_SRC
+                    | wgpu::BufferUsages::COPY_DST;
+                let input = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                    label: None,
+                    contents: bytemuck::cast_slice(frame.data()),
+                    usage,
+                });
+                let output = device.create_buffer(&wgpu::BufferDescriptor {
+                    label: None,
+                    size: input.size(),
+                    usage,
+                    mapped_at_creation: false,
+                });
+                let readback = device.create_buffer(&wgpu::BufferDescriptor {
+                    label: None,
+                    size: input.size(),
+                    usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+                    mapped_at_creation: false,
+                });
+                // Twice: the second frame reuses the plan and its copies.
+                for _ in 0..2 {
+                    let mut encoder = device.create_command_encoder(&Default::default());
+                    gpu.record_frame(&mut encoder, &input, &output, w, h)
+                        .expect("records");
+                    encoder.copy_buffer_to_buffer(&output, 0, &readback, 0, input.size());
+                    queue.submit([encoder.finish()]);
+                    nedrt_gpu::map_and_wait(&device, &readback).expect("reads back");
+                    let got: Vec<f32> =
+                        bytemuck::cast_slice(&readback.slice(..).get_mapped_range().expect("view"))
+                            .to_vec();
+                    readback.unmap();
+                    assert!(
+                        got == want.data(),
+                        "{label} {precision:?}: {}",
+                        max_abs_diff(want.data(), &got)
+                    );
+                    assert_eq!(gpu.last_traffic(), HostTraffic::default(), "{label}");
+                }
+            }
+            // A buffer smaller than the frame is an error, not a wrong image.
+            let small = device.create_buffer(&wgpu::BufferDescriptor {
+                label: None,
+                size: 16,
+                usage: wgpu::BufferUsages::STORAGE,
+                mapped_at_creation: false,
+            });
+            let mut encoder = device.create_command_encoder(&Default::default());
+            let e = open()
+                .record_frame(&mut encoder, &small, &small, w, h)
+                .expect_err("too small")
+                .to_string();
+            assert!(e.contains("needs two buffers"), "{e}");
+        }
+    }
+
+    #[test]
+    #[ignore = "needs a GPU adapter (run: scripts/test.sh, or cargo test -- --include-ignored)"]
     fn every_layer_is_timed_with_its_work() {
         let model = model_from(&synth::unet(4, 3, 5), "random.onnx");
         let net = model.lower().expect("lowers");

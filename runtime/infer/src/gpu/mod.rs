@@ -19,6 +19,9 @@ pub mod codegen;
 pub mod params;
 mod plan;
 mod profile;
+mod resident;
+
+pub use resident::DeviceDcnn;
 
 use std::collections::HashMap;
 
@@ -79,6 +82,10 @@ pub struct GpuBackend {
     halo: usize,
     /// The frame size whose banding was last reported.
     banded_size: Option<(usize, usize)>,
+    /// Copies between a frame on the device and the network's tensors.
+    window: resident::WindowKernel,
+    /// Those copies for one frame size and pair of buffers.
+    resident: Option<resident::ResidentPlan>,
 }
 
 /// Timestamp query pairs (start, end) and the buffers that bring them back.
@@ -341,6 +348,8 @@ impl GpuBackend {
                 .min(limits.max_buffer_size),
             halo: network.receptive_radius().next_multiple_of(m),
             banded_size: None,
+            window: resident::WindowKernel::new(device),
+            resident: None,
         })
     }
 
@@ -350,6 +359,7 @@ impl GpuBackend {
     pub fn with_binding_limit(mut self, bytes: u64) -> Self {
         self.binding_cap = self.binding_cap.min(bytes);
         self.plan = None;
+        self.resident = None;
         self
     }
 
@@ -412,6 +422,8 @@ impl GpuBackend {
             .as_ref()
             .is_none_or(|p| (p.width, p.height) != (width, height))
         {
+            // The device frame's copies bind the old plan's buffers.
+            self.resident = None;
             self.plan = None;
             self.plan = Some(self.prepare(width, height)?);
         }
@@ -459,24 +471,22 @@ impl GpuBackend {
         let mut out = vec![0.0f32; cout * plane];
         let mut window = vec![0.0f32; cin * band_plane];
         let mut gpu_ns = Some(0u64);
-        let mut y0 = 0;
-        while y0 < height {
-            let y1 = (y0 + keep).min(height);
-            // Both are multiples of the network's multiple, so the pooling
-            // grid of the band is the frame's.
-            let top = y0.saturating_sub(self.halo).min(height - rows);
+        // Every band's rows are multiples of the network's multiple, so the
+        // pooling grid of the band is the frame's.
+        for band in resident::bands(height, rows, self.halo) {
+            let top = band.top;
             for c in 0..cin {
                 window[c * band_plane..][..band_plane]
                     .copy_from_slice(&data[c * plane + top * width..][..band_plane]);
             }
-            let (band, ns) = self.run_window(&window, width, rows)?;
+            let (out_band, ns) = self.run_window(&window, width, rows)?;
             gpu_ns = gpu_ns.zip(ns).map(|(a, b)| a + b);
+            let (y0, y1) = (band.keep_start, band.keep_end);
             let kept = (y1 - y0) * width;
             for c in 0..cout {
                 out[c * plane + y0 * width..][..kept]
-                    .copy_from_slice(&band[c * band_plane + (y0 - top) * width..][..kept]);
+                    .copy_from_slice(&out_band[c * band_plane + (y0 - top) * width..][..kept]);
             }
-            y0 = y1;
         }
         self.last_gpu_ns = gpu_ns;
         Ok(out)
