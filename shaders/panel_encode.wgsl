@@ -13,14 +13,16 @@ struct Frame {
     // Elements between the planes of `display` (width * height, or more
     // where the planes are padded).
     plane_stride: u32,
-    _pad: u32,
+    // Texels from one row of `codes` to the next: the width padded to the
+    // 256-byte pitch of a buffer-to-texture copy.
+    row_texels: u32,
 }
 
 @group(0) @binding(0) var<storage, read> display: array<f32>;
 // 3 x 255 thresholds, channel-major.
 @group(0) @binding(1) var<storage, read> thresholds: array<f32>;
 @group(0) @binding(2) var<uniform> frame: Frame;
-// One packed RGBA8 texel per pixel, red in the low byte.
+// One packed RGBA8 texel per pixel, red in the low byte, rows padded.
 @group(0) @binding(3) var<storage, read_write> codes: array<u32>;
 
 fn is_nan(x: f32) -> bool {
@@ -53,5 +55,7 @@ fn main(@builtin(global_invocation_id) id: vec3<u32>) {
     let r = code(0u, display[pixel]);
     let g = code(1u, display[frame.plane_stride + pixel]);
     let b = code(2u, display[2u * frame.plane_stride + pixel]);
-    codes[pixel] = r | (g << 8u) | (b << 16u) | (255u << 24u);
+    let row = pixel / frame.width;
+    codes[row * frame.row_texels + pixel - row * frame.width] =
+        r | (g << 8u) | (b << 16u) | (255u << 24u);
 }

@@ -10,13 +10,16 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use super::{AppError, CommonOptions};
 use crate::preprocess::{BehindWiener, DcnnInput};
 use nedrt_core::Named;
-use nedrt_core::preprocess::{Identity, Preprocess};
-use nedrt_infer::gpu::open_device;
+use nedrt_core::preprocess::{Identity, Preprocess, check_frame};
+use nedrt_infer::gpu::{DeviceDcnn, open_device};
 use nedrt_infer::{BackendKind, Dcnn, ModelFile};
 use nedrt_optics::sim::wiener::WienerFilter;
 use nedrt_optics::sim::{Method, Simulator};
 use nedrt_service::pipeline::pacing::{Clock, SystemClock};
-use nedrt_service::pipeline::service::{Control, DcnnStage, FallbackFactory, PanelConfig, Service};
+use nedrt_service::pipeline::resident::DeviceFrames;
+use nedrt_service::pipeline::service::{
+    Control, DcnnStage, FallbackFactory, HostPrep, PanelConfig, ResidentStage, Service,
+};
 use nedrt_service::pipeline::source::{
     self, Source, dir::DirSource, pattern::PatternSource, socket::SocketSource,
 };
@@ -115,6 +118,37 @@ impl Named for FallbackKind {
     }
 }
 
+/// Where frames go between the client and the panel.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum FramePath {
+    /// On the sink's GPU from the upload to the panel, where the sink and
+    /// the engine allow; else the host.
+    #[default]
+    Device,
+    /// Decoded, preprocessed and encoded on the host; the sink uploads the
+    /// codes (the path before the resident one, for comparison).
+    Host,
+}
+
+impl Named for FramePath {
+    const ALL: &'static [Self] = &[FramePath::Device, FramePath::Host];
+    fn name(self) -> &'static str {
+        match self {
+            FramePath::Device => "device",
+            FramePath::Host => "host",
+        }
+    }
+    fn help(self) -> &'static str {
+        match self {
+            FramePath::Device => {
+                "frames stay on the sink's GPU (window or headless sink; wgpu backend or no \
+                 network), else the host"
+            }
+            FramePath::Host => "decode, preprocess and encode on the host; the sink uploads codes",
+        }
+    }
+}
+
 /// Slowest and fastest paced source rates `--source-rate` takes (Hz).
 pub const MIN_SOURCE_RATE_HZ: f64 = 0.01;
 pub const MAX_SOURCE_RATE_HZ: f64 = 10_000.0;
@@ -140,6 +174,7 @@ pub struct RunOptions {
     pub record_dir: PathBuf,
     pub window: WindowOptions,
     pub fallback: FallbackKind,
+    pub frame_path: FramePath,
     pub report_json: Option<PathBuf>,
     /// Fault injection: the D-CNN backend fails, as a lost GPU makes it
     /// fail, from this frame on (0: the first).
@@ -171,6 +206,35 @@ impl Preprocess for LosesDeviceAfter {
         }
         self.frames_left -= 1;
         self.inner.run(input)
+    }
+}
+
+/// A device stage that fails like a lost device after `frames_left`
+/// frames (the resident path's twin of [`LosesDeviceAfter`]).
+#[derive(Debug)]
+struct DeviceLostAfter {
+    inner: Box<dyn nedrt_gpu::DeviceStage>,
+    frames_left: u64,
+}
+
+impl nedrt_gpu::DeviceStage for DeviceLostAfter {
+    fn describe(&self) -> String {
+        self.inner.describe()
+    }
+
+    fn record(
+        &mut self,
+        encoder: &mut wgpu::CommandEncoder,
+        input: &wgpu::Buffer,
+        output: &wgpu::Buffer,
+        width: usize,
+        height: usize,
+    ) -> Result<(), String> {
+        if self.frames_left == 0 {
+            return Err("device lost (injected fault)".into());
+        }
+        self.frames_left -= 1;
+        self.inner.record(encoder, input, output, width, height)
     }
 }
 
@@ -344,9 +408,39 @@ pub fn run(
         }
         SinkKind::Record => (Box::new(RecorderSink::new(&opts.record_dir)?), None),
     };
+    // The resident path where the sink and the engine allow it.
+    let host_reason = match (&device, &model) {
+        _ if opts.frame_path == FramePath::Host => Some("--frame-path host".to_string()),
+        (None, _) => Some(format!(
+            "the {} sink takes frames in host memory, so every display image is read back",
+            opts.sink.name()
+        )),
+        (Some(_), Some(_)) if dcnn.backend != BackendKind::Wgpu => Some(format!(
+            "the D-CNN runs on the {} backend, on the host",
+            dcnn.backend.name()
+        )),
+        (Some(_), None) if opts.inject_device_loss_after.is_some() => {
+            Some("the injected device loss needs a network".to_string())
+        }
+        (Some(d), _) => match resident_stage(common, opts, &panel, d, model.clone(), &stage) {
+            Ok(resident) => {
+                return serve(opts, control, panel, clock, source, sink, Pipeline::Resident(resident));
+            }
+            Err(e) => {
+                tracing::warn!("frames cannot stay on the GPU: {e}; they go through the host");
+                Some(e.to_string())
+            }
+        },
+    };
+    let host_reason = host_reason.unwrap_or_default();
     let Some(model) = model else {
         let primary = linear_preprocessor(common, opts.preprocess, opts.prefilter)?;
-        return serve(opts, control, panel, clock, source, sink, primary, None);
+        let pipeline = Pipeline::Host {
+            primary,
+            fallback: None,
+            reason: host_reason,
+        };
+        return serve(opts, control, panel, clock, source, sink, pipeline);
     };
     let primary: Result<Box<dyn Preprocess>, _> = match (dcnn.backend, &device) {
         (BackendKind::Wgpu, Some((d, q, name)))
@@ -379,12 +473,98 @@ pub fn run(
         }),
         None => primary,
     };
-    serve(opts, control, panel, clock, source, sink, primary, fallback)
+    let pipeline = Pipeline::Host {
+        primary,
+        fallback,
+        reason: host_reason,
+    };
+    serve(opts, control, panel, clock, source, sink, pipeline)
+}
+
+/// The resident path's engines on the sink's device `d`: the network's
+/// kernels (its Wiener stage on the host first, where it has one), or no
+/// network and the method's linear prefilter on the host, or nothing.
+fn resident_stage(
+    common: &CommonOptions,
+    opts: &RunOptions,
+    panel: &PanelConfig,
+    (device, queue, name): &(wgpu::Device, wgpu::Queue, String),
+    model: Option<ModelFile>,
+    stage: &Option<(Method, Arc<WienerFilter>)>,
+) -> Result<ResidentStage, AppError> {
+    let (host, network, fallback) = match model {
+        Some(model) => {
+            let precision = common.dcnn.backend_options.precision;
+            let net: Box<dyn nedrt_gpu::DeviceStage> = Box::new(DeviceDcnn::on_device(
+                model.clone(),
+                device,
+                queue,
+                name.clone(),
+                precision,
+            )?);
+            let net = match opts.inject_device_loss_after {
+                Some(frames_left) => Box::new(DeviceLostAfter {
+                    inner: net,
+                    frames_left,
+                }),
+                None => net,
+            };
+            let host = stage.as_ref().map(|(method, filter)| {
+                let filter = filter.clone();
+                HostPrep {
+                    name: format!(
+                        "the Wiener prefilter of {method} (K = {:e}) before the clamp",
+                        filter.k_reg
+                    ),
+                    run: Box::new(move |frame| {
+                        check_frame(frame, filter.channels())?;
+                        Ok(filter.apply_unclamped(frame))
+                    }),
+                }
+            });
+            // The fallback gets the host stage's output: the network alone.
+            let fallback = fallback_factory(opts.fallback, model, common, None);
+            (host, Some(net), Some(fallback))
+        }
+        None if !opts.preprocess.uses_wiener() && opts.prefilter.is_native() => (None, None, None),
+        None => {
+            let mut linear = linear_preprocessor(common, opts.preprocess, opts.prefilter)?;
+            let host = HostPrep {
+                name: linear.describe(),
+                run: Box::new(move |frame| linear.run(frame)),
+            };
+            (Some(host), None, None)
+        }
+    };
+    let frames = DeviceFrames::new(
+        device,
+        queue,
+        panel.width,
+        panel.height,
+        &panel.transfer,
+        network,
+    )?;
+    Ok(ResidentStage {
+        host,
+        frames,
+        fallback,
+    })
+}
+
+/// The pipeline `serve` starts.
+enum Pipeline {
+    /// Frames through the host, and why.
+    Host {
+        primary: Box<dyn Preprocess>,
+        fallback: Option<FallbackFactory>,
+        reason: String,
+    },
+    /// Frames on the sink's device.
+    Resident(ResidentStage),
 }
 
 /// Starts the pipeline with its preprocessing, runs it to the end and
 /// writes the report.
-#[allow(clippy::too_many_arguments)]
 fn serve(
     opts: &RunOptions,
     control: &Control,
@@ -392,20 +572,40 @@ fn serve(
     clock: Arc<dyn Clock>,
     source: Box<dyn Source>,
     mut sink: Box<dyn Sink>,
-    primary: Box<dyn Preprocess>,
-    fallback: Option<FallbackFactory>,
+    pipeline: Pipeline,
 ) -> Result<Report, AppError> {
+    let (width, height, refresh_hz) = (panel.width, panel.height, panel.refresh_hz);
+    let (service, what) = match pipeline {
+        Pipeline::Host {
+            primary,
+            fallback,
+            reason,
+        } => {
+            let what = format!("{} (frames through the host: {reason})", primary.describe());
+            let service = Service::start(panel, DcnnStage { primary, fallback }, clock);
+            if let Ok(s) = &service {
+                *s.stats()
+                    .frame_path
+                    .lock()
+                    .unwrap_or_else(|p| p.into_inner()) = format!("host: {reason}");
+            }
+            (service, what)
+        }
+        Pipeline::Resident(resident) => {
+            let what = match &resident.host {
+                Some(h) => format!("{}, then on the GPU: {}", h.name, resident.frames.describe()),
+                None => format!("on the GPU: {}", resident.frames.describe()),
+            };
+            (Service::start_resident(panel, resident, clock), what)
+        }
+    };
     tracing::info!(
-        "panel {}×{} at {} Hz; source: {}; preprocess: {}; sink: {}",
-        panel.width,
-        panel.height,
-        panel.refresh_hz,
+        "panel {width}×{height} at {refresh_hz} Hz; source: {}; preprocess: {what}; sink: {}",
         source.describe(),
-        primary.describe(),
         sink.describe()
     );
-    let mut service = Service::start(panel, DcnnStage { primary, fallback }, clock)
-        .map_err(|e| AppError::Usage(format!("cannot start the pipeline threads: {e}")))?;
+    let mut service =
+        service.map_err(|e| AppError::Usage(format!("cannot start the pipeline threads: {e}")))?;
     let sources_stop = Arc::new(AtomicBool::new(false));
     let compositor = service
         .compositor()

@@ -6,7 +6,7 @@ use std::path::PathBuf;
 
 use clap::builder::{PossibleValue, PossibleValuesParser, TypedValueParser};
 use clap::{Args, Parser, Subcommand, ValueEnum};
-use nedrt_app::run::{FallbackKind, SinkKind, SourceKind};
+use nedrt_app::run::{FallbackKind, FramePath, SinkKind, SourceKind};
 use nedrt_core::Named;
 use nedrt_infer::{BackendKind, OrtProvider, Precision};
 use nedrt_optics::sim::{Method, Optics};
@@ -341,6 +341,11 @@ pub struct RunArgs {
     /// What runs when the D-CNN backend cannot start or fails.
     #[arg(long, value_parser = named::<FallbackKind>(), default_value = "cpu")]
     pub fallback: FallbackKind,
+    /// Where frames go between the client and the panel: `device` keeps
+    /// them on the sink's GPU where the sink and the engine allow (window
+    /// or headless sink, wgpu backend or no network), else the host.
+    #[arg(long, value_parser = named::<FramePath>(), default_value = "device")]
+    pub frame_path: FramePath,
     /// Keep showing the last frame after the source ends, until Ctrl-C or the window closes.
     #[arg(long)]
     pub keep_open: bool,

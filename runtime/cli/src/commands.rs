@@ -165,6 +165,7 @@ pub fn run(cli: Cli) -> Result<()> {
                     ..Default::default()
                 },
                 fallback: a.fallback,
+                frame_path: a.frame_path,
                 report_json: a.report_json,
                 inject_device_loss_after: a.inject_device_loss_after,
             };

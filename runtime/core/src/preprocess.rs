@@ -26,6 +26,9 @@ pub enum PreprocessError {
 pub struct HostTraffic {
     /// Bytes written from host memory into device buffers or textures.
     pub to_device_bytes: u64,
+    /// Writes from host memory to the device (each buffer or texture
+    /// write once, however large).
+    pub uploads: u64,
     /// Bytes copied from device memory back to the host.
     pub to_host_bytes: u64,
     /// Times the host waited for the device to hand buffers back for
@@ -36,6 +39,7 @@ pub struct HostTraffic {
 impl HostTraffic {
     pub fn add(&mut self, other: HostTraffic) {
         self.to_device_bytes += other.to_device_bytes;
+        self.uploads += other.uploads;
         self.to_host_bytes += other.to_host_bytes;
         self.read_backs += other.read_backs;
     }

@@ -512,6 +512,7 @@ impl GpuBackend {
         );
         let mut traffic = HostTraffic {
             to_device_bytes: std::mem::size_of_val(data) as u64,
+            uploads: 1,
             to_host_bytes: (plan.output_elems * 4) as u64,
             read_backs: 1,
         };

@@ -201,22 +201,23 @@ fn srgb_to_linear(v: f32) -> f32 {
     }
 }
 
+/// The linear intensity of each 8-bit code: code/255, or its sRGB
+/// decode. The host decode and the device's unpack both read this table,
+/// so they agree bit for bit.
+pub fn code_lut(srgb: bool) -> [f32; 256] {
+    std::array::from_fn(|v| {
+        let x = v as f32 / 255.0;
+        if srgb { srgb_to_linear(x) } else { x }
+    })
+}
+
 /// Decodes a validated frame to the D-CNN's planar linear input.
 pub fn decode(frame: &SubmittedFrame) -> Image {
     let n = frame.width * frame.height;
     let mut data = vec![0f32; 3 * n];
     match frame.format {
         PixelFormat::Rgba8Linear | PixelFormat::Rgba8Srgb => {
-            let lut: Vec<f32> = (0..256)
-                .map(|v| {
-                    let x = v as f32 / 255.0;
-                    if frame.format == PixelFormat::Rgba8Srgb {
-                        srgb_to_linear(x)
-                    } else {
-                        x
-                    }
-                })
-                .collect();
+            let lut = code_lut(frame.format == PixelFormat::Rgba8Srgb);
             for (i, px) in frame.payload.chunks_exact(4).enumerate() {
                 for c in 0..3 {
                     data[c * n + i] = lut[px[c] as usize];

@@ -12,6 +12,7 @@ pub mod frame;
 pub mod latency;
 pub mod pacing;
 pub mod protocol;
+pub mod resident;
 pub mod service;
 pub mod source;
 pub mod stats;

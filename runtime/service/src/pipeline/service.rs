@@ -7,6 +7,15 @@
 //!                                 fallback) transfer) wins)        refresh)
 //! ```
 //!
+//! On the resident path ([`Service::start_resident`]) the upload stage
+//! only runs a host stage where the system has one (a network's Wiener),
+//! the dcnn stage uploads the frame once and records unpack, network and
+//! encode on the sink's device ([`super::resident`]), the encode stage
+//! passes the device frame on, and the sink copies its codes on the
+//! device: no read-back. If the device fails, the dcnn stage switches to
+//! the host path for good (its fallback on the decoded frame, the CPU
+//! encode), as the host path switches engines.
+//!
 //! Back-pressure: every hand-over keeps the newest frame. A stage that
 //! falls behind works on the newest frame it can get; older ones are
 //! dropped and counted (`dropped_queued`, `dropped_at_present`). Submitting
@@ -21,10 +30,11 @@ use crossbeam_channel::Receiver;
 
 use super::channel::{NewestSender, newest_channel};
 use super::frame::{FrameError, SubmittedFrame, decode, validate};
+use super::resident::{DeviceFrames, DeviceInput};
 use super::pacing::{Clock, NewestSlot, Pacer};
 use super::stats::{RSS_EVERY, Report, Stage, Stats};
 use crate::present::transfer::Transfer;
-use crate::present::{DisplayFrame, PresentError, Presented, Sink};
+use crate::present::{DeviceDisplayFrame, DisplayFrame, PanelFrame, PresentError, Presented, Sink};
 use nedrt_core::Image;
 use nedrt_core::preprocess::{Identity, Preprocess, PreprocessError};
 use nedrt_core::progress::{Progress, Silent};
@@ -97,6 +107,113 @@ impl DcnnStage {
                 }
             }
         }
+    }
+}
+
+/// Host work on a decoded frame before it goes to the device: a
+/// network's Wiener stage, or a linear prefilter with no device stage.
+pub struct HostPrep {
+    pub name: String,
+    pub run: Box<dyn FnMut(&Image) -> Result<Image, PreprocessError> + Send>,
+}
+
+impl std::fmt::Debug for HostPrep {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.name)
+    }
+}
+
+/// The resident path's engines: an optional host stage, the device side,
+/// and the host preprocessing to switch to if the device fails (it gets
+/// the host stage's output; none: [`Identity`]).
+pub struct ResidentStage {
+    pub host: Option<HostPrep>,
+    pub frames: DeviceFrames,
+    pub fallback: Option<FallbackFactory>,
+}
+
+impl std::fmt::Debug for ResidentStage {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("ResidentStage")
+            .field("host", &self.host)
+            .field("frames", &self.frames)
+            .field("fallback", &self.fallback.is_some())
+            .finish()
+    }
+}
+
+/// The dcnn stage's engine: on the host, or on the sink's device.
+enum Engine {
+    Host(DcnnStage),
+    Device {
+        frames: Box<DeviceFrames>,
+        fallback: Option<FallbackFactory>,
+    },
+}
+
+/// What the dcnn stage hands the encode stage.
+enum Processed {
+    Host(Image),
+    Device(DeviceDisplayFrame),
+}
+
+/// A frame from the upload stage as a host image.
+fn host_image(input: DeviceInput) -> Image {
+    match input {
+        DeviceInput::Client(f) => decode(&f),
+        DeviceInput::Planar(im) => im,
+    }
+}
+
+impl Engine {
+    fn describe(&self) -> String {
+        match self {
+            Engine::Host(d) => d.primary.describe(),
+            Engine::Device { frames, .. } => frames.describe(),
+        }
+    }
+
+    fn run(&mut self, id: u64, input: DeviceInput, stats: &Stats) -> Option<Processed> {
+        use std::sync::atomic::Ordering::Relaxed;
+        if let Engine::Device { frames, fallback } = self {
+            match frames.run(id, &input) {
+                Ok((frame, traffic)) => {
+                    stats.dcnn_traffic.record(traffic);
+                    return Some(Processed::Device(frame));
+                }
+                Err(e) => {
+                    stats.dcnn_failures.fetch_add(1, Relaxed);
+                    let next: Box<dyn Preprocess> = match fallback.take().map(|f| f()) {
+                        Some(Ok(p)) => p,
+                        Some(Err(fe)) => {
+                            tracing::error!("fallback backend cannot start: {fe}");
+                            Box::new(Identity)
+                        }
+                        None => Box::new(Identity),
+                    };
+                    tracing::error!(
+                        "{} failed: {e}; frames now go through the host, to {}",
+                        frames.describe(),
+                        next.describe()
+                    );
+                    *stats.backend.lock().unwrap_or_else(|p| p.into_inner()) = format!(
+                        "{} (after a failure of {})",
+                        next.describe(),
+                        frames.describe()
+                    );
+                    *stats.frame_path.lock().unwrap_or_else(|p| p.into_inner()) =
+                        "host (after the device path failed)".into();
+                    *self = Engine::Host(DcnnStage {
+                        primary: next,
+                        fallback: None,
+                    });
+                }
+            }
+        }
+        let Engine::Host(dcnn) = self else {
+            return None;
+        };
+        dcnn.run(&host_image(input), stats).map(Processed::Host)
     }
 }
 
@@ -217,7 +334,7 @@ impl Default for Control {
 pub struct Service {
     panel: PanelConfig,
     compositor: Option<Compositor>,
-    slot: Arc<NewestSlot<Timed<DisplayFrame>>>,
+    slot: Arc<NewestSlot<Timed<PanelFrame>>>,
     stats: Arc<Stats>,
     clock: Arc<dyn Clock>,
     /// Set when the last stage has finished (every sender dropped).
@@ -281,16 +398,55 @@ impl Service {
     /// [`Service::present_loop`].
     pub fn start(
         panel: PanelConfig,
-        mut dcnn: DcnnStage,
+        dcnn: DcnnStage,
+        clock: Arc<dyn Clock>,
+    ) -> std::io::Result<Self> {
+        Self::start_with(panel, Engine::Host(dcnn), None, clock)
+    }
+
+    /// Starts the resident path (module docs): frames stay on the sink's
+    /// device from the upload to the panel.
+    pub fn start_resident(
+        panel: PanelConfig,
+        resident: ResidentStage,
+        clock: Arc<dyn Clock>,
+    ) -> std::io::Result<Self> {
+        let ResidentStage {
+            host,
+            frames,
+            fallback,
+        } = resident;
+        let engine = Engine::Device {
+            frames: Box::new(frames),
+            fallback,
+        };
+        Self::start_with(panel, engine, Some(host), clock)
+    }
+
+    /// `host`: the resident path's host stage (`Some(None)`: the resident
+    /// path without one); `None`: the host path.
+    fn start_with(
+        panel: PanelConfig,
+        mut engine: Engine,
+        host: Option<Option<HostPrep>>,
         clock: Arc<dyn Clock>,
     ) -> std::io::Result<Self> {
         let stats = Arc::new(Stats::default());
-        *stats.backend.lock().unwrap_or_else(|p| p.into_inner()) = dcnn.primary.describe();
+        *stats.backend.lock().unwrap_or_else(|p| p.into_inner()) = engine.describe();
+        *stats.frame_path.lock().unwrap_or_else(|p| p.into_inner()) = match &host {
+            None => "host (decode, preprocess and encode on the CPU; the sink uploads the codes)"
+                .into(),
+            Some(None) => "device (the frame is uploaded as it came; no read-back)".into(),
+            Some(Some(h)) => format!(
+                "device after a host stage ({} on the CPU, its planes uploaded; no read-back)",
+                h.name
+            ),
+        };
         let queued = stats.dropped_queued.clone();
         let (ingest_tx, ingest_rx) = newest_channel(1, queued.clone());
         let (upload_tx, upload_rx) = newest_channel(1, queued.clone());
         let (dcnn_tx, dcnn_rx) = newest_channel(1, queued.clone());
-        let slot = Arc::new(NewestSlot::<Timed<DisplayFrame>>::new());
+        let slot = Arc::new(NewestSlot::<Timed<PanelFrame>>::new());
         let drained = Arc::new(AtomicBool::new(false));
         let stopping = Arc::new(AtomicBool::new(false));
         let context = StageContext {
@@ -299,13 +455,33 @@ impl Service {
             stopping: stopping.clone(),
         };
         let mut threads = Vec::new();
+        let mut upload: Box<dyn FnMut(SubmittedFrame) -> Option<DeviceInput> + Send> = match host
+        {
+            None => Box::new(|f| Some(DeviceInput::Planar(decode(&f)))),
+            Some(None) => Box::new(|f| Some(DeviceInput::Client(f))),
+            Some(Some(mut prep)) => Box::new(move |f| match (prep.run)(&decode(&f)) {
+                Ok(im) => Some(DeviceInput::Planar(im)),
+                Err(e) => {
+                    tracing::error!("{} failed on frame {}: {e}", prep.name, f.id);
+                    None
+                }
+            }),
+        };
         threads.push(spawn_stage(
             "upload",
             Stage::Upload,
             ingest_rx,
             move |t| upload_tx.send(t),
             context.clone(),
-            |_, f: SubmittedFrame, _| Some(decode(&f)),
+            move |_, f: SubmittedFrame, stats| {
+                let out = upload(f);
+                if out.is_none() {
+                    stats
+                        .failed
+                        .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                }
+                out
+            },
         )?);
         threads.push(spawn_stage(
             "dcnn",
@@ -313,7 +489,7 @@ impl Service {
             upload_rx,
             move |t| dcnn_tx.send(t),
             context.clone(),
-            move |_, f: Image, stats| dcnn.run(&f, stats),
+            move |id, f: DeviceInput, stats| engine.run(id, f, stats),
         )?);
         let transfer = panel.transfer.clone();
         let slot_in = slot.clone();
@@ -323,14 +499,20 @@ impl Service {
             dcnn_rx,
             move |t| slot_in.put(t),
             context,
-            move |id, f: Image, _| {
-                let mut rgba8 = Vec::new();
-                transfer.encode_rgba8(&f, &mut rgba8);
-                Some(DisplayFrame {
-                    id,
-                    width: f.width,
-                    height: f.height,
-                    rgba8,
+            move |id, f: Processed, _| {
+                Some(match f {
+                    Processed::Host(f) => {
+                        let mut rgba8 = Vec::new();
+                        transfer.encode_rgba8(&f, &mut rgba8);
+                        PanelFrame::Host(DisplayFrame {
+                            id,
+                            width: f.width,
+                            height: f.height,
+                            rgba8,
+                        })
+                    }
+                    // Encoded on the device with the network.
+                    Processed::Device(f) => PanelFrame::Device(f),
                 })
             },
         )?;
@@ -388,7 +570,7 @@ impl Service {
     ) -> Result<Report, PresentError> {
         use std::sync::atomic::Ordering::Relaxed;
         let mut pacer = Pacer::new(self.panel.refresh_hz, self.clock.now_ns());
-        let mut last: Option<DisplayFrame> = None;
+        let mut last: Option<PanelFrame> = None;
         let progress = &control.progress;
         progress.start("frames", 0);
         loop {
@@ -420,7 +602,7 @@ impl Service {
                         None => {
                             if drained && let Some(frame) = &last {
                                 // Keep the window's content (uncounted re-present).
-                                sink.present(frame)?;
+                                sink.present_frame(frame)?;
                             } else if sink.paced_by_display() {
                                 self.clock.sleep_until_ns(tick.vsync_ns);
                             }
@@ -436,7 +618,7 @@ impl Service {
             let shown = {
                 let _span =
                     tracing::info_span!("stage", stage = %"present", frame = t.id).entered();
-                match sink.present(&t.item) {
+                match sink.present_frame(&t.item) {
                     Ok(shown) => shown,
                     Err(e) => {
                         self.stats.failed.fetch_add(1, Relaxed);

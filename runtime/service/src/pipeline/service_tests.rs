@@ -48,6 +48,7 @@ impl Sink for Collect {
     fn last_traffic(&self) -> HostTraffic {
         HostTraffic {
             to_device_bytes: self.0.last().map_or(0, |f| f.rgba8.len() as u64),
+            uploads: 1,
             ..HostTraffic::default()
         }
     }
@@ -250,6 +251,7 @@ impl Preprocess for OnDevice {
         // 4×2 pixels, 3 planes of f32 each way.
         HostTraffic {
             to_device_bytes: 96,
+            uploads: 1,
             to_host_bytes: 96,
             read_backs: 1,
         }
@@ -268,13 +270,15 @@ fn the_report_counts_host_traffic_per_frame_by_stage() {
     assert_eq!(per_frame.to_device_bytes, 96.0 + 32.0);
     assert_eq!(per_frame.to_host_bytes, 96.0);
     assert_eq!(per_frame.read_backs, 1.0);
+    assert_eq!(per_frame.uploads, 2.0);
     assert_eq!(
         report.traffic.iter().map(|t| t.frames).collect::<Vec<_>>(),
         [3, 3]
     );
     assert!(
         report.table().contains(
-            "host traffic per presented frame: 0.0 MB to the device, 0.0 MB back, 1.00 read-backs"
+            "host traffic per presented frame: 0.0 MB to the device in 2.00 uploads, 0.0 MB back, \
+             1.00 read-backs"
         ),
         "{}",
         report.table()

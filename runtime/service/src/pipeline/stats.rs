@@ -96,6 +96,8 @@ pub struct Stats {
     /// Resident set size samples (KiB) taken every `RSS_EVERY` presents.
     rss_kib: Mutex<Vec<u64>>,
     pub backend: Mutex<String>,
+    /// Where frames go between the client and the panel.
+    pub frame_path: Mutex<String>,
 }
 
 /// Host↔device traffic summed over the frames one stage handled.
@@ -169,6 +171,11 @@ impl Stats {
                 .lock()
                 .unwrap_or_else(|p| p.into_inner())
                 .clone(),
+            frame_path: self
+                .frame_path
+                .lock()
+                .unwrap_or_else(|p| p.into_inner())
+                .clone(),
             submitted: load(&self.submitted),
             rejected: RejectReason::ALL
                 .iter()
@@ -223,6 +230,7 @@ pub fn resident_kib() -> Option<u64> {
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct HostTrafficMean {
     pub to_device_bytes: f64,
+    pub uploads: f64,
     pub to_host_bytes: f64,
     pub read_backs: f64,
 }
@@ -236,6 +244,7 @@ impl HostTrafficMean {
         let n = frames as f64;
         Self {
             to_device_bytes: total.to_device_bytes as f64 / n,
+            uploads: total.uploads as f64 / n,
             to_host_bytes: total.to_host_bytes as f64 / n,
             read_backs: total.read_backs as f64 / n,
         }
@@ -266,6 +275,9 @@ pub struct TrafficReport {
 #[derive(Debug, Clone, Serialize)]
 pub struct Report {
     pub backend: String,
+    /// "device: …" when frames stay on the GPU from upload to panel, else
+    /// "host: …" and why.
+    pub frame_path: String,
     pub submitted: u64,
     pub rejected: Vec<(String, u64)>,
     pub dropped_queued: u64,
@@ -307,9 +319,10 @@ impl Report {
             .map(|t| {
                 let m = HostTrafficMean::of(t.total, t.frames);
                 format!(
-                    "{} {:.1} MB up, {:.1} MB down, {:.2} read-backs over {} frames",
+                    "{} {:.1} MB up in {:.2} uploads, {:.1} MB down, {:.2} read-backs over {} frames",
                     t.stage,
                     m.to_device_bytes / 1e6,
+                    m.uploads,
                     m.to_host_bytes / 1e6,
                     m.read_backs,
                     t.frames
@@ -317,9 +330,10 @@ impl Report {
             })
             .collect();
         format!(
-            "host traffic per presented frame: {:.1} MB to the device, {:.1} MB back, {:.2} \
-             read-backs (per frame each stage handled: {})\n",
+            "host traffic per presented frame: {:.1} MB to the device in {:.2} uploads, {:.1} MB \
+             back, {:.2} read-backs (per frame each stage handled: {})\n",
             m.to_device_bytes / 1e6,
+            m.uploads,
             m.to_host_bytes / 1e6,
             m.read_backs,
             if parts.is_empty() {
@@ -389,6 +403,7 @@ impl Report {
             .iter()
             .find(|r| r.stage == "end-to-end")
             .map_or(0.0, |r| r.mean_ms);
+        s += &format!("frame path: {}\n", self.frame_path);
         s += &self.traffic_line();
         s += "stage        count     p50 ms     p99 ms     max ms   share of end-to-end\n";
         for r in &self.stages {

@@ -2,8 +2,10 @@
 //! display image already in a device buffer becomes the panel's RGBA8
 //! codes in another, by the same 255 decision thresholds per channel as
 //! [`Transfer`], so a frame that stays on the device is encoded to the
-//! codes the CPU path gives, bit for bit. The thresholds and the output
-//! buffer are made once per panel size; a frame records one dispatch.
+//! codes the CPU path gives, bit for bit. The codes' rows are padded to
+//! 256 bytes, the row pitch a buffer-to-texture copy needs, so the sink
+//! copies them into its panel texture on the device. The thresholds are
+//! made once per panel size; a frame records one dispatch.
 
 use super::PresentError;
 use super::transfer::{CODES, Transfer};
@@ -26,7 +28,7 @@ struct FrameUniform {
     width: u32,
     height: u32,
     plane_stride: u32,
-    _pad: u32,
+    row_texels: u32,
 }
 
 /// Encodes planar f32 display images of one panel size on one device.
@@ -37,15 +39,20 @@ pub struct PanelEncoder {
     layout: wgpu::BindGroupLayout,
     thresholds: wgpu::Buffer,
     frame: wgpu::Buffer,
-    codes: wgpu::Buffer,
     width: u32,
     height: u32,
     plane_stride: u32,
+    row_texels: u32,
+}
+
+/// Texels per row of the codes: the width padded to 256 bytes.
+pub fn row_texels(width: u32) -> u32 {
+    width.next_multiple_of(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT / 4)
 }
 
 /// Workgroups for `pixels` threads: a row of at most 65535 groups, and as
 /// many rows as needed (the shader's pixel is x + y · 65535 · 64).
-fn workgroups(pixels: u32) -> [u32; 2] {
+pub(crate) fn workgroups(pixels: u32) -> [u32; 2] {
     let groups = pixels.div_ceil(WORKGROUP);
     if groups <= MAX_GROUPS_X {
         [groups, 1]
@@ -74,7 +81,9 @@ impl PanelEncoder {
         // The shader indexes in u32: three planes and the codes must fit,
         // and the codes one binding.
         let binding = device.limits().max_storage_buffer_binding_size;
-        if 3 * u64::from(plane_stride) > u64::from(u32::MAX) || 4 * pixels > binding {
+        let row_texels = row_texels(width);
+        let code_bytes = 4 * u64::from(row_texels) * u64::from(height);
+        if 3 * u64::from(plane_stride) > u64::from(u32::MAX) || code_bytes > binding {
             return Err(err(format!(
                 "a {width}×{height} frame is too large to encode in one dispatch on this adapter"
             )));
@@ -152,16 +161,9 @@ impl PanelEncoder {
             width,
             height,
             plane_stride,
-            _pad: 0,
+            row_texels,
         };
         queue.write_buffer(&frame, 0, bytemuck::bytes_of(&u));
-        let codes = buffer(
-            "panel codes",
-            pixels * 4,
-            wgpu::BufferUsages::STORAGE
-                | wgpu::BufferUsages::COPY_SRC
-                | wgpu::BufferUsages::COPY_DST,
-        );
         if let Some(e) = pollster::block_on(scope.pop()) {
             return Err(err(format!("building the encode kernel: {e}")));
         }
@@ -171,19 +173,43 @@ impl PanelEncoder {
             layout,
             thresholds,
             frame,
-            codes,
             width,
             height,
             plane_stride,
+            row_texels,
         })
     }
 
+    /// A buffer for one frame's codes ([`PanelEncoder::record`] writes it,
+    /// a sink copies it to its texture).
+    pub fn codes_buffer(&self) -> wgpu::Buffer {
+        self.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("panel codes"),
+            size: self.codes_bytes(),
+            usage: wgpu::BufferUsages::STORAGE
+                | wgpu::BufferUsages::COPY_SRC
+                | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        })
+    }
+
+    fn codes_bytes(&self) -> u64 {
+        4 * u64::from(self.row_texels) * u64::from(self.height)
+    }
+
+    /// Texels from one row of the codes to the next (≥ the width).
+    pub fn row_texels(&self) -> u32 {
+        self.row_texels
+    }
+
     /// Records the encode of `display` (three f32 planes as given to
-    /// [`PanelEncoder::new`], a storage buffer) into [`PanelEncoder::codes`].
+    /// [`PanelEncoder::new`], a storage buffer) into `codes` (one RGBA8
+    /// texel per pixel, red in the low byte, rows [`PanelEncoder::row_texels`] apart).
     pub fn record(
         &self,
         encoder: &mut wgpu::CommandEncoder,
         display: &wgpu::Buffer,
+        codes: &wgpu::Buffer,
     ) -> Result<(), PresentError> {
         let needed = 3 * 4 * u64::from(self.plane_stride);
         if display.size() < needed || !display.usage().contains(wgpu::BufferUsages::STORAGE) {
@@ -191,6 +217,15 @@ impl PanelEncoder {
                 "the display buffer ({} bytes, {:?}) is not a storage buffer of {needed} bytes",
                 display.size(),
                 display.usage()
+            )));
+        }
+        if codes.size() < self.codes_bytes() || !codes.usage().contains(wgpu::BufferUsages::STORAGE)
+        {
+            return Err(err(format!(
+                "the codes buffer ({} bytes, {:?}) is not a storage buffer of {} bytes",
+                codes.size(),
+                codes.usage(),
+                self.codes_bytes()
             )));
         }
         let bind_group = self.device.create_bind_group(&wgpu::BindGroupDescriptor {
@@ -211,7 +246,7 @@ impl PanelEncoder {
                 },
                 wgpu::BindGroupEntry {
                     binding: 3,
-                    resource: self.codes.as_entire_binding(),
+                    resource: codes.as_entire_binding(),
                 },
             ],
         });
@@ -224,12 +259,6 @@ impl PanelEncoder {
         pass.set_bind_group(0, &bind_group, &[]);
         pass.dispatch_workgroups(x, y, 1);
         Ok(())
-    }
-
-    /// The encoded frame: one RGBA8 texel per pixel (red in the low byte),
-    /// row-major, tightly packed.
-    pub fn codes(&self) -> &wgpu::Buffer {
-        &self.codes
     }
 }
 
@@ -254,19 +283,24 @@ mod tests {
         });
         let enc =
             PanelEncoder::new(&device, &queue, width, height, n as u32, transfer).expect("encoder");
+        let codes = enc.codes_buffer();
         let readback = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("readback"),
-            size: (n * 4) as u64,
+            size: codes.size(),
             usage: wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::MAP_READ,
             mapped_at_creation: false,
         });
         let mut encoder = device.create_command_encoder(&Default::default());
-        enc.record(&mut encoder, &display).expect("records");
-        encoder.copy_buffer_to_buffer(enc.codes(), 0, &readback, 0, (n * 4) as u64);
+        enc.record(&mut encoder, &display, &codes).expect("records");
+        encoder.copy_buffer_to_buffer(&codes, 0, &readback, 0, codes.size());
         queue.submit([encoder.finish()]);
         map_and_wait(&device, &readback).expect("read back");
         let view = readback.slice(..).get_mapped_range().expect("mapped");
-        view.chunks_exact(4)
+        // Rows are padded to the copy pitch; the padding is not the frame's.
+        let pitch = 4 * enc.row_texels() as usize;
+        assert!(pitch >= 4 * width as usize && pitch.is_multiple_of(256));
+        view.chunks_exact(pitch)
+            .flat_map(|row| row[..4 * width as usize].chunks_exact(4))
             .map(|p| [p[0], p[1], p[2], p[3]])
             .collect()
     }
@@ -383,8 +417,21 @@ mod tests {
                 mapped_at_creation: false,
             });
             let mut encoder = device.create_command_encoder(&Default::default());
-            let e = enc.record(&mut encoder, &short).expect_err("too short");
+            let codes = enc.codes_buffer();
+            let e = enc
+                .record(&mut encoder, &short, &codes)
+                .expect_err("too short");
             assert!(e.to_string().contains("192 bytes"), "{e}");
+            let full = device.create_buffer(&wgpu::BufferDescriptor {
+                label: None,
+                size: 3 * 4 * 16,
+                usage: wgpu::BufferUsages::STORAGE,
+                mapped_at_creation: false,
+            });
+            let e = enc
+                .record(&mut encoder, &full, &short)
+                .expect_err("codes too short");
+            assert!(e.to_string().contains("codes buffer"), "{e}");
         }
     }
 }

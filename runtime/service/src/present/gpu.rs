@@ -1,11 +1,12 @@
 //! Draws encoded panel frames onto a wgpu render target
 //! (`shaders/panel_blit.wgsl`): the frame is uploaded once into a
-//! panel-sized RGBA8 texture and drawn with nearest-pixel scaling, so a
+//! panel-sized RGBA8 texture (or, for a frame that stayed on the device,
+//! its codes are copied there on the device) and drawn with nearest-pixel scaling, so a
 //! panel-sized target receives every code value unchanged (the CPU twin is
 //! the identity; `headless` tests check it). The pipeline is built once per
 //! target format; a frame only uploads and records one pass.
 
-use super::{DisplayFrame, PresentError};
+use super::{DeviceDisplayFrame, DisplayFrame, PanelCodes, PresentError};
 use nedrt_core::preprocess::HostTraffic;
 use nedrt_gpu::map_and_wait;
 
@@ -171,66 +172,41 @@ impl PanelRenderer {
         })
     }
 
-    /// Uploads `frame` and draws it onto `target` (`size` pixels); returns
-    /// the submission to wait on.
+    /// Sets the size of the target the frames are drawn onto (a draw to a
+    /// target of another size sets it again, counted in its traffic).
+    pub fn set_target_size(&mut self, size: [u32; 2]) {
+        let u = TargetUniform {
+            size: [size[0] as f32, size[1] as f32],
+        };
+        self.queue
+            .write_buffer(&self.uniform, 0, bytemuck::bytes_of(&u));
+        self.target_size = size;
+    }
+
+    /// Draws `frame` onto `target` (`size` pixels): a host frame is
+    /// uploaded into the panel texture, a device frame's codes are copied
+    /// into it on the device. Returns the submission to wait on.
     pub fn draw(
         &mut self,
-        frame: &DisplayFrame,
+        frame: PanelCodes<'_>,
         target: &wgpu::TextureView,
         size: [u32; 2],
     ) -> Result<wgpu::SubmissionIndex, PresentError> {
-        if (frame.width as u32, frame.height as u32) != (self.width, self.height)
-            || frame.rgba8.len() != 4 * frame.width * frame.height
-        {
-            return Err(err(
-                "gpu",
-                format!(
-                    "{}×{} frame ({} bytes) for a {}×{} panel",
-                    frame.width,
-                    frame.height,
-                    frame.rgba8.len(),
-                    self.width,
-                    self.height
-                ),
-            ));
-        }
-        self.last_traffic = HostTraffic {
-            to_device_bytes: frame.rgba8.len() as u64,
-            ..HostTraffic::default()
-        };
+        self.last_traffic = HostTraffic::default();
         if size != self.target_size {
             self.last_traffic.to_device_bytes += std::mem::size_of::<TargetUniform>() as u64;
-            let u = TargetUniform {
-                size: [size[0] as f32, size[1] as f32],
-            };
-            self.queue
-                .write_buffer(&self.uniform, 0, bytemuck::bytes_of(&u));
-            self.target_size = size;
+            self.last_traffic.uploads += 1;
+            self.set_target_size(size);
         }
-        self.queue.write_texture(
-            wgpu::TexelCopyTextureInfo {
-                texture: &self.panel,
-                mip_level: 0,
-                origin: wgpu::Origin3d::ZERO,
-                aspect: wgpu::TextureAspect::All,
-            },
-            &frame.rgba8,
-            wgpu::TexelCopyBufferLayout {
-                offset: 0,
-                bytes_per_row: Some(4 * self.width),
-                rows_per_image: Some(self.height),
-            },
-            wgpu::Extent3d {
-                width: self.width,
-                height: self.height,
-                depth_or_array_layers: 1,
-            },
-        );
         let mut encoder = self
             .device
             .create_command_encoder(&wgpu::CommandEncoderDescriptor {
                 label: Some("present"),
             });
+        match frame {
+            PanelCodes::Host(f) => self.upload(f)?,
+            PanelCodes::Device(f) => self.copy_codes(&mut encoder, f)?,
+        }
         {
             let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
                 label: Some("present"),
@@ -255,7 +231,112 @@ impl PanelRenderer {
         Ok(self.queue.submit([encoder.finish()]))
     }
 
-    /// Host→device bytes of the last draw (the frame's codes, and the
+    fn check_size(&self, width: usize, height: usize, detail: String) -> Result<(), PresentError> {
+        if (width, height) != (self.width as usize, self.height as usize) {
+            return Err(err(
+                "gpu",
+                format!(
+                    "{width}×{height} frame ({detail}) for a {}×{} panel",
+                    self.width, self.height
+                ),
+            ));
+        }
+        Ok(())
+    }
+
+    /// Records the copy of a device frame's codes into the panel texture.
+    fn copy_codes(
+        &self,
+        encoder: &mut wgpu::CommandEncoder,
+        frame: &DeviceDisplayFrame,
+    ) -> Result<(), PresentError> {
+        let pitch = 4 * u64::from(frame.row_texels);
+        self.check_size(
+            frame.width,
+            frame.height,
+            format!("{} bytes, rows of {pitch}", frame.codes.size()),
+        )?;
+        if frame.row_texels < self.width
+            || !pitch.is_multiple_of(u64::from(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT))
+            || frame.codes.size() < pitch * u64::from(self.height)
+            || !frame.codes.usage().contains(wgpu::BufferUsages::COPY_SRC)
+        {
+            return Err(err(
+                "gpu",
+                format!(
+                    "the codes of frame {} ({} bytes, rows of {pitch}, {:?}) cannot be copied to \
+                     a {}×{} panel",
+                    frame.id,
+                    frame.codes.size(),
+                    frame.codes.usage(),
+                    self.width,
+                    self.height
+                ),
+            ));
+        }
+        encoder.copy_buffer_to_texture(
+            wgpu::TexelCopyBufferInfo {
+                buffer: &frame.codes,
+                layout: wgpu::TexelCopyBufferLayout {
+                    offset: 0,
+                    bytes_per_row: Some(pitch as u32),
+                    rows_per_image: Some(self.height),
+                },
+            },
+            wgpu::TexelCopyTextureInfo {
+                texture: &self.panel,
+                mip_level: 0,
+                origin: wgpu::Origin3d::ZERO,
+                aspect: wgpu::TextureAspect::All,
+            },
+            wgpu::Extent3d {
+                width: self.width,
+                height: self.height,
+                depth_or_array_layers: 1,
+            },
+        );
+        Ok(())
+    }
+
+    /// Uploads a host frame's codes into the panel texture.
+    fn upload(&mut self, frame: &DisplayFrame) -> Result<(), PresentError> {
+        self.check_size(frame.width, frame.height, format!("{} bytes", frame.rgba8.len()))?;
+        if frame.rgba8.len() != 4 * frame.width * frame.height {
+            return Err(err(
+                "gpu",
+                format!(
+                    "{}×{} frame with {} bytes of codes",
+                    frame.width,
+                    frame.height,
+                    frame.rgba8.len()
+                ),
+            ));
+        }
+        self.last_traffic.to_device_bytes += frame.rgba8.len() as u64;
+        self.last_traffic.uploads += 1;
+        self.queue.write_texture(
+            wgpu::TexelCopyTextureInfo {
+                texture: &self.panel,
+                mip_level: 0,
+                origin: wgpu::Origin3d::ZERO,
+                aspect: wgpu::TextureAspect::All,
+            },
+            &frame.rgba8,
+            wgpu::TexelCopyBufferLayout {
+                offset: 0,
+                bytes_per_row: Some(4 * self.width),
+                rows_per_image: Some(self.height),
+            },
+            wgpu::Extent3d {
+                width: self.width,
+                height: self.height,
+                depth_or_array_layers: 1,
+            },
+        );
+        Ok(())
+    }
+
+    /// Host→device bytes of the last draw (a host frame's codes, and the
     /// target's size when it changed); a draw reads nothing back.
     pub fn last_traffic(&self) -> HostTraffic {
         self.last_traffic

@@ -4,7 +4,7 @@
 //! and benchmarks; `read_back` returns what the panel would show.
 
 use super::gpu::{PanelRenderer, read_texture};
-use super::{DisplayFrame, PresentError, Presented, Sink};
+use super::{DeviceDisplayFrame, DisplayFrame, PanelCodes, PresentError, Presented, Sink};
 
 const FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8Unorm;
 
@@ -26,7 +26,9 @@ impl HeadlessSink {
         width: u32,
         height: u32,
     ) -> Result<Self, PresentError> {
-        let renderer = PanelRenderer::new(device, queue, width, height, FORMAT)?;
+        let mut renderer = PanelRenderer::new(device, queue, width, height, FORMAT)?;
+        // Set once here: the target never changes size, so no frame pays for it.
+        renderer.set_target_size([width, height]);
         let target = device.create_texture(&wgpu::TextureDescriptor {
             label: Some("headless panel"),
             size: wgpu::Extent3d {
@@ -71,18 +73,33 @@ impl Sink for HeadlessSink {
     }
 
     fn present(&mut self, frame: &DisplayFrame) -> Result<Presented, PresentError> {
+        self.draw(PanelCodes::Host(frame))
+    }
+
+    fn shared_device(&self) -> Option<(wgpu::Device, wgpu::Queue)> {
+        Some((
+            self.renderer.device().clone(),
+            self.renderer.queue().clone(),
+        ))
+    }
+
+    fn present_device(&mut self, frame: &DeviceDisplayFrame) -> Result<Presented, PresentError> {
+        self.draw(PanelCodes::Device(frame))
+    }
+
+}
+
+impl HeadlessSink {
+    /// Draws and waits for the GPU.
+    fn draw(&mut self, frame: PanelCodes<'_>) -> Result<Presented, PresentError> {
         let size = [self.target.width(), self.target.height()];
         let submission = self.renderer.draw(frame, &self.view, size)?;
-        self.renderer
-            .device()
-            .poll(wgpu::PollType::Wait {
-                submission_index: Some(submission),
-                timeout: None,
-            })
-            .map_err(|e| PresentError::Sink {
+        nedrt_gpu::wait_for(self.renderer.device(), submission).map_err(|reason| {
+            PresentError::Sink {
                 sink: "headless",
-                reason: format!("waiting for the GPU: {e}"),
-            })?;
+                reason,
+            }
+        })?;
         Ok(Presented::Shown)
     }
 }

@@ -23,6 +23,50 @@ pub struct DisplayFrame {
     pub rgba8: Vec<u8>,
 }
 
+/// An encoded frame that stays on the GPU: the panel's codes in a buffer
+/// on the device of the sink that presents it (the resident path).
+#[derive(Debug, Clone)]
+pub struct DeviceDisplayFrame {
+    pub id: u64,
+    pub width: usize,
+    pub height: usize,
+    /// RGBA8 codes, one texel per pixel (red in the low byte), rows
+    /// `row_texels` apart (the 256-byte pitch a texture copy needs). Shared:
+    /// the encoder reuses a buffer once no frame holds it.
+    pub codes: std::sync::Arc<wgpu::Buffer>,
+    pub row_texels: u32,
+}
+
+/// A frame for the panel, on the host or on the sink's device.
+#[derive(Debug, Clone)]
+pub enum PanelFrame {
+    Host(DisplayFrame),
+    Device(DeviceDisplayFrame),
+}
+
+/// A borrowed [`PanelFrame`]: what a sink draws.
+#[derive(Debug, Clone, Copy)]
+pub enum PanelCodes<'a> {
+    Host(&'a DisplayFrame),
+    Device(&'a DeviceDisplayFrame),
+}
+
+impl PanelFrame {
+    pub fn codes(&self) -> PanelCodes<'_> {
+        match self {
+            PanelFrame::Host(f) => PanelCodes::Host(f),
+            PanelFrame::Device(f) => PanelCodes::Device(f),
+        }
+    }
+
+    pub fn id(&self) -> u64 {
+        match self {
+            PanelFrame::Host(f) => f.id,
+            PanelFrame::Device(f) => f.id,
+        }
+    }
+}
+
 /// Interleaved RGB8 from interleaved RGBA8 (alpha dropped): what a recording
 /// holds, and what tests compare recordings with.
 pub fn rgb8_of_rgba8(rgba8: &[u8]) -> Vec<u8> {
@@ -59,6 +103,31 @@ pub trait Sink: std::fmt::Debug {
         false
     }
     fn present(&mut self, frame: &DisplayFrame) -> Result<Presented, PresentError>;
+    /// The device this sink presents from, where it can take frames that
+    /// stay there ([`Sink::present_device`]); `None` for a sink that needs
+    /// the frame's bytes on the host (the recorder).
+    fn shared_device(&self) -> Option<(wgpu::Device, wgpu::Queue)> {
+        None
+    }
+    /// Presents a frame encoded on [`Sink::shared_device`], without a
+    /// copy through the host.
+    fn present_device(&mut self, frame: &DeviceDisplayFrame) -> Result<Presented, PresentError> {
+        Err(PresentError::Sink {
+            sink: "present",
+            reason: format!(
+                "{} takes frames from the host only (frame {})",
+                self.describe(),
+                frame.id
+            ),
+        })
+    }
+    /// Either kind of frame.
+    fn present_frame(&mut self, frame: &PanelFrame) -> Result<Presented, PresentError> {
+        match frame {
+            PanelFrame::Host(f) => self.present(f),
+            PanelFrame::Device(f) => self.present_device(f),
+        }
+    }
     /// Lets the sink handle its events between frames; `false` once the
     /// sink is gone (the window was closed).
     fn poll(&mut self) -> bool {

@@ -17,7 +17,7 @@ use winit::platform::pump_events::{EventLoopExtPumpEvents, PumpStatus};
 use winit::window::{Fullscreen, Window, WindowId};
 
 use super::gpu::PanelRenderer;
-use super::{DisplayFrame, PresentError, Presented, Sink};
+use super::{DeviceDisplayFrame, DisplayFrame, PanelCodes, PresentError, Presented, Sink};
 
 fn err(reason: impl std::fmt::Display) -> PresentError {
     PresentError::Sink {
@@ -371,6 +371,24 @@ impl Sink for WindowSink {
     }
 
     fn present(&mut self, frame: &DisplayFrame) -> Result<Presented, PresentError> {
+        self.draw(PanelCodes::Host(frame))
+    }
+
+    fn shared_device(&self) -> Option<(wgpu::Device, wgpu::Queue)> {
+        Some((
+            self.renderer.device().clone(),
+            self.renderer.queue().clone(),
+        ))
+    }
+
+    fn present_device(&mut self, frame: &DeviceDisplayFrame) -> Result<Presented, PresentError> {
+        self.draw(PanelCodes::Device(frame))
+    }
+}
+
+impl WindowSink {
+    /// Draws onto the swapchain's next texture and queues it.
+    fn draw(&mut self, frame: PanelCodes<'_>) -> Result<Presented, PresentError> {
         let texture = match self.surface.get_current_texture() {
             wgpu::CurrentSurfaceTexture::Success(t) => t,
             wgpu::CurrentSurfaceTexture::Suboptimal(t) => {

@@ -1,0 +1,322 @@
+//! The resident path: a frame goes to the GPU once, in the form the client
+//! sent it, and its panel codes never come back. The client's 8-bit RGBA
+//! is unpacked on the device (`shaders/frame_unpack.wgsl`, by the host
+//! decode's own table) into three f32 planes; a float frame, or one a host
+//! stage has already worked on (a network's Wiener stage), goes up as its
+//! planes. The device stage (the D-CNN's kernels) writes the display image
+//! into a second buffer, the encode kernel turns it into the panel's codes
+//! (the CPU transfer's thresholds, bit for bit) in a buffer the sink then
+//! copies to its texture: one submission per frame, one upload, no
+//! read-back. Everything is made once for the panel's size; a frame only
+//! writes its bytes and records.
+
+use std::sync::Arc;
+
+use super::frame::{PixelFormat, SubmittedFrame, code_lut};
+use crate::present::encode_gpu::{PanelEncoder, workgroups};
+use crate::present::transfer::Transfer;
+use crate::present::{DeviceDisplayFrame, PresentError};
+use nedrt_core::Image;
+use nedrt_core::preprocess::HostTraffic;
+use nedrt_gpu::DeviceStage;
+use wgpu::util::DeviceExt;
+
+const UNPACK: &str = include_str!("../../../../shaders/frame_unpack.wgsl");
+
+/// Codes buffers kept for reuse beyond which a warning says frames pile up
+/// downstream (each holds one frame: the present slot, the frame on
+/// screen, one in a channel).
+const CODES_WARN: usize = 8;
+
+fn err(reason: impl std::fmt::Display) -> PresentError {
+    PresentError::Sink {
+        sink: "device frames",
+        reason: reason.to_string(),
+    }
+}
+
+/// What goes up to the device for a frame.
+#[derive(Debug)]
+pub enum DeviceInput {
+    /// The frame as the client sent it (validated).
+    Client(SubmittedFrame),
+    /// Planes a host stage made from it.
+    Planar(Image),
+}
+
+/// The device side of the resident path for one panel size.
+#[derive(Debug)]
+pub struct DeviceFrames {
+    device: wgpu::Device,
+    queue: wgpu::Queue,
+    width: usize,
+    height: usize,
+    unpack: wgpu::ComputePipeline,
+    /// The unpack's bind groups for code/255 and the sRGB decode.
+    unpack_linear: wgpu::BindGroup,
+    unpack_srgb: wgpu::BindGroup,
+    /// The client's RGBA8 frame as it came.
+    rgba: wgpu::Buffer,
+    /// Three f32 planes: the frame.
+    frame: wgpu::Buffer,
+    /// Three f32 planes: the display image (the stage's output).
+    display: wgpu::Buffer,
+    encoder: PanelEncoder,
+    /// Codes buffers; one is reused once no frame holds it.
+    codes: Vec<Arc<wgpu::Buffer>>,
+    stage: Option<Box<dyn DeviceStage>>,
+}
+
+impl DeviceFrames {
+    /// Prepares `width`×`height` frames on `device` (the sink's) with
+    /// `transfer`'s codes, through `stage` (none: the frame is shown as it
+    /// comes, clamped).
+    pub fn new(
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        width: usize,
+        height: usize,
+        transfer: &Transfer,
+        stage: Option<Box<dyn DeviceStage>>,
+    ) -> Result<Self, PresentError> {
+        let pixels = width * height;
+        let (w32, h32, p32) = match (
+            u32::try_from(width),
+            u32::try_from(height),
+            u32::try_from(3 * pixels),
+        ) {
+            (Ok(w), Ok(h), Ok(_)) if pixels > 0 => (w, h, pixels as u32),
+            _ => return Err(err(format!("a {width}×{height} panel"))),
+        };
+        let plane_bytes = 3 * 4 * pixels as u64;
+        let binding = device.limits().max_storage_buffer_binding_size;
+        if plane_bytes > binding {
+            return Err(err(format!(
+                "a {width}×{height} frame's planes need {:.0} MiB in one binding; the adapter \
+                 binds at most {:.0} MiB",
+                plane_bytes as f64 / 1048576.0,
+                binding as f64 / 1048576.0
+            )));
+        }
+        let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let encoder = PanelEncoder::new(device, queue, w32, h32, p32, transfer)?;
+        let storage = |label, size: u64| {
+            device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some(label),
+                size,
+                usage: wgpu::BufferUsages::STORAGE
+                    | wgpu::BufferUsages::COPY_DST
+                    | wgpu::BufferUsages::COPY_SRC,
+                mapped_at_creation: false,
+            })
+        };
+        let rgba = storage("client frame", 4 * pixels as u64);
+        let frame = storage("frame planes", plane_bytes);
+        let display = storage("display planes", plane_bytes);
+        let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some("frame_unpack"),
+            source: wgpu::ShaderSource::Wgsl(UNPACK.into()),
+        });
+        let unpack = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+            label: Some("frame_unpack"),
+            layout: None,
+            module: &module,
+            entry_point: Some("main"),
+            compilation_options: Default::default(),
+            cache: None,
+        });
+        let uniform = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("frame_unpack"),
+            contents: bytemuck::cast_slice(&[p32, 0, 0, 0]),
+            usage: wgpu::BufferUsages::UNIFORM,
+        });
+        let group = |srgb: bool| {
+            let lut = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some("code table"),
+                contents: bytemuck::cast_slice(&code_lut(srgb)),
+                usage: wgpu::BufferUsages::STORAGE,
+            });
+            device.create_bind_group(&wgpu::BindGroupDescriptor {
+                label: Some("frame_unpack"),
+                layout: &unpack.get_bind_group_layout(0),
+                entries: &[
+                    wgpu::BindGroupEntry {
+                        binding: 0,
+                        resource: uniform.as_entire_binding(),
+                    },
+                    wgpu::BindGroupEntry {
+                        binding: 1,
+                        resource: rgba.as_entire_binding(),
+                    },
+                    wgpu::BindGroupEntry {
+                        binding: 2,
+                        resource: lut.as_entire_binding(),
+                    },
+                    wgpu::BindGroupEntry {
+                        binding: 3,
+                        resource: frame.as_entire_binding(),
+                    },
+                ],
+            })
+        };
+        let (unpack_linear, unpack_srgb) = (group(false), group(true));
+        if let Some(e) = pollster::block_on(scope.pop()) {
+            return Err(err(format!("preparing {width}×{height} frames: {e}")));
+        }
+        Ok(Self {
+            device: device.clone(),
+            queue: queue.clone(),
+            width,
+            height,
+            unpack,
+            unpack_linear,
+            unpack_srgb,
+            rgba,
+            frame,
+            display,
+            encoder,
+            codes: Vec::new(),
+            stage,
+        })
+    }
+
+    /// For reports.
+    pub fn describe(&self) -> String {
+        match &self.stage {
+            Some(s) => s.describe(),
+            None => "none (the frame as it comes, clamped to [0, 1])".into(),
+        }
+    }
+
+    /// A codes buffer no frame holds (a new one if all are held).
+    fn free_codes(&mut self) -> Arc<wgpu::Buffer> {
+        if let Some(c) = self.codes.iter().find(|c| Arc::strong_count(c) == 1) {
+            return c.clone();
+        }
+        let c = Arc::new(self.encoder.codes_buffer());
+        self.codes.push(c.clone());
+        if self.codes.len() == CODES_WARN {
+            tracing::warn!("{CODES_WARN} encoded frames are held downstream of the GPU stage");
+        }
+        c
+    }
+
+    /// Uploads `input`, records unpack → stage → encode, submits and waits
+    /// for the device (no data comes back). Returns the frame for the sink
+    /// and what crossed to the device.
+    pub fn run(
+        &mut self,
+        id: u64,
+        input: &DeviceInput,
+    ) -> Result<(DeviceDisplayFrame, HostTraffic), PresentError> {
+        let (w, h) = (self.width, self.height);
+        let scope = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let mut encoder = self
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some("device frame"),
+            });
+        let uploaded = match input {
+            DeviceInput::Client(f) if (f.width, f.height) != (w, h) => {
+                return Err(err(format!("{}×{} frame for {w}×{h}", f.width, f.height)));
+            }
+            DeviceInput::Client(f) => match f.format {
+                PixelFormat::Rgba8Linear | PixelFormat::Rgba8Srgb => {
+                    self.queue.write_buffer(&self.rgba, 0, &f.payload);
+                    let group = if f.format == PixelFormat::Rgba8Srgb {
+                        &self.unpack_srgb
+                    } else {
+                        &self.unpack_linear
+                    };
+                    let [x, y] = workgroups((w * h) as u32);
+                    let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                        label: Some("frame_unpack"),
+                        timestamp_writes: None,
+                    });
+                    pass.set_pipeline(&self.unpack);
+                    pass.set_bind_group(0, group, &[]);
+                    pass.dispatch_workgroups(x, y, 1);
+                    f.payload.len()
+                }
+                // Planar little-endian f32 is the planes' own layout.
+                PixelFormat::Rgb32fPlanar => {
+                    self.queue.write_buffer(&self.frame, 0, &f.payload);
+                    f.payload.len()
+                }
+            },
+            DeviceInput::Planar(im) => {
+                if (im.width, im.height, im.channels()) != (w, h, 3) {
+                    return Err(err(format!(
+                        "{}×{} frame of {} planes for {w}×{h}×3",
+                        im.width,
+                        im.height,
+                        im.channels()
+                    )));
+                }
+                self.queue
+                    .write_buffer(&self.frame, 0, bytemuck::cast_slice(im.data()));
+                std::mem::size_of_val(im.data())
+            }
+        };
+        let codes = self.free_codes();
+        if let Some(stage) = &mut self.stage {
+            stage
+                .record(&mut encoder, &self.frame, &self.display, w, h)
+                .map_err(|e| err(format!("{}: {e}", stage.describe())))?;
+        }
+        let display = if self.stage.is_some() {
+            &self.display
+        } else {
+            &self.frame
+        };
+        self.encoder.record(&mut encoder, display, &codes)?;
+        let submission = self.queue.submit([encoder.finish()]);
+        nedrt_gpu::wait_for(&self.device, submission).map_err(err)?;
+        if let Some(e) = pollster::block_on(scope.pop()) {
+            return Err(err(format!("frame {id}: {e}")));
+        }
+        Ok((
+            DeviceDisplayFrame {
+                id,
+                width: w,
+                height: h,
+                codes,
+                row_texels: self.encoder.row_texels(),
+            },
+            HostTraffic {
+                to_device_bytes: uploaded as u64,
+                uploads: 1,
+                ..HostTraffic::default()
+            },
+        ))
+    }
+
+    /// The display image of the last frame, read back (tests and checks
+    /// only: it waits for the GPU).
+    pub fn read_display(&self) -> Result<Image, PresentError> {
+        let source = if self.stage.is_some() {
+            &self.display
+        } else {
+            &self.frame
+        };
+        let bytes = 3 * 4 * (self.width * self.height) as u64;
+        let readback = self.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("display read-back"),
+            size: bytes,
+            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let mut encoder = self.device.create_command_encoder(&Default::default());
+        encoder.copy_buffer_to_buffer(source, 0, &readback, 0, bytes);
+        self.queue.submit([encoder.finish()]);
+        nedrt_gpu::map_and_wait(&self.device, &readback).map_err(err)?;
+        let data = bytemuck::cast_slice::<u8, f32>(
+            &readback
+                .slice(..)
+                .get_mapped_range()
+                .map_err(|e| err(format!("reading back: {e}")))?,
+        )
+        .to_vec();
+        Ok(Image::rgb(self.width, self.height, data))
+    }
+}
