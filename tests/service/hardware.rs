@@ -81,6 +81,86 @@ mod needs_gpu {
             "resident memory grew from {lo} to {hi} KiB: {rss:?}"
         );
     }
+
+    /// `nedrt run --backend wgpu --sink headless` over the test pattern,
+    /// on the device path and the host path side by side: the device path
+    /// uploads each frame once, as the pattern sends it (RGBA8), and reads
+    /// nothing back; the host path reads the network's output back and
+    /// uploads the codes again. (That the codes it presents are the CPU
+    /// transfer's, bit for bit, is `pipeline::resident`'s test.)
+    #[test]
+    #[ignore = "needs a GPU adapter (run: scripts/test.sh, or cargo test -- --include-ignored)"]
+    fn frames_stay_on_the_gpu_from_the_upload_to_the_panel() {
+        require_gpu();
+        let dir = tempfile::tempdir().expect("tempdir");
+        // The shipped network without its card: no host Wiener stage.
+        let network = dir.path().join("network.onnx");
+        std::fs::copy(repo().join("models/dcnn.onnx"), &network).expect("copy the model");
+        for path in ["device", "host"] {
+            let report_path = dir.path().join(format!("{path}.json"));
+            let out = Command::new(env!("CARGO_BIN_EXE_nedrt"))
+                .current_dir(repo())
+                .args(["run", "--calib"])
+                .arg(small_panel())
+                .arg("--dcnn")
+                .arg(&network)
+                .args(["--backend", "wgpu", "--source", "pattern", "--frames", "4"])
+                .args(["--sink", "headless", "--frame-path", path, "--report-json"])
+                .arg(&report_path)
+                .output()
+                .expect("run");
+            assert!(
+                out.status.success(),
+                "{}",
+                String::from_utf8_lossy(&out.stderr)
+            );
+            let r: serde_json::Value =
+                serde_json::from_slice(&std::fs::read(&report_path).expect("report"))
+                    .expect("json");
+            assert!(
+                r["frame_path"]
+                    .as_str()
+                    .expect("frame_path")
+                    .starts_with(path),
+                "{}",
+                r["frame_path"]
+            );
+            assert!(
+                r["backend"].as_str().expect("backend").contains("wgpu"),
+                "{r}"
+            );
+            assert_eq!(r["dcnn_failures"], 0, "{r}");
+            let stage = |name: &str| {
+                r["traffic"]
+                    .as_array()
+                    .expect("traffic")
+                    .iter()
+                    .find(|t| t["stage"] == name)
+                    .unwrap_or_else(|| panic!("no {name} traffic: {r}"))
+                    .clone()
+            };
+            let (dcnn, present) = (stage("dcnn"), stage("present"));
+            let n = |t: &serde_json::Value, k: &str| t["total"][k].as_u64().expect(k);
+            let frames = dcnn["frames"].as_u64().expect("frames");
+            let shown = present["frames"].as_u64().expect("frames");
+            assert!(frames >= 1 && shown >= 1, "{r}");
+            let rgba8 = (W * H * 4) as u64;
+            if path == "device" {
+                // One upload per frame, of the frame as it came; none back.
+                assert_eq!(n(&dcnn, "uploads"), frames, "{r}");
+                assert_eq!(n(&dcnn, "to_device_bytes"), frames * rgba8, "{r}");
+                for t in [&dcnn, &present] {
+                    assert_eq!((n(t, "read_backs"), n(t, "to_host_bytes")), (0, 0), "{r}");
+                }
+                assert_eq!(n(&present, "uploads"), 0, "{r}");
+            } else {
+                // The host path: f32 planes up, the output back, codes up.
+                assert_eq!(n(&dcnn, "read_backs"), frames, "{r}");
+                assert_eq!(n(&dcnn, "to_device_bytes"), frames * 3 * rgba8, "{r}");
+                assert_eq!(n(&present, "to_device_bytes"), shown * rgba8, "{r}");
+            }
+        }
+    }
 }
 
 mod needs_gpu_and_window {
@@ -116,21 +196,36 @@ mod needs_gpu_and_window {
                 .collect(),
         );
         let (mut dcnn, transfer) = reference();
+        // Through the host: the network on the CPU, the codes uploaded.
         let want = expected_rgb(&mut dcnn, &transfer, &as_read);
-        let service = Service::start(
-            &[
-                "--backend",
-                "cpu",
-                "--source",
-                "dir",
-                "--input",
-                input.to_str().expect("utf-8"),
-                "--sink",
-                "window",
-                "--keep-open",
-            ],
-            dir,
+        window_shows(
+            &input,
+            &want,
+            &["--backend", "cpu"],
+            tempfile::tempdir().expect("tempdir"),
         );
+        // On the device: no network, the frame unpacked, encoded and
+        // copied to the surface's texture on the GPU.
+        let mut codes = Vec::new();
+        transfer.encode_rgba8(&as_read, &mut codes);
+        let want = nedrt_service::present::rgb8_of_rgba8(&codes);
+        window_shows(&input, &want, &["--preprocess", "conventional"], dir);
+    }
+
+    /// Runs `nedrt run --source dir --input <input> --sink window` with
+    /// `args` until the window shows `want` (RGB8), then stops it.
+    fn window_shows(input: &Path, want: &[u8], args: &[&str], dir: tempfile::TempDir) {
+        let mut all = vec![
+            "--source",
+            "dir",
+            "--input",
+            input.to_str().expect("utf-8"),
+            "--sink",
+            "window",
+            "--keep-open",
+        ];
+        all.extend_from_slice(args);
+        let service = Service::start(&all, dir);
         let start = Instant::now();
         let mut last;
         loop {
@@ -139,14 +234,14 @@ mod needs_gpu_and_window {
                     if (w, h) == (W, H) && rgb == want {
                         break;
                     }
-                    let differ = rgb.iter().zip(&want).filter(|(a, b)| a != b).count();
+                    let differ = rgb.iter().zip(want).filter(|(a, b)| a != b).count();
                     last = format!("{w}×{h}, {differ} values differ");
                 }
                 Err(e) => last = e,
             }
             assert!(
                 start.elapsed() < Duration::from_secs(60),
-                "the window never showed the expected frame: {last}"
+                "the window never showed the expected frame ({args:?}): {last}"
             );
             std::thread::sleep(Duration::from_millis(200));
         }

@@ -424,7 +424,15 @@ pub fn run(
         }
         (Some(d), _) => match resident_stage(common, opts, &panel, d, model.clone(), &stage) {
             Ok(resident) => {
-                return serve(opts, control, panel, clock, source, sink, Pipeline::Resident(resident));
+                return serve(
+                    opts,
+                    control,
+                    panel,
+                    clock,
+                    source,
+                    sink,
+                    Pipeline::Resident(resident),
+                );
             }
             Err(e) => {
                 tracing::warn!("frames cannot stay on the GPU: {e}; they go through the host");
@@ -593,7 +601,11 @@ fn serve(
         }
         Pipeline::Resident(resident) => {
             let what = match &resident.host {
-                Some(h) => format!("{}, then on the GPU: {}", h.name, resident.frames.describe()),
+                Some(h) => format!(
+                    "{}, then on the GPU: {}",
+                    h.name,
+                    resident.frames.describe()
+                ),
                 None => format!("on the GPU: {}", resident.frames.describe()),
             };
             (Service::start_resident(panel, resident, clock), what)

@@ -295,9 +295,13 @@ mod needs_gpu {
             let (pw, ph) = (w.div_ceil(m) * m, h.div_ceil(m) * m);
             let padded = frame.pad_reflect(pw, ph);
             let mut host = open();
-            let want = Image::rgb(pw, ph, host.run_tensor(padded.data(), pw, ph).expect("host"))
-                .crop(0, 0, w, h)
-                .clamped();
+            let want = Image::rgb(
+                pw,
+                ph,
+                host.run_tensor(padded.data(), pw, ph).expect("host"),
+            )
+            .crop(0, 0, w, h)
+            .clamped();
             let limit = host.largest_activation_bytes(pw, rows);
             for (label, mut gpu) in [
                 ("whole", open()),

@@ -208,8 +208,7 @@ impl GpuBackend {
             )));
         }
         let frame_bytes = (3 * width * height * 4) as u64;
-        if width == 0 || height == 0 || input.size() < frame_bytes || output.size() < frame_bytes
-        {
+        if width == 0 || height == 0 || input.size() < frame_bytes || output.size() < frame_bytes {
             return Err(err(format!(
                 "a {width}×{height} frame needs two buffers of {frame_bytes} bytes; given {} and {}",
                 input.size(),

@@ -210,16 +210,52 @@ impl DeviceFrames {
         input: &DeviceInput,
     ) -> Result<(DeviceDisplayFrame, HostTraffic), PresentError> {
         let (w, h) = (self.width, self.height);
+        match input {
+            DeviceInput::Client(f) if (f.width, f.height) != (w, h) => {
+                return Err(err(format!("{}×{} frame for {w}×{h}", f.width, f.height)));
+            }
+            DeviceInput::Planar(im) if (im.width, im.height, im.channels()) != (w, h, 3) => {
+                return Err(err(format!(
+                    "{}×{} frame of {} planes for {w}×{h}×3",
+                    im.width,
+                    im.height,
+                    im.channels()
+                )));
+            }
+            _ => {}
+        }
         let scope = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let recorded = self.record(input);
+        // Popped on every path: a scope left open would catch later errors.
+        let validation = pollster::block_on(scope.pop());
+        let (frame, traffic) = recorded?;
+        if let Some(e) = validation {
+            return Err(err(format!("frame {id}: {e}")));
+        }
+        Ok((
+            DeviceDisplayFrame {
+                id,
+                width: w,
+                height: h,
+                codes: frame,
+                row_texels: self.encoder.row_texels(),
+            },
+            traffic,
+        ))
+    }
+
+    /// Uploads, records, submits and waits; the codes and the traffic.
+    fn record(
+        &mut self,
+        input: &DeviceInput,
+    ) -> Result<(Arc<wgpu::Buffer>, HostTraffic), PresentError> {
+        let (w, h) = (self.width, self.height);
         let mut encoder = self
             .device
             .create_command_encoder(&wgpu::CommandEncoderDescriptor {
                 label: Some("device frame"),
             });
         let uploaded = match input {
-            DeviceInput::Client(f) if (f.width, f.height) != (w, h) => {
-                return Err(err(format!("{}×{} frame for {w}×{h}", f.width, f.height)));
-            }
             DeviceInput::Client(f) => match f.format {
                 PixelFormat::Rgba8Linear | PixelFormat::Rgba8Srgb => {
                     self.queue.write_buffer(&self.rgba, 0, &f.payload);
@@ -245,14 +281,6 @@ impl DeviceFrames {
                 }
             },
             DeviceInput::Planar(im) => {
-                if (im.width, im.height, im.channels()) != (w, h, 3) {
-                    return Err(err(format!(
-                        "{}×{} frame of {} planes for {w}×{h}×3",
-                        im.width,
-                        im.height,
-                        im.channels()
-                    )));
-                }
                 self.queue
                     .write_buffer(&self.frame, 0, bytemuck::cast_slice(im.data()));
                 std::mem::size_of_val(im.data())
@@ -272,17 +300,8 @@ impl DeviceFrames {
         self.encoder.record(&mut encoder, display, &codes)?;
         let submission = self.queue.submit([encoder.finish()]);
         nedrt_gpu::wait_for(&self.device, submission).map_err(err)?;
-        if let Some(e) = pollster::block_on(scope.pop()) {
-            return Err(err(format!("frame {id}: {e}")));
-        }
         Ok((
-            DeviceDisplayFrame {
-                id,
-                width: w,
-                height: h,
-                codes,
-                row_texels: self.encoder.row_texels(),
-            },
+            codes,
             HostTraffic {
                 to_device_bytes: uploaded as u64,
                 uploads: 1,
@@ -318,5 +337,209 @@ impl DeviceFrames {
         )
         .to_vec();
         Ok(Image::rgb(self.width, self.height, data))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::pipeline::frame::{decode, planar_payload};
+    use crate::present::headless::HeadlessSink;
+    use crate::present::{Presented, Sink};
+    use nedrt_gpu::test_device;
+
+    /// A device stage with work of its own: out = 1.4 · in − 0.2, which
+    /// pushes values outside [0, 1] for the encode to clamp.
+    #[derive(Debug)]
+    struct Stretch {
+        pipeline: wgpu::ComputePipeline,
+        device: wgpu::Device,
+        recorded: u64,
+    }
+
+    impl Stretch {
+        fn new(device: &wgpu::Device) -> Self {
+            let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+                label: Some("stretch"),
+                source: wgpu::ShaderSource::Wgsl(
+                    "@group(0) @binding(0) var<storage, read> src: array<f32>;
+                     @group(0) @binding(1) var<storage, read_write> dst: array<f32>;
+                     @compute @workgroup_size(64)
+                     fn main(@builtin(global_invocation_id) id: vec3<u32>) {
+                         if (id.x < arrayLength(&dst)) { dst[id.x] = 1.4 * src[id.x] - 0.2; }
+                     }"
+                    .into(),
+                ),
+            });
+            let pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                label: Some("stretch"),
+                layout: None,
+                module: &module,
+                entry_point: Some("main"),
+                compilation_options: Default::default(),
+                cache: None,
+            });
+            Self {
+                pipeline,
+                device: device.clone(),
+                recorded: 0,
+            }
+        }
+    }
+
+    impl DeviceStage for Stretch {
+        fn describe(&self) -> String {
+            "stretch".into()
+        }
+        fn record(
+            &mut self,
+            encoder: &mut wgpu::CommandEncoder,
+            input: &wgpu::Buffer,
+            output: &wgpu::Buffer,
+            width: usize,
+            height: usize,
+        ) -> Result<(), String> {
+            self.recorded += 1;
+            let group = self.device.create_bind_group(&wgpu::BindGroupDescriptor {
+                label: None,
+                layout: &self.pipeline.get_bind_group_layout(0),
+                entries: &[
+                    wgpu::BindGroupEntry {
+                        binding: 0,
+                        resource: input.as_entire_binding(),
+                    },
+                    wgpu::BindGroupEntry {
+                        binding: 1,
+                        resource: output.as_entire_binding(),
+                    },
+                ],
+            });
+            let mut pass = encoder.begin_compute_pass(&Default::default());
+            pass.set_pipeline(&self.pipeline);
+            pass.set_bind_group(0, &group, &[]);
+            pass.dispatch_workgroups((3 * width * height).div_ceil(64) as u32, 1, 1);
+            Ok(())
+        }
+    }
+
+    /// A `width`×`height` frame in `format` with every 8-bit code.
+    fn client_frame(id: u64, width: usize, height: usize, format: PixelFormat) -> SubmittedFrame {
+        let n = width * height;
+        let payload = match format {
+            PixelFormat::Rgba8Linear | PixelFormat::Rgba8Srgb => (0..4 * n)
+                .map(|i| ((i * 37 + id as usize) % 256) as u8)
+                .collect(),
+            PixelFormat::Rgb32fPlanar => {
+                let data: Vec<f32> = (0..3 * n).map(|i| (i * 7 % 1001) as f32 / 1000.0).collect();
+                planar_payload(&Image::rgb(width, height, data))
+            }
+        };
+        SubmittedFrame {
+            id,
+            capture_ns: 0,
+            width,
+            height,
+            format,
+            payload,
+        }
+    }
+
+    mod needs_gpu {
+        use super::*;
+
+        #[test]
+        #[ignore = "needs a GPU adapter (run: scripts/test.sh, or cargo test -- --include-ignored)"]
+        fn the_panel_shows_what_the_cpu_transfer_gives_for_the_device_display_image() {
+            let (device, queue) = test_device(false);
+            // 37 wide: the codes' rows are padded to the copy pitch.
+            let (w, h) = (37usize, 21usize);
+            let transfer = Transfer::from_gamma([2.2, 1.0, 2.4]);
+            let mut sink = HeadlessSink::new(&device, &queue, "test".into(), w as u32, h as u32)
+                .expect("sink");
+            for with_stage in [false, true] {
+                let stage: Option<Box<dyn DeviceStage>> =
+                    with_stage.then(|| Box::new(Stretch::new(&device)) as _);
+                let mut frames =
+                    DeviceFrames::new(&device, &queue, w, h, &transfer, stage).expect("frames");
+                let formats = [
+                    PixelFormat::Rgba8Linear,
+                    PixelFormat::Rgba8Srgb,
+                    PixelFormat::Rgb32fPlanar,
+                ];
+                for (id, format) in formats.into_iter().enumerate() {
+                    let client = client_frame(id as u64, w, h, format);
+                    let want_up = client.payload.len() as u64;
+                    for input in [
+                        DeviceInput::Planar(decode(&client)),
+                        DeviceInput::Client(client.clone()),
+                    ] {
+                        let planar = matches!(input, DeviceInput::Planar(_));
+                        let (frame, traffic) = frames.run(id as u64, &input).expect("runs");
+                        // One upload of the frame as it came (or of the host's
+                        // planes), nothing back.
+                        let up = if planar {
+                            (3 * 4 * w * h) as u64
+                        } else {
+                            want_up
+                        };
+                        assert_eq!(
+                            traffic,
+                            HostTraffic {
+                                to_device_bytes: up,
+                                uploads: 1,
+                                to_host_bytes: 0,
+                                read_backs: 0
+                            },
+                            "{format:?}"
+                        );
+                        assert_eq!(
+                            sink.present_device(&frame).expect("shown"),
+                            Presented::Shown
+                        );
+                        assert_eq!(sink.last_traffic(), HostTraffic::default());
+                        // Only the test reads back: the panel, and the display
+                        // image it was encoded from.
+                        let shown = sink.read_back().expect("panel");
+                        let display = frames.read_display().expect("display");
+                        if !with_stage {
+                            // The device's unpack is the host decode, bit for bit.
+                            assert!(display.data() == decode(&client).data(), "{format:?}");
+                        } else {
+                            let clipped =
+                                display.data().iter().filter(|v| !(0.0..=1.0).contains(*v));
+                            assert!(clipped.count() > 0, "the stage's output reaches the clamp");
+                        }
+                        let mut cpu = Vec::new();
+                        transfer.encode_rgba8(&display, &mut cpu);
+                        assert!(
+                            shown == cpu,
+                            "{format:?} stage {with_stage} planar {planar}"
+                        );
+                    }
+                }
+            }
+        }
+
+        #[test]
+        #[ignore = "needs a GPU adapter (run: scripts/test.sh, or cargo test -- --include-ignored)"]
+        fn codes_buffers_are_reused_only_once_no_frame_holds_them() {
+            let (device, queue) = test_device(false);
+            let transfer = Transfer::from_gamma([2.2; 3]);
+            let mut frames =
+                DeviceFrames::new(&device, &queue, 8, 4, &transfer, None).expect("frames");
+            let input = DeviceInput::Client(client_frame(0, 8, 4, PixelFormat::Rgba8Linear));
+            let (a, _) = frames.run(0, &input).expect("runs");
+            let (b, _) = frames.run(1, &input).expect("runs");
+            // Both held: two buffers.
+            assert!(!Arc::ptr_eq(&a.codes, &b.codes));
+            drop(a);
+            let (c, _) = frames.run(2, &input).expect("runs");
+            assert!(!Arc::ptr_eq(&b.codes, &c.codes));
+            assert_eq!(frames.codes.len(), 2);
+            // A frame of another size is refused, not drawn.
+            let wrong = DeviceInput::Client(client_frame(3, 4, 4, PixelFormat::Rgba8Linear));
+            let e = frames.run(3, &wrong).expect_err("wrong size").to_string();
+            assert!(e.contains("4×4 frame for 8×4"), "{e}");
+        }
     }
 }

@@ -30,8 +30,8 @@ use crossbeam_channel::Receiver;
 
 use super::channel::{NewestSender, newest_channel};
 use super::frame::{FrameError, SubmittedFrame, decode, validate};
-use super::resident::{DeviceFrames, DeviceInput};
 use super::pacing::{Clock, NewestSlot, Pacer};
+use super::resident::{DeviceFrames, DeviceInput};
 use super::stats::{RSS_EVERY, Report, Stage, Stats};
 use crate::present::transfer::Transfer;
 use crate::present::{DeviceDisplayFrame, DisplayFrame, PanelFrame, PresentError, Presented, Sink};
@@ -434,8 +434,9 @@ impl Service {
         let stats = Arc::new(Stats::default());
         *stats.backend.lock().unwrap_or_else(|p| p.into_inner()) = engine.describe();
         *stats.frame_path.lock().unwrap_or_else(|p| p.into_inner()) = match &host {
-            None => "host (decode, preprocess and encode on the CPU; the sink uploads the codes)"
-                .into(),
+            None => {
+                "host (decode, preprocess and encode on the CPU; the sink uploads the codes)".into()
+            }
             Some(None) => "device (the frame is uploaded as it came; no read-back)".into(),
             Some(Some(h)) => format!(
                 "device after a host stage ({} on the CPU, its planes uploaded; no read-back)",
@@ -455,8 +456,7 @@ impl Service {
             stopping: stopping.clone(),
         };
         let mut threads = Vec::new();
-        let mut upload: Box<dyn FnMut(SubmittedFrame) -> Option<DeviceInput> + Send> = match host
-        {
+        let mut upload: Box<dyn FnMut(SubmittedFrame) -> Option<DeviceInput> + Send> = match host {
             None => Box::new(|f| Some(DeviceInput::Planar(decode(&f)))),
             Some(None) => Box::new(|f| Some(DeviceInput::Client(f))),
             Some(Some(mut prep)) => Box::new(move |f| match (prep.run)(&decode(&f)) {

@@ -300,7 +300,11 @@ impl PanelRenderer {
 
     /// Uploads a host frame's codes into the panel texture.
     fn upload(&mut self, frame: &DisplayFrame) -> Result<(), PresentError> {
-        self.check_size(frame.width, frame.height, format!("{} bytes", frame.rgba8.len()))?;
+        self.check_size(
+            frame.width,
+            frame.height,
+            format!("{} bytes", frame.rgba8.len()),
+        )?;
         if frame.rgba8.len() != 4 * frame.width * frame.height {
             return Err(err(
                 "gpu",

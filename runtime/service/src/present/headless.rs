@@ -86,7 +86,6 @@ impl Sink for HeadlessSink {
     fn present_device(&mut self, frame: &DeviceDisplayFrame) -> Result<Presented, PresentError> {
         self.draw(PanelCodes::Device(frame))
     }
-
 }
 
 impl HeadlessSink {

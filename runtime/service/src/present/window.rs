@@ -295,7 +295,9 @@ impl WindowSink {
             color_space: wgpu::SurfaceColorSpace::default(),
         };
         surface.configure(&device, &config);
-        let renderer = PanelRenderer::new(&device, &queue, width, height, format)?;
+        let mut renderer = PanelRenderer::new(&device, &queue, width, height, format)?;
+        // Set with the surface; a draw after a resize sets it again.
+        renderer.set_target_size([config.width, config.height]);
         let info = adapter.get_info();
         Ok(Self {
             event_loop,
