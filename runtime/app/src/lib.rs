@@ -12,6 +12,7 @@
 
 pub mod bench;
 pub mod bench_inference;
+pub mod bench_pipeline;
 pub mod charts;
 pub mod design;
 pub mod eval;

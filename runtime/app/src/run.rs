@@ -175,6 +175,9 @@ pub struct RunOptions {
     pub window: WindowOptions,
     pub fallback: FallbackKind,
     pub frame_path: FramePath,
+    /// The panel's size instead of the calibration's (benchmarks on slow
+    /// adapters).
+    pub panel_size: Option<(usize, usize)>,
     pub report_json: Option<PathBuf>,
     /// Fault injection: the D-CNN backend fails, as a lost GPU makes it
     /// fail, from this frame on (0: the first).
@@ -318,9 +321,13 @@ pub fn run(
     }
     let calib = common.calibration()?;
     let p = &calib.panel;
+    let (width, height) = opts.panel_size.unwrap_or((p.width_px, p.height_px));
+    if width == 0 || height == 0 {
+        return Err(AppError::Usage(format!("a {width}×{height} panel")));
+    }
     let panel = PanelConfig {
-        width: p.width_px,
-        height: p.height_px,
+        width,
+        height,
         refresh_hz: p.refresh_hz,
         transfer: Transfer::from_panel(p),
     };

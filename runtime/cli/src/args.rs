@@ -6,6 +6,7 @@ use std::path::PathBuf;
 
 use clap::builder::{PossibleValue, PossibleValuesParser, TypedValueParser};
 use clap::{Args, Parser, Subcommand, ValueEnum};
+use nedrt_app::bench_pipeline::PipelineNetwork;
 use nedrt_app::run::{FallbackKind, FramePath, SinkKind, SourceKind};
 use nedrt_core::Named;
 use nedrt_infer::{BackendKind, OrtProvider, Precision};
@@ -34,6 +35,8 @@ pub enum BenchKind {
     Inference,
     /// The radial PSF path against the 2-D path (docs/benchmarks.md).
     Radial,
+    /// The service end to end per network and frame path (docs/benchmarks.md).
+    Pipeline,
 }
 
 #[derive(Parser, Debug)]
@@ -578,9 +581,22 @@ pub struct BenchArgs {
     /// inference: frame sizes, WIDTHxHEIGHT.
     #[arg(long, value_delimiter = ',', default_values = ["512x512", "1920x1080"], value_parser = parse_size)]
     pub sizes: Vec<(usize, usize)>,
-    /// inference: skip a case estimated to take longer than this (seconds).
+    /// inference: skip a case estimated to take longer than this (seconds);
+    /// pipeline: stop a case after this long.
     #[arg(long, default_value_t = 120.0)]
     pub max_seconds: f64,
+    /// pipeline: networks to run.
+    #[arg(long, value_delimiter = ',', value_parser = named::<PipelineNetwork>(), default_values = ["none", "half", "full", "model"])]
+    pub networks: Vec<PipelineNetwork>,
+    /// pipeline: frame paths to run each network on.
+    #[arg(long, value_delimiter = ',', value_parser = named::<FramePath>(), default_values = ["device", "host"])]
+    pub frame_paths: Vec<FramePath>,
+    /// pipeline: frames the test pattern submits per case.
+    #[arg(long, default_value_t = 100)]
+    pub frames: u64,
+    /// pipeline: the panel's size, WIDTHxHEIGHT (default: the calibration's).
+    #[arg(long, value_parser = parse_size, value_name = "WxH")]
+    pub panel: Option<(usize, usize)>,
     /// Folder for the exact inputs, for the numpy side.
     #[arg(long, default_value = "out/bench", value_name = "DIR")]
     pub dump: PathBuf,

@@ -166,6 +166,7 @@ pub fn run(cli: Cli) -> Result<()> {
                 },
                 fallback: a.fallback,
                 frame_path: a.frame_path,
+                panel_size: None,
                 report_json: a.report_json,
                 inject_device_loss_after: a.inject_device_loss_after,
             };
@@ -198,6 +199,18 @@ pub fn run(cli: Cli) -> Result<()> {
                         app::bench_inference::run(&bench, &common, &mut |r| println!("{r}"))?;
                     print!("{table}");
                 }
+            }
+            BenchKind::Pipeline => {
+                let bench = app::bench_pipeline::PipelineBench {
+                    networks: a.networks,
+                    paths: a.frame_paths,
+                    frames: a.frames,
+                    max_seconds: a.max_seconds,
+                    panel_size: a.panel,
+                    dump: a.dump,
+                };
+                let table = app::bench_pipeline::run(&bench, &common, &mut |r| println!("{r}"))?;
+                print!("{table}");
             }
             BenchKind::Ceilings => {
                 let (gflops, gbps) = app::bench::ceilings();

@@ -1,0 +1,220 @@
+//! `nedrt bench pipeline`: the whole service end to end, the test pattern
+//! through the D-CNN stage to an off-screen panel on the default adapter,
+//! for each network and each frame path, one after the other in one run.
+//! Reports the end-to-end latency of the frames shown (p50, p99, max), how
+//! many were shown and dropped, and the run report's host traffic per
+//! frame, so the device path and the host path sit side by side.
+//!
+//! Networks: `none` (no network: the frame as it comes), `half` and `full`
+//! (the trainer's U-Net at 16 and 32 channels, random weights: latency does
+//! not depend on them) and `model` (the `--dcnn` model, models/dcnn.onnx
+//! by default, with its card: the shipped one runs its Wiener stage on the
+//! host first). Performance is measured here, never
+//! asserted in tests.
+
+use std::fmt::Write as _;
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Duration;
+
+use serde_json::json;
+
+use super::AppError;
+use super::run::{FallbackKind, FramePath, RunOptions, SinkKind, SourceKind};
+use crate::CommonOptions;
+use nedrt_core::Named;
+use nedrt_infer::{BackendKind, synth};
+use nedrt_optics::sim::Method;
+use nedrt_service::pipeline::service::Control;
+use nedrt_service::pipeline::stats::Report;
+
+/// A network the pipeline runs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum PipelineNetwork {
+    None,
+    Half,
+    Full,
+    Model,
+}
+
+impl Named for PipelineNetwork {
+    const ALL: &'static [Self] = &[Self::None, Self::Half, Self::Full, Self::Model];
+    fn name(self) -> &'static str {
+        match self {
+            Self::None => "none",
+            Self::Half => "half",
+            Self::Full => "full",
+            Self::Model => "model",
+        }
+    }
+    fn help(self) -> &'static str {
+        match self {
+            Self::None => "no network: the frame as it comes, clamped",
+            Self::Half => "the U-Net at 16–128 channels (random weights)",
+            Self::Full => "the U-Net at 32–256 channels (random weights)",
+            Self::Model => "the --dcnn model (models/dcnn.onnx) with its card",
+        }
+    }
+}
+
+/// What to run.
+#[derive(Debug, Clone)]
+pub struct PipelineBench {
+    pub networks: Vec<PipelineNetwork>,
+    pub paths: Vec<FramePath>,
+    /// Frames the pattern submits per case, at the panel's refresh.
+    pub frames: u64,
+    /// A case is stopped after this long (its frames so far are reported).
+    pub max_seconds: f64,
+    /// The panel's size instead of the calibration's.
+    pub panel_size: Option<(usize, usize)>,
+    /// Where the synthetic networks are written.
+    pub dump: PathBuf,
+}
+
+/// Runs every case, handing each result to `on_record` (JSON) as it is
+/// measured, and returns the Markdown table.
+pub fn run(
+    b: &PipelineBench,
+    common: &CommonOptions,
+    on_record: &mut dyn FnMut(&serde_json::Value),
+) -> Result<String, AppError> {
+    if !(b.max_seconds.is_finite() && b.max_seconds > 0.0) || b.frames == 0 {
+        return Err(AppError::Usage(format!(
+            "--frames {} and --max-seconds {} must be positive",
+            b.frames, b.max_seconds
+        )));
+    }
+    let calib = common.calibration()?;
+    let (w, h) = b
+        .panel_size
+        .unwrap_or((calib.panel.width_px, calib.panel.height_px));
+    std::fs::create_dir_all(&b.dump).map_err(|e| AppError::output(&b.dump, e))?;
+    let mut table = format!(
+        "`nedrt bench pipeline`: test pattern at {} Hz, {w}×{h}, wgpu backend, headless sink; \
+         at most {} frames or {} s per case\n\n\
+         | network | frame path | shown | dropped | e2e p50 ms | e2e p99 ms | e2e max ms | \
+         MB up / frame | uploads / frame | MB back / frame | read-backs / frame |\n\
+         | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |\n",
+        calib.panel.refresh_hz, b.frames, b.max_seconds
+    );
+    for &network in &b.networks {
+        let mut case = common.clone();
+        case.dcnn.backend = BackendKind::Wgpu;
+        let preprocess = match network {
+            PipelineNetwork::None => Method::Conventional,
+            PipelineNetwork::Model => Method::Proposed,
+            PipelineNetwork::Half | PipelineNetwork::Full => {
+                let width = if network == PipelineNetwork::Half {
+                    16
+                } else {
+                    32
+                };
+                let path = b.dump.join(format!("pipeline-{}.onnx", network.name()));
+                let bytes = synth::encode(&synth::unet(width, 4, 1));
+                nedrt_core::util::write_atomic(&path, &bytes)
+                    .map_err(|e| AppError::output(&path, e))?;
+                case.dcnn.path = path;
+                Method::Proposed
+            }
+        };
+        for &path in &b.paths {
+            let opts = RunOptions {
+                preprocess,
+                prefilter: crate::preprocess::Prefilter::Native,
+                source: SourceKind::Pattern,
+                input: None,
+                socket: PathBuf::from("unused.sock"),
+                shm_dir: std::env::temp_dir(),
+                frames: Some(b.frames),
+                source_rate_hz: None,
+                sink: SinkKind::Headless,
+                record_dir: PathBuf::from("unused"),
+                window: Default::default(),
+                fallback: FallbackKind::Passthrough,
+                frame_path: path,
+                panel_size: Some((w, h)),
+                report_json: None,
+                inject_device_loss_after: None,
+            };
+            let report = run_case(&case, &opts, b.max_seconds)?;
+            let stage = |name: &str| report.stages.iter().find(|s| s.stage == name).cloned();
+            let e2e = stage("end-to-end");
+            let t = report.traffic_per_frame();
+            let dropped = report.dropped_queued + report.dropped_at_present;
+            let record = json!({
+                "kind": "pipeline",
+                "network": network.name(),
+                "frame_path": path.name(),
+                "path_detail": report.frame_path,
+                "backend": report.backend,
+                "width": w,
+                "height": h,
+                "presented": report.presented,
+                "dropped": dropped,
+                "dcnn_failures": report.dcnn_failures,
+                "e2e_p50_ms": e2e.as_ref().map(|s| s.p50_ms),
+                "e2e_p99_ms": e2e.as_ref().map(|s| s.p99_ms),
+                "e2e_max_ms": e2e.as_ref().map(|s| s.max_ms),
+                "to_device_mb": t.to_device_bytes / 1e6,
+                "uploads": t.uploads,
+                "to_host_mb": t.to_host_bytes / 1e6,
+                "read_backs": t.read_backs,
+            });
+            on_record(&record);
+            let ms = |v: Option<f64>| v.map_or("–".to_string(), |v| format!("{v:.1}"));
+            let _ = writeln!(
+                table,
+                "| {} | {} | {} | {dropped} | {} | {} | {} | {:.2} | {:.2} | {:.2} | {:.2} |",
+                network.name(),
+                // "device" or "host" as it ran (a device case the engine
+                // could not run on the device says "host").
+                report.frame_path.split([' ', ':']).next().unwrap_or("?"),
+                report.presented,
+                ms(e2e.as_ref().map(|s| s.p50_ms)),
+                ms(e2e.as_ref().map(|s| s.p99_ms)),
+                ms(e2e.as_ref().map(|s| s.max_ms)),
+                t.to_device_bytes / 1e6,
+                t.uploads,
+                t.to_host_bytes / 1e6,
+                t.read_backs
+            );
+        }
+    }
+    Ok(table)
+}
+
+/// One case, stopped after `max_seconds` if its frames are not through.
+fn run_case(
+    common: &CommonOptions,
+    opts: &RunOptions,
+    max_seconds: f64,
+) -> Result<Report, AppError> {
+    let stop = Arc::new(AtomicBool::new(false));
+    let done = Arc::new(AtomicBool::new(false));
+    let control = Control {
+        stop: stop.clone(),
+        ..Control::default()
+    };
+    let timer = {
+        let (stop, done) = (stop.clone(), done.clone());
+        let until = std::time::Instant::now() + Duration::from_secs_f64(max_seconds);
+        std::thread::spawn(move || {
+            while !done.load(Ordering::Relaxed) {
+                if std::time::Instant::now() >= until {
+                    stop.store(true, Ordering::Relaxed);
+                    return;
+                }
+                std::thread::sleep(Duration::from_millis(20));
+            }
+        })
+    };
+    let report = super::run::run(common, opts, &control);
+    done.store(true, Ordering::Relaxed);
+    let _ = timer.join();
+    if stop.load(Ordering::Relaxed) {
+        tracing::warn!("{}: stopped after {max_seconds} s", opts.frame_path.name());
+    }
+    report
+}
