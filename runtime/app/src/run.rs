@@ -438,7 +438,7 @@ pub fn run(
                     clock,
                     source,
                     sink,
-                    Pipeline::Resident(resident),
+                    Pipeline::Resident(Box::new(resident)),
                 );
             }
             Err(e) => {
@@ -575,7 +575,7 @@ enum Pipeline {
         reason: String,
     },
     /// Frames on the sink's device.
-    Resident(ResidentStage),
+    Resident(Box<ResidentStage>),
 }
 
 /// Starts the pipeline with its preprocessing, runs it to the end and
@@ -615,7 +615,7 @@ fn serve(
                 ),
                 None => format!("on the GPU: {}", resident.frames.describe()),
             };
-            (Service::start_resident(panel, resident, clock), what)
+            (Service::start_resident(panel, *resident, clock), what)
         }
     };
     tracing::info!(

@@ -110,11 +110,14 @@ impl DcnnStage {
     }
 }
 
+/// The work of a [`HostPrep`]: a decoded frame to the planes to upload.
+pub type HostWork = Box<dyn FnMut(&Image) -> Result<Image, PreprocessError> + Send>;
+
 /// Host work on a decoded frame before it goes to the device: a
 /// network's Wiener stage, or a linear prefilter with no device stage.
 pub struct HostPrep {
     pub name: String,
-    pub run: Box<dyn FnMut(&Image) -> Result<Image, PreprocessError> + Send>,
+    pub run: HostWork,
 }
 
 impl std::fmt::Debug for HostPrep {
