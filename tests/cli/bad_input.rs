@@ -706,6 +706,26 @@ const ROWS: &[Row] = &[
         "--peak-gmacs 0: must be a positive rate",
     ),
     row(
+        "bench: a pipeline of no frames",
+        &["bench", "pipeline", "--frames", "0"],
+        "--frames 0 and --max-seconds 120 must be positive",
+    ),
+    row(
+        "run: unknown frame path",
+        &[
+            "run",
+            "--calib",
+            "{panel}",
+            "--frame-path",
+            "gpu",
+            "--sink",
+            "record",
+            "--record-dir",
+            "{out}",
+        ],
+        "invalid value 'gpu' for '--frame-path",
+    ),
+    row(
         "pick: tradeoff table missing",
         &[
             "pick",

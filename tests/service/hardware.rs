@@ -163,6 +163,61 @@ mod needs_gpu {
     }
 }
 
+/// `nedrt bench pipeline` runs each network on both frame paths in one run
+/// and reports their traffic side by side.
+mod needs_gpu_bench {
+    use super::*;
+
+    #[test]
+    #[ignore = "needs a GPU adapter (run: scripts/test.sh, or cargo test -- --include-ignored)"]
+    fn the_pipeline_bench_puts_both_frame_paths_side_by_side() {
+        require_gpu();
+        let dir = tempfile::tempdir().expect("tempdir");
+        let out = Command::new(env!("CARGO_BIN_EXE_nedrt"))
+            .current_dir(repo())
+            .args(["bench", "pipeline", "--networks", "none,half"])
+            .args(["--panel", "32x32", "--frames", "2", "--max-seconds", "100"])
+            .arg("--dump")
+            .arg(dir.path())
+            .output()
+            .expect("run");
+        let stdout = String::from_utf8_lossy(&out.stdout);
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        let records: Vec<serde_json::Value> = stdout
+            .lines()
+            .filter(|l| l.starts_with('{'))
+            .map(|l| serde_json::from_str(l).expect("json"))
+            .collect();
+        let cases: Vec<(String, String)> = records
+            .iter()
+            .map(|r| (r["network"].to_string(), r["frame_path"].to_string()))
+            .collect();
+        assert_eq!(cases.len(), 4, "{cases:?}");
+        for r in &records {
+            assert!(r["presented"].as_u64().expect("presented") >= 1, "{r}");
+            assert!(r["e2e_p99_ms"].as_f64().expect("p99") > 0.0, "{r}");
+            let reads = r["read_backs"].as_f64().expect("read_backs");
+            if r["frame_path"] == "device" {
+                assert!(
+                    r["path_detail"]
+                        .as_str()
+                        .expect("detail")
+                        .starts_with("device")
+                );
+                assert_eq!((reads, r["uploads"].as_f64()), (0.0, Some(1.0)), "{r}");
+            } else if r["network"] == "half" {
+                // The network's output comes back, the codes go up again.
+                assert_eq!((reads, r["uploads"].as_f64()), (1.0, Some(2.0)), "{r}");
+            }
+        }
+        assert!(stdout.contains("| half | device |"), "{stdout}");
+    }
+}
+
 mod needs_gpu_and_window {
     use super::*;
 
