@@ -43,7 +43,13 @@ pub struct PanelEncoder {
     height: u32,
     plane_stride: u32,
     row_texels: u32,
+    /// Bind groups made so far, by (display, codes) buffer: a frame into
+    /// buffers seen before records without creating anything.
+    bind_groups: Vec<(wgpu::Buffer, wgpu::Buffer, wgpu::BindGroup)>,
 }
+
+/// Bind groups a [`PanelEncoder`] keeps (a pool of codes buffers is a few).
+const BIND_GROUPS_KEPT: usize = 16;
 
 /// Texels per row of the codes: the width padded to 256 bytes.
 pub fn row_texels(width: u32) -> u32 {
@@ -177,6 +183,7 @@ impl PanelEncoder {
             height,
             plane_stride,
             row_texels,
+            bind_groups: Vec::new(),
         })
     }
 
@@ -206,7 +213,7 @@ impl PanelEncoder {
     /// [`PanelEncoder::new`], a storage buffer) into `codes` (one RGBA8
     /// texel per pixel, red in the low byte, rows [`PanelEncoder::row_texels`] apart).
     pub fn record(
-        &self,
+        &mut self,
         encoder: &mut wgpu::CommandEncoder,
         display: &wgpu::Buffer,
         codes: &wgpu::Buffer,
@@ -228,35 +235,51 @@ impl PanelEncoder {
                 self.codes_bytes()
             )));
         }
-        let bind_group = self.device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("panel_encode"),
-            layout: &self.layout,
-            entries: &[
-                wgpu::BindGroupEntry {
-                    binding: 0,
-                    resource: display.as_entire_binding(),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 1,
-                    resource: self.thresholds.as_entire_binding(),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 2,
-                    resource: self.frame.as_entire_binding(),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 3,
-                    resource: codes.as_entire_binding(),
-                },
-            ],
-        });
+        let index = match self
+            .bind_groups
+            .iter()
+            .position(|(d, c, _)| d == display && c == codes)
+        {
+            Some(i) => i,
+            None => {
+                if self.bind_groups.len() == BIND_GROUPS_KEPT {
+                    self.bind_groups.remove(0);
+                }
+                let group = self.device.create_bind_group(&wgpu::BindGroupDescriptor {
+                    label: Some("panel_encode"),
+                    layout: &self.layout,
+                    entries: &[
+                        wgpu::BindGroupEntry {
+                            binding: 0,
+                            resource: display.as_entire_binding(),
+                        },
+                        wgpu::BindGroupEntry {
+                            binding: 1,
+                            resource: self.thresholds.as_entire_binding(),
+                        },
+                        wgpu::BindGroupEntry {
+                            binding: 2,
+                            resource: self.frame.as_entire_binding(),
+                        },
+                        wgpu::BindGroupEntry {
+                            binding: 3,
+                            resource: codes.as_entire_binding(),
+                        },
+                    ],
+                });
+                self.bind_groups
+                    .push((display.clone(), codes.clone(), group));
+                self.bind_groups.len() - 1
+            }
+        };
+        let bind_group = &self.bind_groups[index].2;
         let [x, y] = workgroups(self.width * self.height);
         let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
             label: Some("panel_encode"),
             timestamp_writes: None,
         });
         pass.set_pipeline(&self.pipeline);
-        pass.set_bind_group(0, &bind_group, &[]);
+        pass.set_bind_group(0, bind_group, &[]);
         pass.dispatch_workgroups(x, y, 1);
         Ok(())
     }
@@ -281,7 +304,7 @@ mod tests {
             contents: bytemuck::cast_slice(&data),
             usage: wgpu::BufferUsages::STORAGE,
         });
-        let enc =
+        let mut enc =
             PanelEncoder::new(&device, &queue, width, height, n as u32, transfer).expect("encoder");
         let codes = enc.codes_buffer();
         let readback = device.create_buffer(&wgpu::BufferDescriptor {
@@ -409,7 +432,7 @@ mod tests {
                     .expect_err("refused");
                 assert!(e.to_string().contains("planes"), "{e}");
             }
-            let enc = PanelEncoder::new(&device, &queue, 4, 4, 16, &transfer).expect("encoder");
+            let mut enc = PanelEncoder::new(&device, &queue, 4, 4, 16, &transfer).expect("encoder");
             let short = device.create_buffer(&wgpu::BufferDescriptor {
                 label: None,
                 size: 3 * 4 * 15,
