@@ -163,6 +163,74 @@ mod needs_gpu {
     }
 }
 
+/// A device lost mid-run on the device path: the dcnn stage switches to the
+/// host path with the CPU fallback, re-runs the frame, and every frame is
+/// accounted for.
+mod needs_gpu_fault {
+    use super::*;
+
+    #[test]
+    #[ignore = "needs a GPU adapter (run: scripts/test.sh, or cargo test -- --include-ignored)"]
+    fn a_device_lost_on_the_device_path_falls_back_to_the_host_path() {
+        require_gpu();
+        let dir = tempfile::tempdir().expect("tempdir");
+        let network = dir.path().join("network.onnx");
+        std::fs::copy(repo().join("models/dcnn.onnx"), &network).expect("copy the model");
+        let report_path = dir.path().join("report.json");
+        let frames = 5u64;
+        let out = Command::new(env!("CARGO_BIN_EXE_nedrt"))
+            .current_dir(repo())
+            .env("NEDRT_LOG", "nedrt=info")
+            .args(["run", "--calib"])
+            .arg(small_panel())
+            .arg("--dcnn")
+            .arg(&network)
+            .args([
+                "--backend",
+                "wgpu",
+                "--source",
+                "pattern",
+                "--source-rate",
+                "5",
+            ])
+            .args(["--frames", &frames.to_string(), "--sink", "headless"])
+            .args(["--inject-device-loss-after", "1", "--report-json"])
+            .arg(&report_path)
+            .output()
+            .expect("run");
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(out.status.success(), "{err}");
+        assert!(err.contains("device lost (injected fault)"), "{err}");
+        let r: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(&report_path).expect("report")).expect("json");
+        assert_eq!(r["dcnn_failures"].as_u64(), Some(1), "{r}");
+        assert_eq!(r["failed"].as_u64(), Some(0), "the frame was re-run: {r}");
+        assert_eq!(r["submitted"].as_u64(), Some(frames), "{r}");
+        assert!(
+            r["frame_path"]
+                .as_str()
+                .is_some_and(|p| p.starts_with("host (after the device path failed)")),
+            "{r}"
+        );
+        assert!(
+            r["backend"]
+                .as_str()
+                .is_some_and(|b| b.contains("tract") && b.contains("after a failure")),
+            "{r}"
+        );
+        let accounted: u64 = [
+            "presented",
+            "dropped_queued",
+            "dropped_at_present",
+            "skipped",
+        ]
+        .iter()
+        .map(|k| r[k].as_u64().unwrap_or(0))
+        .sum();
+        assert_eq!(accounted, frames, "{r}");
+    }
+}
+
 /// `nedrt bench pipeline` runs each network on both frame paths in one run
 /// and reports their traffic side by side.
 mod needs_gpu_bench {
