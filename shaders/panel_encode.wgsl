@@ -2,10 +2,10 @@
 // planes, any values) to the panel's interleaved RGBA8 codes. Clamping to
 // [0, 1] and the transfer curve are one step: the code of x is the number
 // of the channel's 255 decision thresholds that are <= x
-// (runtime/service/src/present/transfer.rs), found by a binary search of
-// comparisons only, so the codes equal the CPU's bit for bit. Values below
-// the first threshold (negatives included) give 0, values at or above the
-// last give 255, NaN gives 0 like the CPU.
+// (runtime/service/src/present/transfer.rs), found as the CPU finds it (a
+// 4096-bin table, then comparisons only), so the codes equal the CPU's bit
+// for bit. Values below the first threshold (negatives included) give 0,
+// values at or above the last give 255, NaN gives 0 like the CPU.
 
 struct Frame {
     width: u32,
@@ -19,7 +19,9 @@ struct Frame {
 }
 
 @group(0) @binding(0) var<storage, read> display: array<f32>;
-// 3 x 255 thresholds, channel-major.
+// 3 x 255 thresholds, channel-major, then 3 x 4097 start codes (as f32):
+// the code of i/4096 for i in 0..=4096, where the search for any x in bin
+// i starts (present/transfer.rs keeps the same two tables).
 @group(0) @binding(1) var<storage, read> thresholds: array<f32>;
 @group(0) @binding(2) var<uniform> frame: Frame;
 // One packed RGBA8 texel per pixel, red in the low byte, rows padded.
@@ -30,18 +32,23 @@ fn is_nan(x: f32) -> bool {
     return (bitcast<u32>(x) & 0x7fffffffu) > 0x7f800000u;
 }
 
+const BINS: f32 = 4096.0;
+
 fn code(channel: u32, x: f32) -> u32 {
-    if (is_nan(x)) {
+    if (is_nan(x) || x <= 0.0) {
         return 0u;
     }
     let base = channel * 255u;
-    var n = 0u;
-    // Lower bound over 255 sorted thresholds: 8 halvings.
-    for (var step = 128u; step > 0u; step = step >> 1u) {
-        let probe = n + step - 1u;
-        if (probe < 255u && thresholds[base + probe] <= x) {
-            n = n + step;
+    // Scaling by a power of two is exact, so bin/4096 <= x; +inf lands in
+    // the last bin.
+    let bin = u32(min(x * BINS, BINS));
+    var n = u32(thresholds[3u * 255u + channel * 4097u + bin]);
+    // A few steps (several only in the steep dark end of a gamma curve).
+    loop {
+        if (n >= 255u || thresholds[base + n] > x) {
+            break;
         }
+        n = n + 1u;
     }
     return n;
 }

@@ -1,6 +1,7 @@
 //! The encode stage on the GPU (`shaders/panel_encode.wgsl`): a planar f32
 //! display image already in a device buffer becomes the panel's RGBA8
-//! codes in another, by the same 255 decision thresholds per channel as
+//! codes in another, by the same 255 decision thresholds per channel (and
+//! the same 4096-bin table to start each search) as
 //! [`Transfer`], so a frame that stays on the device is encoded to the
 //! codes the CPU path gives, bit for bit. The codes' rows are padded to
 //! 256 bytes, the row pitch a buffer-to-texture copy needs, so the sink
@@ -8,7 +9,7 @@
 //! made once per panel size; a frame records one dispatch.
 
 use super::PresentError;
-use super::transfer::{CODES, Transfer};
+use super::transfer::{BINS, CODES, Transfer};
 
 const SHADER: &str = include_str!("../../../../shaders/panel_encode.wgsl");
 const WORKGROUP: u32 = 64;
@@ -140,10 +141,13 @@ impl PanelEncoder {
             compilation_options: Default::default(),
             cache: None,
         });
+        // The thresholds, then each channel's bin start codes (as f32,
+        // exact): the same two tables as the CPU's search.
         let table: Vec<f32> = (0..3)
             .flat_map(|c| transfer.thresholds(c).iter().copied())
+            .chain((0..3).flat_map(|c| transfer.start_codes(c).iter().map(|&k| f32::from(k))))
             .collect();
-        debug_assert_eq!(table.len(), 3 * (CODES - 1));
+        debug_assert_eq!(table.len(), 3 * (CODES - 1) + 3 * (BINS + 1));
         let buffer = |label, size: u64, usage| {
             device.create_buffer(&wgpu::BufferDescriptor {
                 label: Some(label),

@@ -13,7 +13,7 @@ use nedrt_core::calib::PanelSettings;
 pub const CODES: usize = 256;
 
 /// Bins of the direct lookup that starts each search.
-const BINS: usize = 4096;
+pub const BINS: usize = 4096;
 
 /// Per-channel encoding thresholds of the panel's transfer curve.
 #[derive(Debug, Clone, PartialEq)]
@@ -54,6 +54,12 @@ impl Transfer {
     /// encoder searches to give the same codes.
     pub fn thresholds(&self, channel: usize) -> &[f32] {
         &self.thresholds[channel]
+    }
+
+    /// The code of i/[`BINS`] for i in 0..=BINS in `channel`: where the
+    /// search for any x in bin i starts (the GPU encoder starts there too).
+    pub fn start_codes(&self, channel: usize) -> &[u8] {
+        &self.start[channel]
     }
 
     /// The code of linear intensity `x` in channel `channel`; values outside
