@@ -454,19 +454,7 @@ impl GpuBackend {
             return Ok(out);
         }
         let cout = self.network.values[self.network.output].channels;
-        let keep = rows - 2 * self.halo;
-        if self.banded_size != Some((width, height)) {
-            self.banded_size = Some((width, height));
-            tracing::info!(
-                "wgpu: a {width}×{height} frame runs in {} bands of {rows} rows (each keeps {keep}, \
-                 the network sees {} rows either side): its largest activation needs {:.0} MiB, \
-                 the adapter binds {:.0} MiB",
-                height.div_ceil(keep),
-                self.halo,
-                self.largest_activation_bytes(width, height) as f64 / 1048576.0,
-                self.binding_cap as f64 / 1048576.0
-            );
-        }
+        self.report_banding(width, height, rows);
         let (plane, band_plane) = (width * height, width * rows);
         let mut out = vec![0.0f32; cout * plane];
         let mut window = vec![0.0f32; cin * band_plane];
@@ -490,6 +478,24 @@ impl GpuBackend {
         }
         self.last_gpu_ns = gpu_ns;
         Ok(out)
+    }
+
+    /// Says once per frame size that a frame runs in bands, and why.
+    fn report_banding(&mut self, width: usize, height: usize, rows: usize) {
+        if rows >= height || self.banded_size == Some((width, height)) {
+            return;
+        }
+        self.banded_size = Some((width, height));
+        tracing::info!(
+            "wgpu: a {width}×{height} frame runs in {} bands of {rows} rows (each keeps {}, \
+             the network sees {} rows either side): its largest activation needs {:.0} MiB, \
+             the adapter binds {:.0} MiB",
+            resident::bands(height, rows, self.halo).len(),
+            rows - 2 * self.halo,
+            self.halo,
+            self.largest_activation_bytes(width, height) as f64 / 1048576.0,
+            self.binding_cap as f64 / 1048576.0
+        );
     }
 
     /// One dispatch of the network over a `width`×`height` tensor that fits

@@ -218,6 +218,7 @@ impl GpuBackend {
         let m = self.network.multiple.max(1);
         let (pw, ph) = (width.div_ceil(m) * m, height.div_ceil(m) * m);
         let rows = self.window_rows(pw, ph)?;
+        self.report_banding(pw, ph, rows);
         self.ensure_plan(pw, rows)?;
         let stale = self.resident.as_ref().is_none_or(|r| {
             (r.width, r.height) != (width, height) || r.input != *input || r.output != *output
