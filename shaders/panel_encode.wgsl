@@ -53,15 +53,31 @@ fn code(channel: u32, x: f32) -> u32 {
     return n;
 }
 
+// Values that are not finite (NaN, ±inf), counted: a network that
+// overflows is an engine failure, as on the host path, not black pixels.
+@group(0) @binding(4) var<storage, read_write> non_finite: atomic<u32>;
+
+fn is_finite(x: f32) -> bool {
+    return (bitcast<u32>(x) & 0x7f800000u) != 0x7f800000u;
+}
+
 @compute @workgroup_size(64)
 fn main(@builtin(global_invocation_id) id: vec3<u32>) {
     let pixel = id.x + id.y * 65535u * 64u;
     if (pixel >= frame.width * frame.height) {
         return;
     }
-    let r = code(0u, display[pixel]);
-    let g = code(1u, display[frame.plane_stride + pixel]);
-    let b = code(2u, display[2u * frame.plane_stride + pixel]);
+    let x = vec3<f32>(
+        display[pixel],
+        display[frame.plane_stride + pixel],
+        display[2u * frame.plane_stride + pixel],
+    );
+    if (!(is_finite(x.x) && is_finite(x.y) && is_finite(x.z))) {
+        atomicAdd(&non_finite, 1u);
+    }
+    let r = code(0u, x.x);
+    let g = code(1u, x.y);
+    let b = code(2u, x.z);
     let row = pixel / frame.width;
     codes[row * frame.row_texels + pixel - row * frame.width] =
         r | (g << 8u) | (b << 16u) | (255u << 24u);

@@ -18,6 +18,13 @@ mod needs_gpu {
     #[ignore = "needs a GPU adapter (run: scripts/test.sh, or cargo test -- --include-ignored)"]
     fn a_soak_of_thousands_of_frames_keeps_memory_flat_and_counts_every_frame() {
         require_gpu();
+        // The host path (the network on the CPU), and the device path
+        // (no network: unpack, encode and the texture copy on the GPU).
+        soak(&["--backend", "cpu"], "host");
+        soak(&["--preprocess", "conventional"], "device");
+    }
+
+    fn soak(args: &[&str], path: &str) {
         let dir = tempfile::tempdir().expect("tempdir");
         let report_path = dir.path().join("report.json");
         let frames = 3000u64;
@@ -25,9 +32,8 @@ mod needs_gpu {
             .current_dir(repo())
             .args(["run", "--calib"])
             .arg(small_panel())
+            .args(args)
             .args([
-                "--backend",
-                "cpu",
                 "--source",
                 "pattern",
                 "--frames",
@@ -45,6 +51,13 @@ mod needs_gpu {
             String::from_utf8_lossy(&out.stderr)
         );
         let r = report(dir.path());
+        assert!(
+            r["frame_path"]
+                .as_str()
+                .is_some_and(|p| p.starts_with(path)),
+            "{}",
+            r["frame_path"]
+        );
         let n = |k: &str| r[k].as_u64().unwrap_or_else(|| panic!("{k}"));
         let rejected: u64 = r["rejected"]
             .as_array()
@@ -149,9 +162,16 @@ mod needs_gpu {
                 // One upload per frame, of the frame as it came; none back.
                 assert_eq!(n(&dcnn, "uploads"), frames, "{r}");
                 assert_eq!(n(&dcnn, "to_device_bytes"), frames * rgba8, "{r}");
-                for t in [&dcnn, &present] {
-                    assert_eq!((n(t, "read_backs"), n(t, "to_host_bytes")), (0, 0), "{r}");
-                }
+                // Only the 4-byte non-finite count comes back, with the
+                // fence the stage waits on anyway: no read-back.
+                assert_eq!(
+                    (n(&dcnn, "read_backs"), n(&dcnn, "to_host_bytes")),
+                    (0, 4 * frames)
+                );
+                assert_eq!(
+                    (n(&present, "read_backs"), n(&present, "to_host_bytes")),
+                    (0, 0)
+                );
                 assert_eq!(n(&present, "uploads"), 0, "{r}");
             } else {
                 // The host path: f32 planes up, the output back, codes up.
@@ -269,6 +289,9 @@ mod needs_gpu_bench {
             assert!(r["presented"].as_u64().expect("presented") >= 1, "{r}");
             assert!(r["e2e_p99_ms"].as_f64().expect("p99") > 0.0, "{r}");
             let reads = r["read_backs"].as_f64().expect("read_backs");
+            // Per presented frame: frames dropped on the way add their
+            // traffic to the ones shown, so at least one frame's worth.
+            let uploads = r["uploads"].as_f64().expect("uploads");
             if r["frame_path"] == "device" {
                 assert!(
                     r["path_detail"]
@@ -276,10 +299,11 @@ mod needs_gpu_bench {
                         .expect("detail")
                         .starts_with("device")
                 );
-                assert_eq!((reads, r["uploads"].as_f64()), (0.0, Some(1.0)), "{r}");
+                assert_eq!(reads, 0.0, "{r}");
+                assert!(uploads >= 1.0, "{r}");
             } else if r["network"] == "half" {
                 // The network's output comes back, the codes go up again.
-                assert_eq!((reads, r["uploads"].as_f64()), (1.0, Some(2.0)), "{r}");
+                assert!(reads >= 1.0 && uploads >= 2.0, "{r}");
             }
         }
         assert!(stdout.contains("| half | device |"), "{stdout}");

@@ -190,8 +190,13 @@ impl DeviceFrames {
 
     /// A codes buffer no frame holds (a new one if all are held).
     fn free_codes(&mut self) -> Arc<wgpu::Buffer> {
-        if let Some(c) = self.codes.iter().find(|c| Arc::strong_count(c) == 1) {
-            return c.clone();
+        // get_mut succeeds only where no frame holds the buffer (an
+        // acquire of the other holders' drops).
+        if let Some(c) = self.codes.iter_mut().find_map(|c| {
+            Arc::get_mut(c)?;
+            Some(c.clone())
+        }) {
+            return c;
         }
         let c = Arc::new(self.encoder.codes_buffer());
         self.codes.push(c.clone());
@@ -228,10 +233,11 @@ impl DeviceFrames {
         let recorded = self.record(input);
         // Popped on every path: a scope left open would catch later errors.
         let validation = pollster::block_on(scope.pop());
-        let (frame, traffic) = recorded?;
+        // The validation error first: it is the cause of a failed wait.
         if let Some(e) = validation {
             return Err(err(format!("frame {id}: {e}")));
         }
+        let (frame, traffic) = recorded?;
         Ok((
             DeviceDisplayFrame {
                 id,
@@ -299,13 +305,25 @@ impl DeviceFrames {
         };
         self.encoder.record(&mut encoder, display, &codes)?;
         let submission = self.queue.submit([encoder.finish()]);
+        self.encoder.map_non_finite();
+        // The fence wait the stage does anyway (its time includes the
+        // device's work); it also brings the 4-byte non-finite count back.
         nedrt_gpu::wait_for(&self.device, submission).map_err(err)?;
+        let non_finite = self.encoder.non_finite_pixels()?;
+        if non_finite > 0 {
+            // As on the host path: an engine failure, not black pixels.
+            return Err(err(format!(
+                "{}: the display image has {non_finite} pixels that are not finite",
+                self.describe()
+            )));
+        }
         Ok((
             codes,
             HostTraffic {
                 to_device_bytes: uploaded as u64,
                 uploads: 1,
-                ..HostTraffic::default()
+                to_host_bytes: 4,
+                read_backs: 0,
             },
         ))
     }
@@ -359,15 +377,29 @@ mod tests {
 
     impl Stretch {
         fn new(device: &wgpu::Device) -> Self {
+            Self::with_poison(device, false)
+        }
+
+        /// `poison`: pixel 5 of the red plane becomes +inf, as a network
+        /// that overflows.
+        fn with_poison(device: &wgpu::Device, poison: bool) -> Self {
+            let poison = if poison {
+                "if (id.x == 5u) { dst[id.x] = bitcast<f32>(0x7f800000u); }"
+            } else {
+                ""
+            };
             let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
                 label: Some("stretch"),
                 source: wgpu::ShaderSource::Wgsl(
-                    "@group(0) @binding(0) var<storage, read> src: array<f32>;
-                     @group(0) @binding(1) var<storage, read_write> dst: array<f32>;
-                     @compute @workgroup_size(64)
-                     fn main(@builtin(global_invocation_id) id: vec3<u32>) {
-                         if (id.x < arrayLength(&dst)) { dst[id.x] = 1.4 * src[id.x] - 0.2; }
-                     }"
+                    format!(
+                        "@group(0) @binding(0) var<storage, read> src: array<f32>;
+                         @group(0) @binding(1) var<storage, read_write> dst: array<f32>;
+                         @compute @workgroup_size(64)
+                         fn main(@builtin(global_invocation_id) id: vec3<u32>) {{
+                             if (id.x < arrayLength(&dst)) {{ dst[id.x] = 1.4 * src[id.x] - 0.2; }}
+                             {poison}
+                         }}"
+                    )
                     .into(),
                 ),
             });
@@ -487,7 +519,8 @@ mod tests {
                             HostTraffic {
                                 to_device_bytes: up,
                                 uploads: 1,
-                                to_host_bytes: 0,
+                                // The non-finite count, back with the fence.
+                                to_host_bytes: 4,
                                 read_backs: 0
                             },
                             "{format:?}"
@@ -536,6 +569,13 @@ mod tests {
             let (c, _) = frames.run(2, &input).expect("runs");
             assert!(!Arc::ptr_eq(&b.codes, &c.codes));
             assert_eq!(frames.codes.len(), 2);
+            // A stage whose output is not finite fails the frame, as the
+            // host path's engine failure, instead of showing black or white.
+            let stage: Box<dyn DeviceStage> = Box::new(Stretch::with_poison(&device, true));
+            let mut poisoned =
+                DeviceFrames::new(&device, &queue, 8, 4, &transfer, Some(stage)).expect("frames");
+            let e = poisoned.run(4, &input).expect_err("non-finite").to_string();
+            assert!(e.contains("1 pixels that are not finite"), "{e}");
             // A frame of another size is refused, not drawn.
             let wrong = DeviceInput::Client(client_frame(3, 4, 4, PixelFormat::Rgba8Linear));
             let e = frames.run(3, &wrong).expect_err("wrong size").to_string();

@@ -220,6 +220,45 @@ impl Engine {
     }
 }
 
+/// The upload stage's work on a frame.
+type UploadWork = Box<dyn FnMut(SubmittedFrame, &Stats) -> Option<DeviceInput> + Send>;
+
+/// The upload stage of the device path with a host stage: as the host
+/// path treats its engine, a frame the stage refuses is `failed`, and an
+/// engine failure is counted and switches the stage off for good (frames
+/// then go up as decoded).
+fn host_stage(
+    mut prep: HostPrep,
+) -> impl FnMut(SubmittedFrame, &Stats) -> Option<DeviceInput> + Send {
+    use std::sync::atomic::Ordering::Relaxed;
+    let mut failed_over = false;
+    move |f, stats| {
+        let decoded = decode(&f);
+        if failed_over {
+            return Some(DeviceInput::Planar(decoded));
+        }
+        match (prep.run)(&decoded) {
+            Ok(im) => Some(DeviceInput::Planar(im)),
+            Err(PreprocessError::Frame(e)) => {
+                tracing::error!("{} refused frame {}: {e}", prep.name, f.id);
+                stats.failed.fetch_add(1, Relaxed);
+                None
+            }
+            Err(e) => {
+                tracing::error!(
+                    "{} failed: {e}; frames now go to the device without it",
+                    prep.name
+                );
+                stats.dcnn_failures.fetch_add(1, Relaxed);
+                *stats.frame_path.lock().unwrap_or_else(|p| p.into_inner()) =
+                    format!("device, without its host stage ({} failed)", prep.name);
+                failed_over = true;
+                Some(DeviceInput::Planar(decoded))
+            }
+        }
+    }
+}
+
 /// The panel the service drives.
 #[derive(Debug, Clone)]
 pub struct PanelConfig {
@@ -459,16 +498,10 @@ impl Service {
             stopping: stopping.clone(),
         };
         let mut threads = Vec::new();
-        let mut upload: Box<dyn FnMut(SubmittedFrame) -> Option<DeviceInput> + Send> = match host {
-            None => Box::new(|f| Some(DeviceInput::Planar(decode(&f)))),
-            Some(None) => Box::new(|f| Some(DeviceInput::Client(f))),
-            Some(Some(mut prep)) => Box::new(move |f| match (prep.run)(&decode(&f)) {
-                Ok(im) => Some(DeviceInput::Planar(im)),
-                Err(e) => {
-                    tracing::error!("{} failed on frame {}: {e}", prep.name, f.id);
-                    None
-                }
-            }),
+        let mut upload: UploadWork = match host {
+            None => Box::new(|f, _| Some(DeviceInput::Planar(decode(&f)))),
+            Some(None) => Box::new(|f, _| Some(DeviceInput::Client(f))),
+            Some(Some(prep)) => Box::new(host_stage(prep)),
         };
         threads.push(spawn_stage(
             "upload",
@@ -476,15 +509,7 @@ impl Service {
             ingest_rx,
             move |t| upload_tx.send(t),
             context.clone(),
-            move |_, f: SubmittedFrame, stats| {
-                let out = upload(f);
-                if out.is_none() {
-                    stats
-                        .failed
-                        .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-                }
-                out
-            },
+            move |_, f: SubmittedFrame, stats| upload(f, stats),
         )?);
         threads.push(spawn_stage(
             "dcnn",

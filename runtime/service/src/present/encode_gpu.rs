@@ -40,6 +40,10 @@ pub struct PanelEncoder {
     layout: wgpu::BindGroupLayout,
     thresholds: wgpu::Buffer,
     frame: wgpu::Buffer,
+    /// The count of non-finite pixels of the last frame, and where it is
+    /// copied for the host to read once the frame's submission is done.
+    non_finite: wgpu::Buffer,
+    non_finite_host: wgpu::Buffer,
     width: u32,
     height: u32,
     plane_stride: u32,
@@ -126,6 +130,7 @@ impl PanelEncoder {
                     count: None,
                 },
                 storage(3, false),
+                storage(4, false),
             ],
         });
         let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
@@ -174,6 +179,18 @@ impl PanelEncoder {
             row_texels,
         };
         queue.write_buffer(&frame, 0, bytemuck::bytes_of(&u));
+        let non_finite = buffer(
+            "panel non-finite count",
+            4,
+            wgpu::BufferUsages::STORAGE
+                | wgpu::BufferUsages::COPY_SRC
+                | wgpu::BufferUsages::COPY_DST,
+        );
+        let non_finite_host = buffer(
+            "panel non-finite count (host)",
+            4,
+            wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+        );
         if let Some(e) = pollster::block_on(scope.pop()) {
             return Err(err(format!("building the encode kernel: {e}")));
         }
@@ -183,6 +200,8 @@ impl PanelEncoder {
             layout,
             thresholds,
             frame,
+            non_finite,
+            non_finite_host,
             width,
             height,
             plane_stride,
@@ -269,6 +288,10 @@ impl PanelEncoder {
                             binding: 3,
                             resource: codes.as_entire_binding(),
                         },
+                        wgpu::BindGroupEntry {
+                            binding: 4,
+                            resource: self.non_finite.as_entire_binding(),
+                        },
                     ],
                 });
                 self.bind_groups
@@ -277,6 +300,7 @@ impl PanelEncoder {
             }
         };
         let bind_group = &self.bind_groups[index].2;
+        encoder.clear_buffer(&self.non_finite, 0, None);
         let [x, y] = workgroups(self.width * self.height);
         let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
             label: Some("panel_encode"),
@@ -285,7 +309,34 @@ impl PanelEncoder {
         pass.set_pipeline(&self.pipeline);
         pass.set_bind_group(0, bind_group, &[]);
         pass.dispatch_workgroups(x, y, 1);
+        drop(pass);
+        encoder.copy_buffer_to_buffer(&self.non_finite, 0, &self.non_finite_host, 0, 4);
         Ok(())
+    }
+
+    /// Asks for the frame's non-finite count to come back with its
+    /// submission: call after submitting what [`PanelEncoder::record`]
+    /// recorded; the wait for that submission completes the mapping.
+    pub fn map_non_finite(&self) {
+        self.non_finite_host
+            .slice(..)
+            .map_async(wgpu::MapMode::Read, |_| {});
+    }
+
+    /// The number of pixels with a non-finite value in the frame last
+    /// recorded, after [`PanelEncoder::map_non_finite`] and the wait for
+    /// the frame's submission (this does not wait). 4 bytes come back.
+    pub fn non_finite_pixels(&self) -> Result<u32, PresentError> {
+        let count = {
+            let view = self
+                .non_finite_host
+                .slice(..)
+                .get_mapped_range()
+                .map_err(|e| err(format!("the non-finite count is not back: {e}")))?;
+            u32::from_le_bytes([view[0], view[1], view[2], view[3]])
+        };
+        self.non_finite_host.unmap();
+        Ok(count)
     }
 }
 
