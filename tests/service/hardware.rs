@@ -221,8 +221,7 @@ mod needs_gpu_fault {
         let err = String::from_utf8_lossy(&out.stderr);
         assert!(out.status.success(), "{err}");
         assert!(err.contains("device lost (injected fault)"), "{err}");
-        let r: serde_json::Value =
-            serde_json::from_slice(&std::fs::read(&report_path).expect("report")).expect("json");
+        let r = report(dir.path());
         assert_eq!(r["dcnn_failures"].as_u64(), Some(1), "{r}");
         assert_eq!(r["failed"].as_u64(), Some(0), "the frame was re-run: {r}");
         assert_eq!(r["submitted"].as_u64(), Some(frames), "{r}");

@@ -80,34 +80,42 @@ impl DcnnStage {
                     return None;
                 }
                 Err(e) => {
-                    stats
-                        .dcnn_failures
-                        .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-                    let next: Box<dyn Preprocess> = match self.fallback.take() {
-                        Some(factory) => match factory() {
-                            Ok(p) => p,
-                            Err(fe) => {
-                                tracing::error!("fallback backend cannot start: {fe}");
-                                Box::new(Identity)
-                            }
-                        },
-                        None => Box::new(Identity),
-                    };
-                    tracing::error!(
-                        "D-CNN {} failed: {e}; falling back to {}",
-                        self.primary.describe(),
-                        next.describe()
-                    );
-                    *stats.backend.lock().unwrap_or_else(|p| p.into_inner()) = format!(
-                        "{} (after a failure of {})",
-                        next.describe(),
-                        self.primary.describe()
-                    );
-                    self.primary = next;
+                    let failed = format!("D-CNN {}", self.primary.describe());
+                    self.primary =
+                        switch_to_fallback(self.fallback.take(), &failed, &e.to_string(), stats);
                 }
             }
         }
     }
+}
+
+/// After a failure of the engine `failed` (`reason`): counts it and
+/// returns the fallback's preprocessor (the factory's, else [`Identity`]),
+/// logged and named in the report's backend.
+fn switch_to_fallback(
+    fallback: Option<FallbackFactory>,
+    failed: &str,
+    reason: &str,
+    stats: &Stats,
+) -> Box<dyn Preprocess> {
+    stats
+        .dcnn_failures
+        .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    let next: Box<dyn Preprocess> = match fallback.map(|factory| factory()) {
+        Some(Ok(p)) => p,
+        Some(Err(fe)) => {
+            tracing::error!("fallback backend cannot start: {fe}");
+            Box::new(Identity)
+        }
+        None => Box::new(Identity),
+    };
+    tracing::error!(
+        "{failed} failed: {reason}; falling back to {}",
+        next.describe()
+    );
+    *stats.backend.lock().unwrap_or_else(|p| p.into_inner()) =
+        format!("{} (after a failure of {failed})", next.describe());
+    next
 }
 
 /// The work of a [`HostPrep`]: a decoded frame to the planes to upload.
@@ -177,7 +185,6 @@ impl Engine {
     }
 
     fn run(&mut self, id: u64, input: DeviceInput, stats: &Stats) -> Option<Processed> {
-        use std::sync::atomic::Ordering::Relaxed;
         if let Engine::Device { frames, fallback } = self {
             match frames.run(id, &input) {
                 Ok((frame, traffic)) => {
@@ -185,25 +192,9 @@ impl Engine {
                     return Some(Processed::Device(frame));
                 }
                 Err(e) => {
-                    stats.dcnn_failures.fetch_add(1, Relaxed);
-                    let next: Box<dyn Preprocess> = match fallback.take().map(|f| f()) {
-                        Some(Ok(p)) => p,
-                        Some(Err(fe)) => {
-                            tracing::error!("fallback backend cannot start: {fe}");
-                            Box::new(Identity)
-                        }
-                        None => Box::new(Identity),
-                    };
-                    tracing::error!(
-                        "{} failed: {e}; frames now go through the host, to {}",
-                        frames.describe(),
-                        next.describe()
-                    );
-                    *stats.backend.lock().unwrap_or_else(|p| p.into_inner()) = format!(
-                        "{} (after a failure of {})",
-                        next.describe(),
-                        frames.describe()
-                    );
+                    let reason = format!("{e}; frames now go through the host");
+                    let next =
+                        switch_to_fallback(fallback.take(), &frames.describe(), &reason, stats);
                     *stats.frame_path.lock().unwrap_or_else(|p| p.into_inner()) =
                         "host (after the device path failed)".into();
                     *self = Engine::Host(DcnnStage {
