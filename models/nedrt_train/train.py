@@ -318,7 +318,13 @@ def train(cfg: Config, out: Path, device: str = "cpu", resume: bool = False) -> 
     try:
         run = setup(cfg, out, device, resume)
         loop(run)
-        return finish(run)
+        result = finish(run)
+        if distributed:
+            # Rank 0 validates in `finish` while the others are done: a rank
+            # that tears gloo down while its peer still holds the pair can
+            # abort ("terminate called without an active exception").
+            dist.barrier()
+        return result
     finally:
         if distributed:
             dist.destroy_process_group()

@@ -43,6 +43,7 @@ def main():
     loop(run, recorder("resumed"))
     finish(run)
     torch.save(draws, args.out / f"draws-rank{rank}.pt")
+    dist.barrier()  # no rank leaves the group while rank 0 still validates
     dist.destroy_process_group()
 
 
