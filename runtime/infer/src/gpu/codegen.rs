@@ -25,6 +25,47 @@ impl Dtype {
     }
 }
 
+/// How the conv kernel tiles one layer: a workgroup of `THREADS_X` ×
+/// `threads_y` threads; each thread computes `px` adjacent pixels of a row
+/// for `OC` output channels, so a workgroup covers (8·`px`) × `threads_y`
+/// pixels. Chosen per layer from its size (`for_layer`), so the small deep
+/// levels of the U-Net do not run tiles mostly outside the layer.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub struct ConvTile {
+    pub px: u32,
+    pub threads_y: u32,
+}
+
+impl ConvTile {
+    /// Threads along x. lavapipe runs a workgroup's invocations in SIMD
+    /// vectors along x only (8 lanes of its 256-bit vectors), so a narrower
+    /// workgroup leaves lanes empty; GPUs are indifferent to the shape.
+    pub const THREADS_X: u32 = 8;
+    /// Output channels per thread (in vec4s of weights: a multiple of 4).
+    pub const OC: u32 = 8;
+    /// The tile for layers at least 32 pixels wide and 16 tall.
+    pub const LARGE: ConvTile = ConvTile {
+        px: 4,
+        threads_y: 16,
+    };
+
+    /// The largest tile that a `width`×`height` layer fills: 4, 2 or 1
+    /// pixels per thread (tile 32, 16 or 8 wide) and up to 16 rows.
+    pub fn for_layer(width: u32, height: u32) -> Self {
+        let px = [4, 2, 1]
+            .into_iter()
+            .find(|&px| Self::THREADS_X * px <= width)
+            .unwrap_or(1);
+        let threads_y = height.max(1).next_power_of_two().min(Self::LARGE.threads_y);
+        ConvTile { px, threads_y }
+    }
+
+    /// Output pixels a workgroup covers, (width, height).
+    pub fn pixels(&self) -> (u32, u32) {
+        (Self::THREADS_X * self.px, self.threads_y)
+    }
+}
+
 /// Which kernel, with its compile-time options.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum KernelKind {
@@ -33,6 +74,7 @@ pub enum KernelKind {
         relu: bool,
         residual: bool,
         clamp: bool,
+        tile: ConvTile,
     },
     ConvTranspose {
         relu: bool,
@@ -58,13 +100,61 @@ const CONV_TRANSPOSE: &str = include_str!("../../../../shaders/conv_transpose.wg
 const MAX_POOL: &str = include_str!("../../../../shaders/max_pool.wgsl");
 const LAYER_BINDINGS: &str = include_str!("../../../../shaders/layer_bindings.wgsl");
 
-/// Conv output tile per workgroup (pixels) and output channels per workgroup,
-/// as fixed in conv.wgsl.
-pub const CONV_TILE: (u32, u32, u32) = (32, 16, 8);
 /// ConvTranspose input pixels per workgroup side and output channels.
 pub const CONV_TRANSPOSE_TILE: (u32, u32) = (16, 8);
 /// Max-pool workgroup side.
 pub const POOL_TILE: u32 = 16;
+
+/// The conv kernel's accumulators: `a{px}_{q}`, four output channels each.
+fn conv_accumulators(tile: ConvTile) -> String {
+    let mut s = String::new();
+    for px in 0..tile.px {
+        for q in 0..ConvTile::OC / 4 {
+            s += &format!("    var a{px}_{q} = vec4<f32>(0.0);\n");
+        }
+    }
+    s
+}
+
+/// One input channel's multiply-adds, unrolled: the compilers we target
+/// (naga → SPIR-V → Mesa's NIR on lavapipe) do not unroll the whole nest,
+/// and a rolled loop indexes the accumulators per SIMD lane.
+fn conv_taps(kernel: usize, tile: ConvTile) -> String {
+    let (k, px_n, oc4) = (kernel as u32, tile.px, ConvTile::OC / 4);
+    let mut s = String::new();
+    for ky in 0..k {
+        for j in 0..px_n + k - 1 {
+            s += &format!("            let r{j}_{ky} = tile[rbase + {ky}u * IN_W + {j}u];\n");
+        }
+        for kx in 0..k {
+            for q in 0..oc4 {
+                let w = (ky * k + kx) * oc4 + q;
+                s += &format!("            let w{ky}_{kx}_{q} = wtile[wbase + {w}u];\n");
+                for px in 0..px_n {
+                    let r = px + kx;
+                    s += &format!(
+                        "            a{px}_{q} = fma(w{ky}_{kx}_{q}, vec4<f32>(r{r}_{ky}), a{px}_{q});\n"
+                    );
+                }
+            }
+        }
+    }
+    s
+}
+
+/// The conv kernel's stores: every accumulator lane through `emit`.
+fn conv_stores(tile: ConvTile) -> String {
+    let mut s = String::new();
+    for px in 0..tile.px {
+        for q in 0..ConvTile::OC / 4 {
+            for (j, lane) in ["x", "y", "z", "w"].iter().enumerate() {
+                let o = 4 * q + j as u32;
+                s += &format!("    emit(x + {px}u, y, oc0 + {o}u, a{px}_{q}.{lane});\n");
+            }
+        }
+    }
+    s
+}
 
 impl KernelKey {
     pub fn uses_f16(&self) -> bool {
@@ -79,11 +169,18 @@ impl KernelKey {
                 relu,
                 residual,
                 clamp,
+                tile,
             } => (
                 CONV,
                 vec![
                     ("K", kernel.to_string()),
-                    ("ROW", (4 + kernel - 1).to_string()),
+                    ("PX", tile.px.to_string()),
+                    ("ACC_DECL", conv_accumulators(tile)),
+                    ("TAPS", conv_taps(kernel, tile)),
+                    ("STORES", conv_stores(tile)),
+                    ("OC", ConvTile::OC.to_string()),
+                    ("TX", ConvTile::THREADS_X.to_string()),
+                    ("TY", tile.threads_y.to_string()),
                     ("RELU", relu.to_string()),
                     ("RESIDUAL", residual.to_string()),
                     ("CLAMP", clamp.to_string()),
@@ -126,18 +223,21 @@ mod tests {
                     relu: false,
                     residual: true,
                     clamp: true,
+                    tile: ConvTile::LARGE,
                 },
                 KernelKind::Conv {
                     kernel: 3,
                     relu: true,
                     residual: false,
                     clamp: false,
+                    tile: ConvTile::for_layer(12, 5),
                 },
                 KernelKind::Conv {
                     kernel: 5,
                     relu: true,
                     residual: true,
                     clamp: true,
+                    tile: ConvTile::for_layer(16, 1),
                 },
                 KernelKind::ConvTranspose { relu: true },
                 KernelKind::ConvTranspose { relu: false },
@@ -154,6 +254,19 @@ mod tests {
             }
         }
         keys
+    }
+
+    #[test]
+    fn a_layer_gets_the_largest_tile_it_fills() {
+        let tile = |w, h| ConvTile::for_layer(w, h).pixels();
+        assert_eq!(tile(1920, 1080), (32, 16));
+        assert_eq!(ConvTile::for_layer(64, 64), ConvTile::LARGE);
+        assert_eq!(tile(31, 16), (16, 16));
+        assert_eq!(tile(16, 8), (16, 8));
+        assert_eq!(tile(8, 8), (8, 8));
+        assert_eq!(tile(9, 3), (8, 4));
+        assert_eq!(tile(4, 1), (8, 1));
+        assert_eq!(tile(1, 0), (8, 1));
     }
 
     #[test]

@@ -42,6 +42,26 @@ fn err(reason: impl std::fmt::Display) -> InferenceError {
     }
 }
 
+/// One kernel variant's compute pipeline.
+fn build_pipeline(
+    device: &wgpu::Device,
+    layout: &wgpu::PipelineLayout,
+    key: &KernelKey,
+) -> wgpu::ComputePipeline {
+    let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+        label: Some(&key.label()),
+        source: wgpu::ShaderSource::Wgsl(key.wgsl().into()),
+    });
+    device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+        label: Some(&key.label()),
+        layout: Some(layout),
+        module: &module,
+        entry_point: Some("main"),
+        compilation_options: Default::default(),
+        cache: None,
+    })
+}
+
 /// Opens the default adapter's device for `precision` (f16 needs the
 /// adapter's shader-f16).
 pub fn open_device(
@@ -60,9 +80,13 @@ pub struct GpuBackend {
     network: Network,
     precision: Precision,
     layout: wgpu::BindGroupLayout,
-    pipelines: Vec<wgpu::ComputePipeline>,
-    /// Per layer: pipeline index (None for Concat).
-    layer_pipeline: Vec<Option<usize>>,
+    pipeline_layout: wgpu::PipelineLayout,
+    /// Every kernel variant built so far; a frame size whose layers want
+    /// other conv tiles adds theirs when its plan is made.
+    pipelines: HashMap<KernelKey, wgpu::ComputePipeline>,
+    /// Per layer: its kernel, conv tiles at `ConvTile::LARGE` (None for
+    /// Concat). `SizedPlan` picks each conv layer's tile for its size.
+    layer_keys: Vec<Option<KernelKey>>,
     weights: wgpu::Buffer,
     /// Per layer: (weight offset, bias offset) in elements.
     weight_offsets: Vec<(usize, usize)>,
@@ -228,9 +252,8 @@ impl GpuBackend {
             immediate_size: 0,
         });
 
-        let mut keys: HashMap<KernelKey, usize> = HashMap::new();
-        let mut pipelines = Vec::new();
-        let mut layer_pipeline = Vec::new();
+        let mut pipelines = HashMap::new();
+        let mut layer_keys = Vec::new();
         let mut weights: Vec<f32> = Vec::new();
         let mut weight_offsets = Vec::new();
         for layer in &network.layers {
@@ -251,6 +274,7 @@ impl GpuBackend {
                             relu: c.relu,
                             residual: c.residual.is_some(),
                             clamp: c.output == network.output,
+                            tile: codegen::ConvTile::LARGE,
                         },
                         c.input,
                         c.residual,
@@ -261,7 +285,7 @@ impl GpuBackend {
                 }
                 Layer::MaxPool { input, .. } => (KernelKind::MaxPool, *input, None),
                 Layer::Concat { .. } => {
-                    layer_pipeline.push(None);
+                    layer_keys.push(None);
                     weight_offsets.push((0, 0));
                     continue;
                 }
@@ -281,24 +305,10 @@ impl GpuBackend {
                 residual: residual.map_or(Dtype::F32, |r| dtype(root(r))),
                 weights: t,
             };
-            let index = *keys.entry(key).or_insert_with(|| {
-                let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
-                    label: Some(&key.label()),
-                    source: wgpu::ShaderSource::Wgsl(key.wgsl().into()),
-                });
-                pipelines.push(
-                    device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-                        label: Some(&key.label()),
-                        layout: Some(&pipeline_layout),
-                        module: &module,
-                        entry_point: Some("main"),
-                        compilation_options: Default::default(),
-                        cache: None,
-                    }),
-                );
-                pipelines.len() - 1
-            });
-            layer_pipeline.push(Some(index));
+            pipelines
+                .entry(key)
+                .or_insert_with(|| build_pipeline(device, &pipeline_layout, &key));
+            layer_keys.push(Some(key));
         }
         if weights.len() > u32::MAX as usize {
             return Err(err("more than 2^32 weights"));
@@ -333,8 +343,9 @@ impl GpuBackend {
             network: network.clone(),
             precision,
             layout,
+            pipeline_layout,
             pipelines,
-            layer_pipeline,
+            layer_keys,
             weights,
             weight_offsets,
             alias,
@@ -540,7 +551,7 @@ impl GpuBackend {
                     }),
             });
             for d in &plan.dispatches {
-                pass.set_pipeline(&self.pipelines[d.pipeline]);
+                pass.set_pipeline(&d.pipeline);
                 pass.set_bind_group(0, &d.bind_group, &[]);
                 let [x, y, z] = d.workgroups;
                 pass.dispatch_workgroups(x, y, z);

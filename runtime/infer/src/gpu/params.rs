@@ -45,6 +45,7 @@ mod tests {
                 relu: true,
                 residual: true,
                 clamp: true,
+                tile: crate::gpu::codegen::ConvTile::LARGE,
             },
             KernelKind::ConvTranspose { relu: true },
             KernelKind::MaxPool,

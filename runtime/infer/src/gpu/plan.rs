@@ -5,7 +5,7 @@
 
 use wgpu::util::DeviceExt;
 
-use super::codegen;
+use super::codegen::{self, KernelKey, KernelKind};
 use super::params::Params;
 use super::{GpuBackend, err};
 use crate::InferenceError;
@@ -23,7 +23,7 @@ pub(super) struct Place {
 pub(super) struct Dispatch {
     /// The layer of the network it runs.
     pub(super) layer: usize,
-    pub(super) pipeline: usize,
+    pub(super) pipeline: wgpu::ComputePipeline,
     pub(super) bind_group: wgpu::BindGroup,
     pub(super) workgroups: [u32; 3],
 }
@@ -42,20 +42,52 @@ pub(super) struct SizedPlan {
 }
 
 impl GpuBackend {
-    /// Buffers, params and bind groups for a `width`×`height` frame.
-    pub(super) fn prepare(&self, width: usize, height: usize) -> Result<SizedPlan, InferenceError> {
+    /// Each layer's kernel for a `width`×`height` frame: every conv gets
+    /// the tile its own size fills.
+    fn sized_keys(&self, width: usize, height: usize) -> Vec<Option<KernelKey>> {
         let net = &self.network;
-        let m = net.multiple;
+        net.layers
+            .iter()
+            .zip(&self.layer_keys)
+            .map(|(layer, key)| {
+                let mut key = (*key)?;
+                if let (Layer::Conv(c), KernelKind::Conv { tile, .. }) = (layer, &mut key.kind) {
+                    let level = net.values[c.input].level;
+                    *tile = codegen::ConvTile::for_layer(
+                        (width >> level) as u32,
+                        (height >> level) as u32,
+                    );
+                }
+                Some(key)
+            })
+            .collect()
+    }
+
+    /// Buffers, params and bind groups for a `width`×`height` frame.
+    pub(super) fn prepare(
+        &mut self,
+        width: usize,
+        height: usize,
+    ) -> Result<SizedPlan, InferenceError> {
+        let m = self.network.multiple;
         if !width.is_multiple_of(m) || !height.is_multiple_of(m) {
             return Err(err(format!("{width}×{height} is not a multiple of {m}")));
         }
+        let scope = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let keys = self.sized_keys(width, height);
+        for key in keys.iter().flatten() {
+            if !self.pipelines.contains_key(key) {
+                let pipeline = super::build_pipeline(&self.device, &self.pipeline_layout, key);
+                self.pipelines.insert(*key, pipeline);
+            }
+        }
+        let net = &self.network;
         let plane = |v: ValueId| (width >> net.values[v].level) * (height >> net.values[v].level);
         let limits = self.device.limits();
         let cap = self.binding_cap;
         // Buffers: one per root value; aliased values sit at a channel offset.
         let mut buffers = Vec::new();
         let mut root_place: Vec<Option<Place>> = vec![None; net.values.len()];
-        let scope = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
         let mut places = Vec::with_capacity(net.values.len());
         for v in 0..net.values.len() {
             let mut offset = 0;
@@ -104,7 +136,7 @@ impl GpuBackend {
         for (li, layer) in net.layers.iter().enumerate() {
             let out = place_of(layer.output());
             // Concat costs nothing: its inputs were written in place.
-            let Some(pipeline) = self.layer_pipeline[li] else {
+            let Some(key) = keys[li] else {
                 continue;
             };
             let (input_v, residual, cin, cout) = match layer {
@@ -177,12 +209,16 @@ impl GpuBackend {
                 ],
             });
             let (lw, lh, cout) = (lw as u32, lh as u32, cout as u32);
-            let workgroups = match layer {
-                Layer::Conv(_) => {
-                    let (tw, th, oc) = codegen::CONV_TILE;
-                    [lw.div_ceil(tw), lh.div_ceil(th), cout.div_ceil(oc)]
+            let workgroups = match key.kind {
+                KernelKind::Conv { tile, .. } => {
+                    let (tw, th) = tile.pixels();
+                    [
+                        lw.div_ceil(tw),
+                        lh.div_ceil(th),
+                        cout.div_ceil(codegen::ConvTile::OC),
+                    ]
                 }
-                Layer::ConvTranspose(_) => {
+                KernelKind::ConvTranspose { .. } => {
                     let (t, oc) = codegen::CONV_TRANSPOSE_TILE;
                     [lw.div_ceil(t), lh.div_ceil(t), cout.div_ceil(oc)]
                 }
@@ -199,7 +235,7 @@ impl GpuBackend {
             }
             dispatches.push(Dispatch {
                 layer: li,
-                pipeline,
+                pipeline: self.pipelines[&key].clone(),
                 bind_group,
                 workgroups,
             });

@@ -54,7 +54,7 @@ impl GpuBackend {
                     end_of_pass_write_index: Some((2 * i + 1) as u32),
                 }),
             });
-            pass.set_pipeline(&self.pipelines[d.pipeline]);
+            pass.set_pipeline(&d.pipeline);
             pass.set_bind_group(0, &d.bind_group, &[]);
             let [x, y, z] = d.workgroups;
             pass.dispatch_workgroups(x, y, z);

@@ -243,7 +243,7 @@ impl GpuBackend {
             .chain(
                 plan.dispatches
                     .iter()
-                    .map(|d| (&self.pipelines[d.pipeline], &d.bind_group, d.workgroups)),
+                    .map(|d| (&d.pipeline, &d.bind_group, d.workgroups)),
             )
             .chain(std::iter::once((
                 &self.window.pipeline,
