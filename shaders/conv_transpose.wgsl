@@ -1,19 +1,22 @@
 // 2×2 transposed convolution with stride 2 (the U-Net's upsampling), bias
 // and ReLU fused. A template filled by runtime/infer/src/gpu/codegen.rs.
 // Each thread reads one input pixel per input channel and writes its 2×2
-// output block for OC channels (4·OC accumulators in registers); the
-// CI×OC×4 weights of a channel chunk are staged in workgroup memory and
-// shared by the workgroup's 16×16 input pixels.
+// output block for OC channels (OC vec4 accumulators, one per channel, its
+// four taps); the CI×OC×4 weights of a channel chunk are staged in
+// workgroup memory as one vec4 per input and output channel (one load on
+// lavapipe, see conv.wgsl) and shared by the workgroup's 16×16 input
+// pixels. The per-channel code is unrolled by codegen into named
+// accumulators.
 {{ENABLE_F16}}
 
 {{LAYER_BINDINGS}}
 
-const OC: u32 = 8u;
+const OC: u32 = {{OC}}u;
 const CI: u32 = 16u;
 const THREADS: u32 = 256u;
 const RELU: bool = {{RELU}};
 
-var<workgroup> wtile: array<f32, CI * OC * 4u>;
+var<workgroup> wtile: array<vec4<f32>, CI * OC>;
 
 @compute @workgroup_size(16, 16, 1)
 fn main(
@@ -26,15 +29,16 @@ fn main(
     let oc0 = wg.z * OC;
     let inside = x < p.width && y < p.height;
     let plane = p.width * p.height;
-    var acc: array<f32, 32>; // OC × 4 taps
+{{ACC_DECL}}
 
     for (var c0 = 0u; c0 < p.cin; c0 += CI) {
-        for (var i = li; i < CI * OC * 4u; i += THREADS) {
-            let ci = i / (OC * 4u);
-            let o = (i / 4u) % OC;
-            var v = 0.0;
+        for (var i = li; i < CI * OC; i += THREADS) {
+            let ci = i / OC;
+            let o = i % OC;
+            var v = vec4<f32>(0.0);
             if (c0 + ci < p.cin && oc0 + o < p.cout) {
-                v = f32(weights[p.w_offset + ((c0 + ci) * p.cout + oc0 + o) * 4u + i % 4u]);
+                let at = p.w_offset + ((c0 + ci) * p.cout + oc0 + o) * 4u;
+                v = vec4<f32>(f32(weights[at]), f32(weights[at + 1u]), f32(weights[at + 2u]), f32(weights[at + 3u]));
             }
             wtile[i] = v;
         }
@@ -44,10 +48,9 @@ fn main(
                 if (c0 + ci >= p.cin) {
                     break;
                 }
-                let v = f32(src[p.in_offset + (c0 + ci) * plane + y * p.width + x]);
-                for (var j = 0u; j < OC * 4u; j++) {
-                    acc[j] = fma(v, wtile[ci * OC * 4u + j], acc[j]);
-                }
+                let v = vec4<f32>(f32(src[p.in_offset + (c0 + ci) * plane + y * p.width + x]));
+                let wbase = ci * OC;
+{{TAPS}}
             }
         }
         workgroupBarrier();
@@ -56,21 +59,22 @@ fn main(
     if (!inside) {
         return;
     }
-    let ow = 2u * p.width;
-    let oplane = 4u * plane;
-    for (var o = 0u; o < OC; o++) {
-        let oc = oc0 + o;
-        if (oc >= p.cout) {
-            break;
-        }
-        let bias = f32(weights[p.b_offset + oc]);
-        for (var t = 0u; t < 4u; t++) {
-            var v = acc[o * 4u + t] + bias;
-            if (RELU) {
-                v = max(v, 0.0);
-            }
-            let at = oc * oplane + (2u * y + t / 2u) * ow + 2u * x + t % 2u;
-            dst[p.out_offset + at] = {{DST_T}}(v);
-        }
+{{STORES}}
+}
+
+// The epilogue of one output channel's 2×2 block: bias, ReLU, store.
+fn emit(x: u32, y: u32, oc: u32, taps: vec4<f32>) {
+    if (oc >= p.cout) {
+        return;
     }
+    let ow = 2u * p.width;
+    let base = p.out_offset + oc * 4u * p.width * p.height + 2u * y * ow + 2u * x;
+    var v = taps + vec4<f32>(f32(weights[p.b_offset + oc]));
+    if (RELU) {
+        v = max(v, vec4<f32>(0.0));
+    }
+    dst[base] = {{DST_T}}(v.x);
+    dst[base + 1u] = {{DST_T}}(v.y);
+    dst[base + ow] = {{DST_T}}(v.z);
+    dst[base + ow + 1u] = {{DST_T}}(v.w);
 }

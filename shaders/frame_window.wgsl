@@ -23,7 +23,8 @@ struct Window {
     reflect: u32,
 }
 
-@group(0) @binding(0) var<uniform> window: Window;
+// In a storage buffer, not a uniform one: see layer_bindings.wgsl.
+@group(0) @binding(0) var<storage, read> window: Window;
 @group(0) @binding(1) var<storage, read> src: array<f32>;
 @group(0) @binding(2) var<storage, read_write> dst: array<f32>;
 

@@ -1,6 +1,11 @@
-// The uniform block and bindings every layer kernel shares, pasted into
+// The parameter block and bindings every layer kernel shares, pasted into
 // each kernel where it says LAYER_BINDINGS, by
 // runtime/infer/src/gpu/codegen.rs.
+// The parameters sit in a read-only storage buffer, not a uniform one:
+// lavapipe (Mesa 22.3) specialises a shader on the values of the uniforms
+// its loops and branches read, and re-specialises it whenever they change,
+// which they do at every layer. That cost 4–5 ms per conv dispatch on this
+// machine, more than the convolution itself at 64² (docs/benchmarks.md).
 // Mirrors `Params` in runtime/infer/src/gpu/params.rs (a test checks
 // sizes and offsets). Sizes are of the layer's input; offsets are in
 // elements of the bound buffer's type, so one buffer can hold several
@@ -20,7 +25,7 @@ struct Params {
     _pad2: u32,
 }
 
-@group(0) @binding(0) var<uniform> p: Params;
+@group(0) @binding(0) var<storage, read> p: Params;
 @group(0) @binding(1) var<storage, read> src: array<{{SRC_T}}>;
 @group(0) @binding(2) var<storage, read> weights: array<{{W_T}}>;
 @group(0) @binding(3) var<storage, read_write> dst: array<{{DST_T}}>;

@@ -101,7 +101,7 @@ const MAX_POOL: &str = include_str!("../../../../shaders/max_pool.wgsl");
 const LAYER_BINDINGS: &str = include_str!("../../../../shaders/layer_bindings.wgsl");
 
 /// ConvTranspose input pixels per workgroup side and output channels.
-pub const CONV_TRANSPOSE_TILE: (u32, u32) = (16, 8);
+pub const CONV_TRANSPOSE_TILE: (u32, u32) = (16, CONV_TRANSPOSE_OC);
 /// Max-pool workgroup side.
 pub const POOL_TILE: u32 = 16;
 
@@ -156,6 +156,30 @@ fn conv_stores(tile: ConvTile) -> String {
     s
 }
 
+/// Output channels per thread of the transposed conv, as in its template.
+const CONV_TRANSPOSE_OC: u32 = 8;
+
+/// The transposed conv's accumulators: `a{o}`, the 2×2 taps of channel o.
+fn conv_transpose_accumulators() -> String {
+    (0..CONV_TRANSPOSE_OC)
+        .map(|o| format!("    var a{o} = vec4<f32>(0.0);\n"))
+        .collect()
+}
+
+/// One input channel's multiply-adds into every accumulator, unrolled.
+fn conv_transpose_taps() -> String {
+    (0..CONV_TRANSPOSE_OC)
+        .map(|o| format!("                a{o} = fma(v, wtile[wbase + {o}u], a{o});\n"))
+        .collect()
+}
+
+/// The transposed conv's stores, one 2×2 block per channel.
+fn conv_transpose_stores() -> String {
+    (0..CONV_TRANSPOSE_OC)
+        .map(|o| format!("    emit(x, y, oc0 + {o}u, a{o});\n"))
+        .collect()
+}
+
 impl KernelKey {
     pub fn uses_f16(&self) -> bool {
         [self.src, self.dst, self.residual, self.weights].contains(&Dtype::F16)
@@ -186,9 +210,16 @@ impl KernelKey {
                     ("CLAMP", clamp.to_string()),
                 ],
             ),
-            KernelKind::ConvTranspose { relu } => {
-                (CONV_TRANSPOSE, vec![("RELU", relu.to_string())])
-            }
+            KernelKind::ConvTranspose { relu } => (
+                CONV_TRANSPOSE,
+                vec![
+                    ("RELU", relu.to_string()),
+                    ("OC", CONV_TRANSPOSE_OC.to_string()),
+                    ("ACC_DECL", conv_transpose_accumulators()),
+                    ("TAPS", conv_transpose_taps()),
+                    ("STORES", conv_transpose_stores()),
+                ],
+            ),
             KernelKind::MaxPool => (MAX_POOL, vec![]),
         };
         let enable = if self.uses_f16() { "enable f16;" } else { "" };

@@ -1,4 +1,4 @@
-//! The uniform block every kernel reads, mirrored byte for byte by the
+//! The parameter block every kernel reads (a read-only storage buffer), mirrored byte for byte by the
 //! `Params` struct in each `shaders/*.wgsl` (checked by the test below).
 
 use bytemuck::{Pod, Zeroable};

@@ -1,6 +1,6 @@
 //! Everything that depends on the frame size, built once per size: one
 //! buffer per activation (a concat's inputs live inside its buffer at their
-//! channel offsets), one uniform block and bind group per layer, the
+//! channel offsets), one parameter block and bind group per layer, the
 //! dispatch sizes, and the read-back buffer. Per frame nothing is created.
 
 use wgpu::util::DeviceExt;
@@ -174,12 +174,12 @@ impl GpuBackend {
                 b_offset: b_off as u32,
                 _pad: [0; 3],
             };
-            let uniform = self
+            let params_buffer = self
                 .device
                 .create_buffer_init(&wgpu::util::BufferInitDescriptor {
                     label: Some("dcnn layer params"),
                     contents: bytemuck::bytes_of(&params),
-                    usage: wgpu::BufferUsages::UNIFORM,
+                    usage: wgpu::BufferUsages::STORAGE,
                 });
             let buf = |p: Place| buffers[p.buffer].as_entire_binding();
             let bind_group = self.device.create_bind_group(&wgpu::BindGroupDescriptor {
@@ -188,7 +188,7 @@ impl GpuBackend {
                 entries: &[
                     wgpu::BindGroupEntry {
                         binding: 0,
-                        resource: uniform.as_entire_binding(),
+                        resource: params_buffer.as_entire_binding(),
                     },
                     wgpu::BindGroupEntry {
                         binding: 1,

@@ -16,7 +16,7 @@ const SHADER: &str = include_str!("../../../../shaders/frame_window.wgsl");
 /// `frame_window.wgsl`'s workgroup: 16 × 16 pixels of one channel.
 const TILE: u32 = 16;
 
-/// The uniform block of `frame_window.wgsl` (`Window`).
+/// The parameter block of `frame_window.wgsl` (`Window`).
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, bytemuck::Pod, bytemuck::Zeroable)]
 pub(super) struct WindowParams {
@@ -57,14 +57,8 @@ impl WindowKernel {
         let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
             label: Some("frame_window"),
             entries: &[
-                entry(
-                    0,
-                    wgpu::BindingType::Buffer {
-                        ty: wgpu::BufferBindingType::Uniform,
-                        has_dynamic_offset: false,
-                        min_binding_size: None,
-                    },
-                ),
+                // A storage buffer, not a uniform one: see layer_bindings.wgsl.
+                entry(0, storage(true)),
                 entry(1, storage(true)),
                 entry(2, storage(false)),
             ],
@@ -101,7 +95,7 @@ impl WindowKernel {
         let uniform = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
             label: Some("frame_window params"),
             contents: bytemuck::bytes_of(&params),
-            usage: wgpu::BufferUsages::UNIFORM,
+            usage: wgpu::BufferUsages::STORAGE,
         });
         let bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("frame_window"),
