@@ -6,12 +6,12 @@
 // Tiling (chosen per layer by `ConvTile::for_layer`): a workgroup of TX×TY
 // threads computes a (TX·PX)×TY-pixel tile for OC output channels; each
 // thread holds PX adjacent pixels × OC channels in registers. Input channels
-// are taken CI at a time: the input tile with its K−1 halo and the
-// OC×CI×K×K weights are staged in workgroup memory, so each input value read
-// from memory serves PX·OC·K² multiply-adds across the tile. The weights are
-// staged as vec4s of four output channels: on lavapipe every workgroup-memory
-// load is a loop over the SIMD lanes, so one vec4 load costs about what one
-// scalar load does (measured: the 3×3 layers ran 1.9× faster for it).
+// are taken CI at a time (as many as fit 16 KiB): the input tile with its
+// K−1 halo and the OC×CI×K×K weights are staged in workgroup memory, so each
+// input value read from memory serves PX·OC·K² multiply-adds across the
+// tile. The weights are staged as vec4s of four output channels: on
+// lavapipe every workgroup-memory load is a loop over the SIMD lanes, so one
+// vec4 load costs about what one scalar load does (docs/benchmarks.md).
 // Tensors are NCHW planes addressed by element offsets (concat by layout).
 {{ENABLE_F16}}
 
@@ -20,7 +20,7 @@
 const K: u32 = {{K}}u;
 const R: u32 = K / 2u;
 const OC: u32 = {{OC}}u;
-const CI: u32 = 4u;
+const CI: u32 = {{CI}}u;
 const PX: u32 = {{PX}}u;
 const THREADS_X: u32 = {{TX}}u;
 const THREADS_Y: u32 = {{TY}}u;

@@ -42,7 +42,7 @@ impl ConvTile {
     /// workgroup leaves lanes empty; GPUs are indifferent to the shape.
     pub const THREADS_X: u32 = 8;
     /// Output channels per thread (in vec4s of weights: a multiple of 4).
-    pub const OC: u32 = 8;
+    pub const OC: u32 = 16;
     /// The tile for layers at least 32 pixels wide and 16 tall.
     pub const LARGE: ConvTile = ConvTile {
         px: 4,
@@ -50,7 +50,9 @@ impl ConvTile {
     };
 
     /// The largest tile that a `width`×`height` layer fills: 4, 2 or 1
-    /// pixels per thread (tile 32, 16 or 8 wide) and up to 16 rows.
+    /// pixels per thread (tile 32, 16 or 8 wide) and up to 16 rows. Of 4–32
+    /// channels × 4–8 pixels per thread, 16 × 4 and 16 × 8 ran fastest on
+    /// lavapipe; 8 pixels took LLVM 18 s to compile, so 4 (docs/benchmarks.md).
     pub fn for_layer(width: u32, height: u32) -> Self {
         let px = [4, 2, 1]
             .into_iter()
@@ -58,6 +60,25 @@ impl ConvTile {
             .unwrap_or(1);
         let threads_y = height.max(1).next_power_of_two().min(Self::LARGE.threads_y);
         ConvTile { px, threads_y }
+    }
+
+    /// Input channels staged per step for a `kernel`×`kernel` conv: the
+    /// most of 4, 2, 1 whose input tile and weights fit WebGPU's default
+    /// 16 KiB of workgroup memory, which every adapter offers.
+    pub fn input_channels(&self, kernel: usize) -> u32 {
+        [4, 2, 1]
+            .into_iter()
+            .find(|&ci| self.workgroup_bytes(kernel, ci) <= 16384)
+            .unwrap_or(1)
+    }
+
+    /// Workgroup memory of the template for `ci` staged input channels.
+    fn workgroup_bytes(&self, kernel: usize, ci: u32) -> u32 {
+        let k = kernel as u32;
+        let (w, h) = self.pixels();
+        let input = ci * (h + k - 1) * (w + k - 1);
+        let weights = ci * k * k * Self::OC;
+        4 * (input + weights)
     }
 
     /// Output pixels a workgroup covers, (width, height).
@@ -199,6 +220,7 @@ impl KernelKey {
                 vec![
                     ("K", kernel.to_string()),
                     ("PX", tile.px.to_string()),
+                    ("CI", tile.input_channels(kernel).to_string()),
                     ("ACC_DECL", conv_accumulators(tile)),
                     ("TAPS", conv_taps(kernel, tile)),
                     ("STORES", conv_stores(tile)),
@@ -298,6 +320,22 @@ mod tests {
         assert_eq!(tile(9, 3), (8, 4));
         assert_eq!(tile(4, 1), (8, 1));
         assert_eq!(tile(1, 0), (8, 1));
+    }
+
+    #[test]
+    fn every_tile_fits_the_default_workgroup_memory() {
+        for kernel in 1..=MAX_CONV_KERNEL {
+            for w in [1, 8, 16, 32, 64] {
+                let tile = ConvTile::for_layer(w, 16);
+                let ci = tile.input_channels(kernel);
+                assert!(
+                    tile.workgroup_bytes(kernel, ci) <= 16384,
+                    "{tile:?} {kernel}"
+                );
+            }
+        }
+        assert_eq!(ConvTile::LARGE.input_channels(3), 4);
+        assert_eq!(ConvTile::LARGE.input_channels(5), 2);
     }
 
     #[test]
