@@ -54,8 +54,8 @@ fn info(channels: usize, level: u32) -> ValueInfo {
 }
 
 /// Hand-built conv networks that exercise the tile edges: frames that are
-/// not multiples of the 32×16 conv tile, 3×3 and 5×5 kernels, fused
-/// epilogues.
+/// not multiples of their conv tile (37×21 and 32×16 run 32×16 tiles, 6×50
+/// 8×16 ones), 3×3 and 5×5 kernels, fused epilogues.
 fn kernel_networks() -> Vec<(&'static str, Network)> {
     let mut rng = SplitMix::new(42);
     let mut residual3 = conv(&mut rng, 0, 1, 3, 3, 3);
