@@ -24,7 +24,7 @@ if ! command -v xdotool >/dev/null 2>&1; then
     exit 0
 fi
 if [ -z "${DISPLAY:-}" ]; then
-    Xvfb :93 -screen 0 1920x1080x24 -nolisten tcp >/dev/null 2>&1 &
+    Xvfb :93 -screen 0 1920x1080x24 -nolisten tcp -noreset >/dev/null 2>&1 &
     xvfb=$!
     trap 'kill $xvfb 2>/dev/null || true; rm -rf "$out"' EXIT
     export DISPLAY=:93

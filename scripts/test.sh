@@ -41,11 +41,14 @@ fi
 export XDG_RUNTIME_DIR="${XDG_RUNTIME_DIR:-/tmp}"
 
 # The window test needs an X display: without one, start a private Xvfb
-# (if installed) for the duration of the tests.
+# (if installed) for the duration of the tests. -noreset: by default Xvfb
+# resets when its last client leaves, and a client connecting meanwhile
+# (the next test's window) is refused ("Failed to open connection to X
+# server": the window test's flake, seen twice).
 if [ -z "${DISPLAY:-}" ] && command -v Xvfb >/dev/null 2>&1; then
     for n in $(seq 90 120); do
         if [ ! -e "/tmp/.X11-unix/X$n" ] && [ ! -e "/tmp/.X$n-lock" ]; then
-            Xvfb ":$n" -screen 0 1024x768x24 -nolisten tcp >/dev/null 2>&1 &
+            Xvfb ":$n" -screen 0 1024x768x24 -nolisten tcp -noreset >/dev/null 2>&1 &
             xvfb_pid=$!
             trap 'kill $xvfb_pid 2>/dev/null || true' EXIT
             export DISPLAY=":$n"

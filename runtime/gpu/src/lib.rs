@@ -136,3 +136,121 @@ pub fn wait_for(device: &wgpu::Device, submission: wgpu::SubmissionIndex) -> Res
         .map(|_| ())
         .map_err(|e| format!("waiting for the GPU: {e}"))
 }
+
+/// Timestamp query pairs (start, end) and the buffers that bring them back:
+/// one pair per timed span. Where the device has no `TIMESTAMP_QUERY`,
+/// [`PassTimer::new`] gives `None`.
+#[derive(Debug)]
+pub struct PassTimer {
+    queries: wgpu::QuerySet,
+    resolve: wgpu::Buffer,
+    readback: wgpu::Buffer,
+    pairs: usize,
+    period_ns: f64,
+}
+
+impl PassTimer {
+    /// Bytes one pair brings back to the host.
+    pub const BYTES_PER_PAIR: u64 = 16;
+
+    /// `pairs` start/end pairs, where the device has timestamp queries.
+    pub fn new(device: &wgpu::Device, queue: &wgpu::Queue, pairs: usize) -> Option<Self> {
+        if pairs == 0 || !device.features().contains(wgpu::Features::TIMESTAMP_QUERY) {
+            return None;
+        }
+        let buffer = |label, usage| {
+            device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some(label),
+                size: pairs as u64 * Self::BYTES_PER_PAIR,
+                usage,
+                mapped_at_creation: false,
+            })
+        };
+        Some(Self {
+            queries: device.create_query_set(&wgpu::QuerySetDescriptor {
+                label: Some("timestamps"),
+                ty: wgpu::QueryType::Timestamp,
+                count: (2 * pairs) as u32,
+            }),
+            resolve: buffer(
+                "timestamps",
+                wgpu::BufferUsages::QUERY_RESOLVE | wgpu::BufferUsages::COPY_SRC,
+            ),
+            readback: buffer(
+                "timestamps readback",
+                wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+            ),
+            pairs,
+            period_ns: queue.get_timestamp_period() as f64,
+        })
+    }
+
+    /// A pass timed as pair `pair` from its start to its end.
+    pub fn pass(&self, pair: usize) -> wgpu::ComputePassTimestampWrites<'_> {
+        self.writes(Some(2 * pair), Some(2 * pair + 1))
+    }
+
+    /// A pass whose start begins pair `pair` (its end is another pass's).
+    pub fn start(&self, pair: usize) -> wgpu::ComputePassTimestampWrites<'_> {
+        self.writes(Some(2 * pair), None)
+    }
+
+    /// A pass whose end ends pair `pair`.
+    pub fn end(&self, pair: usize) -> wgpu::ComputePassTimestampWrites<'_> {
+        self.writes(None, Some(2 * pair + 1))
+    }
+
+    fn writes(
+        &self,
+        start: Option<usize>,
+        end: Option<usize>,
+    ) -> wgpu::ComputePassTimestampWrites<'_> {
+        assert!(
+            start.max(end) < Some(2 * self.pairs),
+            "no such timestamp pair"
+        );
+        wgpu::ComputePassTimestampWrites {
+            query_set: &self.queries,
+            beginning_of_pass_write_index: start.map(|i| i as u32),
+            end_of_pass_write_index: end.map(|i| i as u32),
+        }
+    }
+
+    /// Records the copy of every pair towards the host, after the timed
+    /// passes, and returns the bytes it brings back.
+    pub fn resolve(&self, encoder: &mut wgpu::CommandEncoder) -> u64 {
+        encoder.resolve_query_set(&self.queries, 0..(2 * self.pairs) as u32, &self.resolve, 0);
+        let bytes = self.pairs as u64 * Self::BYTES_PER_PAIR;
+        encoder.copy_buffer_to_buffer(&self.resolve, 0, &self.readback, 0, bytes);
+        bytes
+    }
+
+    /// Asks for the pairs' mapping after the submission that resolved them:
+    /// the next wait for the device completes it (no wait of its own).
+    pub fn map(&self) {
+        self.readback
+            .slice(..)
+            .map_async(wgpu::MapMode::Read, |_| {});
+    }
+
+    /// Maps the pairs and waits for the device.
+    pub fn map_and_wait(&self, device: &wgpu::Device) -> Result<(), String> {
+        map_and_wait(device, &self.readback)
+    }
+
+    /// After [`PassTimer::map`] and a wait: each pair's span, ns (0 where
+    /// the device's clock ran backwards); `None` if the mapping failed.
+    pub fn spans_ns(&self) -> Option<Vec<u64>> {
+        let stamps: Vec<u64> = {
+            let view = self.readback.slice(..).get_mapped_range().ok()?;
+            bytemuck::pod_collect_to_vec(&view[..self.pairs * Self::BYTES_PER_PAIR as usize])
+        };
+        self.readback.unmap();
+        Some(
+            stamps
+                .chunks_exact(2)
+                .map(|p| (p[1].saturating_sub(p[0]) as f64 * self.period_ns) as u64)
+                .collect(),
+        )
+    }
+}

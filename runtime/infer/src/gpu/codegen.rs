@@ -1,7 +1,7 @@
 //! WGSL generation: the kernel templates in `shaders/` filled in for one
-//! layer's variant (kernel size, fused epilogue, element types). Each
-//! distinct variant becomes one pipeline, built once when the network is
-//! prepared.
+//! layer's variant (kernel size, conv tile, fused epilogue, element types,
+//! and the unrolled multiply-adds). Each distinct variant becomes one
+//! pipeline, built when a frame size first needs it and kept.
 
 /// Element type of a storage buffer.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -49,8 +49,10 @@ impl ConvTile {
         threads_y: 16,
     };
 
-    /// The largest tile that a `width`×`height` layer fills: 4, 2 or 1
-    /// pixels per thread (tile 32, 16 or 8 wide) and up to 16 rows. Of 4–32
+    /// The tile for a `width`×`height` layer: the most pixels per thread
+    /// (4, 2 or 1: a tile 32, 16 or 8 wide) whose tile row the layer fills,
+    /// and as many rows as the smallest power of two at least `height`, at
+    /// most 16. Of 4–32
     /// channels × 4–8 pixels per thread, 16 × 4 and 16 × 8 ran fastest on
     /// lavapipe; 8 pixels took LLVM 18 s to compile, so 4 (docs/benchmarks.md).
     pub fn for_layer(width: u32, height: u32) -> Self {

@@ -1,9 +1,11 @@
 //! The `wgpu` backend: the lowered network run as generated WGSL compute
 //! kernels (tiled conv with fused epilogue, 2×2 max pool, 2×2 transposed
 //! conv; concatenation costs nothing, producers write into channel ranges
-//! of the concat's buffer). Pipelines and the weight buffer are built once
-//! per network; buffers and bind groups once per frame size; a frame only
-//! uploads, records the dispatches and reads back.
+//! of the concat's buffer). The weight buffer is built once per network;
+//! each kernel variant's pipeline (the conv's tile depends on the layer's
+//! size) when a frame size first needs it, then kept; buffers and bind
+//! groups once per frame size; a frame only uploads, records the
+//! dispatches and reads back.
 //!
 //! A frame whose largest activation does not fit one storage binding of
 //! the adapter (lavapipe and wgpu's defaults bind 128 MiB; the shipped
@@ -26,7 +28,7 @@ pub use resident::DeviceDcnn;
 use std::collections::HashMap;
 
 use codegen::{Dtype, KernelKey, KernelKind};
-use nedrt_gpu::map_and_wait;
+use nedrt_gpu::{PassTimer, map_and_wait};
 use plan::SizedPlan;
 use wgpu::util::DeviceExt;
 
@@ -95,7 +97,7 @@ pub struct GpuBackend {
     dummy: wgpu::Buffer,
     plan: Option<SizedPlan>,
     /// Start/end timestamps of the network's pass, where the device has them.
-    timer: Option<GpuTimer>,
+    timer: Option<PassTimer>,
     last_gpu_ns: Option<u64>,
     /// What the last frame moved between host and device (every band).
     last_traffic: HostTraffic,
@@ -112,53 +114,6 @@ pub struct GpuBackend {
     resident: Option<resident::ResidentPlan>,
 }
 
-/// Timestamp query pairs (start, end) and the buffers that bring them back.
-#[derive(Debug)]
-struct GpuTimer {
-    queries: wgpu::QuerySet,
-    resolve: wgpu::Buffer,
-    readback: wgpu::Buffer,
-    period_ns: f64,
-}
-
-impl GpuTimer {
-    /// One pair: the network's pass.
-    fn new(device: &wgpu::Device, queue: &wgpu::Queue) -> Option<Self> {
-        Self::with_pairs(device, queue, 1)
-    }
-
-    /// `pairs` start/end pairs, where the device has timestamp queries.
-    fn with_pairs(device: &wgpu::Device, queue: &wgpu::Queue, pairs: usize) -> Option<Self> {
-        if !device.features().contains(wgpu::Features::TIMESTAMP_QUERY) {
-            return None;
-        }
-        let buffer = |label, usage| {
-            device.create_buffer(&wgpu::BufferDescriptor {
-                label: Some(label),
-                size: (16 * pairs) as u64,
-                usage,
-                mapped_at_creation: false,
-            })
-        };
-        Some(Self {
-            queries: device.create_query_set(&wgpu::QuerySetDescriptor {
-                label: Some("dcnn timestamps"),
-                ty: wgpu::QueryType::Timestamp,
-                count: (2 * pairs) as u32,
-            }),
-            resolve: buffer(
-                "dcnn timestamps",
-                wgpu::BufferUsages::QUERY_RESOLVE | wgpu::BufferUsages::COPY_SRC,
-            ),
-            readback: buffer(
-                "dcnn timestamps readback",
-                wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
-            ),
-            period_ns: queue.get_timestamp_period() as f64,
-        })
-    }
-}
-
 impl GpuBackend {
     /// Opens the default adapter and prepares `network` on it.
     pub fn new_default(
@@ -171,7 +126,8 @@ impl GpuBackend {
         Self::new(&device, &queue, name, network, options.precision)
     }
 
-    /// Prepares `network` on a given device: pipelines and weights.
+    /// Prepares `network` on a given device: its kernels' keys and weights
+    /// (the pipelines are built by the first frame size that needs them).
     pub fn new(
         device: &wgpu::Device,
         queue: &wgpu::Queue,
@@ -252,7 +208,6 @@ impl GpuBackend {
             immediate_size: 0,
         });
 
-        let mut pipelines = HashMap::new();
         let mut layer_keys = Vec::new();
         let mut weights: Vec<f32> = Vec::new();
         let mut weight_offsets = Vec::new();
@@ -305,9 +260,6 @@ impl GpuBackend {
                 residual: residual.map_or(Dtype::F32, |r| dtype(root(r))),
                 weights: t,
             };
-            pipelines
-                .entry(key)
-                .or_insert_with(|| build_pipeline(device, &pipeline_layout, &key));
             layer_keys.push(Some(key));
         }
         if weights.len() > u32::MAX as usize {
@@ -344,14 +296,14 @@ impl GpuBackend {
             precision,
             layout,
             pipeline_layout,
-            pipelines,
+            pipelines: HashMap::new(),
             layer_keys,
             weights,
             weight_offsets,
             alias,
             dummy,
             plan: None,
-            timer: GpuTimer::new(device, queue),
+            timer: PassTimer::new(device, queue, 1),
             last_gpu_ns: None,
             last_traffic: HostTraffic::default(),
             binding_cap: limits
@@ -541,14 +493,7 @@ impl GpuBackend {
         {
             let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
                 label: Some("dcnn"),
-                timestamp_writes: self
-                    .timer
-                    .as_ref()
-                    .map(|t| wgpu::ComputePassTimestampWrites {
-                        query_set: &t.queries,
-                        beginning_of_pass_write_index: Some(0),
-                        end_of_pass_write_index: Some(1),
-                    }),
+                timestamp_writes: self.timer.as_ref().map(|t| t.pass(0)),
             });
             for d in &plan.dispatches {
                 pass.set_pipeline(&d.pipeline);
@@ -564,15 +509,12 @@ impl GpuBackend {
             0,
             (plan.output_elems * 4) as u64,
         );
-        if let Some(t) = &self.timer {
-            encoder.resolve_query_set(&t.queries, 0..2, &t.resolve, 0);
-            encoder.copy_buffer_to_buffer(&t.resolve, 0, &t.readback, 0, 16);
-        }
+        let timer_bytes = self.timer.as_ref().map_or(0, |t| t.resolve(&mut encoder));
         self.queue.submit([encoder.finish()]);
         if let Some(t) = &self.timer {
             // Mapped by the same wait as the image: bytes, not another wait.
-            t.readback.slice(..).map_async(wgpu::MapMode::Read, |_| {});
-            traffic.to_host_bytes += 16;
+            t.map();
+            traffic.to_host_bytes += timer_bytes;
         }
         map_and_wait(&self.device, &plan.readback).map_err(err)?;
         let out = {
@@ -584,13 +526,11 @@ impl GpuBackend {
             bytemuck::cast_slice::<u8, f32>(&view[..plan.output_elems * 4]).to_vec()
         };
         plan.readback.unmap();
-        let gpu_ns = self.timer.as_ref().and_then(|t| {
-            let view = t.readback.slice(..).get_mapped_range().ok()?;
-            let [start, end]: [u64; 2] = bytemuck::pod_read_unaligned(&view[..16]);
-            drop(view);
-            t.readback.unmap();
-            Some((end.saturating_sub(start) as f64 * t.period_ns) as u64)
-        });
+        let gpu_ns = self
+            .timer
+            .as_ref()
+            .and_then(|t| t.spans_ns())
+            .and_then(|spans| spans.first().copied());
         if let Some(e) = pollster::block_on(scope.pop()) {
             return Err(err(format!("running: {e}")));
         }

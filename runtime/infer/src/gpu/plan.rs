@@ -3,6 +3,8 @@
 //! channel offsets), one parameter block and bind group per layer, the
 //! dispatch sizes, and the read-back buffer. Per frame nothing is created.
 
+use std::collections::HashMap;
+
 use wgpu::util::DeviceExt;
 
 use super::codegen::{self, KernelKey, KernelKind};
@@ -73,14 +75,24 @@ impl GpuBackend {
         if !width.is_multiple_of(m) || !height.is_multiple_of(m) {
             return Err(err(format!("{width}×{height} is not a multiple of {m}")));
         }
-        let scope = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
+        // The kernels this size needs and has not built yet; kept only once
+        // they built cleanly, so a failed one is built (and fails) again.
         let keys = self.sized_keys(width, height);
+        let scope = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let mut fresh = HashMap::new();
         for key in keys.iter().flatten() {
-            if !self.pipelines.contains_key(key) {
+            if !self.pipelines.contains_key(key) && !fresh.contains_key(key) {
                 let pipeline = super::build_pipeline(&self.device, &self.pipeline_layout, key);
-                self.pipelines.insert(*key, pipeline);
+                fresh.insert(*key, pipeline);
             }
         }
+        if let Some(e) = pollster::block_on(scope.pop()) {
+            return Err(err(format!(
+                "building the kernels for {width}×{height}: {e}"
+            )));
+        }
+        self.pipelines.extend(fresh);
+        let scope = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
         let net = &self.network;
         let plane = |v: ValueId| (width >> net.values[v].level) * (height >> net.values[v].level);
         let limits = self.device.limits();

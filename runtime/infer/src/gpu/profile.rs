@@ -4,10 +4,10 @@
 //! pass boundary costs a little, so the layers sum to somewhat more than
 //! the one-pass frame; the frame's own time is `last_gpu_ns`.
 
-use super::{GpuBackend, GpuTimer, err};
+use super::{GpuBackend, err};
 use crate::network::Layer;
 use crate::{InferenceError, LayerTiming};
-use nedrt_gpu::map_and_wait;
+use nedrt_gpu::PassTimer;
 
 impl GpuBackend {
     /// The device time of each layer of the network on `frame` (sides a
@@ -28,7 +28,7 @@ impl GpuBackend {
             return Err(err("no plan"));
         };
         let n = plan.dispatches.len();
-        let Some(timer) = GpuTimer::with_pairs(&self.device, &self.queue, n) else {
+        let Some(timer) = PassTimer::new(&self.device, &self.queue, n) else {
             return Err(err(format!(
                 "{} has no timestamp queries: per-layer times need them",
                 self.adapter_name
@@ -48,30 +48,19 @@ impl GpuBackend {
         for (i, d) in plan.dispatches.iter().enumerate() {
             let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
                 label: Some("dcnn layer"),
-                timestamp_writes: Some(wgpu::ComputePassTimestampWrites {
-                    query_set: &timer.queries,
-                    beginning_of_pass_write_index: Some((2 * i) as u32),
-                    end_of_pass_write_index: Some((2 * i + 1) as u32),
-                }),
+                timestamp_writes: Some(timer.pass(i)),
             });
             pass.set_pipeline(&d.pipeline);
             pass.set_bind_group(0, &d.bind_group, &[]);
             let [x, y, z] = d.workgroups;
             pass.dispatch_workgroups(x, y, z);
         }
-        encoder.resolve_query_set(&timer.queries, 0..(2 * n) as u32, &timer.resolve, 0);
-        encoder.copy_buffer_to_buffer(&timer.resolve, 0, &timer.readback, 0, (16 * n) as u64);
+        timer.resolve(&mut encoder);
         self.queue.submit([encoder.finish()]);
-        map_and_wait(&self.device, &timer.readback).map_err(err)?;
-        let stamps: Vec<u64> = {
-            let view = timer
-                .readback
-                .slice(..)
-                .get_mapped_range()
-                .map_err(|e| err(format!("reading the timestamps: {e}")))?;
-            bytemuck::pod_collect_to_vec(&view[..16 * n])
-        };
-        timer.readback.unmap();
+        timer.map_and_wait(&self.device).map_err(err)?;
+        let spans = timer
+            .spans_ns()
+            .ok_or_else(|| err("reading the timestamps failed"))?;
         if let Some(e) = pollster::block_on(scope.pop()) {
             return Err(err(format!("timing the layers: {e}")));
         }
@@ -127,14 +116,13 @@ impl GpuBackend {
                 Layer::Concat { .. } => continue,
             };
             let l = net.values[out].level;
-            let ticks = stamps[2 * i + 1].saturating_sub(stamps[2 * i]);
             rows.push(LayerTiming {
                 layer: d.layer,
                 kind,
                 output: [net.values[out].channels, height >> l, width >> l],
                 macs,
                 bytes,
-                gpu_ns: (ticks as f64 * timer.period_ns) as u64,
+                gpu_ns: spans[i],
             });
         }
         Ok(rows)

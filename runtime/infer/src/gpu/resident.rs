@@ -92,7 +92,7 @@ impl WindowKernel {
         src: &wgpu::Buffer,
         dst: &wgpu::Buffer,
     ) -> WindowCopy {
-        let uniform = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+        let params_buffer = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
             label: Some("frame_window params"),
             contents: bytemuck::bytes_of(&params),
             usage: wgpu::BufferUsages::STORAGE,
@@ -103,7 +103,7 @@ impl WindowKernel {
             entries: &[
                 wgpu::BindGroupEntry {
                     binding: 0,
-                    resource: uniform.as_entire_binding(),
+                    resource: params_buffer.as_entire_binding(),
                 },
                 wgpu::BindGroupEntry {
                     binding: 1,

@@ -18,7 +18,7 @@ use crate::present::transfer::Transfer;
 use crate::present::{DeviceDisplayFrame, PresentError};
 use nedrt_core::Image;
 use nedrt_core::preprocess::HostTraffic;
-use nedrt_gpu::DeviceStage;
+use nedrt_gpu::{DeviceStage, PassTimer};
 use wgpu::util::DeviceExt;
 
 const UNPACK: &str = include_str!("../../../../shaders/frame_unpack.wgsl");
@@ -65,6 +65,11 @@ pub struct DeviceFrames {
     /// Codes buffers; one is reused once no frame holds it.
     codes: Vec<Arc<wgpu::Buffer>>,
     stage: Option<Box<dyn DeviceStage>>,
+    /// Timestamps before and after the stage's passes, where the device has
+    /// them and there is a stage: its 16 bytes come back with the fence the
+    /// frame waits on anyway, as the non-finite count does.
+    timer: Option<PassTimer>,
+    last_gpu_ns: Option<u64>,
 }
 
 impl DeviceFrames {
@@ -176,8 +181,18 @@ impl DeviceFrames {
             display,
             encoder,
             codes: Vec::new(),
+            timer: stage
+                .as_ref()
+                .and_then(|_| PassTimer::new(device, queue, 1)),
             stage,
+            last_gpu_ns: None,
         })
+    }
+
+    /// The device's own time for the stage's work on the last frame, ns,
+    /// where the device has timestamp queries (the report's `dcnn-gpu`).
+    pub fn last_gpu_ns(&self) -> Option<u64> {
+        self.last_gpu_ns
     }
 
     /// For reports.
@@ -293,10 +308,23 @@ impl DeviceFrames {
             }
         };
         let codes = self.free_codes();
+        // Passes with no work of their own carry the stage's timestamps.
+        let mark = |encoder: &mut wgpu::CommandEncoder, writes| {
+            encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some("stage timestamp"),
+                timestamp_writes: Some(writes),
+            });
+        };
         if let Some(stage) = &mut self.stage {
+            if let Some(t) = &self.timer {
+                mark(&mut encoder, t.start(0));
+            }
             stage
                 .record(&mut encoder, &self.frame, &self.display, w, h)
                 .map_err(|e| err(format!("{}: {e}", stage.describe())))?;
+            if let Some(t) = &self.timer {
+                mark(&mut encoder, t.end(0));
+            }
         }
         let display = if self.stage.is_some() {
             &self.display
@@ -304,11 +332,27 @@ impl DeviceFrames {
             &self.frame
         };
         self.encoder.record(&mut encoder, display, &codes)?;
+        let timer_bytes = match (&self.timer, &self.stage) {
+            (Some(t), Some(_)) => t.resolve(&mut encoder),
+            _ => 0,
+        };
         let submission = self.queue.submit([encoder.finish()]);
         self.encoder.map_non_finite();
+        if timer_bytes > 0 {
+            self.timer.as_ref().map(PassTimer::map);
+        }
         // The fence wait the stage does anyway (its time includes the
-        // device's work); it also brings the 4-byte non-finite count back.
+        // device's work); it also brings the 4-byte non-finite count and
+        // the timestamps back.
         nedrt_gpu::wait_for(&self.device, submission).map_err(err)?;
+        self.last_gpu_ns = if timer_bytes > 0 {
+            self.timer
+                .as_ref()
+                .and_then(PassTimer::spans_ns)
+                .and_then(|spans| spans.first().copied())
+        } else {
+            None
+        };
         let non_finite = self.encoder.non_finite_pixels()?;
         if non_finite > 0 {
             // As on the host path: an engine failure, not black pixels.
@@ -322,7 +366,7 @@ impl DeviceFrames {
             HostTraffic {
                 to_device_bytes: uploaded as u64,
                 uploads: 1,
-                to_host_bytes: 4,
+                to_host_bytes: 4 + timer_bytes,
                 read_backs: 0,
             },
         ))
@@ -493,6 +537,8 @@ mod tests {
                     with_stage.then(|| Box::new(Stretch::new(&device)) as _);
                 let mut frames =
                     DeviceFrames::new(&device, &queue, w, h, &transfer, stage).expect("frames");
+                let stamps = device.features().contains(wgpu::Features::TIMESTAMP_QUERY);
+                let timed = if with_stage && stamps { 16 } else { 0 };
                 let formats = [
                     PixelFormat::Rgba8Linear,
                     PixelFormat::Rgba8Srgb,
@@ -519,12 +565,15 @@ mod tests {
                             HostTraffic {
                                 to_device_bytes: up,
                                 uploads: 1,
-                                // The non-finite count, back with the fence.
-                                to_host_bytes: 4,
+                                // The non-finite count, and the stage's
+                                // timestamps where it has them, back with
+                                // the fence.
+                                to_host_bytes: 4 + timed,
                                 read_backs: 0
                             },
                             "{format:?}"
                         );
+                        assert_eq!(frames.last_gpu_ns().is_some(), timed > 0);
                         assert_eq!(
                             sink.present_device(&frame).expect("shown"),
                             Presented::Shown

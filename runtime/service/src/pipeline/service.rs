@@ -188,6 +188,9 @@ impl Engine {
         if let Engine::Device { frames, fallback } = self {
             match frames.run(id, &input) {
                 Ok((frame, traffic)) => {
+                    if let Some(ns) = frames.last_gpu_ns() {
+                        stats.record(Stage::DcnnGpu, ns);
+                    }
                     stats.dcnn_traffic.record(traffic);
                     return Some(Processed::Device(frame));
                 }
