@@ -95,6 +95,21 @@ pub fn map_and_wait(device: &wgpu::Device, buffer: &wgpu::Buffer) -> Result<(), 
         .map_err(|e| format!("reading back: {e}"))
 }
 
+/// What a buffer mapped for reading holds (after [`map_and_wait`], or a
+/// `map_async` and a wait), passed through `read`; then unmaps it, so the
+/// buffer can be mapped again. `Err` if it is not mapped.
+pub fn read_mapped<T>(buffer: &wgpu::Buffer, read: impl FnOnce(&[u8]) -> T) -> Result<T, String> {
+    let out = {
+        let view = buffer
+            .slice(..)
+            .get_mapped_range()
+            .map_err(|e| e.to_string())?;
+        read(&view)
+    };
+    buffer.unmap();
+    Ok(out)
+}
+
 /// The device for a test that needs one: no adapter is a failure (such
 /// tests are `#[ignore = "needs a GPU"]`, so they run only when asked for).
 pub fn test_device(shader_f16: bool) -> (wgpu::Device, wgpu::Queue) {
@@ -239,18 +254,14 @@ impl PassTimer {
     }
 
     /// After [`PassTimer::map`] and a wait: each pair's span, ns (0 where
-    /// the device's clock ran backwards); `None` if the mapping failed.
-    pub fn spans_ns(&self) -> Option<Vec<u64>> {
-        let stamps: Vec<u64> = {
-            let view = self.readback.slice(..).get_mapped_range().ok()?;
-            bytemuck::pod_collect_to_vec(&view[..self.pairs * Self::BYTES_PER_PAIR as usize])
-        };
-        self.readback.unmap();
-        Some(
-            stamps
-                .chunks_exact(2)
-                .map(|p| (p[1].saturating_sub(p[0]) as f64 * self.period_ns) as u64)
-                .collect(),
-        )
+    /// the device's clock ran backwards); `Err` if they are not mapped.
+    pub fn spans_ns(&self) -> Result<Vec<u64>, String> {
+        let stamps: Vec<u64> = read_mapped(&self.readback, |bytes| {
+            bytemuck::pod_collect_to_vec(&bytes[..self.pairs * Self::BYTES_PER_PAIR as usize])
+        })?;
+        Ok(stamps
+            .chunks_exact(2)
+            .map(|p| (p[1].saturating_sub(p[0]) as f64 * self.period_ns) as u64)
+            .collect())
     }
 }

@@ -52,9 +52,9 @@ impl ConvTile {
     /// The tile for a `width`×`height` layer: the most pixels per thread
     /// (4, 2 or 1: a tile 32, 16 or 8 wide) whose tile row the layer fills,
     /// and as many rows as the smallest power of two at least `height`, at
-    /// most 16. Of 4–32
-    /// channels × 4–8 pixels per thread, 16 × 4 and 16 × 8 ran fastest on
-    /// lavapipe; 8 pixels took LLVM 18 s to compile, so 4 (docs/benchmarks.md).
+    /// most 16. Of 4–32 channels × 4–8 pixels per thread, 16 × 4 and 16 × 8
+    /// ran fastest on lavapipe; 8 pixels took LLVM 18 s to compile, so 4
+    /// (docs/benchmarks.md).
     pub fn for_layer(width: u32, height: u32) -> Self {
         let px = [4, 2, 1]
             .into_iter()

@@ -28,7 +28,7 @@ pub use resident::DeviceDcnn;
 use std::collections::HashMap;
 
 use codegen::{Dtype, KernelKey, KernelKind};
-use nedrt_gpu::{PassTimer, map_and_wait};
+use nedrt_gpu::{PassTimer, map_and_wait, read_mapped};
 use plan::SizedPlan;
 use wgpu::util::DeviceExt;
 
@@ -517,19 +517,14 @@ impl GpuBackend {
             traffic.to_host_bytes += timer_bytes;
         }
         map_and_wait(&self.device, &plan.readback).map_err(err)?;
-        let out = {
-            let view = plan
-                .readback
-                .slice(..)
-                .get_mapped_range()
-                .map_err(|e| err(format!("reading back: {e}")))?;
-            bytemuck::cast_slice::<u8, f32>(&view[..plan.output_elems * 4]).to_vec()
-        };
-        plan.readback.unmap();
+        let out = read_mapped(&plan.readback, |bytes| {
+            bytemuck::cast_slice::<u8, f32>(&bytes[..plan.output_elems * 4]).to_vec()
+        })
+        .map_err(|e| err(format!("reading back: {e}")))?;
         let gpu_ns = self
             .timer
             .as_ref()
-            .and_then(|t| t.spans_ns())
+            .and_then(|t| t.spans_ns().ok())
             .and_then(|spans| spans.first().copied());
         if let Some(e) = pollster::block_on(scope.pop()) {
             return Err(err(format!("running: {e}")));

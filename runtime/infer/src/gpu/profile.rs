@@ -60,7 +60,7 @@ impl GpuBackend {
         timer.map_and_wait(&self.device).map_err(err)?;
         let spans = timer
             .spans_ns()
-            .ok_or_else(|| err("reading the timestamps failed"))?;
+            .map_err(|e| err(format!("reading the timestamps: {e}")))?;
         if let Some(e) = pollster::block_on(scope.pop()) {
             return Err(err(format!("timing the layers: {e}")));
         }

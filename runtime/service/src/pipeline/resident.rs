@@ -332,27 +332,22 @@ impl DeviceFrames {
             &self.frame
         };
         self.encoder.record(&mut encoder, display, &codes)?;
-        let timer_bytes = match (&self.timer, &self.stage) {
-            (Some(t), Some(_)) => t.resolve(&mut encoder),
-            _ => 0,
-        };
+        // The timer exists only with a stage (new).
+        let timer_bytes = self.timer.as_ref().map_or(0, |t| t.resolve(&mut encoder));
         let submission = self.queue.submit([encoder.finish()]);
         self.encoder.map_non_finite();
-        if timer_bytes > 0 {
-            self.timer.as_ref().map(PassTimer::map);
+        if let Some(t) = &self.timer {
+            t.map();
         }
         // The fence wait the stage does anyway (its time includes the
         // device's work); it also brings the 4-byte non-finite count and
         // the timestamps back.
         nedrt_gpu::wait_for(&self.device, submission).map_err(err)?;
-        self.last_gpu_ns = if timer_bytes > 0 {
-            self.timer
-                .as_ref()
-                .and_then(PassTimer::spans_ns)
-                .and_then(|spans| spans.first().copied())
-        } else {
-            None
-        };
+        self.last_gpu_ns = self
+            .timer
+            .as_ref()
+            .and_then(|t| t.spans_ns().ok())
+            .and_then(|spans| spans.first().copied());
         let non_finite = self.encoder.non_finite_pixels()?;
         if non_finite > 0 {
             // As on the host path: an engine failure, not black pixels.
@@ -391,13 +386,10 @@ impl DeviceFrames {
         encoder.copy_buffer_to_buffer(source, 0, &readback, 0, bytes);
         self.queue.submit([encoder.finish()]);
         nedrt_gpu::map_and_wait(&self.device, &readback).map_err(err)?;
-        let data = bytemuck::cast_slice::<u8, f32>(
-            &readback
-                .slice(..)
-                .get_mapped_range()
-                .map_err(|e| err(format!("reading back: {e}")))?,
-        )
-        .to_vec();
+        let data = nedrt_gpu::read_mapped(&readback, |bytes| {
+            bytemuck::cast_slice::<u8, f32>(bytes).to_vec()
+        })
+        .map_err(|e| err(format!("reading back: {e}")))?;
         Ok(Image::rgb(self.width, self.height, data))
     }
 }

@@ -327,16 +327,10 @@ impl PanelEncoder {
     /// recorded, after [`PanelEncoder::map_non_finite`] and the wait for
     /// the frame's submission (this does not wait). 4 bytes come back.
     pub fn non_finite_pixels(&self) -> Result<u32, PresentError> {
-        let count = {
-            let view = self
-                .non_finite_host
-                .slice(..)
-                .get_mapped_range()
-                .map_err(|e| err(format!("the non-finite count is not back: {e}")))?;
-            u32::from_le_bytes([view[0], view[1], view[2], view[3]])
-        };
-        self.non_finite_host.unmap();
-        Ok(count)
+        nedrt_gpu::read_mapped(&self.non_finite_host, |bytes| {
+            u32::from_le_bytes([bytes[0], bytes[1], bytes[2], bytes[3]])
+        })
+        .map_err(|e| err(format!("the non-finite count is not back: {e}")))
     }
 }
 

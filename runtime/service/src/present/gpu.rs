@@ -396,18 +396,15 @@ pub fn read_texture(
     );
     queue.submit([encoder.finish()]);
     map_and_wait(device, &buffer).map_err(|e| err("gpu", e))?;
-    let view = buffer
-        .slice(..)
-        .get_mapped_range()
-        .map_err(|e| err("gpu", format!("reading back: {e}")))?;
-    let mut out = Vec::with_capacity((4 * w * h) as usize);
-    for y in 0..h as usize {
-        let start = y * row as usize;
-        out.extend_from_slice(&view[start..start + 4 * w as usize]);
-    }
-    drop(view);
-    buffer.unmap();
-    Ok(out)
+    nedrt_gpu::read_mapped(&buffer, |bytes| {
+        let mut out = Vec::with_capacity((4 * w * h) as usize);
+        for y in 0..h as usize {
+            let start = y * row as usize;
+            out.extend_from_slice(&bytes[start..start + 4 * w as usize]);
+        }
+        out
+    })
+    .map_err(|e| err("gpu", format!("reading back: {e}")))
 }
 
 #[cfg(test)]
