@@ -38,17 +38,19 @@ class DepthErrors:
     """Per-depth mean squared errors of one photograph's perceived images
     against one objective's targets, as functions of the display image."""
 
-    def __init__(self, objective: Objective, image: torch.Tensor):
+    def __init__(self, objective: Objective, image: torch.Tensor, device="cpu"):
         if objective.depth_spectra is None:
             raise ValueError("these kernels have no per-depth terms (an older nedrt prefilter --operator)")
         c, h, w = image.shape
         self.frame = (c, h, w)
-        spectra = {k: v.to(torch.complex128) for k, v in objective.depth_spectra.items()}
+        self.device = torch.device(device)
+        image = image.to(self.device)
+        spectra = {k: v.to(self.device, torch.complex128) for k, v in objective.depth_spectra.items()}
         i_hat = torch.fft.rfft2(Objective.mirror(image.double()))
         # rfft keeps half the last axis: every bin but the first (and the
         # Nyquist one) stands for itself and its conjugate.
         # The mirrored frame is 2w wide: bins 0 and w (Nyquist) are their own.
-        weight = torch.full((w + 1,), 2.0, dtype=torch.float64)
+        weight = torch.full((w + 1,), 2.0, dtype=torch.float64, device=self.device)
         weight[0] = weight[-1] = 1.0
         self.n = 4 * h * w
         self.weight = weight / self.n
@@ -75,15 +77,18 @@ def solve(start: torch.Tensor, target: DepthErrors, sharp: DepthErrors, sharp_we
     sharp over [0, 1], and (iterations used, final objective)."""
     from scipy.optimize import minimize
     shape = start.shape
+    device = target.device
 
     def value_and_gradient(x):
-        d = torch.from_numpy(x).view(shape).requires_grad_(True)
+        # The solver's iterate stays on the CPU (scipy); the objective and
+        # its gradient are computed on the errors' device (float64).
+        d = torch.from_numpy(x).view(shape).to(device).requires_grad_(True)
         d_hat = torch.fft.rfft2(Objective.mirror(d))
         loss = -psnr(target(d_hat)).mean()
         if sharp_weight:
             loss = loss - sharp_weight * psnr(sharp(d_hat)).mean()
         loss.backward()
-        return float(loss.detach()), d.grad.numpy().ravel().copy()
+        return float(loss.detach()), d.grad.cpu().numpy().ravel().copy()
 
     x0 = start.double().clamp(0, 1).numpy().ravel().copy()
     result = minimize(value_and_gradient, x0, jac=True, method="L-BFGS-B", bounds=[(0.0, 1.0)] * x0.size,
@@ -101,7 +106,7 @@ def summary(per_image: list) -> dict:
 
 def ceiling(teacher_root: Path, images_root: Path, sharp_weights: list, iterations: int,
             limit: int | None = None, split: str = "val", write: Path | None = None,
-            shard: tuple = (1, 1)) -> dict:
+            shard: tuple = (1, 1), device="cpu") -> dict:
     """The table on `split`'s photographs; with `write`, also the display
     images of the (one) sharp weight, as a teacher folder for
     `nedrt-train dcnn --teacher-set` (`displays.safetensors`, `prefilter.json`).
@@ -132,12 +137,12 @@ def ceiling(teacher_root: Path, images_root: Path, sharp_weights: list, iteratio
     for name, image in zip(names, images):
         if tuple(image.shape[-2:]) != (h, w):
             raise ValueError(f"{name}: the {split} photographs are of different sizes")
-        target, sharp = DepthErrors(target_obj, image), DepthErrors(sharp_obj, image)
+        target, sharp = DepthErrors(target_obj, image, device), DepthErrors(sharp_obj, image, device)
 
         def score(key, display):
-            d_hat = torch.fft.rfft2(Objective.mirror(display.double()))
-            rows[key][0].append(psnr(target(d_hat)))
-            rows[key][1].append(psnr(sharp(d_hat)))
+            d_hat = torch.fft.rfft2(Objective.mirror(display.double().to(device)))
+            rows[key][0].append(psnr(target(d_hat)).cpu())
+            rows[key][1].append(psnr(sharp(d_hat)).cpu())
 
         score("wiener", wiener[name])
         score("optimal@target", starts[name])
@@ -219,6 +224,8 @@ def main(argv=None, prog=None):
     ap.add_argument("--shard", default="1/1", metavar="K/N",
                     help="only every N-th photograph from the K-th (run N processes for N cores)")
     ap.add_argument("--threads", type=int, default=1)
+    ap.add_argument("--device", default="cpu",
+                    help="where the objective and its gradient are computed (cpu, cuda); the solver runs on the CPU")
     ap.add_argument("--out", type=Path, help="write the result as JSON here")
     args = ap.parse_args(argv)
     torch.set_num_threads(args.threads)
@@ -233,8 +240,10 @@ def main(argv=None, prog=None):
         if args.iterations < 1:
             raise ValueError("--iterations: at least 1")
         shard = parse_shard(args.shard)
+        if args.device.startswith("cuda") and not torch.cuda.is_available():
+            raise ValueError(f"--device {args.device}: this torch sees no CUDA device")
         result = ceiling(args.teacher, resolve_root(args.images), weights, args.iterations, args.limit,
-                         args.split, args.write, shard)
+                         args.split, args.write, shard, args.device)
     except (ValueError, FileNotFoundError) as e:
         raise SystemExit(f"error: {e}")
     if args.out:

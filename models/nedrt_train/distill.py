@@ -27,6 +27,7 @@ import random
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import torch
@@ -95,6 +96,23 @@ class DistillConfig:
     # content the optics do not pass (its start's, unconstrained by the
     # objective); "perceived" does not ask the network to learn that.
     distill_metric: str = "display"
+    # Where the step runs ("cpu", "cuda", "cuda:1", "meta" in tests): the
+    # network, the objective's spectra, the photographs and their teachers
+    # all live there; a checkpoint resumes on any device.
+    device: str = "cpu"
+    # Mixed precision of the network ("off", or "bf16": its convolutions
+    # under autocast, float32 accumulation; the residual sum, the clamp and
+    # the objective's FFTs stay float32, so the loss is computed in full
+    # precision from a display image whose residual is good to bf16's 3
+    # significant digits).
+    amp: str = "off"
+    # A wall-clock budget of the run, seconds (0: none): the schedule's
+    # cosine follows the time spent instead of the steps, and the run stops
+    # (checkpointed, validated) when the budget is spent or at `steps`.
+    time_budget: float = 0.0
+    # --batch 0: the largest batch of patches (a power of two, at most this)
+    # whose step fits in the device's memory, probed before the first step.
+    max_batch: int = 64
 
 
 class Objective:
@@ -114,6 +132,13 @@ class Objective:
         self.spectra = {k: spectrum(kernels[k]) for k in self.NAMES}
         self.depth_spectra = ({k: spectrum(kernels[k + "_per_depth"]) for k in self.NAMES}
                               if all(k + "_per_depth" in kernels for k in self.NAMES) else None)
+
+    def to(self, device) -> "Objective":
+        """The same objective with its spectra on `device`."""
+        self.spectra = {k: v.to(device) for k, v in self.spectra.items()}
+        if self.depth_spectra is not None:
+            self.depth_spectra = {k: v.to(device) for k, v in self.depth_spectra.items()}
+        return self
 
     @classmethod
     def load(cls, path: Path) -> "Objective":
@@ -210,40 +235,98 @@ def photo_names(folder: Path) -> list:
 class Patches:
     """Random P×P crops of the training photographs under one of the eight
     symmetries of the square (the PSFs are rotationally symmetric, so the
-    teacher turns with its photograph), with the teacher cropped alike."""
+    teacher turns with its photograph), with the teacher cropped alike.
+    The draws come from one numpy generator in a fixed order (photograph,
+    row, column, turn, flip per patch), so a batch is the same on any
+    device; the crops are cut on the photographs' device, in a few
+    operations per batch when the photographs are of one size."""
 
-    def __init__(self, photos: list, teachers: list, patch: int, seed: int, bases: list | None = None):
+    def __init__(self, photos: list, teachers: list, patch: int, seed: int, bases: list | None = None,
+                 device="cpu"):
         self.photos = [torch.from_numpy(p).permute(2, 0, 1).contiguous() for p in photos]
-        self.teachers = teachers
-        self.bases = bases
+        self.stacks = [s for s in (self.photos, teachers, bases)]
+        sizes = {tuple(t.shape) for stack in self.stacks if stack is not None for t in stack}
+        # One tensor per stack where every photograph has the same size:
+        # a batch is then one gather per stack.
+        self.dense = len(sizes) == 1
+        self.stacks = [None if stack is None else
+                       (torch.stack(stack).to(device) if self.dense else [t.to(device) for t in stack])
+                       for stack in self.stacks]
         self.patch = patch
+        self.device = torch.device(device)
         self.rng = np.random.default_rng(seed)
 
-    def batch(self, size: int):
-        """(images, teachers, bases or None), each B × 3 × P × P."""
-        out = [[], [], []]
+    def draw(self, size: int) -> np.ndarray:
+        """B × (photograph, row, column, turn, flip), in the generator's order."""
+        out = np.empty((size, 5), dtype=np.int64)
         n = self.patch
-        for _ in range(size):
+        for b in range(size):
             k = self.rng.integers(len(self.photos))
             p = self.photos[k]
             y = self.rng.integers(p.shape[1] - n + 1)
             x = self.rng.integers(p.shape[2] - n + 1)
-            turn, flip = int(self.rng.integers(4)), bool(self.rng.integers(2))
-            for i, stack in enumerate([self.photos, self.teachers, self.bases]):
-                if stack is None:
-                    continue
-                t = torch.rot90(stack[k][:, y:y + n, x:x + n], turn, (1, 2))
-                out[i].append(t.flip(-1) if flip else t)
-        return tuple(torch.stack(o).contiguous() if o else None for o in out)
+            out[b] = (k, y, x, int(self.rng.integers(4)), int(self.rng.integers(2)))
+        return out
+
+    def batch(self, size: int):
+        """(images, teachers, bases or None), each B × 3 × P × P, on the device."""
+        draws = self.draw(size)
+        n = self.patch
+        if not self.dense:
+            out = [[], [], []]
+            for k, y, x, turn, flip in draws:
+                for i, stack in enumerate(self.stacks):
+                    if stack is not None:
+                        t = torch.rot90(stack[k][:, y:y + n, x:x + n], int(turn), (1, 2))
+                        out[i].append(t.flip(-1) if flip else t)
+            return tuple(torch.stack(o).contiguous() if o else None for o in out)
+        # One upload a batch: the draws, and the patches ordered by symmetry.
+        group = draws[:, 3] * 2 + draws[:, 4]
+        order = np.argsort(group, kind="stable")
+        d = torch.from_numpy(np.concatenate([draws, order[:, None]], axis=1)).to(self.device)
+        ar = torch.arange(n, device=self.device)
+        rows = (d[:, 1, None] + ar)[:, None, :, None]
+        cols = (d[:, 2, None] + ar)[:, None, None, :]
+        chan = torch.arange(3, device=self.device)[None, :, None, None]
+        k = d[:, 0, None, None, None]
+        crops = [None if stack is None else stack[k, chan, rows, cols] for stack in self.stacks]
+        # The symmetries, one group of patches at a time (at most eight).
+        counts = np.bincount(group, minlength=8)
+        start = 0
+        for g, count in enumerate(counts):
+            idx = d[start:start + count, 5]
+            start += count
+            turn, flip = divmod(g, 2)
+            if count == 0 or g == 0:
+                continue
+            for c in crops:
+                if c is not None:
+                    t = torch.rot90(c[idx], int(turn), (2, 3))
+                    c[idx] = t.flip(-1) if flip else t
+        return tuple(None if c is None else c.contiguous() for c in crops)
 
 
 def forward(net, image, base=None, cfg=None):
     """The raw display image: I + UNet(I), base + UNet(I) − I (`--base
-    wiener`), or x + UNet(x) of the raw Wiener x = base (`--input wiener-raw`)."""
+    wiener`), or x + UNet(x) of the raw Wiener x = base (`--input wiener-raw`);
+    float32 whatever the network's precision (`--amp`)."""
+    x = base if cfg is not None and cfg.input == "wiener-raw" else image
+    with autocast(cfg, x.device):
+        out = net(x)
+    out = out.float()
     if cfg is not None and cfg.input == "wiener-raw":
-        return net(base)
-    out = net(image)
+        return out
     return out if base is None else base + (out - image)
+
+
+def autocast(cfg, device):
+    """The network's precision: bf16 autocast under `--amp bf16`, else none."""
+    import contextlib
+    if cfg is None or cfg.amp == "off":
+        return contextlib.nullcontext()
+    if cfg.amp != "bf16":
+        raise ValueError(f"amp {cfg.amp!r}: choose off or bf16")
+    return torch.autocast(device_type=torch.device(device).type, dtype=torch.bfloat16)
 
 
 def clamp(raw, cfg=None):
@@ -280,14 +363,16 @@ def losses(net, objective: Objective, image, teacher, cfg: DistillConfig, sharp:
 
 @torch.no_grad()
 def validate(net, objective: Objective, images: torch.Tensor, teacher: torch.Tensor, wiener: torch.Tensor | None,
-             sharp: Objective | None = None, base: torch.Tensor | None = None, net_input: torch.Tensor | None = None):
+             sharp: Objective | None = None, base: torch.Tensor | None = None, net_input: torch.Tensor | None = None,
+             cfg: DistillConfig | None = None):
     """Objective dB (−10 log10 of the mean squared error over depths) on the
     validation photographs: the network, the teacher (the optimum), and the
     Wiener prefilter where given. The network sees `net_input` where given
     (the raw Wiener), else the photographs."""
     net.eval()
     x = images if net_input is None else net_input
-    display = torch.cat([net.forward_padded(x[i:i + 1]) for i in range(len(x))])
+    with autocast(cfg, x.device):
+        display = torch.cat([net.forward_padded(x[i:i + 1]).float() for i in range(len(x))])
     if base is not None:
         display = base + (display - images)
     display = display.clamp(0, 1)
@@ -310,11 +395,72 @@ def validate(net, objective: Objective, images: torch.Tensor, teacher: torch.Ten
     return out
 
 
-def lr_at(cfg: DistillConfig, step: int) -> float:
-    """Linear warm-up over 200 steps, then cosine decay to 1 % of the peak."""
+def lr_at(cfg: DistillConfig, step: int, elapsed: float = 0.0) -> float:
+    """Linear warm-up over 200 steps, then cosine decay to 1 % of the peak
+    over the steps, or over the time budget where there is one."""
     warm = min(1.0, (step + 1) / 200)
-    progress = step / max(cfg.steps, 1)
+    progress = min(1.0, elapsed / cfg.time_budget) if cfg.time_budget > 0 else step / max(cfg.steps, 1)
     return cfg.lr * warm * (0.01 + 0.99 * 0.5 * (1 + math.cos(math.pi * progress)))
+
+
+def step_once(net, opt, objective: Objective, data: "Patches", cfg: DistillConfig, sharp: Objective | None,
+              batch: int | None = None):
+    """One Adam step on a fresh batch; the loss and its terms."""
+    image, teacher, base = data.batch(batch or cfg.batch)
+    loss, terms = losses(net, objective, image, teacher, cfg, sharp, base)
+    opt.zero_grad()
+    loss.backward()
+    opt.step()
+    return loss, terms
+
+
+def largest_batch(net, objective: Objective, data: "Patches", cfg: DistillConfig, sharp: Objective | None) -> int:
+    """`--batch 0`: the largest power of two up to `max_batch` whose step
+    (forward and backward, no update) fits in the device's memory with a
+    quarter to spare, probed on random patches; 8 on a device without a
+    memory count (the CPU). Touches no random state of the run."""
+    device = torch.device(cfg.device)
+    if device.type != "cuda":
+        return min(8, cfg.max_batch)
+    total = torch.cuda.get_device_properties(device).total_memory
+    gen = torch.Generator(device=device).manual_seed(0)
+    best, b = 0, 1
+    while b <= cfg.max_batch:
+        try:
+            torch.cuda.empty_cache()
+            torch.cuda.reset_peak_memory_stats(device)
+            shape = (b, 3, cfg.patch, cfg.patch)
+            image, teacher, base = (torch.rand(shape, generator=gen, device=device) for _ in range(3))
+            loss, _ = losses(net, objective, image, teacher, cfg, sharp, base)
+            loss.backward()
+            net.zero_grad(set_to_none=True)
+            peak = torch.cuda.max_memory_allocated(device)
+        except torch.OutOfMemoryError:
+            break
+        best = b
+        # The next size doubles the activations; stop where that would not fit.
+        if 2 * peak > 0.75 * total:
+            break
+        b *= 2
+    net.zero_grad(set_to_none=True)
+    torch.cuda.empty_cache()
+    if best == 0:
+        raise ValueError(f"not even one {cfg.patch}² patch fits in {device}'s memory")
+    return best
+
+
+def is_finished(cfg: DistillConfig, step: int, seconds: float) -> bool:
+    """At its last step, or its time budget spent (its schedule has run out)."""
+    return step >= cfg.steps or (cfg.time_budget > 0 and seconds >= cfg.time_budget)
+
+
+def device_name(device: torch.device) -> str:
+    """What the run ran on, for the card."""
+    if device.type == "cuda":
+        return torch.cuda.get_device_name(device)
+    if device.type == "cpu":
+        return f"CPU ({torch.get_num_threads()} threads)"
+    return str(device)
 
 
 def save_checkpoint(path: Path, net, opt, step: int, cfg: DistillConfig, rng: np.random.Generator, seconds: float,
@@ -327,17 +473,22 @@ def save_checkpoint(path: Path, net, opt, step: int, cfg: DistillConfig, rng: np
     os.replace(tmp, path)
 
 
-def train(cfg: DistillConfig, out: Path, resume: bool = False, stop_after: int | None = None) -> dict:
-    """A run, or its continuation (`resume`); with `stop_after`, only up to
-    that step (checkpointed), as a session that ends would: `--resume`
-    then goes on exactly as an uninterrupted run (the schedule depends on
-    `steps`, so a resumed run must keep it)."""
-    if cfg.threads:
-        torch.set_num_threads(cfg.threads)
-    torch.manual_seed(cfg.seed)
-    random.seed(cfg.seed)
+def prepare(cfg: DistillConfig) -> SimpleNamespace:
+    """What a run's steps use, each on `cfg.device`: the network (and its
+    optimiser), the objectives, the patches and the validation set. The
+    step on a GPU is the step on the CPU with this one argument changed."""
+    if cfg.amp not in ("off", "bf16"):
+        raise ValueError(f"amp {cfg.amp!r}: choose off or bf16")
+    try:
+        device = torch.device(cfg.device)
+    except RuntimeError as e:
+        raise ValueError(f"device {cfg.device!r}: {e}") from None
+    if device.type == "cuda" and not torch.cuda.is_available():
+        raise ValueError(f"device {cfg.device!r}: this torch sees no CUDA device")
+    if cfg.batch < 0 or cfg.max_batch < 1:
+        raise ValueError(f"batch {cfg.batch}, max-batch {cfg.max_batch}: a batch is ≥ 1 (or 0: the largest that fits)")
     teacher_root, images_root = Path(cfg.teacher), Path(cfg.images)
-    objective = Objective.load(teacher_root / "train" / f"operator-{cfg.patch}x{cfg.patch}.safetensors")
+    objective = Objective.load(teacher_root / "train" / f"operator-{cfg.patch}x{cfg.patch}.safetensors").to(device)
     names = photo_names(images_root / "train")
     photos = load_photos(images_root / "train")
     teachers = load_teacher(teacher_root / cfg.teacher_set, names)
@@ -356,26 +507,28 @@ def train(cfg: DistillConfig, out: Path, resume: bool = False, stop_after: int |
         folder = "train-wiener" if cfg.base == "wiener" else "train-wiener-raw"
         wiener_train = load_teacher(teacher_root / folder, names)
         bases = [wiener_train[n] for n in names]
-    data = Patches(photos, [teachers[n] for n in names], cfg.patch, cfg.seed, bases)
+    data = Patches(photos, [teachers[n] for n in names], cfg.patch, cfg.seed, bases, device)
     val_names = photo_names(images_root / "val")
     val_images = torch.from_numpy(np.stack(load_photos(images_root / "val"))).permute(0, 3, 1, 2).contiguous()
-    val_teacher = torch.stack([t for t in load_teacher(teacher_root / "val", val_names).values()])
+    val_images = val_images.to(device)
+    val_teacher = torch.stack([t for t in load_teacher(teacher_root / "val", val_names).values()]).to(device)
     vh, vw = val_images.shape[-2:]
-    val_objective = Objective.load(teacher_root / "train" / f"operator-{vw}x{vh}.safetensors")
+    val_objective = Objective.load(teacher_root / "train" / f"operator-{vw}x{vh}.safetensors").to(device)
     sharp_root = teacher_root / "train-sharp"
     has_sharp = (sharp_root / f"operator-{vw}x{vh}.safetensors").is_file()
     if cfg.sharp_weight and not has_sharp:
         raise FileNotFoundError(f"{sharp_root}: no kernels for the sharp objective (--sharp-weight needs "
                                 "nedrt prefilter --prefilter optimal@sharp --operator …)")
-    sharp = Objective.load(sharp_root / f"operator-{cfg.patch}x{cfg.patch}.safetensors") if cfg.sharp_weight else None
-    val_sharp = Objective.load(sharp_root / f"operator-{vw}x{vh}.safetensors") if has_sharp else None
+    sharp = (Objective.load(sharp_root / f"operator-{cfg.patch}x{cfg.patch}.safetensors").to(device)
+             if cfg.sharp_weight else None)
+    val_sharp = Objective.load(sharp_root / f"operator-{vw}x{vh}.safetensors").to(device) if has_sharp else None
     wiener_dir = teacher_root / "val-wiener"
-    val_wiener = (torch.stack(list(load_teacher(wiener_dir, val_names).values()))
+    val_wiener = (torch.stack(list(load_teacher(wiener_dir, val_names).values())).to(device)
                   if (wiener_dir / "displays.safetensors").is_file() else None)
     if cfg.base == "wiener" and val_wiener is None:
         raise FileNotFoundError(f"{wiener_dir}: --base wiener needs the Wiener's validation images "
                                 "(nedrt prefilter --prefilter native)")
-    val_input = (torch.stack(list(load_teacher(teacher_root / "val-wiener-raw", val_names).values()))
+    val_input = (torch.stack(list(load_teacher(teacher_root / "val-wiener-raw", val_names).values())).to(device)
                  if cfg.input == "wiener-raw" else None)
 
     net = UNet(cfg.width, cfg.levels)
@@ -394,15 +547,37 @@ def train(cfg: DistillConfig, out: Path, resume: bool = False, stop_after: int |
             raise ValueError(f"{init}: a network of width {saved['config']['width']} and "
                              f"{saved['config']['levels']} levels, this run's is {cfg.width} and {cfg.levels}")
         net.load_state_dict(saved["net"])
+    net.to(device)
     opt = torch.optim.Adam(net.parameters(), lr=cfg.lr)
+    return SimpleNamespace(device=device, teacher_root=teacher_root, objective=objective, sharp=sharp, data=data, net=net, opt=opt, val_objective=val_objective, val_images=val_images, val_teacher=val_teacher, val_wiener=val_wiener, val_sharp=val_sharp, val_input=val_input)
+
+
+def train(cfg: DistillConfig, out: Path, resume: bool = False, stop_after: int | None = None) -> dict:
+    """A run, or its continuation (`resume`); with `stop_after`, only up to
+    that step (checkpointed), as a session that ends would: `--resume`
+    then goes on exactly as an uninterrupted run (the schedule depends on
+    `steps`, so a resumed run must keep it)."""
+    if cfg.threads:
+        torch.set_num_threads(cfg.threads)
+    torch.manual_seed(cfg.seed)
+    random.seed(cfg.seed)
+    r = prepare(cfg)
+    device, teacher_root, net, opt, data = r.device, r.teacher_root, r.net, r.opt, r.data
+    objective, sharp = r.objective, r.sharp
     out.mkdir(parents=True, exist_ok=True)
     checkpoint = out / "checkpoint.pt"
     step, seconds_before, history = 0, 0.0, []
+    state = None
     if resume and checkpoint.exists():
         state = torch.load(checkpoint, map_location="cpu", weights_only=False)
-        saved = DistillConfig(**state["config"])
-        # Where the data lie may change between machines; what is trained may not.
-        movable = {"threads": cfg.threads, "teacher": cfg.teacher, "images": cfg.images, "init": cfg.init}
+        saved = DistillConfig(**{**dataclasses.asdict(DistillConfig()), **state["config"]})
+        if cfg.batch == 0:
+            # --batch 0 was resolved when the run started: keep that batch.
+            cfg = dataclasses.replace(cfg, batch=saved.batch)
+        # Where the data lie and the device may change between machines;
+        # what is trained may not.
+        movable = {"threads": cfg.threads, "teacher": cfg.teacher, "images": cfg.images, "init": cfg.init,
+                   "device": cfg.device}
         if dataclasses.replace(saved, **movable) != cfg:
             raise SystemExit(f"error: {checkpoint} was made with another configuration: {saved}")
         net.load_state_dict(state["net"])
@@ -413,6 +588,9 @@ def train(cfg: DistillConfig, out: Path, resume: bool = False, stop_after: int |
         random.setstate(state["python_rng"])
         seconds_before = state["seconds"]
         history = state.get("history", [])
+    if cfg.batch == 0:
+        cfg = dataclasses.replace(cfg, batch=largest_batch(net, objective, data, cfg, sharp))
+        print(f"dcnn: batch {cfg.batch} (the largest of at most {cfg.max_batch} that fits on {device})", flush=True)
     log_path = out / "metrics.csv"
     new_log = step == 0 or not log_path.exists()
     log = open(log_path, "w" if step == 0 else "a")
@@ -426,34 +604,43 @@ def train(cfg: DistillConfig, out: Path, resume: bool = False, stop_after: int |
     done = max(step, last)
     bar = tqdm(range(step, last), initial=step, total=cfg.steps, desc="dcnn")
     for step in bar:
+        lr = lr_at(cfg, step, seconds_before + time.time() - start)
         for g in opt.param_groups:
-            g["lr"] = lr_at(cfg, step)
-        image, teacher, base = data.batch(cfg.batch)
-        loss, terms = losses(net, objective, image, teacher, cfg, sharp, base)
-        opt.zero_grad()
-        loss.backward()
-        opt.step()
+            g["lr"] = lr
+        loss, terms = step_once(net, opt, objective, data, cfg, sharp)
+        # One read-back a step (a device synchronisation), not four.
+        loss_v, mse_v, distill_v, range_v = torch.stack(
+            [loss.detach(), terms["mse"].detach(), terms["distill"].detach(), terms["range"].detach()]).tolist()
+        elapsed = seconds_before + time.time() - start
+        spent = cfg.time_budget > 0 and elapsed >= cfg.time_budget
+        if spent:
+            # The budget is spent: this step is the run's last.
+            last = done = step + 1
         val = {}
-        if (step + 1) % cfg.validate_every == 0 or step + 1 == cfg.steps:
-            val = validate(net, val_objective, val_images, val_teacher, val_wiener, val_sharp,
-                           val_wiener if cfg.base == "wiener" else None, val_input)
+        if (step + 1) % cfg.validate_every == 0 or step + 1 == cfg.steps or spent:
+            val = validate(net, r.val_objective, r.val_images, r.val_teacher, r.val_wiener, r.val_sharp,
+                           r.val_wiener if cfg.base == "wiener" else None, r.val_input, cfg)
             history.append({"step": step + 1, **val})
             bar.write(json.dumps(history[-1]))
-        elapsed = seconds_before + time.time() - start
-        log.write(f"{step + 1},{lr_at(cfg, step):.3g},{loss.item():.6g},{db(terms['mse'].item()):.4f},"
-                  f"{terms['distill'].item():.4g},{terms['range'].item():.3g},{val.get('dcnn_db', '')},"
+            elapsed = seconds_before + time.time() - start
+        log.write(f"{step + 1},{lr:.3g},{loss_v:.6g},{db(mse_v):.4f},"
+                  f"{distill_v:.4g},{range_v:.3g},{val.get('dcnn_db', '')},"
                   f"{val.get('optimal_db', '')},{val.get('wiener_db', '')},{val.get('dcnn_mean_db', '')},"
                   f"{val.get('dcnn_worst_db', '')},{val.get('wiener_mean_db', '')},{val.get('wiener_worst_db', '')},"
                   f"{val.get('dcnn_sharp_mean_db', '')},{val.get('dcnn_sharp_worst_db', '')},"
                   f"{val.get('wiener_sharp_mean_db', '')},{val.get('wiener_sharp_worst_db', '')},"
                   f"{elapsed:.1f}\n")
         log.flush()
-        bar.set_postfix(mse_db=f"{db(terms['mse'].item()):.2f}", distill=f"{terms['distill'].item():.2e}")
+        bar.set_postfix(mse_db=f"{db(mse_v):.2f}", distill=f"{distill_v:.2e}")
         if (step + 1) % cfg.checkpoint_every == 0 or step + 1 in (cfg.steps, last):
             save_checkpoint(checkpoint, net, opt, step + 1, cfg, data.rng, elapsed, history)
+        if step + 1 >= last:
+            break
     log.close()
-    result = {"config": dataclasses.asdict(cfg), "steps": done, "finished": done == cfg.steps,
+    finished = is_finished(cfg, done, seconds_before + time.time() - start)
+    result = {"config": dataclasses.asdict(cfg), "steps": done, "finished": finished,
               "seconds": seconds_before + time.time() - start, "validation": history,
+              "device": device_name(device),
               "teacher": {"train": json.loads((teacher_root / cfg.teacher_set / "prefilter.json").read_text())}}
     (out / "result.json").write_text(json.dumps(result, indent=1))
     return result
@@ -497,12 +684,14 @@ def export(run: Path, out: Path, name: str, doe: Path) -> dict:
                      "cpu_count": os.cpu_count(), "torch_threads": cfg.threads or torch.get_num_threads(),
                      "torch": torch.__version__,
                      "cuda": torch.cuda.get_device_name(0) if torch.cuda.is_available() else None},
+        # The device the run trained on (its result.json), beside the exporting machine.
+        "trained_on": result.get("device"),
         "doe": {"source": str(doe), "sha256": sha256(doe)},
         "teacher": result.get("teacher") or teacher_manifest(cfg),
         # A run stopped before its last step has no result.json: its
         # checkpoint's history holds the validations it did make.
         "validation": result.get("validation", state.get("history")),
-        "finished": state["step"] >= cfg.steps,
+        "finished": is_finished(cfg, state["step"], state.get("seconds") or 0.0),
         "parameters": sum(p.numel() for p in net.parameters()),
         "macs_per_pixel": net.macs_per_pixel(),
         "files": {p.name: sha256(p) for p in [onnx_path, doe_path]},

@@ -30,6 +30,19 @@ def test_depth_errors_are_the_trainers(tmp_path):
     assert torch.allclose(errors, expected, rtol=1e-4), (errors, expected)
 
 
+def test_depth_errors_live_on_the_device_asked_for(tmp_path):
+    """--device: the errors' spectra and the photograph's go to the device
+    (meta here), and an evaluation there stays there; the solver's iterate
+    alone crosses to the CPU (scipy)."""
+    _, _, objective = setup(tmp_path)
+    image = torch.rand(3, VAL, VAL)
+    errors = ceiling.DepthErrors(objective, image, "meta")
+    held = [v for v in vars(errors).values() if isinstance(v, torch.Tensor)]
+    assert held and {t.device.type for t in held} == {"meta"}
+    d_hat = torch.fft.rfft2(distill.Objective.mirror(torch.rand(3, VAL, VAL, device="meta", dtype=torch.float64)))
+    assert errors(d_hat).device.type == "meta"
+
+
 def test_the_ceiling_beats_projected_adam_and_its_start(tmp_path):
     images, teacher, objective = setup(tmp_path)
     image = torch.rand(3, VAL, VAL, generator=torch.Generator().manual_seed(2))

@@ -66,8 +66,9 @@ def write_teacher(root: Path):
 
 
 def config(images, teacher, steps, **kw):
-    return distill.DistillConfig(width=2, levels=2, patch=PATCH, batch=2, steps=steps, validate_every=2,
-                                 checkpoint_every=1, teacher=str(teacher), images=str(images), **kw)
+    kw = {"width": 2, "levels": 2, "patch": PATCH, "batch": 2, "steps": steps, "validate_every": 2,
+          "checkpoint_every": 1, **kw}
+    return distill.DistillConfig(teacher=str(teacher), images=str(images), **kw)
 
 
 def test_the_objective_of_the_kernels_is_the_blur_error(tmp_path):
@@ -199,3 +200,114 @@ def test_the_raw_wiener_input_starts_at_the_clamped_wiener_and_learns_through_th
         distill.train(config(images, teacher, 1, input="wiener-raw", base="wiener"), tmp_path / "bad")
     with pytest.raises(ValueError, match="choose zero or straight"):
         distill.train(config(images, teacher, 1, clamp_grad="soft"), tmp_path / "bad2")
+
+
+class DeviceRecorder(torch.utils._python_dispatch.TorchDispatchMode):
+    """Every device of every tensor an operation takes or makes, and the
+    host tensors uploaded (the batch's random draws come from numpy)."""
+
+    def __init__(self):
+        super().__init__()
+        self.devices = {}
+        self.uploads = []
+
+    def __torch_dispatch__(self, func, types, args=(), kwargs=None):
+        out = func(*args, **(kwargs or {}))
+        leaves = [t for t in torch.utils._pytree.tree_leaves((args, kwargs, out))
+                  if isinstance(t, torch.Tensor) and t.dim() > 0]
+        if func in (torch.ops.aten.lift_fresh.default, torch.ops.aten._to_copy.default) and \
+                leaves and leaves[0].device.type == "cpu":
+            # torch.from_numpy(draws).to(device): the one upload a batch.
+            self.uploads.append((str(func), leaves[0].dtype, str(leaves[-1].device)))
+            leaves = leaves[-1:] if func == torch.ops.aten._to_copy.default else []
+        for t in leaves:
+            self.devices.setdefault(str(t.device), str(func))
+        return out
+
+
+@pytest.mark.parametrize("device", ["meta", "cpu"])
+def test_every_tensor_of_a_step_is_on_the_device_asked_for(tmp_path, device):
+    """The step on a GPU is the step on the CPU with the device passed in:
+    `prepare` puts the network, the optimiser, the objectives and the
+    patches on `--device`, and one step (the v10 recipe's terms: raw Wiener
+    input, PSNR loss vs target and sharp, perceived distillation) touches
+    no tensor elsewhere. On `meta` a tensor left on the CPU would show here
+    (or stop the step: devices do not mix)."""
+    images, teacher = write_teacher(tmp_path)
+    for part in ("train", "val"):
+        from safetensors.torch import load_file, save_file
+        raw = load_file(str(teacher / f"{part}-wiener" / "displays.safetensors"))
+        (teacher / f"{part}-wiener-raw").mkdir()
+        save_file(raw, str(teacher / f"{part}-wiener-raw" / "displays.safetensors"))
+    sharp = teacher / "train-sharp"
+    sharp.mkdir()
+    for f in (teacher / "train").glob("operator-*.safetensors"):
+        (sharp / f.name).write_bytes(f.read_bytes())
+    cfg = config(images, teacher, 2, device=device, input="wiener-raw", loss="psnr", sharp_weight=1.0,
+                 distill_metric="perceived", clamp_grad="straight")
+    r = distill.prepare(cfg)
+    assert {str(p.device) for p in r.net.parameters()} == {device}
+    recorder = DeviceRecorder()
+    with recorder:
+        loss, terms = distill.step_once(r.net, r.opt, r.objective, r.data, cfg, r.sharp)
+    assert set(recorder.devices) == {device}, recorder.devices
+    # What came from the host: the batch's draws (integers), once.
+    copies = [u for u in recorder.uploads if u[0] == "aten._to_copy.default"]
+    want = [] if device == "cpu" else [("aten._to_copy.default", torch.int64, device)]
+    assert copies == want, recorder.uploads
+    assert loss.device.type == device and loss.dim() == 0
+    # Adam's state followed the parameters.
+    states = [v for s in r.opt.state.values() for v in s.values() if isinstance(v, torch.Tensor) and v.dim()]
+    assert states and {str(v.device) for v in states} == {device}
+
+
+def test_a_batch_is_the_same_whether_cut_at_once_or_patch_by_patch():
+    """The batched crop (one gather per stack, the symmetries by group) cuts
+    exactly what the patch-by-patch loop cuts, draw for draw."""
+    rng = np.random.default_rng(3)
+    photos = [rng.random((20, 20, 3)).astype(np.float32) for _ in range(3)]
+    teachers = [torch.rand(3, 20, 20) for _ in range(3)]
+    dense = distill.Patches(photos, teachers, 8, seed=5)
+    loop = distill.Patches(photos, teachers, 8, seed=5)
+    loop.dense = False
+    loop.stacks = [list(s) for s in loop.stacks if s is not None] + [None]
+    assert dense.dense
+    for _ in range(3):
+        a, b = dense.batch(16), loop.batch(16)
+        assert torch.equal(a[0], b[0]) and torch.equal(a[1], b[1]) and a[2] is None and b[2] is None
+
+
+def test_a_time_budget_ends_the_run_validated_and_finished(tmp_path):
+    """--time-budget: the schedule follows the time and the run stops when
+    it is spent, with a validation and a checkpoint at that step; the card
+    calls it finished. --batch 0 on the CPU takes 8 (or --max-batch)."""
+    images, teacher = write_teacher(tmp_path)
+    result = distill.train(config(images, teacher, 50, time_budget=1e-3, validate_every=100, batch=0, max_batch=3),
+                           tmp_path / "run")
+    assert result["steps"] == 1 and result["finished"]
+    assert [v["step"] for v in result["validation"]] == [1]
+    assert result["config"]["batch"] == 3 and result["device"].startswith("CPU")
+    state = torch.load(tmp_path / "run" / "checkpoint.pt", weights_only=False)
+    assert state["step"] == 1
+    cfg = distill.DistillConfig(steps=100, time_budget=10.0)
+    assert distill.lr_at(cfg, 500, 5.0) == pytest.approx(cfg.lr * (0.01 + 0.99 * 0.5))
+    assert distill.lr_at(cfg, 500, 20.0) == pytest.approx(cfg.lr * 0.01)
+    card = distill.export(tmp_path / "run", tmp_path / "out", "t",
+                          REPO / "designs" / "multifocal" / "doe-fabrication.safetensors")
+    assert card["finished"] and card["trained_on"].startswith("CPU")
+
+
+def test_bf16_autocast_keeps_the_display_image_float32_and_close(tmp_path):
+    """--amp bf16 runs the network's convolutions in bf16; the residual sum
+    and what follows stay float32, within bf16's precision of the f32 step."""
+    torch.manual_seed(0)
+    net = distill.UNet(4, 2)
+    x = torch.rand(2, 3, 16, 16)
+    cfg32 = distill.DistillConfig(width=4, levels=2)
+    cfg16 = distill.DistillConfig(width=4, levels=2, amp="bf16")
+    a, b = distill.forward(net, x, cfg=cfg32), distill.forward(net, x, cfg=cfg16)
+    assert a.dtype == b.dtype == torch.float32
+    residual = (a - x).norm()
+    assert 0 < ((a - b).norm() / residual).item() < 2e-2
+    with pytest.raises(ValueError, match="choose off or bf16"):
+        distill.forward(net, x, cfg=distill.DistillConfig(amp="fp8"))

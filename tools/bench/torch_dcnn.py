@@ -1,7 +1,11 @@
 """PyTorch side of `nedrt bench inference`: the trainer's U-Net (random
 weights; latency does not depend on them) at the same frame sizes, on CUDA
-when present (f32 with TF32 off, TF32, f16) else on the CPU (f32). Prints
-JSON lines like the Rust bench. Needs the trainer installed
+when present (f32 with TF32 off, TF32, f16 channels-last; cuDNN's benchmark
+mode picks each convolution's algorithm) else on the CPU (f32). Prints
+JSON lines like the Rust bench. `--ceilings` instead measures the device's
+two ceilings (a device-to-device copy, bytes read plus written; GEMMs in
+f32 with TF32 off, TF32 and f16) for the floors of `nedrt bench inference
+--per-layer` (scripts/device-check.sh passes them on). Needs the trainer installed
 (`.venv/bin/pip install --no-build-isolation -e models`, which
 scripts/test.sh does). Run from the repo root:
 
@@ -40,13 +44,42 @@ def timed(fn, repeat, cuda):
     return statistics.median(times), min(times)
 
 
+def ceilings(copy_mb: int, n: int, repeat: int):
+    """The copy bandwidth (GB/s, read + write) and the GEMM rates (TFLOP/s)
+    on random data, medians of `repeat` timed runs after a warm-up."""
+    cuda = torch.cuda.is_available()
+    dev = torch.device("cuda" if cuda else "cpu")
+    src = torch.rand(copy_mb * (1 << 20) // 4, device=dev)
+    dst = torch.empty_like(src)
+    med, _ = timed(lambda: dst.copy_(src), repeat, cuda)
+    rec = {"kind": "ceilings", "device": torch.cuda.get_device_name() if cuda else "CPU",
+           "copy_gbps": 2 * src.numel() * 4 / med / 1e9, "copy_mb": copy_mb, "gemm_n": n, "torch": torch.__version__}
+    for mode, dtype, tf32 in (("f32", torch.float32, False), ("tf32", torch.float32, True),
+                              ("f16", torch.float16, False)):
+        if dtype == torch.float16 and not cuda:
+            rec[f"{mode}_gemm_tflops"] = None
+            continue
+        torch.backends.cuda.matmul.allow_tf32 = tf32
+        a, b = torch.rand(n, n, device=dev, dtype=dtype), torch.rand(n, n, device=dev, dtype=dtype)
+        med, _ = timed(lambda: a @ b, repeat, cuda)
+        rec[f"{mode}_gemm_tflops"] = 2 * n ** 3 / med / 1e12
+    torch.backends.cuda.matmul.allow_tf32 = False
+    print(json.dumps(rec), flush=True)
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--sizes", default="512x512,1920x1080")
     ap.add_argument("--repeat", type=int, default=10)
     ap.add_argument("--threads", type=int, default=0, help="CPU threads (0: torch default)")
     ap.add_argument("--peak-tflops", default="", help="f32,tf32,f16 dense peaks of the GPU")
+    ap.add_argument("--ceilings", action="store_true", help="measure the copy bandwidth and GEMM rates instead")
+    ap.add_argument("--copy-mb", type=int, default=2048, help="--ceilings: the copied buffer, MiB")
+    ap.add_argument("--gemm", type=int, default=8192, help="--ceilings: the GEMMs' n (n×n by n×n)")
     args = ap.parse_args()
+    if args.ceilings:
+        ceilings(args.copy_mb, args.gemm, args.repeat)
+        return
     cuda = torch.cuda.is_available()
     dev = torch.device("cuda" if cuda else "cpu")
     if args.threads:
@@ -65,8 +98,10 @@ def main():
             for mode in modes:
                 torch.backends.cudnn.allow_tf32 = mode == "tf32"
                 torch.backends.cuda.matmul.allow_tf32 = mode == "tf32"
-                m = net.half() if mode == "f16" else net.float()
-                xi = x.half() if mode == "f16" else x
+                # f16 in channels-last, the layout cuDNN's tensor-core kernels take.
+                layout = torch.channels_last if mode == "f16" else torch.contiguous_format
+                m = (net.half() if mode == "f16" else net.float()).to(memory_format=layout)
+                xi = (x.half() if mode == "f16" else x).contiguous(memory_format=layout)
 
                 def run():
                     with torch.inference_mode():
@@ -77,6 +112,7 @@ def main():
                 rec = {
                     "kind": "dcnn_latency", "model": model_name, "macs_per_pixel": macs,
                     "backend": "pytorch", "device": name, "precision": mode,
+                    "layout": "channels_last" if mode == "f16" else "nchw",
                     "width": w, "height": h, "median_s": med, "min_s": mn, "repeat": args.repeat,
                     "gmac_per_s": macs * w * h / med / 1e9, "torch": torch.__version__,
                 }
