@@ -4,7 +4,9 @@
 //! queries.
 //!
 //! Rule: depends on no other nedrt crate; errors are strings the caller
-//! wraps in its own error type.
+//! wraps in its own error type (the FFT's are typed, [`fft::FftError`]).
+
+pub mod fft;
 
 /// How wgpu's instance is made: which backends it may use, its flags and
 /// per-backend options. The binary fills it from wgpu's environment
