@@ -497,8 +497,10 @@ pub fn run(
 }
 
 /// The resident path's engines on the sink's device `d`: the network's
-/// kernels (its Wiener stage on the host first, where it has one), or no
-/// network and the method's linear prefilter on the host, or nothing.
+/// kernels behind its Wiener stage (on the device, where the device FFT
+/// takes the panel's size; else on the host first), or no network and the
+/// method's linear prefilter (its Wiener, or `lsq`) on the device, or the
+/// least-squares solvers on the host, or nothing.
 fn resident_stage(
     common: &CommonOptions,
     opts: &RunOptions,
@@ -517,6 +519,36 @@ fn resident_stage(
                 name.clone(),
                 precision,
             )?);
+            let mut host = None;
+            let mut on_device_stage = None;
+            let net = match stage {
+                Some((method, filter)) => {
+                    let what = format!(
+                        "the Wiener prefilter of {method} (K = {:e}) before the clamp",
+                        filter.k_reg
+                    );
+                    match wiener_stage(device, what.clone(), filter.clone(), panel) {
+                        Ok(w) => {
+                            on_device_stage = stage.clone();
+                            Box::new(nedrt_gpu::Chain::new(device, w, net))
+                                as Box<dyn nedrt_gpu::DeviceStage>
+                        }
+                        Err(e) => {
+                            tracing::warn!("{what} stays on the host: {e}");
+                            let filter = filter.clone();
+                            host = Some(HostPrep {
+                                name: what,
+                                run: Box::new(move |frame| {
+                                    check_frame(frame, filter.channels())?;
+                                    Ok(filter.apply_unclamped(frame))
+                                }),
+                            });
+                            net
+                        }
+                    }
+                }
+                None => net,
+            };
             let net = match opts.inject_device_loss_after {
                 Some(frames_left) => Box::new(DeviceLostAfter {
                     inner: net,
@@ -524,32 +556,23 @@ fn resident_stage(
                 }),
                 None => net,
             };
-            let host = stage.as_ref().map(|(method, filter)| {
-                let filter = filter.clone();
-                HostPrep {
-                    name: format!(
-                        "the Wiener prefilter of {method} (K = {:e}) before the clamp",
-                        filter.k_reg
-                    ),
-                    run: Box::new(move |frame| {
-                        check_frame(frame, filter.channels())?;
-                        Ok(filter.apply_unclamped(frame))
-                    }),
-                }
-            });
-            // The fallback gets the host stage's output: the network alone.
-            let fallback = fallback_factory(opts.fallback, model, common, None);
+            // The fallback gets what the device got: the frame (the Wiener
+            // then runs in the fallback too), or the host stage's output.
+            let fallback = fallback_factory(opts.fallback, model, common, on_device_stage);
             (host, Some(net), Some(fallback))
         }
         None if !opts.preprocess.uses_wiener() && opts.prefilter.is_native() => (None, None, None),
-        None => {
-            let mut linear = linear_preprocessor(common, opts.preprocess, opts.prefilter)?;
-            let host = HostPrep {
-                name: linear.describe(),
-                run: Box::new(move |frame| linear.run(frame)),
-            };
-            (Some(host), None, None)
-        }
+        None => match linear_on_device(common, opts, panel, device)? {
+            Some((stage, fallback)) => (None, Some(stage), Some(fallback)),
+            None => {
+                let mut linear = linear_preprocessor(common, opts.preprocess, opts.prefilter)?;
+                let host = HostPrep {
+                    name: linear.describe(),
+                    run: Box::new(move |frame| linear.run(frame)),
+                };
+                (Some(host), None, None)
+            }
+        },
     };
     let frames = DeviceFrames::new(
         device,
@@ -564,6 +587,84 @@ fn resident_stage(
         frames,
         fallback,
     })
+}
+
+/// A linear prefilter's gains as a device stage for the panel's frames,
+/// prepared now (gains computed and uploaded), or why the device cannot
+/// take it (a panel side with a prime factor the device FFT lacks).
+fn spectral_stage(
+    device: &wgpu::Device,
+    what: String,
+    gains_for: nedrt_gpu::fft::GainsFor,
+    panel: &PanelConfig,
+) -> Result<Box<dyn nedrt_gpu::DeviceStage>, nedrt_gpu::fft::FftError> {
+    let mut stage = nedrt_gpu::fft::SpectralStage::new(device, what, gains_for)?;
+    stage.filter(panel.width, panel.height)?;
+    Ok(Box::new(stage))
+}
+
+/// A Wiener filter on the device ([`spectral_stage`]).
+fn wiener_stage(
+    device: &wgpu::Device,
+    what: String,
+    filter: Arc<WienerFilter>,
+    panel: &PanelConfig,
+) -> Result<Box<dyn nedrt_gpu::DeviceStage>, nedrt_gpu::fft::FftError> {
+    let gains_for: nedrt_gpu::fft::GainsFor =
+        Box::new(move |w, h| filter.plan(w, h).dct_gains().map_err(|e| e.to_string()));
+    spectral_stage(device, what, gains_for, panel)
+}
+
+/// The method's linear prefilter (its Wiener, or `lsq`) as a device
+/// stage with the host's as its fallback; `None` where it runs on the
+/// host (the iterative solvers, or a size the device FFT lacks).
+fn linear_on_device(
+    common: &CommonOptions,
+    opts: &RunOptions,
+    panel: &PanelConfig,
+    device: &wgpu::Device,
+) -> Result<Option<(Box<dyn nedrt_gpu::DeviceStage>, FallbackFactory)>, AppError> {
+    use crate::preprocess::Prefilter;
+    let method = opts.preprocess;
+    if !matches!(opts.prefilter, Prefilter::Native | Prefilter::Lsq(_)) {
+        return Ok(None);
+    }
+    let sim = Simulator::new(
+        common.calibration()?,
+        common.doe_path_for(&[method]).as_deref(),
+        common.cache(),
+    )?;
+    let prepared = sim.prepare(
+        &[method],
+        &opts.prefilter.depths_d(&sim.calib),
+        common.progress(),
+    )?;
+    let host = crate::preprocess::for_system(
+        method,
+        opts.prefilter,
+        &prepared,
+        &mut std::collections::HashMap::new(),
+    )?;
+    let what = host.describe();
+    let made = match opts.prefilter {
+        Prefilter::Lsq(objective) => {
+            let problem = Arc::new(prepared.display_problem(method, objective)?);
+            let gains_for: nedrt_gpu::fft::GainsFor =
+                Box::new(move |w, h| problem.linear_dct_gains(w, h).map_err(|e| e.to_string()));
+            spectral_stage(device, what.clone(), gains_for, panel)
+        }
+        _ => match prepared.wiener_shared(method) {
+            Some(filter) => wiener_stage(device, what.clone(), filter, panel),
+            None => return Ok(None),
+        },
+    };
+    match made {
+        Ok(stage) => Ok(Some((stage, Box::new(move || Ok(host)) as FallbackFactory))),
+        Err(e) => {
+            tracing::warn!("{what} stays on the host: {e}");
+            Ok(None)
+        }
+    }
 }
 
 /// The pipeline `serve` starts.
@@ -665,4 +766,186 @@ fn serve(
         return Err(e);
     }
     Ok(report)
+}
+
+#[cfg(test)]
+mod tests {
+    mod needs_gpu {
+        use std::sync::Arc;
+
+        use nedrt_core::Image;
+        use nedrt_core::preprocess::Preprocess;
+        use nedrt_infer::gpu::DeviceDcnn;
+        use nedrt_infer::{BackendKind, BackendOptions, Dcnn, ModelFile, Precision, synth};
+        use nedrt_optics::Psf;
+        use nedrt_optics::sim::wiener::WienerFilter;
+        use nedrt_service::pipeline::resident::{DeviceFrames, DeviceInput};
+        use nedrt_service::pipeline::service::PanelConfig;
+        use nedrt_service::present::Sink;
+        use nedrt_service::present::headless::HeadlessSink;
+        use nedrt_service::present::transfer::Transfer;
+
+        use super::super::wiener_stage;
+        use crate::preprocess::BehindWiener;
+        use nedrt_optics::sim::Method;
+
+        /// Mirror-symmetric Gaussian PSFs with a veil, one width per
+        /// channel (as the eyepiece's, which differ by colour).
+        fn psfs() -> Vec<Psf> {
+            [1.5f64, 2.5, 4.0]
+                .iter()
+                .map(|sigma| {
+                    let window = 31usize;
+                    let c = (window / 2) as f64;
+                    let mut cells: Vec<f64> = (0..window * window)
+                        .map(|i| {
+                            let (x, y) = ((i % window) as f64 - c, (i / window) as f64 - c);
+                            (-(x * x + y * y) / (2.0 * sigma * sigma)).exp()
+                        })
+                        .collect();
+                    let sum: f64 = cells.iter().sum();
+                    cells.iter_mut().for_each(|v| *v *= 0.97 / sum);
+                    Psf {
+                        window,
+                        cells,
+                        veil: 0.03,
+                    }
+                })
+                .collect()
+        }
+
+        /// A photograph-like frame: edges, gradients and fine texture.
+        fn frame(w: usize, h: usize) -> Image {
+            let planes = (0..3)
+                .map(|c| {
+                    (0..w * h)
+                        .map(|i| {
+                            let (x, y) = ((i % w) as f32, (i / w) as f32);
+                            let edge = if (x / 13.0).floor() as i32 % 2 == 0 {
+                                0.8
+                            } else {
+                                0.15
+                            };
+                            let tex = 0.1 * ((x * 0.9 + y * 0.4 + c as f32).sin());
+                            (edge * (y / h as f32) + tex + 0.05).clamp(0.0, 1.0)
+                        })
+                        .collect()
+                })
+                .collect();
+            Image::from_planes(w, h, planes)
+        }
+
+        /// The panel codes of `display` through `transfer`, as the host path encodes.
+        fn host_codes(transfer: &Transfer, display: &Image) -> Vec<u8> {
+            let mut codes = Vec::new();
+            transfer.encode_rgba8(display, &mut codes);
+            codes
+        }
+
+        /// The codes the device path shows for `input` through `stage`.
+        fn device_codes(
+            device: &wgpu::Device,
+            queue: &wgpu::Queue,
+            transfer: &Transfer,
+            stage: Box<dyn nedrt_gpu::DeviceStage>,
+            input: &Image,
+        ) -> Vec<u8> {
+            let (w, h) = (input.width, input.height);
+            let mut sink =
+                HeadlessSink::new(device, queue, "test".into(), w as u32, h as u32).expect("sink");
+            let mut frames =
+                DeviceFrames::new(device, queue, w, h, transfer, Some(stage)).expect("frames");
+            let (frame, traffic) = frames
+                .run(0, &DeviceInput::Planar(input.clone()))
+                .expect("runs");
+            assert_eq!(traffic.read_backs, 0);
+            sink.present_device(&frame).expect("shown");
+            sink.read_back().expect("panel")
+        }
+
+        fn compare(what: &str, device: &[u8], host: &[u8]) {
+            assert_eq!(device.len(), host.len(), "{what}");
+            let off: Vec<i32> = device
+                .iter()
+                .zip(host)
+                .map(|(a, b)| (*a as i32 - *b as i32).abs())
+                .collect();
+            let worst = off.iter().copied().max().unwrap_or(0);
+            let differ = off.iter().filter(|d| **d > 0).count();
+            eprintln!(
+                "{what}: {differ} of {} codes differ, by at most {worst}",
+                off.len()
+            );
+            assert!(worst <= 1, "{what}: a code {worst} off the host's");
+        }
+
+        #[test]
+        #[ignore = "needs a GPU adapter (run: scripts/test.sh, or cargo test -- --include-ignored)"]
+        fn the_device_wiener_shows_the_codes_of_the_host_wiener() {
+            let (device, queue) = nedrt_gpu::test_device(false);
+            let transfer = Transfer::from_gamma([2.2, 2.2, 2.2]);
+            // The panel's size, and one whose sides have odd factors.
+            for (w, h) in [(1920, 1080), (150, 98)] {
+                let panel = PanelConfig {
+                    width: w,
+                    height: h,
+                    refresh_hz: 90.0,
+                    transfer: transfer.clone(),
+                };
+                // A small K: the prefilter rings past [0, 1], so the clamp matters.
+                let filter = Arc::new(WienerFilter::new(&psfs(), 2e-3));
+                let input = frame(w, h);
+                let host = filter.apply_unclamped(&input);
+                let clipped = host
+                    .data()
+                    .iter()
+                    .filter(|v| !(0.0..=1.0).contains(*v))
+                    .count();
+                assert!(clipped > 0, "the test's Wiener reaches the clamp");
+                let stage = wiener_stage(&device, "test Wiener".into(), filter.clone(), &panel)
+                    .expect("stage");
+                compare(
+                    &format!("Wiener {w}×{h}"),
+                    &device_codes(&device, &queue, &transfer, stage, &input),
+                    &host_codes(&transfer, &host.clamped()),
+                );
+            }
+        }
+
+        #[test]
+        #[ignore = "needs a GPU adapter (run: scripts/test.sh, or cargo test -- --include-ignored)"]
+        fn a_network_behind_the_device_wiener_shows_the_codes_of_the_host_system() {
+            let (device, queue) = nedrt_gpu::test_device(false);
+            let transfer = Transfer::from_gamma([2.2, 2.2, 2.2]);
+            let (w, h) = (160, 96);
+            let panel = PanelConfig {
+                width: w,
+                height: h,
+                refresh_hz: 90.0,
+                transfer: transfer.clone(),
+            };
+            let filter = Arc::new(WienerFilter::new(&psfs(), 2e-2));
+            let model = ModelFile::from_bytes(
+                std::path::Path::new("synth.onnx"),
+                synth::encode(&synth::unet(4, 3, 7)),
+            )
+            .expect("model");
+            let input = frame(w, h);
+            // The host system: the Wiener, then the network on the CPU.
+            let cpu = Dcnn::from_model(model.clone(), BackendKind::Cpu, &BackendOptions::default())
+                .expect("cpu");
+            let mut host = BehindWiener::new(Method::Proposed, filter.clone(), Box::new(cpu));
+            let host = host.run(&input).expect("host");
+            let net = DeviceDcnn::on_device(model, &device, &queue, "test".into(), Precision::F32)
+                .expect("net");
+            let wiener =
+                wiener_stage(&device, "test Wiener".into(), filter, &panel).expect("stage");
+            let chain = Box::new(nedrt_gpu::Chain::new(&device, wiener, Box::new(net)));
+            compare(
+                "Wiener then D-CNN",
+                &device_codes(&device, &queue, &transfer, chain, &input),
+                &host_codes(&transfer, &host),
+            );
+        }
+    }
 }

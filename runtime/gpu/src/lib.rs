@@ -143,6 +143,61 @@ pub trait DeviceStage: Send + std::fmt::Debug {
     ) -> Result<(), String>;
 }
 
+/// Two device stages one after the other, through a buffer of the
+/// frame's size made on the first frame of that size (the Wiener prefilter
+/// in front of a network trained on its output).
+#[derive(Debug)]
+pub struct Chain {
+    device: wgpu::Device,
+    first: Box<dyn DeviceStage>,
+    second: Box<dyn DeviceStage>,
+    /// The middle buffer and the size it was made for.
+    middle: Option<(usize, usize, wgpu::Buffer)>,
+}
+
+impl Chain {
+    pub fn new(device: &wgpu::Device, first: Box<dyn DeviceStage>, second: Box<dyn DeviceStage>) -> Self {
+        Self {
+            device: device.clone(),
+            first,
+            second,
+            middle: None,
+        }
+    }
+}
+
+impl DeviceStage for Chain {
+    fn describe(&self) -> String {
+        format!("{}, then {}", self.first.describe(), self.second.describe())
+    }
+
+    fn record(
+        &mut self,
+        encoder: &mut wgpu::CommandEncoder,
+        input: &wgpu::Buffer,
+        output: &wgpu::Buffer,
+        width: usize,
+        height: usize,
+    ) -> Result<(), String> {
+        let fits = matches!(&self.middle, Some((w, h, _)) if (*w, *h) == (width, height));
+        if !fits {
+            let bytes = 3 * (width * height) as u64 * 4;
+            let buffer = self.device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("chain middle"),
+                size: bytes,
+                usage: wgpu::BufferUsages::STORAGE,
+                mapped_at_creation: false,
+            });
+            self.middle = Some((width, height, buffer));
+        }
+        let Some((_, _, middle)) = &self.middle else {
+            return Err("the chain's middle buffer was not made".into());
+        };
+        self.first.record(encoder, input, middle, width, height)?;
+        self.second.record(encoder, middle, output, width, height)
+    }
+}
+
 /// Waits until the GPU has finished `submission` (no data is read back).
 pub fn wait_for(device: &wgpu::Device, submission: wgpu::SubmissionIndex) -> Result<(), String> {
     device

@@ -185,6 +185,12 @@ impl DisplayProblem {
             .collect()
     }
 
+    /// The `lsq` prefilter's gains for `width`×`height` frames as the
+    /// device's DCT filter takes them ([`WienerPlan::dct_gains`]).
+    pub fn linear_dct_gains(&self, width: usize, height: usize) -> Result<Vec<Vec<f32>>, super::SimError> {
+        self.plan(width, height).linear.dct_gains()
+    }
+
     /// The `lsq` display image of `input` before the panel's clamp.
     pub fn linear_unclamped(&self, input: &Image) -> Image {
         self.plan(input.width, input.height)

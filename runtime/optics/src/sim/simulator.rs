@@ -307,6 +307,11 @@ impl Prepared {
         self.wiener.get(&method).map(|f| &**f)
     }
 
+    /// The same, shared (a device stage keeps it to make each frame size's gains).
+    pub fn wiener_shared(&self, method: Method) -> Option<Arc<WienerFilter>> {
+        self.wiener.get(&method).cloned()
+    }
+
     /// The Wiener filter of `method`'s optics with `k_reg`, as the
     /// Wiener methods make theirs (the PSF averaged over the calibration's
     /// accommodation sweep): the first stage of a D-CNN trained on the

@@ -10,6 +10,7 @@ use num_complex::Complex32 as c32;
 
 use rayon::prelude::*;
 
+use super::SimError;
 use super::convolve::{Fft2, SizeCache};
 use crate::Psf;
 use nedrt_core::image::{Image, extend_plane};
@@ -118,6 +119,34 @@ impl WienerPlan {
             fft,
             gains,
         }
+    }
+
+    /// The gains as the device's DCT filter takes them (nedrt-gpu's
+    /// `DctFilter`): per channel, `height` rows of `width` values, the
+    /// mirrored grid's gain at (ky, kx) for ky < h, kx < w. Mirror-symmetric
+    /// kernels have real, even spectra, so DCT-II · gain · DCT-III of the
+    /// w×h frame is exactly the mirrored filter (docs/gpu-fft.md); gains
+    /// with an imaginary part beyond round-off (an asymmetric kernel) have
+    /// no such form and are refused.
+    pub fn dct_gains(&self) -> Result<Vec<Vec<f32>>, SimError> {
+        let (w, h) = (self.width, self.height);
+        let rows = 2 * h;
+        self.gains
+            .iter()
+            .enumerate()
+            .map(|(c, g)| {
+                let peak = g.iter().map(|v| v.norm()).fold(0.0f32, f32::max);
+                let imag = g.iter().map(|v| v.im.abs()).fold(0.0f32, f32::max);
+                if imag > 1e-4 * peak.max(f32::MIN_POSITIVE) {
+                    return Err(SimError::Invalid(format!(
+                        "channel {c}'s gains are not real (|Im| up to {imag:e} of {peak:e}): its kernel is \
+                         not mirror-symmetric, and the DCT filter cannot apply it"
+                    )));
+                }
+                // The spectrum is stored transposed: bin (ky, kx) at kx·2h + ky.
+                Ok((0..h * w).map(|i| g[(i % w) * rows + i / w].re).collect())
+            })
+            .collect()
     }
 
     /// The prefiltered frame before the panel's clamp. The frame is
