@@ -8,8 +8,9 @@
 //! Networks: `none` (no network: the frame as it comes), `half` and `full`
 //! (the trainer's U-Net at 16 and 32 channels, random weights: latency does
 //! not depend on them) and `model` (the `--dcnn` model, models/dcnn.onnx
-//! by default, with its card: the shipped one runs its Wiener stage on the
-//! host first). Performance is measured here, never
+//! by default, with its card: the shipped one runs its Wiener stage first,
+//! on the device where the frame stays there), and `wiener` (no network:
+//! the DOE's Wiener prefilter, `doe+wiener`). Performance is measured here, never
 //! asserted in tests.
 
 use std::fmt::Write as _;
@@ -33,16 +34,24 @@ use nedrt_service::pipeline::stats::Report;
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum PipelineNetwork {
     None,
+    Wiener,
     Half,
     Full,
     Model,
 }
 
 impl Named for PipelineNetwork {
-    const ALL: &'static [Self] = &[Self::None, Self::Half, Self::Full, Self::Model];
+    const ALL: &'static [Self] = &[
+        Self::None,
+        Self::Wiener,
+        Self::Half,
+        Self::Full,
+        Self::Model,
+    ];
     fn name(self) -> &'static str {
         match self {
             Self::None => "none",
+            Self::Wiener => "wiener",
             Self::Half => "half",
             Self::Full => "full",
             Self::Model => "model",
@@ -51,6 +60,7 @@ impl Named for PipelineNetwork {
     fn help(self) -> &'static str {
         match self {
             Self::None => "no network: the frame as it comes, clamped",
+            Self::Wiener => "no network: the DOE's Wiener prefilter (doe+wiener, the --design's)",
             Self::Half => "the U-Net at 16–128 channels (random weights)",
             Self::Full => "the U-Net at 32–256 channels (random weights)",
             Self::Model => "the --dcnn model (models/dcnn.onnx) with its card",
@@ -104,6 +114,7 @@ pub fn run(
         case.dcnn.backend = BackendKind::Wgpu;
         let preprocess = match network {
             PipelineNetwork::None => Method::Conventional,
+            PipelineNetwork::Wiener => Method::DoeWiener,
             PipelineNetwork::Model => Method::Proposed,
             PipelineNetwork::Half | PipelineNetwork::Full => {
                 let width = if network == PipelineNetwork::Half {

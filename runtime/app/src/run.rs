@@ -603,6 +603,28 @@ fn spectral_stage(
     Ok(Box::new(stage))
 }
 
+/// `refine:K` of `problem` on the device, prepared for the panel's frames.
+fn refine_stage(
+    device: &wgpu::Device,
+    what: String,
+    problem: Arc<nedrt_optics::sim::DisplayProblem>,
+    steps: usize,
+    panel: &PanelConfig,
+) -> Result<Box<dyn nedrt_gpu::DeviceStage>, nedrt_gpu::fft::FftError> {
+    let terms_for: nedrt_gpu::refine::TermsFor = Box::new(move |w, h| {
+        let t = problem.device_terms(w, h).map_err(|e| e.to_string())?;
+        Ok(nedrt_gpu::refine::RefineTerms {
+            linear: t.linear,
+            adjoint_target: t.adjoint_target,
+            normal: t.normal,
+            step: t.step,
+        })
+    });
+    let mut stage = nedrt_gpu::refine::RefineStage::new(device, what, steps, terms_for)?;
+    stage.prepare(panel.width, panel.height)?;
+    Ok(Box::new(stage))
+}
+
 /// A Wiener filter on the device ([`spectral_stage`]).
 fn wiener_stage(
     device: &wgpu::Device,
@@ -615,9 +637,10 @@ fn wiener_stage(
     spectral_stage(device, what, gains_for, panel)
 }
 
-/// The method's linear prefilter (its Wiener, or `lsq`) as a device
+/// The method's prefilter (its Wiener, `lsq` or `refine:K`) as a device
 /// stage with the host's as its fallback; `None` where it runs on the
-/// host (the iterative solvers, or a size the device FFT lacks).
+/// host (`optimal`, whose stopping rule reads its objective back, or a
+/// size the device FFT lacks, or PSFs without mirror symmetry).
 fn linear_on_device(
     common: &CommonOptions,
     opts: &RunOptions,
@@ -626,7 +649,7 @@ fn linear_on_device(
 ) -> Result<Option<(Box<dyn nedrt_gpu::DeviceStage>, FallbackFactory)>, AppError> {
     use crate::preprocess::Prefilter;
     let method = opts.preprocess;
-    if !matches!(opts.prefilter, Prefilter::Native | Prefilter::Lsq(_)) {
+    if matches!(opts.prefilter, Prefilter::Optimal(_)) {
         return Ok(None);
     }
     let sim = Simulator::new(
@@ -652,6 +675,10 @@ fn linear_on_device(
             let gains_for: nedrt_gpu::fft::GainsFor =
                 Box::new(move |w, h| problem.linear_dct_gains(w, h).map_err(|e| e.to_string()));
             spectral_stage(device, what.clone(), gains_for, panel)
+        }
+        Prefilter::Refine(steps, objective) => {
+            let problem = Arc::new(prepared.display_problem(method, objective)?);
+            refine_stage(device, what.clone(), problem, steps, panel)
         }
         _ => match prepared.wiener_shared(method) {
             Some(filter) => wiener_stage(device, what.clone(), filter, panel),
@@ -908,6 +935,85 @@ mod tests {
                     &format!("Wiener {w}×{h}"),
                     &device_codes(&device, &queue, &transfer, stage, &input),
                     &host_codes(&transfer, &host.clamped()),
+                );
+            }
+        }
+
+        /// Mirror-symmetric Gaussian PSFs of `sigma`, one per channel (wider in blue).
+        fn gaussians(sigma: f64, veil: f64) -> Vec<Psf> {
+            [1.0, 1.3, 1.7]
+                .iter()
+                .map(|scale| {
+                    let s = sigma * scale;
+                    let window = 2 * (3.0 * s).ceil() as usize + 1;
+                    let c = (window / 2) as f64;
+                    let mut cells: Vec<f64> = (0..window * window)
+                        .map(|i| {
+                            let (x, y) = ((i % window) as f64 - c, (i / window) as f64 - c);
+                            (-(x * x + y * y) / (2.0 * s * s)).exp()
+                        })
+                        .collect();
+                    let sum: f64 = cells.iter().sum();
+                    cells.iter_mut().for_each(|v| *v *= (1.0 - veil) / sum);
+                    Psf {
+                        window,
+                        cells,
+                        veil,
+                    }
+                })
+                .collect()
+        }
+
+        #[test]
+        #[ignore = "needs a GPU adapter (run: scripts/test.sh, or cargo test -- --include-ignored)"]
+        fn refine_on_the_device_shows_the_codes_of_the_host_refine() {
+            use nedrt_optics::sim::{DisplayProblem, Objective, SolveMode, SolvedPrefilter};
+            let (device, queue) = nedrt_gpu::test_device(false);
+            let transfer = Transfer::from_gamma([2.2, 2.2, 2.2]);
+            // Three depths, the middle one's target blurred (the multifocal
+            // objective's shape), PSFs wider per channel and depth.
+            let depths = vec![0.0, 1.0, 2.0];
+            let per_depth: Vec<Vec<Psf>> = [1.2, 3.0, 1.8]
+                .iter()
+                .map(|s| gaussians(*s, 0.02))
+                .collect();
+            let psfs: Vec<Vec<Psf>> = (0..3)
+                .map(|c| per_depth.iter().map(|d| d[c].clone()).collect())
+                .collect();
+            let problem = Arc::new(
+                DisplayProblem::new(
+                    Objective::Target,
+                    depths,
+                    psfs,
+                    vec![false, true, false],
+                    Some(gaussians(2.0, 0.0)),
+                    0.03,
+                )
+                .expect("problem"),
+            );
+            for (w, h, steps) in [(150, 98, 10), (64, 40, 0), (64, 40, 3)] {
+                let panel = PanelConfig {
+                    width: w,
+                    height: h,
+                    refresh_hz: 90.0,
+                    transfer: transfer.clone(),
+                };
+                let input = frame(w, h);
+                let mut cpu =
+                    SolvedPrefilter::new("test", problem.clone(), SolveMode::Refine(steps));
+                let host = cpu.run(&input).expect("host");
+                let stage = super::super::refine_stage(
+                    &device,
+                    "test refine".into(),
+                    problem.clone(),
+                    steps,
+                    &panel,
+                )
+                .expect("stage");
+                compare(
+                    &format!("refine:{steps} {w}×{h}"),
+                    &device_codes(&device, &queue, &transfer, stage, &input),
+                    &host_codes(&transfer, &host),
                 );
             }
         }

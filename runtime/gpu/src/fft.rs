@@ -587,7 +587,10 @@ pub struct DctFilter {
     pub width: usize,
     pub height: usize,
     pub channels: usize,
-    /// Between the input's rows transform and the output's.
+    /// Between the input's rows transform and the output's: up to the
+    /// gain, the gain (one op per set), after it.
+    before_gain: Vec<Op>,
+    gain_ops: Vec<Op>,
     middle: Vec<Op>,
     /// The first dispatch reads the input, the last writes the output:
     /// their bind groups per buffer (the service's pool holds a few).
@@ -620,15 +623,36 @@ impl DctFilter {
         height: usize,
         gains: &[Vec<f32>],
     ) -> Result<Self, FftError> {
+        Self::with_gain_sets(kernels, width, height, &[gains])
+    }
+
+    /// The same with several sets of gains sharing the buffers and passes:
+    /// [`DctFilter::record_set`] picks one per recording (the refinement's
+    /// three operators).
+    pub fn with_gain_sets(
+        kernels: &mut FftKernels,
+        width: usize,
+        height: usize,
+        sets: &[&[Vec<f32>]],
+    ) -> Result<Self, FftError> {
         let device = kernels.device.clone();
+        let Some(gains) = sets.first() else {
+            return Err(FftError::Gains("no gains".into()));
+        };
         let channels = gains.len();
+        if sets.iter().any(|g| g.len() != channels) {
+            return Err(FftError::Gains(
+                "gain sets of different channel counts".into(),
+            ));
+        }
         if channels == 0 || width == 0 || height == 0 {
             return Err(FftError::Gains(format!(
                 "{channels} channels of {width}×{height}: nothing to filter"
             )));
         }
-        if let Some((c, g)) = gains
+        if let Some((c, g)) = sets
             .iter()
+            .flat_map(|g| g.iter())
             .enumerate()
             .find(|(_, g)| g.len() != width * height)
         {
@@ -638,7 +662,12 @@ impl DctFilter {
                 width * height
             )));
         }
-        if gains.iter().flatten().any(|v| !v.is_finite()) {
+        if sets
+            .iter()
+            .flat_map(|g| g.iter())
+            .flatten()
+            .any(|v| !v.is_finite())
+        {
             return Err(FftError::Gains("a gain is not finite".into()));
         }
         let real_bytes = (channels * width * height * 4) as u64;
@@ -658,8 +687,13 @@ impl DctFilter {
         let cx_a = storage_buffer("dct complex a", cplx_bytes);
         let cx_b = storage_buffer("dct complex b", cplx_bytes);
         let tmp = storage_buffer("dct planes", real_bytes);
-        let flat: Vec<f32> = gains.iter().flatten().copied().collect();
-        let gain = init_buffer(&device, "dct gains", bytemuck::cast_slice(&flat));
+        let gains: Vec<wgpu::Buffer> = sets
+            .iter()
+            .map(|g| {
+                let flat: Vec<f32> = g.iter().flatten().copied().collect();
+                init_buffer(&device, "dct gains", bytemuck::cast_slice(&flat))
+            })
+            .collect();
         let dummy_gain = init_buffer(&device, "no gains", &[0u8; 16]);
         let row_tables = Tables::new(&device, width)?;
         let col_tables = Tables::new(&device, height)?;
@@ -737,17 +771,21 @@ impl DctFilter {
             &cx_b,
         )?;
         middle.extend(col_fwd);
-        middle.push(Op {
-            pipeline: dct2_unpack.clone(),
-            bind: unpack(
-                &cols_gain_p,
-                if in_b { &cx_b } else { &cx_a },
-                &tmp,
-                &col_tables.quarter,
-                &gain,
-            ),
-            groups: groups(&cols_q),
-        });
+        let gain_ops = gains
+            .iter()
+            .map(|gain| Op {
+                pipeline: dct2_unpack.clone(),
+                bind: unpack(
+                    &cols_gain_p,
+                    if in_b { &cx_b } else { &cx_a },
+                    &tmp,
+                    &col_tables.quarter,
+                    gain,
+                ),
+                groups: groups(&cols_q),
+            })
+            .collect();
+        let before_gain = std::mem::take(&mut middle);
         middle.push(Op {
             pipeline: dct3_pack.clone(),
             bind: pack(&cols_p, &tmp, &cx_a, &col_tables.quarter),
@@ -792,6 +830,8 @@ impl DctFilter {
             width,
             height,
             channels,
+            before_gain,
+            gain_ops,
             middle,
             first: (dct2_pack, rows_p.clone(), groups(&rows_q)),
             last: (dct3_unpack, rows_p, groups(&rows_q)),
@@ -815,7 +855,8 @@ impl DctFilter {
         let real = (self.channels * self.width * self.height * 4) as u64;
         // Each complex pass moves half the real planes' count of complex
         // values (two sequences a pair), in and out: 2 · (real/2 · 2).
-        let passes = (self.middle.len() + self.row_inverse.len() + 2) as u64;
+        let passes =
+            (self.before_gain.len() + 1 + self.middle.len() + self.row_inverse.len() + 2) as u64;
         passes * 2 * real
     }
 
@@ -827,6 +868,20 @@ impl DctFilter {
         input: &wgpu::Buffer,
         output: &wgpu::Buffer,
     ) -> Result<(), FftError> {
+        self.record_set(encoder, input, output, 0)
+    }
+
+    /// As [`DctFilter::record`], with gain set `set`.
+    pub fn record_set(
+        &mut self,
+        encoder: &mut wgpu::CommandEncoder,
+        input: &wgpu::Buffer,
+        output: &wgpu::Buffer,
+        set: usize,
+    ) -> Result<(), FftError> {
+        if set >= self.gain_ops.len() {
+            return Err(FftError::Gains(format!("no gain set {set}")));
+        }
         let need = (self.channels * self.width * self.height * 4) as u64;
         for (what, b) in [("input", input), ("output", output)] {
             if b.size() < need {
@@ -839,6 +894,7 @@ impl DctFilter {
         }
         let first = self.input_bind(input);
         let last = self.output_bind(output);
+        let gain_op = &self.gain_ops[set];
         let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
             label: Some("dct filter"),
             timestamp_writes: None,
@@ -846,7 +902,14 @@ impl DctFilter {
         pass.set_pipeline(&self.first.0);
         pass.set_bind_group(0, &first, &[]);
         pass.dispatch_workgroups(self.first.2[0], self.first.2[1], 1);
-        record_ops(&mut pass, self.middle.iter().chain(&self.row_inverse));
+        record_ops(
+            &mut pass,
+            self.before_gain
+                .iter()
+                .chain(std::iter::once(gain_op))
+                .chain(&self.middle)
+                .chain(&self.row_inverse),
+        );
         pass.set_pipeline(&self.last.0);
         pass.set_bind_group(0, &last, &[]);
         pass.dispatch_workgroups(self.last.2[0], self.last.2[1], 1);

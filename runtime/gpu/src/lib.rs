@@ -7,6 +7,7 @@
 //! wraps in its own error type (the FFT's are typed, [`fft::FftError`]).
 
 pub mod fft;
+pub mod refine;
 
 /// How wgpu's instance is made: which backends it may use, its flags and
 /// per-backend options. The binary fills it from wgpu's environment
@@ -156,7 +157,11 @@ pub struct Chain {
 }
 
 impl Chain {
-    pub fn new(device: &wgpu::Device, first: Box<dyn DeviceStage>, second: Box<dyn DeviceStage>) -> Self {
+    pub fn new(
+        device: &wgpu::Device,
+        first: Box<dyn DeviceStage>,
+        second: Box<dyn DeviceStage>,
+    ) -> Self {
         Self {
             device: device.clone(),
             first,

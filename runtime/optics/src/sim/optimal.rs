@@ -185,6 +185,35 @@ impl DisplayProblem {
             .collect()
     }
 
+    /// What the device's refinement needs at `width`×`height`: the gains
+    /// of the linear prefilter, of Σ_D A_Dᵀ t_D and of Σ_D A_Dᵀ A_D in the
+    /// DCT filter's layout ([`super::wiener::dct_plane`]) and the step
+    /// 1/L, per channel. Only the mirrored path has them (mirror-symmetric
+    /// PSFs); the cropped path is refused.
+    pub fn device_terms(&self, width: usize, height: usize) -> Result<DeviceTerms, super::SimError> {
+        let plan = self.plan(width, height);
+        let Operator::Mirrored(op) = &plan.operator else {
+            return Err(super::SimError::Invalid(
+                "the PSFs are not mirror-symmetric: the objective has no DCT form for the device".into(),
+            ));
+        };
+        let planes = |spectra: Vec<Vec<c32>>| -> Result<Vec<Vec<f32>>, super::SimError> {
+            spectra
+                .iter()
+                .enumerate()
+                .map(|(c, g)| super::wiener::dct_plane(g, width, height, c))
+                .collect()
+        };
+        let real = |v: &Vec<f32>| v.iter().map(|r| c32::new(*r, 0.0)).collect::<Vec<c32>>();
+        Ok(DeviceTerms {
+            linear: plan.linear.dct_gains()?,
+            adjoint_target: planes(op.adjoint_target.clone())?,
+            normal: planes(op.normal.iter().map(real).collect())?,
+            // The CPU's step, in the same precision.
+            step: plan.lipschitz.iter().map(|l| (1.0 / l) as f32).collect(),
+        })
+    }
+
     /// The `lsq` prefilter's gains for `width`×`height` frames as the
     /// device's DCT filter takes them ([`WienerPlan::dct_gains`]).
     pub fn linear_dct_gains(&self, width: usize, height: usize) -> Result<Vec<Vec<f32>>, super::SimError> {
@@ -893,6 +922,16 @@ pub enum SolveMode {
     Refine(usize),
     /// Solved to convergence.
     Optimal,
+}
+
+/// The refinement's terms at one frame size for the device
+/// ([`DisplayProblem::device_terms`]).
+#[derive(Debug, Clone)]
+pub struct DeviceTerms {
+    pub linear: Vec<Vec<f32>>,
+    pub adjoint_target: Vec<Vec<f32>>,
+    pub normal: Vec<Vec<f32>>,
+    pub step: Vec<f32>,
 }
 
 /// `lsq`, `refine:k` and `optimal` as the preprocessing of a display system.

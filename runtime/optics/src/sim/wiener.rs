@@ -57,6 +57,26 @@ pub(crate) fn first_quadrant(full: &[f32], w: usize, h: usize) -> Vec<f32> {
     out
 }
 
+/// A spectrum of the mirrored 2w×2h grid (as [`Fft2`] stores it:
+/// transposed, bin (ky, kx) at kx·2h + ky) as the device's DCT filter
+/// takes it: its real part at ky < h, kx < w, row-major. Mirror-symmetric
+/// kernels have real, even spectra, so DCT-II · gain · DCT-III of the w×h
+/// frame is exactly the mirrored filter (docs/gpu-fft.md); a spectrum with
+/// an imaginary part beyond round-off (an asymmetric kernel) has no such
+/// form and is refused (`channel` names it).
+pub(crate) fn dct_plane(spectrum: &[c32], w: usize, h: usize, channel: usize) -> Result<Vec<f32>, SimError> {
+    let rows = 2 * h;
+    let peak = spectrum.iter().map(|v| v.norm()).fold(0.0f32, f32::max);
+    let imag = spectrum.iter().map(|v| v.im.abs()).fold(0.0f32, f32::max);
+    if imag > 1e-4 * peak.max(f32::MIN_POSITIVE) || spectrum.len() < (w + 1) * rows {
+        return Err(SimError::Invalid(format!(
+            "channel {channel}'s spectrum is not real (|Im| up to {imag:e} of {peak:e}): its kernel is \
+             not mirror-symmetric, and the DCT filter cannot apply it"
+        )));
+    }
+    Ok((0..h * w).map(|i| spectrum[(i % w) * rows + i / w].re).collect())
+}
+
 /// A Wiener prefilter for one display system: one display-grid kernel per channel.
 #[derive(Debug)]
 pub struct WienerFilter {
@@ -129,23 +149,10 @@ impl WienerPlan {
     /// with an imaginary part beyond round-off (an asymmetric kernel) have
     /// no such form and are refused.
     pub fn dct_gains(&self) -> Result<Vec<Vec<f32>>, SimError> {
-        let (w, h) = (self.width, self.height);
-        let rows = 2 * h;
         self.gains
             .iter()
             .enumerate()
-            .map(|(c, g)| {
-                let peak = g.iter().map(|v| v.norm()).fold(0.0f32, f32::max);
-                let imag = g.iter().map(|v| v.im.abs()).fold(0.0f32, f32::max);
-                if imag > 1e-4 * peak.max(f32::MIN_POSITIVE) {
-                    return Err(SimError::Invalid(format!(
-                        "channel {c}'s gains are not real (|Im| up to {imag:e} of {peak:e}): its kernel is \
-                         not mirror-symmetric, and the DCT filter cannot apply it"
-                    )));
-                }
-                // The spectrum is stored transposed: bin (ky, kx) at kx·2h + ky.
-                Ok((0..h * w).map(|i| g[(i % w) * rows + i / w].re).collect())
-            })
+            .map(|(c, g)| dct_plane(g, self.width, self.height, c))
             .collect()
     }
 

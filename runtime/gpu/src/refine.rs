@@ -1,0 +1,368 @@
+//! `refine:K` on the device: the linear least-squares prefilter, then K
+//! projected-gradient steps with momentum and gradient restart, per channel,
+//! on the bounded least-squares problem of the display's optics
+//! (nedrt-optics' `optimal.rs`, docs/optimal.md): the same operator, step
+//! 1/L, restart rule and step count as the CPU, the operator applied by the
+//! DCT filter ([`crate::fft::DctFilter`], three gain sets sharing its
+//! buffers) and the steps by `shaders/fista.wgsl`. A frame records its
+//! dispatches; nothing is allocated or read back.
+
+use crate::fft::{DctFilter, FftError, FftKernels};
+
+const SHADER: &str = include_str!("../../../shaders/fista.wgsl");
+const MAX_GROUPS_X: u32 = 65535;
+const OUTPUTS_KEPT: usize = 8;
+
+/// The problem at one frame size, as the device takes it: per channel the
+/// gains (DCT layout, [`DctFilter`]) of the linear prefilter (the start),
+/// of Σ_D A_Dᵀ t_D (the gradient's constant term) and of Σ_D A_Dᵀ A_D
+/// (its operator), and the step 1/L.
+#[derive(Debug, Clone)]
+pub struct RefineTerms {
+    pub linear: Vec<Vec<f32>>,
+    pub adjoint_target: Vec<Vec<f32>>,
+    pub normal: Vec<Vec<f32>>,
+    pub step: Vec<f32>,
+}
+
+/// The terms of a frame size, or why they cannot be made.
+pub type TermsFor = Box<dyn FnMut(usize, usize) -> Result<RefineTerms, String> + Send>;
+
+/// `fista.wgsl`'s `Frame`.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct FrameParams {
+    plane: u32,
+    channels: u32,
+    groups_per_plane: u32,
+    groups_x: u32,
+}
+
+#[derive(Debug)]
+struct Pipelines {
+    layout: wgpu::BindGroupLayout,
+    start: wgpu::ComputePipeline,
+    project: wgpu::ComputePipeline,
+    reduce: wgpu::ComputePipeline,
+    advance: wgpu::ComputePipeline,
+    emit: wgpu::ComputePipeline,
+}
+
+impl Pipelines {
+    fn new(device: &wgpu::Device) -> Result<Self, FftError> {
+        let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let entries: Vec<wgpu::BindGroupLayoutEntry> = (0..8)
+            .map(|binding| wgpu::BindGroupLayoutEntry {
+                binding,
+                visibility: wgpu::ShaderStages::COMPUTE,
+                ty: wgpu::BindingType::Buffer {
+                    ty: wgpu::BufferBindingType::Storage {
+                        read_only: matches!(binding, 0 | 5 | 6),
+                    },
+                    has_dynamic_offset: false,
+                    min_binding_size: None,
+                },
+                count: None,
+            })
+            .collect();
+        let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("fista"),
+            entries: &entries,
+        });
+        let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("fista"),
+            bind_group_layouts: &[Some(&layout)],
+            immediate_size: 0,
+        });
+        let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some("fista"),
+            source: wgpu::ShaderSource::Wgsl(SHADER.into()),
+        });
+        let pipeline = |entry: &str| {
+            device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                label: Some(entry),
+                layout: Some(&pipeline_layout),
+                module: &module,
+                entry_point: Some(entry),
+                compilation_options: Default::default(),
+                cache: None,
+            })
+        };
+        let out = Self {
+            start: pipeline("start"),
+            project: pipeline("project"),
+            reduce: pipeline("reduce"),
+            advance: pipeline("advance"),
+            emit: pipeline("emit"),
+            layout,
+        };
+        match pollster::block_on(scope.pop()) {
+            Some(e) => Err(FftError::Device(e.to_string())),
+            None => Ok(out),
+        }
+    }
+}
+
+/// Everything one frame size needs.
+#[derive(Debug)]
+struct Plan {
+    width: usize,
+    height: usize,
+    filter: DctFilter,
+    /// y, x, x⁺ (the internal buffers the filter reads or writes) and the
+    /// bind group of start/project/reduce/advance.
+    y: wgpu::Buffer,
+    xn: wgpu::Buffer,
+    ay: wgpu::Buffer,
+    b: wgpu::Buffer,
+    buffers: [wgpu::Buffer; 4],
+    main: wgpu::BindGroup,
+    emits: Vec<(wgpu::Buffer, wgpu::BindGroup)>,
+    groups: [u32; 3],
+}
+
+/// `refine:K` (or `optimal` with a step budget K) as a
+/// [`crate::DeviceStage`].
+pub struct RefineStage {
+    name: String,
+    steps: usize,
+    device: wgpu::Device,
+    kernels: FftKernels,
+    pipelines: Pipelines,
+    terms_for: TermsFor,
+    plan: Option<Plan>,
+}
+
+impl std::fmt::Debug for RefineStage {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("RefineStage")
+            .field("name", &self.name)
+            .field("steps", &self.steps)
+            .finish()
+    }
+}
+
+impl RefineStage {
+    pub fn new(
+        device: &wgpu::Device,
+        name: String,
+        steps: usize,
+        terms_for: TermsFor,
+    ) -> Result<Self, FftError> {
+        Ok(Self {
+            name,
+            steps,
+            device: device.clone(),
+            kernels: FftKernels::new(device)?,
+            pipelines: Pipelines::new(device)?,
+            terms_for,
+            plan: None,
+        })
+    }
+
+    /// Makes the plan of `width`×`height` frames now (the terms computed
+    /// and uploaded), as the first frame of that size would.
+    pub fn prepare(&mut self, width: usize, height: usize) -> Result<(), FftError> {
+        if matches!(&self.plan, Some(p) if (p.width, p.height) == (width, height)) {
+            return Ok(());
+        }
+        let terms = (self.terms_for)(width, height).map_err(FftError::Gains)?;
+        let channels = terms.step.len();
+        if channels == 0
+            || [&terms.linear, &terms.adjoint_target, &terms.normal]
+                .iter()
+                .any(|g| g.len() != channels)
+        {
+            return Err(FftError::Gains(format!(
+                "terms of {} / {} / {} channels and {channels} steps",
+                terms.linear.len(),
+                terms.adjoint_target.len(),
+                terms.normal.len()
+            )));
+        }
+        if terms.step.iter().any(|s| !(s.is_finite() && *s > 0.0)) {
+            return Err(FftError::Gains(
+                "a step 1/L is not a positive number".into(),
+            ));
+        }
+        let filter = DctFilter::with_gain_sets(
+            &mut self.kernels,
+            width,
+            height,
+            &[&terms.linear, &terms.adjoint_target, &terms.normal],
+        )?;
+        let device = &self.device;
+        let plane = (width * height) as u32;
+        let bytes = u64::from(plane) * channels as u64 * 4;
+        let buffer = |label| {
+            device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some(label),
+                size: bytes,
+                usage: wgpu::BufferUsages::STORAGE,
+                mapped_at_creation: false,
+            })
+        };
+        let groups_total = plane.div_ceil(64);
+        let gx = groups_total.min(MAX_GROUPS_X);
+        let gy = groups_total.div_ceil(gx);
+        let params = FrameParams {
+            plane,
+            channels: channels as u32,
+            groups_per_plane: gx * gy,
+            groups_x: gx,
+        };
+        use wgpu::util::DeviceExt;
+        let init = |label, contents: &[u8]| {
+            device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some(label),
+                contents,
+                usage: wgpu::BufferUsages::STORAGE,
+            })
+        };
+        let frame = init("fista frame", bytemuck::bytes_of(&params));
+        let state: Vec<f32> = terms
+            .step
+            .iter()
+            .flat_map(|s| [*s, 1.0, 0.0, 0.0])
+            .collect();
+        let state = init("fista state", bytemuck::cast_slice(&state));
+        let partials = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("fista partial sums"),
+            size: u64::from(gx * gy) * channels as u64 * 4,
+            usage: wgpu::BufferUsages::STORAGE,
+            mapped_at_creation: false,
+        });
+        let (y, x, xn, ay, b) = (
+            buffer("fista y"),
+            buffer("fista x"),
+            buffer("fista x+"),
+            buffer("fista Ay"),
+            buffer("fista b"),
+        );
+        let main = bind(
+            device,
+            &self.pipelines.layout,
+            [&frame, &state, &y, &x, &xn, &ay, &b, &partials],
+        );
+        self.plan = Some(Plan {
+            width,
+            height,
+            filter,
+            y,
+            xn,
+            ay,
+            b,
+            buffers: [frame, state, x, partials],
+            main,
+            emits: Vec::new(),
+            groups: [gx, gy, channels as u32],
+        });
+        Ok(())
+    }
+}
+
+fn bind(
+    device: &wgpu::Device,
+    layout: &wgpu::BindGroupLayout,
+    buffers: [&wgpu::Buffer; 8],
+) -> wgpu::BindGroup {
+    let entries: Vec<wgpu::BindGroupEntry> = buffers
+        .iter()
+        .enumerate()
+        .map(|(i, b)| wgpu::BindGroupEntry {
+            binding: i as u32,
+            resource: b.as_entire_binding(),
+        })
+        .collect();
+    device.create_bind_group(&wgpu::BindGroupDescriptor {
+        label: Some("fista"),
+        layout,
+        entries: &entries,
+    })
+}
+
+impl crate::DeviceStage for RefineStage {
+    fn describe(&self) -> String {
+        format!("{} on the device ({} steps)", self.name, self.steps)
+    }
+
+    fn record(
+        &mut self,
+        encoder: &mut wgpu::CommandEncoder,
+        input: &wgpu::Buffer,
+        output: &wgpu::Buffer,
+        width: usize,
+        height: usize,
+    ) -> Result<(), String> {
+        self.prepare(width, height).map_err(|e| e.to_string())?;
+        let Some(plan) = self.plan.as_mut() else {
+            return Err("the refinement has no plan".into());
+        };
+        let need = plan.y.size();
+        if output.size() < need || input.size() < need {
+            return Err(format!(
+                "the refinement's buffers hold {} and {} bytes; a frame is {need}",
+                input.size(),
+                output.size()
+            ));
+        }
+        let emit = match plan.emits.iter().find(|(b, _)| b == output) {
+            Some((_, g)) => g.clone(),
+            None => {
+                let [frame, state, x, partials] = &plan.buffers;
+                let g = bind(
+                    &self.device,
+                    &self.pipelines.layout,
+                    [
+                        frame, state, &plan.y, x, output, &plan.ay, &plan.b, partials,
+                    ],
+                );
+                if plan.emits.len() == OUTPUTS_KEPT {
+                    plan.emits.remove(0);
+                }
+                plan.emits.push((output.clone(), g.clone()));
+                g
+            }
+        };
+        let e = |e: FftError| e.to_string();
+        // b = Σ A_Dᵀ t_D(I); the start: the linear prefilter, clamped.
+        plan.filter
+            .record_set(encoder, input, &plan.b, 1)
+            .map_err(e)?;
+        plan.filter
+            .record_set(encoder, input, &plan.xn, 0)
+            .map_err(e)?;
+        let [gx, gy, c] = plan.groups;
+        let p = &self.pipelines;
+        let dispatch = |encoder: &mut wgpu::CommandEncoder,
+                        steps: &[(&wgpu::ComputePipeline, [u32; 3])],
+                        group: &wgpu::BindGroup| {
+            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some("fista"),
+                timestamp_writes: None,
+            });
+            pass.set_bind_group(0, group, &[]);
+            for (pipeline, g) in steps {
+                pass.set_pipeline(pipeline);
+                pass.dispatch_workgroups(g[0], g[1], g[2]);
+            }
+        };
+        dispatch(encoder, &[(&p.start, [gx, gy, c])], &plan.main);
+        for _ in 0..self.steps {
+            plan.filter
+                .record_set(encoder, &plan.y, &plan.ay, 2)
+                .map_err(e)?;
+            dispatch(
+                encoder,
+                &[
+                    (&p.project, [gx, gy, c]),
+                    (&p.reduce, [1, 1, c]),
+                    (&p.advance, [gx, gy, c]),
+                ],
+                &plan.main,
+            );
+        }
+        dispatch(encoder, &[(&p.emit, [gx, gy, c])], &emit);
+        Ok(())
+    }
+}
