@@ -9,8 +9,9 @@
 //! (the trainer's U-Net at 16 and 32 channels, random weights: latency does
 //! not depend on them) and `model` (the `--dcnn` model, models/dcnn.onnx
 //! by default, with its card: the shipped one runs its Wiener stage first,
-//! on the device where the frame stays there), and `wiener` (no network:
-//! the DOE's Wiener prefilter, `doe+wiener`). Performance is measured here, never
+//! on the device where the frame stays there), `wiener` (no network:
+//! the DOE's Wiener prefilter, `doe+wiener`) and `refine10` (its `lsq` and
+//! 10 projected-gradient steps). Performance is measured here, never
 //! asserted in tests.
 
 use std::fmt::Write as _;
@@ -35,6 +36,7 @@ use nedrt_service::pipeline::stats::Report;
 pub enum PipelineNetwork {
     None,
     Wiener,
+    Refine10,
     Half,
     Full,
     Model,
@@ -44,6 +46,7 @@ impl Named for PipelineNetwork {
     const ALL: &'static [Self] = &[
         Self::None,
         Self::Wiener,
+        Self::Refine10,
         Self::Half,
         Self::Full,
         Self::Model,
@@ -52,6 +55,7 @@ impl Named for PipelineNetwork {
         match self {
             Self::None => "none",
             Self::Wiener => "wiener",
+            Self::Refine10 => "refine10",
             Self::Half => "half",
             Self::Full => "full",
             Self::Model => "model",
@@ -61,6 +65,9 @@ impl Named for PipelineNetwork {
         match self {
             Self::None => "no network: the frame as it comes, clamped",
             Self::Wiener => "no network: the DOE's Wiener prefilter (doe+wiener, the --design's)",
+            Self::Refine10 => {
+                "no network: doe+wiener's lsq prefilter and 10 projected-gradient steps (refine:10)"
+            }
             Self::Half => "the U-Net at 16–128 channels (random weights)",
             Self::Full => "the U-Net at 32–256 channels (random weights)",
             Self::Model => "the --dcnn model (models/dcnn.onnx) with its card",
@@ -114,7 +121,7 @@ pub fn run(
         case.dcnn.backend = BackendKind::Wgpu;
         let preprocess = match network {
             PipelineNetwork::None => Method::Conventional,
-            PipelineNetwork::Wiener => Method::DoeWiener,
+            PipelineNetwork::Wiener | PipelineNetwork::Refine10 => Method::DoeWiener,
             PipelineNetwork::Model => Method::Proposed,
             PipelineNetwork::Half | PipelineNetwork::Full => {
                 let width = if network == PipelineNetwork::Half {
@@ -133,7 +140,14 @@ pub fn run(
         for &path in &b.paths {
             let opts = RunOptions {
                 preprocess,
-                prefilter: crate::preprocess::Prefilter::Native,
+                prefilter: if network == PipelineNetwork::Refine10 {
+                    crate::preprocess::Prefilter::Refine(
+                        10,
+                        crate::preprocess::Prefilter::DEFAULT_OBJECTIVE,
+                    )
+                } else {
+                    crate::preprocess::Prefilter::Native
+                },
                 source: SourceKind::Pattern,
                 input: None,
                 socket: PathBuf::from("unused.sock"),

@@ -190,11 +190,16 @@ impl DisplayProblem {
     /// DCT filter's layout ([`super::wiener::dct_plane`]) and the step
     /// 1/L, per channel. Only the mirrored path has them (mirror-symmetric
     /// PSFs); the cropped path is refused.
-    pub fn device_terms(&self, width: usize, height: usize) -> Result<DeviceTerms, super::SimError> {
+    pub fn device_terms(
+        &self,
+        width: usize,
+        height: usize,
+    ) -> Result<DeviceTerms, super::SimError> {
         let plan = self.plan(width, height);
         let Operator::Mirrored(op) = &plan.operator else {
             return Err(super::SimError::Invalid(
-                "the PSFs are not mirror-symmetric: the objective has no DCT form for the device".into(),
+                "the PSFs are not mirror-symmetric: the objective has no DCT form for the device"
+                    .into(),
             ));
         };
         let planes = |spectra: Vec<Vec<c32>>| -> Result<Vec<Vec<f32>>, super::SimError> {
@@ -216,7 +221,11 @@ impl DisplayProblem {
 
     /// The `lsq` prefilter's gains for `width`×`height` frames as the
     /// device's DCT filter takes them ([`WienerPlan::dct_gains`]).
-    pub fn linear_dct_gains(&self, width: usize, height: usize) -> Result<Vec<Vec<f32>>, super::SimError> {
+    pub fn linear_dct_gains(
+        &self,
+        width: usize,
+        height: usize,
+    ) -> Result<Vec<Vec<f32>>, super::SimError> {
         self.plan(width, height).linear.dct_gains()
     }
 

@@ -64,7 +64,12 @@ pub(crate) fn first_quadrant(full: &[f32], w: usize, h: usize) -> Vec<f32> {
 /// frame is exactly the mirrored filter (docs/gpu-fft.md); a spectrum with
 /// an imaginary part beyond round-off (an asymmetric kernel) has no such
 /// form and is refused (`channel` names it).
-pub(crate) fn dct_plane(spectrum: &[c32], w: usize, h: usize, channel: usize) -> Result<Vec<f32>, SimError> {
+pub(crate) fn dct_plane(
+    spectrum: &[c32],
+    w: usize,
+    h: usize,
+    channel: usize,
+) -> Result<Vec<f32>, SimError> {
     let rows = 2 * h;
     let peak = spectrum.iter().map(|v| v.norm()).fold(0.0f32, f32::max);
     let imag = spectrum.iter().map(|v| v.im.abs()).fold(0.0f32, f32::max);
@@ -74,7 +79,9 @@ pub(crate) fn dct_plane(spectrum: &[c32], w: usize, h: usize, channel: usize) ->
              not mirror-symmetric, and the DCT filter cannot apply it"
         )));
     }
-    Ok((0..h * w).map(|i| spectrum[(i % w) * rows + i / w].re).collect())
+    Ok((0..h * w)
+        .map(|i| spectrum[(i % w) * rows + i / w].re)
+        .collect())
 }
 
 /// A Wiener prefilter for one display system: one display-grid kernel per channel.
