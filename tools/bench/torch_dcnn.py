@@ -67,6 +67,28 @@ def ceilings(copy_mb: int, n: int, repeat: int):
     print(json.dumps(rec), flush=True)
 
 
+def fft_filter(sizes: str, repeat: int):
+    """The prefilters' transform in PyTorch (cuFFT on CUDA): each of three
+    planes mirrored to 2w×2h, rfft2, times a real gain, irfft2, cropped:
+    what `nedrt bench fft` times on the device as DCT-II · gain · DCT-III."""
+    cuda = torch.cuda.is_available()
+    dev = torch.device("cuda" if cuda else "cpu")
+    for size in sizes.split(","):
+        w, h = map(int, size.split("x"))
+        x = torch.rand(3, h, w, device=dev)
+        gain = torch.rand(3, 2 * h, w + 1, device=dev)
+
+        def run():
+            m = torch.cat([x, x.flip(-1)], dim=-1)
+            m = torch.cat([m, m.flip(-2)], dim=-2)
+            return torch.fft.irfft2(torch.fft.rfft2(m) * gain, s=(2 * h, 2 * w))[..., :h, :w]
+
+        med, mn = timed(run, repeat, cuda)
+        print(json.dumps({"kind": "fft_filter", "backend": "torch.fft", "width": w, "height": h,
+                          "device": torch.cuda.get_device_name() if cuda else "CPU", "median_s": med,
+                          "min_s": mn, "repeat": repeat, "torch": torch.__version__}), flush=True)
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--sizes", default="512x512,1920x1080")
@@ -76,7 +98,11 @@ def main():
     ap.add_argument("--ceilings", action="store_true", help="measure the copy bandwidth and GEMM rates instead")
     ap.add_argument("--copy-mb", type=int, default=2048, help="--ceilings: the copied buffer, MiB")
     ap.add_argument("--gemm", type=int, default=8192, help="--ceilings: the GEMMs' n (n×n by n×n)")
+    ap.add_argument("--fft", action="store_true", help="time the prefilters' FFT filter (torch.fft) instead")
     args = ap.parse_args()
+    if args.fft:
+        fft_filter(args.sizes, args.repeat)
+        return
     if args.ceilings:
         ceilings(args.copy_mb, args.gemm, args.repeat)
         return

@@ -207,7 +207,7 @@ def sizes(smoke: bool) -> dict:
                 "torch_repeat": 2, "pipeline_s": 20, "train_images": 2, "val_images": 1, "crop": 64, "val_crop": 48,
                 "patch": 32, "width": 4, "levels": 2, "ceiling_iterations": 3, "ceiling_shards": 2,
                 "steps": 3, "validate_every": 2, "max_batch": 2, "budget_s": 60, "copy_mb": 16, "gemm": 256}
-    return {"frame": "1920x1080", "layer_frame": "1920x1080", "panel": "1920x1080", "frames": 300, "repeat": 10,
+    return {"frame": "1920x1080", "layer_frame": "1920x1080", "panel": "1920x1080", "frames": 200, "repeat": 10,
             "torch_repeat": 20, "pipeline_s": 12, "train_images": None, "val_images": None, "crop": None,
             "val_crop": None, "patch": 128, "width": 32, "levels": 4, "ceiling_iterations": 200, "ceiling_shards": 8,
             "steps": 1_000_000, "validate_every": 500, "max_batch": 64, "budget_s": TRAIN_BUDGET_S,
@@ -219,11 +219,13 @@ def caps() -> list:
     return [
         ("setup", "the binary unpacked, the Vulkan loader, the adapter named", 20),
         ("ceilings", "the GPU's copy bandwidth and GEMM rates through PyTorch (the floors' peaks)", 20),
-        ("wgsl", "the D-CNN at 1920×1080 through nedrt's WGSL: full and half, f32 and f16", 45),
-        ("per-layer", "each layer's device time and its floor (timestamp queries)", 45),
-        ("torch", "the same networks in PyTorch: f32 (TF32 off), TF32, f16 channels-last; cuDNN benchmark", 45),
-        ("pipeline", "nedrt bench pipeline at 1920×1080 on the device path: none, half, full, the shipped model", 75),
-        ("teacher", "the D-CNN's teacher: nedrt prefilter on the CPU, the training ceiling on CUDA", 120),
+        ("wgsl", "the D-CNN at 1920×1080 through nedrt's WGSL: full and half, f32 and f16", 40),
+        ("per-layer", "each layer's device time and its floor (timestamp queries)", 40),
+        ("torch", "the same networks in PyTorch: f32 (TF32 off), TF32, f16 channels-last; cuDNN benchmark", 40),
+        ("fft", "the prefilters' transform at 1920×1080: nedrt's DCT filter, the CPU's, torch.fft (cuFFT)", 30),
+        ("pipeline", "nedrt bench pipeline at 1920×1080 on the device path: none, the Wiener, refine:10, "
+                     "half, full, the shipped model", 75),
+        ("teacher", "the D-CNN's teacher: nedrt prefilter on the CPU, the training ceiling on CUDA", 105),
         ("train", "the full-width D-CNN on CUDA (bf16 autocast, the largest batch that fits)", TRAIN_BUDGET_S),
         ("export", "the network as the runtime's ONNX with its card", 20),
     ]
@@ -307,9 +309,19 @@ def step_torch(r: Runner, s: Step, z: dict):
          s.cap_s)
 
 
+def step_fft(r: Runner, s: Step, z: dict, ceilings: Step):
+    r.need_gpu_adapter()
+    bw = [a for a in peaks(ceilings) if a][2:]
+    out = r.sh([r.nedrt, "bench", "fft", "--sizes", z["frame"], "--repeat", z["torch_repeat"], *bw], s.cap_s)
+    s.text = "\n".join(line for line in out.splitlines() if not line.startswith("{"))
+    r.sh([r.python, REPO / "tools/bench/torch_dcnn.py", "--fft", "--sizes", z["frame"], "--repeat",
+          z["torch_repeat"]], s.cap_s)
+
+
 def step_pipeline(r: Runner, s: Step, z: dict):
     r.need_gpu_adapter()
-    out = r.sh([r.nedrt, "bench", "pipeline", "--networks", "none,half,full,model", "--frame-paths", "device",
+    out = r.sh([r.nedrt, "--design", "multifocal", "bench", "pipeline", "--networks",
+                "none,wiener,refine10,half,full,model", "--frame-paths", "device",
                 "--panel", z["panel"], "--frames", z["frames"], "--max-seconds", z["pipeline_s"]], s.cap_s)
     s.text = "\n".join(line for line in out.splitlines() if not line.startswith("{"))
 
@@ -443,6 +455,12 @@ def report(steps: dict, meta: dict) -> str:
                       f"{x['median_s'] * 1e3:.2f} | {x['min_s'] * 1e3:.2f} | {x['gmac_per_s']:.0f} | {ratio} |")
     if steps["per-layer"].text:
         md += ["", f"## Per layer ({head})", steps["per-layer"].text]
+    if steps["fft"].text:
+        md += ["", f"## The prefilters' transform ({head})", "", steps["fft"].text]
+        for x in steps["fft"].records:
+            if x.get("backend") == "torch.fft":
+                md.append(f"\ntorch.fft (mirror, rfft2, gain, irfft2) {x['width']}×{x['height']}: "
+                          f"{x['median_s'] * 1e3:.3f} ms median on {x['device']}.")
     if steps["pipeline"].text:
         md += ["", f"## The pipeline end to end ({head})", "", steps["pipeline"].text]
     tr = next((x for x in steps["train"].records if x.get("kind") == "train"), None)
@@ -497,6 +515,7 @@ def check(out: Path, smoke: bool, only: set | None = None) -> int:
     r.run(steps["wgsl"], lambda s: step_wgsl(r, s, z), [steps["setup"]])
     r.run(steps["per-layer"], lambda s: step_per_layer(r, s, z, steps["ceilings"]), [steps["setup"]])
     r.run(steps["torch"], lambda s: step_torch(r, s, z))
+    r.run(steps["fft"], lambda s: step_fft(r, s, z, steps["ceilings"]), [steps["setup"]])
     r.run(steps["pipeline"], lambda s: step_pipeline(r, s, z), [steps["setup"]])
     r.run(steps["teacher"], lambda s: step_teacher(r, s, z, device), [steps["setup"]])
     r.run(steps["train"], lambda s: step_train(r, s, z, device), [steps["teacher"]])

@@ -11,6 +11,7 @@
 //! values, progress through [`nedrt_core::Progress`]).
 
 pub mod bench;
+pub mod bench_fft;
 pub mod bench_inference;
 pub mod bench_pipeline;
 pub mod charts;
@@ -222,6 +223,8 @@ pub enum AppError {
     Source(#[from] nedrt_service::pipeline::source::SourceError),
     #[error(transparent)]
     Present(#[from] nedrt_service::present::PresentError),
+    #[error(transparent)]
+    Fft(#[from] nedrt_gpu::fft::FftError),
     #[error("{path}: {reason}")]
     Output { path: String, reason: String },
     #[error("{0}")]

@@ -37,6 +37,8 @@ pub enum BenchKind {
     Radial,
     /// The service end to end per network and frame path (docs/benchmarks.md).
     Pipeline,
+    /// The prefilters' transform on the device against the CPU's (docs/gpu-fft.md).
+    Fft,
 }
 
 #[derive(Parser, Debug)]
@@ -611,8 +613,8 @@ pub struct BenchArgs {
     /// (default: the best any layer reaches in the run).
     #[arg(long, value_name = "GMAC/S")]
     pub peak_gmacs: Option<f64>,
-    /// inference --per-layer: the adapter's peak memory bandwidth, GB/s
-    /// (default: the best any layer reaches in the run).
+    /// inference --per-layer, fft: the adapter's peak memory bandwidth, GB/s
+    /// (inference: default the best any layer reaches in the run; fft: no floor).
     #[arg(long, value_name = "GB/S")]
     pub peak_gbps: Option<f64>,
 }

@@ -212,6 +212,16 @@ pub fn run(cli: Cli) -> Result<()> {
                 let table = app::bench_pipeline::run(&bench, &common, &mut |r| println!("{r}"))?;
                 print!("{table}");
             }
+            BenchKind::Fft => {
+                let bench = app::bench_fft::FftBench {
+                    sizes: a.sizes,
+                    repeat: a.repeat,
+                    peak_gbps: a.peak_gbps,
+                    gpu: common.dcnn.backend_options.gpu.clone(),
+                };
+                let table = app::bench_fft::run(&bench, &mut |r| println!("{r}"))?;
+                print!("{table}");
+            }
             BenchKind::Ceilings => {
                 let (gflops, gbps) = app::bench::ceilings();
                 println!(

@@ -1,0 +1,153 @@
+//! `nedrt bench fft`: the prefilters' transform on the device against the
+//! CPU's in one run, at each frame size: the DCT filter of nedrt-gpu
+//! (DCT-II · gain · DCT-III of the three planes, what the device Wiener and
+//! each refinement step run) against nedrt-optics' Wiener plan on the CPU
+//! (realfft and rustfft on the mirrored 2w×2h frame), and the filter's
+//! bytes over the adapter's bandwidth (its floor). Performance is measured
+//! here, never asserted in tests.
+
+use std::fmt::Write as _;
+use std::time::Instant;
+
+use serde_json::json;
+
+use super::AppError;
+use super::bench::median;
+use nedrt_core::Image;
+use nedrt_gpu::fft::{DctFilter, FftKernels};
+use nedrt_optics::Psf;
+use nedrt_optics::sim::wiener::WienerFilter;
+
+/// What to time.
+#[derive(Debug, Clone)]
+pub struct FftBench {
+    pub sizes: Vec<(usize, usize)>,
+    pub repeat: usize,
+    /// The adapter's memory bandwidth, GB/s, for the floor (none: not given).
+    pub peak_gbps: Option<f64>,
+    pub gpu: nedrt_gpu::GpuSettings,
+}
+
+/// A mirror-symmetric Gaussian PSF per channel (the filter's cost does not
+/// depend on the kernel; its values are only realistic).
+fn psfs() -> Vec<Psf> {
+    [1.5f64, 2.0, 2.5]
+        .iter()
+        .map(|s| {
+            let window = 2 * (3.0 * s).ceil() as usize + 1;
+            let c = (window / 2) as f64;
+            let mut cells: Vec<f64> = (0..window * window)
+                .map(|i| {
+                    let (x, y) = ((i % window) as f64 - c, (i / window) as f64 - c);
+                    (-(x * x + y * y) / (2.0 * s * s)).exp()
+                })
+                .collect();
+            let sum: f64 = cells.iter().sum();
+            cells.iter_mut().for_each(|v| *v /= sum);
+            Psf {
+                window,
+                cells,
+                veil: 0.0,
+            }
+        })
+        .collect()
+}
+
+fn frame(w: usize, h: usize) -> Image {
+    Image::rgb(
+        w,
+        h,
+        (0..3 * w * h)
+            .map(|i| ((i * 7919) % 1000) as f32 / 1000.0)
+            .collect(),
+    )
+}
+
+/// Times every size, handing each result to `on_record` (JSON), and
+/// returns the Markdown table.
+pub fn run(
+    b: &FftBench,
+    on_record: &mut dyn FnMut(&serde_json::Value),
+) -> Result<String, AppError> {
+    if let Some(v) = b.peak_gbps
+        && !(v.is_finite() && v > 0.0)
+    {
+        return Err(AppError::Usage(format!(
+            "--peak-gbps {v}: must be a positive rate"
+        )));
+    }
+    let (adapter, device, queue) =
+        nedrt_gpu::open_device(&b.gpu, false).map_err(AppError::Usage)?;
+    let adapter = adapter.get_info().name;
+    let mut kernels = FftKernels::new(&device)?;
+    let filter = WienerFilter::new(&psfs(), 1e-2);
+    let mut md = format!(
+        "`nedrt bench fft`: the Wiener prefilter of three planes, median of {} after a warm-up; \
+         device: {adapter}; CPU: {} threads\n\n\
+         | frame | device ms | CPU ms | device ÷ CPU | device MB moved | floor ms (bytes ÷ bandwidth) | × floor |\n\
+         | --- | --- | --- | --- | --- | --- | --- |\n",
+        b.repeat.max(1),
+        rayon::current_num_threads()
+    );
+    for &(w, h) in &b.sizes {
+        let input = frame(w, h);
+        // The CPU: the plan made once, then each frame (mirror, realfft,
+        // gains, inverse, crop).
+        let plan = filter.plan(w, h);
+        let _ = filter.apply_unclamped(&input);
+        let mut cpu = Vec::new();
+        for _ in 0..b.repeat.max(1) {
+            let t = Instant::now();
+            std::hint::black_box(filter.apply_unclamped(&input));
+            cpu.push(t.elapsed().as_secs_f64());
+        }
+        // The device: the same gains, the frame already on the device
+        // (the service's case); each run one submission and a wait.
+        let gains = plan.dct_gains()?;
+        let mut dct = DctFilter::new(&mut kernels, w, h, &gains)?;
+        use wgpu::util::DeviceExt;
+        let src = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("bench frame"),
+            contents: bytemuck::cast_slice(input.data()),
+            usage: wgpu::BufferUsages::STORAGE,
+        });
+        let dst = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("bench output"),
+            size: src.size(),
+            usage: wgpu::BufferUsages::STORAGE,
+            mapped_at_creation: false,
+        });
+        let mut once = || -> Result<f64, AppError> {
+            let t = Instant::now();
+            let mut enc = device.create_command_encoder(&Default::default());
+            dct.record(&mut enc, &src, &dst)?;
+            let s = queue.submit([enc.finish()]);
+            nedrt_gpu::wait_for(&device, s).map_err(AppError::Usage)?;
+            Ok(t.elapsed().as_secs_f64())
+        };
+        once()?;
+        let mut gpu = Vec::new();
+        for _ in 0..b.repeat.max(1) {
+            gpu.push(once()?);
+        }
+        let (g, c) = (median(gpu), median(cpu));
+        let bytes = dct.bytes_per_frame();
+        let floor = b.peak_gbps.map(|bw| bytes as f64 / (bw * 1e9));
+        let _ = writeln!(
+            md,
+            "| {w}×{h} | {:.2} | {:.2} | {:.2} | {:.0} | {} | {} |",
+            g * 1e3,
+            c * 1e3,
+            g / c,
+            bytes as f64 / 1e6,
+            floor.map_or("– (--peak-gbps)".into(), |f| format!("{:.3}", f * 1e3)),
+            floor.map_or("–".into(), |f| format!("{:.1}", g / f)),
+        );
+        on_record(&json!({
+            "kind": "fft_filter", "width": w, "height": h, "device": adapter,
+            "device_median_s": g, "cpu_median_s": c, "cpu_threads": rayon::current_num_threads(),
+            "bytes_per_frame": bytes, "floor_s": floor, "repeat": b.repeat,
+        }));
+    }
+    Ok(md)
+}
