@@ -3,46 +3,13 @@
 // the DCT-II and DCT-III of length N by one FFT of length N (Makhoul 1980;
 // runtime/gpu/src/fft.rs). Sequences are the rows or the columns of planes:
 // sequence s starts at (s / group)·plane + (s % group)·group_stride and its
-// elements lie elem_stride apart. CPU twin: the mirrored-grid filter of
+// elements lie elem_stride apart (dct_seqs.wgsl). CPU twin: the mirrored-grid filter of
 // realfft (nedrt-optics' WienerPlan), and the direct sums in fft.rs's tests.
 
-struct Seqs {
-    n: u32,
-    count: u32,         // real sequences
-    pairs: u32,         // ⌈count / 2⌉
-    group: u32,
-    plane: u32,
-    group_stride: u32,
-    elem_stride: u32,
-    pair_stride: u32,   // complex: pair p, element j at p·pair_stride + j·celem_stride
-    celem_stride: u32,
-    pair_fastest: u32,  // 1: adjacent threads take adjacent pairs (columns)
-    use_gain: u32,      // dct_unpack.wgsl: multiply by the gain at the output
-    pad: u32,
-}
-
-@group(0) @binding(0) var<storage, read> q: Seqs;
 @group(0) @binding(1) var<storage, read> real: array<f32>;
 @group(0) @binding(2) var<storage, read_write> cplx: array<vec2<f32>>;
 // e^{-iπk/(2N)}, k = 0..N, computed in f64 on the host.
 @group(0) @binding(3) var<storage, read> quarter: array<vec2<f32>>;
-
-fn seq_base(s: u32) -> u32 {
-    return (s / q.group) * q.plane + (s % q.group) * q.group_stride;
-}
-
-// The thread's pair and element.
-fn pair_elem(thread: u32) -> vec2<u32> {
-    if q.pair_fastest == 1u {
-        return vec2<u32>(thread % q.pairs, thread / q.pairs);
-    }
-    return vec2<u32>(thread / q.n, thread % q.n);
-}
-
-// Makhoul's order: v_j = x_{2j} for 2j < N, else x_{2(N−1−j)+1}.
-fn perm(j: u32) -> u32 {
-    return select(2u * (q.n - 1u - j) + 1u, 2u * j, 2u * j < q.n);
-}
 
 fn value(s: u32, i: u32) -> f32 {
     if s >= q.count {

@@ -3,42 +3,11 @@
 // inverse FFT of a DCT-III pair back to the two real sequences in their
 // natural order (runtime/gpu/src/fft.rs; dct_pack.wgsl has the layout).
 
-struct Seqs {
-    n: u32,
-    count: u32,
-    pairs: u32,
-    group: u32,
-    plane: u32,
-    group_stride: u32,
-    elem_stride: u32,
-    pair_stride: u32,
-    celem_stride: u32,
-    pair_fastest: u32,
-    use_gain: u32,
-    pad: u32,
-}
-
-@group(0) @binding(0) var<storage, read> q: Seqs;
 @group(0) @binding(1) var<storage, read> cplx: array<vec2<f32>>;
 @group(0) @binding(2) var<storage, read_write> real: array<f32>;
 @group(0) @binding(3) var<storage, read> quarter: array<vec2<f32>>;
 // Per output value (the real layout), where use_gain is 1.
 @group(0) @binding(4) var<storage, read> gain: array<f32>;
-
-fn seq_base(s: u32) -> u32 {
-    return (s / q.group) * q.plane + (s % q.group) * q.group_stride;
-}
-
-fn pair_elem(thread: u32) -> vec2<u32> {
-    if q.pair_fastest == 1u {
-        return vec2<u32>(thread % q.pairs, thread / q.pairs);
-    }
-    return vec2<u32>(thread / q.n, thread % q.n);
-}
-
-fn perm(j: u32) -> u32 {
-    return select(2u * (q.n - 1u - j) + 1u, 2u * j, 2u * j < q.n);
-}
 
 fn put(s: u32, i: u32, v: f32) {
     if s < q.count {

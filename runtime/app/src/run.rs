@@ -637,6 +637,9 @@ fn wiener_stage(
     spectral_stage(device, what, gains_for, panel)
 }
 
+/// A device stage and the host preprocessing that replaces it if the device fails.
+type DeviceWithFallback = (Box<dyn nedrt_gpu::DeviceStage>, FallbackFactory);
+
 /// The method's prefilter (its Wiener, `lsq` or `refine:K`) as a device
 /// stage with the host's as its fallback; `None` where it runs on the
 /// host (`optimal`, whose stopping rule reads its objective back, or a
@@ -646,7 +649,7 @@ fn linear_on_device(
     opts: &RunOptions,
     panel: &PanelConfig,
     device: &wgpu::Device,
-) -> Result<Option<(Box<dyn nedrt_gpu::DeviceStage>, FallbackFactory)>, AppError> {
+) -> Result<Option<DeviceWithFallback>, AppError> {
     use crate::preprocess::Prefilter;
     let method = opts.preprocess;
     if matches!(opts.prefilter, Prefilter::Optimal(_)) {
@@ -813,31 +816,16 @@ mod tests {
         use nedrt_service::present::transfer::Transfer;
 
         use super::super::wiener_stage;
+        use crate::bench_fft::gaussian_psf;
         use crate::preprocess::BehindWiener;
         use nedrt_optics::sim::Method;
 
         /// Mirror-symmetric Gaussian PSFs with a veil, one width per
         /// channel (as the eyepiece's, which differ by colour).
         fn psfs() -> Vec<Psf> {
-            [1.5f64, 2.5, 4.0]
+            [1.5, 2.5, 4.0]
                 .iter()
-                .map(|sigma| {
-                    let window = 31usize;
-                    let c = (window / 2) as f64;
-                    let mut cells: Vec<f64> = (0..window * window)
-                        .map(|i| {
-                            let (x, y) = ((i % window) as f64 - c, (i / window) as f64 - c);
-                            (-(x * x + y * y) / (2.0 * sigma * sigma)).exp()
-                        })
-                        .collect();
-                    let sum: f64 = cells.iter().sum();
-                    cells.iter_mut().for_each(|v| *v *= 0.97 / sum);
-                    Psf {
-                        window,
-                        cells,
-                        veil: 0.03,
-                    }
-                })
+                .map(|s| gaussian_psf(*s, 0.03))
                 .collect()
         }
 
@@ -943,24 +931,7 @@ mod tests {
         fn gaussians(sigma: f64, veil: f64) -> Vec<Psf> {
             [1.0, 1.3, 1.7]
                 .iter()
-                .map(|scale| {
-                    let s = sigma * scale;
-                    let window = 2 * (3.0 * s).ceil() as usize + 1;
-                    let c = (window / 2) as f64;
-                    let mut cells: Vec<f64> = (0..window * window)
-                        .map(|i| {
-                            let (x, y) = ((i % window) as f64 - c, (i / window) as f64 - c);
-                            (-(x * x + y * y) / (2.0 * s * s)).exp()
-                        })
-                        .collect();
-                    let sum: f64 = cells.iter().sum();
-                    cells.iter_mut().for_each(|v| *v *= (1.0 - veil) / sum);
-                    Psf {
-                        window,
-                        cells,
-                        veil,
-                    }
-                })
+                .map(|k| gaussian_psf(sigma * k, veil))
                 .collect()
         }
 

@@ -22,8 +22,15 @@
 use std::collections::HashMap;
 
 const FFT_SHADER: &str = include_str!("../../../shaders/fft_pass.wgsl");
-const PACK_SHADER: &str = include_str!("../../../shaders/dct_pack.wgsl");
-const UNPACK_SHADER: &str = include_str!("../../../shaders/dct_unpack.wgsl");
+// The two share `dct_seqs.wgsl` (the `Seqs` block and its addressing), pasted in front.
+const PACK_SHADER: &str = concat!(
+    include_str!("../../../shaders/dct_seqs.wgsl"),
+    include_str!("../../../shaders/dct_pack.wgsl")
+);
+const UNPACK_SHADER: &str = concat!(
+    include_str!("../../../shaders/dct_seqs.wgsl"),
+    include_str!("../../../shaders/dct_unpack.wgsl")
+);
 const WORKGROUP: u32 = 64;
 const MAX_GROUPS_X: u32 = 65535;
 /// The largest prime factor of a transform length the device FFT takes
@@ -157,7 +164,7 @@ fn storage(binding: u32, read_only: bool) -> wgpu::BindGroupLayoutEntry {
 
 /// Runs `make` in a validation scope: a shader or pipeline the device
 /// refuses is an error, not a panic later.
-fn checked<T>(device: &wgpu::Device, make: impl FnOnce() -> T) -> Result<T, FftError> {
+pub(crate) fn checked<T>(device: &wgpu::Device, make: impl FnOnce() -> T) -> Result<T, FftError> {
     let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
     let out = make();
     match pollster::block_on(scope.pop()) {
@@ -1067,6 +1074,90 @@ mod tests {
         assert!(matches!(radices(0), Err(FftError::Empty)));
         let e = radices(34).err().map(|e| e.to_string()).unwrap_or_default();
         assert!(e.contains("34") && e.contains("17"), "{e}");
+    }
+
+    /// The field names of a WGSL struct, in order.
+    fn wgsl_fields(source: &str, name: &str) -> Vec<String> {
+        let start = source.find(&format!("struct {name} {{")).expect("struct");
+        source[start..]
+            .lines()
+            .skip(1)
+            .map(|l| l.split("//").next().unwrap_or("").trim())
+            .take_while(|l| *l != "}")
+            .filter_map(|l| l.split_once(':').map(|(f, _)| f.trim().to_string()))
+            .collect()
+    }
+
+    #[test]
+    fn the_shaders_parameter_blocks_are_the_rust_structs() {
+        // Field for field, u32 each: a field added on one side only fails here.
+        let pass = [
+            "n",
+            "ns",
+            "count",
+            "elem_stride",
+            "seq_stride",
+            "seq_fastest",
+            "tw_step",
+            "inverse",
+            "group",
+            "plane",
+        ];
+        assert_eq!(wgsl_fields(FFT_SHADER, "Pass"), pass);
+        assert_eq!(std::mem::size_of::<PassParams>(), 4 * pass.len());
+        let seqs = [
+            "n",
+            "count",
+            "pairs",
+            "group",
+            "plane",
+            "group_stride",
+            "elem_stride",
+            "pair_stride",
+            "celem_stride",
+            "pair_fastest",
+            "use_gain",
+            "pad",
+        ];
+        for shader in [PACK_SHADER, UNPACK_SHADER] {
+            assert_eq!(wgsl_fields(shader, "Seqs"), seqs);
+        }
+        assert_eq!(std::mem::size_of::<SeqParams>(), 4 * seqs.len());
+        // The Rust side, by a value with every field distinct.
+        let q = SeqParams {
+            n: 0,
+            count: 1,
+            pairs: 2,
+            group: 3,
+            plane: 4,
+            group_stride: 5,
+            elem_stride: 6,
+            pair_stride: 7,
+            celem_stride: 8,
+            pair_fastest: 9,
+            use_gain: 10,
+            pad: 11,
+        };
+        assert_eq!(
+            bytemuck::cast::<SeqParams, [u32; 12]>(q),
+            [0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11]
+        );
+        let p = PassParams {
+            n: 0,
+            ns: 1,
+            count: 2,
+            elem_stride: 3,
+            seq_stride: 4,
+            seq_fastest: 5,
+            tw_step: 6,
+            inverse: 7,
+            group: 8,
+            plane: 9,
+        };
+        assert_eq!(
+            bytemuck::cast::<PassParams, [u32; 10]>(p),
+            [0, 1, 2, 3, 4, 5, 6, 7, 8, 9]
+        );
     }
 
     mod needs_gpu {

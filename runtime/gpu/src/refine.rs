@@ -50,7 +50,10 @@ struct Pipelines {
 
 impl Pipelines {
     fn new(device: &wgpu::Device) -> Result<Self, FftError> {
-        let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
+        crate::fft::checked(device, || Self::make(device))
+    }
+
+    fn make(device: &wgpu::Device) -> Self {
         let entries: Vec<wgpu::BindGroupLayoutEntry> = (0..8)
             .map(|binding| wgpu::BindGroupLayoutEntry {
                 binding,
@@ -88,17 +91,13 @@ impl Pipelines {
                 cache: None,
             })
         };
-        let out = Self {
+        Self {
             start: pipeline("start"),
             project: pipeline("project"),
             reduce: pipeline("reduce"),
             advance: pipeline("advance"),
             emit: pipeline("emit"),
             layout,
-        };
-        match pollster::block_on(scope.pop()) {
-            Some(e) => Err(FftError::Device(e.to_string())),
-            None => Ok(out),
         }
     }
 }
