@@ -216,3 +216,71 @@ fn the_prefilter_command_writes_the_wiener_before_its_clamp() {
         assert_eq!(r.clamp(0.0, 1.0), *c);
     }
 }
+
+mod needs_gpu {
+    use super::*;
+
+    /// (vs sharp, vs target) PSNR of `nedrt sim`'s report.
+    fn scores(o: &Output) -> (f64, f64) {
+        let db = |label: &str| {
+            stdout(o)
+                .lines()
+                .find(|l| l.starts_with(label))
+                .and_then(|l| l.split_whitespace().nth(3))
+                .and_then(|v| v.parse::<f64>().ok())
+                .unwrap_or_else(|| panic!("no {label} PSNR in {}", stdout(o)))
+        };
+        (db("vs sharp"), db("vs target"))
+    }
+
+    /// `--backend wgpu` runs the prefilter on the device (the report says
+    /// so) and scores what the CPU scores, to 0.01 dB.
+    #[test]
+    #[ignore = "needs a GPU adapter (run: scripts/test.sh, or cargo test -- --include-ignored)"]
+    fn the_prefilters_on_the_device_score_what_the_cpu_scores() {
+        let dir = tempfile::tempdir().expect("tmp");
+        let input = dir.path().join("a.png");
+        write_png(&input, 40, 24);
+        let out = dir.path().join("p.png");
+        for (method, prefilter) in [
+            ("ai", "native"),
+            ("doe+wiener", "native"),
+            ("doe-only", "lsq"),
+            ("doe-only", "refine:5"),
+            ("doe+wiener", "refine:3@sharp"),
+        ] {
+            let on = |backend: &str| {
+                let o = sim(
+                    "1.0",
+                    &out,
+                    &[
+                        "--calib",
+                        path(&small_calib()),
+                        "--input",
+                        path(&input),
+                        "--method",
+                        method,
+                        "--prefilter",
+                        prefilter,
+                        "--backend",
+                        backend,
+                    ],
+                );
+                assert!(
+                    o.status.success(),
+                    "{method} {prefilter} {backend}: {}",
+                    stderr(&o)
+                );
+                o
+            };
+            let (cpu, gpu) = (on("cpu"), on("wgpu"));
+            assert!(stdout(&gpu).contains("on the device"), "{}", stdout(&gpu));
+            assert!(!stdout(&cpu).contains("on the device"), "{}", stdout(&cpu));
+            let (a, b) = (scores(&cpu), scores(&gpu));
+            assert!(
+                (a.0 - b.0).abs() <= 0.01 && (a.1 - b.1).abs() <= 0.01,
+                "{method} {prefilter}: CPU {a:?}, device {b:?}"
+            );
+        }
+    }
+}

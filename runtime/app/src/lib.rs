@@ -16,6 +16,7 @@ pub mod bench_inference;
 pub mod bench_pipeline;
 pub mod charts;
 pub mod design;
+pub mod device_prefilter;
 pub mod eval;
 pub mod focus_cues;
 pub mod plots;

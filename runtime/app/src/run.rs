@@ -8,6 +8,7 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 
 use super::{AppError, CommonOptions};
+use crate::device_prefilter::{lsq_stage, refine_stage, wiener_stage};
 use crate::preprocess::{BehindWiener, DcnnInput};
 use nedrt_core::Named;
 use nedrt_core::preprocess::{Identity, Preprocess, check_frame};
@@ -527,7 +528,12 @@ fn resident_stage(
                         "the Wiener prefilter of {method} (K = {:e}) before the clamp",
                         filter.k_reg
                     );
-                    match wiener_stage(device, what.clone(), filter.clone(), panel) {
+                    match wiener_stage(
+                        device,
+                        what.clone(),
+                        filter.clone(),
+                        Some((panel.width, panel.height)),
+                    ) {
                         Ok(w) => {
                             on_device_stage = stage.clone();
                             Box::new(nedrt_gpu::Chain::new(device, w, net))
@@ -589,54 +595,6 @@ fn resident_stage(
     })
 }
 
-/// A linear prefilter's gains as a device stage for the panel's frames,
-/// prepared now (gains computed and uploaded), or why the device cannot
-/// take it (a panel side with a prime factor the device FFT lacks).
-fn spectral_stage(
-    device: &wgpu::Device,
-    what: String,
-    gains_for: nedrt_gpu::fft::GainsFor,
-    panel: &PanelConfig,
-) -> Result<Box<dyn nedrt_gpu::DeviceStage>, nedrt_gpu::fft::FftError> {
-    let mut stage = nedrt_gpu::fft::SpectralStage::new(device, what, gains_for)?;
-    stage.filter(panel.width, panel.height)?;
-    Ok(Box::new(stage))
-}
-
-/// `refine:K` of `problem` on the device, prepared for the panel's frames.
-fn refine_stage(
-    device: &wgpu::Device,
-    what: String,
-    problem: Arc<nedrt_optics::sim::DisplayProblem>,
-    steps: usize,
-    panel: &PanelConfig,
-) -> Result<Box<dyn nedrt_gpu::DeviceStage>, nedrt_gpu::fft::FftError> {
-    let terms_for: nedrt_gpu::refine::TermsFor = Box::new(move |w, h| {
-        let t = problem.device_terms(w, h).map_err(|e| e.to_string())?;
-        Ok(nedrt_gpu::refine::RefineTerms {
-            linear: t.linear,
-            adjoint_target: t.adjoint_target,
-            normal: t.normal,
-            step: t.step,
-        })
-    });
-    let mut stage = nedrt_gpu::refine::RefineStage::new(device, what, steps, terms_for)?;
-    stage.prepare(panel.width, panel.height)?;
-    Ok(Box::new(stage))
-}
-
-/// A Wiener filter on the device ([`spectral_stage`]).
-fn wiener_stage(
-    device: &wgpu::Device,
-    what: String,
-    filter: Arc<WienerFilter>,
-    panel: &PanelConfig,
-) -> Result<Box<dyn nedrt_gpu::DeviceStage>, nedrt_gpu::fft::FftError> {
-    let gains_for: nedrt_gpu::fft::GainsFor =
-        Box::new(move |w, h| filter.plan(w, h).dct_gains().map_err(|e| e.to_string()));
-    spectral_stage(device, what, gains_for, panel)
-}
-
 /// A device stage and the host preprocessing that replaces it if the device fails.
 type DeviceWithFallback = (Box<dyn nedrt_gpu::DeviceStage>, FallbackFactory);
 
@@ -672,19 +630,18 @@ fn linear_on_device(
         &mut std::collections::HashMap::new(),
     )?;
     let what = host.describe();
+    let size = Some((panel.width, panel.height));
     let made = match opts.prefilter {
         Prefilter::Lsq(objective) => {
             let problem = Arc::new(prepared.display_problem(method, objective)?);
-            let gains_for: nedrt_gpu::fft::GainsFor =
-                Box::new(move |w, h| problem.linear_dct_gains(w, h).map_err(|e| e.to_string()));
-            spectral_stage(device, what.clone(), gains_for, panel)
+            lsq_stage(device, what.clone(), problem, size)
         }
         Prefilter::Refine(steps, objective) => {
             let problem = Arc::new(prepared.display_problem(method, objective)?);
-            refine_stage(device, what.clone(), problem, steps, panel)
+            refine_stage(device, what.clone(), problem, steps, size)
         }
         _ => match prepared.wiener_shared(method) {
-            Some(filter) => wiener_stage(device, what.clone(), filter, panel),
+            Some(filter) => wiener_stage(device, what.clone(), filter, size),
             None => return Ok(None),
         },
     };
@@ -815,8 +772,8 @@ mod tests {
         use nedrt_service::present::headless::HeadlessSink;
         use nedrt_service::present::transfer::Transfer;
 
-        use super::super::wiener_stage;
         use crate::bench_fft::gaussian_psf;
+        use crate::device_prefilter::{refine_stage, wiener_stage};
         use crate::preprocess::BehindWiener;
         use nedrt_optics::sim::Method;
 
@@ -917,8 +874,9 @@ mod tests {
                     .filter(|v| !(0.0..=1.0).contains(*v))
                     .count();
                 assert!(clipped > 0, "the test's Wiener reaches the clamp");
-                let stage = wiener_stage(&device, "test Wiener".into(), filter.clone(), &panel)
-                    .expect("stage");
+                let stage =
+                    wiener_stage(&device, "test Wiener".into(), filter.clone(), Some((w, h)))
+                        .expect("stage");
                 compare(
                     &format!("Wiener {w}×{h}"),
                     &device_codes(&device, &queue, &transfer, stage, &input),
@@ -973,12 +931,12 @@ mod tests {
                 let mut cpu =
                     SolvedPrefilter::new("test", problem.clone(), SolveMode::Refine(steps));
                 let host = cpu.run(&input).expect("host");
-                let stage = super::super::refine_stage(
+                let stage = refine_stage(
                     &device,
                     "test refine".into(),
                     problem.clone(),
                     steps,
-                    &panel,
+                    Some((w, h)),
                 )
                 .expect("stage");
                 compare(
@@ -1016,7 +974,7 @@ mod tests {
             let net = DeviceDcnn::on_device(model, &device, &queue, "test".into(), Precision::F32)
                 .expect("net");
             let wiener =
-                wiener_stage(&device, "test Wiener".into(), filter, &panel).expect("stage");
+                wiener_stage(&device, "test Wiener".into(), filter, Some((w, h))).expect("stage");
             let chain = Box::new(nedrt_gpu::Chain::new(&device, wiener, Box::new(net)));
             compare(
                 "Wiener then D-CNN",

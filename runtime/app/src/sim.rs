@@ -170,7 +170,10 @@ pub fn run(common: &CommonOptions, opts: &SimOptions) -> Result<SimReport, AppEr
     let display = match &display_loaded {
         Some(d) => d.clone(),
         None => {
-            let e = engine.insert(crate::preprocess::for_system(
+            // With --backend wgpu the prefilter runs on the device too.
+            let gpu = crate::device_prefilter::gpu_for(common, &[method], &[opts.prefilter])?;
+            let e = engine.insert(crate::device_prefilter::for_system_on(
+                gpu.as_ref(),
                 method,
                 opts.prefilter,
                 &prepared,
@@ -215,7 +218,11 @@ pub fn run(common: &CommonOptions, opts: &SimOptions) -> Result<SimReport, AppEr
     if let Some(line) = &dcnn_line {
         let _ = writeln!(t, "{line}");
     }
-    if let Some(e) = engine.as_ref().filter(|_| !opts.prefilter.is_native()) {
+    // The prefilter, and where it ran (the CPU, or the device with --backend wgpu).
+    if let Some(e) = engine
+        .as_ref()
+        .filter(|_| !opts.prefilter.is_native() || method.uses_wiener())
+    {
         let _ = writeln!(t, "display   {}", e.describe());
     }
     let _ = writeln!(

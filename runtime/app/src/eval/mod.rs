@@ -14,7 +14,8 @@ use super::design::Design;
 use super::focus_cues::{self, FocusCueDefinition, FocusCues, FocusSweep};
 use super::sim::Score;
 use super::{AppError, CommonOptions, create_dir, write_text};
-use crate::preprocess::{Prefilter, for_system};
+use crate::device_prefilter::for_system_on;
+use crate::preprocess::Prefilter;
 use nedrt_core::Preprocess;
 use nedrt_core::image_io;
 use nedrt_optics::sim::{Image, Method, Optics, Prepared, Simulator};
@@ -306,6 +307,12 @@ pub fn run(
         .map(|s| s.prepare(&[Method::DoeWiener], &prepared_depths, common.progress()))
         .collect::<Result<Vec<_>, _>>()?;
     let doe_hash = |optics: Optics| (optics == Optics::Doe).then(|| sim.doe_hash.clone());
+    // With --backend wgpu the prefilters run on the device too.
+    let mut all_methods = methods.clone();
+    if !design_prepared.is_empty() {
+        all_methods.push(Method::DoeWiener);
+    }
+    let gpu = crate::device_prefilter::gpu_for(common, &all_methods, &prefilters)?;
     let mut row_specs: Vec<Row> = Vec::with_capacity(rows);
     for &m in &methods {
         for &p in &prefilters {
@@ -314,7 +321,7 @@ pub fn run(
                 method: m,
                 prepared: &prepared,
                 doe_hash: doe_hash(m.optics()),
-                engine: Some(for_system(m, p, &prepared, &mut dcnns)?),
+                engine: Some(for_system_on(gpu.as_ref(), m, p, &prepared, &mut dcnns)?),
             });
         }
     }
@@ -339,7 +346,13 @@ pub fn run(
                 method: Method::DoeWiener,
                 prepared: p,
                 doe_hash: Some(s.doe_hash.clone()),
-                engine: Some(for_system(Method::DoeWiener, pf, p, &mut dcnns)?),
+                engine: Some(for_system_on(
+                    gpu.as_ref(),
+                    Method::DoeWiener,
+                    pf,
+                    p,
+                    &mut dcnns,
+                )?),
             });
         }
     }

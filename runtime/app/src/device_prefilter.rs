@@ -1,0 +1,311 @@
+//! The prefilters on the device (docs/gpu-fft.md): nedrt-gpu's stages (the
+//! DCT filter, the refinement) fed with the gains and terms nedrt-optics
+//! computes for each frame size. `nedrt run` keeps their frames on the
+//! device; `nedrt sim` and `nedrt eval` with `--backend wgpu` run them
+//! through [`OnDevice`], which uploads a frame and reads its display image
+//! back, so the tables can be made on a GPU with the CPU's results.
+
+use std::collections::HashMap;
+use std::sync::Arc;
+
+use nedrt_core::preprocess::{HostTraffic, PreprocessError, check_frame};
+use nedrt_core::{Image, Preprocess};
+use nedrt_gpu::DeviceStage;
+use nedrt_gpu::fft::{FftError, GainsFor, SpectralStage};
+use nedrt_gpu::refine::{RefineStage, RefineTerms, TermsFor};
+use nedrt_infer::Dcnn;
+use nedrt_optics::sim::wiener::WienerFilter;
+use nedrt_optics::sim::{DisplayProblem, Method, Prepared};
+
+use crate::AppError;
+use crate::preprocess::{DcnnInput, Prefilter};
+
+/// A linear prefilter's gains as a device stage, prepared for a
+/// `width`×`height` frame now where given (gains computed and uploaded:
+/// an error, such as a side with a prime factor the device FFT lacks,
+/// shows before the first frame).
+pub fn spectral_stage(
+    device: &wgpu::Device,
+    what: String,
+    gains_for: GainsFor,
+    size: Option<(usize, usize)>,
+) -> Result<Box<dyn DeviceStage>, FftError> {
+    let mut stage = SpectralStage::new(device, what, gains_for)?;
+    if let Some((w, h)) = size {
+        stage.filter(w, h)?;
+    }
+    Ok(Box::new(stage))
+}
+
+/// A Wiener filter on the device ([`spectral_stage`]).
+pub fn wiener_stage(
+    device: &wgpu::Device,
+    what: String,
+    filter: Arc<WienerFilter>,
+    size: Option<(usize, usize)>,
+) -> Result<Box<dyn DeviceStage>, FftError> {
+    let gains_for: GainsFor =
+        Box::new(move |w, h| filter.plan(w, h).dct_gains().map_err(|e| e.to_string()));
+    spectral_stage(device, what, gains_for, size)
+}
+
+/// The `lsq` prefilter of `problem` on the device.
+pub fn lsq_stage(
+    device: &wgpu::Device,
+    what: String,
+    problem: Arc<DisplayProblem>,
+    size: Option<(usize, usize)>,
+) -> Result<Box<dyn DeviceStage>, FftError> {
+    let gains_for: GainsFor =
+        Box::new(move |w, h| problem.linear_dct_gains(w, h).map_err(|e| e.to_string()));
+    spectral_stage(device, what, gains_for, size)
+}
+
+/// `refine:K` of `problem` on the device.
+pub fn refine_stage(
+    device: &wgpu::Device,
+    what: String,
+    problem: Arc<DisplayProblem>,
+    steps: usize,
+    size: Option<(usize, usize)>,
+) -> Result<Box<dyn DeviceStage>, FftError> {
+    let terms_for: TermsFor = Box::new(move |w, h| {
+        let t = problem.device_terms(w, h).map_err(|e| e.to_string())?;
+        Ok(RefineTerms {
+            linear: t.linear,
+            adjoint_target: t.adjoint_target,
+            normal: t.normal,
+            step: t.step,
+        })
+    });
+    let mut stage = RefineStage::new(device, what, steps, terms_for)?;
+    if let Some((w, h)) = size {
+        stage.prepare(w, h)?;
+    }
+    Ok(Box::new(stage))
+}
+
+/// A device stage as a host [`Preprocess`]: each frame uploaded, the
+/// stage recorded, its output read back (clamped to the panel's range
+/// unless `raw`). Buffers are made once per frame size.
+pub struct OnDevice {
+    device: wgpu::Device,
+    queue: wgpu::Queue,
+    stage: Box<dyn DeviceStage>,
+    raw: bool,
+    buffers: Option<(usize, usize, [wgpu::Buffer; 3])>,
+    traffic: HostTraffic,
+}
+
+impl std::fmt::Debug for OnDevice {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.stage.describe())
+    }
+}
+
+impl OnDevice {
+    pub fn new(
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        stage: Box<dyn DeviceStage>,
+        raw: bool,
+    ) -> Self {
+        Self {
+            device: device.clone(),
+            queue: queue.clone(),
+            stage,
+            raw,
+            buffers: None,
+            traffic: HostTraffic::default(),
+        }
+    }
+
+    fn engine(&self, reason: impl std::fmt::Display) -> PreprocessError {
+        PreprocessError::Engine {
+            engine: self.stage.describe(),
+            reason: reason.to_string(),
+        }
+    }
+}
+
+impl Preprocess for OnDevice {
+    fn describe(&self) -> String {
+        self.stage.describe()
+    }
+
+    fn run(&mut self, input: &Image) -> Result<Image, PreprocessError> {
+        check_frame(input, 3)?;
+        let (w, h) = (input.width, input.height);
+        let bytes = (input.data().len() * 4) as u64;
+        if !matches!(&self.buffers, Some((bw, bh, _)) if (*bw, *bh) == (w, h)) {
+            let make = |label, usage| {
+                self.device.create_buffer(&wgpu::BufferDescriptor {
+                    label: Some(label),
+                    size: bytes,
+                    usage,
+                    mapped_at_creation: false,
+                })
+            };
+            use wgpu::BufferUsages as U;
+            self.buffers = Some((
+                w,
+                h,
+                [
+                    make("prefilter input", U::STORAGE | U::COPY_DST),
+                    make("prefilter output", U::STORAGE | U::COPY_SRC),
+                    make("prefilter read-back", U::MAP_READ | U::COPY_DST),
+                ],
+            ));
+        }
+        let Some((_, _, [src, dst, back])) = &self.buffers else {
+            return Err(self.engine("no buffers"));
+        };
+        let (src, dst, back) = (src.clone(), dst.clone(), back.clone());
+        self.queue
+            .write_buffer(&src, 0, bytemuck::cast_slice(input.data()));
+        let mut enc = self.device.create_command_encoder(&Default::default());
+        self.stage
+            .record(&mut enc, &src, &dst, w, h)
+            .map_err(|e| self.engine(e))?;
+        enc.copy_buffer_to_buffer(&dst, 0, &back, 0, bytes);
+        self.queue.submit([enc.finish()]);
+        nedrt_gpu::map_and_wait(&self.device, &back).map_err(|e| self.engine(e))?;
+        let data = nedrt_gpu::read_mapped(&back, |b| bytemuck::cast_slice::<u8, f32>(b).to_vec())
+            .map_err(|e| self.engine(e))?;
+        self.traffic = HostTraffic {
+            to_device_bytes: bytes,
+            uploads: 1,
+            to_host_bytes: bytes,
+            read_backs: 1,
+        };
+        let out = Image::rgb(w, h, data);
+        Ok(if self.raw { out } else { out.clamped() })
+    }
+
+    fn last_traffic(&self) -> HostTraffic {
+        self.traffic
+    }
+}
+
+/// The GPU a command's prefilters run on (`--backend wgpu`).
+pub type Gpu = (wgpu::Device, wgpu::Queue);
+
+/// The GPU of `--backend wgpu` for `methods` with `prefilters`, where one
+/// of them has a prefilter the device runs; `None` on the other backends
+/// (the prefilters then run on the CPU, as the network does).
+pub fn gpu_for(
+    common: &crate::CommonOptions,
+    methods: &[Method],
+    prefilters: &[Prefilter],
+) -> Result<Option<Gpu>, AppError> {
+    let wanted = methods.iter().any(|m| m.uses_wiener() || m.uses_dcnn())
+        || prefilters
+            .iter()
+            .any(|p| matches!(p, Prefilter::Lsq(_) | Prefilter::Refine(..)));
+    if common.dcnn.backend != nedrt_infer::BackendKind::Wgpu || !wanted {
+        return Ok(None);
+    }
+    let (_, device, queue) =
+        nedrt_gpu::open_device(&common.dcnn.backend_options.gpu, false).map_err(AppError::Usage)?;
+    Ok(Some((device, queue)))
+}
+
+/// [`crate::preprocess::for_system`] with the prefilter on `gpu` where the
+/// device has it (the Wiener, `lsq`, `refine:K`, and the Wiener in front of
+/// a network); `optimal` and the methods without a prefilter run as on
+/// the host.
+pub fn for_system_on(
+    gpu: Option<&Gpu>,
+    method: Method,
+    prefilter: Prefilter,
+    prepared: &Prepared,
+    dcnns: &mut HashMap<Method, Dcnn>,
+) -> Result<Box<dyn Preprocess>, AppError> {
+    let Some((device, queue)) = gpu else {
+        return crate::preprocess::for_system(method, prefilter, prepared, dcnns);
+    };
+    let on = |stage: Box<dyn DeviceStage>, raw: bool| -> Box<dyn Preprocess> {
+        Box::new(OnDevice::new(device, queue, stage, raw))
+    };
+    let stage = match prefilter {
+        Prefilter::Optimal(_) => None,
+        Prefilter::Lsq(o) => {
+            let problem = Arc::new(prepared.display_problem(method, o)?);
+            let what = format!(
+                "linear least-squares prefilter of {method} ({} objective)",
+                o.name()
+            );
+            Some(on(lsq_stage(device, what, problem, None)?, false))
+        }
+        Prefilter::Refine(k, o) => {
+            let problem = Arc::new(prepared.display_problem(method, o)?);
+            let what = format!(
+                "least-squares prefilter + {k} projected-gradient steps of {method} ({} objective)",
+                o.name()
+            );
+            Some(on(refine_stage(device, what, problem, k, None)?, false))
+        }
+        Prefilter::Native if method.uses_dcnn() => {
+            let Some(dcnn) = dcnns.remove(&method) else {
+                return Err(AppError::Usage(format!("no D-CNN loaded for {method}")));
+            };
+            match crate::preprocess::dcnn_input(&dcnn.model.path)? {
+                DcnnInput::Frame => Some(Box::new(dcnn) as Box<dyn Preprocess>),
+                DcnnInput::WienerRaw { k_reg } => {
+                    let filter = Arc::new(prepared.wiener_filter(method, k_reg)?);
+                    let what = format!(
+                        "the Wiener prefilter of {method} (K = {k_reg:e}) before the clamp"
+                    );
+                    let wiener = on(wiener_stage(device, what, filter, None)?, true);
+                    Some(Box::new(BehindDevice {
+                        wiener,
+                        network: Box::new(dcnn),
+                    }) as Box<dyn Preprocess>)
+                }
+            }
+        }
+        Prefilter::Native => match prepared.wiener_shared(method) {
+            Some(filter) => {
+                let what = format!("Wiener prefilter of {method} (K = {:e})", filter.k_reg);
+                Some(on(wiener_stage(device, what, filter, None)?, false))
+            }
+            None => None,
+        },
+    };
+    match stage {
+        Some(s) => Ok(s),
+        None => crate::preprocess::for_system(method, prefilter, prepared, dcnns),
+    }
+}
+
+/// A network behind its Wiener, the Wiener on the device: as the host's
+/// [`crate::preprocess::BehindWiener`], the network sees the unclamped Wiener.
+struct BehindDevice {
+    wiener: Box<dyn Preprocess>,
+    network: Box<dyn Preprocess>,
+}
+
+impl std::fmt::Debug for BehindDevice {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.describe())
+    }
+}
+
+impl Preprocess for BehindDevice {
+    fn describe(&self) -> String {
+        format!(
+            "{}, then {}",
+            self.wiener.describe(),
+            self.network.describe()
+        )
+    }
+
+    fn run(&mut self, input: &Image) -> Result<Image, PreprocessError> {
+        let raw = self.wiener.run(input)?;
+        self.network.run(&raw)
+    }
+
+    fn last_gpu_ns(&self) -> Option<u64> {
+        self.network.last_gpu_ns()
+    }
+}
