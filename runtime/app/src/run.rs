@@ -767,7 +767,6 @@ mod tests {
         use nedrt_optics::Psf;
         use nedrt_optics::sim::wiener::WienerFilter;
         use nedrt_service::pipeline::resident::{DeviceFrames, DeviceInput};
-        use nedrt_service::pipeline::service::PanelConfig;
         use nedrt_service::present::Sink;
         use nedrt_service::present::headless::HeadlessSink;
         use nedrt_service::present::transfer::Transfer;
@@ -858,12 +857,6 @@ mod tests {
             let transfer = Transfer::from_gamma([2.2, 2.2, 2.2]);
             // The panel's size, and one whose sides have odd factors.
             for (w, h) in [(1920, 1080), (150, 98)] {
-                let panel = PanelConfig {
-                    width: w,
-                    height: h,
-                    refresh_hz: 90.0,
-                    transfer: transfer.clone(),
-                };
                 // A small K: the prefilter rings past [0, 1], so the clamp matters.
                 let filter = Arc::new(WienerFilter::new(&psfs(), 2e-3));
                 let input = frame(w, h);
@@ -921,12 +914,6 @@ mod tests {
                 .expect("problem"),
             );
             for (w, h, steps) in [(150, 98, 10), (64, 40, 0), (64, 40, 3)] {
-                let panel = PanelConfig {
-                    width: w,
-                    height: h,
-                    refresh_hz: 90.0,
-                    transfer: transfer.clone(),
-                };
                 let input = frame(w, h);
                 let mut cpu =
                     SolvedPrefilter::new("test", problem.clone(), SolveMode::Refine(steps));
@@ -953,12 +940,6 @@ mod tests {
             let (device, queue) = nedrt_gpu::test_device(false);
             let transfer = Transfer::from_gamma([2.2, 2.2, 2.2]);
             let (w, h) = (160, 96);
-            let panel = PanelConfig {
-                width: w,
-                height: h,
-                refresh_hz: 90.0,
-                transfer: transfer.clone(),
-            };
             let filter = Arc::new(WienerFilter::new(&psfs(), 2e-2));
             let model = ModelFile::from_bytes(
                 std::path::Path::new("synth.onnx"),
