@@ -4,7 +4,7 @@
 //! the guard. Sections: the Wiener constant K (with and without noise in
 //! the frame), the D-CNN off its training distribution (accommodations,
 //! content, frame sizes), the optics beyond their sampling, and f16
-//! against f32 on the GPU.
+//! against f32 on the GPU, and a panning photograph (flicker).
 
 //!
 //! Model and report are apart: each section computes typed rows
@@ -14,6 +14,7 @@
 pub mod dcnn;
 pub mod optics;
 pub mod report;
+pub mod temporal;
 pub mod wiener;
 
 use std::path::PathBuf;
@@ -77,6 +78,7 @@ pub struct StabilityStudy {
     pub sizes: Vec<dcnn::SizeRow>,
     pub optics: optics::OpticsSection,
     pub f16: dcnn::F16Section,
+    pub temporal: temporal::TemporalSection,
     pub seconds: f64,
 }
 
@@ -106,7 +108,7 @@ pub fn run(common: &CommonOptions, o: &StabilityOptions) -> Result<String, AppEr
         });
     let mut dcnn = Dcnn::load(&o.model, BackendKind::Cpu, &BackendOptions::default())?;
     let bar = common.phase("sections");
-    bar.set_length(5);
+    bar.set_length(6);
     let design_sims = o
         .designs
         .iter()
@@ -133,6 +135,29 @@ pub fn run(common: &CommonOptions, o: &StabilityOptions) -> Result<String, AppEr
     } else {
         dcnn::F16Section::Skipped
     };
+    // The pan: every method on a moving photograph (the first image).
+    let depths = nedrt_optics::sim::objective_depths_d(&sim.calib);
+    let temporal_prepared = sim.prepare(
+        &[
+            Method::Conventional,
+            Method::Ai,
+            Method::DoeOnly,
+            Method::DoeWiener,
+            Method::Proposed,
+        ],
+        &depths,
+        common.progress(),
+    )?;
+    let network = Dcnn::load(&o.model, BackendKind::Cpu, &BackendOptions::default())?;
+    let proposed = crate::preprocess::dcnn_system(Method::Proposed, network, &temporal_prepared)?;
+    let temporal = temporal::section(
+        &temporal_prepared,
+        depths,
+        &files[0].display().to_string(),
+        &inputs[0],
+        Some(proposed),
+    )?;
+    bar.inc(1);
     bar.finish_and_clear();
     let study = StabilityStudy {
         images: files.iter().map(|f| f.display().to_string()).collect(),
@@ -145,6 +170,7 @@ pub fn run(common: &CommonOptions, o: &StabilityOptions) -> Result<String, AppEr
         sizes,
         optics,
         f16,
+        temporal,
         seconds: start.elapsed().as_secs_f64(),
     };
     let md = report::markdown(&study);

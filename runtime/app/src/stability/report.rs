@@ -26,6 +26,7 @@ pub fn markdown(s: &StabilityStudy) -> String {
     md += &sizes(&s.sizes);
     md += &optics(&s.optics);
     md += &f16(&s.f16);
+    md += &temporal(&s.temporal);
     let _ = writeln!(md, "\nWall time {:.0} s.", s.seconds);
     md
 }
@@ -308,5 +309,32 @@ fn f16(f: &F16Section) -> String {
          - Guard: test `nedrt_infer::gpu_tests::f16_holds_on_the_worst_conditioned_content` runs the shipped D-CNN in both precisions on this content set.",
         worst.1, worst.0
     );
+    md
+}
+
+fn temporal(t: &super::temporal::TemporalSection) -> String {
+    let mut md = format!(
+        "\n## Motion: flicker of each method on a panning photograph\n\n\
+         A {side}×{side} window of {image} panning right by {step} input pixels a frame, {frames} frames (bilinear \
+         resampling, so the sampling phase changes every frame). Per method, over the frames and the headline \
+         depths {depths:?} D: the PSNR vs target, and the RMS change of the perceived image from one frame to the \
+         next over that of the target (the input as the eye should see it: 1 moves with the content, above 1 adds \
+         change of its own); and the display image's change over the input's. A linear, shift-invariant \
+         preprocessing only scales the change; the clamp, a network and an iterative solver stopped at K steps \
+         are not shift-invariant.\n\n\
+         | method | PSNR vs target | perceived change ÷ target's | display change ÷ input's |\n| --- | --- | --- | --- |\n",
+        side = t.side,
+        image = t.image,
+        step = t.step_px,
+        frames = t.frames,
+        depths = t.depths_d
+    );
+    for r in &t.rows {
+        let _ = writeln!(
+            md,
+            "| {} | {:.2} | {:.3} | {:.3} |",
+            r.method, r.psnr_vs_target_db, r.change_ratio, r.display_change_ratio
+        );
+    }
     md
 }
