@@ -606,7 +606,7 @@ pub struct BenchArgs {
     #[arg(long, default_value_t = 3)]
     pub repeat: usize,
     /// inference: time each layer on the wgpu backend (timestamp queries)
-    /// and say which sit furthest from the floor.
+    /// and say which sit furthest from the floor; fft: each dispatch.
     #[arg(long)]
     pub per_layer: bool,
     /// inference --per-layer: the adapter's peak multiply-add rate, GMAC/s

@@ -218,6 +218,7 @@ pub fn run(cli: Cli) -> Result<()> {
                     repeat: a.repeat,
                     peak_gbps: a.peak_gbps,
                     gpu: common.dcnn.backend_options.gpu.clone(),
+                    per_pass: a.per_layer,
                 };
                 let table = app::bench_fft::run(&bench, &mut |r| println!("{r}"))?;
                 print!("{table}");

@@ -284,6 +284,10 @@ struct Op {
     pipeline: wgpu::ComputePipeline,
     bind: wgpu::BindGroup,
     groups: [u32; 2],
+    /// For per-pass timings: what it does, and the bytes it reads and
+    /// writes at least (each value once).
+    what: String,
+    bytes: u64,
 }
 
 fn record_ops<'a>(pass: &mut wgpu::ComputePass<'_>, ops: impl IntoIterator<Item = &'a Op>) {
@@ -394,6 +398,12 @@ fn fft_ops(
             pipeline: kernels.fft_pipeline(radix)?,
             bind,
             groups: workgroups(u64::from(n / radix) * u64::from(layout.count)),
+            what: format!(
+                "{} FFT pass, radix {radix}, {} sequences of {n}",
+                if inverse { "inverse" } else { "forward" },
+                layout.count
+            ),
+            bytes: 2 * 8 * u64::from(n) * u64::from(layout.count),
         });
         ns *= radix;
         in_b = !in_b;
@@ -560,6 +570,23 @@ fn axis(width: usize, height: usize, channels: usize, columns: bool, use_gain: b
     }
 }
 
+/// Bytes a pack or unpack moves at least: the real sequences and their
+/// complex pairs once each (and the gain where applied).
+fn io_bytes(q: &SeqParams, gain: bool) -> u64 {
+    let real = 4 * u64::from(q.count) * u64::from(q.n);
+    real * (1 + u64::from(gain)) + 8 * u64::from(q.pairs) * u64::from(q.n)
+}
+
+/// `ops` named for their axis ("rows: forward FFT pass, …").
+fn on_axis(ops: Vec<Op>, axis: &str) -> Vec<Op> {
+    ops.into_iter()
+        .map(|mut o| {
+            o.what = format!("{axis}: {}", o.what);
+            o
+        })
+        .collect()
+}
+
 /// The complex layout of an axis's pairs, for its FFT.
 fn pair_layout(q: &SeqParams) -> Layout {
     if q.pair_fastest == 1 {
@@ -601,8 +628,8 @@ pub struct DctFilter {
     middle: Vec<Op>,
     /// The first dispatch reads the input, the last writes the output:
     /// their bind groups per buffer (the service's pool holds a few).
-    first: (wgpu::ComputePipeline, SeqParamsBuffer, [u32; 2]),
-    last: (wgpu::ComputePipeline, SeqParamsBuffer, [u32; 2]),
+    first: (wgpu::ComputePipeline, SeqParamsBuffer, [u32; 2], u64),
+    last: (wgpu::ComputePipeline, SeqParamsBuffer, [u32; 2], u64),
     row_inverse: Vec<Op>,
     inputs: Vec<(wgpu::Buffer, wgpu::BindGroup)>,
     outputs: Vec<(wgpu::Buffer, wgpu::BindGroup)>,
@@ -756,18 +783,23 @@ impl DctFilter {
             &cx_a,
             &cx_b,
         )?;
+        let row_fwd = on_axis(row_fwd, "rows");
         let rows_out = if in_b { cx_b.clone() } else { cx_a.clone() };
         let mut middle = row_fwd;
         middle.push(Op {
             pipeline: dct2_unpack.clone(),
             bind: unpack(&rows_p, &rows_out, &tmp, &row_tables.quarter, &dummy_gain),
             groups: groups(&rows_q),
+            what: "rows: DCT-II unpack".into(),
+            bytes: io_bytes(&rows_q, false),
         });
         // Columns, forward with the gain, then inverse: tmp → tmp.
         middle.push(Op {
             pipeline: dct2_pack.clone(),
             bind: pack(&cols_p, &tmp, &cx_a, &col_tables.quarter),
             groups: groups(&cols_q),
+            what: "columns: DCT-II pack".into(),
+            bytes: io_bytes(&cols_q, false),
         });
         let (col_fwd, in_b) = fft_ops(
             kernels,
@@ -777,6 +809,7 @@ impl DctFilter {
             &cx_a,
             &cx_b,
         )?;
+        let col_fwd = on_axis(col_fwd, "columns");
         middle.extend(col_fwd);
         let gain_ops = gains
             .iter()
@@ -790,6 +823,8 @@ impl DctFilter {
                     gain,
                 ),
                 groups: groups(&cols_q),
+                what: "columns: DCT-II unpack × gain".into(),
+                bytes: io_bytes(&cols_q, true),
             })
             .collect();
         let before_gain = std::mem::take(&mut middle);
@@ -797,6 +832,8 @@ impl DctFilter {
             pipeline: dct3_pack.clone(),
             bind: pack(&cols_p, &tmp, &cx_a, &col_tables.quarter),
             groups: groups(&cols_q),
+            what: "columns: DCT-III pack".into(),
+            bytes: io_bytes(&cols_q, false),
         });
         let (col_inv, in_b) = fft_ops(
             kernels,
@@ -806,6 +843,7 @@ impl DctFilter {
             &cx_a,
             &cx_b,
         )?;
+        let col_inv = on_axis(col_inv, "columns");
         middle.extend(col_inv);
         middle.push(Op {
             pipeline: dct3_unpack.clone(),
@@ -817,12 +855,16 @@ impl DctFilter {
                 &dummy_gain,
             ),
             groups: groups(&cols_q),
+            what: "columns: DCT-III unpack".into(),
+            bytes: io_bytes(&cols_q, false),
         });
         // Rows, inverse: tmp → cx_a → IFFT → (unpack → output).
         middle.push(Op {
             pipeline: dct3_pack.clone(),
             bind: pack(&rows_p, &tmp, &cx_a, &row_tables.quarter),
             groups: groups(&rows_q),
+            what: "rows: DCT-III pack".into(),
+            bytes: io_bytes(&rows_q, false),
         });
         let (row_inv, in_b) = fft_ops(
             kernels,
@@ -832,6 +874,7 @@ impl DctFilter {
             &cx_a,
             &cx_b,
         )?;
+        let row_inv = on_axis(row_inv, "rows");
         let rows_back = if in_b { cx_b.clone() } else { cx_a.clone() };
         Ok(Self {
             width,
@@ -840,8 +883,18 @@ impl DctFilter {
             before_gain,
             gain_ops,
             middle,
-            first: (dct2_pack, rows_p.clone(), groups(&rows_q)),
-            last: (dct3_unpack, rows_p, groups(&rows_q)),
+            first: (
+                dct2_pack,
+                rows_p.clone(),
+                groups(&rows_q),
+                io_bytes(&rows_q, false),
+            ),
+            last: (
+                dct3_unpack,
+                rows_p,
+                groups(&rows_q),
+                io_bytes(&rows_q, false),
+            ),
             row_inverse: row_inv,
             inputs: Vec::new(),
             outputs: Vec::new(),
@@ -859,12 +912,60 @@ impl DctFilter {
     /// every dispatch reads and writes its data once (the floor of
     /// docs/benchmarks.md's bytes-over-bandwidth).
     pub fn bytes_per_frame(&self) -> u64 {
-        let real = (self.channels * self.width * self.height * 4) as u64;
-        // Each complex pass moves half the real planes' count of complex
-        // values (two sequences a pair), in and out: 2 · (real/2 · 2).
-        let passes =
-            (self.before_gain.len() + 1 + self.middle.len() + self.row_inverse.len() + 2) as u64;
-        passes * 2 * real
+        self.passes(0).iter().map(|(_, b)| b).sum()
+    }
+
+    /// Each dispatch of a frame with gain set `set`, in order: what it
+    /// does and the bytes it moves at least.
+    pub fn passes(&self, set: usize) -> Vec<(String, u64)> {
+        let first = ("rows: DCT-II pack (the input)".to_string(), self.first.3);
+        let last = ("rows: DCT-III unpack (the output)".to_string(), self.last.3);
+        std::iter::once(first)
+            .chain(
+                self.before_gain
+                    .iter()
+                    .chain(self.gain_ops.get(set))
+                    .chain(&self.middle)
+                    .chain(&self.row_inverse)
+                    .map(|o| (o.what.clone(), o.bytes)),
+            )
+            .chain(std::iter::once(last))
+            .collect()
+    }
+
+    /// As [`DctFilter::record`], each dispatch in a compute pass of its own
+    /// between two of `timer`'s timestamps (pair i for dispatch i of
+    /// [`DctFilter::passes`]); the timer needs that many pairs.
+    pub fn record_timed(
+        &mut self,
+        encoder: &mut wgpu::CommandEncoder,
+        input: &wgpu::Buffer,
+        output: &wgpu::Buffer,
+        timer: &crate::PassTimer,
+    ) -> Result<(), FftError> {
+        let first = self.input_bind(input);
+        let last = self.output_bind(output);
+        let mut steps: Vec<(&wgpu::ComputePipeline, &wgpu::BindGroup, [u32; 2])> =
+            vec![(&self.first.0, &first, self.first.2)];
+        steps.extend(
+            self.before_gain
+                .iter()
+                .chain(self.gain_ops.first())
+                .chain(&self.middle)
+                .chain(&self.row_inverse)
+                .map(|o| (&o.pipeline, &o.bind, o.groups)),
+        );
+        steps.push((&self.last.0, &last, self.last.2));
+        for (i, (pipeline, bind, groups)) in steps.into_iter().enumerate() {
+            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some("dct filter pass"),
+                timestamp_writes: Some(timer.pass(i)),
+            });
+            pass.set_pipeline(pipeline);
+            pass.set_bind_group(0, bind, &[]);
+            pass.dispatch_workgroups(groups[0], groups[1], 1);
+        }
+        Ok(())
     }
 
     /// Records the filter of the frame in `input` into `output` (each
