@@ -161,3 +161,72 @@ fn tradeoff_writes_the_chart_and_the_picker_reads_it() {
     .concat());
     assert_clean_error(&o, "no DOE beside this D-CNN");
 }
+
+mod needs_gpu {
+    use super::*;
+
+    /// `--backends …,wgpu` adds each prefilter the device runs as a row
+    /// of its own, scored as the CPU's row (the same display images) and
+    /// timed on the device.
+    #[test]
+    #[ignore = "needs a GPU adapter (run: scripts/test.sh, or cargo test -- --include-ignored)"]
+    fn tradeoff_puts_the_device_prefilters_beside_the_cpu_ones() {
+        let dir = tempfile::tempdir().expect("tmp");
+        let imgs = dir.path().join("imgs");
+        std::fs::create_dir(&imgs).expect("dir");
+        write_png(&imgs.join("a.png"), 24, 16);
+        let out = dir.path().join("tradeoff");
+        let calib = small_calib();
+        let designs = repo().join("designs/multifocal.toml").display().to_string();
+        let model = dcnn_model();
+        let o = run(&[
+            "--calib",
+            path(&calib),
+            "tradeoff",
+            "--designs",
+            &designs,
+            "--images",
+            path(&imgs),
+            "--out-dir",
+            path(&out),
+            "--size",
+            "32x24",
+            "--backends",
+            "cpu,wgpu",
+            "--repeat",
+            "1",
+            "--no-fidelity",
+            "--models",
+            path(&model),
+        ]);
+        assert!(o.status.success(), "{}", stderr(&o));
+        let json: serde_json::Value = serde_json::from_str(
+            &std::fs::read_to_string(out.join("tradeoff.json")).expect("json"),
+        )
+        .expect("parse");
+        let records = json["records"].as_array().expect("records");
+        let by_name = |n: &str| records.iter().find(|r| r["name"] == n);
+        for cpu in [
+            "ai",
+            "doe+wiener",
+            "doe+wiener multifocal",
+            "doe+wiener multifocal lsq@target",
+            "doe+wiener multifocal refine:3@target",
+        ] {
+            let a = by_name(cpu).unwrap_or_else(|| panic!("{cpu} missing"));
+            let d = by_name(&format!("{cpu} wgpu")).unwrap_or_else(|| panic!("{cpu} wgpu missing"));
+            assert_eq!(d["backend"], "wgpu", "{d}");
+            let db = |r: &serde_json::Value| r["mean_psnr_db"].as_f64().expect("db");
+            assert!(
+                (db(a) - db(d)).abs() <= 0.01,
+                "{cpu}: {} against {}",
+                db(a),
+                db(d)
+            );
+        }
+        // No device row where the device runs nothing (conventional) or
+        // the host solver (optimal).
+        assert!(by_name("conventional wgpu").is_none());
+        assert!(by_name("doe+wiener multifocal optimal@target wgpu").is_none());
+    }
+}

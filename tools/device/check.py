@@ -312,7 +312,8 @@ def step_torch(r: Runner, s: Step, z: dict):
 def step_fft(r: Runner, s: Step, z: dict, ceilings: Step):
     r.need_gpu_adapter()
     bw = [a for a in peaks(ceilings) if a][2:]
-    out = r.sh([r.nedrt, "bench", "fft", "--sizes", z["frame"], "--repeat", z["torch_repeat"], *bw], s.cap_s)
+    out = r.sh([r.nedrt, "bench", "fft", "--sizes", z["frame"], "--repeat", z["torch_repeat"], "--per-layer", *bw],
+               s.cap_s)
     s.text = "\n".join(line for line in out.splitlines() if not line.startswith("{"))
     r.sh([r.python, REPO / "tools/bench/torch_dcnn.py", "--fft", "--sizes", z["frame"], "--repeat",
           z["torch_repeat"]], s.cap_s)

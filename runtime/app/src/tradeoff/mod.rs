@@ -22,7 +22,7 @@ pub use quality::{Quality, Scorer};
 use super::bench::median;
 use super::eval::{list_images, load_all};
 use super::{AppError, CommonOptions, create_dir, write_text};
-use crate::preprocess::{Prefilter, dcnn_system, for_system};
+use crate::preprocess::{Prefilter, dcnn_system};
 use nedrt_infer::{BackendKind, BackendOptions, Dcnn};
 use nedrt_optics::sim::{Image, Method, Simulator};
 use pareto::{Point, pareto_front};
@@ -241,9 +241,21 @@ pub fn run(common: &CommonOptions, o: &TradeoffOptions) -> Result<String, AppErr
         repeat: o.repeat,
         max_seconds: o.max_seconds,
         device: format!("{host} (rayon, {} threads)", rayon::current_num_threads()),
+        gpu: if o.backends.contains(&BackendKind::Wgpu) {
+            match nedrt_gpu::open_device(&common.dcnn.backend_options.gpu, false) {
+                Ok((adapter, device, queue)) => Some(((device, queue), adapter.get_info().name)),
+                Err(e) => {
+                    tracing::warn!("the prefilters' device rows: skipped: {e}");
+                    skipped.push(format!("prefilters on wgpu: {e}"));
+                    None
+                }
+            }
+        } else {
+            None
+        },
     };
     for m in baselines {
-        records.push(linear_record(
+        records.extend(linear_records(
             &run,
             &scorer,
             &sim.doe_hash,
@@ -257,7 +269,7 @@ pub fn run(common: &CommonOptions, o: &TradeoffOptions) -> Result<String, AppErr
         let hash = &sim.doe_hash;
         for m in design_methods {
             let name = format!("{} {}", m.name(), design.name);
-            records.push(linear_record(
+            records.extend(linear_records(
                 &run,
                 scorer,
                 hash,
@@ -270,7 +282,7 @@ pub fn run(common: &CommonOptions, o: &TradeoffOptions) -> Result<String, AppErr
         for p in &prefilters {
             let p = p.with_objective(design.objective());
             let name = p.label(&format!("{} {}", Method::DoeWiener.name(), design.name));
-            records.push(linear_record(
+            records.extend(linear_records(
                 &run,
                 scorer,
                 hash,
@@ -399,7 +411,54 @@ fn linear_record(
     prefilter: Prefilter,
     name: &str,
 ) -> Result<Record, AppError> {
-    let mut engine = for_system(m, prefilter, &scorer.prepared, &mut Default::default())?;
+    linear_record_on(None, run, scorer, doe_hash, m, prefilter, name)
+}
+
+/// The same configuration's records on the CPU and, where `run` has a
+/// GPU and the device runs the prefilter (the Wiener, `lsq`, `refine:K`),
+/// on the device too ("… wgpu": the frame up, the display image back).
+fn linear_records(
+    run: &LinearRun,
+    scorer: &Scorer,
+    doe_hash: &str,
+    m: Method,
+    prefilter: Prefilter,
+    name: &str,
+) -> Result<Vec<Record>, AppError> {
+    let mut out = vec![linear_record(run, scorer, doe_hash, m, prefilter, name)?];
+    let on_device = (prefilter.is_native() && m.uses_wiener())
+        || matches!(prefilter, Prefilter::Lsq(_) | Prefilter::Refine(..));
+    if let (Some(gpu), true) = (&run.gpu, on_device) {
+        out.push(linear_record_on(
+            Some(gpu),
+            run,
+            scorer,
+            doe_hash,
+            m,
+            prefilter,
+            &format!("{name} wgpu"),
+        )?);
+    }
+    Ok(out)
+}
+
+#[allow(clippy::too_many_arguments)]
+fn linear_record_on(
+    gpu: Option<&(crate::device_prefilter::Gpu, String)>,
+    run: &LinearRun,
+    scorer: &Scorer,
+    doe_hash: &str,
+    m: Method,
+    prefilter: Prefilter,
+    name: &str,
+) -> Result<Record, AppError> {
+    let mut engine = crate::device_prefilter::for_system_on(
+        gpu.map(|(g, _)| g),
+        m,
+        prefilter,
+        &scorer.prepared,
+        &mut Default::default(),
+    )?;
     let mut seconds_per_pixel = 0.0;
     let displays: Vec<Image> = run
         .inputs
@@ -433,7 +492,10 @@ fn linear_record(
         latency_ms,
         estimated_ms,
         (m.optics() == nedrt_optics::sim::Optics::Doe).then(|| doe_hash.to_string()),
-        ("cpu", "f32", run.device.clone()),
+        match gpu {
+            Some((_, adapter)) => ("wgpu", "f32", format!("{adapter} (frame up, display back)")),
+            None => ("cpu", "f32", run.device.clone()),
+        },
     ))
 }
 
@@ -446,6 +508,8 @@ struct LinearRun<'a> {
     repeat: usize,
     max_seconds: f64,
     device: String,
+    /// The GPU of `--backends …,wgpu`, for the prefilters' device rows.
+    gpu: Option<(crate::device_prefilter::Gpu, String)>,
 }
 
 /// Writes the Markdown, JSON and chart of a table; returns the Markdown.
