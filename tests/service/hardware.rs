@@ -193,6 +193,85 @@ mod needs_gpu {
     }
 }
 
+mod needs_gpu_prefilters {
+    use super::*;
+
+    /// The shipped system (its network behind its Wiener), the AI display's
+    /// Wiener and `refine:3` keep the frame on the device: no host stage,
+    /// one upload of the frame as it came, nothing read back
+    /// (docs/gpu-fft.md; the codes are the host's within one, app's tests).
+    #[test]
+    #[ignore = "needs a GPU adapter (run: scripts/test.sh, or cargo test -- --include-ignored)"]
+    fn the_prefilters_keep_frames_on_the_gpu() {
+        require_gpu();
+        let dir = tempfile::tempdir().expect("tempdir");
+        for (i, extra) in [
+            &["--preprocess", "proposed"][..],
+            &["--preprocess", "ai"][..],
+            &[
+                "--design",
+                "multifocal",
+                "--preprocess",
+                "doe+wiener",
+                "--prefilter",
+                "refine:3",
+            ][..],
+        ]
+        .into_iter()
+        .enumerate()
+        {
+            let report_path = dir.path().join(format!("{i}.json"));
+            let out = Command::new(env!("CARGO_BIN_EXE_nedrt"))
+                .current_dir(repo())
+                .args(["--calib"])
+                .arg(small_panel())
+                .args([
+                    "run",
+                    "--backend",
+                    "wgpu",
+                    "--source",
+                    "pattern",
+                    "--frames",
+                    "3",
+                ])
+                .args(extra)
+                .args(["--sink", "headless", "--report-json"])
+                .arg(&report_path)
+                .output()
+                .expect("run");
+            assert!(
+                out.status.success(),
+                "{extra:?}: {}",
+                String::from_utf8_lossy(&out.stderr)
+            );
+            let r: serde_json::Value =
+                serde_json::from_slice(&std::fs::read(&report_path).expect("report"))
+                    .expect("json");
+            let path = r["frame_path"].as_str().expect("frame_path");
+            assert!(
+                path.starts_with("device (the frame is uploaded as it came"),
+                "{extra:?}: {path}"
+            );
+            let dcnn = r["traffic"]
+                .as_array()
+                .expect("traffic")
+                .iter()
+                .find(|t| t["stage"] == "dcnn")
+                .cloned()
+                .unwrap_or_else(|| panic!("no dcnn traffic: {r}"));
+            let n = |k: &str| dcnn["total"][k].as_u64().expect(k);
+            let frames = dcnn["frames"].as_u64().expect("frames");
+            assert!(frames >= 1, "{r}");
+            assert_eq!(
+                (n("uploads"), n("to_device_bytes")),
+                (frames, frames * (W * H * 4) as u64),
+                "{extra:?}"
+            );
+            assert_eq!(n("read_backs"), 0, "{extra:?}");
+        }
+    }
+}
+
 /// A device lost mid-run on the device path: the dcnn stage switches to the
 /// host path with the CPU fallback, re-runs the frame, and every frame is
 /// accounted for.
