@@ -282,5 +282,36 @@ mod needs_gpu {
                 "{method} {prefilter}: CPU {a:?}, device {b:?}"
             );
         }
+        // A side of 34 = 2·17: the device FFT has no radix 17, so the
+        // prefilter runs on the host, says so, and scores as the CPU.
+        let odd = dir.path().join("odd.png");
+        write_png(&odd, 34, 24);
+        let on = |backend: &str| {
+            sim(
+                "1.0",
+                &out,
+                &[
+                    "--calib",
+                    path(&small_calib()),
+                    "--input",
+                    path(&odd),
+                    "--method",
+                    "doe+wiener",
+                    "--prefilter",
+                    "refine:3",
+                    "--backend",
+                    backend,
+                ],
+            )
+        };
+        let (cpu, gpu) = (on("cpu"), on("wgpu"));
+        assert!(gpu.status.success(), "{}", stderr(&gpu));
+        assert!(stderr(&gpu).contains("prime factor 17"), "{}", stderr(&gpu));
+        assert!(
+            stdout(&gpu).contains("lacked the frame's size"),
+            "{}",
+            stdout(&gpu)
+        );
+        assert_eq!(scores(&cpu), scores(&gpu));
     }
 }

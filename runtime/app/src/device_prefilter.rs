@@ -95,6 +95,10 @@ pub struct OnDevice {
     raw: bool,
     buffers: Option<(usize, usize, [wgpu::Buffer; 3])>,
     traffic: HostTraffic,
+    /// The same preprocessing on the host, for frame sizes the device FFT
+    /// lacks (a side with a prime factor above 13): used with a warning.
+    host: Box<dyn Preprocess>,
+    warned: bool,
 }
 
 impl std::fmt::Debug for OnDevice {
@@ -109,6 +113,7 @@ impl OnDevice {
         queue: &wgpu::Queue,
         stage: Box<dyn DeviceStage>,
         raw: bool,
+        host: Box<dyn Preprocess>,
     ) -> Self {
         Self {
             device: device.clone(),
@@ -117,6 +122,8 @@ impl OnDevice {
             raw,
             buffers: None,
             traffic: HostTraffic::default(),
+            host,
+            warned: false,
         }
     }
 
@@ -130,12 +137,32 @@ impl OnDevice {
 
 impl Preprocess for OnDevice {
     fn describe(&self) -> String {
-        self.stage.describe()
+        if self.warned {
+            // The last frames' sizes sent it to the host.
+            format!(
+                "{} (the device FFT lacked the frame's size)",
+                self.host.describe()
+            )
+        } else {
+            self.stage.describe()
+        }
     }
 
     fn run(&mut self, input: &Image) -> Result<Image, PreprocessError> {
         check_frame(input, 3)?;
         let (w, h) = (input.width, input.height);
+        if let Err(e) = nedrt_gpu::fft::radices(w).and_then(|_| nedrt_gpu::fft::radices(h)) {
+            if !self.warned {
+                tracing::warn!(
+                    "{}: {e}; a {w}×{h} frame runs on the host: {}",
+                    self.stage.describe(),
+                    self.host.describe()
+                );
+                self.warned = true;
+            }
+            self.traffic = HostTraffic::default();
+            return self.host.run(input);
+        }
         let bytes = (input.data().len() * 4) as u64;
         if !matches!(&self.buffers, Some((bw, bh, _)) if (*bw, *bh) == (w, h)) {
             let make = |label, usage| {
@@ -224,9 +251,13 @@ pub fn for_system_on(
     let Some((device, queue)) = gpu else {
         return crate::preprocess::for_system(method, prefilter, prepared, dcnns);
     };
-    let on = |stage: Box<dyn DeviceStage>, raw: bool| -> Box<dyn Preprocess> {
-        Box::new(OnDevice::new(device, queue, stage, raw))
+    let on = |stage: Box<dyn DeviceStage>,
+              raw: bool,
+              host: Box<dyn Preprocess>|
+     -> Box<dyn Preprocess> {
+        Box::new(OnDevice::new(device, queue, stage, raw, host))
     };
+    let host = || crate::preprocess::for_system(method, prefilter, prepared, &mut HashMap::new());
     let stage = match prefilter {
         Prefilter::Optimal(_) => None,
         Prefilter::Lsq(o) => {
@@ -235,7 +266,7 @@ pub fn for_system_on(
                 "linear least-squares prefilter of {method} ({} objective)",
                 o.name()
             );
-            Some(on(lsq_stage(device, what, problem, None)?, false))
+            Some(on(lsq_stage(device, what, problem, None)?, false, host()?))
         }
         Prefilter::Refine(k, o) => {
             let problem = Arc::new(prepared.display_problem(method, o)?);
@@ -243,7 +274,11 @@ pub fn for_system_on(
                 "least-squares prefilter + {k} projected-gradient steps of {method} ({} objective)",
                 o.name()
             );
-            Some(on(refine_stage(device, what, problem, k, None)?, false))
+            Some(on(
+                refine_stage(device, what, problem, k, None)?,
+                false,
+                host()?,
+            ))
         }
         Prefilter::Native if method.uses_dcnn() => {
             let Some(dcnn) = dcnns.remove(&method) else {
@@ -256,7 +291,8 @@ pub fn for_system_on(
                     let what = format!(
                         "the Wiener prefilter of {method} (K = {k_reg:e}) before the clamp"
                     );
-                    let wiener = on(wiener_stage(device, what, filter, None)?, true);
+                    let raw = Box::new(RawWiener(filter.clone()));
+                    let wiener = on(wiener_stage(device, what, filter, None)?, true, raw);
                     Some(Box::new(BehindDevice {
                         wiener,
                         network: Box::new(dcnn),
@@ -267,7 +303,11 @@ pub fn for_system_on(
         Prefilter::Native => match prepared.wiener_shared(method) {
             Some(filter) => {
                 let what = format!("Wiener prefilter of {method} (K = {:e})", filter.k_reg);
-                Some(on(wiener_stage(device, what, filter, None)?, false))
+                Some(on(
+                    wiener_stage(device, what, filter, None)?,
+                    false,
+                    host()?,
+                ))
             }
             None => None,
         },
@@ -307,5 +347,24 @@ impl Preprocess for BehindDevice {
 
     fn last_gpu_ns(&self) -> Option<u64> {
         self.network.last_gpu_ns()
+    }
+}
+
+/// The Wiener before the clamp, on the host: the network's input where
+/// the device FFT lacks the frame's size.
+#[derive(Debug)]
+struct RawWiener(Arc<WienerFilter>);
+
+impl Preprocess for RawWiener {
+    fn describe(&self) -> String {
+        format!(
+            "Wiener prefilter (K = {:e}) before the clamp, on the CPU",
+            self.0.k_reg
+        )
+    }
+
+    fn run(&mut self, input: &Image) -> Result<Image, PreprocessError> {
+        check_frame(input, self.0.channels())?;
+        Ok(self.0.apply_unclamped(input))
     }
 }
