@@ -21,6 +21,8 @@
 
 use std::collections::HashMap;
 
+use crate::workgroups;
+
 const FFT_SHADER: &str = include_str!("../../../shaders/fft_pass.wgsl");
 // The two share `dct_seqs.wgsl` (the `Seqs` block and its addressing), pasted in front.
 const PACK_SHADER: &str = concat!(
@@ -31,8 +33,6 @@ const UNPACK_SHADER: &str = concat!(
     include_str!("../../../shaders/dct_seqs.wgsl"),
     include_str!("../../../shaders/dct_unpack.wgsl")
 );
-const WORKGROUP: u32 = 64;
-const MAX_GROUPS_X: u32 = 65535;
 /// The largest prime factor of a transform length the device FFT takes
 /// (the generic DFT's registers grow with it; `fft_pass.wgsl`'s MAX_RADIX).
 pub const MAX_PRIME: usize = 13;
@@ -118,20 +118,6 @@ struct SeqParams {
     pad: u32,
 }
 
-/// Workgroups for `threads` threads: rows of at most 65535 groups (the
-/// shaders' thread is x + y·65535·64).
-fn workgroups(threads: u64) -> [u32; 2] {
-    let groups = threads.div_ceil(u64::from(WORKGROUP));
-    if groups <= u64::from(MAX_GROUPS_X) {
-        [groups as u32, 1]
-    } else {
-        [
-            MAX_GROUPS_X,
-            groups.div_ceil(u64::from(MAX_GROUPS_X)) as u32,
-        ]
-    }
-}
-
 /// The pipelines, compiled once per device; an FFT pass's per radix, when
 /// a length first needs it.
 #[derive(Debug)]
@@ -149,7 +135,7 @@ pub struct FftKernels {
     dct3_unpack: wgpu::ComputePipeline,
 }
 
-fn storage(binding: u32, read_only: bool) -> wgpu::BindGroupLayoutEntry {
+pub(crate) fn storage(binding: u32, read_only: bool) -> wgpu::BindGroupLayoutEntry {
     wgpu::BindGroupLayoutEntry {
         binding,
         visibility: wgpu::ShaderStages::COMPUTE,
@@ -307,7 +293,7 @@ fn complex_table(n: usize, angle: impl Fn(usize) -> f64) -> Vec<f32> {
         .collect()
 }
 
-fn init_buffer(device: &wgpu::Device, label: &str, bytes: &[u8]) -> wgpu::Buffer {
+pub(crate) fn init_buffer(device: &wgpu::Device, label: &str, bytes: &[u8]) -> wgpu::Buffer {
     use wgpu::util::DeviceExt;
     device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
         label: Some(label),

@@ -203,6 +203,26 @@ impl DeviceStage for Chain {
     }
 }
 
+/// Threads per workgroup of nedrt's one-dimensional kernels.
+pub const WORKGROUP: u32 = 64;
+/// The most workgroups a dispatch takes along x.
+pub const MAX_GROUPS_X: u32 = 65535;
+
+/// Workgroups of [`WORKGROUP`] threads for `threads` threads: rows of at
+/// most [`MAX_GROUPS_X`] groups, as many rows as needed (a kernel's thread
+/// is x + y·65535·64).
+pub fn workgroups(threads: u64) -> [u32; 2] {
+    let groups = threads.div_ceil(u64::from(WORKGROUP));
+    if groups <= u64::from(MAX_GROUPS_X) {
+        [groups as u32, 1]
+    } else {
+        [
+            MAX_GROUPS_X,
+            groups.div_ceil(u64::from(MAX_GROUPS_X)) as u32,
+        ]
+    }
+}
+
 /// Waits until the GPU has finished `submission` (no data is read back).
 pub fn wait_for(device: &wgpu::Device, submission: wgpu::SubmissionIndex) -> Result<(), String> {
     device

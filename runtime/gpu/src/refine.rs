@@ -7,10 +7,9 @@
 //! buffers) and the steps by `shaders/fista.wgsl`. A frame records its
 //! dispatches; nothing is allocated or read back.
 
-use crate::fft::{DctFilter, FftError, FftKernels};
+use crate::fft::{DctFilter, FftError, FftKernels, init_buffer, storage};
 
 const SHADER: &str = include_str!("../../../shaders/fista.wgsl");
-const MAX_GROUPS_X: u32 = 65535;
 const OUTPUTS_KEPT: usize = 8;
 
 /// The problem at one frame size, as the device takes it: per channel the
@@ -55,18 +54,7 @@ impl Pipelines {
 
     fn make(device: &wgpu::Device) -> Self {
         let entries: Vec<wgpu::BindGroupLayoutEntry> = (0..8)
-            .map(|binding| wgpu::BindGroupLayoutEntry {
-                binding,
-                visibility: wgpu::ShaderStages::COMPUTE,
-                ty: wgpu::BindingType::Buffer {
-                    ty: wgpu::BufferBindingType::Storage {
-                        read_only: matches!(binding, 0 | 5 | 6),
-                    },
-                    has_dynamic_offset: false,
-                    min_binding_size: None,
-                },
-                count: None,
-            })
+            .map(|binding| storage(binding, matches!(binding, 0 | 5 | 6)))
             .collect();
         let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
             label: Some("fista"),
@@ -201,23 +189,14 @@ impl RefineStage {
                 mapped_at_creation: false,
             })
         };
-        let groups_total = plane.div_ceil(64);
-        let gx = groups_total.min(MAX_GROUPS_X);
-        let gy = groups_total.div_ceil(gx);
+        let [gx, gy] = crate::workgroups(u64::from(plane));
         let params = FrameParams {
             plane,
             channels: channels as u32,
             groups_per_plane: gx * gy,
             groups_x: gx,
         };
-        use wgpu::util::DeviceExt;
-        let init = |label, contents: &[u8]| {
-            device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-                label: Some(label),
-                contents,
-                usage: wgpu::BufferUsages::STORAGE,
-            })
-        };
+        let init = |label, contents: &[u8]| init_buffer(device, label, contents);
         let frame = init("fista frame", bytemuck::bytes_of(&params));
         let state: Vec<f32> = terms
             .step

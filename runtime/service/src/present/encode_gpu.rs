@@ -12,8 +12,6 @@ use super::PresentError;
 use super::transfer::{BINS, CODES, Transfer};
 
 const SHADER: &str = include_str!("../../../../shaders/panel_encode.wgsl");
-const WORKGROUP: u32 = 64;
-const MAX_GROUPS_X: u32 = 65535;
 
 fn err(reason: impl std::fmt::Display) -> PresentError {
     PresentError::Sink {
@@ -61,15 +59,10 @@ pub fn row_texels(width: u32) -> u32 {
     width.next_multiple_of(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT / 4)
 }
 
-/// Workgroups for `pixels` threads: a row of at most 65535 groups, and as
-/// many rows as needed (the shader's pixel is x + y · 65535 · 64).
+/// Workgroups for `pixels` threads ([`nedrt_gpu::workgroups`]: the
+/// shader's pixel is x + y · 65535 · 64).
 pub(crate) fn workgroups(pixels: u32) -> [u32; 2] {
-    let groups = pixels.div_ceil(WORKGROUP);
-    if groups <= MAX_GROUPS_X {
-        [groups, 1]
-    } else {
-        [MAX_GROUPS_X, groups.div_ceil(MAX_GROUPS_X)]
-    }
+    nedrt_gpu::workgroups(u64::from(pixels))
 }
 
 impl PanelEncoder {
@@ -337,7 +330,7 @@ impl PanelEncoder {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use nedrt_gpu::{map_and_wait, test_device};
+    use nedrt_gpu::{MAX_GROUPS_X, WORKGROUP, map_and_wait, test_device};
     use wgpu::util::DeviceExt;
 
     /// Encodes a `width`×`height` planar frame on the GPU and reads the
