@@ -13,7 +13,7 @@ use serde_json::json;
 
 use super::AppError;
 use super::bench::median;
-use nedrt_core::Image;
+use super::bench_inference::bench_frame;
 use nedrt_gpu::fft::{DctFilter, FftKernels};
 use nedrt_optics::Psf;
 use nedrt_optics::sim::wiener::WienerFilter;
@@ -59,16 +59,6 @@ fn psfs() -> Vec<Psf> {
         .collect()
 }
 
-fn frame(w: usize, h: usize) -> Image {
-    Image::rgb(
-        w,
-        h,
-        (0..3 * w * h)
-            .map(|i| ((i * 7919) % 1000) as f32 / 1000.0)
-            .collect(),
-    )
-}
-
 /// Times every size, handing each result to `on_record` (JSON), and
 /// returns the Markdown table.
 pub fn run(
@@ -96,7 +86,7 @@ pub fn run(
         rayon::current_num_threads()
     );
     for &(w, h) in &b.sizes {
-        let input = frame(w, h);
+        let input = bench_frame(w, h);
         // The CPU: the plan made once, then each frame (mirror, realfft,
         // gains, inverse, crop).
         let plan = filter.plan(w, h);

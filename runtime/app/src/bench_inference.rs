@@ -194,7 +194,7 @@ fn synth_model(name: &str, width: i64) -> Result<ModelFile, AppError> {
 }
 
 /// The frame every case runs: a deterministic ramp pattern.
-fn bench_frame(w: usize, h: usize) -> Image {
+pub(crate) fn bench_frame(w: usize, h: usize) -> Image {
     Image::rgb(
         w,
         h,

@@ -85,6 +85,53 @@ pub fn refine_stage(
     Ok(Box::new(stage))
 }
 
+/// Whether the device runs `method`'s `prefilter`: its Wiener, `lsq` and
+/// `refine:K` (not `optimal`, whose stopping rule reads its objective
+/// back, nor a method without a prefilter; a network's Wiener front end
+/// is its own case).
+pub fn runs_on_device(method: Method, prefilter: Prefilter) -> bool {
+    match prefilter {
+        Prefilter::Native => method.uses_wiener(),
+        Prefilter::Lsq(_) | Prefilter::Refine(..) => true,
+        Prefilter::Optimal(_) => false,
+    }
+}
+
+/// `method`'s `prefilter` as a device stage named `what`, prepared for
+/// `size` where given; `None` where the device does not run it
+/// ([`runs_on_device`]). A size the device FFT lacks is `AppError::Fft`.
+pub fn prefilter_stage(
+    device: &wgpu::Device,
+    method: Method,
+    prefilter: Prefilter,
+    prepared: &Prepared,
+    what: String,
+    size: Option<(usize, usize)>,
+) -> Result<Option<Box<dyn DeviceStage>>, AppError> {
+    if !runs_on_device(method, prefilter) {
+        return Ok(None);
+    }
+    Ok(Some(match prefilter {
+        Prefilter::Lsq(o) => lsq_stage(
+            device,
+            what,
+            Arc::new(prepared.display_problem(method, o)?),
+            size,
+        )?,
+        Prefilter::Refine(k, o) => refine_stage(
+            device,
+            what,
+            Arc::new(prepared.display_problem(method, o)?),
+            k,
+            size,
+        )?,
+        _ => match prepared.wiener_shared(method) {
+            Some(filter) => wiener_stage(device, what, filter, size)?,
+            None => return Ok(None),
+        },
+    }))
+}
+
 /// A device stage as a host [`Preprocess`]: each frame uploaded, the
 /// stage recorded, its output read back (clamped to the panel's range
 /// unless `raw`). Buffers are made once per frame size.
@@ -225,10 +272,9 @@ pub fn gpu_for(
     methods: &[Method],
     prefilters: &[Prefilter],
 ) -> Result<Option<Gpu>, AppError> {
-    let wanted = methods.iter().any(|m| m.uses_wiener() || m.uses_dcnn())
-        || prefilters
-            .iter()
-            .any(|p| matches!(p, Prefilter::Lsq(_) | Prefilter::Refine(..)));
+    let wanted = methods
+        .iter()
+        .any(|&m| m.uses_dcnn() || prefilters.iter().any(|&p| runs_on_device(m, p)));
     if common.dcnn.backend != nedrt_infer::BackendKind::Wgpu || !wanted {
         return Ok(None);
     }
@@ -251,71 +297,33 @@ pub fn for_system_on(
     let Some((device, queue)) = gpu else {
         return crate::preprocess::for_system(method, prefilter, prepared, dcnns);
     };
-    let on = |stage: Box<dyn DeviceStage>,
-              raw: bool,
-              host: Box<dyn Preprocess>|
-     -> Box<dyn Preprocess> {
-        Box::new(OnDevice::new(device, queue, stage, raw, host))
-    };
-    let host = || crate::preprocess::for_system(method, prefilter, prepared, &mut HashMap::new());
-    let stage = match prefilter {
-        Prefilter::Optimal(_) => None,
-        Prefilter::Lsq(o) => {
-            let problem = Arc::new(prepared.display_problem(method, o)?);
-            let what = format!(
-                "linear least-squares prefilter of {method} ({} objective)",
-                o.name()
-            );
-            Some(on(lsq_stage(device, what, problem, None)?, false, host()?))
-        }
-        Prefilter::Refine(k, o) => {
-            let problem = Arc::new(prepared.display_problem(method, o)?);
-            let what = format!(
-                "least-squares prefilter + {k} projected-gradient steps of {method} ({} objective)",
-                o.name()
-            );
-            Some(on(
-                refine_stage(device, what, problem, k, None)?,
-                false,
-                host()?,
-            ))
-        }
-        Prefilter::Native if method.uses_dcnn() => {
-            let Some(dcnn) = dcnns.remove(&method) else {
-                return Err(AppError::Usage(format!("no D-CNN loaded for {method}")));
-            };
-            match crate::preprocess::dcnn_input(&dcnn.model.path)? {
-                DcnnInput::Frame => Some(Box::new(dcnn) as Box<dyn Preprocess>),
-                DcnnInput::WienerRaw { k_reg } => {
-                    let filter = Arc::new(prepared.wiener_filter(method, k_reg)?);
-                    let what = format!(
-                        "the Wiener prefilter of {method} (K = {k_reg:e}) before the clamp"
-                    );
-                    let raw = Box::new(RawWiener(filter.clone()));
-                    let wiener = on(wiener_stage(device, what, filter, None)?, true, raw);
-                    Some(Box::new(BehindDevice {
-                        wiener,
-                        network: Box::new(dcnn),
-                    }) as Box<dyn Preprocess>)
-                }
+    if method.uses_dcnn() && prefilter.is_native() {
+        let Some(dcnn) = dcnns.remove(&method) else {
+            return Err(AppError::Usage(format!("no D-CNN loaded for {method}")));
+        };
+        return Ok(match crate::preprocess::dcnn_input(&dcnn.model.path)? {
+            DcnnInput::Frame => Box::new(dcnn),
+            DcnnInput::WienerRaw { k_reg } => {
+                let filter = Arc::new(prepared.wiener_filter(method, k_reg)?);
+                let what =
+                    format!("the Wiener prefilter of {method} (K = {k_reg:e}) before the clamp");
+                let raw = Box::new(RawWiener(filter.clone()));
+                let stage = wiener_stage(device, what, filter, None)?;
+                Box::new(BehindDevice {
+                    wiener: Box::new(OnDevice::new(device, queue, stage, true, raw)),
+                    network: Box::new(dcnn),
+                })
             }
-        }
-        Prefilter::Native => match prepared.wiener_shared(method) {
-            Some(filter) => {
-                let what = format!("Wiener prefilter of {method} (K = {:e})", filter.k_reg);
-                Some(on(
-                    wiener_stage(device, what, filter, None)?,
-                    false,
-                    host()?,
-                ))
-            }
-            None => None,
-        },
-    };
-    match stage {
-        Some(s) => Ok(s),
-        None => crate::preprocess::for_system(method, prefilter, prepared, dcnns),
+        });
     }
+    let host = crate::preprocess::for_system(method, prefilter, prepared, dcnns)?;
+    let what = host.describe();
+    Ok(
+        match prefilter_stage(device, method, prefilter, prepared, what, None)? {
+            Some(stage) => Box::new(OnDevice::new(device, queue, stage, false, host)),
+            None => host,
+        },
+    )
 }
 
 /// A network behind its Wiener, the Wiener on the device: as the host's
@@ -351,9 +359,9 @@ impl Preprocess for BehindDevice {
 }
 
 /// The Wiener before the clamp, on the host: the network's input where
-/// the device FFT lacks the frame's size.
+/// the device FFT lacks the frame's size, and the service's host stage.
 #[derive(Debug)]
-struct RawWiener(Arc<WienerFilter>);
+pub struct RawWiener(pub Arc<WienerFilter>);
 
 impl Preprocess for RawWiener {
     fn describe(&self) -> String {

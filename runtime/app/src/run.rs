@@ -8,10 +8,10 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 
 use super::{AppError, CommonOptions};
-use crate::device_prefilter::{lsq_stage, refine_stage, wiener_stage};
+use crate::device_prefilter::{RawWiener, prefilter_stage, wiener_stage};
 use crate::preprocess::{BehindWiener, DcnnInput};
 use nedrt_core::Named;
-use nedrt_core::preprocess::{Identity, Preprocess, check_frame};
+use nedrt_core::preprocess::{Identity, Preprocess};
 use nedrt_infer::gpu::{DeviceDcnn, open_device};
 use nedrt_infer::{BackendKind, Dcnn, ModelFile};
 use nedrt_optics::sim::wiener::WienerFilter;
@@ -289,18 +289,28 @@ fn linear_preprocessor(
     if !method.uses_wiener() && prefilter.is_native() {
         return Ok(Box::new(Identity));
     }
+    let prepared = prepared_for(common, method, prefilter)?;
+    let mut dcnns = std::collections::HashMap::new();
+    crate::preprocess::for_system(method, prefilter, &prepared, &mut dcnns)
+}
+
+/// `method`'s optics prepared for `prefilter` (its Wiener; the headline
+/// depths for the least-squares family).
+fn prepared_for(
+    common: &CommonOptions,
+    method: Method,
+    prefilter: crate::preprocess::Prefilter,
+) -> Result<nedrt_optics::sim::Prepared, AppError> {
     let sim = Simulator::new(
         common.calibration()?,
         common.doe_path_for(&[method]).as_deref(),
         common.cache(),
     )?;
-    let prepared = sim.prepare(
+    Ok(sim.prepare(
         &[method],
         &prefilter.depths_d(&sim.calib),
         common.progress(),
-    )?;
-    let mut dcnns = std::collections::HashMap::new();
-    crate::preprocess::for_system(method, prefilter, &prepared, &mut dcnns)
+    )?)
 }
 
 /// Runs the service until its source ends (and the last frame is shown)
@@ -541,13 +551,10 @@ fn resident_stage(
                         }
                         Err(e) => {
                             tracing::warn!("{what} stays on the host: {e}");
-                            let filter = filter.clone();
+                            let mut raw = RawWiener(filter.clone());
                             host = Some(HostPrep {
                                 name: what,
-                                run: Box::new(move |frame| {
-                                    check_frame(frame, filter.channels())?;
-                                    Ok(filter.apply_unclamped(frame))
-                                }),
+                                run: Box::new(move |frame| raw.run(frame)),
                             });
                             net
                         }
@@ -569,9 +576,12 @@ fn resident_stage(
         }
         None if !opts.preprocess.uses_wiener() && opts.prefilter.is_native() => (None, None, None),
         None => match linear_on_device(common, opts, panel, device)? {
-            Some((stage, fallback)) => (None, Some(stage), Some(fallback)),
-            None => {
-                let mut linear = linear_preprocessor(common, opts.preprocess, opts.prefilter)?;
+            (Some(stage), linear) => (
+                None,
+                Some(stage),
+                Some(Box::new(move || Ok(linear)) as FallbackFactory),
+            ),
+            (None, mut linear) => {
                 let host = HostPrep {
                     name: linear.describe(),
                     run: Box::new(move |frame| linear.run(frame)),
@@ -595,34 +605,21 @@ fn resident_stage(
     })
 }
 
-/// A device stage and the host preprocessing that replaces it if the device fails.
-type DeviceWithFallback = (Box<dyn nedrt_gpu::DeviceStage>, FallbackFactory);
+/// A prefilter's device stage, if the device runs it, and the same on the host.
+type DeviceAndHost = (Option<Box<dyn nedrt_gpu::DeviceStage>>, Box<dyn Preprocess>);
 
-/// The method's prefilter (its Wiener, `lsq` or `refine:K`) as a device
-/// stage with the host's as its fallback; `None` where it runs on the
-/// host (`optimal`, whose stopping rule reads its objective back, or a
-/// size the device FFT lacks, or PSFs without mirror symmetry).
+/// The method's prefilter on the host, and as a device stage where the
+/// device runs it ([`crate::device_prefilter::prefilter_stage`]; a size the
+/// device FFT lacks stays on the host, with a warning). The host one is the
+/// device stage's fallback, or the host stage.
 fn linear_on_device(
     common: &CommonOptions,
     opts: &RunOptions,
     panel: &PanelConfig,
     device: &wgpu::Device,
-) -> Result<Option<DeviceWithFallback>, AppError> {
-    use crate::preprocess::Prefilter;
+) -> Result<DeviceAndHost, AppError> {
     let method = opts.preprocess;
-    if matches!(opts.prefilter, Prefilter::Optimal(_)) {
-        return Ok(None);
-    }
-    let sim = Simulator::new(
-        common.calibration()?,
-        common.doe_path_for(&[method]).as_deref(),
-        common.cache(),
-    )?;
-    let prepared = sim.prepare(
-        &[method],
-        &opts.prefilter.depths_d(&sim.calib),
-        common.progress(),
-    )?;
+    let prepared = prepared_for(common, method, opts.prefilter)?;
     let host = crate::preprocess::for_system(
         method,
         opts.prefilter,
@@ -631,26 +628,20 @@ fn linear_on_device(
     )?;
     let what = host.describe();
     let size = Some((panel.width, panel.height));
-    let made = match opts.prefilter {
-        Prefilter::Lsq(objective) => {
-            let problem = Arc::new(prepared.display_problem(method, objective)?);
-            lsq_stage(device, what.clone(), problem, size)
-        }
-        Prefilter::Refine(steps, objective) => {
-            let problem = Arc::new(prepared.display_problem(method, objective)?);
-            refine_stage(device, what.clone(), problem, steps, size)
-        }
-        _ => match prepared.wiener_shared(method) {
-            Some(filter) => wiener_stage(device, what.clone(), filter, size),
-            None => return Ok(None),
-        },
-    };
-    match made {
-        Ok(stage) => Ok(Some((stage, Box::new(move || Ok(host)) as FallbackFactory))),
-        Err(e) => {
+    match prefilter_stage(
+        device,
+        method,
+        opts.prefilter,
+        &prepared,
+        what.clone(),
+        size,
+    ) {
+        Ok(stage) => Ok((stage, host)),
+        Err(AppError::Fft(e)) => {
             tracing::warn!("{what} stays on the host: {e}");
-            Ok(None)
+            Ok((None, host))
         }
+        Err(e) => Err(e),
     }
 }
 

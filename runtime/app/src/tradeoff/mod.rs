@@ -399,21 +399,6 @@ pub fn run(common: &CommonOptions, o: &TradeoffOptions) -> Result<String, AppErr
     Ok(text)
 }
 
-/// The record of a method the simulator itself runs (no D-CNN), with
-/// `prefilter`: its quality on the images and its latency on the frame on
-/// the CPU (estimated from the images' time per pixel, and marked so, when
-/// measuring would take longer than `max_seconds`).
-fn linear_record(
-    run: &LinearRun,
-    scorer: &Scorer,
-    doe_hash: &str,
-    m: Method,
-    prefilter: Prefilter,
-    name: &str,
-) -> Result<Record, AppError> {
-    linear_record_on(None, run, scorer, doe_hash, m, prefilter, name)
-}
-
 /// The same configuration's records on the CPU and, where `run` has a
 /// GPU and the device runs the prefilter (the Wiener, `lsq`, `refine:K`),
 /// on the device too ("… wgpu": the frame up, the display image back).
@@ -425,10 +410,13 @@ fn linear_records(
     prefilter: Prefilter,
     name: &str,
 ) -> Result<Vec<Record>, AppError> {
-    let mut out = vec![linear_record(run, scorer, doe_hash, m, prefilter, name)?];
-    let on_device = (prefilter.is_native() && m.uses_wiener())
-        || matches!(prefilter, Prefilter::Lsq(_) | Prefilter::Refine(..));
-    if let (Some(gpu), true) = (&run.gpu, on_device) {
+    let mut out = vec![linear_record_on(
+        None, run, scorer, doe_hash, m, prefilter, name,
+    )?];
+    if let (Some(gpu), true) = (
+        &run.gpu,
+        crate::device_prefilter::runs_on_device(m, prefilter),
+    ) {
         out.push(linear_record_on(
             Some(gpu),
             run,
@@ -442,6 +430,10 @@ fn linear_records(
     Ok(out)
 }
 
+/// The record, on the CPU or `gpu`, of a method the simulator itself runs
+/// (no D-CNN), with `prefilter`: its quality on the images and its latency
+/// on the frame (estimated from the images' time per pixel, and marked so, when
+/// measuring would take longer than `max_seconds`).
 #[allow(clippy::too_many_arguments)]
 fn linear_record_on(
     gpu: Option<&(crate::device_prefilter::Gpu, String)>,
