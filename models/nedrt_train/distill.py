@@ -19,6 +19,7 @@ the runtime's ONNX. Checkpoints every `--checkpoint-every` steps; `--resume`
 continues a run exactly (optimiser, schedule, random state).
 """
 import argparse
+import contextlib
 import dataclasses
 import json
 import math
@@ -244,14 +245,14 @@ class Patches:
     def __init__(self, photos: list, teachers: list, patch: int, seed: int, bases: list | None = None,
                  device="cpu"):
         self.photos = [torch.from_numpy(p).permute(2, 0, 1).contiguous() for p in photos]
-        self.stacks = [s for s in (self.photos, teachers, bases)]
-        sizes = {tuple(t.shape) for stack in self.stacks if stack is not None for t in stack}
+        stacks = (self.photos, teachers, bases)
+        sizes = {tuple(t.shape) for stack in stacks if stack is not None for t in stack}
         # One tensor per stack where every photograph has the same size:
         # a batch is then one gather per stack.
         self.dense = len(sizes) == 1
         self.stacks = [None if stack is None else
                        (torch.stack(stack).to(device) if self.dense else [t.to(device) for t in stack])
-                       for stack in self.stacks]
+                       for stack in stacks]
         self.patch = patch
         self.device = torch.device(device)
         self.rng = np.random.default_rng(seed)
@@ -321,7 +322,6 @@ def forward(net, image, base=None, cfg=None):
 
 def autocast(cfg, device):
     """The network's precision: bf16 autocast under `--amp bf16`, else none."""
-    import contextlib
     if cfg is None or cfg.amp == "off":
         return contextlib.nullcontext()
     if cfg.amp != "bf16":
@@ -403,10 +403,9 @@ def lr_at(cfg: DistillConfig, step: int, elapsed: float = 0.0) -> float:
     return cfg.lr * warm * (0.01 + 0.99 * 0.5 * (1 + math.cos(math.pi * progress)))
 
 
-def step_once(net, opt, objective: Objective, data: "Patches", cfg: DistillConfig, sharp: Objective | None,
-              batch: int | None = None):
+def step_once(net, opt, objective: Objective, data: "Patches", cfg: DistillConfig, sharp: Objective | None):
     """One Adam step on a fresh batch; the loss and its terms."""
-    image, teacher, base = data.batch(batch or cfg.batch)
+    image, teacher, base = data.batch(cfg.batch)
     loss, terms = losses(net, objective, image, teacher, cfg, sharp, base)
     opt.zero_grad()
     loss.backward()
@@ -414,7 +413,7 @@ def step_once(net, opt, objective: Objective, data: "Patches", cfg: DistillConfi
     return loss, terms
 
 
-def largest_batch(net, objective: Objective, data: "Patches", cfg: DistillConfig, sharp: Objective | None) -> int:
+def largest_batch(net, objective: Objective, cfg: DistillConfig, sharp: Objective | None) -> int:
     """`--batch 0`: the largest power of two up to `max_batch` whose step
     (forward and backward, no update) fits in the device's memory with a
     quarter to spare, probed on random patches; 8 on a device without a
@@ -589,7 +588,7 @@ def train(cfg: DistillConfig, out: Path, resume: bool = False, stop_after: int |
         seconds_before = state["seconds"]
         history = state.get("history", [])
     if cfg.batch == 0:
-        cfg = dataclasses.replace(cfg, batch=largest_batch(net, objective, data, cfg, sharp))
+        cfg = dataclasses.replace(cfg, batch=largest_batch(net, objective, cfg, sharp))
         print(f"dcnn: batch {cfg.batch} (the largest of at most {cfg.max_batch} that fits on {device})", flush=True)
     log_path = out / "metrics.csv"
     new_log = step == 0 or not log_path.exists()

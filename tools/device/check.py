@@ -282,14 +282,19 @@ def step_ceilings(r: Runner, s: Step, z: dict):
           "--gemm", z["gemm"]], 60)
 
 
-def peaks(ceilings: Step) -> list:
-    """--peak-gmacs / --peak-gbps for the per-layer floor, from the measured ceilings."""
+def peaks(ceilings: Step) -> dict:
+    """The floors' flags from the measured ceilings: {"--peak-gmacs": …,
+    "--peak-gbps": …}, or nothing where they were not measured."""
     rec = next((x for x in ceilings.records if x.get("kind") == "ceilings"), None)
     if ceilings.status != "ok" or rec is None:
-        return []
+        return {}
     # The WGSL kernels run on the CUDA cores, not the tensor cores: their
     # peak is the f32 FMA rate, which a cuBLAS SGEMM with TF32 off reaches.
-    return ["--peak-gmacs", f"{rec['f32_gemm_tflops'] * 1e3 / 2:.0f}", "--peak-gbps", f"{rec['copy_gbps']:.0f}"]
+    return {"--peak-gmacs": f"{rec['f32_gemm_tflops'] * 1e3 / 2:.0f}", "--peak-gbps": f"{rec['copy_gbps']:.0f}"}
+
+
+def flags(pairs: dict) -> list:
+    return [v for kv in pairs.items() for v in kv]
 
 
 def step_wgsl(r: Runner, s: Step, z: dict):
@@ -301,7 +306,7 @@ def step_wgsl(r: Runner, s: Step, z: dict):
 def step_per_layer(r: Runner, s: Step, z: dict, ceilings: Step):
     r.need_gpu_adapter()
     s.text = r.sh([r.nedrt, "bench", "inference", "--per-layer", "--sizes", z["layer_frame"], "--repeat",
-                   z["repeat"], *peaks(ceilings)], s.cap_s, parse_json=False)
+                   z["repeat"], *flags(peaks(ceilings))], s.cap_s, parse_json=False)
 
 
 def step_torch(r: Runner, s: Step, z: dict):
@@ -311,7 +316,7 @@ def step_torch(r: Runner, s: Step, z: dict):
 
 def step_fft(r: Runner, s: Step, z: dict, ceilings: Step):
     r.need_gpu_adapter()
-    bw = [a for a in peaks(ceilings) if a][2:]
+    bw = flags({k: v for k, v in peaks(ceilings).items() if k == "--peak-gbps"})
     out = r.sh([r.nedrt, "bench", "fft", "--sizes", z["frame"], "--repeat", z["torch_repeat"], "--per-layer", *bw],
                s.cap_s)
     s.text = "\n".join(line for line in out.splitlines() if not line.startswith("{"))
