@@ -2,7 +2,8 @@
 (CI runs `--smoke`, which runs them all): the plan counts what travels as
 the device tool does and refuses more than the limit; the steps' caps fit
 the envelope with time left to train; the report renders a run whose steps
-failed or found no figures; a bad --only is refused."""
+failed or found no figures; a bad --only is refused; side-by-side commands
+run no more at once than memory holds and a killed one is named."""
 import importlib.util
 import json
 import subprocess
@@ -61,3 +62,27 @@ def test_the_report_renders_failed_and_empty_steps():
 def test_a_bad_only_is_refused(capsys):
     assert check.main(["--only", "setup,warp"]) == 2
     assert "no step warp" in capsys.readouterr().err
+
+
+def test_parallel_runs_no_more_at_once_than_memory_holds_and_names_a_killed_child(tmp_path, monkeypatch):
+    import sys
+    import time
+
+    r = check.Runner(tmp_path, smoke=True)
+    r.step = check.Step("teacher", "test", 60)
+    # Each child holds a lock file while it runs; a second holder means two at once.
+    script = ("import os,sys,time; p=sys.argv[1]; fd=os.open(p,os.O_CREAT|os.O_EXCL); time.sleep(0.3); "
+              "os.close(fd); os.remove(p)")
+    lock = tmp_path / "lock"
+    monkeypatch.setattr(check, "available_gib", lambda: 9.0)
+    r.parallel([[sys.executable, "-c", script, lock] for _ in range(3)], time.monotonic() + 30, mem_gib=5)
+    assert len(r.step.commands) == 3
+    # Unbounded, the three overlap and two of them find the lock taken.
+    with pytest.raises(check.Failed, match="exit 1"):
+        r.parallel([[sys.executable, "-c", script, lock] for _ in range(3)], time.monotonic() + 30)
+    time.sleep(0.5)
+    with pytest.raises(check.Failed, match="killed by SIGKILL"):
+        r.parallel([[sys.executable, "-c", "import os,signal; os.kill(os.getpid(), signal.SIGKILL)"]],
+                   time.monotonic() + 30)
+    with pytest.raises(check.Failed, match="timed out"):
+        r.parallel([[sys.executable, "-c", "import time; time.sleep(30)"]], time.monotonic() + 0.5)

@@ -26,6 +26,7 @@ import json
 import lzma
 import os
 import shutil
+import signal
 import subprocess
 import sys
 import tempfile
@@ -146,29 +147,46 @@ class Runner:
                         pass
         if p.returncode != 0:
             tail = (p.stderr or p.stdout).strip().splitlines()[-3:]
-            raise Failed(f"exit {p.returncode}: " + " / ".join(tail))
+            raise Failed(f"{exit_status(p.returncode)}: " + " / ".join(tail))
         return p.stdout
 
-    def parallel(self, commands: list, deadline: float):
-        """Runs the commands side by side until `deadline`; every one must succeed."""
-        procs = []
-        for c in commands:
-            args = [str(a) for a in c]
-            self.step.commands.append(" ".join(args))
-            self.say(f"$ {' '.join(args)} &")
-            procs.append(subprocess.Popen(args, cwd=REPO, env=self.env, stdout=subprocess.PIPE,
-                                          stderr=subprocess.STDOUT, text=True))
-        failed = []
-        for p in procs:
-            try:
-                out, _ = p.communicate(timeout=max(deadline - time.monotonic(), 1))
-            except subprocess.TimeoutExpired:
-                for q in procs:
-                    q.kill()
-                raise Failed(f"timed out: {' '.join(str(a) for a in p.args[:3])}")
-            self.log.write(out)
-            if p.returncode:
-                failed.append(f"{' '.join(str(a) for a in p.args[:4])}: " + " / ".join(out.strip().splitlines()[-2:]))
+    def parallel(self, commands: list, deadline: float, mem_gib: float | None = None):
+        """Runs the commands side by side until `deadline`; every one must
+        succeed. With `mem_gib` (one command's peak), no more run at once
+        than the machine's available memory holds."""
+        at_once = len(commands)
+        if mem_gib:
+            at_once = max(1, min(at_once, int(available_gib() // mem_gib)))
+        queue = [[str(a) for a in c] for c in commands]
+        running, failed = [], []  # (process, its output file)
+        try:
+            while queue or running:
+                while queue and len(running) < at_once:
+                    args = queue.pop(0)
+                    self.step.commands.append(" ".join(args))
+                    self.say(f"$ {' '.join(args)} &")
+                    out = tempfile.TemporaryFile("w+")
+                    running.append((subprocess.Popen(args, cwd=REPO, env=self.env, stdout=out,
+                                                     stderr=subprocess.STDOUT, text=True), out))
+                if time.monotonic() > deadline:
+                    raise Failed(f"timed out: {' '.join(running[0][0].args[:3])}")
+                done = [(p, out) for p, out in running if p.poll() is not None]
+                if not done:
+                    time.sleep(0.1)
+                for p, out in done:
+                    running.remove((p, out))
+                    out.seek(0)
+                    text = out.read()
+                    out.close()
+                    self.log.write(text)
+                    if p.returncode:
+                        failed.append(f"{' '.join(p.args[:4])}: {exit_status(p.returncode)}: "
+                                      + " / ".join(text.strip().splitlines()[-2:]))
+        finally:
+            for p, out in running:
+                p.kill()
+                p.wait()
+                out.close()
         self.log.flush()
         if failed:
             raise Failed("; ".join(failed))
@@ -347,16 +365,21 @@ def step_teacher(r: Runner, s: Step, z: dict, device: str):
     # each spends seconds on its PSFs before its parallel solves.
     design = [r.nedrt, "--threads", max(cores // 7, 1), "--design", "multifocal", "prefilter"]
     deadline = deadline_after(r, s)
+    # The first command alone computes the design's PSFs and caches them
+    # for the others. Each command peaks at 3.8 GB (the design's PSFs and
+    # its plans, whatever the image size): seven at once overran a 24 GiB CI
+    # machine and were killed, so they run as many at once as memory holds.
+    r.parallel([[*design, "--images", images / "val", "--out-dir", t / "val-wiener", "--prefilter", "native"]],
+               deadline)
     r.parallel([
         [*design, "--images", images / "train", "--out-dir", t / "train", "--operator", ops],
         [*design, "--images", images / "val", "--out-dir", t / "val"],
-        *[[*design, "--images", images / split, "--out-dir", t / f"{split}-wiener", "--prefilter", "native"]
-          for split in ("train", "val")],
+        [*design, "--images", images / "train", "--out-dir", t / "train-wiener", "--prefilter", "native"],
         [*design, "--images", images / "train", "--out-dir", t / "train-sharp", "--prefilter", "optimal@sharp",
          "--operator", ops],
         *[[*design, "--images", images / split, "--out-dir", t / f"{split}-wiener-raw", "--prefilter", "native",
            "--unclamped"] for split in ("train", "val")],
-    ], deadline)
+    ], deadline, mem_gib=4.5)
     # The ceiling of the training photographs, in shares side by side (the
     # solver is scipy's, on the CPU; its objective on the device).
     n = z["ceiling_shards"]
@@ -371,6 +394,27 @@ def step_teacher(r: Runner, s: Step, z: dict, device: str):
         r.teacher_set = "train"
         s.note = f"the training ceiling failed ({e}); the training distils optimal@target (teacher set train)"
         r.say(f"   {s.note}")
+
+
+def available_gib() -> float:
+    """MemAvailable of /proc/meminfo (the machine's total where that is unreadable)."""
+    try:
+        for line in Path("/proc/meminfo").read_text().splitlines():
+            if line.startswith("MemAvailable:"):
+                return int(line.split()[1]) / 2**20
+    except OSError:
+        pass
+    return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") / 2**30
+
+
+def exit_status(code: int) -> str:
+    """A child's exit, naming the signal that killed it (SIGKILL: often the OOM killer)."""
+    if code < 0:
+        try:
+            return f"killed by {signal.Signals(-code).name}"
+        except ValueError:
+            return f"killed by signal {-code}"
+    return f"exit {code}"
 
 
 def deadline_after(r: Runner, s: Step) -> float:
