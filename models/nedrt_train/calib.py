@@ -111,6 +111,12 @@ def load(path) -> Calib:
         )
     except (KeyError, ValueError, tomllib.TOMLDecodeError) as e:
         raise ValueError(f"{path}: invalid calibration ({e!r}); `nedrt calib --calib {path}` names the field") from e
+    eye = raw.get("eye", {})
+    if "pupil_diameter_mm" in eye or eye.get("lca", "off") != "off":
+        # The trainer's optics are the paper's eye (the eyepiece's aperture
+        # is the stop, no eye LCA); better refuse than train another model.
+        raise ValueError(f"{path}: eye: the trainer models the paper's eye only (no eye.pupil_diameter_mm, "
+                         f"eye.lca = \"off\"); docs/model.md §4a")
     for ch in range(len(cal.channels)):
         if cal.lens_distance_m >= cal.focal_length_m(ch):
             raise ValueError(f"{path}: panel.lens_distance_mm: at or beyond the focal length of {cal.channels[ch].name}")

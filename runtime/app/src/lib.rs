@@ -38,7 +38,7 @@ use nedrt_core::progress::Silent;
 
 use std::collections::HashMap;
 
-use nedrt_core::calib::{CalibError, Calibration};
+use nedrt_core::calib::{CalibError, Calibration, EyeOverrides};
 use nedrt_infer::{BackendKind, BackendOptions, Dcnn, InferenceError};
 use nedrt_optics::cache::PsfCache;
 use nedrt_optics::sim::Method;
@@ -55,6 +55,8 @@ pub struct CommonOptions {
     /// A named design (`--design`): its DOE is `doe`, its K the Wiener's.
     pub design: Option<design::Design>,
     pub dcnn: DcnnOptions,
+    /// The eye's settings given on the command line over the calibration's.
+    pub eye: EyeOverrides,
     /// Where long work reports its progress.
     pub progress: Arc<dyn Progress>,
 }
@@ -67,6 +69,7 @@ impl Default for CommonOptions {
             doe: None,
             design: None,
             dcnn: DcnnOptions::default(),
+            eye: EyeOverrides::default(),
             progress: Arc::new(Silent),
         }
     }
@@ -146,6 +149,7 @@ impl CommonOptions {
             let hash = nedrt_optics::doe_file::load(&d.doe, &calib)?.content_hash();
             d.apply(&mut calib, hash);
         }
+        self.eye.apply(&mut calib)?;
         Ok(calib)
     }
 

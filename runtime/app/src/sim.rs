@@ -258,6 +258,7 @@ pub fn run(common: &CommonOptions, opts: &SimOptions) -> Result<SimReport, AppEr
         "vs target PSNR {:6.2} dB  SSIM {:.4}  (target: {target_kind})",
         vs_target.psnr_db, vs_target.ssim
     );
+    let _ = writeln!(t, "eye       {}", c.eye_summary());
     for (name, r) in &prepared.reports {
         let _ = writeln!(t, "model     {name}: {}", r.summary());
     }

@@ -102,6 +102,8 @@ pub struct GlobalArgs {
     /// Threads of the ort backend (0: its default).
     #[arg(long, global = true, default_value_t = 0)]
     pub threads: usize,
+    #[command(flatten)]
+    pub eye: crate::eye_args::EyeArgs,
     /// More log output (-v: debug, -vv: trace); NEDRT_LOG overrides.
     #[arg(short, long, global = true, action = clap::ArgAction::Count)]
     pub verbose: u8,

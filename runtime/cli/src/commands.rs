@@ -61,6 +61,7 @@ pub fn run(cli: Cli) -> Result<()> {
                 },
             },
         },
+        eye: g.eye.overrides(),
         progress: Arc::new(Console::default()),
     };
     match cli.command {

@@ -6,6 +6,7 @@
 mod args;
 mod commands;
 mod console;
+mod eye_args;
 mod settings;
 
 use std::process::ExitCode;

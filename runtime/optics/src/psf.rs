@@ -19,7 +19,7 @@ use serde::{Deserialize, Serialize};
 use super::OpticsError;
 use super::doe::{HeightMap, Profile};
 use super::propagate::{centred_window_energies, crop_centred, exact_period_cells};
-use super::pupil::{PupilGrid, pupil_field};
+use super::pupil::{PupilGrid, pupil_field_through};
 use super::sampling::{
     ChannelSampling, PsfSpec, StepRule, channel_sampling, max_pupil_step,
     predicted_half_width_cells,
@@ -72,8 +72,12 @@ impl std::fmt::Display for Propagator {
 
 /// The propagator `calib` uses for a request with `doe`: radial for the
 /// lens alone and for radial DOE profiles, 2-D for maps, or 2-D whenever
-/// `simulation.propagator = "2d"`.
+/// `simulation.propagator = "2d"` or the eye's pupil lies off the axis.
 pub fn propagator_for(calib: &Calibration, doe: Option<&HeightMap>) -> Propagator {
+    if calib.eye_stop_off_axis() {
+        // An eye pupil off the axis breaks the rotational symmetry.
+        return Propagator::TwoD;
+    }
     match calib.simulation.propagator {
         PropagatorSetting::TwoD => Propagator::TwoD,
         PropagatorSetting::Auto => match doe {
@@ -377,11 +381,12 @@ fn compute_periods(
                 .ok_or_else(|| OpticsError::BadSpec(format!("{spec:?}")))?;
             let s = &sampling[i];
             let grid: PupilGrid = s.grid.into();
-            let q = pupil_field(
+            let q = pupil_field_through(
                 grid,
                 calib.aperture_radius_m,
                 spec.psi_rad,
                 phases[i].as_deref(),
+                calib.eye_stop(s.channel),
             );
             let lambda = calib.channels[s.channel].wavelength_m;
             let cells = exact_period_cells(&q, grid, lambda, calib.retinal_step_rad()).ok_or_else(
@@ -419,6 +424,8 @@ pub fn max_difference_of_peak(a: &PsfSet, b: &PsfSet) -> f64 {
         .fold(0.0, f64::max)
 }
 
+#[cfg(test)]
+mod eye_tests;
 #[cfg(test)]
 mod radial_tests;
 #[cfg(test)]

@@ -4,6 +4,8 @@
 use num_complex::Complex64 as c64;
 use rayon::prelude::*;
 
+use nedrt_core::calib::EyeStop;
+
 /// Square pupil sampling grid centred on the axis: sample `n` of either axis
 /// lies at s_n = (n − (N − 1)/2) · Δs metres. Arrays on it are row-major,
 /// rows along t (y), columns along s (x).
@@ -64,6 +66,47 @@ pub fn pupil_field(
             let a = aperture_amplitude(rho2.sqrt(), radius_m, grid.step_m);
             if a > 0.0 {
                 let phi = psi_rad * rho2 / r2 + doe_phase_rad.map_or(0.0, |p| p[i * n + j]);
+                *out = c64::from_polar(a, phi);
+            }
+        }
+    });
+    q
+}
+
+/// [`pupil_field`] through the eye's pupil as well (docs/model.md §4a): the
+/// aperture is the eyepiece's disk times the eye stop's (each with the
+/// linear-ramp edge), and the defocus is centred on the stop's centre,
+/// Ψ |s − c|²/r², since the eye focuses about its own pupil; `None` is
+/// [`pupil_field`] exactly.
+pub fn pupil_field_through(
+    grid: PupilGrid,
+    radius_m: f64,
+    psi_rad: f64,
+    doe_phase_rad: Option<&[f64]>,
+    stop: Option<EyeStop>,
+) -> Vec<c64> {
+    let Some(stop) = stop else {
+        return pupil_field(grid, radius_m, psi_rad, doe_phase_rad);
+    };
+    let n = grid.samples;
+    if let Some(phase) = doe_phase_rad {
+        assert_eq!(
+            phase.len(),
+            n * n,
+            "DOE phase must be sampled on the pupil grid"
+        );
+    }
+    let mut q = vec![c64::new(0.0, 0.0); n * n];
+    let r2 = radius_m * radius_m;
+    q.par_chunks_mut(n).enumerate().for_each(|(i, row)| {
+        let t = grid.coord_m(i);
+        for (j, out) in row.iter_mut().enumerate() {
+            let s = grid.coord_m(j);
+            let a = aperture_amplitude(s.hypot(t), radius_m, grid.step_m);
+            let seen = (s - stop.centre_m).hypot(t);
+            let a = a * aperture_amplitude(seen, stop.radius_m, grid.step_m);
+            if a > 0.0 {
+                let phi = psi_rad * seen * seen / r2 + doe_phase_rad.map_or(0.0, |p| p[i * n + j]);
                 *out = c64::from_polar(a, phi);
             }
         }

@@ -68,8 +68,13 @@ pub fn max_pupil_step(
     doe: Option<&HeightMap>,
 ) -> (f64, StepRule) {
     let r = calib.aperture_radius_m;
+    // Rule 4 counts samples across the stop: the eye's pupil where it limits.
+    let stop = specs
+        .iter()
+        .map(|s| stop_radius_m(calib, s.channel))
+        .fold(r, f64::min);
     let mut best = (
-        2.0 * r / calib.simulation.min_pupil_samples as f64,
+        2.0 * stop / calib.simulation.min_pupil_samples as f64,
         StepRule::ApertureSamples,
     );
     let mut doe_slope = 0.0;
@@ -95,10 +100,21 @@ pub fn max_pupil_step(
 pub fn predicted_half_width_cells(calib: &Calibration, spec: PsfSpec) -> f64 {
     let lambda = calib.channels[spec.channel].wavelength_m;
     let r = calib.aperture_radius_m;
+    // Through the eye's pupil (radius a ≤ r): blur (V − D)·a = Ψλa/(πr²),
+    // and the diffraction tail of the smaller disk.
+    let a = stop_radius_m(calib, spec.channel);
     let dtheta = calib.retinal_step_rad();
-    let geometric = spec.psi_rad.abs() * lambda / (PI * r * dtheta);
-    let diffraction = 640.0 * lambda / (2.0 * PI * r * dtheta);
+    let geometric = spec.psi_rad.abs() * lambda * a / (PI * r * r * dtheta);
+    let diffraction = 640.0 * lambda / (2.0 * PI * a * dtheta);
     geometric + diffraction
+}
+
+/// The radius of the stop a channel's light passes: the eye's pupil in the
+/// lens plane where it limits, else the eyepiece's aperture, metres.
+pub fn stop_radius_m(calib: &Calibration, channel: usize) -> f64 {
+    calib
+        .eye_stop(channel)
+        .map_or(calib.aperture_radius_m, |s| s.radius_m.min(calib.aperture_radius_m))
 }
 
 /// Smallest integer ≥ `x` whose prime factors are 2, 3 and 5 (fast FFT sizes).

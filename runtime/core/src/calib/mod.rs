@@ -2,8 +2,11 @@
 //! its physical meaning, and resolve once into [`Calibration`] (SI units) from
 //! which the optics derive everything else (docs/model.md §2–§4).
 
+mod eye;
 mod raw;
 mod validate;
+
+pub use eye::{EyeLca, EyeOverrides, EyeSettings, EyeStop, thibos_refraction_d};
 
 use std::f64::consts::PI;
 use std::path::{Path, PathBuf};
@@ -119,6 +122,8 @@ pub struct Calibration {
     pub wiener: WienerSettings,
     pub simulation: SimulationSettings,
     pub panel: PanelSettings,
+    /// The viewer's eye (docs/model.md §4a); the default is the paper's.
+    pub eye: EyeSettings,
 }
 
 /// Largest panel side the runtime accepts (pixels): a guard against typos
@@ -174,9 +179,10 @@ impl Calibration {
         1.0 / self.lens_distance_m - 1.0 / self.focal_length_m(channel)
     }
 
-    /// Defocus coefficient Ψ_λ(D) = (π/λ)(V_λ − D) r² (docs/model.md §4), radians.
+    /// Defocus coefficient Ψ_λ(D) = (π/λ)(V_λ + ΔR_eye,λ − D) r²
+    /// (docs/model.md §4, §4a; ΔR_eye = 0 without eye LCA), radians.
     pub fn psi_rad(&self, channel: usize, accommodation_d: f64) -> f64 {
-        self.psi_for_vergence(channel, self.vergence_d(channel) - accommodation_d)
+        self.psi_for_vergence(channel, self.seen_vergence_d(channel) - accommodation_d)
     }
 
     /// Ψ for a given vergence error (image vergence minus accommodation), radians.
@@ -246,6 +252,10 @@ impl Calibration {
             channels: &'a [Channel],
             design_channel: usize,
             simulation: &'a SimulationSettings,
+            // Only an eye whose pupil limits changes a PSF beyond its Ψ
+            // (which the key holds): the paper's eye keeps the old keys.
+            #[serde(skip_serializing_if = "Option::is_none")]
+            eye: Option<&'a EyeSettings>,
         }
         let o = Optics {
             pixel_pitch_m: self.pixel_pitch_m,
@@ -257,6 +267,7 @@ impl Calibration {
             channels: &self.channels,
             design_channel: self.design_channel,
             simulation: &self.simulation,
+            eye: self.eye.pupil_diameter_m.map(|_| &self.eye),
         };
         let json = serde_json::to_string(&o).unwrap_or_default();
         blake3::hash(json.as_bytes()).to_hex()[..16].to_string()

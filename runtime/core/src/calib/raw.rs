@@ -17,6 +17,9 @@ pub struct RawCalibration {
     pub ai: RawAi,
     pub wiener: RawWiener,
     pub simulation: RawSimulation,
+    /// Optional: a file without `[eye]` has the paper's eye.
+    #[serde(default)]
+    pub eye: RawEye,
 }
 
 #[derive(Debug, Clone, Deserialize)]
@@ -109,4 +112,36 @@ pub struct RawSimulation {
 
 fn auto() -> String {
     "auto".into()
+}
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RawEye {
+    #[serde(default)]
+    pub pupil_diameter_mm: Option<f64>,
+    #[serde(default = "default_relief_mm")]
+    pub relief_mm: f64,
+    #[serde(default = "off")]
+    pub lca: String,
+    #[serde(default)]
+    pub field_deg: f64,
+}
+
+impl Default for RawEye {
+    fn default() -> Self {
+        Self {
+            pupil_diameter_mm: None,
+            relief_mm: default_relief_mm(),
+            lca: off(),
+            field_deg: 0.0,
+        }
+    }
+}
+
+fn default_relief_mm() -> f64 {
+    super::eye::DEFAULT_RELIEF_MM
+}
+
+fn off() -> String {
+    "off".into()
 }

@@ -269,3 +269,83 @@ fn wiener_constants_must_be_positive_and_finite() {
         .to_string();
     assert!(e.contains("wiener.doe_k"), "{e}");
 }
+
+#[test]
+fn eye_lca_is_thibos_1992_at_the_three_wavelengths() {
+    // R(λ) = 1.68524 − 0.63346/(λ/µm − 0.21410) by hand at 600, 530, 450 nm
+    // (0.043727, −0.320015, −1.000050 D), relative to the design's 530 nm.
+    let c = with(|s| format!("{s}\n[eye]\nlca = \"thibos1992\"\n")).unwrap();
+    let expected = [0.363742, 0.0, -0.680035];
+    for (ch, want) in expected.iter().enumerate() {
+        let got = c.eye_lca_d(ch);
+        assert!((got - want).abs() < 2e-6, "channel {ch}: {got} D, want {want} D");
+        // It enters as a shift of the vergence the eye sees in focus.
+        let focus = c.vergence_d(ch) + got;
+        assert!(c.psi_rad(ch, focus).abs() < 1e-9);
+    }
+    // The published span: about 2.1 D from 400 to 700 nm; zero at
+    // c + q/p = 590.0 nm (the sodium line the model refers to).
+    let span = thibos_refraction_d(700e-9) - thibos_refraction_d(400e-9);
+    assert!((span - 2.1038).abs() < 1e-3, "{span}");
+    assert!(thibos_refraction_d(590.0e-9).abs() < 1e-4);
+    // Off: the paper's eye, psi unchanged.
+    let d = default();
+    assert_eq!(d.eye, EyeSettings::default());
+    assert_eq!(d.psi_rad(2, 1.0), d.psi_for_vergence(2, d.vergence_d(2) - 1.0));
+}
+
+#[test]
+fn the_eye_stop_is_the_pupil_projected_along_the_image_rays() {
+    let c = with(|s| {
+        format!("{s}\n[eye]\npupil_diameter_mm = 4.0\nrelief_mm = 15.0\nfield_deg = 20.0\n")
+    })
+    .unwrap();
+    for ch in 0..3 {
+        let stop = c.eye_stop(ch).expect("a 4 mm pupil limits a 10 mm aperture");
+        // Chief ray to the pupil's centre: e·tanθ; rim rays from the image
+        // point at 1/V before the lens: r_eye·(1/V)/(1/V + e).
+        assert!((stop.centre_m - 15e-3 * 20f64.to_radians().tan()).abs() < 1e-12);
+        let z = 1.0 / c.vergence_d(ch);
+        assert!((stop.radius_m - 2e-3 * z / (z + 15e-3)).abs() < 1e-12);
+    }
+    assert!(c.eye_stop_off_axis());
+    // A pupil whose projection covers the aperture does not limit: the
+    // paper's model exactly (and its cache keys).
+    let wide = with(|s| format!("{s}\n[eye]\npupil_diameter_mm = 11.0\nrelief_mm = 0.0\n")).unwrap();
+    assert!(wide.eye_stop(1).is_none() && !wide.eye_stop_off_axis());
+    // The paper's eye keeps the fingerprint of a file without [eye].
+    let explicit = with(|s| format!("{s}\n[eye]\nrelief_mm = 12.0\nfield_deg = 10.0\n")).unwrap();
+    assert_eq!(explicit.optics_fingerprint(), default().optics_fingerprint());
+    assert_ne!(c.optics_fingerprint(), default().optics_fingerprint());
+}
+
+#[test]
+fn bad_eye_fields_are_refused_by_name() {
+    for (line, field) in [
+        ("pupil_diameter_mm = 0.0", "eye.pupil_diameter_mm"),
+        ("pupil_diameter_mm = 20.0", "eye.pupil_diameter_mm"),
+        ("relief_mm = -1.0", "eye.relief_mm"),
+        ("field_deg = 90.0", "eye.field_deg"),
+        ("lca = \"sometimes\"", "eye.lca"),
+        ("iris = 3", "iris"),
+    ] {
+        let e = with(|s| format!("{s}\n[eye]\n{line}\n")).unwrap_err().to_string();
+        assert!(e.contains("test.toml") && e.contains(field), "{line}: {e}");
+    }
+    // The command line's overrides go through the same checks.
+    let mut c = default();
+    let bad = EyeOverrides {
+        pupil_diameter_mm: Some(f64::NAN),
+        ..Default::default()
+    };
+    let e = bad.apply(&mut c).unwrap_err().to_string();
+    assert!(e.contains("the command line") && e.contains("eye.pupil_diameter_mm"), "{e}");
+    let good = EyeOverrides {
+        pupil_diameter_mm: Some(3.0),
+        lca: Some(EyeLca::Thibos1992),
+        ..Default::default()
+    };
+    good.apply(&mut c).unwrap();
+    assert_eq!(c.eye.pupil_diameter_m, Some(3e-3));
+    assert_eq!(c.eye.relief_m, 15e-3);
+}

@@ -203,6 +203,8 @@ impl Calibration {
             transfer_gamma: p.transfer_gamma.clone(),
         };
 
+        let eye = eye::resolve(&raw.eye, name)?;
+
         Ok(Calibration {
             source: name.to_string(),
             pixel_pitch_m: raw.panel.pixel_pitch_um * 1e-6,
@@ -237,6 +239,7 @@ impl Calibration {
                 propagator,
             },
             panel,
+            eye,
         })
     }
 }

@@ -136,11 +136,14 @@ pub(super) fn compute(
             channels: channels
                 .iter()
                 .enumerate()
-                .map(|(i, &ch)| ChannelReport {
-                    name: calib.channels[ch].name.clone(),
-                    pupil_step_um: grid.step_m * 1e6,
-                    pupil_samples: nodes,
-                    period_cells: periods.as_ref().map_or(0, |p| p[i]),
+                .map(|(i, &ch)| {
+                    let (grid, _) = channel_grid(calib, ch, grid);
+                    ChannelReport {
+                        name: calib.channels[ch].name.clone(),
+                        pupil_step_um: grid.step_m * 1e6,
+                        pupil_samples: grid.nodes(),
+                        period_cells: periods.as_ref().map_or(0, |p| p[i]),
+                    }
                 })
                 .collect(),
             step_rule: rule,
@@ -158,6 +161,24 @@ pub(super) fn compute(
     unreachable!("the growth loop returns or errs")
 }
 
+/// The quadrature of channel `ch` and the factor on its Ψ: the planner's
+/// `grid`, or where a centred eye pupil smaller than the aperture is the
+/// stop, a grid whose edge is the stop's (at no coarser a step); Ψ is
+/// defined over the eyepiece's radius r, so over the stop's r_e it is
+/// Ψ (r_e/r)² (docs/model.md §4a).
+fn channel_grid(calib: &Calibration, ch: usize, grid: RadialGrid) -> (RadialGrid, f64) {
+    match calib.eye_stop(ch) {
+        Some(stop) => {
+            let nodes = (stop.radius_m / grid.step_m - 1e-9).ceil().max(1.0) as usize;
+            (
+                RadialGrid::with_nodes(stop.radius_m, nodes),
+                (stop.radius_m / grid.radius_m).powi(2),
+            )
+        }
+        None => (grid, 1.0),
+    }
+}
+
 /// The W×W cells of every spec of the request (in its order): per channel
 /// one J0 kernel for all of that channel's pupils, the DOE's phase at the
 /// nodes computed once per channel.
@@ -170,9 +191,10 @@ fn radial_cells(
     tick: &(dyn Fn() + Sync),
 ) -> Result<Vec<Vec<f64>>, OpticsError> {
     let angles = window.angles_rad();
-    let radii = grid.sample_radii_m();
     let mut out: Vec<Vec<f64>> = vec![Vec::new(); request.specs.len()];
     for &ch in channels {
+        let (grid, scale) = channel_grid(calib, ch, grid);
+        let radii = grid.sample_radii_m();
         let phase = match request.doe {
             Some(d) => Some(d.phase_at_radii(&radii, calib, ch).ok_or_else(|| {
                 OpticsError::BadSpec("a 2-D DOE map has no radial profile".into())
@@ -184,7 +206,7 @@ fn radial_cells(
             .collect();
         let pupils: Vec<_> = members
             .iter()
-            .map(|&i| pupil_profile(grid, request.specs[i].psi_rad, phase.as_deref()))
+            .map(|&i| pupil_profile(grid, scale * request.specs[i].psi_rad, phase.as_deref()))
             .collect();
         let densities = angular_density(grid, calib.channels[ch].wavelength_m, &pupils, &angles);
         for (&i, d) in members.iter().zip(&densities) {

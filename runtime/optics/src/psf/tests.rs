@@ -2,6 +2,7 @@
 //! kept (window plus veil), the window choice and the refusals.
 
 use super::*;
+use crate::pupil::pupil_field;
 use crate::propagate::fft_period_cells;
 
 fn calib() -> Calibration {

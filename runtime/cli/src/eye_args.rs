@@ -1,0 +1,40 @@
+//! The eye's command-line overrides of the calibration's `[eye]`
+//! (docs/model.md §4a): global, so every study and the simulator take them.
+
+use clap::Args;
+use nedrt_core::calib::{EyeLca, EyeOverrides};
+
+#[derive(Args, Debug, Clone, Default)]
+pub struct EyeArgs {
+    /// The eye's entrance-pupil diameter in mm (default: the calibration's
+    /// `eye.pupil_diameter_mm`; without one the eyepiece's aperture is the
+    /// stop, the paper's eye).
+    #[arg(long, global = true, value_name = "MM")]
+    pub pupil_mm: Option<f64>,
+    /// From the eyepiece to the eye's pupil, mm (default: `eye.relief_mm`, 15).
+    #[arg(long, global = true, value_name = "MM")]
+    pub eye_relief_mm: Option<f64>,
+    /// Horizontal field angle looked at, degrees, as seen from the eye's
+    /// pupil (default: `eye.field_deg`, 0).
+    #[arg(long, global = true, value_name = "DEG", allow_negative_numbers = true)]
+    pub field_deg: Option<f64>,
+    /// The eye's longitudinal chromatic aberration: on (Thibos et al. 1992)
+    /// or off (default: `eye.lca`, off).
+    #[arg(long, global = true, value_name = "on|off", value_parser = parse_lca)]
+    pub eye_lca: Option<EyeLca>,
+}
+
+fn parse_lca(s: &str) -> Result<EyeLca, String> {
+    s.parse()
+}
+
+impl EyeArgs {
+    pub fn overrides(&self) -> EyeOverrides {
+        EyeOverrides {
+            pupil_diameter_mm: self.pupil_mm,
+            relief_mm: self.eye_relief_mm,
+            field_deg: self.field_deg,
+            lca: self.eye_lca,
+        }
+    }
+}
