@@ -302,3 +302,84 @@ fn oversized_calibrations_and_endless_doe_files_are_refused_with_a_short_error()
     assert_clean_error(&o, "larger than 512 MiB");
     assert!(!out.exists());
 }
+
+#[test]
+fn the_papers_eye_is_the_default_and_the_eye_options_change_what_they_should() {
+    // The default calibration, a calibration spelling the paper's eye out,
+    // and overrides that matter only with a pupil give the same bytes; a
+    // pupil, eye LCA or a field angle with a pupil do not (docs/model.md §4a).
+    let dir = tempfile::tempdir().expect("tmp");
+    let input = dir.path().join("in.png");
+    write_png(&input, 48, 40);
+    let text = std::fs::read_to_string(repo().join("calib/default.toml")).expect("calib");
+    let start = text.find("\n[eye]").expect("an [eye] table");
+    let cache = dir.path().join("cache");
+    let without_eye = dir.path().join("no-eye.toml");
+    std::fs::write(&without_eye, &text[..start]).expect("write");
+    // The AI display (its planes carry the eye's LCA too) where it is
+    // cheap; the conventional one through a pupil (153 PSFs less).
+    let perceived = |name: &str, extra: &[&str]| {
+        let out = dir.path().join(format!("{name}.tif"));
+        let method = if extra.contains(&"--pupil-mm") {
+            "conventional"
+        } else {
+            "ai"
+        };
+        let mut args = vec![
+            "--method",
+            method,
+            "--input",
+            path(&input),
+            "--cache-dir",
+            path(&cache),
+        ];
+        args.extend_from_slice(extra);
+        let o = sim("0.5", &out, &args);
+        assert!(o.status.success(), "{name}: {}", stderr(&o));
+        (std::fs::read(&out).expect("perceived"), stdout(&o))
+    };
+    // The PSF cache stores f32: warm it, then compare runs that all load it.
+    perceived("warm", &[]);
+    let (default, text) = perceived("default", &[]);
+    assert!(text.contains("the paper's eye"), "{text}");
+    for (name, extra) in [
+        ("no-eye", vec!["--calib", path(&without_eye)]),
+        (
+            "overrides",
+            vec![
+                "--eye-lca",
+                "off",
+                "--field-deg",
+                "20",
+                "--eye-relief-mm",
+                "5",
+            ],
+        ),
+    ] {
+        assert!(perceived(name, &extra).0 == default, "{name} differs");
+    }
+    assert!(
+        perceived("lca", &["--eye-lca", "on"]).0 != default,
+        "the LCA changes nothing"
+    );
+    let (lens, _) = perceived("lens", &["--pupil-mm", "11", "--eye-relief-mm", "0"]);
+    assert!(
+        perceived("pupil", &["--pupil-mm", "4"]).0 != lens,
+        "the pupil changes nothing"
+    );
+    let (on_axis, _) = perceived("on", &["--pupil-mm", "4", "--eye-lca", "on"]);
+    let (off_axis, text) = perceived(
+        "off",
+        &["--pupil-mm", "4", "--eye-lca", "on", "--field-deg", "20"],
+    );
+    assert!(on_axis != off_axis, "the field angle changes nothing");
+    assert!(
+        text.contains("2-D path") && text.contains("20.0° field"),
+        "{text}"
+    );
+    // Bad values are refused naming the field, nothing written.
+    let out = dir.path().join("bad.png");
+    let o = sim("0.5", &out, &["--input", path(&input), "--pupil-mm", "30"]);
+    assert_clean_error(&o, "eye.pupil_diameter_mm");
+    assert!(!out.exists());
+}

@@ -114,7 +114,9 @@ pub fn predicted_half_width_cells(calib: &Calibration, spec: PsfSpec) -> f64 {
 pub fn stop_radius_m(calib: &Calibration, channel: usize) -> f64 {
     calib
         .eye_stop(channel)
-        .map_or(calib.aperture_radius_m, |s| s.radius_m.min(calib.aperture_radius_m))
+        .map_or(calib.aperture_radius_m, |s| {
+            s.radius_m.min(calib.aperture_radius_m)
+        })
 }
 
 /// Smallest integer ≥ `x` whose prime factors are 2, 3 and 5 (fast FFT sizes).

@@ -232,7 +232,10 @@ pub(super) fn resolve(raw: &RawEye, path: &str) -> Result<EyeSettings, CalibErro
     if !(raw.field_deg.is_finite() && raw.field_deg.abs() <= MAX_FIELD_DEG) {
         return Err(err(
             "field_deg",
-            format!("{} must lie in [−{MAX_FIELD_DEG}, {MAX_FIELD_DEG}]°", raw.field_deg),
+            format!(
+                "{} must lie in [−{MAX_FIELD_DEG}, {MAX_FIELD_DEG}]°",
+                raw.field_deg
+            ),
         ));
     }
     let lca = raw.lca.parse().map_err(|e| err("lca", e))?;

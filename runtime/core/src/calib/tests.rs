@@ -278,7 +278,10 @@ fn eye_lca_is_thibos_1992_at_the_three_wavelengths() {
     let expected = [0.363742, 0.0, -0.680035];
     for (ch, want) in expected.iter().enumerate() {
         let got = c.eye_lca_d(ch);
-        assert!((got - want).abs() < 2e-6, "channel {ch}: {got} D, want {want} D");
+        assert!(
+            (got - want).abs() < 2e-6,
+            "channel {ch}: {got} D, want {want} D"
+        );
         // It enters as a shift of the vergence the eye sees in focus.
         let focus = c.vergence_d(ch) + got;
         assert!(c.psi_rad(ch, focus).abs() < 1e-9);
@@ -291,7 +294,10 @@ fn eye_lca_is_thibos_1992_at_the_three_wavelengths() {
     // Off: the paper's eye, psi unchanged.
     let d = default();
     assert_eq!(d.eye, EyeSettings::default());
-    assert_eq!(d.psi_rad(2, 1.0), d.psi_for_vergence(2, d.vergence_d(2) - 1.0));
+    assert_eq!(
+        d.psi_rad(2, 1.0),
+        d.psi_for_vergence(2, d.vergence_d(2) - 1.0)
+    );
 }
 
 #[test]
@@ -301,7 +307,9 @@ fn the_eye_stop_is_the_pupil_projected_along_the_image_rays() {
     })
     .unwrap();
     for ch in 0..3 {
-        let stop = c.eye_stop(ch).expect("a 4 mm pupil limits a 10 mm aperture");
+        let stop = c
+            .eye_stop(ch)
+            .expect("a 4 mm pupil limits a 10 mm aperture");
         // Chief ray to the pupil's centre: e·tanθ; rim rays from the image
         // point at 1/V before the lens: r_eye·(1/V)/(1/V + e).
         assert!((stop.centre_m - 15e-3 * 20f64.to_radians().tan()).abs() < 1e-12);
@@ -311,11 +319,15 @@ fn the_eye_stop_is_the_pupil_projected_along_the_image_rays() {
     assert!(c.eye_stop_off_axis());
     // A pupil whose projection covers the aperture does not limit: the
     // paper's model exactly (and its cache keys).
-    let wide = with(|s| format!("{s}\n[eye]\npupil_diameter_mm = 11.0\nrelief_mm = 0.0\n")).unwrap();
+    let wide =
+        with(|s| format!("{s}\n[eye]\npupil_diameter_mm = 11.0\nrelief_mm = 0.0\n")).unwrap();
     assert!(wide.eye_stop(1).is_none() && !wide.eye_stop_off_axis());
     // The paper's eye keeps the fingerprint of a file without [eye].
     let explicit = with(|s| format!("{s}\n[eye]\nrelief_mm = 12.0\nfield_deg = 10.0\n")).unwrap();
-    assert_eq!(explicit.optics_fingerprint(), default().optics_fingerprint());
+    assert_eq!(
+        explicit.optics_fingerprint(),
+        default().optics_fingerprint()
+    );
     assert_ne!(c.optics_fingerprint(), default().optics_fingerprint());
 }
 
@@ -329,7 +341,9 @@ fn bad_eye_fields_are_refused_by_name() {
         ("lca = \"sometimes\"", "eye.lca"),
         ("iris = 3", "iris"),
     ] {
-        let e = with(|s| format!("{s}\n[eye]\n{line}\n")).unwrap_err().to_string();
+        let e = with(|s| format!("{s}\n[eye]\n{line}\n"))
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("test.toml") && e.contains(field), "{line}: {e}");
     }
     // The command line's overrides go through the same checks.
@@ -339,7 +353,10 @@ fn bad_eye_fields_are_refused_by_name() {
         ..Default::default()
     };
     let e = bad.apply(&mut c).unwrap_err().to_string();
-    assert!(e.contains("the command line") && e.contains("eye.pupil_diameter_mm"), "{e}");
+    assert!(
+        e.contains("the command line") && e.contains("eye.pupil_diameter_mm"),
+        "{e}"
+    );
     let good = EyeOverrides {
         pupil_diameter_mm: Some(3.0),
         lca: Some(EyeLca::Thibos1992),

@@ -73,12 +73,7 @@ fn in_focus_a_small_pupil_gives_its_own_airy_pattern() {
             }],
             None,
         );
-        let want = airy_cells(
-            1.5e-3,
-            c.channels[g].wavelength_m,
-            c.retinal_step_rad(),
-            21,
-        );
+        let want = airy_cells(1.5e-3, c.channels[g].wavelength_m, c.retinal_step_rad(), 21);
         let psf = &set.psfs[0];
         let got = crop_centred(&psf.cells, psf.window, 21);
         let peak = want.iter().cloned().fold(0.0, f64::max);

@@ -2,8 +2,8 @@
 //! kept (window plus veil), the window choice and the refusals.
 
 use super::*;
-use crate::pupil::pupil_field;
 use crate::propagate::fft_period_cells;
+use crate::pupil::pupil_field;
 
 fn calib() -> Calibration {
     Calibration::default_embedded().expect("default calibration")

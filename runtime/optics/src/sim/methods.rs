@@ -152,7 +152,8 @@ pub fn psf_terms(
         Method::Ai => {
             // The tunable lens puts the design colour's image at each plane;
             // other colours keep the lens's chromatic offset V_λ − V_λ0.
-            let offset = calib.seen_vergence_d(channel) - calib.seen_vergence_d(calib.design_channel);
+            let offset =
+                calib.seen_vergence_d(channel) - calib.seen_vergence_d(calib.design_channel);
             let w = 1.0 / calib.ai_planes_d.len() as f64;
             calib
                 .ai_planes_d
