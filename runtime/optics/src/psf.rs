@@ -19,7 +19,7 @@ use serde::{Deserialize, Serialize};
 use super::OpticsError;
 use super::doe::{HeightMap, Profile};
 use super::propagate::{centred_window_energies, crop_centred, exact_period_cells};
-use super::pupil::{PupilGrid, pupil_field_through};
+use super::pupil::{PupilGrid, pupil_field, pupil_field_through};
 use super::sampling::{
     ChannelSampling, PsfSpec, StepRule, channel_sampling, max_pupil_step,
     predicted_half_width_cells,
@@ -336,7 +336,10 @@ fn compute_2d(
                 .map(|s| ChannelReport {
                     name: calib.channels[s.channel].name.clone(),
                     pupil_step_um: s.grid.step_m * 1e6,
-                    pupil_samples: s.grid.samples,
+                    // Through an eye stop only its square is computed.
+                    pupil_samples: calib.eye_stop(s.channel).map_or(s.grid.samples, |stop| {
+                        2 * (stop.radius_m / s.grid.step_m).ceil() as usize + 5
+                    }),
                     period_cells: s.period_cells,
                 })
                 .collect(),
@@ -380,14 +383,25 @@ fn compute_periods(
                 .position(|s| s.channel == spec.channel)
                 .ok_or_else(|| OpticsError::BadSpec(format!("{spec:?}")))?;
             let s = &sampling[i];
-            let grid: PupilGrid = s.grid.into();
-            let q = pupil_field_through(
-                grid,
-                calib.aperture_radius_m,
-                spec.psi_rad,
-                phases[i].as_deref(),
-                calib.eye_stop(s.channel),
-            );
+            let full: PupilGrid = s.grid.into();
+            let (q, grid) = match calib.eye_stop(s.channel) {
+                Some(stop) => pupil_field_through(
+                    full,
+                    calib.aperture_radius_m,
+                    spec.psi_rad,
+                    phases[i].as_deref(),
+                    stop,
+                ),
+                None => (
+                    pupil_field(
+                        full,
+                        calib.aperture_radius_m,
+                        spec.psi_rad,
+                        phases[i].as_deref(),
+                    ),
+                    full,
+                ),
+            };
             let lambda = calib.channels[s.channel].wavelength_m;
             let cells = exact_period_cells(&q, grid, lambda, calib.retinal_step_rad()).ok_or_else(
                 || OpticsError::BadSpec("period is not a whole number of cells".into()),

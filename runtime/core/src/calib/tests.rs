@@ -12,6 +12,16 @@ fn with(edit: impl Fn(&str) -> String) -> Result<Calibration, CalibError> {
     Calibration::from_toml(&edit(DEFAULT_CALIBRATION_TOML), "test.toml", None)
 }
 
+/// The shipped calibration with its `[eye]` table replaced by `eye`.
+fn with_eye(eye: &str) -> Result<Calibration, CalibError> {
+    with(|s| {
+        format!(
+            "{}\n[eye]\n{eye}\n",
+            &s[..s.find("\n[eye]").unwrap_or(s.len())]
+        )
+    })
+}
+
 #[test]
 fn vergences_match_optics_md_section_2() {
     let c = default();
@@ -274,7 +284,7 @@ fn wiener_constants_must_be_positive_and_finite() {
 fn eye_lca_is_thibos_1992_at_the_three_wavelengths() {
     // R(λ) = 1.68524 − 0.63346/(λ/µm − 0.21410) by hand at 600, 530, 450 nm
     // (0.043727, −0.320015, −1.000050 D), relative to the design's 530 nm.
-    let c = with(|s| format!("{s}\n[eye]\nlca = \"thibos1992\"\n")).unwrap();
+    let c = with_eye("lca = \"thibos1992\"").unwrap();
     let expected = [0.363742, 0.0, -0.680035];
     for (ch, want) in expected.iter().enumerate() {
         let got = c.eye_lca_d(ch);
@@ -302,10 +312,7 @@ fn eye_lca_is_thibos_1992_at_the_three_wavelengths() {
 
 #[test]
 fn the_eye_stop_is_the_pupil_projected_along_the_image_rays() {
-    let c = with(|s| {
-        format!("{s}\n[eye]\npupil_diameter_mm = 4.0\nrelief_mm = 15.0\nfield_deg = 20.0\n")
-    })
-    .unwrap();
+    let c = with_eye("pupil_diameter_mm = 4.0\nrelief_mm = 15.0\nfield_deg = 20.0").unwrap();
     for ch in 0..3 {
         let stop = c
             .eye_stop(ch)
@@ -319,11 +326,10 @@ fn the_eye_stop_is_the_pupil_projected_along_the_image_rays() {
     assert!(c.eye_stop_off_axis());
     // A pupil whose projection covers the aperture does not limit: the
     // paper's model exactly (and its cache keys).
-    let wide =
-        with(|s| format!("{s}\n[eye]\npupil_diameter_mm = 11.0\nrelief_mm = 0.0\n")).unwrap();
+    let wide = with_eye("pupil_diameter_mm = 11.0\nrelief_mm = 0.0").unwrap();
     assert!(wide.eye_stop(1).is_none() && !wide.eye_stop_off_axis());
     // The paper's eye keeps the fingerprint of a file without [eye].
-    let explicit = with(|s| format!("{s}\n[eye]\nrelief_mm = 12.0\nfield_deg = 10.0\n")).unwrap();
+    let explicit = with_eye("relief_mm = 12.0\nfield_deg = 10.0").unwrap();
     assert_eq!(
         explicit.optics_fingerprint(),
         default().optics_fingerprint()
@@ -341,9 +347,7 @@ fn bad_eye_fields_are_refused_by_name() {
         ("lca = \"sometimes\"", "eye.lca"),
         ("iris = 3", "iris"),
     ] {
-        let e = with(|s| format!("{s}\n[eye]\n{line}\n"))
-            .unwrap_err()
-            .to_string();
+        let e = with_eye(line).unwrap_err().to_string();
         assert!(e.contains("test.toml") && e.contains(field), "{line}: {e}");
     }
     // The command line's overrides go through the same checks.

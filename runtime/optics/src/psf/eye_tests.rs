@@ -10,9 +10,10 @@ use super::*;
 use crate::doe::Profile;
 
 fn eye(pupil_mm: f64, relief_mm: f64, field_deg: f64, two_d: bool) -> Calibration {
+    let shipped = nedrt_core::calib::DEFAULT_CALIBRATION_TOML;
     let text = format!(
         "{}\n[eye]\npupil_diameter_mm = {pupil_mm}\nrelief_mm = {relief_mm}\nfield_deg = {field_deg}\n",
-        nedrt_core::calib::DEFAULT_CALIBRATION_TOML
+        &shipped[..shipped.find("\n[eye]").unwrap_or(shipped.len())]
     );
     let mut c = Calibration::from_toml(&text, "eye.toml", None).expect("calibration");
     if two_d {
