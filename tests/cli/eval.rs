@@ -383,3 +383,57 @@ fn eval_adds_a_row_per_design_equal_to_running_that_design() {
     assert!(!o.status.success());
     assert!(stderr(&o).contains("no-such-design"), "{}", stderr(&o));
 }
+
+#[test]
+fn eval_over_eyes_tabulates_each_eye_charts_the_pupil_and_resumes() {
+    // The small calibration's aperture is 3 mm: a 2 mm pupil limits it, a
+    // 4 mm one does not (the paper's eye exactly), 2mm@3 moves across it.
+    let dir = tempfile::tempdir().expect("tmp");
+    let imgs = image_folder(dir.path(), &[("a.png", 24, 16)]);
+    let out = dir.path().join("eyes");
+    let calib = small_calib();
+    let eyes = |extra: &[&str]| {
+        run(&[
+            &["--calib", path(&calib), "eval", "--images", path(&imgs)][..],
+            &["--out-dir", path(&out), "--methods", "conventional,ai"],
+            extra,
+        ]
+        .concat())
+    };
+    let o = eyes(&["--eyes", "paper,2mm,4mm,2mm@3,2mm+lca"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let md = std::fs::read_to_string(out.join("eyes.md")).expect("eyes.md");
+    for needle in [
+        "| paper (the 3 mm aperture) |",
+        "| 2mm |",
+        "| 2mm@3 |",
+        "| 2mm+lca |",
+        "eye LCA (Thibos 1992)",
+        "does not limit",
+    ] {
+        assert!(md.contains(needle), "{needle:?} in\n{md}");
+    }
+    let rows: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("eyes.json")).expect("json"))
+            .expect("parse");
+    let mean = |eye: usize, method: usize| rows[eye]["rows"][method][1].as_f64().expect("psnr");
+    // A pupil that does not limit is the paper's eye; one that does is not.
+    assert_eq!(mean(0, 0), mean(2, 0));
+    assert_ne!(mean(0, 0), mean(1, 0));
+    assert!(out.join("eyes.png").exists() && out.join("2mm-at3/eval.json").exists());
+    // Run again: every eye is read back, nothing recomputed.
+    let again = eyes(&["--eyes", "paper,2mm,4mm,2mm@3,2mm+lca", "-v"]);
+    assert!(again.status.success());
+    assert_eq!(
+        stderr(&again).matches("read back").count(),
+        5,
+        "{}",
+        stderr(&again)
+    );
+    // Bad eyes are refused: unparsable, or seeing no light (2 mm at 10°
+    // lands 2.6 mm off axis, past the 1.5 mm aperture).
+    let bad = eyes(&["--eyes", "2"]);
+    assert_clean_error(&bad, "a pupil is written in mm");
+    let dark = eyes(&["--eyes", "2mm@10"]);
+    assert_clean_error(&dark, "no light reaches the eye");
+}

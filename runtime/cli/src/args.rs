@@ -465,6 +465,11 @@ pub struct EvalArgs {
         value_name = "PREFILTER"
     )]
     pub prefilter: Vec<nedrt_app::preprocess::Prefilter>,
+    /// Repeat the evaluation for each eye (docs/model.md §4a): `paper`, a
+    /// pupil `3mm`, with a field angle `4mm@20`, with eye LCA `4mm+lca`;
+    /// one folder each under --out-dir, tables and a chart over them (eyes.md).
+    #[arg(long, value_delimiter = ',', value_name = "EYE")]
+    pub eyes: Vec<nedrt_app::eval::eyes::EyeCase>,
 }
 
 /// What the panels show first (keys s, t, p switch in the window).

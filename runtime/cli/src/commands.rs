@@ -82,25 +82,29 @@ pub fn run(cli: Cli) -> Result<()> {
                 dir,
                 optics: a.display_optics,
             });
+            if !a.eyes.is_empty() && a.sweeps.is_some() {
+                anyhow::bail!("--sweeps with --eyes: give one eye (its flags) for the sweeps");
+            }
+            let extras = app::eval::EvalExtras {
+                external,
+                designs: a
+                    .designs
+                    .iter()
+                    .map(|n| app::design::Design::resolve(n))
+                    .collect::<Result<_, _>>()?,
+                focus_cues: a.focus_cues,
+                sweeps: a.sweeps,
+                prefilters: dedup(a.prefilter),
+            };
             print!(
                 "{}",
-                app::eval::run(
-                    &common,
-                    &a.images,
-                    &a.out_dir,
-                    &a.methods,
-                    &app::eval::EvalExtras {
-                        external,
-                        designs: a
-                            .designs
-                            .iter()
-                            .map(|n| app::design::Design::resolve(n))
-                            .collect::<Result<_, _>>()?,
-                        focus_cues: a.focus_cues,
-                        sweeps: a.sweeps,
-                        prefilters: dedup(a.prefilter),
-                    }
-                )?
+                if a.eyes.is_empty() {
+                    app::eval::run(&common, &a.images, &a.out_dir, &a.methods, &extras)?
+                } else {
+                    app::eval::eyes::run(
+                        &common, &a.images, &a.out_dir, &a.methods, &extras, &a.eyes,
+                    )?
+                }
             )
         }
         Some(Command::View(a)) => {

@@ -256,6 +256,17 @@ pub fn run(
     methods: &[Method],
     extras: &EvalExtras,
 ) -> Result<String, AppError> {
+    Ok(evaluate(common, images_dir, out_dir, methods, extras)?.1)
+}
+
+/// [`run`], with the typed result beside the report.
+pub fn evaluate(
+    common: &CommonOptions,
+    images_dir: &Path,
+    out_dir: &Path,
+    methods: &[Method],
+    extras: &EvalExtras,
+) -> Result<(EvalResult, String), AppError> {
     let external = extras.external.as_ref();
     let start = Instant::now();
     let files = list_images(images_dir)?;
@@ -519,8 +530,9 @@ pub fn run(
             written.push(out.display().to_string());
         }
     }
-    Ok(format!("{md}\nwrote {}\n", written.join(", ")))
+    Ok((result, format!("{md}\nwrote {}\n", written.join(", "))))
 }
 
+pub mod eyes;
 mod report;
 pub use report::markdown;

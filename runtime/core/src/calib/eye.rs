@@ -203,9 +203,37 @@ impl EyeOverrides {
             lca: self.lca.unwrap_or(e.lca).to_string(),
             field_deg: self.field_deg.unwrap_or(e.field_rad.to_degrees()),
         };
-        calib.eye = resolve(&raw, "the command line")?;
+        let before = std::mem::replace(&mut calib.eye, resolve(&raw, "the command line")?);
+        if let Err(e) = check_sees_light(calib, "the command line") {
+            calib.eye = before;
+            return Err(e);
+        }
         Ok(())
     }
+}
+
+/// Refuses an eye whose pupil, projected into the lens plane, misses the
+/// eyepiece's aperture: at that field angle the eye sees no light.
+pub(super) fn check_sees_light(calib: &Calibration, path: &str) -> Result<(), CalibError> {
+    for ch in 0..calib.channels.len() {
+        if let Some(stop) = calib.eye_stop(ch)
+            && stop.centre_m.abs() >= calib.aperture_radius_m + stop.radius_m
+        {
+            return Err(CalibError::Invalid {
+                path: path.to_string(),
+                field: "eye.field_deg".into(),
+                reason: format!(
+                    "{:.1}°: the pupil's projection ({:.2} mm wide, {:.2} mm off axis) misses the \
+                     {:.1} mm aperture: no light reaches the eye",
+                    calib.eye.field_rad.to_degrees(),
+                    2e3 * stop.radius_m,
+                    stop.centre_m * 1e3,
+                    2e3 * calib.aperture_radius_m
+                ),
+            });
+        }
+    }
+    Ok(())
 }
 
 /// Validates `[eye]` and resolves it to SI units.

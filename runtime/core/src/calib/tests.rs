@@ -346,6 +346,11 @@ fn bad_eye_fields_are_refused_by_name() {
         ("field_deg = 90.0", "eye.field_deg"),
         ("lca = \"sometimes\"", "eye.lca"),
         ("iris = 3", "iris"),
+        // 30° at 15 mm: 8.7 mm off axis, past the 5 mm aperture and the pupil.
+        (
+            "pupil_diameter_mm = 3.0\nfield_deg = 30.0",
+            "no light reaches the eye",
+        ),
     ] {
         let e = with_eye(line).unwrap_err().to_string();
         assert!(e.contains("test.toml") && e.contains(field), "{line}: {e}");

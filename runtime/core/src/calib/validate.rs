@@ -205,7 +205,7 @@ impl Calibration {
 
         let eye = eye::resolve(&raw.eye, name)?;
 
-        Ok(Calibration {
+        let calib = Calibration {
             source: name.to_string(),
             pixel_pitch_m: raw.panel.pixel_pitch_um * 1e-6,
             lens_distance_m,
@@ -240,7 +240,9 @@ impl Calibration {
             },
             panel,
             eye,
-        })
+        };
+        eye::check_sees_light(&calib, name)?;
+        Ok(calib)
     }
 }
 
