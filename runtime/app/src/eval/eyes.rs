@@ -85,10 +85,19 @@ pub struct EyeRow {
     pub pupil_mm: Option<f64>,
     pub field_deg: f64,
     pub lca: bool,
-    /// Per row: (name, mean PSNR vs sharp, worst vs sharp, mean vs target,
-    /// the focus-cue score at 5 CPD averaged over the main depths).
-    pub rows: Vec<(String, f64, f64, f64, Option<f64>)>,
+    pub rows: Vec<MethodHeadline>,
     pub seconds: f64,
+}
+
+/// One evaluated row's headlines under one eye (PSNR over 0–2.5 D).
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct MethodHeadline {
+    pub method: String,
+    pub mean_vs_sharp_db: f64,
+    pub worst_vs_sharp_db: f64,
+    pub mean_vs_target_db: f64,
+    /// The focus-cue score at 5 CPD averaged over the main depths, when measured.
+    pub focus_cue_5cpd: Option<f64>,
 }
 
 /// The study: an evaluation per eye, then the tables and the chart.
@@ -188,13 +197,13 @@ fn eye_row(
                         .collect();
                     (!s.is_empty()).then(|| s.iter().sum::<f64>() / s.len() as f64)
                 });
-                (
-                    m.method.clone(),
-                    m.headline_vs_sharp.mean.psnr_db,
-                    m.headline_vs_sharp.worst.psnr_db,
-                    m.headline_vs_target.mean.psnr_db,
-                    cue,
-                )
+                MethodHeadline {
+                    method: m.method.clone(),
+                    mean_vs_sharp_db: m.headline_vs_sharp.mean.psnr_db,
+                    worst_vs_sharp_db: m.headline_vs_sharp.worst.psnr_db,
+                    mean_vs_target_db: m.headline_vs_target.mean.psnr_db,
+                    focus_cue_5cpd: cue,
+                }
             })
             .collect(),
         seconds: r.seconds,
@@ -208,7 +217,7 @@ pub fn markdown(rows: &[EyeRow], aperture_mm: f64) -> String {
     let Some(first) = rows.first() else {
         return "no eyes evaluated\n".into();
     };
-    let names: Vec<&str> = first.rows.iter().map(|r| r.0.as_str()).collect();
+    let names: Vec<&str> = first.rows.iter().map(|r| r.method.as_str()).collect();
     let header = |t: &mut String, title: &str| {
         let _ = writeln!(t, "### {title}\n");
         let _ = writeln!(t, "| eye | {} |", names.join(" | "));
@@ -218,36 +227,38 @@ pub fn markdown(rows: &[EyeRow], aperture_mm: f64) -> String {
         None => format!("{} (the {aperture_mm:.0} mm aperture)", r.eye),
         Some(_) => r.eye.clone(),
     };
-    let tables: [(
-        &str,
-        fn(&(String, f64, f64, f64, Option<f64>)) -> Option<f64>,
-    ); 3] = [
-        ("Mean PSNR vs sharp over 0–2.5 D (dB)", |c| Some(c.1)),
-        ("Worst PSNR vs sharp over 0–2.5 D (dB)", |c| Some(c.2)),
-        ("Mean PSNR vs target over 0–2.5 D (dB)", |c| Some(c.3)),
+    type Pick = fn(&MethodHeadline) -> f64;
+    let tables: [(&str, Pick); 3] = [
+        ("Mean PSNR vs sharp over 0–2.5 D (dB)", |c| {
+            c.mean_vs_sharp_db
+        }),
+        ("Worst PSNR vs sharp over 0–2.5 D (dB)", |c| {
+            c.worst_vs_sharp_db
+        }),
+        ("Mean PSNR vs target over 0–2.5 D (dB)", |c| {
+            c.mean_vs_target_db
+        }),
     ];
     for (title, pick) in tables {
         header(&mut t, title);
         for r in rows {
-            let best = r
-                .rows
-                .iter()
-                .filter_map(pick)
-                .fold(f64::NEG_INFINITY, f64::max);
+            let best = r.rows.iter().map(pick).fold(f64::NEG_INFINITY, f64::max);
             let cells: Vec<String> = r
                 .rows
                 .iter()
                 .map(|c| match pick(c) {
-                    Some(v) if v == best => format!("**{v:.2}**"),
-                    Some(v) => format!("{v:.2}"),
-                    None => "–".into(),
+                    v if v == best => format!("**{v:.2}**"),
+                    v => format!("{v:.2}"),
                 })
                 .collect();
             let _ = writeln!(t, "| {} | {} |", label(r), cells.join(" | "));
         }
         t.push('\n');
     }
-    if rows.iter().any(|r| r.rows.iter().any(|c| c.4.is_some())) {
+    if rows
+        .iter()
+        .any(|r| r.rows.iter().any(|c| c.focus_cue_5cpd.is_some()))
+    {
         header(
             &mut t,
             "Focus cues: FC at 5 CPD, mean over the main depths (higher: a sharper peak where it belongs)",
@@ -256,7 +267,7 @@ pub fn markdown(rows: &[EyeRow], aperture_mm: f64) -> String {
             let cells: Vec<String> = r
                 .rows
                 .iter()
-                .map(|c| c.4.map_or("–".into(), |v| format!("{v:.3}")))
+                .map(|c| c.focus_cue_5cpd.map_or("–".into(), |v| format!("{v:.3}")))
                 .collect();
             let _ = writeln!(t, "| {} | {} |", label(r), cells.join(" | "));
         }
@@ -279,13 +290,18 @@ fn chart(out_dir: &Path, rows: &[EyeRow], aperture_mm: f64) -> Result<Vec<String
     if on_axis.len() < 2 {
         return Ok(Vec::new());
     }
-    let names: Vec<String> = on_axis[0].1.rows.iter().map(|c| c.0.clone()).collect();
+    let names: Vec<String> = on_axis[0].1.rows.iter().map(|c| c.method.clone()).collect();
     let mut series = Vec::new();
     let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
     for (i, name) in names.iter().enumerate() {
         let mut points: Vec<(f64, f64)> = on_axis
             .iter()
-            .filter_map(|(d, r)| r.rows.iter().find(|c| &c.0 == name).map(|c| (*d, c.1)))
+            .filter_map(|(d, r)| {
+                r.rows
+                    .iter()
+                    .find(|c| &c.method == name)
+                    .map(|c| (*d, c.mean_vs_sharp_db))
+            })
             .collect();
         points.sort_by(|a, b| a.0.total_cmp(&b.0));
         for p in &points {
@@ -354,8 +370,20 @@ mod tests {
             field_deg: 0.0,
             lca: false,
             rows: vec![
-                ("conventional".into(), a, a - 2.0, a, None),
-                ("ai".into(), b, b - 1.0, b, Some(0.1)),
+                MethodHeadline {
+                    method: "conventional".into(),
+                    mean_vs_sharp_db: a,
+                    worst_vs_sharp_db: a - 2.0,
+                    mean_vs_target_db: a,
+                    focus_cue_5cpd: None,
+                },
+                MethodHeadline {
+                    method: "ai".into(),
+                    mean_vs_sharp_db: b,
+                    worst_vs_sharp_db: b - 1.0,
+                    mean_vs_target_db: b,
+                    focus_cue_5cpd: Some(0.1),
+                },
             ],
             seconds: 1.0,
         };
