@@ -5,6 +5,7 @@ The package never looks for the repository: every command takes the
 calibration file as an argument (`--calib FILE`, by default
 `calib/default.toml` under the current directory, see `resolve`), and the
 functions receive the loaded `Calib` or the file's path."""
+import dataclasses
 import math
 import tomllib
 from dataclasses import dataclass
@@ -15,6 +16,11 @@ from .paths import resolve_cli_path
 #: Where a command looks for the calibration when `--calib` is not given,
 #: relative to the current directory (the repository root, usually).
 DEFAULT_RELATIVE = Path("calib") / "default.toml"
+
+
+def thibos_refraction_d(wavelength_m: float) -> float:
+    """Thibos et al. 1992: R(λ) = 1.68524 − 0.63346/(λ/µm − 0.21410) diopters."""
+    return 1.68524 - 0.63346 / (wavelength_m * 1e6 - 0.21410)
 
 
 @dataclass(frozen=True)
@@ -42,6 +48,13 @@ class Calib:
     range_d: tuple = (0.0, 3.0)
     wiener_average_step_d: float = 0.1
     material_name: str = "fused silica"
+    # The eye (docs/model.md §4a): entrance-pupil diameter (None: the
+    # eyepiece's aperture is the stop), relief from the lens plane, and
+    # whether the eye has Thibos et al. 1992's chromatic aberration. The
+    # trainer designs on axis (a field angle is refused at load).
+    eye_pupil_diameter_m: float | None = None
+    eye_relief_m: float = 15e-3
+    eye_lca: bool = False
 
     def focal_length_m(self, ch: int) -> float:
         return self.focal_length_spec_m * (self.index_at_spec - 1) / (self.channels[ch].index - 1)
@@ -49,9 +62,31 @@ class Calib:
     def vergence_d(self, ch: int) -> float:
         return 1 / self.lens_distance_m - 1 / self.focal_length_m(ch)
 
+    def eye_lca_d(self, ch: int) -> float:
+        """The eye's chromatic difference of refraction at `ch` relative to
+        the design channel (Thibos et al. 1992), 0 without eye LCA."""
+        if not self.eye_lca:
+            return 0.0
+        return thibos_refraction_d(self.channels[ch].wavelength_m) - thibos_refraction_d(
+            self.channels[self.design_channel].wavelength_m)
+
+    def seen_vergence_d(self, ch: int) -> float:
+        """The vergence at which the eye sees `ch` in focus: V_λ + ΔR_eye (§4a)."""
+        return self.vergence_d(ch) + self.eye_lca_d(ch)
+
     def psi_rad(self, ch: int, accommodation_d: float) -> float:
         lam = self.channels[ch].wavelength_m
-        return math.pi / lam * (self.vergence_d(ch) - accommodation_d) * self.aperture_radius_m ** 2
+        return math.pi / lam * (self.seen_vergence_d(ch) - accommodation_d) * self.aperture_radius_m ** 2
+
+    def stop_radius_m(self, ch: int, pupil_diameter_m: float | None = None) -> float:
+        """The radius of the stop in the lens plane for `ch`: the eye's pupil
+        (`pupil_diameter_m`, else the calibration's) projected along the
+        image's rays, r_eye/(1 + e·V_λ), where it is inside the aperture;
+        else the aperture's radius."""
+        d = self.eye_pupil_diameter_m if pupil_diameter_m is None else pupil_diameter_m
+        if d is None:
+            return self.aperture_radius_m
+        return min(self.aperture_radius_m, 0.5 * d / (1 + self.eye_relief_m * self.vergence_d(ch)))
 
     @property
     def retinal_step_rad(self) -> float:
@@ -112,11 +147,21 @@ def load(path) -> Calib:
     except (KeyError, ValueError, tomllib.TOMLDecodeError) as e:
         raise ValueError(f"{path}: invalid calibration ({e!r}); `nedrt calib --calib {path}` names the field") from e
     eye = raw.get("eye", {})
-    if "pupil_diameter_mm" in eye or eye.get("lca", "off") != "off":
-        # The trainer's optics are the paper's eye (the eyepiece's aperture
-        # is the stop, no eye LCA); better refuse than train another model.
-        raise ValueError(f"{path}: eye: the trainer models the paper's eye only (no eye.pupil_diameter_mm, "
-                         f"eye.lca = \"off\"); docs/model.md §4a")
+    lca = eye.get("lca", "off")
+    if lca not in ("off", "thibos1992"):
+        raise ValueError(f"{path}: eye.lca: {lca!r} is not an eye LCA model (off, thibos1992)")
+    pupil = eye.get("pupil_diameter_mm")
+    if pupil is not None and not (isinstance(pupil, (int, float)) and 0 < pupil <= 12):
+        raise ValueError(f"{path}: eye.pupil_diameter_mm: {pupil!r} must lie in (0, 12] mm")
+    relief = eye.get("relief_mm", 15.0)
+    if not (isinstance(relief, (int, float)) and 0 <= relief <= 100):
+        raise ValueError(f"{path}: eye.relief_mm: {relief!r} must lie in [0, 100] mm")
+    if pupil is not None and eye.get("field_deg", 0.0) != 0.0:
+        # The trainer's optics are radial: a decentred pupil breaks that.
+        raise ValueError(f"{path}: eye.field_deg: the trainer designs on axis (field_deg = 0); "
+                         f"docs/model.md §4a")
+    cal = dataclasses.replace(cal, eye_pupil_diameter_m=None if pupil is None else pupil * 1e-3,
+                              eye_relief_m=relief * 1e-3, eye_lca=lca == "thibos1992")
     for ch in range(len(cal.channels)):
         if cal.lens_distance_m >= cal.focal_length_m(ch):
             raise ValueError(f"{path}: panel.lens_distance_mm: at or beyond the focal length of {cal.channels[ch].name}")

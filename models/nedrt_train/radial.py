@@ -149,7 +149,7 @@ class RadialPsfModel(nn.Module):
     def __init__(self, calib: Calib, pitch_m: float, window: int,
                  doe_init_m: torch.Tensor | None = None, dtype=torch.float64,
                  annuli_per_cell: int = ANNULI_PER_CELL, quadrature_pitch_m: float | None = None,
-                 richardson: bool = True):
+                 richardson: bool = True, pupil_diameter_m: float | None = None):
         super().__init__()
         from .optics import DoeHeight
         if window % 2 != 1:
@@ -188,9 +188,19 @@ class RadialPsfModel(nn.Module):
         self.register_buffer("t", torch.tensor(t, dtype=dtype))
         rho_t = torch.tensor(rho, dtype=torch.float64)
         t_t = torch.tensor(t, dtype=torch.float64)
+        # The eye's pupil, centred (docs/model.md §4a): each channel's stop
+        # r_e,λ clips the annuli (`pupil_diameter_m` overrides the
+        # calibration's; the aperture's radius where no pupil limits).
+        inner = np.arange(len(rho)) * quad
+        outer = np.minimum(inner + quad, r)
+        self.stop_radius_m = []
         for ch, c in enumerate(calib.channels):
+            r_e = calib.stop_radius_m(ch, pupil_diameter_m)
+            self.stop_radius_m.append(r_e)
+            area_ch = area if r_e >= r else math.pi * (np.minimum(outer, r_e) ** 2 - np.minimum(inner, r_e) ** 2)
             j0 = torch.special.bessel_j0(2 * math.pi * torch.outer(t_t, rho_t) / c.wavelength_m)
-            self.register_buffer(f"kernel_{ch}", (j0 * torch.tensor(area)[None, :]).to(dtype))
+            self.register_buffer(f"kernel_{ch}", (j0 * torch.tensor(area_ch)[None, :]).to(dtype))
+            self.register_buffer(f"energy_{ch}", torch.tensor(float(area_ch.sum()), dtype=dtype))
         init = three_lens_profile(calib, design_rho) if doe_init_m is None else torch.as_tensor(doe_init_m, dtype=torch.float64)
         if init.shape != (len(design_rho),):
             raise ValueError(f"radial DOE has {tuple(init.shape)} samples; {len(design_rho)} at {pitch_m * 1e6} µm cover the aperture")
@@ -223,7 +233,7 @@ class RadialPsfModel(nn.Module):
     def density(self, ch: int, psi_rad, with_doe: bool = True, height_m: torch.Tensor | None = None):
         """Angular energy density p(t) = |U|²/(λ² E) (per rad²) at the nodes `t`."""
         re, im = self.field(ch, psi_rad, with_doe, height_m)
-        energy = self.area.sum()                    # |Q| = 1 inside the aperture
+        energy = getattr(self, f"energy_{ch}")      # |Q| = 1 inside the stop
         return (re * re + im * im) / (self.calib.channels[ch].wavelength_m ** 2 * energy)
 
     def psfs(self, ch: int, psi_rad, with_doe: bool = True, height_m: torch.Tensor | None = None):

@@ -76,17 +76,3 @@ def test_the_default_calibration_is_under_the_current_directory(tmp_path):
     out = run([sys.executable, "-m", "nedrt_train.train", "--preset", "smoke", "--calib", "missing.toml",
                "--out", str(tmp_path / "run")], cwd=tmp_path)
     assert out.returncode != 0 and f"{tmp_path / 'missing.toml'}: calibration file not found" in out.stderr
-
-
-def test_a_calibration_with_a_real_eye_is_refused_not_trained_as_the_papers(tmp_path):
-    # The trainer's optics are the paper's eye; the simulator's [eye] options
-    # (docs/model.md §4a) would silently change the model it trains against.
-    text = (REPO / "calib" / "default.toml").read_text()
-    assert calib_mod.load(REPO / "calib" / "default.toml").aperture_radius_m == 5e-3
-    for edited in (text.replace("[eye]\n", "[eye]\npupil_diameter_mm = 4.0\n"),
-                   text.replace('lca = "off"', 'lca = "thibos1992"')):
-        assert edited != text
-        p = tmp_path / "eye.toml"
-        p.write_text(edited)
-        with pytest.raises(ValueError, match="eye: the trainer models the paper's eye only"):
-            calib_mod.load(p)
