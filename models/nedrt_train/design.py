@@ -80,6 +80,10 @@ class DesignConfig:
     initial_k: float = 0.03
     seed: int = 0
     checkpoint_every: int = 50
+    # Eye pupils (mm) the design is made for, their objectives averaged (a
+    # pupil that varies over a range: one design); empty: the calibration's
+    # eye (docs/model.md §4a).
+    pupils_mm: tuple = ()
     # The calibration TOML: an absolute path the command line resolves
     # (--calib); no default here.
     calib: str | None = None
@@ -131,7 +135,15 @@ class DesignModel(torch.nn.Module):
             self.register_buffer("mirrored", torch.cat([mirrored, mirrored.flip(-2)], dim=-2).to(dtype))
             self.register_buffer("input_hat", torch.fft.fft2(self.mirrored))
         self.cfg, self.calib = cfg, calib
-        self.optics = RadialPsfModel(calib, calib.doe_design_pitch_m, cfg.window, dtype=dtype)
+        pupils = [p * 1e-3 for p in cfg.pupils_mm] or [None]
+        self.optics = RadialPsfModel(calib, calib.doe_design_pitch_m, cfg.window, dtype=dtype,
+                                     pupil_diameter_m=pupils[0])
+        # Every pupil sees the one DOE (its parameters shared).
+        self.other_pupils = torch.nn.ModuleList()
+        for pupil in pupils[1:]:
+            m = RadialPsfModel(calib, calib.doe_design_pitch_m, cfg.window, dtype=dtype, pupil_diameter_m=pupil)
+            m.doe = self.optics.doe
+            self.other_pupils.append(m)
         self.log_k = torch.nn.Parameter(torch.tensor(math.log(cfg.initial_k), dtype=dtype))
         md = cfg.frequencies
         m = 2 * md
@@ -159,9 +171,20 @@ class DesignModel(torch.nn.Module):
             self.design_d = [dlo + i * (dhi - dlo) / k for i in range(k + 1)]
         self.all_d = sorted(set(round(d, 9) for d in self.sweep_d + self.design_d))
         with torch.no_grad():
-            blur = [self._spectrum(*self.optics.psf(ch, calib.target_blur_psi_rad, with_doe=False))
-                    for ch in range(len(calib.channels))]
-        self.register_buffer("blur_otf", torch.stack(blur))
+            # The target's blur through each pupil (as nedrt computes it).
+            blur = [torch.stack([self._spectrum(*o.psf(ch, calib.target_blur_psi_rad, with_doe=False))
+                                 for ch in range(len(calib.channels))]) for o in self.pupil_optics()]
+        # The first pupil's under the name it always had (checkpoints resume).
+        for i, b in enumerate(blur):
+            self.register_buffer("blur_otf" if i == 0 else f"blur_otf_{i}", b)
+
+    def pupil_optics(self) -> list:
+        """The optics of every design pupil (one without a pupil range)."""
+        return [self.optics, *self.other_pupils]
+
+    def pupil_blur(self, i: int) -> torch.Tensor:
+        """The target blur's transfer (per channel) through pupil `i`."""
+        return getattr(self, "blur_otf" if i == 0 else f"blur_otf_{i}")
 
     def _spectrum(self, cells: torch.Tensor, veil) -> torch.Tensor:
         """Retinal-grid transfer H(ν) (real: the PSFs are symmetric) of
@@ -185,13 +208,17 @@ class DesignModel(torch.nn.Module):
     def depth_errors(self, height_m: torch.Tensor | None = None):
         """Per channel, per design depth: error power E_D / signal power, and
         the Wiener gain G; `height_m` overrides the DOE (design-pitch heights)."""
+        per_pupil = [self._depth_errors(o, self.pupil_blur(i), height_m) for i, o in enumerate(self.pupil_optics())]
+        return torch.stack(per_pupil).mean(0)
+
+    def _depth_errors(self, optics, blur_otf, height_m):
         errors, kappa = [], self.log_k.exp()
         index = {round(d, 9): i for i, d in enumerate(self.all_d)}
         sweep_rows = [index[round(d, 9)] for d in self.sweep_d]
         design_rows = [index[round(d, 9)] for d in self.design_d]
         for ch in range(len(self.calib.channels)):
             psi = [self.calib.psi_rad(ch, d) for d in self.all_d]
-            cells, veil = self.optics.psfs(ch, psi, height_m=height_m)
+            cells, veil = optics.psfs(ch, psi, height_m=height_m)
             h = self._spectrum(cells, veil)
             k = self.display_transfer(h[sweep_rows]).mean(0)
             gain = k / (k * k + kappa) * ((k[0, 0] ** 2 + kappa) / k[0, 0])
@@ -200,7 +227,7 @@ class DesignModel(torch.nn.Module):
             for i, d in zip(design_rows, self.design_d):
                 goal = 1.0
                 if self.cfg.target == "multifocal" and not self.calib.is_main_depth(d):
-                    goal = self.blur_otf[ch]
+                    goal = blur_otf[ch]
                 err = (g_ret * h[i] - goal) ** 2
                 rows.append((self.spectrum_ret * self.up2_gain * err).sum() / self.signal)
             errors.append(torch.stack(rows))
@@ -213,6 +240,10 @@ class DesignModel(torch.nn.Module):
         frequency domain of the mirrored frames (Parseval): with D, I the
         display's and the input's spectra, E_D = Σ_ν |B(ν)|² |D(2ν) H_D(ν) −
         I(2ν) T_D(ν)|² / (4c)⁴ for crops of side c."""
+        per_pupil = [self._clamped_errors(o, self.pupil_blur(i), height_m) for i, o in enumerate(self.pupil_optics())]
+        return torch.stack(per_pupil).mean(0)
+
+    def _clamped_errors(self, optics, blur_otf, height_m):
         kappa = self.log_k.exp()
         index = {round(d, 9): i for i, d in enumerate(self.all_d)}
         sweep_rows = [index[round(d, 9)] for d in self.sweep_d]
@@ -221,7 +252,7 @@ class DesignModel(torch.nn.Module):
         total = 0
         for ch in range(len(self.calib.channels)):
             psi = [self.calib.psi_rad(ch, d) for d in self.all_d]
-            cells, veil = self.optics.psfs(ch, psi, height_m=height_m)
+            cells, veil = optics.psfs(ch, psi, height_m=height_m)
             h = self._spectrum(cells, veil)
             k = self.display_transfer(h[sweep_rows]).mean(0)
             gain = k / (k * k + kappa) * ((k[0, 0] ** 2 + kappa) / k[0, 0])
@@ -234,7 +265,7 @@ class DesignModel(torch.nn.Module):
             c = (x.real ** 2 + x.imag ** 2).sum(0).repeat(2, 2) * self.up2_gain
             rows = []
             for i, d in zip(design_rows, self.design_d):
-                goal = self.blur_otf[ch] if self.cfg.target == "multifocal" and not self.calib.is_main_depth(d) else 1.0
+                goal = blur_otf[ch] if self.cfg.target == "multifocal" and not self.calib.is_main_depth(d) else 1.0
                 hd = h[i]
                 rows.append((a * hd * hd - 2 * b * hd * goal + c * goal * goal).sum())
             total = total + torch.stack(rows)
@@ -378,7 +409,9 @@ def identity(cfg: DesignConfig) -> dict:
     return {"target": cfg.target, "calib_sha": file_hash(cfg.calib), "window": cfg.window,
             "objective": cfg.objective, "crops": cfg.crops,
             "frequencies": cfg.frequencies, "design_range_d": list(cfg.design_range_d),
-            "design_step_d": cfg.design_step_d}
+            "design_step_d": cfg.design_step_d,
+            # Only a pupil range enters, so earlier checkpoints still resume.
+            **({"pupils_mm": list(cfg.pupils_mm)} if cfg.pupils_mm else {})}
 
 
 #: Training photographs the clamped K search uses (every n-th, sorted by name):
@@ -531,8 +564,13 @@ def main(argv=None, prog=None):
     ap.add_argument("--resume", action="store_true")
     ap.add_argument("--no-tune", dest="tune", action="store_false", help="skip the clamped K search on training photographs")
     ap.add_argument("--name", help="also write the DOE files doe-NAME-{design,fabrication}.safetensors into --out")
+    ap.add_argument("--pupils-mm", type=lambda v: tuple(float(x) for x in v.split(",")), metavar="MM,MM,…",
+                    help="design for these eye pupils (mm), their objectives averaged "
+                         "(default: the calibration's eye; docs/model.md §4a)")
     args = ap.parse_args(argv)
-    overrides = {k: getattr(args, k) for k in ["steps", "lr", "window"] if getattr(args, k) is not None}
+    overrides = {k: getattr(args, k) for k in ["steps", "lr", "window", "pupils_mm"] if getattr(args, k) is not None}
+    if any(not 0 < p <= 12 for p in overrides.get("pupils_mm", ())):
+        raise SystemExit(f"error: --pupils-mm {args.pupils_mm}: each pupil must lie in (0, 12] mm")
     try:
         calib = calib_mod.resolve(args.calib)
         images = resolve_root(args.images)

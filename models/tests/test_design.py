@@ -97,3 +97,24 @@ def test_a_design_step_improves_the_objective():
     after, _ = model.objective()
     assert after.item() < before.item()
     assert math.isfinite(after.item())
+
+
+def test_a_pupil_range_is_one_design_whose_objective_is_the_mean_over_its_pupils():
+    # docs/model.md §4a: the small calibration's 3 mm aperture, pupils of
+    # 1.5 and 2.5 mm: one DOE (shared parameters), the objective the mean of
+    # the single-pupil objectives, the target's blur through each pupil.
+    cal = calib_mod.load(SMALL_PATH)
+    crops = training_crops(TRAIN, TINY.crops, TINY.frequencies // 2, TINY.seed)
+    both = DesignModel(dataclasses.replace(TINY, target="multifocal", pupils_mm=(1.5, 2.5)), cal, 2.0, crops=crops)
+    singles = [DesignModel(dataclasses.replace(TINY, target="multifocal", pupils_mm=(p,)), cal, 2.0, crops=crops)
+               for p in (1.5, 2.5)]
+    assert len(list(both.parameters())) == 2  # the DOE's heights and log κ, once each
+    assert both.other_pupils[0].doe is both.optics.doe
+    with torch.no_grad():
+        mean = torch.stack([m.clamped_errors() for m in singles]).mean(0)
+        assert torch.allclose(both.clamped_errors(), mean, rtol=1e-12)
+        assert not torch.allclose(singles[0].clamped_errors(), singles[1].clamped_errors())
+        assert not torch.allclose(both.pupil_blur(0), both.pupil_blur(1))
+    loss, _ = both.objective()
+    loss.backward()
+    assert torch.isfinite(both.optics.doe.logit.grad).all()
