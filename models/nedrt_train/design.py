@@ -84,6 +84,8 @@ class DesignConfig:
     # pupil that varies over a range: one design); empty: the calibration's
     # eye (docs/model.md §4a).
     pupils_mm: tuple = ()
+    # The eye's chromatic aberration (Thibos 1992) on or off; None: the calibration's.
+    eye_lca: bool | None = None
     # The calibration TOML: an absolute path the command line resolves
     # (--calib); no default here.
     calib: str | None = None
@@ -404,6 +406,14 @@ def _rng_state():
     return {"torch": torch.get_rng_state(), "numpy": np.random.get_state()}
 
 
+def design_calib(cfg: DesignConfig):
+    """The calibration of a design: the file, with the config's eye LCA."""
+    calib = calib_mod.load(cfg.calib)
+    if cfg.eye_lca is not None:
+        calib = dataclasses.replace(calib, eye_lca=cfg.eye_lca)
+    return calib
+
+
 def identity(cfg: DesignConfig) -> dict:
     """What a checkpoint must share with the run that resumes it."""
     return {"target": cfg.target, "calib_sha": file_hash(cfg.calib), "window": cfg.window,
@@ -411,7 +421,8 @@ def identity(cfg: DesignConfig) -> dict:
             "frequencies": cfg.frequencies, "design_range_d": list(cfg.design_range_d),
             "design_step_d": cfg.design_step_d,
             # Only a pupil range enters, so earlier checkpoints still resume.
-            **({"pupils_mm": list(cfg.pupils_mm)} if cfg.pupils_mm else {})}
+            **({"pupils_mm": list(cfg.pupils_mm)} if cfg.pupils_mm else {}),
+            **({"eye_lca": cfg.eye_lca} if cfg.eye_lca is not None else {})}
 
 
 #: Training photographs the clamped K search uses (every n-th, sorted by name):
@@ -427,7 +438,7 @@ def design(cfg: DesignConfig, out: Path, resume: bool = False, images_dir: Path 
     `--images`'s train/."""
     if cfg.target not in TARGETS:
         raise ValueError(f"target {cfg.target!r}: choose one of {', '.join(TARGETS)}")
-    calib = calib_mod.load(cfg.calib)
+    calib = design_calib(cfg)
     out.mkdir(parents=True, exist_ok=True)
     ckpt = out / "checkpoint.pt"
     state = None
@@ -533,7 +544,7 @@ def export_design(run: Path, name: str, out: Path) -> dict:
     from .export import save_doe, sha256
     state = torch.load(run / "checkpoint.pt", map_location="cpu", weights_only=False)
     cfg = DesignConfig(**{**state["config"], "design_range_d": tuple(state["config"]["design_range_d"])})
-    calib = calib_mod.load(cfg.calib)
+    calib = design_calib(cfg)
     optics = RadialPsfModel(calib, calib.doe_design_pitch_m, cfg.window)
     optics.doe.load_state_dict({"logit": state["model"]["optics.doe.logit"]})
     height = optics.doe().detach().double().numpy()
@@ -567,8 +578,12 @@ def main(argv=None, prog=None):
     ap.add_argument("--pupils-mm", type=lambda v: tuple(float(x) for x in v.split(",")), metavar="MM,MM,…",
                     help="design for these eye pupils (mm), their objectives averaged "
                          "(default: the calibration's eye; docs/model.md §4a)")
+    ap.add_argument("--eye-lca", choices=["on", "off"],
+                    help="the eye's chromatic aberration, Thibos 1992 (default: the calibration's eye.lca)")
     args = ap.parse_args(argv)
     overrides = {k: getattr(args, k) for k in ["steps", "lr", "window", "pupils_mm"] if getattr(args, k) is not None}
+    if args.eye_lca is not None:
+        overrides["eye_lca"] = args.eye_lca == "on"
     if any(not 0 < p <= 12 for p in overrides.get("pupils_mm", ())):
         raise SystemExit(f"error: --pupils-mm {args.pupils_mm}: each pupil must lie in (0, 12] mm")
     try:
