@@ -6,6 +6,7 @@
 
 use std::f64::consts::PI;
 
+use super::radial_tests::psfs;
 use super::*;
 use crate::doe::Profile;
 
@@ -20,18 +21,6 @@ fn eye(pupil_mm: f64, relief_mm: f64, field_deg: f64, two_d: bool) -> Calibratio
         c.simulation.propagator = PropagatorSetting::TwoD;
     }
     c
-}
-
-fn psfs(c: &Calibration, specs: &[PsfSpec], doe: Option<&HeightMap>) -> PsfSet {
-    compute_psfs(
-        c,
-        &PsfRequest {
-            specs: specs.to_vec(),
-            doe,
-        },
-        &|| (),
-    )
-    .expect("psfs")
 }
 
 /// The Airy pattern of a pupil of radius `a_m` integrated over each cell of

@@ -25,7 +25,7 @@ fn forced_2d(c: &Calibration) -> Calibration {
     c
 }
 
-fn psfs(c: &Calibration, specs: &[PsfSpec], doe: Option<&HeightMap>) -> PsfSet {
+pub(super) fn psfs(c: &Calibration, specs: &[PsfSpec], doe: Option<&HeightMap>) -> PsfSet {
     compute_psfs(
         c,
         &PsfRequest {
