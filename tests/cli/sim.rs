@@ -377,6 +377,13 @@ fn the_papers_eye_is_the_default_and_the_eye_options_change_what_they_should() {
         text.contains("2-D path") && text.contains("20.0° field"),
         "{text}"
     );
+    // `nedrt calib` says which eye it resolved.
+    let o = run(&["--pupil-mm", "3", "--eye-lca", "on", "calib"]);
+    assert!(
+        stdout(&o).contains("eye: pupil 3.0 mm at 15.0 mm") && stdout(&o).contains("B -0.68 D"),
+        "{}",
+        stdout(&o)
+    );
     // Bad values are refused naming the field, nothing written.
     let out = dir.path().join("bad.png");
     let o = sim("0.5", &out, &["--input", path(&input), "--pupil-mm", "30"]);

@@ -444,6 +444,7 @@ pub fn calib_summary(common: &CommonOptions) -> Result<String, AppError> {
         c.pixel_pitch_m * 1e6,
         p.transfer_gamma
     );
+    let _ = writeln!(t, "eye: {}", c.eye_summary());
     let _ = writeln!(t, "optics fingerprint {}", c.optics_fingerprint());
     Ok(t)
 }
