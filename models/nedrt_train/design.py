@@ -332,9 +332,18 @@ def wiener_display(image: torch.Tensor, gains) -> torch.Tensor:
 @torch.no_grad()
 def evaluate(model: DesignModel, images: list, k_reg: float, depths_d=None) -> list:
     """PSNR (dB) vs sharp and vs target per depth with the display clamped
-    to [0, 1], averaged over `images` (C×H×W tensors, sides multiples of 8)."""
+    to [0, 1], averaged over `images` (C×H×W tensors, sides multiples of 8)
+    and, for a pupil range, over its pupils (as the objective is)."""
+    per_pupil = [_evaluate(model, optics, images, k_reg, depths_d) for optics in model.pupil_optics()]
+    return [{"accommodation_d": rows[0]["accommodation_d"],
+             "psnr_vs_sharp": float(np.mean([r["psnr_vs_sharp"] for r in rows])),
+             "psnr_vs_target": float(np.mean([r["psnr_vs_target"] for r in rows]))}
+            for rows in zip(*per_pupil)]
+
+
+def _evaluate(model: DesignModel, optics, images: list, k_reg: float, depths_d=None) -> list:
     from .optics import perceive, target, up2
-    calib, optics = model.calib, model.optics
+    calib = model.calib
     depths_d = depths_d or [d for d in calib.depths_d if d <= 2.5 + 1e-9]
     sweep = [optics.psfs(ch, [calib.psi_rad(ch, d) for d in model.sweep_d]) for ch in range(len(calib.channels))]
     mean_psfs = [(c.mean(0), float(v.mean())) for c, v in sweep]

@@ -65,6 +65,10 @@ class PsfModel(nn.Module):
         super().__init__()
         if window % 2 != 1:
             raise ValueError(f"window = {window}: an odd number of cells puts a cell centre on the axis")
+        if calib.eye_pupil_diameter_m is not None:
+            # Only the radial model puts the eye's pupil in the pupil.
+            raise ValueError("the 2-D optics model the paper's eye only (no eye.pupil_diameter_mm); "
+                             "train a radial profile for an eye with a pupil (docs/model.md §4a)")
         self.calib, self.pitch_m, self.window = calib, pitch_m, window
         s = grid(calib, pitch_m, dtype)
         n = len(s)

@@ -233,6 +233,9 @@ def test_the_eye_in_the_calibration_is_read_and_checked(tmp_path):
     assert [round(cal.eye_lca_d(c), 5) for c in range(3)] == [0.36374, 0.0, -0.68004]
     assert abs(cal.psi_rad(2, cal.vergence_d(2) + cal.eye_lca_d(2))) < 1e-9
     assert cal.stop_radius_m(1) == pytest.approx(2e-3 / (1 + 15e-3 * cal.vergence_d(1)))
+    # Only the radial model puts the pupil in the pupil: the 2-D one refuses.
+    with pytest.raises(ValueError, match="paper's eye only"):
+        PsfModel(cal, cal.doe_design_pitch_m, 9)
     for edit, field in [('field_deg = 0.0', 'field_deg = 10.0'), ('lca = "off"', 'lca = "maybe"')]:
         p.write_text(text.replace("[eye]\n", "[eye]\npupil_diameter_mm = 4.0\n").replace(*[edit, field]))
         with pytest.raises(ValueError, match="eye."):

@@ -434,6 +434,28 @@ fn eval_over_eyes_tabulates_each_eye_charts_the_pupil_and_resumes() {
         "{}",
         stderr(&again)
     );
+    // Another study (other rows) in the same folder recomputes, not reads back.
+    let other = run(&[
+        &[
+            "--calib",
+            path(&calib),
+            "-v",
+            "eval",
+            "--images",
+            path(&imgs),
+        ][..],
+        &[
+            "--out-dir",
+            path(&out),
+            "--methods",
+            "conventional",
+            "--eyes",
+            "paper,2mm",
+        ],
+    ]
+    .concat());
+    assert!(other.status.success(), "{}", stderr(&other));
+    assert!(!stderr(&other).contains("read back"), "{}", stderr(&other));
     // Bad eyes are refused: unparsable, or seeing no light (2 mm at 10°
     // lands 2.6 mm off axis, past the 1.5 mm aperture).
     let bad = eyes(&["--eyes", "2"]);

@@ -397,14 +397,23 @@ def step_teacher(r: Runner, s: Step, z: dict, device: str):
 
 
 def available_gib() -> float:
-    """MemAvailable of /proc/meminfo (the machine's total where that is unreadable)."""
+    """MemAvailable of /proc/meminfo (the machine's total where that is
+    unreadable), or less where a cgroup v2 limit leaves less."""
+    gib = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") / 2**30
     try:
         for line in Path("/proc/meminfo").read_text().splitlines():
             if line.startswith("MemAvailable:"):
-                return int(line.split()[1]) / 2**20
+                gib = int(line.split()[1]) / 2**20
     except OSError:
         pass
-    return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") / 2**30
+    try:
+        limit = Path("/sys/fs/cgroup/memory.max").read_text().strip()
+        if limit != "max":
+            used = int(Path("/sys/fs/cgroup/memory.current").read_text())
+            gib = min(gib, (int(limit) - used) / 2**30)
+    except (OSError, ValueError):
+        pass
+    return gib
 
 
 def exit_status(code: int) -> str:

@@ -24,14 +24,18 @@ pub struct EyeArgs {
     pub eye_lca: Option<EyeLca>,
 }
 
+/// `on` is Thibos 1992 (the calibration file names the model itself).
 fn parse_lca(s: &str) -> Result<EyeLca, String> {
-    s.parse()
+    match s {
+        "on" => Ok(EyeLca::Thibos1992),
+        _ => s.parse().map_err(|e: String| format!("{e}, or on")),
+    }
 }
 
 impl EyeArgs {
     pub fn overrides(&self) -> EyeOverrides {
         EyeOverrides {
-            pupil_diameter_mm: self.pupil_mm,
+            pupil_diameter_mm: self.pupil_mm.map(Some),
             relief_mm: self.eye_relief_mm,
             field_deg: self.field_deg,
             lca: self.eye_lca,

@@ -63,13 +63,21 @@ impl std::str::FromStr for EyeCase {
         if pupil_mm.is_none() && field.is_some() {
             return Err(bad("the paper's eye has no field dependence: give a pupil"));
         }
+        // `paper` is the paper's eye: no pupil and no eye LCA, whatever the
+        // calibration or the command line say; a pupil case keeps their
+        // LCA unless it adds `+lca`.
+        let paper = pupil_mm.is_none();
         Ok(EyeCase {
             label: s.to_string(),
             overrides: EyeOverrides {
-                pupil_diameter_mm: pupil_mm,
+                pupil_diameter_mm: Some(pupil_mm),
                 relief_mm: None,
-                field_deg: field,
-                lca: Some(if lca { EyeLca::Thibos1992 } else { EyeLca::Off }),
+                field_deg: if paper { Some(0.0) } else { field },
+                lca: match (lca, paper) {
+                    (true, _) => Some(EyeLca::Thibos1992),
+                    (false, true) => Some(EyeLca::Off),
+                    (false, false) => None,
+                },
             },
         })
     }
@@ -87,6 +95,10 @@ pub struct EyeRow {
     pub lca: bool,
     pub rows: Vec<MethodHeadline>,
     pub seconds: f64,
+    /// What was evaluated (images, rows, DOE, D-CNN): a row is read back
+    /// only into a study of the same.
+    #[serde(default)]
+    pub study: String,
 }
 
 /// One evaluated row's headlines under one eye (PSNR over 0–2.5 D).
@@ -110,6 +122,7 @@ pub fn run(
     cases: &[EyeCase],
 ) -> Result<String, AppError> {
     create_dir(out_dir)?;
+    let study = signature(common, images_dir, methods, extras);
     let mut rows = Vec::with_capacity(cases.len());
     for case in cases {
         let mut eye_common = common.clone();
@@ -117,7 +130,7 @@ pub fn run(
         let calib = eye_common.calibration()?;
         let dir = out_dir.join(dir_name(&case.label));
         let summary = calib.eye_summary();
-        let row = match resume(&dir, &case.label, &summary) {
+        let row = match resume(&dir, &case.label, &summary, &study) {
             Some(r) => {
                 tracing::info!("{}: read back from {}", case.label, dir.display());
                 r
@@ -125,7 +138,8 @@ pub fn run(
             None => {
                 tracing::info!("{}: {summary}", case.label);
                 let (result, _) = evaluate(&eye_common, images_dir, &dir, methods, extras)?;
-                let row = eye_row(case, &summary, &calib.eye, &result);
+                let mut row = eye_row(case, &summary, &calib.eye, &result);
+                row.study = study.clone();
                 let path = dir.join("eye.json");
                 let json =
                     serde_json::to_string_pretty(&row).map_err(|e| AppError::output(&path, e))?;
@@ -151,7 +165,8 @@ pub fn run(
     ))
 }
 
-/// The case's overrides over the command line's own (`--eye-relief-mm` for all).
+/// The case's overrides over the command line's own (`--eye-relief-mm`
+/// for all, `--eye-lca` for the pupil cases without `+lca`).
 fn merged(base: &EyeOverrides, case: &EyeOverrides) -> EyeOverrides {
     EyeOverrides {
         pupil_diameter_mm: case.pupil_diameter_mm.or(base.pupil_diameter_mm),
@@ -166,11 +181,51 @@ fn dir_name(label: &str) -> PathBuf {
     PathBuf::from(label.replace('@', "-at").replace('+', "-"))
 }
 
-/// The eye's row from an earlier run, when it was made for the same eye.
-fn resume(dir: &Path, label: &str, summary: &str) -> Option<EyeRow> {
+/// The eye's row from an earlier run, when it was made for the same eye
+/// and the same study.
+fn resume(dir: &Path, label: &str, summary: &str, study: &str) -> Option<EyeRow> {
     let text = std::fs::read_to_string(dir.join("eye.json")).ok()?;
     let row: EyeRow = serde_json::from_str(&text).ok()?;
-    (row.eye == label && row.summary == summary).then_some(row)
+    (row.eye == label && row.summary == summary && row.study == study).then_some(row)
+}
+
+/// What a study evaluates, as one line: the images, the rows (methods,
+/// designs, prefilters, an external folder), the calibration, the DOE and
+/// the D-CNN, and whether focus cues are measured.
+fn signature(
+    common: &CommonOptions,
+    images_dir: &Path,
+    methods: &[Method],
+    extras: &EvalExtras,
+) -> String {
+    let names = |v: Vec<String>| v.join(",");
+    format!(
+        "images {}; methods {}; designs {}; prefilters {}; external {}; calib {}; doe {}; dcnn {}; focus cues {}",
+        images_dir.display(),
+        names(methods.iter().map(|m| m.name().to_string()).collect()),
+        names(
+            extras
+                .designs
+                .iter()
+                .map(|d| d.source.display().to_string())
+                .collect()
+        ),
+        names(extras.prefilters.iter().map(|p| p.to_string()).collect()),
+        extras
+            .external
+            .as_ref()
+            .map_or("none".into(), |e| e.dir.display().to_string()),
+        common
+            .calib
+            .as_ref()
+            .map_or("embedded".into(), |p| p.display().to_string()),
+        common
+            .doe
+            .as_ref()
+            .map_or("calibration's".into(), |p| p.display().to_string()),
+        common.dcnn.path.display(),
+        extras.focus_cues
+    )
 }
 
 fn eye_row(
@@ -207,6 +262,7 @@ fn eye_row(
             })
             .collect(),
         seconds: r.seconds,
+        study: String::new(),
     }
 }
 
@@ -343,12 +399,25 @@ mod tests {
     #[test]
     fn eye_cases_parse_and_bad_ones_say_why() {
         let c: EyeCase = "4mm@20+lca".parse().expect("case");
-        assert_eq!(c.overrides.pupil_diameter_mm, Some(4.0));
+        assert_eq!(c.overrides.pupil_diameter_mm, Some(Some(4.0)));
         assert_eq!(c.overrides.field_deg, Some(20.0));
         assert_eq!(c.overrides.lca, Some(EyeLca::Thibos1992));
         let p: EyeCase = "paper".parse().expect("paper");
-        assert_eq!(p.overrides.pupil_diameter_mm, None);
+        assert_eq!(p.overrides.pupil_diameter_mm, Some(None));
         assert_eq!(p.overrides.lca, Some(EyeLca::Off));
+        // A pupil without +lca keeps the command line's or calibration's LCA.
+        let plain: EyeCase = "3mm".parse().expect("3mm");
+        assert_eq!(plain.overrides.lca, None);
+        let base = EyeOverrides {
+            pupil_diameter_mm: Some(Some(6.0)),
+            lca: Some(EyeLca::Thibos1992),
+            ..Default::default()
+        };
+        assert_eq!(merged(&base, &p.overrides).pupil_diameter_mm, Some(None));
+        assert_eq!(
+            merged(&base, &plain.overrides).lca,
+            Some(EyeLca::Thibos1992)
+        );
         for (bad, why) in [
             ("4", "in mm"),
             ("xmm", "not a number"),
@@ -386,6 +455,7 @@ mod tests {
                 },
             ],
             seconds: 1.0,
+            study: String::new(),
         };
         let md = markdown(
             &[

@@ -35,7 +35,7 @@ impl std::str::FromStr for EyeLca {
     fn from_str(s: &str) -> Result<Self, String> {
         match s {
             "off" => Ok(Self::Off),
-            "thibos1992" | "on" => Ok(Self::Thibos1992),
+            "thibos1992" => Ok(Self::Thibos1992),
             _ => Err(format!("{s:?} is not an eye LCA model (off, thibos1992)")),
         }
     }
@@ -182,7 +182,8 @@ impl Calibration {
 /// calibration's value.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct EyeOverrides {
-    pub pupil_diameter_mm: Option<f64>,
+    /// `Some(None)`: no pupil, the paper's eye, whatever the calibration says.
+    pub pupil_diameter_mm: Option<Option<f64>>,
     pub relief_mm: Option<f64>,
     pub field_deg: Option<f64>,
     pub lca: Option<EyeLca>,
@@ -198,7 +199,7 @@ impl EyeOverrides {
         let raw = RawEye {
             pupil_diameter_mm: self
                 .pupil_diameter_mm
-                .or(e.pupil_diameter_m.map(|d| d * 1e3)),
+                .unwrap_or(e.pupil_diameter_m.map(|d| d * 1e3)),
             relief_mm: self.relief_mm.unwrap_or(e.relief_m * 1e3),
             lca: self.lca.unwrap_or(e.lca).to_string(),
             field_deg: self.field_deg.unwrap_or(e.field_rad.to_degrees()),

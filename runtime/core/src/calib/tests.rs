@@ -358,7 +358,7 @@ fn bad_eye_fields_are_refused_by_name() {
     // The command line's overrides go through the same checks.
     let mut c = default();
     let bad = EyeOverrides {
-        pupil_diameter_mm: Some(f64::NAN),
+        pupil_diameter_mm: Some(Some(f64::NAN)),
         ..Default::default()
     };
     let e = bad.apply(&mut c).unwrap_err().to_string();
@@ -367,11 +367,21 @@ fn bad_eye_fields_are_refused_by_name() {
         "{e}"
     );
     let good = EyeOverrides {
-        pupil_diameter_mm: Some(3.0),
+        pupil_diameter_mm: Some(Some(3.0)),
         lca: Some(EyeLca::Thibos1992),
         ..Default::default()
     };
     good.apply(&mut c).unwrap();
     assert_eq!(c.eye.pupil_diameter_m, Some(3e-3));
     assert_eq!(c.eye.relief_m, 15e-3);
+    // `Some(None)` takes a calibration's pupil away: the paper's eye.
+    let paper = EyeOverrides {
+        pupil_diameter_mm: Some(None),
+        ..Default::default()
+    };
+    paper.apply(&mut c).unwrap();
+    assert_eq!(c.eye.pupil_diameter_m, None);
+    // The file names the model: "on" is the command line's word only.
+    let e = with_eye("lca = \"on\"").unwrap_err().to_string();
+    assert!(e.contains("eye.lca"), "{e}");
 }
