@@ -12,6 +12,16 @@ import sys
 from pathlib import Path
 
 
+def eye_flags(config: dict) -> str:
+    """The DOE stage's eye options as its command line gives them."""
+    flags = ""
+    if config.get("pupils_mm"):
+        flags += " --pupils-mm " + ",".join(f"{p:g}" for p in config["pupils_mm"])
+    if config.get("eye_lca") is not None:
+        flags += " --eye-lca " + ("on" if config["eye_lca"] else "off")
+    return flags
+
+
 def sha(path: Path) -> str:
     return hashlib.sha256(path.read_bytes()).hexdigest()
 
@@ -44,7 +54,8 @@ def main(name: str, run: Path, out: Path):
     card = {
         "name": name,
         "target": design["target"],
-        "recipe": {"command": f"python -m nedrt_train.design --target {design['target']} --steps {design['steps']} --name {name}",
+        "recipe": {"command": f"python -m nedrt_train.design --target {design['target']} --steps {design['steps']}"
+                              f"{eye_flags(design['config'])} --name {name}",
                    "script": "tools/designs/make_designs.sh", "config": design["config"],
                    "spectrum_alpha": design["spectrum_alpha"]},
         "wall_time_s": design["wall_time_s"],
