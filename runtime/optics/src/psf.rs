@@ -19,7 +19,7 @@ use serde::{Deserialize, Serialize};
 use super::OpticsError;
 use super::doe::{HeightMap, Profile};
 use super::propagate::{centred_window_energies, crop_centred, exact_period_cells};
-use super::pupil::{PupilGrid, pupil_field, pupil_field_through};
+use super::pupil::{PupilGrid, pupil_field, pupil_field_through, stop_square};
 use super::sampling::{
     ChannelSampling, PsfSpec, StepRule, channel_sampling, max_pupil_step,
     predicted_half_width_cells,
@@ -338,7 +338,7 @@ fn compute_2d(
                     pupil_step_um: s.grid.step_m * 1e6,
                     // Through an eye stop only its square is computed.
                     pupil_samples: calib.eye_stop(s.channel).map_or(s.grid.samples, |stop| {
-                        2 * (stop.radius_m / s.grid.step_m).ceil() as usize + 5
+                        stop_square(s.grid.step_m, stop).samples
                     }),
                     period_cells: s.period_cells,
                 })

@@ -100,8 +100,9 @@ pub fn pupil_field_through(
             "DOE phase must be sampled on the pupil grid"
         );
     }
-    let half = (stop.radius_m / grid.step_m).ceil() as isize + 2;
-    let side = (2 * half + 1) as usize;
+    let square = stop_square(grid.step_m, stop);
+    let side = square.samples;
+    let half = (side / 2) as isize;
     let mid = (n as f64 - 1.0) / 2.0;
     // The square's first sample, in `grid`'s indices (may lie outside it).
     let row0 = mid.floor() as isize - half;
@@ -130,13 +131,17 @@ pub fn pupil_field_through(
             }
         }
     });
-    (
-        q,
-        PupilGrid {
-            samples: side,
-            step_m: grid.step_m,
-        },
-    )
+    (q, square)
+}
+
+/// The square of step `step_m` that [`pupil_field_through`] computes for
+/// `stop`: 2⌈r_e/Δs⌉ + 5 samples, the stop and its ramped edge with a
+/// sample to spare each side.
+pub fn stop_square(step_m: f64, stop: EyeStop) -> PupilGrid {
+    PupilGrid {
+        samples: 2 * (stop.radius_m / step_m).ceil() as usize + 5,
+        step_m,
+    }
 }
 
 /// Σ|Q|² over the grid: the light through the aperture, in units of one

@@ -138,8 +138,7 @@ pub fn run(
             None => {
                 tracing::info!("{}: {summary}", case.label);
                 let (result, _) = evaluate(&eye_common, images_dir, &dir, methods, extras)?;
-                let mut row = eye_row(case, &summary, &calib.eye, &result);
-                row.study = study.clone();
+                let row = eye_row(case, &summary, &study, &calib.eye, &result);
                 let path = dir.join("eye.json");
                 let json =
                     serde_json::to_string_pretty(&row).map_err(|e| AppError::output(&path, e))?;
@@ -231,6 +230,7 @@ fn signature(
 fn eye_row(
     case: &EyeCase,
     summary: &str,
+    study: &str,
     eye: &nedrt_core::calib::EyeSettings,
     r: &EvalResult,
 ) -> EyeRow {
@@ -262,7 +262,7 @@ fn eye_row(
             })
             .collect(),
         seconds: r.seconds,
-        study: String::new(),
+        study: study.to_string(),
     }
 }
 

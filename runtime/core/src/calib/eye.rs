@@ -76,14 +76,15 @@ pub const MAX_RELIEF_MM: f64 = 100.0;
 pub const MAX_FIELD_DEG: f64 = 45.0;
 
 /// Thibos et al. 1992's constants: R(λ) = p − q/(λ − c), λ in µm, R in
-/// diopters (0 at 589 nm; negative, i.e. myopic, at short wavelengths).
+/// diopters (0 at c + q/p = 590 nm; negative, i.e. myopic, at short
+/// wavelengths).
 const THIBOS_P_D: f64 = 1.68524;
 const THIBOS_Q_D_UM: f64 = 0.63346;
 const THIBOS_C_UM: f64 = 0.21410;
 
 /// The chromatic difference of refraction of Thibos et al. 1992 at
 /// `wavelength_m`, diopters: the refractive error of the eye at λ relative
-/// to its refraction at 589 nm.
+/// to its refraction at 590 nm.
 pub fn thibos_refraction_d(wavelength_m: f64) -> f64 {
     THIBOS_P_D - THIBOS_Q_D_UM / (wavelength_m * 1e6 - THIBOS_C_UM)
 }
