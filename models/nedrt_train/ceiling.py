@@ -24,6 +24,7 @@ many depths and objectives.
 import argparse
 import json
 import math
+import sys
 import time
 from pathlib import Path
 
@@ -152,6 +153,9 @@ def ceiling(teacher_root: Path, images_root: Path, sharp_weights: list, iteratio
             display, nit, _ = solve(starts[name], target, sharp, s, iterations)
             seconds[key] += time.perf_counter() - t0
             iters[key].append(nit)
+            # One line a photograph: a run stopped at a deadline shows how far it got.
+            print(f"{name}: {key}, {nit} iterations in {time.perf_counter() - t0:.1f} s", file=sys.stderr,
+                  flush=True)
             score(key, display)
             if write is not None:
                 written[name] = display.contiguous()

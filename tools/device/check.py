@@ -186,6 +186,11 @@ class Runner:
             for p, out in running:
                 p.kill()
                 p.wait()
+                # What it got through before the deadline: the next run's cap comes from it.
+                out.seek(0)
+                tail = out.read().strip().splitlines()[-5:]
+                self.log.write(f"[stopped: {' '.join(p.args[:4])} ... {' '.join(p.args[-2:])}; its last lines:]\n"
+                               + "".join(f"  {line}\n" for line in tail))
                 out.close()
         self.log.flush()
         if failed:
@@ -226,8 +231,8 @@ def sizes(smoke: bool) -> dict:
                 "patch": 32, "width": 4, "levels": 2, "ceiling_iterations": 3, "ceiling_shards": 2,
                 "steps": 3, "validate_every": 2, "max_batch": 2, "budget_s": 60, "copy_mb": 16, "gemm": 256}
     return {"frame": "1920x1080", "layer_frame": "1920x1080", "panel": "1920x1080", "frames": 200, "repeat": 10,
-            "torch_repeat": 20, "pipeline_s": 12, "train_images": None, "val_images": None, "crop": None,
-            "val_crop": None, "patch": 128, "width": 32, "levels": 4, "ceiling_iterations": 200, "ceiling_shards": 8,
+            "torch_repeat": 20, "pipeline_s": 8, "train_images": None, "val_images": None, "crop": None,
+            "val_crop": None, "patch": 128, "width": 32, "levels": 4, "ceiling_iterations": 200, "ceiling_shards": 16,
             "steps": 1_000_000, "validate_every": 500, "max_batch": 64, "budget_s": TRAIN_BUDGET_S,
             "copy_mb": 2048, "gemm": 8192}
 
@@ -237,12 +242,12 @@ def caps() -> list:
     return [
         ("setup", "the binary unpacked, the Vulkan loader, the adapter named", 20),
         ("ceilings", "the GPU's copy bandwidth and GEMM rates through PyTorch (the floors' peaks)", 20),
-        ("wgsl", "the D-CNN at 1920×1080 through nedrt's WGSL: full and half, f32 and f16", 40),
-        ("per-layer", "each layer's device time and its floor (timestamp queries)", 40),
+        ("wgsl", "the D-CNN at 1920×1080 through nedrt's WGSL: full and half, f32 and f16", 30),
+        ("per-layer", "each layer's device time and its floor (timestamp queries)", 30),
         ("torch", "the same networks in PyTorch: f32 (TF32 off), TF32, f16 channels-last; cuDNN benchmark", 40),
         ("fft", "the prefilters' transform at 1920×1080: nedrt's DCT filter, the CPU's, torch.fft (cuFFT)", 30),
         ("pipeline", "nedrt bench pipeline at 1920×1080 on the device path: none, the Wiener, refine:10, "
-                     "half, full, the shipped model", 75),
+                     "half, full, the shipped model", 90),
         ("teacher", "the D-CNN's teacher: nedrt prefilter on the CPU, the training ceiling on CUDA", 105),
         ("train", "the full-width D-CNN on CUDA (bf16 autocast, the largest batch that fits)", TRAIN_BUDGET_S),
         ("export", "the network as the runtime's ONNX with its card", 20),

@@ -711,6 +711,7 @@ fn serve(
     let source_thread = source::spawn(source, compositor, sources_stop.clone())
         .map_err(|e| AppError::Usage(format!("cannot start the source thread: {e}")))?;
     service.close_ingest();
+    let _ = control.serving.set(std::time::Instant::now());
 
     let presented = service.present_loop(sink.as_mut(), control);
     // However the loop ended: stop the source, drain the stages, flush the sink.

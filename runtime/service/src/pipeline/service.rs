@@ -352,6 +352,10 @@ pub struct Control {
     pub keep_open: bool,
     /// Where the live status line and the requested tables go.
     pub progress: Arc<dyn Progress>,
+    /// Set once, when the pipeline is prepared and takes its first frame:
+    /// a caller that bounds the run's time (a benchmark) counts from here,
+    /// not from the preparation.
+    pub serving: Arc<std::sync::OnceLock<std::time::Instant>>,
 }
 
 impl Default for Control {
@@ -361,6 +365,7 @@ impl Default for Control {
             report: Arc::default(),
             keep_open: false,
             progress: Arc::new(Silent),
+            serving: Arc::default(),
         }
     }
 }
