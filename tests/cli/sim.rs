@@ -377,6 +377,44 @@ fn the_papers_eye_is_the_default_and_the_eye_options_change_what_they_should() {
         text.contains("2-D path") && text.contains("20.0° field"),
         "{text}"
     );
+    // Through a pupil the field is planned in zones, and said so; the
+    // paper's eye has one PSF for the whole field and no such line.
+    assert!(
+        text.contains("\nzones     ") && text.contains("for 40 dB"),
+        "{text}"
+    );
+    assert!(!perceived("paper", &[]).1.contains("\nzones"));
+    let (one, text) = perceived(
+        "one",
+        &["--pupil-mm", "4", "--field-deg", "20", "--field-zones", "1"],
+    );
+    assert!(text.contains("1×1 (as asked)"), "{text}");
+    let (two, _) = perceived(
+        "two",
+        &[
+            "--pupil-mm",
+            "4",
+            "--field-deg",
+            "20",
+            "--field-zones",
+            "2x1",
+        ],
+    );
+    assert!(one != two, "two zones render as one");
+    for (flag, value, says) in [
+        ("--field-zones", "9", "--field-zones \"9\""),
+        ("--field-zones", "0x2", "auto, N or NxM"),
+        ("--zone-tolerance-db", "-3", "--zone-tolerance-db -3"),
+    ] {
+        let out = dir.path().join("bad-zones.png");
+        let o = sim(
+            "0.5",
+            &out,
+            &["--input", path(&input), "--pupil-mm", "4", flag, value],
+        );
+        assert_clean_error(&o, says);
+        assert!(!out.exists());
+    }
     // `nedrt calib` says which eye it resolved.
     let o = run(&["--pupil-mm", "3", "--eye-lca", "on", "calib"]);
     assert!(

@@ -9,7 +9,7 @@ use super::{AppError, CommonOptions, check_accommodation};
 use crate::preprocess::Prefilter;
 use nedrt_core::image_io::{self, DEFAULT_INPUT_NAME, DEFAULT_INPUT_PNG, LoadedImage};
 use nedrt_optics::sim::metrics::{psnr, ssim};
-use nedrt_optics::sim::{Image, Method, Optics, Simulator};
+use nedrt_optics::sim::{Image, Method, Optics, Simulator, ZoneRequest};
 
 /// Options of `nedrt --sim`.
 #[derive(Debug, Clone)]
@@ -28,6 +28,8 @@ pub struct SimOptions {
     pub display_out: Option<PathBuf>,
     /// How the display image is made from the input (not with `display_image`).
     pub prefilter: Prefilter,
+    /// Zones of field angle for the perceived image and the target.
+    pub zones: ZoneRequest,
 }
 
 /// What `--out` and `--display-out` write: 16-bit PNG, or 32-bit float TIFF (exact).
@@ -182,8 +184,18 @@ pub fn run(common: &CommonOptions, opts: &SimOptions) -> Result<SimReport, AppEr
             e.run(&input)?
         }
     };
-    let perceived = prepared.perceived(method, &display, opts.accommodation_d)?;
-    let target = prepared.target(&input, opts.accommodation_d)?;
+    // Where the eye's pupil is the stop, the PSF changes across the field:
+    // rendered by zones (the display image stays the centre's).
+    let zoned = sim.field_zones(
+        &prepared,
+        method,
+        &display,
+        opts.accommodation_d,
+        opts.zones,
+        common.progress(),
+    )?;
+    let perceived = zoned.perceived(&prepared, method, &display, opts.accommodation_d)?;
+    let target = zoned.target(&prepared, &input, opts.accommodation_d)?;
     let sharp = input.up2();
     let (rw, rh) = (sharp.width, sharp.height);
     image_io::save(&perceived, &opts.out, DISPLAY_OUT_FORMATS)?;
@@ -259,6 +271,9 @@ pub fn run(common: &CommonOptions, opts: &SimOptions) -> Result<SimReport, AppEr
         vs_target.psnr_db, vs_target.ssim
     );
     let _ = writeln!(t, "eye       {}", c.eye_summary());
+    if c.eye.pupil_diameter_m.is_some() {
+        let _ = writeln!(t, "zones     {}", zoned.summary());
+    }
     for (name, r) in &prepared.reports {
         let _ = writeln!(t, "model     {name}: {}", r.summary());
     }

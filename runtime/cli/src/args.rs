@@ -142,6 +142,8 @@ pub struct SimArgs {
     /// 0–2.5 D (docs/optimal.md).
     #[arg(long, default_value = "native", value_name = "PREFILTER")]
     pub prefilter: nedrt_app::preprocess::Prefilter,
+    #[command(flatten)]
+    pub zones: crate::eye_args::ZoneArgs,
 }
 
 fn parse_size(s: &str) -> Result<(usize, usize), String> {

@@ -323,6 +323,7 @@ pub fn run(cli: Cli) -> Result<()> {
                 optics: s.optics,
                 display_out: s.display_out,
                 prefilter: s.prefilter,
+                zones: s.zones.request()?,
             };
             println!("{}", app::sim::run(&common, &opts)?);
         }

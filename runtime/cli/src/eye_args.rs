@@ -42,3 +42,42 @@ impl EyeArgs {
         }
     }
 }
+
+/// How `nedrt sim` renders a field whose PSF changes across the image
+/// (an eye pupil smaller than the eyepiece; docs/model.md §4b).
+#[derive(Args, Debug, Clone)]
+pub struct ZoneArgs {
+    /// Zones of field angle, each rendered through its own PSFs and blended
+    /// bilinearly: auto (as many as --zone-tolerance-db needs, up to 8 a
+    /// side), N (N×N) or NxM (N columns, M rows). Without an eye pupil the
+    /// PSF is the same everywhere: one zone.
+    #[arg(long, default_value = "auto", value_name = "auto|N|NxM")]
+    pub field_zones: String,
+    /// For --field-zones auto: the PSNR (dB) within which a zone's edge
+    /// must render as its centre does.
+    #[arg(
+        long,
+        default_value_t = nedrt_optics::sim::zones::DEFAULT_TOLERANCE_DB,
+        value_name = "DB",
+        allow_negative_numbers = true
+    )]
+    pub zone_tolerance_db: f64,
+}
+
+impl ZoneArgs {
+    pub fn request(&self) -> anyhow::Result<nedrt_optics::sim::ZoneRequest> {
+        use nedrt_optics::sim::ZoneRequest;
+        let t = self.zone_tolerance_db;
+        if !(t.is_finite() && t > 0.0) {
+            anyhow::bail!("--zone-tolerance-db {t}: give a positive number of dB (e.g. 40)");
+        }
+        match self
+            .field_zones
+            .parse::<ZoneRequest>()
+            .map_err(|e| anyhow::anyhow!("--field-zones {e}"))?
+        {
+            ZoneRequest::Auto { .. } => Ok(ZoneRequest::Auto { tolerance_db: t }),
+            fixed => Ok(fixed),
+        }
+    }
+}

@@ -105,7 +105,12 @@ pub fn pupil_field_through(
     let half = (side / 2) as isize;
     let mid = (n as f64 - 1.0) / 2.0;
     // The square's first sample, in `grid`'s indices (may lie outside it).
-    let row0 = mid.floor() as isize - half;
+    // On the axis the rows stay where they always were (floor of the middle).
+    let row0 = if stop.centre_y_m == 0.0 {
+        mid.floor() as isize
+    } else {
+        (stop.centre_y_m / grid.step_m + mid).round() as isize
+    } - half;
     let col0 = (stop.centre_m / grid.step_m + mid).round() as isize - half;
     let r2 = radius_m * radius_m;
     let mut q = vec![c64::new(0.0, 0.0); side * side];
@@ -122,7 +127,7 @@ pub fn pupil_field_through(
             }
             let s = grid.coord_m(gj as usize);
             let a = aperture_amplitude(s.hypot(t), radius_m, grid.step_m);
-            let seen = (s - stop.centre_m).hypot(t);
+            let seen = (s - stop.centre_m).hypot(t - stop.centre_y_m);
             let a = a * aperture_amplitude(seen, stop.radius_m, grid.step_m);
             if a > 0.0 {
                 let k = gi as usize * n + gj as usize;

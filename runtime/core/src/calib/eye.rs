@@ -53,6 +53,16 @@ pub struct EyeSettings {
     /// Horizontal field angle of the point looked at, as seen from the
     /// eye's pupil, radians (0 on axis).
     pub field_rad: f64,
+    /// Vertical field angle, radians: not in the file (`[eye]` names the
+    /// horizontal one); the simulator's field zones set it for each zone's
+    /// PSFs. Left out of the PSF cache's key while 0, so the keys of every
+    /// PSF computed before it existed still hold.
+    #[serde(skip_serializing_if = "is_zero")]
+    pub field_y_rad: f64,
+}
+
+fn is_zero(v: &f64) -> bool {
+    *v == 0.0
 }
 
 impl Default for EyeSettings {
@@ -62,6 +72,7 @@ impl Default for EyeSettings {
             relief_m: DEFAULT_RELIEF_MM * 1e-3,
             lca: EyeLca::Off,
             field_rad: 0.0,
+            field_y_rad: 0.0,
         }
     }
 }
@@ -91,11 +102,20 @@ pub fn thibos_refraction_d(wavelength_m: f64) -> f64 {
 
 /// The eye's pupil projected onto the lens plane along the rays of the
 /// channel's image (docs/model.md §4a): a disk of `radius_m` centred at
-/// `centre_m` on the horizontal axis.
+/// (`centre_m`, `centre_y_m`): on the horizontal axis unless a field zone
+/// looks above or below it.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct EyeStop {
     pub centre_m: f64,
+    pub centre_y_m: f64,
     pub radius_m: f64,
+}
+
+impl EyeStop {
+    /// How far the stop's centre is from the axis, metres.
+    pub fn offset_m(&self) -> f64 {
+        self.centre_m.hypot(self.centre_y_m)
+    }
 }
 
 impl Calibration {
@@ -130,9 +150,10 @@ impl Calibration {
         // the chief ray to the pupil's centre at e·tanθ.
         let stop = EyeStop {
             centre_m: e * self.eye.field_rad.tan(),
+            centre_y_m: e * self.eye.field_y_rad.tan(),
             radius_m: 0.5 * diameter / (1.0 + e * self.vergence_d(channel)),
         };
-        (stop.radius_m < stop.centre_m.abs() + self.aperture_radius_m).then_some(stop)
+        (stop.radius_m < stop.offset_m() + self.aperture_radius_m).then_some(stop)
     }
 
     /// One line on the eye, for reports: the paper's, or the pupil, where
@@ -156,7 +177,7 @@ impl Calibration {
                 e.relief_m * 1e3,
                 e.field_rad.to_degrees(),
                 2e3 * stop.radius_m,
-                stop.centre_m * 1e3
+                stop.offset_m() * 1e3
             ),
         };
         let lca = match e.lca {
@@ -174,7 +195,7 @@ impl Calibration {
     /// Whether some channel's eye stop lies off the axis (the PSFs then lose
     /// their rotational symmetry).
     pub fn eye_stop_off_axis(&self) -> bool {
-        (0..self.channels.len()).any(|c| self.eye_stop(c).is_some_and(|s| s.centre_m != 0.0))
+        (0..self.channels.len()).any(|c| self.eye_stop(c).is_some_and(|s| s.offset_m() != 0.0))
     }
 }
 
@@ -219,7 +240,7 @@ impl EyeOverrides {
 pub(super) fn check_sees_light(calib: &Calibration, path: &str) -> Result<(), CalibError> {
     for ch in 0..calib.channels.len() {
         if let Some(stop) = calib.eye_stop(ch)
-            && stop.centre_m.abs() >= calib.aperture_radius_m + stop.radius_m
+            && stop.offset_m() >= calib.aperture_radius_m + stop.radius_m
         {
             return Err(CalibError::Invalid {
                 path: path.to_string(),
@@ -229,7 +250,7 @@ pub(super) fn check_sees_light(calib: &Calibration, path: &str) -> Result<(), Ca
                      {:.1} mm aperture: no light reaches the eye",
                     calib.eye.field_rad.to_degrees(),
                     2e3 * stop.radius_m,
-                    stop.centre_m * 1e3,
+                    stop.offset_m() * 1e3,
                     2e3 * calib.aperture_radius_m
                 ),
             });
@@ -274,5 +295,6 @@ pub(super) fn resolve(raw: &RawEye, path: &str) -> Result<EyeSettings, CalibErro
         relief_m: raw.relief_mm * 1e-3,
         lca,
         field_rad: raw.field_deg.to_radians(),
+        field_y_rad: 0.0,
     })
 }

@@ -180,3 +180,37 @@ fn off_axis_the_lens_alone_blurs_as_on_axis() {
     let rim = psfs(&eye(3.0, 15.0, 17.0, true), &specs, None);
     assert!(max_difference_of_peak(&rim, &on) > 0.01);
 }
+
+#[test]
+fn a_vertical_field_is_the_horizontal_one_turned_a_quarter() {
+    // The lens and a radial DOE are rotationally symmetric: the PSF looked
+    // at 10° above the axis is the one 10° to its side, transposed; its
+    // Prentice shift is vertical. (A field zone's PSFs: sim::zones.)
+    let power_d = 2.0;
+    let side = eye(3.0, 15.0, 10.0, false);
+    let mut above = eye(3.0, 15.0, 0.0, true);
+    above.eye.field_y_rad = 10f64.to_radians();
+    let g = side.design_channel;
+    let doe = diffractive_lens(&side, power_d, 3e-6);
+    let spec = PsfSpec {
+        channel: g,
+        psi_rad: side.psi_rad(g, side.vergence_d(g) - power_d),
+    };
+    let (a, b) = (
+        &psfs(&side, &[spec], Some(&doe)).psfs[0],
+        &psfs(&above, &[spec], Some(&doe)).psfs[0],
+    );
+    assert_eq!(a.window, b.window);
+    let w = a.window;
+    let peak = a.cells.iter().copied().fold(0.0, f64::max);
+    let worst = (0..w * w)
+        .map(|k| (a.cells[k] - b.cells[(k % w) * w + k / w]).abs())
+        .fold(0.0, f64::max);
+    assert!(worst < 1e-3 * peak, "{worst} of a {peak} peak");
+    let (x, y) = peak_centroid(b);
+    let want = -power_d * 15e-3 * 10f64.to_radians().tan() / side.retinal_step_rad();
+    assert!(
+        (y - want).abs() < 0.5 && x.abs() < 0.1,
+        "({x:.2}, {y:.2}), want y {want:.2}"
+    );
+}

@@ -9,11 +9,13 @@ pub mod metrics;
 pub mod optimal;
 pub mod simulator;
 pub mod wiener;
+pub mod zones;
 
 pub use methods::{Method, Optics};
 pub use nedrt_core::Image;
 pub use optimal::{DisplayProblem, Objective, SolveMode, SolveOptions, SolvedPrefilter};
 pub use simulator::{Prepared, Simulator, objective_depths_d, perceive};
+pub use zones::{ZoneRequest, Zoned};
 
 /// Upper end of the headline depth range (docs/model.md §17: 0–2.5 D), the
 /// depths the optimal display image is solved over.

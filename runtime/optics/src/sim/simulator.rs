@@ -66,12 +66,45 @@ impl Simulator {
         self
     }
 
+    /// The same DOE and cache with another calibration (a field zone's eye).
+    pub fn with_calibration(&self, calib: Calibration) -> Self {
+        Self {
+            calib,
+            doe: self.doe.clone(),
+            doe_hash: self.doe_hash.clone(),
+            cache: self.cache.clone(),
+            wiener_stages: self.wiener_stages.clone(),
+        }
+    }
+
     /// Computes (or loads) every PSF that `methods` at `depths_d` need,
     /// the target blur, and the Wiener filters of the methods that use one.
     pub fn prepare(
         &self,
         methods: &[Method],
         depths_d: &[f64],
+        progress: &dyn Progress,
+    ) -> Result<Prepared, SimError> {
+        self.prepare_with(methods, depths_d, true, progress)
+    }
+
+    /// Only what rendering `method` at `accommodation_d` needs (its PSFs
+    /// there and the target blur): no Wiener filter nor its sweep. A field
+    /// zone's preparation ([`Simulator::field_zones`]).
+    pub fn prepare_seen(
+        &self,
+        method: Method,
+        accommodation_d: f64,
+        progress: &dyn Progress,
+    ) -> Result<Prepared, SimError> {
+        self.prepare_with(&[method], &[accommodation_d], false, progress)
+    }
+
+    fn prepare_with(
+        &self,
+        methods: &[Method],
+        depths_d: &[f64],
+        filters: bool,
         progress: &dyn Progress,
     ) -> Result<Prepared, SimError> {
         let c = &self.calib;
@@ -84,7 +117,7 @@ impl Simulator {
                 Optics::Lens => &mut lens,
                 Optics::Doe => &mut doe,
             };
-            let depths = if m.uses_wiener() || self.wiener_stages.contains(&m) {
+            let depths = if filters && (m.uses_wiener() || self.wiener_stages.contains(&m)) {
                 [depths_d, &sweep].concat()
             } else {
                 depths_d.to_vec()
@@ -131,7 +164,7 @@ impl Simulator {
             wiener: HashMap::new(),
             reports,
         };
-        for &m in methods.iter().filter(|m| m.uses_wiener()) {
+        for &m in methods.iter().filter(|m| filters && m.uses_wiener()) {
             let k = match m {
                 Method::Ai => c.wiener.ai_k,
                 _ => {
@@ -300,6 +333,12 @@ impl Prepared {
             }
         }
         mean.ok_or_else(|| SimError::Invalid("no depths to average".into()))
+    }
+
+    /// Whether `accommodation_d` is one of the calibration's main depths
+    /// (where the target is the sharp image).
+    pub fn is_main_depth(&self, accommodation_d: f64) -> bool {
+        self.calib.is_main_depth(accommodation_d)
     }
 
     /// The Wiener filter of a method, if it uses one.
