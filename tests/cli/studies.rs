@@ -230,3 +230,28 @@ mod needs_gpu {
         assert!(by_name("doe+wiener multifocal optimal@target wgpu").is_none());
     }
 }
+
+#[test]
+fn stability_refuses_a_bad_eye_before_the_work() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let out = dir.path().join("stability.md");
+    let (images, model) = (repo().join("data/images/test"), dcnn_model());
+    let run_with = |eyes: &str| {
+        run(&[
+            "--dcnn",
+            path(&model),
+            "stability",
+            "--images",
+            path(&images),
+            "--no-cache",
+            "--eyes",
+            eyes,
+            "--out",
+            path(&out),
+        ])
+    };
+    assert_clean_error(&run_with("4mm,huge"), "\"huge\"");
+    // A pupil that the eyepiece's rim hides entirely at that field angle.
+    assert_clean_error(&run_with("2mm@40"), "eye.field_deg");
+    assert!(!out.exists());
+}

@@ -236,6 +236,10 @@ pub struct StabilityArgs {
     /// files); default: every design in designs/.
     #[arg(long, value_delimiter = ',', value_name = "NAME|FILE")]
     pub designs: Option<Vec<String>>,
+    /// Also sweep the Wiener K of the AI display and of each design through
+    /// these eyes (paper, 3mm, 4mm@20, 4mm+lca; docs/model.md §4a).
+    #[arg(long, value_delimiter = ',', value_name = "EYE")]
+    pub eyes: Vec<nedrt_app::eval::eyes::EyeCase>,
 }
 
 #[derive(Args, Debug)]

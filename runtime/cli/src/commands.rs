@@ -296,6 +296,7 @@ pub fn run(cli: Cli) -> Result<()> {
                 content_size: a.content_size,
                 gpu: !a.no_gpu,
                 designs: app::design::Design::resolve_list(a.designs.as_deref())?,
+                eyes: a.eyes,
             };
             print!("{}", app::stability::run(&common, &opts)?);
         }

@@ -42,6 +42,9 @@ pub struct StabilityOptions {
     pub gpu: bool,
     /// Display designs whose Wiener K is swept beside the D-CNN's DOE.
     pub designs: Vec<super::design::Design>,
+    /// Eyes the Wiener sweeps are repeated for (AI and each design), beside
+    /// the calibration's (`--eyes`, as `nedrt eval --eyes` names them).
+    pub eyes: Vec<super::eval::eyes::EyeCase>,
 }
 
 /// Wiener K values of the sweep: decades from 1e-6 to 10.
@@ -119,8 +122,43 @@ pub fn run(common: &CommonOptions, o: &StabilityOptions) -> Result<String, AppEr
             ))
         })
         .collect::<Result<Vec<_>, AppError>>()?;
-    let mut sweeps = vec![("", &sim, Method::Ai), ("", &sim, Method::DoeWiener)];
-    sweeps.extend(design_sims.iter().map(|(n, s)| (*n, s, Method::DoeWiener)));
+    // Each eye: the AI display and every design through it.
+    let eye_sims = o
+        .eyes
+        .iter()
+        .map(|eye| {
+            let mut calib = sim.calib.clone();
+            eye.overrides.apply(&mut calib)?;
+            let designs = design_sims
+                .iter()
+                .map(|(n, s)| (*n, s.with_calibration(calib.clone())))
+                .collect::<Vec<_>>();
+            Ok((eye.label.as_str(), sim.with_calibration(calib), designs))
+        })
+        .collect::<Result<Vec<_>, AppError>>()?;
+    let case = |design, eye, sim, method| wiener::SweepCase {
+        design,
+        eye,
+        sim,
+        method,
+    };
+    let mut sweeps = vec![
+        case("", None, &sim, Method::Ai),
+        case("", None, &sim, Method::DoeWiener),
+    ];
+    sweeps.extend(
+        design_sims
+            .iter()
+            .map(|(n, s)| case(n, None, s, Method::DoeWiener)),
+    );
+    for (label, eye_sim, designs) in &eye_sims {
+        sweeps.push(case("", Some(label), eye_sim, Method::Ai));
+        sweeps.extend(
+            designs
+                .iter()
+                .map(|(n, s)| case(n, Some(label), s, Method::DoeWiener)),
+        );
+    }
     let wiener = wiener::sweep(&sweeps, &inputs)?;
     bar.inc(1);
     let (dcnn_section, base) =

@@ -66,6 +66,32 @@ fn wiener(w: &WienerSection) -> String {
             );
         }
     }
+    if w.methods.iter().any(|m| m.eye.is_some()) {
+        md.push_str(
+            "\nThrough other eyes (`--eyes`; docs/model.md §4a): the swept K that scores best, \
+             against the calibration's eye. K was tuned for the paper's eye; a pupil smaller than \
+             the eyepiece blurs less, so the best K moves.\n\n\
+             | method | eye | tuned K | best swept K | PSNR there | none |\n| --- | --- | --- | --- | --- | --- |\n",
+        );
+        for m in &w.methods {
+            if let Some(best) = m
+                .sweep
+                .iter()
+                .max_by(|a, b| a.clean_psnr_db.total_cmp(&b.clean_psnr_db))
+            {
+                let name = m.label.split(", eye ").next().unwrap_or(&m.label);
+                let _ = writeln!(
+                    md,
+                    "| {name} | {} | {:.3e} | {:e} | {:.2} | {:.2} |",
+                    m.eye.as_deref().unwrap_or("the calibration's"),
+                    m.k_tuned,
+                    best.k,
+                    best.clean_psnr_db,
+                    m.unprocessed_psnr_db[0]
+                );
+            }
+        }
+    }
     md.push_str("\nFindings:\n");
     for m in &w.methods {
         let _ = writeln!(md, "- {}", m.finding());

@@ -21,6 +21,9 @@ pub struct WienerSection {
 pub struct WienerSweep {
     pub method: &'static str,
     pub design: Option<String>,
+    /// The eye (`nedrt stability --eyes`), where not the calibration's.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub eye: Option<String>,
     pub doe_hash: String,
     pub k_tuned: f64,
     /// Mean PSNR without a prefilter, clean then noisy frames.
@@ -45,23 +48,34 @@ pub struct KRow {
     pub noisy_clipped: f64,
 }
 
-/// Sweeps K for each `(design, simulator, method)` ("" for the D-CNN's DOE).
-pub fn sweep(
-    sweeps: &[(&str, &Simulator, Method)],
-    inputs: &[Image],
-) -> Result<WienerSection, AppError> {
+/// One sweep: a method on a simulator, its design ("" for the D-CNN's
+/// DOE) and the eye it looks through (`None`: the calibration's).
+#[derive(Debug)]
+pub struct SweepCase<'a> {
+    pub design: &'a str,
+    pub eye: Option<&'a str>,
+    pub sim: &'a Simulator,
+    pub method: Method,
+}
+
+/// Sweeps K for each case.
+pub fn sweep(sweeps: &[SweepCase], inputs: &[Image]) -> Result<WienerSection, AppError> {
     let noisy_inputs: Vec<Image> = inputs
         .iter()
         .enumerate()
         .map(|(i, im)| noisy(im, 100 + i as u64))
         .collect();
     let mut methods = Vec::new();
-    for &(design, sim, method) in sweeps {
-        let label = if design.is_empty() {
+    for case in sweeps {
+        let (design, sim, method) = (case.design, case.sim, case.method);
+        let mut label = if design.is_empty() {
             method.name().to_string()
         } else {
             format!("{method} {design}")
         };
+        if let Some(eye) = case.eye {
+            label += &format!(", eye {eye}");
+        }
         let scorer = Scorer::new(sim, &[method], inputs, &nedrt_core::progress::Silent)?;
         let filter = scorer
             .prepared
@@ -94,6 +108,7 @@ pub fn sweep(
         methods.push(WienerSweep {
             method: method.name(),
             design: (!design.is_empty()).then(|| design.to_string()),
+            eye: case.eye.map(str::to_string),
             doe_hash: sim.doe_hash.clone(),
             k_tuned: filter.k_reg,
             unprocessed_psnr_db: unprocessed,
