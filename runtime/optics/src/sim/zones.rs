@@ -307,7 +307,8 @@ impl Simulator {
 /// difference grows about linearly with the distance in the field, so n
 /// zones gain 20·log10(n) dB.
 pub fn zones_for(edge_db: f64, tolerance_db: f64) -> usize {
-    if !(edge_db < tolerance_db) {
+    // NaN (never expected: PSNR of finite images) counts as within tolerance.
+    if edge_db >= tolerance_db || edge_db.is_nan() {
         return 1;
     }
     let n = 10f64.powf((tolerance_db - edge_db) / 20.0).ceil();
