@@ -101,9 +101,23 @@ pub fn psf(common: &CommonOptions, dump: &Path, repeat: usize) -> Result<String,
     let grid = PupilGrid::covering(c.aperture_radius_m, step);
     let lambda = c.channels[g].wavelength_m;
     let dtheta = c.retinal_step_rad();
-    let (t_pupil, q) = time(repeat, || {
+    // Through an eye pupil (--pupil-mm) the planner propagates only the
+    // stop's square (docs/model.md §4a): so do the propagators here.
+    let (t_pupil, (q, grid)) = time(repeat, || {
         let phase = sim.doe.phase_on(grid, c, g);
-        pupil_field(grid, c.aperture_radius_m, spec.psi_rad, Some(&phase))
+        match c.eye_stop(g) {
+            Some(stop) => nedrt_optics::pupil::pupil_field_through(
+                grid,
+                c.aperture_radius_m,
+                spec.psi_rad,
+                Some(&phase),
+                stop,
+            ),
+            None => (
+                pupil_field(grid, c.aperture_radius_m, spec.psi_rad, Some(&phase)),
+                grid,
+            ),
+        }
     });
     let (t_exact, _) = time(repeat, || exact_period_cells(&q, grid, lambda, dtheta));
     let (t_fft, fft) = time(repeat, || fft_period_cells(&q, grid, lambda, dtheta, sub));

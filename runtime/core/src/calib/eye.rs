@@ -79,6 +79,9 @@ impl Default for EyeSettings {
 
 /// Eye relief when the calibration names none (a headset's 10–20 mm).
 pub const DEFAULT_RELIEF_MM: f64 = 15.0;
+/// Smallest entrance pupil accepted (a bright-adapted eye's is ≈ 2 mm; a
+/// 0.5 mm pupil's Airy pattern outgrows the largest PSF window).
+pub const MIN_PUPIL_MM: f64 = 1.0;
 /// Largest entrance pupil accepted (a dark-adapted young eye's is ≈ 8 mm).
 pub const MAX_PUPIL_MM: f64 = 12.0;
 /// Largest eye relief accepted.
@@ -267,11 +270,15 @@ pub(super) fn resolve(raw: &RawEye, path: &str) -> Result<EyeSettings, CalibErro
         reason,
     };
     if let Some(d) = raw.pupil_diameter_mm
-        && !(d.is_finite() && d > 0.0 && d <= MAX_PUPIL_MM)
+        && !(d.is_finite() && (MIN_PUPIL_MM..=MAX_PUPIL_MM).contains(&d))
     {
         return Err(err(
             "pupil_diameter_mm",
-            format!("{d} must lie in (0, {MAX_PUPIL_MM}] mm (leave it out for the paper's eye)"),
+            format!(
+                "{d} must lie in [{MIN_PUPIL_MM}, {MAX_PUPIL_MM}] mm (leave it out for the paper's \
+                 eye; below {MIN_PUPIL_MM} mm, smaller than any eye's, the pupil's diffraction \
+                 blur outgrows the PSF window)"
+            ),
         ));
     }
     if !(raw.relief_mm.is_finite() && (0.0..=MAX_RELIEF_MM).contains(&raw.relief_mm)) {

@@ -341,6 +341,7 @@ fn the_eye_stop_is_the_pupil_projected_along_the_image_rays() {
 fn bad_eye_fields_are_refused_by_name() {
     for (line, field) in [
         ("pupil_diameter_mm = 0.0", "eye.pupil_diameter_mm"),
+        ("pupil_diameter_mm = 0.5", "eye.pupil_diameter_mm"),
         ("pupil_diameter_mm = 20.0", "eye.pupil_diameter_mm"),
         ("relief_mm = -1.0", "eye.relief_mm"),
         ("field_deg = 90.0", "eye.field_deg"),
