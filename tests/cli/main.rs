@@ -41,8 +41,21 @@ fn run(args: &[&str]) -> Output {
 }
 
 /// `nedrt --sim --accom D --out OUT` with extra arguments.
+/// `nedrt --sim` of one method: the conventional display unless `extra`
+/// names one or a display image (without either, `--sim` runs the shipped
+/// system and scores every method beside it: the README test's case).
 fn sim(accom: &str, out: &Path, extra: &[&str]) -> Output {
-    run(&[&["--sim", "--accom", accom, "--out", path(out)][..], extra].concat())
+    let one = if extra.contains(&"--method") || extra.contains(&"--display-image") {
+        &[][..]
+    } else {
+        &["--method", "conventional"][..]
+    };
+    run(&[
+        &["--sim", "--accom", accom, "--out", path(out)][..],
+        one,
+        extra,
+    ]
+    .concat())
 }
 
 fn path(p: &Path) -> &str {

@@ -6,9 +6,36 @@ use super::*;
 fn readme_main_command_runs_on_shipped_defaults() {
     let dir = tempfile::tempdir().expect("tmp");
     let out = dir.path().join("perceived.png");
-    let o = sim("1.0", &out, &[]);
+    // From the repository root, as the README runs it (models/ is there).
+    let readme = || {
+        nedrt()
+            .current_dir(repo())
+            .args(["--sim", "--accom", "1.0", "--out", path(&out)])
+            .output()
+            .expect("run nedrt")
+    };
+    let o = readme();
     assert!(o.status.success(), "{}", stderr(&o));
     let s = stdout(&o);
+    // The shipped system, and every method beside it, the best marked.
+    assert!(s.contains("nedrt sim: method proposed at 1 D"), "{s}");
+    for method in [
+        "conventional",
+        "ai",
+        "doe-only",
+        "doe+wiener",
+        "proposed (shown)",
+    ] {
+        assert!(
+            s.contains(&format!("\n| {method} | ")),
+            "no {method} row in:\n{s}"
+        );
+    }
+    assert_eq!(s.matches(" ◀ |").count(), 2, "one best a column:\n{s}");
+    assert!(
+        s.contains("| lens+dcnn (no models/dcnn-lens.onnx) | – | – |"),
+        "{s}"
+    );
     for needle in [
         "vs sharp",
         "vs target",
@@ -27,7 +54,7 @@ fn readme_main_command_runs_on_shipped_defaults() {
         "retinal grid is 2× the display"
     );
     // Second run: PSFs come from the cache.
-    let o = sim("1.0", &out, &[]);
+    let o = readme();
     assert!(stdout(&o).contains("from cache"), "{}", stdout(&o));
 }
 
@@ -88,7 +115,15 @@ fn accommodation_is_checked() {
     let input = dir.path().join("in.png");
     write_png(&input, 16, 16);
     let out = dir.path().join("p.png");
-    let base = ["--sim", "--input", path(&input), "--out", path(&out)];
+    let base = [
+        "--sim",
+        "--method",
+        "conventional",
+        "--input",
+        path(&input),
+        "--out",
+        path(&out),
+    ];
     let o = run(&[&base[..], &["--accom", "-0.5"]].concat());
     assert_clean_error(&o, "accommodation must be ≥ 0 D");
     for huge in ["1e308", "20.5"] {
@@ -104,7 +139,17 @@ fn accommodation_is_checked() {
     );
     let o = run(&base);
     assert_clean_error(&o, "--sim needs --accom");
-    let o = run(&[&base[..], &["--accom", "1", "--method", "proposed"]].concat());
+    let o = run(&[
+        "--sim",
+        "--input",
+        path(&input),
+        "--out",
+        path(&out),
+        "--accom",
+        "1",
+        "--method",
+        "proposed",
+    ]);
     assert!(
         !o.status.success() && stderr(&o).contains("D-CNN"),
         "{}",

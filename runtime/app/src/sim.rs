@@ -30,6 +30,21 @@ pub struct SimOptions {
     pub prefilter: Prefilter,
     /// Zones of field angle for the perceived image and the target.
     pub zones: ZoneRequest,
+    /// Also score every method at this accommodation, one table (the
+    /// first run's "how does this compare").
+    pub compare: bool,
+}
+
+impl SimOptions {
+    /// The shipped system: the D-CNN co-designed with its DOE (`proposed`)
+    /// where its model is here, else the design's DOE with its Wiener.
+    pub fn shipped_method(common: &CommonOptions) -> Method {
+        if common.dcnn.path.is_file() {
+            Method::Proposed
+        } else {
+            Method::DoeWiener
+        }
+    }
 }
 
 /// What `--out` and `--display-out` write: 16-bit PNG, or 32-bit float TIFF (exact).
@@ -80,7 +95,105 @@ pub fn load_input(
 
 /// Runs one simulation. Warnings (accommodation range, conversions) are
 /// logged through `tracing` as they arise.
+/// The perceived image of `opts.method`, written to `opts.out`, scored;
+/// with `opts.compare`, a table of every method at the same accommodation
+/// follows (each scored as `nedrt sim --method M` would, nothing written).
 pub fn run(common: &CommonOptions, opts: &SimOptions) -> Result<SimReport, AppError> {
+    let mut report = simulate(common, opts, true)?;
+    if opts.compare && opts.display_image.is_none() {
+        report.text = format!(
+            "{}
+
+{}",
+            report.text,
+            compare(common, opts, &report)?
+        );
+    }
+    Ok(report)
+}
+
+/// Every method at `opts.accommodation_d` on the same input: PSNR and SSIM
+/// vs sharp and vs target, the best of each column marked.
+fn compare(
+    common: &CommonOptions,
+    opts: &SimOptions,
+    main: &SimReport,
+) -> Result<String, AppError> {
+    // One eyepiece for every row, as `nedrt eval` has it: the D-CNN's DOE
+    // where it is here, so doe-only and doe+wiener are its ablations.
+    let mut common = common.clone();
+    common.doe = common.doe_path_for(&Method::ALL);
+    let common = &common;
+    let mut rows: Vec<(String, Option<(Score, Score)>)> = Vec::new();
+    for m in Method::ALL {
+        if m == opts.method {
+            rows.push((m.name().to_string(), Some((main.vs_sharp, main.vs_target))));
+            continue;
+        }
+        let model = match m {
+            Method::LensDcnn => Some(&common.dcnn.lens_path),
+            Method::Proposed => Some(&common.dcnn.path),
+            _ => None,
+        };
+        if let Some(path) = model.filter(|p| !p.is_file()) {
+            rows.push((format!("{} (no {})", m.name(), path.display()), None));
+            continue;
+        }
+        let o = SimOptions {
+            method: m,
+            compare: false,
+            display_out: None,
+            ..opts.clone()
+        };
+        let r = simulate(common, &o, false)?;
+        rows.push((m.name().to_string(), Some((r.vs_sharp, r.vs_target))));
+    }
+    let best = |pick: &dyn Fn(&(Score, Score)) -> f64| {
+        rows.iter()
+            .filter_map(|(_, s)| s.as_ref().map(pick))
+            .fold(f64::NEG_INFINITY, f64::max)
+    };
+    let best_sharp = best(&|s| s.0.psnr_db);
+    let best_target = best(&|s| s.1.psnr_db);
+    let mut t = format!(
+        "Every method at {} D on this input (PSNR dB / SSIM; ◀ the best PSNR of a column; \
+         `nedrt sim --method M` for one):\n\n\
+         | method | vs sharp | vs target |\n| --- | --- | --- |\n",
+        opts.accommodation_d
+    );
+    for (name, s) in &rows {
+        match s {
+            Some((sharp, target)) => {
+                let mark = |v: f64, b: f64| if v >= b { " ◀" } else { "" };
+                let _ = writeln!(
+                    t,
+                    "| {name}{} | {:.2} / {:.4}{} | {:.2} / {:.4}{} |",
+                    if name == opts.method.name() {
+                        " (shown)"
+                    } else {
+                        ""
+                    },
+                    sharp.psnr_db,
+                    sharp.ssim,
+                    mark(sharp.psnr_db, best_sharp),
+                    target.psnr_db,
+                    target.ssim,
+                    mark(target.psnr_db, best_target)
+                );
+            }
+            None => {
+                let _ = writeln!(t, "| {name} | – | – |");
+            }
+        }
+    }
+    Ok(t.trim_end().to_string())
+}
+
+fn simulate(
+    common: &CommonOptions,
+    opts: &SimOptions,
+    write_files: bool,
+) -> Result<SimReport, AppError> {
     let start = Instant::now();
     let calib = common.calibration()?;
     if let Some(w) = check_accommodation(&calib, opts.accommodation_d)? {
@@ -198,9 +311,11 @@ pub fn run(common: &CommonOptions, opts: &SimOptions) -> Result<SimReport, AppEr
     let target = zoned.target(&prepared, &input, opts.accommodation_d)?;
     let sharp = input.up2();
     let (rw, rh) = (sharp.width, sharp.height);
-    image_io::save(&perceived, &opts.out, DISPLAY_OUT_FORMATS)?;
-    if let Some(p) = &opts.display_out {
-        image_io::save(&display, p, DISPLAY_OUT_FORMATS)?;
+    if write_files {
+        image_io::save(&perceived, &opts.out, DISPLAY_OUT_FORMATS)?;
+        if let Some(p) = &opts.display_out {
+            image_io::save(&display, p, DISPLAY_OUT_FORMATS)?;
+        }
     }
     let vs_sharp = Score::of(&perceived, &sharp);
     let vs_target = Score::of(&perceived, &target);

@@ -117,9 +117,11 @@ pub struct SimArgs {
     /// Input image (default: the shipped data/images/test/astronaut.png).
     #[arg(long, value_name = "IMG")]
     pub input: Option<PathBuf>,
-    /// Display system: conventional, ai, doe-only, doe+wiener, proposed, lens+dcnn.
-    #[arg(long, default_value = "conventional", value_parser = named::<Method>())]
-    pub method: Method,
+    /// Display system: conventional, ai, doe-only, doe+wiener, proposed,
+    /// lens+dcnn (default: the shipped system, proposed, or doe+wiener
+    /// where no D-CNN is here, followed by a table of every method).
+    #[arg(long, value_parser = named::<Method>())]
+    pub method: Option<Method>,
     /// The perceived image on the retinal grid: .png (16-bit) or .tif
     /// (32-bit float, exact).
     #[arg(long, default_value = "perceived.png", value_name = "FILE")]

@@ -315,10 +315,15 @@ pub fn run(cli: Cli) -> Result<()> {
             let accommodation_d = s
                 .accom
                 .context("--sim needs --accom D (the eye's accommodation in diopters)")?;
+            // No --method: the shipped system, and every method beside it.
+            let compare = s.method.is_none() && s.display_image.is_none();
             let opts = app::sim::SimOptions {
                 accommodation_d,
                 input: s.input,
-                method: s.method,
+                method: s
+                    .method
+                    .unwrap_or_else(|| app::sim::SimOptions::shipped_method(&common)),
+                compare,
                 out: s.out,
                 display_image: s.display_image,
                 optics: s.optics,
