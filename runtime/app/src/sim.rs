@@ -121,8 +121,24 @@ fn compare(
 ) -> Result<String, AppError> {
     // One eyepiece for every row, as `nedrt eval` has it: the D-CNN's DOE
     // where it is here, so doe-only and doe+wiener are its ablations.
+    // Its Wiener K is that of the shipped design made on the same DOE
+    // (the calibration's K belongs to its own DOE).
     let mut common = common.clone();
     common.doe = common.doe_path_for(&Method::ALL);
+    if common.design.is_none()
+        && let Some(doe) = &common.doe
+    {
+        let calib = common.calibration()?;
+        let hash =
+            |p: &std::path::Path| nedrt_optics::doe_file::load(p, &calib).map(|d| d.content_hash());
+        let ours = hash(doe)?;
+        for d in crate::design::Design::shipped()? {
+            if hash(&d.doe).is_ok_and(|h| h == ours) {
+                common.design = Some(d);
+                break;
+            }
+        }
+    }
     let common = &common;
     let mut rows: Vec<(String, Option<(Score, Score)>)> = Vec::new();
     for m in Method::ALL {
@@ -155,8 +171,13 @@ fn compare(
     };
     let best_sharp = best(&|s| s.0.psnr_db);
     let best_target = best(&|s| s.1.psnr_db);
+    let eyepiece = match (&common.design, &common.doe) {
+        (Some(d), _) => format!("; the DOE rows through the {} design", d.name),
+        (None, Some(p)) => format!("; the DOE rows through {}", p.display()),
+        (None, None) => String::new(),
+    };
     let mut t = format!(
-        "Every method at {} D on this input (PSNR dB / SSIM; ◀ the best PSNR of a column; \
+        "Every method at {} D on this input (PSNR dB / SSIM; ◀ the best PSNR of a column{eyepiece}; \
          `nedrt sim --method M` for one):\n\n\
          | method | vs sharp | vs target |\n| --- | --- | --- |\n",
         opts.accommodation_d
