@@ -2,7 +2,9 @@
 # The layering of docs/ARCHITECTURE.md, checked from Cargo's own view:
 # each library crate depends only on the nedrt crates below it, none of them
 # depends (directly) on clap, indicatif or anyhow, and none reads the
-# environment outside its tests. Exit 1 naming every violation.
+# environment outside its tests; and no module imports in a circle, neither
+# in the Rust library crates nor in the trainer (tools/layers/import_cycles.py).
+# Exit 1 naming every violation.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -46,7 +48,13 @@ for crate in "${!allowed[@]}"; do
         status=1
     fi
 done
+# Import loops: between sibling modules of a Rust library crate, or between
+# the trainer's modules (function-level imports included).
+if ! cycles=$(python3 tools/layers/import_cycles.py 2>&1); then
+    echo "$cycles"
+    status=1
+fi
 if [ "$status" = 0 ]; then
-    echo "layers: every library crate depends only on the crates below it; none on clap, indicatif or anyhow; none reads the environment"
+    echo "layers: every library crate depends only on the crates below it; none on clap, indicatif or anyhow; none reads the environment; no import cycle in the Rust library crates nor in the trainer"
 fi
 exit "$status"

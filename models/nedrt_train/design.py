@@ -50,7 +50,8 @@ from tqdm import tqdm
 
 from . import calib as calib_mod
 from .data import photo_folder, resolve_root
-from .radial import RadialPsfModel, keys_profile, radial_nodes
+from .keys import keys_profile
+from .radial import RadialPsfModel, radial_nodes
 
 TARGETS = ("multifocal", "allsharp")
 

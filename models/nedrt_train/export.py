@@ -10,6 +10,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from .keys import keys_profile, keys_weight
+
 
 def export_onnx(net: torch.nn.Module, path, opset: int = 17):
     net = net.eval()
@@ -19,13 +21,6 @@ def export_onnx(net: torch.nn.Module, path, opset: int = 17):
         input_names=["image"], output_names=["display"],
         dynamic_axes={"image": {2: "height", 3: "width"}, "display": {2: "height", 3: "width"}},
     )
-
-
-def keys_weight(x: np.ndarray) -> np.ndarray:
-    a = -0.5
-    x = np.abs(x)
-    return np.where(x <= 1, ((a + 2) * x - (a + 3)) * x * x + 1,
-                    np.where(x < 2, ((a * x - 5 * a) * x + 8 * a) * x - 4 * a, 0.0))
 
 
 def resample(height: np.ndarray, pitch_m: float, new_pitch_m: float, max_height_m: float) -> np.ndarray:
@@ -79,7 +74,7 @@ def export_run(run: Path, out: Path, name: str, calib=None) -> dict:
 
     from . import calib as calib_mod
     from .optics import grid
-    from .radial import keys_profile, radial_nodes
+    from .radial import radial_nodes
     from .train import System, config_from_saved
 
     state = torch.load(run / "checkpoint.pt", map_location="cpu", weights_only=False)

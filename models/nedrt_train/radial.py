@@ -26,6 +26,7 @@ import torch
 import torch.nn as nn
 
 from .calib import Calib
+from .keys import keys_taps
 
 #: Annuli per retinal cell. The midpoint rule in t is second order; the
 #: in-focus Airy core (radius 0.42 Δθ at r = 5 mm) is the hardest case:
@@ -256,31 +257,3 @@ class RadialPsfModel(nn.Module):
 
     def target_blur(self):
         return [self.psf(ch, self.calib.target_blur_psi_rad, with_doe=False) for ch in range(len(self.calib.channels))]
-
-
-def keys_taps(samples: int, pitch_m: float, rho_m: np.ndarray):
-    """The four (index, weight) Keys taps (a = −½) of a radial profile with
-    samples at (n + ½)·pitch, at radii `rho_m`: the profile's even extension
-    about the axis (sample −1−k mirrors sample k), the last sample repeated
-    past the end."""
-    from .export import keys_weight
-    u = np.asarray(rho_m, dtype=np.float64) / pitch_m - 0.5
-    base = np.floor(u)
-    f = u - base
-    idx, w = [], []
-    for k, wk in [(-1, keys_weight(1 + f)), (0, keys_weight(f)), (1, keys_weight(1 - f)), (2, keys_weight(2 - f))]:
-        i = (base + k).astype(np.int64)
-        idx.append(np.clip(np.where(i < 0, -1 - i, i), 0, samples - 1))
-        w.append(wk)
-    return np.stack(idx, axis=-1), np.stack(w, axis=-1)
-
-
-def keys_profile(height: np.ndarray, pitch_m: float, rho_m: np.ndarray, max_height_m: float) -> np.ndarray:
-    """Heights of a radial profile (samples at (n + ½)·pitch) at radii `rho_m`
-    by Keys cubic interpolation (a = −½, as nedrt), with the profile's even
-    extension about the axis (sample −1−k mirrors sample k) and the last
-    sample repeated past the end; clamped to [0, max] (a fabricated profile
-    cannot leave its depth range)."""
-    height = np.asarray(height, dtype=np.float64)
-    idx, w = keys_taps(len(height), pitch_m, rho_m)
-    return np.clip((height[idx] * w).sum(-1), 0.0, max_height_m)

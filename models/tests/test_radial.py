@@ -11,9 +11,10 @@ import pytest
 import torch
 
 from nedrt_train import calib as calib_mod
+from nedrt_train.keys import keys_profile
 from nedrt_train.optics import PsfModel, grid, perceive
-from nedrt_train.radial import (RadialPsfModel, annulus_cell_weights, disk_rect_area, keys_profile,
-                                octant_cells, radial_nodes, three_lens_profile)
+from nedrt_train.radial import (RadialPsfModel, annulus_cell_weights, disk_rect_area, octant_cells,
+                                radial_nodes, three_lens_profile)
 
 REPO = Path(__file__).resolve().parents[2]
 CAL = calib_mod.load(REPO / "calib" / "default.toml")

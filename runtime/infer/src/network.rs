@@ -1,19 +1,12 @@
-//! The D-CNN as the runtime sees it: an ONNX file read once, checked, and
-//! lowered to a short list of fused layers (3×3 conv + bias + ReLU, 2×2 max
-//! pool, 2×2 stride-2 transposed conv, channel concat, and the residual add
-//! fused into the last conv). Every backend runs from the same checked file;
-//! the WGSL backend and the CPU reference run from the lowered layers.
+//! The D-CNN as the runtime sees it once lowered: a short list of fused
+//! layers (3×3 conv + bias + ReLU, 2×2 max pool, 2×2 stride-2 transposed
+//! conv, channel concat, and the residual add fused into the last conv) over
+//! activations described by their channels and resolution level. The WGSL
+//! backend and the CPU reference run from these layers.
 //!
-//! Load → validate → prepare → run are distinct steps: [`ModelFile::read`]
-//! decodes the protobuf, [`ModelFile::lower`] validates and lowers it to a
-//! [`Network`], and a backend prepares that for a frame size.
-
-use std::path::{Path, PathBuf};
-
-use prost::Message;
-use tract_onnx::pb;
-
-use super::InferenceError;
+//! This module only describes the result: reading, checking and lowering
+//! the ONNX file is [`ModelFile`](crate::ModelFile)'s (`model_file.rs`), so
+//! these types depend on nothing else in the crate.
 
 /// Index of an activation tensor in [`Network::values`].
 pub type ValueId = usize;
@@ -80,64 +73,6 @@ pub struct Network {
     pub multiple: usize,
     /// Multiply-adds per frame pixel (convolutions).
     pub macs_per_pixel: f64,
-}
-
-/// An ONNX file decoded once at load time.
-#[derive(Debug, Clone)]
-pub struct ModelFile {
-    pub path: PathBuf,
-    pub bytes: Vec<u8>,
-    pub proto: pb::ModelProto,
-    /// BLAKE3 of the file, first 16 hex digits.
-    pub hash: String,
-}
-
-impl ModelFile {
-    /// Reads and decodes `path`; a missing, corrupt or truncated file is an
-    /// error naming it.
-    pub fn read(path: &Path) -> Result<Self, InferenceError> {
-        let bytes = std::fs::read(path).map_err(|e| InferenceError::Io {
-            path: path.to_path_buf(),
-            source: e,
-        })?;
-        Self::from_bytes(path, bytes)
-    }
-
-    pub fn from_bytes(path: &Path, bytes: Vec<u8>) -> Result<Self, InferenceError> {
-        let bad = |reason: String| InferenceError::Model {
-            path: path.to_path_buf(),
-            reason,
-        };
-        if bytes.is_empty() {
-            return Err(bad("the file is empty".into()));
-        }
-        let proto = pb::ModelProto::decode(bytes.as_slice()).map_err(|e| {
-            bad(format!(
-                "not a valid ONNX protobuf (corrupt or truncated): {e}"
-            ))
-        })?;
-        if proto.graph.as_ref().is_none_or(|g| g.node.is_empty()) {
-            return Err(bad(
-                "no graph nodes (corrupt or truncated, or not an ONNX model)".into(),
-            ));
-        }
-        let hash = blake3::hash(&bytes).to_hex()[..16].to_string();
-        Ok(Self {
-            path: path.to_path_buf(),
-            bytes,
-            proto,
-            hash,
-        })
-    }
-
-    /// Checks the signature (one 1×3×H×W float input with dynamic H and W,
-    /// one output of the same shape) and every operator, and lowers the graph.
-    pub fn lower(&self) -> Result<Network, InferenceError> {
-        super::lower::lower(&self.proto).map_err(|reason| InferenceError::Model {
-            path: self.path.clone(),
-            reason,
-        })
-    }
 }
 
 impl Layer {

@@ -5,7 +5,7 @@
 
 use serde::Serialize;
 
-use super::raw::RawEye;
+use super::raw::{DEFAULT_RELIEF_MM, RawEye};
 use super::{CalibError, Calibration};
 
 /// The eye's longitudinal chromatic aberration (`eye.lca`).
@@ -77,8 +77,6 @@ impl Default for EyeSettings {
     }
 }
 
-/// Eye relief when the calibration names none (a headset's 10–20 mm).
-pub const DEFAULT_RELIEF_MM: f64 = 15.0;
 /// Smallest entrance pupil accepted (a bright-adapted eye's is ≈ 2 mm; a
 /// 0.5 mm pupil's Airy pattern outgrows the largest PSF window).
 pub const MIN_PUPIL_MM: f64 = 1.0;

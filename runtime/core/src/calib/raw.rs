@@ -138,8 +138,11 @@ impl Default for RawEye {
     }
 }
 
+/// Eye relief when the calibration names none (a headset's 10–20 mm).
+pub const DEFAULT_RELIEF_MM: f64 = 15.0;
+
 fn default_relief_mm() -> f64 {
-    super::eye::DEFAULT_RELIEF_MM
+    DEFAULT_RELIEF_MM
 }
 
 fn off() -> String {
