@@ -303,3 +303,50 @@ fn a_failing_recorder_still_leaves_the_report() {
         stderr(&out)
     );
 }
+
+/// `nedrt run` on the small panel with the default (wgpu) backend, where
+/// the Vulkan loader finds no driver.
+fn on_small_panel_without_vulkan() -> std::process::Command {
+    let mut c = nedrt();
+    c.current_dir(repo())
+        .env("VK_ICD_FILENAMES", "/nonexistent")
+        .args(["run", "--calib", path(&small_panel())]);
+    c
+}
+
+#[test]
+fn without_a_vulkan_driver_run_records_with_the_dcnn_on_the_cpu_and_gpu_sinks_say_so() {
+    // No Vulkan driver at all (the loader finds no ICD): the recorder needs
+    // no GPU, so the D-CNN runs on the CPU engine, with a warning saying why.
+    let dir = tempfile::tempdir().expect("tempdir");
+    let rec = dir.path().join("rec");
+    let o = on_small_panel_without_vulkan()
+        .args(["--source", "pattern", "--frames", "3", "--source-rate", "4"])
+        .args(["--sink", "record", "--record-dir", path(&rec)])
+        .output()
+        .expect("run");
+    assert!(o.status.success(), "{}", stderr(&o));
+    let err = stderr(&o);
+    assert!(
+        err.contains("no GPU adapter") && err.contains("running the D-CNN on the fallback"),
+        "{err}"
+    );
+    assert!(stdout(&o).contains("on cpu"), "{}", stdout(&o));
+    assert!(
+        stdout(&o).contains("3 submitted, 3 presented"),
+        "{}",
+        stdout(&o)
+    );
+    for id in 0..3 {
+        assert!(
+            rec.join(format!("frame-{id:08}.png")).exists(),
+            "frame {id}"
+        );
+    }
+    // A sink that needs a GPU says which one does not.
+    let o = on_small_panel_without_vulkan()
+        .args(["--source", "pattern", "--frames", "1", "--sink", "headless"])
+        .output()
+        .expect("run");
+    assert_clean_error(&o, "`nedrt run --sink record` needs no GPU");
+}

@@ -72,8 +72,7 @@ pub fn run(
             "--peak-gbps {v}: must be a positive rate"
         )));
     }
-    let (adapter, device, queue) =
-        nedrt_gpu::open_device(&b.gpu, false).map_err(AppError::Usage)?;
+    let (adapter, device, queue) = nedrt_gpu::open_device(&b.gpu, false)?;
     let adapter = adapter.get_info().name;
     let mut kernels = FftKernels::new(&device)?;
     let filter = WienerFilter::new(&psfs(), 1e-2);

@@ -278,8 +278,7 @@ pub fn gpu_for(
     if common.dcnn.backend != nedrt_infer::BackendKind::Wgpu || !wanted {
         return Ok(None);
     }
-    let (_, device, queue) =
-        nedrt_gpu::open_device(&common.dcnn.backend_options.gpu, false).map_err(AppError::Usage)?;
+    let (_, device, queue) = nedrt_gpu::open_device(&common.dcnn.backend_options.gpu, false)?;
     Ok(Some((device, queue)))
 }
 

@@ -230,6 +230,8 @@ pub enum AppError {
     Present(#[from] nedrt_service::present::PresentError),
     #[error(transparent)]
     Fft(#[from] nedrt_gpu::fft::FftError),
+    #[error(transparent)]
+    Gpu(#[from] nedrt_gpu::GpuError),
     #[error("{path}: {reason}")]
     Output { path: String, reason: String },
     #[error("{0}")]

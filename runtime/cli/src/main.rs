@@ -102,7 +102,32 @@ fn error_line(e: &anyhow::Error) -> String {
         }
         line += &text;
     }
+    if let Some(h) = hint(e) {
+        line += "; ";
+        line += h;
+    }
     line
+}
+
+/// What to do instead, in the command line's words (the libraries' errors
+/// name no flag).
+fn hint(e: &anyhow::Error) -> Option<&'static str> {
+    use nedrt_gpu::GpuError;
+    e.chain().find_map(|cause| {
+        let gpu = cause
+            .downcast_ref::<GpuError>()
+            .or(match cause.downcast_ref::<nedrt_app::AppError>() {
+                Some(nedrt_app::AppError::Gpu(g)) => Some(g),
+                _ => None,
+            })?;
+        match gpu {
+            GpuError::NoAdapter(_) => Some(
+                "--backend cpu runs the D-CNN on the CPU, and `nedrt run --sink record` needs no GPU",
+            ),
+            GpuError::NoShaderF16 { .. } => Some("use --precision f32"),
+            GpuError::RequestDevice(_) => None,
+        }
+    })
 }
 
 /// SIGINT and SIGTERM end a command at once: the temporaries of unfinished

@@ -43,13 +43,28 @@ impl GpuSettings {
     }
 }
 
+/// Why no device could be opened. The messages name no command-line flag:
+/// the binary adds what to do instead.
+#[derive(Debug, thiserror::Error)]
+pub enum GpuError {
+    #[error(
+        "no GPU adapter ({0}); on Linux without a GPU, Mesa's lavapipe \
+         (`apt-get install mesa-vulkan-drivers`) provides one"
+    )]
+    NoAdapter(String),
+    #[error("adapter '{adapter}' has no shader-f16 (half-precision shaders)")]
+    NoShaderF16 { adapter: String },
+    #[error("requesting a device: {0}")]
+    RequestDevice(String),
+}
+
 /// Requests the default adapter of `settings` and a device with the
 /// adapter's limits, timestamp queries where offered and, if `shader_f16`,
 /// half-precision shaders.
 pub fn open_device(
     settings: &GpuSettings,
     shader_f16: bool,
-) -> Result<(wgpu::Adapter, wgpu::Device, wgpu::Queue), String> {
+) -> Result<(wgpu::Adapter, wgpu::Device, wgpu::Queue), GpuError> {
     let instance = wgpu::Instance::new(settings.descriptor());
     let adapter = pollster::block_on(instance.request_adapter(&wgpu::RequestAdapterOptions {
         power_preference: wgpu::PowerPreference::HighPerformance,
@@ -57,19 +72,13 @@ pub fn open_device(
         compatible_surface: None,
         apply_limit_buckets: false,
     }))
-    .map_err(|e| {
-        format!(
-            "no GPU adapter ({e}); on Linux without a GPU, Mesa's lavapipe \
-             (`apt-get install mesa-vulkan-drivers`) provides one; or use --backend cpu"
-        )
-    })?;
+    .map_err(|e| GpuError::NoAdapter(e.to_string()))?;
     let mut features = adapter.features() & wgpu::Features::TIMESTAMP_QUERY;
     if shader_f16 {
         if !adapter.features().contains(wgpu::Features::SHADER_F16) {
-            return Err(format!(
-                "adapter '{}' has no shader-f16; use --precision f32",
-                adapter.get_info().name
-            ));
+            return Err(GpuError::NoShaderF16 {
+                adapter: adapter.get_info().name,
+            });
         }
         features |= wgpu::Features::SHADER_F16;
     }
@@ -79,7 +88,7 @@ pub fn open_device(
         required_limits: adapter.limits(),
         ..Default::default()
     }))
-    .map_err(|e| format!("requesting a device: {e}"))?;
+    .map_err(|e| GpuError::RequestDevice(e.to_string()))?;
     Ok((adapter, device, queue))
 }
 

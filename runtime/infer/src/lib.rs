@@ -1,14 +1,15 @@
-//! The D-CNN at run time: one ONNX file, read and checked once
-//! ([`network`]), run by any of three backends behind [`Backend`]:
-//! `cpu` (tract, pure Rust, always built in), `ort` (ONNX Runtime loaded
-//! from a shared library at run time) and `wgpu` (WGSL kernels generated
-//! from the graph, [`gpu`]). [`Dcnn`] adds what every backend shares:
-//! reflection padding to the network's multiple, cropping back, and the
-//! clamp to the panel's [0, 1].
+//! The D-CNN at run time: one ONNX file, read, checked and lowered once
+//! ([`model_file`], to the layers of [`network`]), run by any of three
+//! backends behind [`Backend`]: `cpu` (tract, pure Rust, always built in),
+//! `ort` (ONNX Runtime loaded from a shared library at run time) and `wgpu`
+//! (WGSL kernels generated from the graph, [`gpu`]). [`Dcnn`] adds what
+//! every backend shares: reflection padding to the network's multiple,
+//! cropping back, and the clamp to the panel's [0, 1].
 
 pub mod content;
 pub mod gpu;
 mod lower;
+pub mod model_file;
 pub mod network;
 pub mod ort_backend;
 pub mod reference;
@@ -17,7 +18,8 @@ pub mod tract_backend;
 
 use std::path::{Path, PathBuf};
 
-pub use network::{ModelFile, Network};
+pub use model_file::ModelFile;
+pub use network::Network;
 
 use nedrt_core::preprocess::{HostTraffic, Preprocess, PreprocessError, check_frame};
 use nedrt_core::{Image, Named};
@@ -39,6 +41,8 @@ pub enum InferenceError {
     },
     #[error("frame: {0}")]
     Frame(String),
+    #[error("wgpu backend: {0}")]
+    Gpu(#[from] nedrt_gpu::GpuError),
     #[error(
         "{engine}: the network's output holds {count} non-finite values (NaN or ±inf) for a \
          {width}×{height} frame"

@@ -70,7 +70,10 @@ pub fn open_device(
     settings: &nedrt_gpu::GpuSettings,
     precision: Precision,
 ) -> Result<(wgpu::Adapter, wgpu::Device, wgpu::Queue), InferenceError> {
-    nedrt_gpu::open_device(settings, precision == Precision::F16).map_err(err)
+    Ok(nedrt_gpu::open_device(
+        settings,
+        precision == Precision::F16,
+    )?)
 }
 
 /// The network on a wgpu device.
