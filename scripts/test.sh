@@ -21,7 +21,7 @@ export PIP_NO_CACHE_DIR=1
 # Tests that need a part the machine may lack (a GPU adapter, ONNX Runtime,
 # an X display) are #[ignore = "needs ..."]: a plain `cargo test` lists them
 # as ignored, never as passed. They live in modules named after what they
-# need (needs_gpu, needs_ort, needs_window, needs_gpu_and_ort, ...), and this
+# need (needs_gpu, needs_ort, needs_window, needs_root, needs_gpu_and_ort, ...), and this
 # script runs them (`-- --ignored needs_`) for each part the machine has,
 # skipping by name those that need a missing one (`--skip needs_P --skip
 # _and_P`). The name filter also leaves out the slow ignored test
@@ -96,6 +96,11 @@ hw_part ort "$ort_lib" "${NEDRT_REQUIRE_ORT:-}" \
     "ONNX Runtime: ORT_DYLIB_PATH names no file and .venv has no onnxruntime wheel"
 hw_part window "$x_display" "${NEDRT_REQUIRE_WINDOW:-}" \
     "an X display with xwd and xdotool: DISPLAY is not set (Xvfb is not installed) or a tool is missing; apt-get install xvfb x11-apps xdotool"
+# Mounting a tmpfs (the full-disk test) takes root's CAP_SYS_ADMIN.
+is_root=0
+if [ "$(id -u)" = 0 ]; then is_root=1; fi
+hw_part root "$is_root" "${NEDRT_REQUIRE_ROOT:-}" \
+    "root, to mount a small tmpfs (the full-disk recording test)"
 if [ "${#hw_run[@]}" -gt 0 ]; then
     echo "== cargo test --release -- --ignored needs_ (the hardware tests: ${hw_run[*]})"
     # One at a time: a software adapter (lavapipe) spreads each test over every
