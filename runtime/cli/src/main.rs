@@ -8,6 +8,8 @@ mod commands;
 mod console;
 mod eye_args;
 mod settings;
+mod study_args;
+mod view_args;
 
 use std::process::ExitCode;
 
