@@ -3,8 +3,9 @@
 # each library crate depends only on the nedrt crates below it, none of them
 # depends (directly) on clap, indicatif or anyhow, and none reads the
 # environment outside its tests; and no module imports in a circle, neither
-# in the Rust library crates nor in the trainer (tools/layers/import_cycles.py).
-# Exit 1 naming every violation.
+# in the Rust library crates nor in the trainer (tools/layers/import_cycles.py);
+# and no library crate's pub fn or trait method returns Result<_, String>
+# (tools/layers/string_errors.py). Exit 1 naming every violation.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -54,7 +55,13 @@ if ! cycles=$(python3 tools/layers/import_cycles.py 2>&1); then
     echo "$cycles"
     status=1
 fi
+# String errors: a library's public function or trait method returns a
+# typed error, not Result<_, String> (FromStr's Err and test code excepted).
+if ! strings=$(python3 tools/layers/string_errors.py 2>&1); then
+    echo "$strings"
+    status=1
+fi
 if [ "$status" = 0 ]; then
-    echo "layers: every library crate depends only on the crates below it; none on clap, indicatif or anyhow; none reads the environment; no import cycle in the Rust library crates nor in the trainer"
+    echo "layers: every library crate depends only on the crates below it; none on clap, indicatif or anyhow; none reads the environment; no import cycle in the Rust library crates nor in the trainer; no public function or trait method of a library crate returns Result<_, String>"
 fi
 exit "$status"

@@ -1103,7 +1103,7 @@ fn every_bad_protocol_message_is_refused_with_its_reason() {
         }
         .to_bytes();
         f(&mut b);
-        Hello::parse(&b).expect_err("refused")
+        Hello::parse(&b).expect_err("refused").to_string()
     };
     let header = |f: fn(&mut FrameHeader)| {
         let mut h = good;

@@ -117,7 +117,7 @@ pub fn run(
             let mut enc = device.create_command_encoder(&Default::default());
             dct.record(&mut enc, &src, &dst)?;
             let s = queue.submit([enc.finish()]);
-            nedrt_gpu::wait_for(&device, s).map_err(AppError::Usage)?;
+            nedrt_gpu::wait_for(&device, s)?;
             Ok(t.elapsed().as_secs_f64())
         };
         once()?;
@@ -176,11 +176,8 @@ fn per_pass(
         dct.record_timed(&mut enc, src, dst, &timer)?;
         timer.resolve(&mut enc);
         queue.submit([enc.finish()]);
-        timer.map_and_wait(device).map_err(AppError::Usage)?;
-        for (b, ns) in best
-            .iter_mut()
-            .zip(timer.spans_ns().map_err(AppError::Usage)?)
-        {
+        timer.map_and_wait(device)?;
+        for (b, ns) in best.iter_mut().zip(timer.spans_ns()?) {
             *b = (*b).min(ns.max(1));
         }
     }

@@ -5,6 +5,8 @@
 use std::path::Path;
 use std::sync::Once;
 
+use crate::AppError;
+
 use plotters::coord::Shift;
 use plotters::coord::types::RangedCoordf64;
 use plotters::prelude::*;
@@ -177,7 +179,7 @@ fn draw_all<DB: DrawingBackend>(
 
 /// A chart file drawn in full beside `path` and renamed into place, so a
 /// stopped or failed run never leaves half a chart.
-fn atomically(path: &Path, draw: impl FnOnce(&Path) -> Result<(), String>) -> Result<(), String> {
+fn atomically(path: &Path, draw: impl FnOnce(&Path) -> Result<(), String>) -> Result<(), AppError> {
     struct Failed(String);
     impl From<std::io::Error> for Failed {
         fn from(e: std::io::Error) -> Self {
@@ -185,7 +187,7 @@ fn atomically(path: &Path, draw: impl FnOnce(&Path) -> Result<(), String>) -> Re
         }
     }
     nedrt_core::util::write_atomic_with(path, |tmp| draw(tmp).map_err(Failed))
-        .map_err(|Failed(e)| format!("{}: {e}", path.display()))
+        .map_err(|Failed(e)| AppError::output(path, e))
 }
 
 /// Writes `panels` in a rows×cols grid to `stem`.png and `stem`.svg.
@@ -196,7 +198,7 @@ pub fn write_figure(
     size: (u32, u32),
     panels: &[Panel],
     svg: bool,
-) -> Result<Vec<String>, String> {
+) -> Result<Vec<String>, AppError> {
     register_font();
     let png = stem.with_extension("png");
     atomically(&png, |tmp| {
@@ -400,7 +402,7 @@ pub fn write_scatter(
     stem: &Path,
     size: (u32, u32),
     figure: &ScatterFigure,
-) -> Result<Vec<String>, String> {
+) -> Result<Vec<String>, AppError> {
     register_font();
     let png = stem.with_extension("png");
     let svg = stem.with_extension("svg");

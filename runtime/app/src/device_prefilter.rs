@@ -45,7 +45,7 @@ pub fn wiener_stage(
     size: Option<(usize, usize)>,
 ) -> Result<Box<dyn DeviceStage>, FftError> {
     let gains_for: GainsFor =
-        Box::new(move |w, h| filter.plan(w, h).dct_gains().map_err(|e| e.to_string()));
+        Box::new(move |w, h| filter.plan(w, h).dct_gains().map_err(Into::into));
     spectral_stage(device, what, gains_for, size)
 }
 
@@ -57,7 +57,7 @@ pub fn lsq_stage(
     size: Option<(usize, usize)>,
 ) -> Result<Box<dyn DeviceStage>, FftError> {
     let gains_for: GainsFor =
-        Box::new(move |w, h| problem.linear_dct_gains(w, h).map_err(|e| e.to_string()));
+        Box::new(move |w, h| problem.linear_dct_gains(w, h).map_err(Into::into));
     spectral_stage(device, what, gains_for, size)
 }
 
@@ -70,7 +70,7 @@ pub fn refine_stage(
     size: Option<(usize, usize)>,
 ) -> Result<Box<dyn DeviceStage>, FftError> {
     let terms_for: TermsFor = Box::new(move |w, h| {
-        let t = problem.device_terms(w, h).map_err(|e| e.to_string())?;
+        let t = problem.device_terms(w, h)?;
         Ok(RefineTerms {
             linear: t.linear,
             adjoint_target: t.adjoint_target,

@@ -356,7 +356,6 @@ pub fn write_chart(
         &panels,
         true,
     )
-    .map_err(|e| AppError::output(out_dir, e))
 }
 
 #[cfg(test)]

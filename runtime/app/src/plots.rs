@@ -91,8 +91,7 @@ fn finish(
         figure.size,
         panels,
         figure.svg,
-    )
-    .map_err(|e| AppError::output(out_dir, e))?;
+    )?;
     Ok(format!(
         "{}wrote {} and {}\n",
         header(sim, prepared),
@@ -372,8 +371,7 @@ pub fn doe(
         (640, 640),
         &[panel],
         false,
-    )
-    .map_err(|e| AppError::output(out_dir, e))?;
+    )?;
     let mut csv = String::from("s_mm,height_um_row,height_um_column\n");
     let mid = n / 2;
     for i in 0..n {

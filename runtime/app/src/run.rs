@@ -233,9 +233,9 @@ impl nedrt_gpu::DeviceStage for DeviceLostAfter {
         output: &wgpu::Buffer,
         width: usize,
         height: usize,
-    ) -> Result<(), String> {
+    ) -> Result<(), nedrt_gpu::GpuError> {
         if self.frames_left == 0 {
-            return Err("device lost (injected fault)".into());
+            return Err(nedrt_gpu::GpuError::DeviceLost("injected fault".into()));
         }
         self.frames_left -= 1;
         self.inner.record(encoder, input, output, width, height)

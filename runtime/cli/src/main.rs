@@ -127,7 +127,12 @@ fn hint(e: &anyhow::Error) -> Option<&'static str> {
                 "--backend cpu runs the D-CNN on the CPU, and `nedrt run --sink record` needs no GPU",
             ),
             GpuError::NoShaderF16 { .. } => Some("use --precision f32"),
-            GpuError::RequestDevice(_) => None,
+            GpuError::RequestDevice(_)
+            | GpuError::DeviceLost(_)
+            | GpuError::Map(_)
+            | GpuError::Buffers(_)
+            | GpuError::Fft(_)
+            | GpuError::Stage(_) => None,
         }
     })
 }

@@ -14,16 +14,25 @@ pub trait Named: Sized + Copy + PartialEq + Send + Sync + 'static {
         ""
     }
     /// The value named `name`, or an error listing the choices.
-    fn from_name(name: &str) -> Result<Self, String> {
+    fn from_name(name: &str) -> Result<Self, UnknownName> {
         Self::ALL
             .iter()
             .copied()
             .find(|v| v.name() == name)
-            .ok_or_else(|| {
-                let names: Vec<&str> = Self::ALL.iter().map(|v| v.name()).collect();
-                format!("unknown value {name:?}; choose one of {}", names.join(", "))
+            .ok_or_else(|| UnknownName {
+                name: name.to_string(),
+                choices: Self::ALL.iter().map(|v| v.name()).collect(),
             })
     }
+}
+
+/// A name none of a [`Named`] type's values has; its message lists the
+/// choices.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("unknown value {name:?}; choose one of {}", choices.join(", "))]
+pub struct UnknownName {
+    pub name: String,
+    pub choices: Vec<&'static str>,
 }
 
 #[cfg(test)]
@@ -52,6 +61,6 @@ mod tests {
             assert_eq!(Colour::from_name(c.name()), Ok(*c));
         }
         let e = Colour::from_name("blue").expect_err("unknown");
-        assert!(e.contains("red, green"), "{e}");
+        assert!(e.to_string().contains("red, green"), "{e}");
     }
 }

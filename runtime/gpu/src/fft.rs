@@ -1054,9 +1054,13 @@ impl DctFilter {
     }
 }
 
+/// Why a stage's host-side terms (gains, refinement terms) could not be
+/// made: the caller's own error, boxed.
+pub type TermsError = Box<dyn std::error::Error + Send + Sync>;
+
 /// The gains of a frame size: `channels` planes of height×width (see
 /// [`DctFilter`]), or why they cannot be made.
-pub type GainsFor = Box<dyn FnMut(usize, usize) -> Result<Vec<Vec<f32>>, String> + Send>;
+pub type GainsFor = Box<dyn FnMut(usize, usize) -> Result<Vec<Vec<f32>>, TermsError> + Send>;
 
 /// A [`DctFilter`] as a [`crate::DeviceStage`]: the gains of each frame size
 /// computed on the host once (`gains_for`), uploaded once; a frame records
@@ -1110,7 +1114,8 @@ impl SpectralStage {
             let f = self.filters.remove(i);
             self.filters.push(f);
         } else {
-            let gains = (self.gains_for)(width, height).map_err(FftError::Gains)?;
+            let gains =
+                (self.gains_for)(width, height).map_err(|e| FftError::Gains(e.to_string()))?;
             let f = DctFilter::new(&mut self.kernels, width, height, &gains)?;
             if self.filters.len() == FILTERS_KEPT {
                 self.filters.remove(0);
@@ -1135,10 +1140,10 @@ impl crate::DeviceStage for SpectralStage {
         output: &wgpu::Buffer,
         width: usize,
         height: usize,
-    ) -> Result<(), String> {
+    ) -> Result<(), crate::GpuError> {
         self.filter(width, height)
             .and_then(|f| f.record(encoder, input, output))
-            .map_err(|e| e.to_string())
+            .map_err(crate::GpuError::from)
     }
 }
 

@@ -3,8 +3,9 @@
 //! adapter, waiting for a read-back, and timing a pass with timestamp
 //! queries.
 //!
-//! Rule: depends on no other nedrt crate; errors are strings the caller
-//! wraps in its own error type (the FFT's are typed, [`fft::FftError`]).
+//! Rule: depends on no other nedrt crate; its errors are typed
+//! ([`GpuError`], the FFT's [`fft::FftError`]), and the caller wraps them in
+//! its own error type.
 
 pub mod fft;
 pub mod refine;
@@ -43,8 +44,9 @@ impl GpuSettings {
     }
 }
 
-/// Why no device could be opened. The messages name no command-line flag:
-/// the binary adds what to do instead.
+/// Why no device could be opened, or a device failed: a wait, a read-back,
+/// a stage's recording. The messages name no command-line flag: the binary
+/// adds what to do instead.
 #[derive(Debug, thiserror::Error)]
 pub enum GpuError {
     #[error(
@@ -56,6 +58,22 @@ pub enum GpuError {
     NoShaderF16 { adapter: String },
     #[error("requesting a device: {0}")]
     RequestDevice(String),
+    /// Waiting for the device failed, or it never answered.
+    #[error("device lost ({0})")]
+    DeviceLost(String),
+    /// Mapping a buffer for reading, or reading it, failed.
+    #[error("reading back from the GPU: {0}")]
+    Map(String),
+    /// A device stage's buffers do not fit the frame, or were not made.
+    #[error("the stage's device buffers: {0}")]
+    Buffers(String),
+    /// The device FFT of a stage could not be made or recorded.
+    #[error(transparent)]
+    Fft(#[from] fft::FftError),
+    /// A stage defined outside this crate failed (the D-CNN on the device):
+    /// its own error.
+    #[error("{0}")]
+    Stage(#[source] Box<dyn std::error::Error + Send + Sync>),
 }
 
 /// Requests the default adapter of `settings` and a device with the
@@ -94,28 +112,28 @@ pub fn open_device(
 
 /// Maps `buffer` for reading and waits for the GPU, which also completes
 /// any mapping requested before; `Err` says what failed.
-pub fn map_and_wait(device: &wgpu::Device, buffer: &wgpu::Buffer) -> Result<(), String> {
+pub fn map_and_wait(device: &wgpu::Device, buffer: &wgpu::Buffer) -> Result<(), GpuError> {
     let (tx, rx) = std::sync::mpsc::channel();
     buffer.slice(..).map_async(wgpu::MapMode::Read, move |r| {
         let _ = tx.send(r);
     });
     device
         .poll(wgpu::PollType::wait_indefinitely())
-        .map_err(|e| format!("waiting for the GPU: {e}"))?;
+        .map_err(|e| GpuError::DeviceLost(format!("waiting for the GPU: {e}")))?;
     rx.recv()
-        .map_err(|_| "the GPU never answered (device lost?)".to_string())?
-        .map_err(|e| format!("reading back: {e}"))
+        .map_err(|_| GpuError::DeviceLost("the GPU never answered".into()))?
+        .map_err(|e| GpuError::Map(e.to_string()))
 }
 
 /// What a buffer mapped for reading holds (after [`map_and_wait`], or a
 /// `map_async` and a wait), passed through `read`; then unmaps it, so the
 /// buffer can be mapped again. `Err` if it is not mapped.
-pub fn read_mapped<T>(buffer: &wgpu::Buffer, read: impl FnOnce(&[u8]) -> T) -> Result<T, String> {
+pub fn read_mapped<T>(buffer: &wgpu::Buffer, read: impl FnOnce(&[u8]) -> T) -> Result<T, GpuError> {
     let out = {
         let view = buffer
             .slice(..)
             .get_mapped_range()
-            .map_err(|e| e.to_string())?;
+            .map_err(|e| GpuError::Map(e.to_string()))?;
         read(&view)
     };
     buffer.unmap();
@@ -150,7 +168,7 @@ pub trait DeviceStage: Send + std::fmt::Debug {
         output: &wgpu::Buffer,
         width: usize,
         height: usize,
-    ) -> Result<(), String>;
+    ) -> Result<(), GpuError>;
 }
 
 /// Two device stages one after the other, through a buffer of the
@@ -192,7 +210,7 @@ impl DeviceStage for Chain {
         output: &wgpu::Buffer,
         width: usize,
         height: usize,
-    ) -> Result<(), String> {
+    ) -> Result<(), GpuError> {
         let fits = matches!(&self.middle, Some((w, h, _)) if (*w, *h) == (width, height));
         if !fits {
             let bytes = 3 * (width * height) as u64 * 4;
@@ -205,7 +223,9 @@ impl DeviceStage for Chain {
             self.middle = Some((width, height, buffer));
         }
         let Some((_, _, middle)) = &self.middle else {
-            return Err("the chain's middle buffer was not made".into());
+            return Err(GpuError::Buffers(
+                "the chain's middle buffer was not made".into(),
+            ));
         };
         self.first.record(encoder, input, middle, width, height)?;
         self.second.record(encoder, middle, output, width, height)
@@ -233,14 +253,14 @@ pub fn workgroups(threads: u64) -> [u32; 2] {
 }
 
 /// Waits until the GPU has finished `submission` (no data is read back).
-pub fn wait_for(device: &wgpu::Device, submission: wgpu::SubmissionIndex) -> Result<(), String> {
+pub fn wait_for(device: &wgpu::Device, submission: wgpu::SubmissionIndex) -> Result<(), GpuError> {
     device
         .poll(wgpu::PollType::Wait {
             submission_index: Some(submission),
             timeout: None,
         })
         .map(|_| ())
-        .map_err(|e| format!("waiting for the GPU: {e}"))
+        .map_err(|e| GpuError::DeviceLost(format!("waiting for the GPU: {e}")))
 }
 
 /// Timestamp query pairs (start, end) and the buffers that bring them back:
@@ -340,13 +360,13 @@ impl PassTimer {
     }
 
     /// Maps the pairs and waits for the device.
-    pub fn map_and_wait(&self, device: &wgpu::Device) -> Result<(), String> {
+    pub fn map_and_wait(&self, device: &wgpu::Device) -> Result<(), GpuError> {
         map_and_wait(device, &self.readback)
     }
 
     /// After [`PassTimer::map`] and a wait: each pair's span, ns (0 where
     /// the device's clock ran backwards); `Err` if they are not mapped.
-    pub fn spans_ns(&self) -> Result<Vec<u64>, String> {
+    pub fn spans_ns(&self) -> Result<Vec<u64>, GpuError> {
         let stamps: Vec<u64> = read_mapped(&self.readback, |bytes| {
             bytemuck::pod_collect_to_vec(&bytes[..self.pairs * Self::BYTES_PER_PAIR as usize])
         })?;

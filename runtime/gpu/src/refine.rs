@@ -7,7 +7,8 @@
 //! buffers) and the steps by `shaders/fista.wgsl`. A frame records its
 //! dispatches; nothing is allocated or read back.
 
-use crate::fft::{DctFilter, FftError, FftKernels, init_buffer, storage};
+use crate::GpuError;
+use crate::fft::{DctFilter, FftError, FftKernels, TermsError, init_buffer, storage};
 
 const SHADER: &str = include_str!("../../../shaders/fista.wgsl");
 const OUTPUTS_KEPT: usize = 8;
@@ -25,7 +26,7 @@ pub struct RefineTerms {
 }
 
 /// The terms of a frame size, or why they cannot be made.
-pub type TermsFor = Box<dyn FnMut(usize, usize) -> Result<RefineTerms, String> + Send>;
+pub type TermsFor = Box<dyn FnMut(usize, usize) -> Result<RefineTerms, TermsError> + Send>;
 
 /// `fista.wgsl`'s `Frame`.
 #[repr(C)]
@@ -153,7 +154,7 @@ impl RefineStage {
         if matches!(&self.plan, Some(p) if (p.width, p.height) == (width, height)) {
             return Ok(());
         }
-        let terms = (self.terms_for)(width, height).map_err(FftError::Gains)?;
+        let terms = (self.terms_for)(width, height).map_err(|e| FftError::Gains(e.to_string()))?;
         let channels = terms.step.len();
         if channels == 0
             || [&terms.linear, &terms.adjoint_target, &terms.normal]
@@ -271,18 +272,20 @@ impl crate::DeviceStage for RefineStage {
         output: &wgpu::Buffer,
         width: usize,
         height: usize,
-    ) -> Result<(), String> {
-        self.prepare(width, height).map_err(|e| e.to_string())?;
+    ) -> Result<(), GpuError> {
+        self.prepare(width, height)?;
         let Some(plan) = self.plan.as_mut() else {
-            return Err("the refinement has no plan".into());
+            return Err(GpuError::Buffers(
+                "the refinement's plan was not made".into(),
+            ));
         };
         let need = plan.y.size();
         if output.size() < need || input.size() < need {
-            return Err(format!(
+            return Err(GpuError::Buffers(format!(
                 "the refinement's buffers hold {} and {} bytes; a frame is {need}",
                 input.size(),
                 output.size()
-            ));
+            )));
         }
         let emit = match plan.emits.iter().find(|(b, _)| b == output) {
             Some((_, g)) => g.clone(),
@@ -302,14 +305,9 @@ impl crate::DeviceStage for RefineStage {
                 g
             }
         };
-        let e = |e: FftError| e.to_string();
         // b = Σ A_Dᵀ t_D(I); the start: the linear prefilter, clamped.
-        plan.filter
-            .record_set(encoder, input, &plan.b, 1)
-            .map_err(e)?;
-        plan.filter
-            .record_set(encoder, input, &plan.xn, 0)
-            .map_err(e)?;
+        plan.filter.record_set(encoder, input, &plan.b, 1)?;
+        plan.filter.record_set(encoder, input, &plan.xn, 0)?;
         let [gx, gy, c] = plan.groups;
         let p = &self.pipelines;
         let dispatch = |encoder: &mut wgpu::CommandEncoder,
@@ -327,9 +325,7 @@ impl crate::DeviceStage for RefineStage {
         };
         dispatch(encoder, &[(&p.start, [gx, gy, c])], &plan.main);
         for _ in 0..self.steps {
-            plan.filter
-                .record_set(encoder, &plan.y, &plan.ay, 2)
-                .map_err(e)?;
+            plan.filter.record_set(encoder, &plan.y, &plan.ay, 2)?;
             dispatch(
                 encoder,
                 &[

@@ -389,7 +389,6 @@ fn chart(out_dir: &Path, rows: &[EyeRow], aperture_mm: f64) -> Result<Vec<String
         &[panel],
         true,
     )
-    .map_err(|e| AppError::output(out_dir, e))
 }
 
 #[cfg(test)]

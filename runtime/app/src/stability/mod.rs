@@ -127,13 +127,17 @@ pub fn run(common: &CommonOptions, o: &StabilityOptions) -> Result<String, AppEr
         .eyes
         .iter()
         .map(|eye| {
-            let mut calib = sim.calib.clone();
-            eye.overrides.apply(&mut calib)?;
+            // Each simulator keeps its own calibration (a design's K) with the eye.
+            let through = |s: &Simulator| -> Result<Simulator, AppError> {
+                let mut calib = s.calib.clone();
+                eye.overrides.apply(&mut calib)?;
+                Ok(s.with_calibration(calib))
+            };
             let designs = design_sims
                 .iter()
-                .map(|(n, s)| (*n, s.with_calibration(calib.clone())))
-                .collect::<Vec<_>>();
-            Ok((eye.label.as_str(), sim.with_calibration(calib), designs))
+                .map(|(n, s)| Ok((*n, through(s)?)))
+                .collect::<Result<Vec<_>, AppError>>()?;
+            Ok((eye.label.as_str(), through(&sim)?, designs))
         })
         .collect::<Result<Vec<_>, AppError>>()?;
     let case = |design, eye, sim, method| wiener::SweepCase {

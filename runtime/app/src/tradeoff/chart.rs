@@ -4,10 +4,11 @@
 use std::path::Path;
 
 use super::Table;
+use crate::AppError;
 use crate::charts::{ScatterFigure, ScatterPoint, write_scatter};
 
 /// Writes `stem`.png and `stem`.svg for a table.
-pub fn write(table: &Table, stem: &Path) -> Result<Vec<String>, String> {
+pub fn write(table: &Table, stem: &Path) -> Result<Vec<String>, AppError> {
     let points = table
         .records
         .iter()

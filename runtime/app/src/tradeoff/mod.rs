@@ -511,8 +511,7 @@ pub fn write_table(table: &Table, out_dir: &Path) -> Result<String, AppError> {
     let json = serde_json::to_string_pretty(table).map_err(|e| AppError::output(&json_path, e))?;
     write_text(&json_path, &json)?;
     write_text(&out_dir.join("tradeoff.md"), &md)?;
-    let written =
-        chart::write(table, &out_dir.join("tradeoff")).map_err(|e| AppError::output(out_dir, e))?;
+    let written = chart::write(table, &out_dir.join("tradeoff"))?;
     Ok(format!(
         "{md}\nwrote {}, {} and {}\n",
         json_path.display(),

@@ -519,11 +519,10 @@ impl GpuBackend {
             t.map();
             traffic.to_host_bytes += timer_bytes;
         }
-        map_and_wait(&self.device, &plan.readback).map_err(err)?;
+        map_and_wait(&self.device, &plan.readback)?;
         let out = read_mapped(&plan.readback, |bytes| {
             bytemuck::cast_slice::<u8, f32>(&bytes[..plan.output_elems * 4]).to_vec()
-        })
-        .map_err(|e| err(format!("reading back: {e}")))?;
+        })?;
         let gpu_ns = self
             .timer
             .as_ref()

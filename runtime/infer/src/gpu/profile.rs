@@ -57,7 +57,7 @@ impl GpuBackend {
         }
         timer.resolve(&mut encoder);
         self.queue.submit([encoder.finish()]);
-        timer.map_and_wait(&self.device).map_err(err)?;
+        timer.map_and_wait(&self.device)?;
         let spans = timer
             .spans_ns()
             .map_err(|e| err(format!("reading the timestamps: {e}")))?;

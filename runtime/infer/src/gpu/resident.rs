@@ -382,10 +382,13 @@ impl nedrt_gpu::DeviceStage for DeviceDcnn {
         output: &wgpu::Buffer,
         width: usize,
         height: usize,
-    ) -> Result<(), String> {
+    ) -> Result<(), nedrt_gpu::GpuError> {
         self.backend
             .record_frame(encoder, input, output, width, height)
-            .map_err(|e| e.to_string())
+            .map_err(|e| match e {
+                InferenceError::Gpu(g) => g,
+                e => nedrt_gpu::GpuError::Stage(Box::new(e)),
+            })
     }
 }
 

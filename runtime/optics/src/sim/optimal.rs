@@ -134,18 +134,26 @@ impl DisplayProblem {
         blurred: Vec<bool>,
         blur: Option<Vec<Psf>>,
         k_reg: f64,
-    ) -> Result<Self, String> {
+    ) -> Result<Self, super::SimError> {
         if depths_d.is_empty() || psfs.is_empty() {
-            return Err("a display problem needs at least one depth and channel".into());
+            return Err(super::SimError::Invalid(
+                "a display problem needs at least one depth and channel".into(),
+            ));
         }
         if psfs.iter().any(|p| p.len() != depths_d.len()) || blurred.len() != depths_d.len() {
-            return Err("one PSF per channel and depth, one target per depth".into());
+            return Err(super::SimError::Invalid(
+                "one PSF per channel and depth, one target per depth".into(),
+            ));
         }
         if blurred.iter().any(|&b| b) && blur.as_ref().is_none_or(|b| b.len() != psfs.len()) {
-            return Err("blurred targets need h_b for every channel".into());
+            return Err(super::SimError::Invalid(
+                "blurred targets need h_b for every channel".into(),
+            ));
         }
         if !(k_reg.is_finite() && k_reg >= 0.0) {
-            return Err(format!("K = {k_reg} is not a finite value ≥ 0"));
+            return Err(super::SimError::Invalid(format!(
+                "K = {k_reg} is not a finite value ≥ 0"
+            )));
         }
         Ok(Self {
             objective,

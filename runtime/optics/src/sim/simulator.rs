@@ -436,7 +436,6 @@ impl Prepared {
                 Optics::Doe => c.wiener.doe_k,
             });
         DisplayProblem::new(objective, depths, psfs, blurred, blur, k_reg)
-            .map_err(SimError::Invalid)
     }
 
     /// The target blur h_b, one PSF per channel (prepared with any depth

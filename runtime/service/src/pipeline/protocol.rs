@@ -33,6 +33,12 @@ pub const STATUS_BAD_HELLO: u32 = 100;
 /// Longest shared-memory name.
 pub const MAX_NAME: usize = 255;
 
+/// Why a hello or a frame header is malformed: the reason the service
+/// replies with.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("{0}")]
+pub struct Malformed(pub String);
+
 /// A client's hello: which shared-memory object it made and how big.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Hello {
@@ -53,19 +59,19 @@ impl Hello {
     }
 
     /// Parses a hello; `Err` is the reason the service replies with.
-    pub fn parse(b: &[u8; HELLO_LEN]) -> Result<Self, String> {
+    pub fn parse(b: &[u8; HELLO_LEN]) -> Result<Self, Malformed> {
         let version = u16::from_le_bytes([b[4], b[5]]);
         if b[0..4] != HELLO_MAGIC || version != VERSION {
-            return Err(format!(
+            return Err(Malformed(format!(
                 "bad hello (magic {:?}, version {version}; expected \"NEDH\", {VERSION})",
                 &b[0..4]
-            ));
+            )));
         }
         let name_len = u16::from_le_bytes([b[6], b[7]]) as usize;
         if name_len == 0 || name_len > MAX_NAME {
-            return Err(format!(
+            return Err(Malformed(format!(
                 "shared-memory name of {name_len} bytes (1 to {MAX_NAME})"
-            ));
+            )));
         }
         let mut size = [0u8; 8];
         size.copy_from_slice(&b[8..16]);
@@ -126,7 +132,7 @@ impl FrameHeader {
 
     /// Parses a header; `Err` names what is wrong (the frame id, if
     /// readable, is in the header's usual place).
-    pub fn parse(b: &[u8; HEADER_LEN]) -> Result<Self, String> {
+    pub fn parse(b: &[u8; HEADER_LEN]) -> Result<Self, Malformed> {
         let u16_at = |i: usize| u16::from_le_bytes([b[i], b[i + 1]]);
         let u32_at = |i: usize| u32::from_le_bytes([b[i], b[i + 1], b[i + 2], b[i + 3]]);
         let u64_at = |i: usize| {
@@ -135,7 +141,10 @@ impl FrameHeader {
             u64::from_le_bytes(a)
         };
         if b[0..4] != FRAME_MAGIC {
-            return Err(format!("bad magic {:?} (expected \"NEDF\")", &b[0..4]));
+            return Err(Malformed(format!(
+                "bad magic {:?} (expected \"NEDF\")",
+                &b[0..4]
+            )));
         }
         let h = Self {
             version: u16_at(4),
@@ -148,10 +157,10 @@ impl FrameHeader {
             length: u64_at(40),
         };
         if h.version != VERSION {
-            return Err(format!(
+            return Err(Malformed(format!(
                 "protocol version {} (this service speaks {VERSION})",
                 h.version
-            ));
+            )));
         }
         Ok(h)
     }
@@ -348,9 +357,9 @@ mod tests {
     fn bad_magic_and_version_are_named() {
         let mut b = FrameHeader::new(PixelFormat::Rgba8Linear, 4, 4, 9, 0).to_bytes();
         b[4] = 7;
-        assert!(FrameHeader::parse(&b).unwrap_err().contains("version 7"));
+        assert!(FrameHeader::parse(&b).unwrap_err().0.contains("version 7"));
         b[0] = b'X';
-        assert!(FrameHeader::parse(&b).unwrap_err().contains("magic"));
+        assert!(FrameHeader::parse(&b).unwrap_err().0.contains("magic"));
         assert_eq!(FrameHeader::id_of(&b), 9);
         assert!(valid_shm_name("nedrt-12-34"));
         for bad in ["", ".hidden", "a/b", "../x", "a b"] {

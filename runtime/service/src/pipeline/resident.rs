@@ -466,7 +466,7 @@ mod tests {
             output: &wgpu::Buffer,
             width: usize,
             height: usize,
-        ) -> Result<(), String> {
+        ) -> Result<(), nedrt_gpu::GpuError> {
             self.recorded += 1;
             let group = self.device.create_bind_group(&wgpu::BindGroupDescriptor {
                 label: None,

@@ -93,10 +93,10 @@ impl HeadlessSink {
     fn draw(&mut self, frame: PanelCodes<'_>) -> Result<Presented, PresentError> {
         let size = [self.target.width(), self.target.height()];
         let submission = self.renderer.draw(frame, &self.view, size)?;
-        nedrt_gpu::wait_for(self.renderer.device(), submission).map_err(|reason| {
+        nedrt_gpu::wait_for(self.renderer.device(), submission).map_err(|e| {
             PresentError::Sink {
                 sink: "headless",
-                reason,
+                reason: e.to_string(),
             }
         })?;
         Ok(Presented::Shown)

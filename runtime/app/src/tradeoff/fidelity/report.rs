@@ -110,8 +110,7 @@ pub(super) fn write_outputs(report: &FidelityReport, out_dir: &Path) -> Result<S
                 })
                 .collect(),
         },
-    )
-    .map_err(|e| AppError::output(out_dir, e))?;
+    )?;
     Ok(format!(
         "{md}\nwrote {}, {}\n",
         json_path.display(),

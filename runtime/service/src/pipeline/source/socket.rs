@@ -208,8 +208,12 @@ pub fn open_shared_memory(
     path: &Path,
     peer_uid: Option<u32>,
     announced: u64,
-) -> Result<std::fs::File, String> {
+) -> Result<std::fs::File, SourceError> {
     use rustix::fs::{Mode, OFlags};
+    let refused = |reason: String| SourceError::Input {
+        path: path.to_path_buf(),
+        reason,
+    };
     let fd = rustix::fs::open(
         path,
         OFlags::RDONLY | OFlags::NOFOLLOW | OFlags::NONBLOCK | OFlags::CLOEXEC,
@@ -217,40 +221,32 @@ pub fn open_shared_memory(
     )
     .map_err(|e| {
         if e == rustix::io::Errno::LOOP {
-            format!(
-                "{}: a symbolic link; shared memory must be a regular file",
-                path.display()
-            )
+            refused("a symbolic link; shared memory must be a regular file".into())
         } else {
-            format!("cannot open {}: {e}", path.display())
+            refused(format!("cannot open: {e}"))
         }
     })?;
     let file = std::fs::File::from(fd);
-    let meta = file
-        .metadata()
-        .map_err(|e| format!("{}: {e}", path.display()))?;
+    let meta = file.metadata().map_err(|e| refused(e.to_string()))?;
     if !meta.file_type().is_file() {
-        return Err(format!(
-            "{}: not a regular file; shared memory must be one",
-            path.display()
+        return Err(refused(
+            "not a regular file; shared memory must be one".into(),
         ));
     }
     if let Some(uid) = peer_uid {
         use std::os::unix::fs::MetadataExt;
         if meta.uid() != uid {
-            return Err(format!(
-                "{}: owned by uid {}, not by the connecting client (uid {uid})",
-                path.display(),
+            return Err(refused(format!(
+                "owned by uid {}, not by the connecting client (uid {uid})",
                 meta.uid()
-            ));
+            )));
         }
     }
     if meta.len() < announced {
-        return Err(format!(
-            "{} holds {} bytes, not the {announced} announced",
-            path.display(),
+        return Err(refused(format!(
+            "holds {} bytes, not the {announced} announced",
             meta.len()
-        ));
+        )));
     }
     Ok(file)
 }
@@ -275,7 +271,7 @@ pub fn admit(
 ) -> Result<Admitted, FrameError> {
     let id = FrameHeader::id_of(header);
     let fail = |reason, detail: String| FrameError { id, reason, detail };
-    let hd = FrameHeader::parse(header).map_err(|d| fail(RejectReason::Malformed, d))?;
+    let hd = FrameHeader::parse(header).map_err(|d| fail(RejectReason::Malformed, d.0))?;
     let format = PixelFormat::from_code(hd.format).ok_or_else(|| {
         fail(
             RejectReason::UnsupportedFormat,
@@ -344,7 +340,7 @@ fn serve(
     };
     let Hello { name_len, shm_size } = match Hello::parse(&hello) {
         Ok(h) => h,
-        Err(why) => return refuse(&mut stream, why),
+        Err(why) => return refuse(&mut stream, why.to_string()),
     };
     let mut name = vec![0u8; name_len];
     if !matches!(read_full(&mut stream, &mut name, stop)?, Fill::Full) {
@@ -362,7 +358,7 @@ fn serve(
         .ok();
     let shm = match open_shared_memory(&shm_dir.join(&name), peer_uid, shm_size) {
         Ok(f) => f,
-        Err(why) => return refuse(&mut stream, why),
+        Err(why) => return refuse(&mut stream, why.to_string()),
     };
     reply(&mut stream, STATUS_OK, 0, format!("panel {w}×{h}"))?;
 
@@ -435,9 +431,13 @@ mod tests {
             std::fs::metadata(&shm).expect("meta").uid()
         };
         assert!(open_shared_memory(&shm, Some(uid), 64).is_ok());
-        let e = open_shared_memory(&shm, Some(uid), 65).expect_err("short");
+        let e = open_shared_memory(&shm, Some(uid), 65)
+            .expect_err("short")
+            .to_string();
         assert!(e.contains("holds 64 bytes, not the 65 announced"), "{e}");
-        let e = open_shared_memory(&shm, Some(uid.wrapping_add(1)), 64).expect_err("owner");
+        let e = open_shared_memory(&shm, Some(uid.wrapping_add(1)), 64)
+            .expect_err("owner")
+            .to_string();
         assert!(e.contains("not by the connecting client"), "{e}");
     }
 
@@ -448,7 +448,9 @@ mod tests {
         std::fs::write(&secret, vec![7u8; 64]).expect("write");
         let link = dir.path().join("frame");
         std::os::unix::fs::symlink(&secret, &link).expect("symlink");
-        let e = open_shared_memory(&link, Some(own_uid()), 64).expect_err("link");
+        let e = open_shared_memory(&link, Some(own_uid()), 64)
+            .expect_err("link")
+            .to_string();
         assert!(e.contains("a symbolic link"), "{e}");
     }
 
@@ -465,7 +467,9 @@ mod tests {
         )
         .expect("mkfifo");
         // A blocking open(2) would wait here for a writer, forever.
-        let e = open_shared_memory(&fifo, Some(own_uid()), 0).expect_err("fifo");
+        let e = open_shared_memory(&fifo, Some(own_uid()), 0)
+            .expect_err("fifo")
+            .to_string();
         assert!(e.contains("not a regular file"), "{e}");
     }
 }

@@ -1,0 +1,210 @@
+#!/usr/bin/env python3
+"""No string errors in a library's interface (issue 32; scripts/check-layers.sh
+runs it): exit 0 when no Rust library crate runtime/{core,gpu,optics,infer,
+service,app}/src has a `pub fn` (not `pub(crate)`, `pub(super)`, …) whose
+return type is `Result<…, String>`, nor a trait whose method returns one;
+1 naming each (file:line, the function and its return type).
+
+A caller can match on a typed error and follow its source; a string it can
+only print. `impl FromStr` is not caught (its `Err` is an associated type,
+and its `from_str` no `pub fn`): a parse error of one argument may be a
+string. Test code does not count: files named `tests.rs` or `*_tests.rs`,
+anything under a `tests/` directory, and everything from a file's first
+`#[cfg(test)]` on.
+
+    python3 tools/layers/string_errors.py            # the repository
+    python3 tools/layers/string_errors.py --rust DIR # those crates' src/ only
+
+Standard library only.
+"""
+import argparse
+import re
+import sys
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from import_cycles import REPO, RUST_CRATES, display, is_test_file, tokens_of  # noqa: E402
+
+QUALIFIERS = {"const", "async", "unsafe", "extern", "default"}
+STRING = {"String", "std::string::String", "alloc::string::String"}
+CFG_TEST = re.compile(r"^\s*#\[cfg\((?:all\()?test\b", re.M)
+
+
+def without_tests(text: str) -> str:
+    """`text` up to its first `#[cfg(test)]` line."""
+    m = CFG_TEST.search(text)
+    return text if m is None else text[:m.start()]
+
+
+def split_top(tokens, sep=","):
+    """`tokens` split at `sep` outside brackets (`->` is no bracket)."""
+    parts, depth, cur = [], 0, []
+    for k, t in enumerate(tokens):
+        if t in "(<[":
+            depth += 1
+        elif t in ")]" or (t == ">" and not (k and tokens[k - 1] == "-")):
+            depth -= 1
+        if t == sep and depth == 0:
+            parts.append(cur)
+            cur = []
+        else:
+            cur.append(t)
+    parts.append(cur)
+    return parts
+
+
+def is_string_result(ret) -> bool:
+    """Whether the return type's tokens are `Result<T, String>`."""
+    text = "".join(ret)
+    for prefix in ("std::result::", "core::result::"):
+        if text.startswith(prefix):
+            ret = ret[2 * prefix.count("::"):]
+            break
+    if len(ret) < 4 or ret[0] != "Result" or ret[1] != "<" or ret[-1] != ">":
+        return False
+    args = split_top(ret[2:-1])
+    return len(args) == 2 and "".join(args[1]) in STRING
+
+
+def signature(toks, i):
+    """For `fn` at toks[i]: (name, return-type tokens or None)."""
+    n = len(toks)
+    name = toks[i + 1][0] if i + 1 < n else "?"
+    j = i + 2
+    if j < n and toks[j][0] == "<":  # generics
+        depth = 0
+        while j < n:
+            t = toks[j][0]
+            if t == "<":
+                depth += 1
+            elif t == ">" and toks[j - 1][0] != "-":
+                depth -= 1
+                if depth == 0:
+                    j += 1
+                    break
+            j += 1
+    if j >= n or toks[j][0] != "(":
+        return name, None
+    depth = 0
+    while j < n:  # the parameters
+        t = toks[j][0]
+        if t in "([{":
+            depth += 1
+        elif t in ")]}":
+            depth -= 1
+            if depth == 0:
+                j += 1
+                break
+        j += 1
+    if not (j + 1 < n and toks[j][0] == "-" and toks[j + 1][0] == ">"):
+        return name, None
+    j += 2
+    ret, depth = [], 0
+    while j < n:
+        t = toks[j][0]
+        if depth == 0 and t in ("{", ";", "where"):
+            break
+        if t in "(<[":
+            depth += 1
+        elif t in ")]" or (t == ">" and toks[j - 1][0] != "-"):
+            depth -= 1
+        ret.append(t)
+        j += 1
+    return name, ret
+
+
+def trait_bodies(toks):
+    """[(trait name, first token, last token)] of the trait declarations."""
+    out = []
+    for i, (t, _) in enumerate(toks):
+        if t != "trait" or i + 1 >= len(toks):
+            continue
+        j = i + 1
+        while j < len(toks) and toks[j][0] not in ("{", ";"):
+            j += 1
+        if j >= len(toks) or toks[j][0] == ";":
+            continue
+        depth, k = 0, j
+        while k < len(toks):
+            if toks[k][0] == "{":
+                depth += 1
+            elif toks[k][0] == "}":
+                depth -= 1
+                if depth == 0:
+                    break
+            k += 1
+        out.append((toks[i + 1][0], j, k))
+    return out
+
+
+def is_pub(toks, i) -> bool:
+    """Whether the `fn` at toks[i] is plain `pub` (not `pub(crate)` …)."""
+    j = i - 1
+    while j >= 0 and toks[j][0] in QUALIFIERS:
+        j -= 1
+    return j >= 0 and toks[j][0] == "pub"
+
+
+def violations(path: Path, shown: str, text: str):
+    """Lines naming each `pub fn` and trait method of `text` that returns
+    `Result<…, String>`."""
+    toks = tokens_of(without_tests(text))
+    traits = trait_bodies(toks)
+    out = []
+    for i, (t, line) in enumerate(toks):
+        if t != "fn":
+            continue
+        trait = next((name for name, a, b in traits if a < i < b), None)
+        if trait is None and not is_pub(toks, i):
+            continue
+        name, ret = signature(toks, i)
+        if ret is None or not is_string_result(ret):
+            continue
+        what = f"trait {trait}'s fn {name}" if trait else f"pub fn {name}"
+        out.append(f"{shown}:{line}: {what} returns {''.join(ret).replace(',', ', ')}")
+    return out
+
+
+def check_crate(src: Path, root: Path):
+    """(violation lines, files checked) of a crate's src/."""
+    lines, files = [], 0
+    for path in sorted(src.rglob("*.rs")):
+        if is_test_file(path.relative_to(src)):
+            continue
+        files += 1
+        lines += violations(path, display(path, root), path.read_text(encoding="utf-8"))
+    return lines, files
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--root", type=Path, default=REPO,
+                        help="repository whose crates to check (default: this one)")
+    parser.add_argument("--rust", type=Path, action="append", default=[], metavar="SRC",
+                        help="a crate's src/ directory to check instead (repeatable)")
+    args = parser.parse_args(argv)
+    root = args.root
+    rust = args.rust or [root / "runtime" / c / "src" for c in RUST_CRATES]
+    missing = [p for p in rust if not p.is_dir()]
+    if missing:
+        for p in missing:
+            print(f"string errors: {p} is not a directory", file=sys.stderr)
+        return 2
+    lines, files = [], 0
+    for src in rust:
+        found, n = check_crate(src, root)
+        lines += found
+        files += n
+    if lines:
+        print("a library's public function or trait method returns Result<_, String> "
+              "(give it a typed error):")
+        print("\n".join(lines))
+        return 1
+    print(f"string errors: no public function nor trait method of {len(rust)} Rust crate(s) "
+          f"returns Result<_, String> ({files} files, test code excluded)")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
