@@ -49,6 +49,35 @@ pub struct Psf {
     pub veil: f64,
 }
 
+impl Psf {
+    /// Σ wᵢ·PSFᵢ, cells and veil alike, each PSF centred in the widest
+    /// window: the time-weighted mixture of a display's planes, the mean
+    /// over an accommodation sweep, a spectrum's mix of wavelengths. The
+    /// one weighted sum of PSFs in nedrt (terms added in order; `None`
+    /// without terms).
+    pub fn weighted_sum<'a>(
+        terms: impl IntoIterator<Item = (&'a Psf, f64)> + Clone,
+    ) -> Option<Psf> {
+        let window = terms.clone().into_iter().map(|(p, _)| p.window).max()?;
+        let mut out = Psf {
+            window,
+            cells: vec![0.0; window * window],
+            veil: 0.0,
+        };
+        for (p, w) in terms {
+            let off = (window - p.window) / 2;
+            for y in 0..p.window {
+                let row = &mut out.cells[(y + off) * window + off..][..p.window];
+                row.iter_mut()
+                    .zip(&p.cells[y * p.window..][..p.window])
+                    .for_each(|(o, v)| *o += w * v);
+            }
+            out.veil += w * p.veil;
+        }
+        Some(out)
+    }
+}
+
 /// The propagator that computed a request's PSFs.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 pub enum Propagator {

@@ -209,3 +209,24 @@ fn psi_beyond_the_largest_pupil_grid_is_an_error_not_an_alias() {
     assert!(matches!(e, OpticsError::GridTooLarge { .. }), "{text}");
     assert!(text.contains("max_pupil_samples"), "{text}");
 }
+
+#[test]
+fn the_weighted_sum_centres_smaller_windows_and_weights_the_veil() {
+    let wide = Psf {
+        window: 3,
+        cells: vec![1.0; 9],
+        veil: 0.5,
+    };
+    let point = Psf {
+        window: 1,
+        cells: vec![4.0],
+        veil: 0.0,
+    };
+    let sum = Psf::weighted_sum([(&wide, 0.25), (&point, 0.5)]).expect("terms");
+    assert_eq!(sum.window, 3);
+    let mut want = vec![0.25; 9];
+    want[4] += 2.0;
+    assert_eq!(sum.cells, want);
+    assert_eq!(sum.veil, 0.125);
+    assert!(Psf::weighted_sum(std::iter::empty::<(&Psf, f64)>()).is_none());
+}

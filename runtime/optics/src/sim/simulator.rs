@@ -274,21 +274,12 @@ impl Prepared {
 
     /// Time-weighted sum of PSFs of one request (they share one window).
     fn mixture(&self, optics: Optics, terms: &[(PsfSpec, f64)]) -> Result<Psf, SimError> {
-        let first = self.lookup(optics, terms[0].0)?;
-        let mut out = Psf {
-            window: first.window,
-            cells: vec![0.0; first.cells.len()],
-            veil: 0.0,
-        };
-        for (spec, w) in terms {
-            let p = self.lookup(optics, *spec)?;
-            out.cells
-                .iter_mut()
-                .zip(&p.cells)
-                .for_each(|(o, v)| *o += w * v);
-            out.veil += w * p.veil;
-        }
-        Ok(out)
+        let psfs = terms
+            .iter()
+            .map(|(spec, w)| Ok((self.lookup(optics, *spec)?, *w)))
+            .collect::<Result<Vec<_>, SimError>>()?;
+        Psf::weighted_sum(psfs.iter().copied())
+            .ok_or_else(|| SimError::Invalid("a display with no PSF terms".into()))
     }
 
     /// The retinal PSF of `method` at `accommodation_d`, one per channel.
@@ -305,34 +296,17 @@ impl Prepared {
 
     /// The system PSF averaged over `depths_d`, per channel (the Wiener H̄).
     pub fn mean_psfs(&self, method: Method, depths_d: &[f64]) -> Result<Vec<Psf>, SimError> {
-        let mut mean: Option<Vec<Psf>> = None;
+        let per_depth = depths_d
+            .iter()
+            .map(|d| self.system_psfs(method, *d))
+            .collect::<Result<Vec<_>, _>>()?;
         let w = 1.0 / depths_d.len() as f64;
-        for d in depths_d {
-            let psfs = self.system_psfs(method, *d)?;
-            match &mut mean {
-                None => {
-                    mean = Some(
-                        psfs.into_iter()
-                            .map(|mut p| {
-                                p.cells.iter_mut().for_each(|v| *v *= w);
-                                p.veil *= w;
-                                p
-                            })
-                            .collect(),
-                    )
-                }
-                Some(acc) => {
-                    for (a, p) in acc.iter_mut().zip(psfs) {
-                        a.cells
-                            .iter_mut()
-                            .zip(&p.cells)
-                            .for_each(|(o, v)| *o += w * v);
-                        a.veil += w * p.veil;
-                    }
-                }
-            }
-        }
-        mean.ok_or_else(|| SimError::Invalid("no depths to average".into()))
+        (0..self.calib.channels.len())
+            .map(|ch| {
+                Psf::weighted_sum(per_depth.iter().map(|psfs| (&psfs[ch], w)))
+                    .ok_or_else(|| SimError::Invalid("no depths to average".into()))
+            })
+            .collect()
     }
 
     /// Whether `accommodation_d` is one of the calibration's main depths

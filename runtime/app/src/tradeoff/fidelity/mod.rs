@@ -101,24 +101,14 @@ pub fn shrink_window(psf: &Psf, energy: f64) -> Psf {
     }
 }
 
-/// Weighted sum of PSFs with (possibly) different windows, centred.
+/// Weighted sum of PSFs with (possibly) different windows, centred
+/// ([`Psf::weighted_sum`]).
 pub fn mix(psfs: &[(Psf, f64)]) -> Psf {
-    let window = psfs.iter().map(|(p, _)| p.window).max().unwrap_or(1);
-    let mut out = Psf {
-        window,
-        cells: vec![0.0; window * window],
+    Psf::weighted_sum(psfs.iter().map(|(p, w)| (p, *w))).unwrap_or(Psf {
+        window: 1,
+        cells: vec![0.0],
         veil: 0.0,
-    };
-    for (p, w) in psfs {
-        let off = (window - p.window) / 2;
-        for y in 0..p.window {
-            for x in 0..p.window {
-                out.cells[(y + off) * window + x + off] += w * p.cells[y * p.window + x];
-            }
-        }
-        out.veil += w * p.veil;
-    }
-    out
+    })
 }
 
 /// The perceived image on a 1-arcmin grid (one cell per display pixel,
