@@ -19,6 +19,7 @@ pub mod pupil;
 pub mod radial;
 pub mod radial_golden;
 pub mod sampling;
+pub mod spectrum;
 
 pub use doe::{HeightMap, Profile};
 pub use psf::{Propagator, Psf, PsfRequest, PsfSet, SamplingReport, compute_psfs, propagator_for};

@@ -3,6 +3,7 @@
 //! §16–§17).
 
 pub mod convolve;
+pub mod economy;
 pub mod focus;
 pub mod methods;
 pub mod metrics;

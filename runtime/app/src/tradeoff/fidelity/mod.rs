@@ -25,112 +25,14 @@ use super::quality::{Quality, headline_depths, score_depths};
 use crate::{AppError, CommonOptions};
 use nedrt_core::calib::Calibration;
 use nedrt_infer::{BackendKind, BackendOptions, Dcnn};
-use nedrt_optics::propagate::{centred_window_energies, crop_centred};
 use nedrt_optics::sampling::max_pupil_step;
-use nedrt_optics::sim::convolve::PreparedKernel;
-use nedrt_optics::sim::wiener::display_kernel;
+use nedrt_optics::sim::economy::{perceive_one_arcmin, shrink_window};
 use nedrt_optics::sim::{Image, perceive};
+use nedrt_optics::spectrum::{shifted_calibration, spectral_nodes};
 use nedrt_optics::{HeightMap, Psf, PsfRequest, PsfSpec, compute_psfs, doe_file};
-
-/// Full width at half maximum of each primary's emission spectrum (nm):
-/// an OLED microdisplay's primaries are 25–40 nm wide; 30 nm is assumed.
-pub const PRIMARY_FWHM_NM: f64 = 30.0;
 
 /// Error budget of an economy against the exhaustive model (docs/model.md §8), dB.
 pub const MAX_ERROR_DB: f64 = 0.1;
-
-/// Gauss–Hermite nodes (in standard deviations) and weights for a normal
-/// distribution: 1 point, or 5 points (exact for polynomials to degree 9).
-pub fn spectral_nodes(samples: usize) -> Vec<(f64, f64)> {
-    match samples {
-        1 => vec![(0.0, 1.0)],
-        _ => {
-            // Probabilists' Hermite nodes of degree 5 and their weights.
-            let a = (5.0 - 10f64.sqrt()).sqrt();
-            let b = (5.0 + 10f64.sqrt()).sqrt();
-            let wa = (7.0 + 2.0 * 10f64.sqrt()) / 60.0;
-            let wb = (7.0 - 2.0 * 10f64.sqrt()) / 60.0;
-            vec![(-b, wb), (-a, wa), (0.0, 8.0 / 15.0), (a, wa), (b, wb)]
-        }
-    }
-}
-
-/// Cauchy dispersion n(λ) = A + B/λ², least-squares fit to the channels.
-pub fn cauchy_fit(calib: &Calibration) -> (f64, f64) {
-    let xs: Vec<f64> = calib
-        .channels
-        .iter()
-        .map(|c| c.wavelength_m.powi(-2))
-        .collect();
-    let ys: Vec<f64> = calib.channels.iter().map(|c| c.index).collect();
-    let n = xs.len() as f64;
-    let (mx, my) = (xs.iter().sum::<f64>() / n, ys.iter().sum::<f64>() / n);
-    let sxy: f64 = xs.iter().zip(&ys).map(|(x, y)| (x - mx) * (y - my)).sum();
-    let sxx: f64 = xs.iter().map(|x| (x - mx).powi(2)).sum();
-    let b = if sxx > 0.0 { sxy / sxx } else { 0.0 };
-    (my - b * mx, b)
-}
-
-/// The calibration with every channel moved by `offset_sd` standard
-/// deviations of its spectrum, the index following the Cauchy fit (the
-/// fit's residual at the channel's own wavelength is kept, so offset 0
-/// is the calibration itself).
-pub fn shifted_calibration(calib: &Calibration, offset_sd: f64) -> Calibration {
-    let (a, b) = cauchy_fit(calib);
-    let sigma_m = PRIMARY_FWHM_NM * 1e-9 / (8.0 * 2f64.ln()).sqrt();
-    let mut c = calib.clone();
-    for ch in &mut c.channels {
-        let residual = ch.index - (a + b / ch.wavelength_m.powi(2));
-        ch.wavelength_m += offset_sd * sigma_m;
-        ch.index = a + b / ch.wavelength_m.powi(2) + residual;
-    }
-    c
-}
-
-/// `psf` cut to the smallest centred window holding `energy` of the light
-/// (the rest joins the veil), as the PSF model's rule 5 does on a period.
-pub fn shrink_window(psf: &Psf, energy: f64) -> Psf {
-    let e = centred_window_energies(&psf.cells, psf.window);
-    let inside = e.last().copied().unwrap_or(0.0);
-    let half = e.iter().position(|&v| v >= energy).unwrap_or(e.len() - 1);
-    let window = 2 * half + 1;
-    Psf {
-        window,
-        cells: crop_centred(&psf.cells, psf.window, window),
-        veil: psf.veil + (inside - e[half]).max(0.0),
-    }
-}
-
-/// Weighted sum of PSFs with (possibly) different windows, centred
-/// ([`Psf::weighted_sum`]).
-pub fn mix(psfs: &[(Psf, f64)]) -> Psf {
-    Psf::weighted_sum(psfs.iter().map(|(p, w)| (p, *w))).unwrap_or(Psf {
-        window: 1,
-        cells: vec![0.0],
-        veil: 0.0,
-    })
-}
-
-/// The perceived image on a 1-arcmin grid (one cell per display pixel,
-/// the PSF taken to the display grid by the exact 2×2 relation), shown
-/// on the 0.5-arcmin grid by pixel replication so it is scored like
-/// every other setting.
-pub fn perceive_one_arcmin(display: &Image, psfs: &[Psf]) -> Image {
-    let means = display.plane_means();
-    let planes = display
-        .planes()
-        .zip(psfs)
-        .zip(means)
-        .map(|((plane, psf), mean)| {
-            let (k, side) = display_kernel(psf);
-            let mut out = PreparedKernel::new(&k, side, display.width, display.height).apply(plane);
-            let veil = (psf.veil * mean) as f32;
-            out.iter_mut().for_each(|v| *v += veil);
-            out
-        })
-        .collect();
-    Image::from_planes(display.width, display.height, planes).up2()
-}
 
 /// One setting of the PSF model.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -340,10 +242,9 @@ pub fn run(
             .map(|di| {
                 (0..calib.channels.len())
                     .map(|ch| {
-                        let mixed = mix(&nodes
-                            .iter()
-                            .map(|n| (n.psfs[di][ch].clone(), n.weight))
-                            .collect::<Vec<_>>());
+                        let mixed =
+                            Psf::weighted_sum(nodes.iter().map(|n| (&n.psfs[di][ch], n.weight)))
+                                .expect("at least one spectral node");
                         shrink_window(&mixed, s.window_energy)
                     })
                     .collect()
@@ -413,6 +314,3 @@ pub fn run(
         out_dir,
     )
 }
-
-#[cfg(test)]
-mod tests;
