@@ -16,10 +16,12 @@ declare -A allowed=(
     [nedrt-infer]="nedrt-core nedrt-gpu"
     [nedrt-service]="nedrt-core nedrt-gpu"
     [nedrt-app]="nedrt-core nedrt-gpu nedrt-optics nedrt-infer nedrt-service"
+    [nedrt-studies]="nedrt-core nedrt-gpu nedrt-optics nedrt-infer nedrt-service nedrt-app"
 )
 declare -A dir=(
     [nedrt-core]=core [nedrt-gpu]=gpu [nedrt-optics]=optics
     [nedrt-infer]=infer [nedrt-service]=service [nedrt-app]=app
+    [nedrt-studies]=studies
 )
 status=0
 for crate in "${!allowed[@]}"; do

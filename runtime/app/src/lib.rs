@@ -1,31 +1,22 @@
 //! nedrt-app, layer 3 of nedrt: what the `nedrt` commands do, as library
 //! functions with typed options and printable reports (the binary only
 //! parses arguments, reads the environment into [`CommonOptions`] and calls
-//! these): the simulation, the real-time run, and the studies (eval,
-//! tradeoff, stability, focus cues, plots, benchmarks). The preprocessing
-//! registry ([`preprocess`]) names every "input frame → display frame" the
-//! simulator and the service can run.
+//! these): the simulation, the real-time run, the viewer, the designs and
+//! the prefilter batches. The preprocessing registry ([`preprocess`]) names
+//! every "input frame → display frame" the simulator and the service can
+//! run. The studies built on them are the crate above, nedrt-studies.
 //!
-//! Rule: the top library layer, and the only one with plotters and report
-//! writers; no clap, no indicatif, no environment (settings arrive as
-//! values, progress through [`nedrt_core::Progress`]).
+//! Rule: no clap, no indicatif, no environment (settings arrive as values,
+//! progress through [`nedrt_core::Progress`]).
 
-pub mod bench;
-pub mod bench_fft;
-pub mod bench_inference;
-pub mod bench_pipeline;
 pub mod charts;
 pub mod design;
 pub mod device_prefilter;
-pub mod eval;
-pub mod focus_cues;
-pub mod plots;
+pub mod images;
 pub mod prefilter_batch;
 pub mod preprocess;
 pub mod run;
 pub mod sim;
-pub mod stability;
-pub mod tradeoff;
 pub mod tune;
 pub mod view;
 

@@ -13,7 +13,7 @@ use std::time::Instant;
 use safetensors::Dtype;
 use safetensors::tensor::TensorView;
 
-use super::eval::{list_images, load_all};
+use super::images::{list_images, load_all};
 use super::{AppError, CommonOptions, create_dir, write_text};
 use crate::preprocess::{Prefilter, for_system};
 use nedrt_core::image_io;

@@ -763,7 +763,6 @@ mod tests {
         use nedrt_service::present::headless::HeadlessSink;
         use nedrt_service::present::transfer::Transfer;
 
-        use crate::bench_fft::gaussian_psf;
         use crate::device_prefilter::{refine_stage, wiener_stage};
         use crate::preprocess::BehindWiener;
         use nedrt_optics::sim::Method;
@@ -773,7 +772,7 @@ mod tests {
         fn psfs() -> Vec<Psf> {
             [1.5, 2.5, 4.0]
                 .iter()
-                .map(|s| gaussian_psf(*s, 0.03))
+                .map(|s| Psf::gaussian(*s, 0.03))
                 .collect()
         }
 
@@ -874,7 +873,7 @@ mod tests {
         fn gaussians(sigma: f64, veil: f64) -> Vec<Psf> {
             [1.0, 1.3, 1.7]
                 .iter()
-                .map(|k| gaussian_psf(sigma * k, veil))
+                .map(|k| Psf::gaussian(sigma * k, veil))
                 .collect()
         }
 

@@ -6,9 +6,10 @@
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
-use super::eval::{HEADLINE_MAX_D, list_images, load_all};
+use super::images::{list_images, load_all};
 use super::{AppError, CommonOptions, write_text};
 use nedrt_core::calib::DEFAULT_CALIBRATION_NAME;
+use nedrt_optics::sim::HEADLINE_MAX_D;
 use nedrt_optics::sim::metrics::psnr;
 use nedrt_optics::sim::simulator::PerceivePlan;
 use nedrt_optics::sim::{Method, Simulator};

@@ -8,6 +8,7 @@ use nedrt_app::{self as app, CommonOptions};
 use nedrt_infer::{BackendKind, BackendOptions, OrtLibrary};
 use nedrt_service::pipeline::service::Control;
 use nedrt_service::present::window::WindowOptions;
+use nedrt_studies as studies;
 
 use crate::args::{BenchKind, Cli, Command, ShownArg};
 use crate::console::Console;
@@ -65,11 +66,11 @@ pub fn run(cli: Cli) -> Result<()> {
         progress: Arc::new(Console::default()),
     };
     match cli.command {
-        Some(Command::Psf(a)) => print!("{}", app::plots::psf(&common, &a.out_dir, a.step)?),
-        Some(Command::Mtf(a)) => print!("{}", app::plots::mtf(&common, &a.out_dir, a.step)?),
+        Some(Command::Psf(a)) => print!("{}", studies::plots::psf(&common, &a.out_dir, a.step)?),
+        Some(Command::Mtf(a)) => print!("{}", studies::plots::mtf(&common, &a.out_dir, a.step)?),
         Some(Command::Doe(a)) => print!(
             "{}",
-            app::plots::doe(
+            studies::plots::doe(
                 &common,
                 &a.out_dir,
                 a.write_init.as_deref(),
@@ -77,7 +78,7 @@ pub fn run(cli: Cli) -> Result<()> {
             )?
         ),
         Some(Command::Eval(a)) => {
-            let external = a.display_dir.map(|dir| app::eval::ExternalDisplays {
+            let external = a.display_dir.map(|dir| studies::eval::ExternalDisplays {
                 name: a.display_name,
                 dir,
                 optics: a.display_optics,
@@ -85,7 +86,7 @@ pub fn run(cli: Cli) -> Result<()> {
             if !a.eyes.is_empty() && a.sweeps.is_some() {
                 anyhow::bail!("--sweeps with --eyes: give one eye (its flags) for the sweeps");
             }
-            let extras = app::eval::EvalExtras {
+            let extras = studies::eval::EvalExtras {
                 external,
                 designs: a
                     .designs
@@ -99,9 +100,9 @@ pub fn run(cli: Cli) -> Result<()> {
             print!(
                 "{}",
                 if a.eyes.is_empty() {
-                    app::eval::run(&common, &a.images, &a.out_dir, &a.methods, &extras)?
+                    studies::eval::run(&common, &a.images, &a.out_dir, &a.methods, &extras)?
                 } else {
-                    app::eval::eyes::run(
+                    studies::eval::eyes::run(
                         &common, &a.images, &a.out_dir, &a.methods, &extras, &a.eyes,
                     )?
                 }
@@ -178,15 +179,15 @@ pub fn run(cli: Cli) -> Result<()> {
             let report = app::run::run(&common, &opts, &control)?;
             print!("{}", report.table());
         }
-        Some(Command::Calib) => print!("{}", app::plots::calib_summary(&common)?),
+        Some(Command::Calib) => print!("{}", studies::plots::calib_summary(&common)?),
         Some(Command::Bench(a)) => match a.what {
-            BenchKind::Psf => println!("{}", app::bench::psf(&common, &a.dump, a.repeat)?),
+            BenchKind::Psf => println!("{}", studies::bench::psf(&common, &a.dump, a.repeat)?),
             BenchKind::Perceived => {
-                print!("{}", app::bench::perceived(&common, &a.dump, a.repeat)?)
+                print!("{}", studies::bench::perceived(&common, &a.dump, a.repeat)?)
             }
-            BenchKind::Radial => print!("{}", app::bench::radial(&common, &a.dump)?),
+            BenchKind::Radial => print!("{}", studies::bench::radial(&common, &a.dump)?),
             BenchKind::Inference => {
-                let bench = app::bench_inference::InferenceBench {
+                let bench = studies::bench_inference::InferenceBench {
                     backends: a.backends,
                     sizes: a.sizes,
                     models: vec![("full".into(), 32), ("half".into(), 16)],
@@ -198,15 +199,15 @@ pub fn run(cli: Cli) -> Result<()> {
                     peak_gbps: a.peak_gbps,
                 };
                 if bench.per_layer {
-                    print!("{}", app::bench_inference::per_layer(&bench, &common)?);
+                    print!("{}", studies::bench_inference::per_layer(&bench, &common)?);
                 } else {
                     let table =
-                        app::bench_inference::run(&bench, &common, &mut |r| println!("{r}"))?;
+                        studies::bench_inference::run(&bench, &common, &mut |r| println!("{r}"))?;
                     print!("{table}");
                 }
             }
             BenchKind::Pipeline => {
-                let bench = app::bench_pipeline::PipelineBench {
+                let bench = studies::bench_pipeline::PipelineBench {
                     networks: a.networks,
                     paths: a.frame_paths,
                     frames: a.frames,
@@ -214,33 +215,34 @@ pub fn run(cli: Cli) -> Result<()> {
                     panel_size: a.panel,
                     dump: a.dump,
                 };
-                let table = app::bench_pipeline::run(&bench, &common, &mut |r| println!("{r}"))?;
+                let table =
+                    studies::bench_pipeline::run(&bench, &common, &mut |r| println!("{r}"))?;
                 print!("{table}");
             }
             BenchKind::Fft => {
-                let bench = app::bench_fft::FftBench {
+                let bench = studies::bench_fft::FftBench {
                     sizes: a.sizes,
                     repeat: a.repeat,
                     peak_gbps: a.peak_gbps,
                     gpu: common.dcnn.backend_options.gpu.clone(),
                     per_pass: a.per_layer,
                 };
-                let table = app::bench_fft::run(&bench, &mut |r| println!("{r}"))?;
+                let table = studies::bench_fft::run(&bench, &mut |r| println!("{r}"))?;
                 print!("{table}");
             }
             BenchKind::Ceilings => {
-                let (gflops, gbps) = app::bench::ceilings();
+                let (gflops, gbps) = studies::bench::ceilings();
                 println!(
                     "{{\"kind\": \"ceilings\", \"f64_gemm_gflops\": {gflops:.2}, \"copy_gbps\": {gbps:.2}}}"
                 );
             }
         },
         Some(Command::Tradeoff(a)) if a.replot => {
-            print!("{}", app::tradeoff::replot(&a.out_dir)?);
+            print!("{}", studies::tradeoff::replot(&a.out_dir)?);
         }
         Some(Command::Tradeoff(a)) => {
             let calib = common.calibration()?;
-            let opts = app::tradeoff::TradeoffOptions {
+            let opts = studies::tradeoff::TradeoffOptions {
                 images_dir: a.images,
                 out_dir: a.out_dir,
                 size: a
@@ -255,7 +257,7 @@ pub fn run(cli: Cli) -> Result<()> {
                 designs: app::design::Design::resolve_list(a.designs.as_deref())?,
                 prefilters: dedup(a.prefilter),
             };
-            print!("{}", app::tradeoff::run(&common, &opts)?);
+            print!("{}", studies::tradeoff::run(&common, &opts)?);
         }
         Some(Command::Pick(a)) => {
             for (name, v) in [("--min-psnr", a.min_psnr), ("--budget-ms", a.budget_ms)]
@@ -266,15 +268,15 @@ pub fn run(cli: Cli) -> Result<()> {
                     bail!("{name} {v}: not a number");
                 }
             }
-            let table = app::tradeoff::Table::load(&a.table)?;
-            let req = app::tradeoff::pareto::Requirement {
+            let table = studies::tradeoff::Table::load(&a.table)?;
+            let req = studies::tradeoff::pareto::Requirement {
                 min_mean_psnr_db: a.min_psnr,
                 min_worst_psnr_db: a.min_worst_psnr,
                 max_latency_ms: a.budget_ms,
             };
             let points = table.points();
-            let pick = app::tradeoff::pareto::pick(&points, &req);
-            if !matches!(pick, app::tradeoff::pareto::Pick::Chosen(_)) {
+            let pick = studies::tradeoff::pareto::pick(&points, &req);
+            if !matches!(pick, studies::tradeoff::pareto::Pick::Chosen(_)) {
                 bail!(
                     "{pick} ({}, {}×{} frames on {})",
                     a.table.display(),
@@ -289,7 +291,7 @@ pub fn run(cli: Cli) -> Result<()> {
             if a.content_size < 8 {
                 bail!("--content-size {}: at least 8 pixels", a.content_size);
             }
-            let opts = app::stability::StabilityOptions {
+            let opts = studies::stability::StabilityOptions {
                 images_dir: a.images,
                 out: a.out,
                 model: g.dcnn.clone(),
@@ -298,7 +300,7 @@ pub fn run(cli: Cli) -> Result<()> {
                 designs: app::design::Design::resolve_list(a.designs.as_deref())?,
                 eyes: a.eyes,
             };
-            print!("{}", app::stability::run(&common, &opts)?);
+            print!("{}", studies::stability::run(&common, &opts)?);
         }
         Some(Command::Prefilter(a)) => {
             let opts = app::prefilter_batch::PrefilterOptions {

@@ -29,7 +29,7 @@ pub struct StabilityArgs {
     /// Also sweep the Wiener K of the AI display and of each design through
     /// these eyes (paper, 3mm, 4mm@20, 4mm+lca; docs/model.md §4a).
     #[arg(long, value_delimiter = ',', value_name = "EYE")]
-    pub eyes: Vec<nedrt_app::eval::eyes::EyeCase>,
+    pub eyes: Vec<nedrt_studies::eval::eyes::EyeCase>,
 }
 
 #[derive(Args, Debug)]
@@ -149,7 +149,7 @@ pub struct EvalArgs {
     /// pupil `3mm`, with a field angle `4mm@20`, with eye LCA `4mm+lca`;
     /// one folder each under --out-dir, tables and a chart over them (eyes.md).
     #[arg(long, value_delimiter = ',', value_name = "EYE")]
-    pub eyes: Vec<nedrt_app::eval::eyes::EyeCase>,
+    pub eyes: Vec<nedrt_studies::eval::eyes::EyeCase>,
 }
 
 #[derive(Args, Debug)]

@@ -50,6 +50,27 @@ pub struct Psf {
 }
 
 impl Psf {
+    /// A mirror-symmetric Gaussian PSF of standard deviation `sigma` cells,
+    /// ±3σ wide, its cells summing to 1 − `veil` (benchmarks and tests: a
+    /// kernel of realistic values whose cost is the real one's).
+    pub fn gaussian(sigma: f64, veil: f64) -> Psf {
+        let window = 2 * (3.0 * sigma).ceil() as usize + 1;
+        let c = (window / 2) as f64;
+        let mut cells: Vec<f64> = (0..window * window)
+            .map(|i| {
+                let (x, y) = ((i % window) as f64 - c, (i / window) as f64 - c);
+                (-(x * x + y * y) / (2.0 * sigma * sigma)).exp()
+            })
+            .collect();
+        let sum: f64 = cells.iter().sum();
+        cells.iter_mut().for_each(|v| *v *= (1.0 - veil) / sum);
+        Psf {
+            window,
+            cells,
+            veil,
+        }
+    }
+
     /// Σ wᵢ·PSFᵢ, cells and veil alike, each PSF centred in the widest
     /// window: the time-weighted mixture of a display's planes, the mean
     /// over an accommodation sweep, a spectrum's mix of wavelengths. The

@@ -30,32 +30,12 @@ pub struct FftBench {
     pub per_pass: bool,
 }
 
-/// A mirror-symmetric Gaussian PSF of standard deviation `sigma` cells,
-/// ±3σ wide, its cells summing to 1 − `veil`.
-pub(crate) fn gaussian_psf(sigma: f64, veil: f64) -> Psf {
-    let window = 2 * (3.0 * sigma).ceil() as usize + 1;
-    let c = (window / 2) as f64;
-    let mut cells: Vec<f64> = (0..window * window)
-        .map(|i| {
-            let (x, y) = ((i % window) as f64 - c, (i / window) as f64 - c);
-            (-(x * x + y * y) / (2.0 * sigma * sigma)).exp()
-        })
-        .collect();
-    let sum: f64 = cells.iter().sum();
-    cells.iter_mut().for_each(|v| *v *= (1.0 - veil) / sum);
-    Psf {
-        window,
-        cells,
-        veil,
-    }
-}
-
 /// One PSF per channel (the filter's cost does not depend on the kernel;
 /// its values are only realistic).
 fn psfs() -> Vec<Psf> {
     [1.5, 2.0, 2.5]
         .iter()
-        .map(|s| gaussian_psf(*s, 0.0))
+        .map(|s| Psf::gaussian(*s, 0.0))
         .collect()
 }
 
