@@ -22,22 +22,29 @@
 //! never blocks on the pipeline and the present loop never waits for a
 //! frame: at each refresh it shows the newest finished frame, if any.
 
+mod compositor;
+mod control;
+mod engine;
+
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::thread::JoinHandle;
 
 use crossbeam_channel::Receiver;
 
-use super::channel::{NewestSender, newest_channel};
-use super::frame::{FrameError, SubmittedFrame, decode, validate};
+use super::channel::newest_channel;
+use super::frame::{SubmittedFrame, decode};
 use super::pacing::{Clock, NewestSlot, Pacer};
 use super::resident::{DeviceFrames, DeviceInput};
 use super::stats::{RSS_EVERY, Report, Stage, Stats};
 use crate::present::transfer::Transfer;
-use crate::present::{DeviceDisplayFrame, DisplayFrame, PanelFrame, PresentError, Presented, Sink};
+use crate::present::{DisplayFrame, PanelFrame, PresentError, Presented, Sink};
+pub use compositor::Compositor;
+use compositor::Timed;
+pub use control::Control;
+use engine::{Engine, Processed, UploadWork, host_stage};
 use nedrt_core::Image;
 use nedrt_core::preprocess::{Identity, Preprocess, PreprocessError};
-use nedrt_core::progress::{Progress, Silent};
 
 /// Builds the preprocessor to switch to when the primary one fails.
 pub type FallbackFactory = Box<dyn FnOnce() -> Result<Box<dyn Preprocess>, PreprocessError> + Send>;
@@ -153,106 +160,6 @@ impl std::fmt::Debug for ResidentStage {
     }
 }
 
-/// The dcnn stage's engine: on the host, or on the sink's device.
-enum Engine {
-    Host(DcnnStage),
-    Device {
-        frames: Box<DeviceFrames>,
-        fallback: Option<FallbackFactory>,
-    },
-}
-
-/// What the dcnn stage hands the encode stage.
-enum Processed {
-    Host(Image),
-    Device(DeviceDisplayFrame),
-}
-
-/// A frame from the upload stage as a host image.
-fn host_image(input: DeviceInput) -> Image {
-    match input {
-        DeviceInput::Client(f) => decode(&f),
-        DeviceInput::Planar(im) => im,
-    }
-}
-
-impl Engine {
-    fn describe(&self) -> String {
-        match self {
-            Engine::Host(d) => d.primary.describe(),
-            Engine::Device { frames, .. } => frames.describe(),
-        }
-    }
-
-    fn run(&mut self, id: u64, input: DeviceInput, stats: &Stats) -> Option<Processed> {
-        if let Engine::Device { frames, fallback } = self {
-            match frames.run(id, &input) {
-                Ok((frame, traffic)) => {
-                    if let Some(ns) = frames.last_gpu_ns() {
-                        stats.record(Stage::DcnnGpu, ns);
-                    }
-                    stats.dcnn_traffic.record(traffic);
-                    return Some(Processed::Device(frame));
-                }
-                Err(e) => {
-                    let reason = format!("{e}; frames now go through the host");
-                    let next =
-                        switch_to_fallback(fallback.take(), &frames.describe(), &reason, stats);
-                    *stats.frame_path.lock().unwrap_or_else(|p| p.into_inner()) =
-                        "host (after the device path failed)".into();
-                    *self = Engine::Host(DcnnStage {
-                        primary: next,
-                        fallback: None,
-                    });
-                }
-            }
-        }
-        let Engine::Host(dcnn) = self else {
-            return None;
-        };
-        dcnn.run(&host_image(input), stats).map(Processed::Host)
-    }
-}
-
-/// The upload stage's work on a frame.
-type UploadWork = Box<dyn FnMut(SubmittedFrame, &Stats) -> Option<DeviceInput> + Send>;
-
-/// The upload stage of the device path with a host stage: as the host
-/// path treats its engine, a frame the stage refuses is `failed`, and an
-/// engine failure is counted and switches the stage off for good (frames
-/// then go up as decoded).
-fn host_stage(
-    mut prep: HostPrep,
-) -> impl FnMut(SubmittedFrame, &Stats) -> Option<DeviceInput> + Send {
-    use std::sync::atomic::Ordering::Relaxed;
-    let mut failed_over = false;
-    move |f, stats| {
-        let decoded = decode(&f);
-        if failed_over {
-            return Some(DeviceInput::Planar(decoded));
-        }
-        match (prep.run)(&decoded) {
-            Ok(im) => Some(DeviceInput::Planar(im)),
-            Err(PreprocessError::Frame(e)) => {
-                tracing::error!("{} refused frame {}: {e}", prep.name, f.id);
-                stats.failed.fetch_add(1, Relaxed);
-                None
-            }
-            Err(e) => {
-                tracing::error!(
-                    "{} failed: {e}; frames now go to the device without it",
-                    prep.name
-                );
-                stats.dcnn_failures.fetch_add(1, Relaxed);
-                *stats.frame_path.lock().unwrap_or_else(|p| p.into_inner()) =
-                    format!("device, without its host stage ({} failed)", prep.name);
-                failed_over = true;
-                Some(DeviceInput::Planar(decoded))
-            }
-        }
-    }
-}
-
 /// The panel the service drives.
 #[derive(Debug, Clone)]
 pub struct PanelConfig {
@@ -260,114 +167,6 @@ pub struct PanelConfig {
     pub height: usize,
     pub refresh_hz: f64,
     pub transfer: Transfer,
-}
-
-/// A frame in flight with its timing.
-#[derive(Debug)]
-struct Timed<T> {
-    item: T,
-    id: u64,
-    /// Capture time if the client gave a usable one, else submission.
-    start_ns: u64,
-    /// Time spent in the stages' own work so far.
-    work_ns: u64,
-}
-
-/// The in-process API: submit frames to a running service. Cheap to clone;
-/// the pipeline runs until every clone is dropped (or the service stops).
-#[derive(Debug, Clone)]
-pub struct Compositor {
-    tx: NewestSender<Timed<SubmittedFrame>>,
-    stats: Arc<Stats>,
-    clock: Arc<dyn Clock>,
-    width: usize,
-    height: usize,
-}
-
-impl Compositor {
-    /// Checks `frame` and queues it; a bad frame is refused (and counted)
-    /// here, on the caller's thread, so the caller learns why at once.
-    /// Never blocks on the pipeline: a full queue drops its oldest frame.
-    pub fn submit(&self, frame: SubmittedFrame) -> Result<(), FrameError> {
-        use std::sync::atomic::Ordering::Relaxed;
-        self.stats.submitted.fetch_add(1, Relaxed);
-        if let Err(e) = validate(&frame, self.width, self.height) {
-            self.stats.reject(e.reason);
-            tracing::warn!("{e}");
-            return Err(e);
-        }
-        let now = self.clock.now_ns();
-        let start_ns = if frame.capture_ns > 0 && frame.capture_ns <= now {
-            frame.capture_ns
-        } else {
-            now
-        };
-        self.tx.send(Timed {
-            id: frame.id,
-            item: frame,
-            start_ns,
-            work_ns: 0,
-        });
-        Ok(())
-    }
-
-    /// The panel's resolution, which every frame must have.
-    pub fn panel_size(&self) -> (usize, usize) {
-        (self.width, self.height)
-    }
-
-    /// Counts a frame refused before it could be submitted (a header the
-    /// socket source could not turn into a frame).
-    pub fn reject_before_submit(&self, reason: super::frame::RejectReason, id: u64, detail: &str) {
-        self.stats
-            .submitted
-            .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-        self.stats.reject(reason);
-        tracing::warn!("frame {id} rejected ({}): {detail}", reason.name());
-    }
-
-    /// Counts a client dropped for not reading its replies.
-    pub fn count_client_dropped(&self) {
-        self.stats
-            .clients_dropped
-            .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-    }
-
-    /// Counts a client that vanished with a frame half sent.
-    pub fn count_disconnect_mid_frame(&self) {
-        self.stats
-            .disconnects_mid_frame
-            .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-    }
-}
-
-/// How the present loop runs and ends.
-#[derive(Debug, Clone)]
-pub struct Control {
-    /// Set by a signal (or a test) to stop.
-    pub stop: Arc<AtomicBool>,
-    /// Set by SIGUSR1: print the latency table now.
-    pub report: Arc<AtomicBool>,
-    /// Keep showing the last frame after the sources end, until stopped.
-    pub keep_open: bool,
-    /// Where the live status line and the requested tables go.
-    pub progress: Arc<dyn Progress>,
-    /// Set once, when the pipeline is prepared and takes its first frame:
-    /// a caller that bounds the run's time (a benchmark) counts from here,
-    /// not from the preparation.
-    pub serving: Arc<std::sync::OnceLock<std::time::Instant>>,
-}
-
-impl Default for Control {
-    fn default() -> Self {
-        Self {
-            stop: Arc::default(),
-            report: Arc::default(),
-            keep_open: false,
-            progress: Arc::new(Silent),
-            serving: Arc::default(),
-        }
-    }
 }
 
 /// A running pipeline.
