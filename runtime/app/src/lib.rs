@@ -136,6 +136,16 @@ impl CommonOptions {
             Some(p) => Calibration::load(p)?,
             None => Calibration::default_embedded()?,
         };
+        // A DOE the calibration names must be there, whether or not this
+        // run's methods look through it (the shipped system uses its D-CNN's).
+        if let Some(p) = &calib.doe_file
+            && let Err(e) = std::fs::metadata(p)
+        {
+            return Err(AppError::output(
+                p,
+                format!("the calibration's DOE file (doe_file) cannot be read: {e}"),
+            ));
+        }
         if let Some(d) = &self.design {
             let hash = nedrt_optics::doe_file::load(&d.doe, &calib)?.content_hash();
             d.apply(&mut calib, hash);
