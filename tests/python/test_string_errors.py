@@ -73,3 +73,12 @@ def test_typed_errors_private_functions_from_str_and_tests_pass(tmp_path, capsys
 def test_the_repository_has_no_string_error_in_a_library_interface(capsys):
     code, out = check(capsys)
     assert code == 0, out
+
+
+def test_a_test_only_use_line_does_not_end_the_check(tmp_path, capsys):
+    src = write(tmp_path / "src", {
+        "lib.rs": "#[cfg(test)]\nuse std::fmt;\n\npub fn late() -> Result<(), String> {\n    Ok(())\n}\n"
+                  "#[cfg(test)]\nmod tests {}\n",
+    })
+    code, out = check(capsys, "--rust", src)
+    assert code == 1 and "late" in out, out

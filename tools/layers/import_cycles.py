@@ -82,6 +82,18 @@ def strongly_connected(nodes, edges):
 # ------------------------------------------------------------------ Rust
 
 
+# A test module: `#[cfg(test)]` (maybe with more attributes) on a `mod`. A
+# `#[cfg(test)] use` line above it does not start the tests.
+TEST_MODULE = re.compile(r"^[ \t]*#\[cfg\((?:all\()?test\b[^\n]*\n(?:[ \t]*#\[[^\n]*\n)*[ \t]*(?:pub(?:\([^)]*\))? )?mod ",
+                         re.M)
+
+
+def without_tests(text: str) -> str:
+    """`text` up to its first `#[cfg(test)]` module (tests sit at a file's end)."""
+    m = TEST_MODULE.search(text)
+    return text if m is None else text[:m.start()]
+
+
 def is_test_file(rel: Path) -> bool:
     """`rel` relative to the crate's src/."""
     return (rel.name == "tests.rs" or rel.name.endswith("_tests.rs")

@@ -15,26 +15,19 @@ keeps them; a `#[cfg(test)] use` line above does not end the count).
 Standard library only.
 """
 import argparse
-import re
 import sys
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[2]
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from import_cycles import REPO, is_test_file, without_tests  # noqa: E402
+
 MAX_FILE_LINES = 550
 MAX_CRATE_SHARE = 0.25
-# A test module: `#[cfg(test)]` (maybe with more attributes) on a `mod`.
-CFG_TEST = re.compile(r"^[ \t]*#\[cfg\((?:all\()?test\b[^\n]*\n(?:[ \t]*#\[[^\n]*\n)*[ \t]*(?:pub(?:\([^)]*\))? )?mod ", re.M)
-
-
-def is_test_file(path: Path) -> bool:
-    return path.name == "tests.rs" or path.name.endswith("_tests.rs") or "tests" in path.parts[:-1]
 
 
 def code_lines(path: Path) -> int:
     """Lines of `path` before its first `#[cfg(test)]` module."""
-    text = path.read_text(encoding="utf-8", errors="replace")
-    m = CFG_TEST.search(text)
-    return (text if m is None else text[:m.start()]).count("\n")
+    return without_tests(path.read_text(encoding="utf-8", errors="replace")).count("\n")
 
 
 def measure(root: Path):

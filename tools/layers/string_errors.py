@@ -10,7 +10,8 @@ only print. `impl FromStr` is not caught (its `Err` is an associated type,
 and its `from_str` no `pub fn`): a parse error of one argument may be a
 string. Test code does not count: files named `tests.rs` or `*_tests.rs`,
 anything under a `tests/` directory, and everything from a file's first
-`#[cfg(test)]` on.
+`#[cfg(test)]` module on (a `#[cfg(test)] use` line above it does not end
+the check).
 
     python3 tools/layers/string_errors.py            # the repository
     python3 tools/layers/string_errors.py --rust DIR # those crates' src/ only
@@ -18,24 +19,14 @@ anything under a `tests/` directory, and everything from a file's first
 Standard library only.
 """
 import argparse
-import re
 import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from import_cycles import REPO, RUST_CRATES, display, is_test_file, tokens_of  # noqa: E402
+from import_cycles import REPO, RUST_CRATES, display, is_test_file, tokens_of, without_tests  # noqa: E402
 
 QUALIFIERS = {"const", "async", "unsafe", "extern", "default"}
 STRING = {"String", "std::string::String", "alloc::string::String"}
-CFG_TEST = re.compile(r"^\s*#\[cfg\((?:all\()?test\b", re.M)
-
-
-def without_tests(text: str) -> str:
-    """`text` up to its first `#[cfg(test)]` line."""
-    m = CFG_TEST.search(text)
-    return text if m is None else text[:m.start()]
-
-
 def split_top(tokens, sep=","):
     """`tokens` split at `sep` outside brackets (`->` is no bracket)."""
     parts, depth, cur = [], 0, []
