@@ -174,6 +174,10 @@ pub struct Zoned {
     pub plan: ZonePlan,
     /// Row-major; `None` where the zone is the centre's preparation.
     zones: Vec<Option<Prepared>>,
+    /// Each zone's rendering of the display image the zones were planned
+    /// for (row-major; empty with one zone): the planner measures them,
+    /// and the perceived image blends them.
+    rendered: Vec<Image>,
     /// Worst PSNR between the renderings of neighbouring zones (`None`
     /// with one zone): how far apart the interpolation reaches.
     pub neighbours_db: Option<f64>,
@@ -219,6 +223,7 @@ impl Simulator {
                 note,
             },
             zones: vec![None],
+            rendered: Vec::new(),
             neighbours_db: None,
         };
         if self.calib.eye.pupil_diameter_m.is_none() {
@@ -297,6 +302,7 @@ impl Simulator {
         Ok(Zoned {
             plan,
             zones,
+            rendered,
             neighbours_db: Some(worst),
         })
     }
@@ -340,7 +346,9 @@ impl Zoned {
         self.zones.iter().map(move |z| z.as_ref().unwrap_or(centre))
     }
 
-    /// The perceived image, rendered by zones and blended.
+    /// The perceived image of the display image the zones were planned
+    /// for ([`Simulator::field_zones`]): the zones' renderings blended, or
+    /// with one zone the centre's rendering.
     pub fn perceived(
         &self,
         centre: &Prepared,
@@ -348,14 +356,10 @@ impl Zoned {
         display: &Image,
         accommodation_d: f64,
     ) -> Result<Image, SimError> {
-        if self.zones.len() == 1 {
+        if self.rendered.is_empty() {
             return centre.perceived(method, display, accommodation_d);
         }
-        let rendered = self
-            .each(centre)
-            .map(|p| p.perceived(method, display, accommodation_d))
-            .collect::<Result<Vec<_>, _>>()?;
-        Ok(self.plan.blend(&rendered))
+        Ok(self.plan.blend(&self.rendered))
     }
 
     /// The target through the same eye, by zones (a main depth's is the
