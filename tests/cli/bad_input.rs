@@ -623,7 +623,7 @@ const ROWS: &[Row] = &[
             "--record-dir",
             "{out}",
         ],
-        "no-shm: --shm-dir: not a folder",
+        "no-shm: not a folder",
     ),
     row(
         "run: socket path held by a file",

@@ -37,7 +37,7 @@ fn run_refuses_bad_sources_sinks_and_models_with_one_error_line() {
         "--sink",
         "record",
     ]);
-    assert_clean_error(&o, "/no/such/shm: --shm-dir: not a folder");
+    assert_clean_error(&o, "/no/such/shm: not a folder");
     assert!(!dir.path().join("s.sock").exists(), "nothing listened");
     assert_eq!(std::fs::read(&file).expect("still there"), b"keep me");
     // A missing or corrupt model.

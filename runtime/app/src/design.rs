@@ -60,11 +60,14 @@ impl Design {
             Path::new(DESIGNS_DIR).join(format!("{arg}.toml"))
         };
         if !path.exists() {
-            return Err(AppError::Usage(format!(
-                "--design {arg}: {} does not exist (shipped designs: {})",
-                path.display(),
-                shipped_names().join(", ")
-            )));
+            return Err(AppError::option(
+                format!("--design {arg}"),
+                format!(
+                    "{} does not exist (shipped designs: {})",
+                    path.display(),
+                    shipped_names().join(", ")
+                ),
+            ));
         }
         Self::load(&path)
     }

@@ -298,7 +298,9 @@ pub fn for_system_on(
     };
     if method.uses_dcnn() && prefilter.is_native() {
         let Some(dcnn) = dcnns.remove(&method) else {
-            return Err(AppError::Usage(format!("no D-CNN loaded for {method}")));
+            return Err(AppError::Unavailable(format!(
+                "no D-CNN loaded for {method}"
+            )));
         };
         return Ok(match crate::preprocess::dcnn_input(&dcnn.model.path)? {
             DcnnInput::Frame => Box::new(dcnn),

@@ -24,10 +24,10 @@ pub fn list_images(dir: &Path) -> Result<Vec<PathBuf>, AppError> {
         .collect();
     files.sort();
     if files.is_empty() {
-        return Err(AppError::Usage(format!(
-            "{}: no images (png, jpg, tif, bmp, ppm) in this folder",
-            dir.display()
-        )));
+        return Err(AppError::input(
+            dir.display(),
+            "no images (png, jpg, tif, bmp, ppm) in this folder",
+        ));
     }
     Ok(files)
 }
@@ -47,10 +47,7 @@ pub fn load_cropped(path: &Path, panel: (usize, usize)) -> Result<Image, AppErro
     let im = l.image;
     let (w, h) = (im.width / 8 * 8, im.height / 8 * 8);
     if w == 0 || h == 0 {
-        return Err(AppError::Usage(format!(
-            "{}: smaller than 8×8 pixels",
-            path.display()
-        )));
+        return Err(AppError::input(path.display(), "smaller than 8×8 pixels"));
     }
     if (w, h) != (im.width, im.height) {
         tracing::warn!(

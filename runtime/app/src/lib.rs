@@ -103,12 +103,14 @@ impl DcnnOptions {
                 _ => &self.path,
             };
             if !path.exists() {
-                return Err(AppError::Usage(format!(
-                    "{}: no D-CNN for method {m} (give --dcnn{} FILE; models/README.md says how \
-                     to train one)",
+                return Err(AppError::input(
                     path.display(),
-                    if m == Method::LensDcnn { "-lens" } else { "" }
-                )));
+                    format!(
+                        "no D-CNN for method {m} (give --dcnn{} FILE; models/README.md says how \
+                         to train one)",
+                        if m == Method::LensDcnn { "-lens" } else { "" }
+                    ),
+                ));
             }
             let dcnn = Dcnn::load(path, self.backend, &self.backend_options)?;
             tracing::info!("{m}: {} on {}", path.display(), dcnn.describe());
@@ -233,16 +235,76 @@ pub enum AppError {
     Fft(#[from] nedrt_gpu::fft::FftError),
     #[error(transparent)]
     Gpu(#[from] nedrt_gpu::GpuError),
+    /// An output file or folder that cannot be written or made as asked
+    /// (a missing folder, a full disk, a report that does not serialize, a
+    /// sweep too large to hold); `path` names it.
     #[error("{path}: {reason}")]
     Output { path: String, reason: String },
+    /// A command-line value out of range or not a number: `option` is the
+    /// option as given (`--accom 25`, `--crop 600x10+0+0`), so that the user
+    /// sees which one to change.
+    #[error("{option}: {reason}")]
+    Option { option: String, reason: String },
+    /// Options that do not go together, or one that needs another
+    /// (`--headless` needs `--screenshot`): no single value is wrong, the
+    /// combination is.
     #[error("{0}")]
-    Usage(String),
+    Conflict(String),
+    /// An input the command reads that is unusable: an image too small, a
+    /// folder without images, a display image of the wrong size, an
+    /// unreadable model card or report, a missing model, or a system whose
+    /// PSFs lack a property the request needs; `path` names the file, folder
+    /// or system.
+    #[error("{path}: {reason}")]
+    Input { path: String, reason: String },
+    /// A part the request needs was not loaded or prepared (a method's
+    /// D-CNN, its Wiener filter) or there is nothing to work on (no methods,
+    /// no accommodations): the options named too little.
+    #[error("{0}")]
+    Unavailable(String),
+    /// A worker thread could not start or panicked; `what` names it as the
+    /// subject of the sentence ("the source thread"), `reason` says what
+    /// happened ("panicked").
+    #[error("{what} {reason}")]
+    Thread { what: String, reason: String },
+    /// Drawing the viewer's picture (text and slider) failed, usually for
+    /// want of a font.
+    #[error("drawing the viewer's picture: {0}")]
+    Draw(String),
+    /// A state the commands do not reach unless the code is wrong (an
+    /// invariant broken); reported rather than panicking.
+    #[error("{0}")]
+    Internal(String),
 }
 
 impl AppError {
     pub fn output(path: &Path, reason: impl std::fmt::Display) -> Self {
         AppError::Output {
             path: path.display().to_string(),
+            reason: reason.to_string(),
+        }
+    }
+
+    /// A bad command-line value: `option` as given (flag and value).
+    pub fn option(option: impl std::fmt::Display, reason: impl std::fmt::Display) -> Self {
+        AppError::Option {
+            option: option.to_string(),
+            reason: reason.to_string(),
+        }
+    }
+
+    /// An unusable input: `path` (a file, folder or named system) and why.
+    pub fn input(path: impl std::fmt::Display, reason: impl std::fmt::Display) -> Self {
+        AppError::Input {
+            path: path.to_string(),
+            reason: reason.to_string(),
+        }
+    }
+
+    /// A worker thread that could not start or panicked.
+    pub fn thread(what: impl std::fmt::Display, reason: impl std::fmt::Display) -> Self {
+        AppError::Thread {
+            what: what.to_string(),
             reason: reason.to_string(),
         }
     }
@@ -282,20 +344,25 @@ pub fn check_accommodation(
     accommodation_d: f64,
 ) -> Result<Option<String>, AppError> {
     if !accommodation_d.is_finite() {
-        return Err(AppError::Usage(format!(
-            "--accom {accommodation_d}: not a number of diopters"
-        )));
+        return Err(AppError::option(
+            format!("--accom {accommodation_d}"),
+            "not a number of diopters",
+        ));
     }
     if accommodation_d < 0.0 {
-        return Err(AppError::Usage(format!(
-            "--accom {accommodation_d}: accommodation must be ≥ 0 D (0 D is focus at infinity; an eye cannot focus beyond it)"
-        )));
+        return Err(AppError::option(
+            format!("--accom {accommodation_d}"),
+            "accommodation must be ≥ 0 D (0 D is focus at infinity; an eye cannot focus beyond it)",
+        ));
     }
     if accommodation_d > MAX_ACCOMMODATION_D {
-        return Err(AppError::Usage(format!(
-            "--accom {accommodation_d:e}: beyond what an eye accommodates (at most \
-             {MAX_ACCOMMODATION_D} D, a child's near point of 5 cm)"
-        )));
+        return Err(AppError::option(
+            format!("--accom {accommodation_d:e}"),
+            format!(
+                "beyond what an eye accommodates (at most {MAX_ACCOMMODATION_D} D, a child's \
+                 near point of 5 cm)"
+            ),
+        ));
     }
     let [lo, hi] = calib.range_d;
     Ok((accommodation_d < lo || accommodation_d > hi).then(|| {
@@ -304,4 +371,25 @@ pub fn check_accommodation(
             calib.source
         )
     }))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn option_and_input_errors_name_what_to_fix_first() {
+        let e = AppError::option("--fps 0", "frames a second must lie in [0.1, 100]");
+        assert_eq!(
+            e.to_string(),
+            "--fps 0: frames a second must lie in [0.1, 100]"
+        );
+        assert!(matches!(e, AppError::Option { ref option, .. } if option == "--fps 0"));
+        let e = AppError::input(
+            Path::new("in/tiny.png").display(),
+            "smaller than 8×8 pixels",
+        );
+        assert_eq!(e.to_string(), "in/tiny.png: smaller than 8×8 pixels");
+        assert!(matches!(e, AppError::Input { ref path, .. } if path == "in/tiny.png"));
+    }
 }

@@ -43,14 +43,14 @@ fn objective_of(p: Prefilter) -> Objective {
 pub fn run(common: &CommonOptions, o: &PrefilterOptions) -> Result<String, AppError> {
     let start = Instant::now();
     if o.method.uses_dcnn() && o.prefilter.is_native() {
-        return Err(AppError::Usage(format!(
+        return Err(AppError::Conflict(format!(
             "nedrt prefilter makes display images without a network; {} needs --prefilter lsq, \
              refine:K or optimal",
             o.method
         )));
     }
     if o.unclamped && !(o.prefilter.is_native() && o.method.uses_wiener()) {
-        return Err(AppError::Usage(format!(
+        return Err(AppError::Conflict(format!(
             "--unclamped writes a Wiener prefilter's output before the clamp; {} {} has none \
              (use a Wiener method with --prefilter native)",
             o.method, o.prefilter
@@ -71,15 +71,15 @@ pub fn run(common: &CommonOptions, o: &PrefilterOptions) -> Result<String, AppEr
     let mut operators = Vec::new();
     for &(w, h) in &o.operator_sizes {
         let kernels = problem.mirrored_kernels(w, h).ok_or_else(|| {
-            AppError::Usage(format!(
-                "{}: its PSFs are not mirror-symmetric, so the objective has no kernel form \
+            AppError::input(
+                o.method,
+                "its PSFs are not mirror-symmetric, so the objective has no kernel form \
                  (--operator needs a rotationally symmetric system)",
-                o.method
-            ))
+            )
         })?;
         let per_depth = problem
             .mirrored_depth_kernels(w, h)
-            .ok_or_else(|| AppError::Usage("no per-depth kernels".into()))?;
+            .ok_or_else(|| AppError::input(o.method, "no per-depth kernels"))?;
         let path = o.out_dir.join(format!("operator-{w}x{h}.safetensors"));
         let kernels = Kernels {
             summed: &kernels,
@@ -93,7 +93,7 @@ pub fn run(common: &CommonOptions, o: &PrefilterOptions) -> Result<String, AppEr
     let mut engine = for_system(o.method, o.prefilter, &prepared, &mut Default::default())?;
     let wiener = if o.unclamped {
         let filter = prepared.wiener(o.method).ok_or_else(|| {
-            AppError::Usage(format!(
+            AppError::Unavailable(format!(
                 "the Wiener filter of {} was not prepared",
                 o.method
             ))
@@ -156,9 +156,11 @@ pub fn run(common: &CommonOptions, o: &PrefilterOptions) -> Result<String, AppEr
         "operators": operators.iter().map(|p| p.display().to_string()).collect::<Vec<_>>(),
         "seconds": start.elapsed().as_secs_f64(),
     });
+    let manifest_path = o.out_dir.join("prefilter.json");
     write_text(
-        &o.out_dir.join("prefilter.json"),
-        &serde_json::to_string_pretty(&manifest).map_err(|e| AppError::Usage(e.to_string()))?,
+        &manifest_path,
+        &serde_json::to_string_pretty(&manifest)
+            .map_err(|e| AppError::output(&manifest_path, e))?,
     )?;
     let mut t = String::new();
     let _ = writeln!(

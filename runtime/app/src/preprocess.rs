@@ -31,7 +31,9 @@ pub fn for_method(
     if method.uses_dcnn() {
         return match dcnns.remove(&method) {
             Some(d) => dcnn_system(method, d, prepared),
-            None => Err(AppError::Usage(format!("no D-CNN loaded for {method}"))),
+            None => Err(AppError::Unavailable(format!(
+                "no D-CNN loaded for {method}"
+            ))),
         };
     }
     Ok(prepared.preprocessor(method)?)
@@ -63,7 +65,7 @@ pub fn dcnn_input(model: &Path) -> Result<DcnnInput, AppError> {
     if !path.is_file() {
         return Ok(DcnnInput::Frame);
     }
-    let bad = |reason: String| AppError::Usage(format!("{}: {reason}", path.display()));
+    let bad = |reason: String| AppError::input(path.display(), reason);
     let bytes = nedrt_core::util::read_capped(&path, MAX_CARD_BYTES)
         .map_err(|e| bad(format!("cannot read the model card: {e}")))?;
     let card: serde_json::Value =

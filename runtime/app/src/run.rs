@@ -48,16 +48,21 @@ pub fn run(
     if let Some(rate_hz) = opts.source_rate_hz
         && !(rate_hz == 0.0 || (MIN_SOURCE_RATE_HZ..=MAX_SOURCE_RATE_HZ).contains(&rate_hz))
     {
-        return Err(AppError::Usage(format!(
-            "--source-rate {rate_hz}: give 0 (unpaced) or a rate from {MIN_SOURCE_RATE_HZ} \
-             to {MAX_SOURCE_RATE_HZ} Hz"
-        )));
+        return Err(AppError::option(
+            format!("--source-rate {rate_hz}"),
+            format!(
+                "give 0 (unpaced) or a rate from {MIN_SOURCE_RATE_HZ} to {MAX_SOURCE_RATE_HZ} Hz"
+            ),
+        ));
     }
     let calib = common.calibration()?;
     let p = &calib.panel;
     let (width, height) = opts.panel_size.unwrap_or((p.width_px, p.height_px));
     if width == 0 || height == 0 {
-        return Err(AppError::Usage(format!("a {width}×{height} panel")));
+        return Err(AppError::option(
+            format!("--panel {width}x{height}"),
+            "the panel's sides must be positive",
+        ));
     }
     let panel = PanelConfig {
         width,
@@ -88,7 +93,7 @@ pub fn run(
         )),
         SourceKind::Dir => {
             let input = opts.input.as_ref().ok_or_else(|| {
-                AppError::Usage("--source dir needs --input FOLDER_OR_IMAGE".into())
+                AppError::Conflict("--source dir needs --input FOLDER_OR_IMAGE".into())
             })?;
             Box::new(DirSource::load(
                 input,
@@ -242,9 +247,9 @@ mod tests {
         use nedrt_optics::Psf;
         use nedrt_optics::sim::wiener::WienerFilter;
         use nedrt_service::pipeline::resident::{DeviceFrames, DeviceInput};
-        use nedrt_service::present::Sink;
         use nedrt_service::present::headless::HeadlessSink;
         use nedrt_service::present::transfer::Transfer;
+        use nedrt_service::present::{PanelCodes, Sink};
 
         use crate::device_prefilter::{refine_stage, wiener_stage};
         use crate::preprocess::BehindWiener;
@@ -304,7 +309,7 @@ mod tests {
                 .run(0, &DeviceInput::Planar(input.clone()))
                 .expect("runs");
             assert_eq!(traffic.read_backs, 0);
-            sink.present_device(&frame).expect("shown");
+            sink.present(PanelCodes::Device(&frame)).expect("shown");
             sink.read_back().expect("panel")
         }
 

@@ -233,10 +233,10 @@ fn simulate(
     // Below 8 pixels a side the scores mean nothing (SSIM needs an 11×11
     // window on the 2× retinal grid); `eval` refuses the same images.
     if input.width < 8 || input.height < 8 {
-        return Err(AppError::Usage(format!(
-            "{input_name}: {}×{} pixels, smaller than 8×8",
-            input.width, input.height
-        )));
+        return Err(AppError::input(
+            input_name,
+            format!("{}×{} pixels, smaller than 8×8", input.width, input.height),
+        ));
     }
     let display_loaded = match &opts.display_image {
         Some(p) => {
@@ -245,14 +245,13 @@ fn simulate(
                 tracing::warn!("{n}");
             }
             if (l.image.width, l.image.height) != (input.width, input.height) {
-                return Err(AppError::Usage(format!(
-                    "{}: display image is {}×{}, the input {input_name} is {}×{}; they must match",
+                return Err(AppError::input(
                     p.display(),
-                    l.image.width,
-                    l.image.height,
-                    input.width,
-                    input.height
-                )));
+                    format!(
+                        "display image is {}×{}, the input {input_name} is {}×{}; they must match",
+                        l.image.width, l.image.height, input.width, input.height
+                    ),
+                ));
             }
             Some(l.image)
         }
@@ -260,7 +259,7 @@ fn simulate(
     };
 
     if display_loaded.is_some() && !opts.prefilter.is_native() {
-        return Err(AppError::Usage(format!(
+        return Err(AppError::Conflict(format!(
             "--prefilter {} makes a display image, --display-image gives one; use one of them",
             opts.prefilter
         )));

@@ -28,9 +28,10 @@ pub fn run(
     write: bool,
 ) -> Result<String, AppError> {
     if !method.uses_wiener() {
-        return Err(AppError::Usage(format!(
-            "--method {method}: only ai and doe+wiener use a Wiener constant"
-        )));
+        return Err(AppError::option(
+            format!("--method {method}"),
+            "only ai and doe+wiener use a Wiener constant",
+        ));
     }
     let files = list_images(images_dir)?;
     let images = load_all(&files, common.panel_px()?)?;
@@ -44,7 +45,7 @@ pub fn run(
     let prepared = sim.prepare(&[method], &depths, common.progress())?;
     let base = prepared
         .wiener(method)
-        .ok_or_else(|| AppError::Usage("no Wiener filter prepared".into()))?;
+        .ok_or_else(|| AppError::Unavailable("no Wiener filter prepared".into()))?;
     let psfs: Vec<_> = depths
         .iter()
         .map(|d| prepared.system_psfs(method, *d))

@@ -168,6 +168,10 @@ pub fn run(cli: Cli) -> Result<()> {
                     fullscreen: a.fullscreen,
                     monitor: a.monitor,
                     vsync: !a.no_vsync,
+                    no_display_hint: Some(
+                        "--sink headless (needs a GPU, no display) or --sink record (neither)"
+                            .into(),
+                    ),
                     ..Default::default()
                 },
                 fallback: a.fallback,

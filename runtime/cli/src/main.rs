@@ -115,7 +115,24 @@ fn error_line(e: &anyhow::Error) -> String {
 /// name no flag).
 fn hint(e: &anyhow::Error) -> Option<&'static str> {
     use nedrt_gpu::GpuError;
+    use nedrt_infer::InferenceError;
     e.chain().find_map(|cause| {
+        // A transparent AppError is its inner error, not a link before it.
+        let inference = cause
+            .downcast_ref::<InferenceError>()
+            .or(match cause.downcast_ref::<nedrt_app::AppError>() {
+                Some(nedrt_app::AppError::Inference(i)) => Some(i),
+                _ => None,
+            });
+        if let Some(inference) = inference {
+            match inference {
+                InferenceError::FrameTooLarge(_) => {
+                    return Some("try --precision f16 or a smaller frame");
+                }
+                InferenceError::ProviderMissing { .. } => return Some("or use --ort-provider cpu"),
+                _ => {}
+            }
+        }
         let gpu = cause
             .downcast_ref::<GpuError>()
             .or(match cause.downcast_ref::<nedrt_app::AppError>() {
@@ -127,8 +144,12 @@ fn hint(e: &anyhow::Error) -> Option<&'static str> {
                 "--backend cpu runs the D-CNN on the CPU, and `nedrt run --sink record` needs no GPU",
             ),
             GpuError::NoShaderF16 { .. } => Some("use --precision f32"),
+            GpuError::OutOfMemory(_) => {
+                Some("a smaller panel or frame, or --backend cpu, needs less GPU memory")
+            }
             GpuError::RequestDevice(_)
             | GpuError::DeviceLost(_)
+            | GpuError::Validation(_)
             | GpuError::Map(_)
             | GpuError::Buffers(_)
             | GpuError::Fft(_)

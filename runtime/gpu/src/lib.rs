@@ -61,6 +61,13 @@ pub enum GpuError {
     /// Waiting for the device failed, or it never answered.
     #[error("device lost ({0})")]
     DeviceLost(String),
+    /// The device refused a command (wgpu validation): a size or a usage
+    /// it does not take, or a bug.
+    #[error("the device refused the work: {0}")]
+    Validation(String),
+    /// The device ran out of memory.
+    #[error("the GPU is out of memory ({0})")]
+    OutOfMemory(String),
     /// Mapping a buffer for reading, or reading it, failed.
     #[error("reading back from the GPU: {0}")]
     Map(String),
@@ -74,6 +81,16 @@ pub enum GpuError {
     /// its own error.
     #[error("{0}")]
     Stage(#[source] Box<dyn std::error::Error + Send + Sync>),
+}
+
+impl From<wgpu::Error> for GpuError {
+    fn from(e: wgpu::Error) -> Self {
+        match e {
+            wgpu::Error::OutOfMemory { .. } => GpuError::OutOfMemory(e.to_string()),
+            wgpu::Error::Validation { description, .. } => GpuError::Validation(description),
+            wgpu::Error::Internal { description, .. } => GpuError::DeviceLost(description),
+        }
+    }
 }
 
 /// Requests the default adapter of `settings` and a device with the

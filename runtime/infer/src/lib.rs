@@ -41,6 +41,21 @@ pub enum InferenceError {
     },
     #[error("frame: {0}")]
     Frame(String),
+    /// The frame's activations do not fit the adapter's largest binding,
+    /// even in bands: a smaller frame or half precision needs less.
+    #[error("wgpu backend: {0}")]
+    FrameTooLarge(String),
+    /// The requested ONNX Runtime execution provider is not in the loaded
+    /// library.
+    #[error(
+        "ort backend: the {provider} execution provider is not available in {library} \
+         ({reason}); use an ONNX Runtime build with it (ORT_DYLIB_PATH)"
+    )]
+    ProviderMissing {
+        provider: String,
+        library: PathBuf,
+        reason: String,
+    },
     #[error("wgpu backend: {0}")]
     Gpu(#[from] nedrt_gpu::GpuError),
     #[error(

@@ -82,12 +82,10 @@ impl OrtBackend {
             let name = p.name();
             builder = builder
                 .with_execution_providers([p.error_on_failure()])
-                .map_err(|e| {
-                    err(format!(
-                        "the {name} execution provider is not available in {} ({e}); use an \
-                         ONNX Runtime build with it (ORT_DYLIB_PATH) or --ort-provider cpu",
-                        library.display()
-                    ))
+                .map_err(|e| InferenceError::ProviderMissing {
+                    provider: name.to_string(),
+                    library: library.to_path_buf(),
+                    reason: e.to_string(),
                 })?;
         }
         let session =

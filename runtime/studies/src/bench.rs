@@ -122,7 +122,7 @@ pub fn psf(common: &CommonOptions, dump: &Path, repeat: usize) -> Result<String,
     let (t_exact, _) = time(repeat, || exact_period_cells(&q, grid, lambda, dtheta));
     let (t_fft, fft) = time(repeat, || fft_period_cells(&q, grid, lambda, dtheta, sub));
     let fft = crop_centred(
-        &fft.ok_or_else(|| AppError::Usage("period not whole".into()))?,
+        &fft.ok_or_else(|| AppError::Internal("period not whole".into()))?,
         period,
         w,
     );

@@ -48,9 +48,10 @@ pub fn run(
     if let Some(v) = b.peak_gbps
         && !(v.is_finite() && v > 0.0)
     {
-        return Err(AppError::Usage(format!(
-            "--peak-gbps {v}: must be a positive rate"
-        )));
+        return Err(AppError::option(
+            format!("--peak-gbps {v}"),
+            "must be a positive rate",
+        ));
     }
     let (adapter, device, queue) = nedrt_gpu::open_device(&b.gpu, false)?;
     let adapter = adapter.get_info().name;

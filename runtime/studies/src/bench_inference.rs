@@ -43,9 +43,10 @@ pub fn per_layer(b: &InferenceBench, common: &CommonOptions) -> Result<String, A
         if let Some(v) = v
             && !(v.is_finite() && v > 0.0)
         {
-            return Err(AppError::Usage(format!(
-                "{flag} {v}: must be a positive rate"
-            )));
+            return Err(AppError::option(
+                format!("{flag} {v}"),
+                "must be a positive rate",
+            ));
         }
     }
     let mut md = String::new();

@@ -97,8 +97,10 @@ pub fn run(
     common: &CommonOptions,
     on_record: &mut dyn FnMut(&serde_json::Value),
 ) -> Result<String, AppError> {
+    // One message for the pair (tests/cli/bad_input.rs quotes it): each case
+    // stops at whichever limit comes first, so both must be positive.
     if !(b.max_seconds.is_finite() && b.max_seconds > 0.0) || b.frames == 0 {
-        return Err(AppError::Usage(format!(
+        return Err(AppError::Conflict(format!(
             "--frames {} and --max-seconds {} must be positive",
             b.frames, b.max_seconds
         )));

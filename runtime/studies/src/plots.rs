@@ -20,9 +20,10 @@ const CROSS_SECTION_ARCMIN: f64 = 20.0;
 
 fn sweep_depths(sim: &Simulator, step_d: f64) -> Result<Vec<f64>, AppError> {
     if !(step_d.is_finite() && step_d > 0.0 && step_d <= 1.0) {
-        return Err(AppError::Usage(format!(
-            "--step {step_d}: must be in (0, 1] D"
-        )));
+        return Err(AppError::option(
+            format!("--step {step_d}"),
+            "must be in (0, 1] D",
+        ));
     }
     Ok(sim.calib.depth_sweep_d(step_d))
 }

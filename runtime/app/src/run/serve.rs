@@ -72,14 +72,14 @@ pub(super) fn serve(
         source.describe(),
         sink.describe()
     );
-    let mut service =
-        service.map_err(|e| AppError::Usage(format!("cannot start the pipeline threads: {e}")))?;
+    let mut service = service
+        .map_err(|e| AppError::thread("the pipeline threads", format!("could not start: {e}")))?;
     let sources_stop = Arc::new(AtomicBool::new(false));
     let compositor = service
         .compositor()
-        .ok_or_else(|| AppError::Usage("the pipeline is closed".into()))?;
+        .ok_or_else(|| AppError::Internal("the pipeline is closed".into()))?;
     let source_thread = source::spawn(source, compositor, sources_stop.clone())
-        .map_err(|e| AppError::Usage(format!("cannot start the source thread: {e}")))?;
+        .map_err(|e| AppError::thread("the source thread", format!("could not start: {e}")))?;
     service.close_ingest();
     let _ = control.serving.set(std::time::Instant::now());
 
@@ -108,7 +108,7 @@ pub(super) fn serve(
                 None
             }
             Ok(Err(e)) => Some(e.into()),
-            Err(_) => Some(AppError::Usage("the source thread panicked".into())),
+            Err(_) => Some(AppError::thread("the source thread", "panicked")),
         });
     if let Some(e) = failed {
         control.progress.note(&report.table());

@@ -14,15 +14,17 @@ pub const SWEEP_FORMATS: &[&str] = &["png", "apng", "gif"];
 pub fn check_request(path: &Path, fps: f64) -> Result<String, AppError> {
     let ext = nedrt_core::image_io::check_extension(path, SWEEP_FORMATS)?;
     if !(fps.is_finite() && (0.1..=100.0).contains(&fps)) {
-        return Err(AppError::Usage(format!(
-            "--fps {fps}: frames a second must lie in [0.1, 100]"
-        )));
+        return Err(AppError::option(
+            format!("--fps {fps}"),
+            "frames a second must lie in [0.1, 100]",
+        ));
     }
     if ext == "gif" && fps > 50.0 {
-        return Err(AppError::Usage(format!(
-            "--fps {fps}: a GIF plays at most 50 frames a second (delays in hundredths of a second); \
-             write .png for more"
-        )));
+        return Err(AppError::option(
+            format!("--fps {fps}"),
+            "a GIF plays at most 50 frames a second (delays in hundredths of a second); \
+             write .png for more",
+        ));
     }
     Ok(ext)
 }

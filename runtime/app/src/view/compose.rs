@@ -142,7 +142,7 @@ impl Layout {
 }
 
 fn draw_err(e: impl std::fmt::Display) -> AppError {
-    AppError::Usage(format!("drawing the viewer's picture: {e}"))
+    AppError::Draw(e.to_string())
 }
 
 /// The picture of every method at grid depth `depth`.

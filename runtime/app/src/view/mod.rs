@@ -45,23 +45,26 @@ const MAX_DEPTHS: usize = 601;
 /// `from`, `from + step`, … up to `to` (inclusive within 1e-9 D), rounded
 /// to 1e-12 D so that 15 × 0.1 is the 1.5 D of the calibration's lists.
 pub fn depth_grid(from_d: f64, to_d: f64, step_d: f64) -> Result<Vec<f64>, AppError> {
+    let grid = || format!("accommodations {from_d}..{to_d} step {step_d}");
     if !(from_d.is_finite() && to_d.is_finite() && step_d.is_finite()) {
-        return Err(AppError::Usage(format!(
-            "accommodations {from_d}..{to_d} step {step_d}: not numbers of diopters"
-        )));
+        return Err(AppError::option(grid(), "not numbers of diopters"));
     }
     if step_d <= 0.0 || to_d < from_d {
-        return Err(AppError::Usage(format!(
-            "accommodations {from_d}..{to_d} step {step_d}: the step must be > 0 and the range ascending"
-        )));
+        return Err(AppError::option(
+            grid(),
+            "the step must be > 0 and the range ascending",
+        ));
     }
     // Counted in floating point first: a tiny step makes the count overflow.
     let steps = ((to_d - from_d) / step_d + 1e-9).floor();
     if steps.is_nan() || steps >= MAX_DEPTHS as f64 {
-        return Err(AppError::Usage(format!(
-            "accommodations {from_d}..{to_d} step {step_d}: {} depths, at most {MAX_DEPTHS}; take a larger step",
-            steps + 1.0
-        )));
+        return Err(AppError::option(
+            grid(),
+            format!(
+                "{} depths, at most {MAX_DEPTHS}; take a larger step",
+                steps + 1.0
+            ),
+        ));
     }
     let n = steps as usize + 1;
     Ok((0..n)
@@ -140,10 +143,10 @@ fn crop_image(image: &Image, c: Crop, name: &str) -> Result<Image, AppError> {
     let fits = c.x.checked_add(c.width).is_some_and(|r| r <= image.width)
         && c.y.checked_add(c.height).is_some_and(|b| b <= image.height);
     if !fits {
-        return Err(AppError::Usage(format!(
-            "--crop {}x{}+{}+{}: outside {name} ({}×{})",
-            c.width, c.height, c.x, c.y, image.width, image.height
-        )));
+        return Err(AppError::option(
+            format!("--crop {}x{}+{}+{}", c.width, c.height, c.x, c.y),
+            format!("outside {name} ({}×{})", image.width, image.height),
+        ));
     }
     Ok(image.crop(c.x, c.y, c.width, c.height))
 }
@@ -157,10 +160,10 @@ fn scene_of(
     depths_d: &[f64],
 ) -> Result<FocusScene, AppError> {
     if image.width < 8 || image.height < 8 {
-        return Err(AppError::Usage(format!(
-            "{name}: {}×{} pixels, smaller than 8×8",
-            image.width, image.height
-        )));
+        return Err(AppError::input(
+            &name,
+            format!("{}×{} pixels, smaller than 8×8", image.width, image.height),
+        ));
     }
     let short = Path::new(&name)
         .file_name()
@@ -220,12 +223,12 @@ pub fn view(
             Some(p.as_path())
         }
         (true, None) => {
-            return Err(AppError::Usage(
+            return Err(AppError::Conflict(
                 "--headless needs --screenshot FILE.png (the picture it renders)".into(),
             ));
         }
         (false, Some(_)) => {
-            return Err(AppError::Usage(
+            return Err(AppError::Conflict(
                 "--screenshot FILE needs --headless (in the window, key c saves into --screenshot-dir)"
                     .into(),
             ));
@@ -234,10 +237,10 @@ pub fn view(
     };
     crate::check_accommodation(&calib, opts.accommodation_d)?;
     if headless_out.is_none() && !opts.screenshot_dir.is_dir() {
-        return Err(AppError::Usage(format!(
-            "{}: --screenshot-dir: not a folder",
-            opts.screenshot_dir.display()
-        )));
+        return Err(AppError::output(
+            &opts.screenshot_dir,
+            "--screenshot-dir: not a folder",
+        ));
     }
     let depths = depth_grid(lo, hi, opts.step_d)?;
     let start = Instant::now();
@@ -302,8 +305,15 @@ pub fn sweep(
 /// `--from` and `--to` as accommodations, named in the errors.
 fn check_range(calib: &Calibration, opts: &SweepOptions) -> Result<(), AppError> {
     for (flag, d) in [("--from", opts.from_d), ("--to", opts.to_d)] {
-        if let Err(e) = crate::check_accommodation(calib, d) {
-            return Err(AppError::Usage(e.to_string().replacen("--accom", flag, 1)));
+        match crate::check_accommodation(calib, d) {
+            Err(AppError::Option { option, reason }) => {
+                return Err(AppError::Option {
+                    option: option.replacen("--accom", flag, 1),
+                    reason,
+                });
+            }
+            Err(e) => return Err(e),
+            Ok(_) => {}
         }
     }
     Ok(())
@@ -335,16 +345,18 @@ fn sweep_scene(
     let layout = Layout::of(scene, false);
     let bytes = 3 * layout.width * layout.height * scene.depths_d.len();
     if bytes > MAX_SWEEP_BYTES {
-        return Err(AppError::Usage(format!(
-            "{}: {} frames of {}×{} are {:.1} GB, more than the {} GB a sweep holds; take a larger --step, \
+        return Err(AppError::output(
+            &opts.out,
+            format!(
+                "{} frames of {}×{} are {:.1} GB, more than the {} GB a sweep holds; take a larger --step, \
              fewer --methods or a --crop",
-            opts.out.display(),
-            scene.depths_d.len(),
-            layout.width,
-            layout.height,
-            bytes as f64 / 1e9,
-            MAX_SWEEP_BYTES >> 30
-        )));
+                scene.depths_d.len(),
+                layout.width,
+                layout.height,
+                bytes as f64 / 1e9,
+                MAX_SWEEP_BYTES >> 30
+            ),
+        ));
     }
     let progress = common.progress();
     progress.start("sweep frames", scene.depths_d.len() as u64);

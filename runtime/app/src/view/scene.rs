@@ -127,10 +127,10 @@ impl FocusScene {
         psf_depths_d: &[f64],
     ) -> Result<Self, AppError> {
         if methods.is_empty() {
-            return Err(AppError::Usage("no methods to show".into()));
+            return Err(AppError::Unavailable("no methods to show".into()));
         }
         if depths_d.is_empty() {
-            return Err(AppError::Usage("no accommodations to show".into()));
+            return Err(AppError::Unavailable("no accommodations to show".into()));
         }
         for &d in depths_d {
             if let Some(w) = crate::check_accommodation(calib, d)? {

@@ -10,7 +10,7 @@ use std::sync::{Condvar, Mutex};
 use std::time::{Duration, Instant};
 
 use nedrt_service::present::window::{KeyName, WindowInput, WindowOptions, WindowSink};
-use nedrt_service::present::{DisplayFrame, Sink, rgb8_of_rgba8};
+use nedrt_service::present::{DisplayFrame, PanelCodes, Sink, rgb8_of_rgba8};
 
 use super::compose::{Layout, Picture};
 use super::scene::{FocusScene, Shown};
@@ -240,9 +240,7 @@ pub fn interactive(
         let result = ui_loop(scene, opts, layout, &mut sink, latest, &rx, depth);
         latest.close();
         if worker.join().is_err() {
-            return Err(AppError::Usage(
-                "the viewer's render thread panicked".into(),
-            ));
+            return Err(AppError::thread("the viewer's render thread", "panicked"));
         }
         result
     })
@@ -315,8 +313,9 @@ fn ui_loop(
                 Ok(drawn) => newest = Some(drawn?),
                 Err(crossbeam_channel::TryRecvError::Empty) => break,
                 Err(crossbeam_channel::TryRecvError::Disconnected) => {
-                    return Err(AppError::Usage(
-                        "the viewer's render thread stopped (panicked)".into(),
+                    return Err(AppError::thread(
+                        "the viewer's render thread",
+                        "stopped (panicked)",
                     ));
                 }
             }
@@ -330,7 +329,7 @@ fn ui_loop(
                 rgba8: picture.rgba8(),
             };
             let start = Instant::now();
-            sink.present(&frame)?;
+            sink.present(PanelCodes::Host(&frame))?;
             present_ms.push(start.elapsed().as_secs_f64() * 1e3);
             last_present = Instant::now();
             shown = Some((req, frame));
@@ -338,7 +337,7 @@ fn ui_loop(
             && let Some((_, frame)) = &shown
         {
             // Redrawn now and then: a window uncovered shows the picture again.
-            sink.present(frame)?;
+            sink.present(PanelCodes::Host(frame))?;
             last_present = Instant::now();
         }
         std::thread::sleep(Duration::from_millis(8));

@@ -44,10 +44,10 @@ impl GpuBackend {
             }
             rows -= m;
         }
-        Err(err(format!(
+        Err(InferenceError::FrameTooLarge(format!(
             "a {width}×{height} frame needs a {:.0} MiB activation buffer, and even a band of \
              {smallest} rows (the network sees {} rows either side) needs {:.0} MiB; the adapter \
-             binds at most {:.0} MiB (try --precision f16 or a smaller frame)",
+             binds at most {:.0} MiB",
             self.largest_activation_bytes(width, height) as f64 / 1048576.0,
             self.halo,
             self.largest_activation_bytes(width, smallest) as f64 / 1048576.0,

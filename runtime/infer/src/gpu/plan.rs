@@ -113,10 +113,9 @@ impl GpuBackend {
                 None => {
                     let bytes = self.activation_bytes(r, width, height);
                     if bytes > cap {
-                        return Err(err(format!(
+                        return Err(InferenceError::FrameTooLarge(format!(
                             "a {width}×{height} frame needs a {:.0} MiB activation buffer; the \
-                             adapter binds at most {:.0} MiB (try --precision f16 or a smaller \
-                             frame)",
+                             adapter binds at most {:.0} MiB",
                             bytes as f64 / 1048576.0,
                             cap as f64 / 1048576.0
                         )));

@@ -105,8 +105,8 @@ impl nedrt_core::Named for Method {
             Method::Ai => "accommodation-invariant display with its Wiener prefilter",
             Method::DoeOnly => "lens + DOE, no preprocessing",
             Method::DoeWiener => "lens + DOE with its Wiener prefilter",
-            Method::Proposed => "lens + co-designed DOE + D-CNN (--dcnn)",
-            Method::LensDcnn => "lens alone with a D-CNN trained for it (--dcnn-lens)",
+            Method::Proposed => "lens + co-designed DOE + D-CNN trained with it",
+            Method::LensDcnn => "lens alone with a D-CNN trained for it",
         }
     }
 }

@@ -170,7 +170,7 @@ impl Simulator {
                 _ => {
                     if c.wiener.doe_k_tuned_for != self.doe_hash {
                         tracing::warn!(
-                            "wiener.doe_k = {} was tuned for DOE {:?}, this DOE is {}; run `nedrt tune-wiener --method doe+wiener`",
+                            "wiener.doe_k = {} was tuned for DOE {:?}, this DOE is {}; tune it again for this DOE",
                             c.wiener.doe_k,
                             c.wiener.doe_k_tuned_for,
                             self.doe_hash

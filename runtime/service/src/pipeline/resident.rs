@@ -28,11 +28,10 @@ const UNPACK: &str = include_str!("../../../../shaders/frame_unpack.wgsl");
 /// screen, one in a channel).
 const CODES_WARN: usize = 8;
 
+const STAGE: &str = "device frames";
+
 fn err(reason: impl std::fmt::Display) -> PresentError {
-    PresentError::Sink {
-        sink: "device frames",
-        reason: reason.to_string(),
-    }
+    PresentError::frame(STAGE, reason)
 }
 
 /// What goes up to the device for a frame.
@@ -166,7 +165,10 @@ impl DeviceFrames {
         };
         let (unpack_linear, unpack_srgb) = (group(false), group(true));
         if let Some(e) = pollster::block_on(scope.pop()) {
-            return Err(err(format!("preparing {width}×{height} frames: {e}")));
+            return Err(PresentError::Gpu {
+                stage: STAGE,
+                source: e.into(),
+            });
         }
         Ok(Self {
             device: device.clone(),
@@ -250,7 +252,10 @@ impl DeviceFrames {
         let validation = pollster::block_on(scope.pop());
         // The validation error first: it is the cause of a failed wait.
         if let Some(e) = validation {
-            return Err(err(format!("frame {id}: {e}")));
+            return Err(PresentError::Gpu {
+                stage: STAGE,
+                source: e.into(),
+            });
         }
         let (frame, traffic) = recorded?;
         Ok((
@@ -260,6 +265,8 @@ impl DeviceFrames {
                 height: h,
                 codes: frame,
                 row_texels: self.encoder.row_texels(),
+                device: self.device.clone(),
+                queue: self.queue.clone(),
             },
             traffic,
         ))
@@ -321,7 +328,7 @@ impl DeviceFrames {
             }
             stage
                 .record(&mut encoder, &self.frame, &self.display, w, h)
-                .map_err(|e| err(format!("{}: {e}", stage.describe())))?;
+                .map_err(PresentError::gpu(STAGE))?;
             if let Some(t) = &self.timer {
                 mark(&mut encoder, t.end(0));
             }
@@ -342,7 +349,7 @@ impl DeviceFrames {
         // The fence wait the stage does anyway (its time includes the
         // device's work); it also brings the 4-byte non-finite count and
         // the timestamps back.
-        nedrt_gpu::wait_for(&self.device, submission).map_err(err)?;
+        nedrt_gpu::wait_for(&self.device, submission).map_err(PresentError::gpu(STAGE))?;
         self.last_gpu_ns = self
             .timer
             .as_ref()
@@ -385,11 +392,11 @@ impl DeviceFrames {
         let mut encoder = self.device.create_command_encoder(&Default::default());
         encoder.copy_buffer_to_buffer(source, 0, &readback, 0, bytes);
         self.queue.submit([encoder.finish()]);
-        nedrt_gpu::map_and_wait(&self.device, &readback).map_err(err)?;
+        nedrt_gpu::map_and_wait(&self.device, &readback).map_err(PresentError::gpu(STAGE))?;
         let data = nedrt_gpu::read_mapped(&readback, |bytes| {
             bytemuck::cast_slice::<u8, f32>(bytes).to_vec()
         })
-        .map_err(|e| err(format!("reading back: {e}")))?;
+        .map_err(PresentError::gpu(STAGE))?;
         Ok(Image::rgb(self.width, self.height, data))
     }
 }
@@ -399,7 +406,7 @@ mod tests {
     use super::*;
     use crate::pipeline::frame::{decode, planar_payload};
     use crate::present::headless::HeadlessSink;
-    use crate::present::{Presented, Sink};
+    use crate::present::{PanelCodes, Presented, Sink};
     use nedrt_gpu::test_device;
 
     /// A device stage with work of its own: out = 1.4 · in − 0.2, which
@@ -567,7 +574,7 @@ mod tests {
                         );
                         assert_eq!(frames.last_gpu_ns().is_some(), timed > 0);
                         assert_eq!(
-                            sink.present_device(&frame).expect("shown"),
+                            sink.present(PanelCodes::Device(&frame)).expect("shown"),
                             Presented::Shown
                         );
                         assert_eq!(sink.last_traffic(), HostTraffic::default());

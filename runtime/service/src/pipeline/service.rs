@@ -428,7 +428,7 @@ impl Service {
                         None => {
                             if drained && let Some(frame) = &last {
                                 // Keep the window's content (uncounted re-present).
-                                sink.present_frame(frame)?;
+                                sink.present(frame.codes())?;
                             } else if sink.paced_by_display() {
                                 self.clock.sleep_until_ns(tick.vsync_ns);
                             }
@@ -444,7 +444,7 @@ impl Service {
             let shown = {
                 let _span =
                     tracing::info_span!("stage", stage = %"present", frame = t.id).entered();
-                match sink.present_frame(&t.item) {
+                match sink.present(t.item.codes()) {
                     Ok(shown) => shown,
                     Err(e) => {
                         self.stats.failed.fetch_add(1, Relaxed);

@@ -4,7 +4,7 @@
 use super::*;
 use crate::pipeline::frame::{PixelFormat, RejectReason};
 use crate::pipeline::pacing::SystemClock;
-use crate::present::Presented;
+use crate::present::{PanelCodes, Presented};
 use nedrt_core::preprocess::HostTraffic;
 
 /// A backend that works for `ok` frames and then fails like a lost GPU.
@@ -40,7 +40,10 @@ impl Sink for Collect {
     fn describe(&self) -> String {
         "collect".into()
     }
-    fn present(&mut self, frame: &DisplayFrame) -> Result<Presented, PresentError> {
+    fn present(&mut self, frame: PanelCodes<'_>) -> Result<Presented, PresentError> {
+        let PanelCodes::Host(frame) = frame else {
+            return Err(PresentError::frame("collect", "codes on a device"));
+        };
         self.0.push(frame.clone());
         Ok(Presented::Shown)
     }

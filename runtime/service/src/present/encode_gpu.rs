@@ -13,11 +13,10 @@ use super::transfer::{BINS, CODES, Transfer};
 
 const SHADER: &str = include_str!("../../../../shaders/panel_encode.wgsl");
 
+const STAGE: &str = "GPU encode";
+
 fn err(reason: impl std::fmt::Display) -> PresentError {
-    PresentError::Sink {
-        sink: "gpu encode",
-        reason: reason.to_string(),
-    }
+    PresentError::frame(STAGE, reason)
 }
 
 /// The uniform block of `panel_encode.wgsl` (`Frame`).
@@ -185,7 +184,7 @@ impl PanelEncoder {
             wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
         );
         if let Some(e) = pollster::block_on(scope.pop()) {
-            return Err(err(format!("building the encode kernel: {e}")));
+            return Err(PresentError::kernel(STAGE, "the encode kernel", e));
         }
         Ok(Self {
             device: device.clone(),
@@ -323,7 +322,7 @@ impl PanelEncoder {
         nedrt_gpu::read_mapped(&self.non_finite_host, |bytes| {
             u32::from_le_bytes([bytes[0], bytes[1], bytes[2], bytes[3]])
         })
-        .map_err(|e| err(format!("the non-finite count is not back: {e}")))
+        .map_err(PresentError::gpu(STAGE))
     }
 }
 

@@ -12,12 +12,7 @@ use nedrt_gpu::map_and_wait;
 
 const SHADER: &str = include_str!("../../../../shaders/panel_blit.wgsl");
 
-fn err(sink: &'static str, reason: impl std::fmt::Display) -> PresentError {
-    PresentError::Sink {
-        sink,
-        reason: reason.to_string(),
-    }
-}
+const STAGE: &str = "panel renderer";
 
 /// The uniform block of `panel_blit.wgsl` (`Target`).
 #[repr(C)]
@@ -53,8 +48,8 @@ impl PanelRenderer {
         format: wgpu::TextureFormat,
     ) -> Result<Self, PresentError> {
         if format.is_srgb() {
-            return Err(err(
-                "gpu",
+            return Err(PresentError::open(
+                STAGE,
                 format!(
                     "{format:?} would re-encode the panel's code values; a unorm target is needed"
                 ),
@@ -156,7 +151,7 @@ impl PanelRenderer {
             ],
         });
         if let Some(e) = pollster::block_on(scope.pop()) {
-            return Err(err("gpu", format!("building the panel pipeline: {e}")));
+            return Err(PresentError::kernel(STAGE, "the panel pipeline", e));
         }
         Ok(Self {
             device: device.clone(),
@@ -185,7 +180,8 @@ impl PanelRenderer {
 
     /// Draws `frame` onto `target` (`size` pixels): a host frame is
     /// uploaded into the panel texture, a device frame's codes are copied
-    /// into it on the device. Returns the submission to wait on.
+    /// into it on the device (through the host if they live on another
+    /// device). Returns the submission to wait on.
     pub fn draw(
         &mut self,
         frame: PanelCodes<'_>,
@@ -205,7 +201,13 @@ impl PanelRenderer {
             });
         match frame {
             PanelCodes::Host(f) => self.upload(f)?,
-            PanelCodes::Device(f) => self.copy_codes(&mut encoder, f)?,
+            PanelCodes::Device(f) if f.device == self.device => self.copy_codes(&mut encoder, f)?,
+            // Codes on another device come through the host.
+            PanelCodes::Device(f) => {
+                let host = f.to_host()?;
+                self.last_traffic.add(f.read_back_traffic());
+                self.upload(&host)?
+            }
         }
         {
             let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
@@ -233,8 +235,8 @@ impl PanelRenderer {
 
     fn check_size(&self, width: usize, height: usize, detail: String) -> Result<(), PresentError> {
         if (width, height) != (self.width as usize, self.height as usize) {
-            return Err(err(
-                "gpu",
+            return Err(PresentError::frame(
+                STAGE,
                 format!(
                     "{width}×{height} frame ({detail}) for a {}×{} panel",
                     self.width, self.height
@@ -261,8 +263,8 @@ impl PanelRenderer {
             || frame.codes.size() < pitch * u64::from(self.height)
             || !frame.codes.usage().contains(wgpu::BufferUsages::COPY_SRC)
         {
-            return Err(err(
-                "gpu",
+            return Err(PresentError::frame(
+                STAGE,
                 format!(
                     "the codes of frame {} ({} bytes, rows of {pitch}, {:?}) cannot be copied to \
                      a {}×{} panel",
@@ -306,8 +308,8 @@ impl PanelRenderer {
             format!("{} bytes", frame.rgba8.len()),
         )?;
         if frame.rgba8.len() != 4 * frame.width * frame.height {
-            return Err(err(
-                "gpu",
+            return Err(PresentError::frame(
+                STAGE,
                 format!(
                     "{}×{} frame with {} bytes of codes",
                     frame.width,
@@ -395,7 +397,7 @@ pub fn read_texture(
         },
     );
     queue.submit([encoder.finish()]);
-    map_and_wait(device, &buffer).map_err(|e| err("gpu", e))?;
+    map_and_wait(device, &buffer).map_err(PresentError::gpu(STAGE))?;
     nedrt_gpu::read_mapped(&buffer, |bytes| {
         let mut out = Vec::with_capacity((4 * w * h) as usize);
         for y in 0..h as usize {
@@ -404,7 +406,7 @@ pub fn read_texture(
         }
         out
     })
-    .map_err(|e| err("gpu", format!("reading back: {e}")))
+    .map_err(PresentError::gpu(STAGE))
 }
 
 #[cfg(test)]

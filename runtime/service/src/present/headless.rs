@@ -4,7 +4,7 @@
 //! and benchmarks; `read_back` returns what the panel would show.
 
 use super::gpu::{PanelRenderer, read_texture};
-use super::{DeviceDisplayFrame, DisplayFrame, PanelCodes, PresentError, Presented, Sink};
+use super::{PanelCodes, PresentError, Presented, Sink};
 
 const FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8Unorm;
 
@@ -68,37 +68,16 @@ impl Sink for HeadlessSink {
         )
     }
 
-    fn last_traffic(&self) -> nedrt_core::preprocess::HostTraffic {
-        self.renderer.last_traffic()
+    fn renderer(&self) -> Option<&PanelRenderer> {
+        Some(&self.renderer)
     }
 
-    fn present(&mut self, frame: &DisplayFrame) -> Result<Presented, PresentError> {
-        self.draw(PanelCodes::Host(frame))
-    }
-
-    fn shared_device(&self) -> Option<(wgpu::Device, wgpu::Queue)> {
-        Some((
-            self.renderer.device().clone(),
-            self.renderer.queue().clone(),
-        ))
-    }
-
-    fn present_device(&mut self, frame: &DeviceDisplayFrame) -> Result<Presented, PresentError> {
-        self.draw(PanelCodes::Device(frame))
-    }
-}
-
-impl HeadlessSink {
     /// Draws and waits for the GPU.
-    fn draw(&mut self, frame: PanelCodes<'_>) -> Result<Presented, PresentError> {
+    fn present(&mut self, frame: PanelCodes<'_>) -> Result<Presented, PresentError> {
         let size = [self.target.width(), self.target.height()];
         let submission = self.renderer.draw(frame, &self.view, size)?;
-        nedrt_gpu::wait_for(self.renderer.device(), submission).map_err(|e| {
-            PresentError::Sink {
-                sink: "headless",
-                reason: e.to_string(),
-            }
-        })?;
+        nedrt_gpu::wait_for(self.renderer.device(), submission)
+            .map_err(PresentError::gpu("headless sink"))?;
         Ok(Presented::Shown)
     }
 }
@@ -106,6 +85,7 @@ impl HeadlessSink {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::present::DisplayFrame;
     use nedrt_gpu::test_device;
 
     mod needs_gpu {
@@ -129,7 +109,10 @@ mod tests {
             };
             let mut sink =
                 HeadlessSink::new(&device, &queue, name, w as u32, h as u32).expect("sink");
-            assert_eq!(sink.present(&frame).expect("present"), Presented::Shown);
+            assert_eq!(
+                sink.present(PanelCodes::Host(&frame)).expect("present"),
+                Presented::Shown
+            );
             assert_eq!(sink.read_back().expect("read back"), frame.rgba8);
             // A wrong-size frame is an error, not a panic.
             let small = DisplayFrame {
@@ -138,7 +121,7 @@ mod tests {
                 height: 2,
                 rgba8: vec![0; 16],
             };
-            assert!(sink.present(&small).is_err());
+            assert!(sink.present(PanelCodes::Host(&small)).is_err());
         }
     }
 }

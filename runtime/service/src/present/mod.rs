@@ -35,6 +35,67 @@ pub struct DeviceDisplayFrame {
     /// the encoder reuses a buffer once no frame holds it.
     pub codes: std::sync::Arc<wgpu::Buffer>,
     pub row_texels: u32,
+    /// Where the codes live, so that any sink can reach them.
+    pub device: wgpu::Device,
+    pub queue: wgpu::Queue,
+}
+
+impl DeviceDisplayFrame {
+    /// The codes brought to the host (one read-back): for a sink that
+    /// writes bytes (the recorder), and for tests.
+    pub fn to_host(&self) -> Result<DisplayFrame, PresentError> {
+        let (w, h) = (self.width, self.height);
+        let row_bytes = 4 * self.row_texels as u64;
+        let bytes = row_bytes * h as u64;
+        if (self.row_texels as usize) < w || self.codes.size() < bytes {
+            return Err(PresentError::frame(
+                "device frame",
+                format!(
+                    "frame {}: {} bytes of codes at {} texels a row for {w}×{h}",
+                    self.id,
+                    self.codes.size(),
+                    self.row_texels
+                ),
+            ));
+        }
+        let staging = self.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("panel codes read-back"),
+            size: bytes,
+            usage: wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::MAP_READ,
+            mapped_at_creation: false,
+        });
+        let mut encoder = self
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some("panel codes read-back"),
+            });
+        encoder.copy_buffer_to_buffer(&self.codes, 0, &staging, 0, bytes);
+        self.queue.submit([encoder.finish()]);
+        let stage = "device frame read-back";
+        nedrt_gpu::map_and_wait(&self.device, &staging).map_err(PresentError::gpu(stage))?;
+        let rgba8 = nedrt_gpu::read_mapped(&staging, |b| {
+            b.chunks_exact(row_bytes as usize)
+                .flat_map(|row| &row[..4 * w])
+                .copied()
+                .collect()
+        })
+        .map_err(PresentError::gpu(stage))?;
+        Ok(DisplayFrame {
+            id: self.id,
+            width: w,
+            height: h,
+            rgba8,
+        })
+    }
+
+    /// What [`DeviceDisplayFrame::to_host`] moves.
+    pub fn read_back_traffic(&self) -> nedrt_core::preprocess::HostTraffic {
+        nedrt_core::preprocess::HostTraffic {
+            to_host_bytes: 4 * self.row_texels as u64 * self.height as u64,
+            read_backs: 1,
+            ..Default::default()
+        }
+    }
 }
 
 /// A frame for the panel, on the host or on the sink's device.
@@ -76,11 +137,61 @@ pub fn rgb8_of_rgba8(rgba8: &[u8]) -> Vec<u8> {
         .collect()
 }
 
-/// Errors of the present stage.
+/// Errors of the present stage: the encode kernel, the device frames, the
+/// sinks. Each names its `stage` ("recorder sink", "GPU encode", …).
 #[derive(Debug, thiserror::Error)]
 pub enum PresentError {
-    #[error("{sink} sink: {reason}")]
-    Sink { sink: &'static str, reason: String },
+    /// The sink could not be opened: no display, no surface, no folder.
+    #[error("{stage}: {reason}")]
+    Open { stage: &'static str, reason: String },
+    /// A frame the stage cannot take: its size, its buffer's length, or
+    /// codes the sink has no way to reach.
+    #[error("{stage}: {reason}")]
+    Frame { stage: &'static str, reason: String },
+    /// A kernel or render pipeline failed to build (shader validation).
+    #[error("{stage}: building {what}: {reason}")]
+    Kernel {
+        stage: &'static str,
+        what: &'static str,
+        reason: String,
+    },
+    /// The GPU failed under the stage: device lost, a wait or a read-back.
+    #[error("{stage}: {source}")]
+    Gpu {
+        stage: &'static str,
+        #[source]
+        source: nedrt_gpu::GpuError,
+    },
+    /// Writing a presented frame failed (the recorder's disk), or the
+    /// writer is gone.
+    #[error("{stage}: {reason}")]
+    Write { stage: &'static str, reason: String },
+}
+
+impl PresentError {
+    pub fn open(stage: &'static str, reason: impl std::fmt::Display) -> Self {
+        PresentError::Open {
+            stage,
+            reason: reason.to_string(),
+        }
+    }
+    pub fn frame(stage: &'static str, reason: impl std::fmt::Display) -> Self {
+        PresentError::Frame {
+            stage,
+            reason: reason.to_string(),
+        }
+    }
+    pub fn kernel(stage: &'static str, what: &'static str, reason: impl std::fmt::Display) -> Self {
+        PresentError::Kernel {
+            stage,
+            what,
+            reason: reason.to_string(),
+        }
+    }
+    /// For `map_err`: the GPU failed under `stage`.
+    pub fn gpu(stage: &'static str) -> impl Fn(nedrt_gpu::GpuError) -> Self {
+        move |source| PresentError::Gpu { stage, source }
+    }
 }
 
 /// What a sink reports back from a present.
@@ -102,31 +213,19 @@ pub trait Sink: std::fmt::Debug {
     fn paced_by_display(&self) -> bool {
         false
     }
-    fn present(&mut self, frame: &DisplayFrame) -> Result<Presented, PresentError>;
-    /// The device this sink presents from, where it can take frames that
-    /// stay there ([`Sink::present_device`]); `None` for a sink that needs
-    /// the frame's bytes on the host (the recorder).
-    fn shared_device(&self) -> Option<(wgpu::Device, wgpu::Queue)> {
+    /// Presents the panel's codes, on the host or on [`Sink::shared_device`]
+    /// (then without a copy through the host).
+    fn present(&mut self, frame: PanelCodes<'_>) -> Result<Presented, PresentError>;
+    /// The GPU panel this sink draws with (window, headless): where it can
+    /// take frames that stay on the device, and what its uploads cost.
+    /// `None` for a sink that needs the codes' bytes on the host.
+    fn renderer(&self) -> Option<&gpu::PanelRenderer> {
         None
     }
-    /// Presents a frame encoded on [`Sink::shared_device`], without a
-    /// copy through the host.
-    fn present_device(&mut self, frame: &DeviceDisplayFrame) -> Result<Presented, PresentError> {
-        Err(PresentError::Sink {
-            sink: "present",
-            reason: format!(
-                "{} takes frames from the host only (frame {})",
-                self.describe(),
-                frame.id
-            ),
-        })
-    }
-    /// Either kind of frame.
-    fn present_frame(&mut self, frame: &PanelFrame) -> Result<Presented, PresentError> {
-        match frame {
-            PanelFrame::Host(f) => self.present(f),
-            PanelFrame::Device(f) => self.present_device(f),
-        }
+    /// The device this sink presents from, where frames can stay.
+    fn shared_device(&self) -> Option<(wgpu::Device, wgpu::Queue)> {
+        self.renderer()
+            .map(|r| (r.device().clone(), r.queue().clone()))
     }
     /// Lets the sink handle its events between frames; `false` once the
     /// sink is gone (the window was closed).
@@ -139,7 +238,9 @@ pub trait Sink: std::fmt::Debug {
     }
     /// Host↔device traffic of the last `present` (a GPU sink's upload).
     fn last_traffic(&self) -> nedrt_core::preprocess::HostTraffic {
-        nedrt_core::preprocess::HostTraffic::default()
+        self.renderer()
+            .map(|r| r.last_traffic())
+            .unwrap_or_default()
     }
     /// Frames `present` took that the sink then failed to deliver (known
     /// after `finish`): the recorder's queue when its disk filled.

@@ -11,15 +11,18 @@ use std::thread::JoinHandle;
 
 use crossbeam_channel::{Sender, bounded};
 
-use super::{DisplayFrame, PresentError, Presented, Sink};
+use super::{DisplayFrame, PanelCodes, PresentError, Presented, Sink};
+use nedrt_core::preprocess::HostTraffic;
 use nedrt_core::util::write_atomic;
 
 /// Frames that may wait for the writer before `present` waits for it.
 const QUEUE: usize = 8;
 
+const STAGE: &str = "recorder sink";
+
 fn err(reason: impl std::fmt::Display) -> PresentError {
-    PresentError::Sink {
-        sink: "recorder",
+    PresentError::Write {
+        stage: STAGE,
         reason: reason.to_string(),
     }
 }
@@ -35,6 +38,8 @@ pub struct RecorderSink {
     sent: u64,
     /// Frames written, once the writer has ended.
     written: Option<u64>,
+    /// The last present's read-back, for codes that were on a device.
+    traffic: HostTraffic,
 }
 
 /// The file a frame is recorded in.
@@ -50,8 +55,9 @@ pub fn repeated_frame_path(dir: &Path, id: u64, n: u64) -> PathBuf {
 impl RecorderSink {
     /// Records into `dir` (created if missing).
     pub fn new(dir: &Path) -> Result<Self, PresentError> {
-        std::fs::create_dir_all(dir)
-            .map_err(|e| err(format!("cannot create {}: {e}", dir.display())))?;
+        std::fs::create_dir_all(dir).map_err(|e| {
+            PresentError::open(STAGE, format!("cannot create {}: {e}", dir.display()))
+        })?;
         let (tx, rx) = bounded::<DisplayFrame>(QUEUE);
         let out = dir.to_path_buf();
         let writer = std::thread::Builder::new()
@@ -95,13 +101,14 @@ impl RecorderSink {
                 let result = rx.into_iter().try_for_each(&mut write);
                 (written, result)
             })
-            .map_err(|e| err(format!("starting the writer: {e}")))?;
+            .map_err(|e| PresentError::open(STAGE, format!("starting the writer: {e}")))?;
         Ok(Self {
             dir: dir.to_path_buf(),
             tx: Some(tx),
             writer: Some(writer),
             sent: 0,
             written: None,
+            traffic: HostTraffic::default(),
         })
     }
 }
@@ -111,9 +118,15 @@ impl Sink for RecorderSink {
         format!("recorder into {}", self.dir.display())
     }
 
-    fn present(&mut self, frame: &DisplayFrame) -> Result<Presented, PresentError> {
+    /// Codes on a device are read back first (one read-back, counted).
+    fn present(&mut self, frame: PanelCodes<'_>) -> Result<Presented, PresentError> {
         let tx = self.tx.as_ref().ok_or_else(|| err("already finished"))?;
-        if tx.send(frame.clone()).is_err() {
+        let (frame, traffic) = match frame {
+            PanelCodes::Host(f) => (f.clone(), HostTraffic::default()),
+            PanelCodes::Device(f) => (f.to_host()?, f.read_back_traffic()),
+        };
+        self.traffic = traffic;
+        if tx.send(frame).is_err() {
             // The writer stopped: finish() reports why.
             return Err(self.finish().err().unwrap_or_else(|| err("writer stopped")));
         }
@@ -140,6 +153,10 @@ impl Sink for RecorderSink {
             }
             None => Ok(()),
         }
+    }
+
+    fn last_traffic(&self) -> HostTraffic {
+        self.traffic
     }
 
     fn lost_frames(&self) -> u64 {
@@ -172,7 +189,7 @@ mod tests {
                 height: h,
                 rgba8,
             };
-            sink.present(&frame).expect("present");
+            sink.present(PanelCodes::Host(&frame)).expect("present");
         }
         sink.finish().expect("finish");
         for id in 0..20u64 {
@@ -199,7 +216,7 @@ mod tests {
                 height: 1,
                 rgba8: vec![level, level, level, 255],
             };
-            sink.present(&frame).expect("present");
+            sink.present(PanelCodes::Host(&frame)).expect("present");
         }
         sink.finish().expect("finish");
         let level = |p: PathBuf| image::open(p).expect("png").to_rgb8().into_raw()[0];
@@ -215,5 +232,69 @@ mod tests {
         std::fs::write(&file, b"x").expect("write");
         let e = RecorderSink::new(&file.join("sub")).unwrap_err();
         assert!(e.to_string().contains("file"), "{e}");
+    }
+
+    mod needs_gpu {
+        use super::*;
+        use crate::present::DeviceDisplayFrame;
+        use crate::present::encode_gpu::row_texels;
+        use wgpu::util::DeviceExt;
+
+        #[test]
+        #[ignore = "needs a GPU adapter (run: scripts/test.sh, or cargo test -- --include-ignored)"]
+        fn codes_on_a_device_are_recorded_as_the_same_codes_from_the_host() {
+            let (device, queue) = nedrt_gpu::test_device(false);
+            // 37 wide: rows padded to the 256-byte pitch, which must not leak.
+            let (w, h) = (37usize, 5usize);
+            let pitch = row_texels(w as u32) as usize;
+            assert!(pitch > w);
+            let code = |x: usize, y: usize, c: usize| ((x * 7 + y * 31 + c * 90) % 256) as u8;
+            let mut padded = vec![0xEEu8; 4 * pitch * h];
+            let mut packed = Vec::with_capacity(4 * w * h);
+            for y in 0..h {
+                for x in 0..w {
+                    let px = [code(x, y, 0), code(x, y, 1), code(x, y, 2), 255];
+                    padded[4 * (y * pitch + x)..][..4].copy_from_slice(&px);
+                    packed.extend_from_slice(&px);
+                }
+            }
+            let codes = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some("test codes"),
+                contents: &padded,
+                usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
+            });
+            let on_device = DeviceDisplayFrame {
+                id: 3,
+                width: w,
+                height: h,
+                codes: std::sync::Arc::new(codes),
+                row_texels: pitch as u32,
+                device,
+                queue,
+            };
+            let on_host = DisplayFrame {
+                id: 4,
+                width: w,
+                height: h,
+                rgba8: packed,
+            };
+            let dir = tempfile::tempdir().expect("tempdir");
+            let mut sink = RecorderSink::new(dir.path()).expect("sink");
+            sink.present(PanelCodes::Device(&on_device))
+                .expect("device codes");
+            assert_eq!(sink.last_traffic().read_backs, 1);
+            sink.present(PanelCodes::Host(&on_host))
+                .expect("host codes");
+            assert_eq!(sink.last_traffic(), HostTraffic::default());
+            sink.finish().expect("finish");
+            let png = |id| {
+                image::open(frame_path(dir.path(), id))
+                    .expect("png")
+                    .to_rgb8()
+                    .into_raw()
+            };
+            assert_eq!(png(3), png(4));
+            assert_eq!(png(4), crate::present::rgb8_of_rgba8(&on_host.rgba8));
+        }
     }
 }

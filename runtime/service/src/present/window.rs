@@ -17,13 +17,10 @@ use winit::platform::pump_events::{EventLoopExtPumpEvents, PumpStatus};
 use winit::window::{Fullscreen, Window, WindowId};
 
 use super::gpu::PanelRenderer;
-use super::{DeviceDisplayFrame, DisplayFrame, PanelCodes, PresentError, Presented, Sink};
+use super::{PanelCodes, PresentError, Presented, Sink};
 
 fn err(reason: impl std::fmt::Display) -> PresentError {
-    PresentError::Sink {
-        sink: "window",
-        reason: reason.to_string(),
-    }
+    PresentError::open("window sink", reason)
 }
 
 /// How the window is opened.
@@ -41,7 +38,8 @@ pub struct WindowOptions {
     /// Keep keyboard and mouse input for [`WindowSink::take_inputs`]
     /// (an interactive window; the service's window ignores input).
     pub collect_inputs: bool,
-    /// What to suggest when there is no display (default: `--sink headless`).
+    /// What the caller suggests when there is no display (the command's
+    /// way to run without one); the sink itself only says to set DISPLAY.
     pub no_display_hint: Option<String>,
     /// The window's inner size when it differs from the frames' (frames are
     /// drawn to it with nearest-pixel scaling).
@@ -195,12 +193,12 @@ impl WindowSink {
     /// Opens a window for a `width`×`height` panel on the default adapter.
     pub fn open(width: u32, height: u32, options: WindowOptions) -> Result<Self, PresentError> {
         let mut event_loop = EventLoop::new().map_err(|e| {
+            let instead = match &options.no_display_hint {
+                Some(hint) => format!(", or use {hint}"),
+                None => String::new(),
+            };
             err(format!(
-                "no display ({e}); set DISPLAY (or run under xvfb-run), or use {}",
-                options
-                    .no_display_hint
-                    .as_deref()
-                    .unwrap_or("--sink headless")
+                "no display ({e}); set DISPLAY (or run under xvfb-run){instead}"
             ))
         })?;
         let (window_w, window_h) = options.window_size.unwrap_or((width, height));
@@ -368,29 +366,12 @@ impl Sink for WindowSink {
         !self.app.closed
     }
 
-    fn last_traffic(&self) -> nedrt_core::preprocess::HostTraffic {
-        self.renderer.last_traffic()
+    fn renderer(&self) -> Option<&PanelRenderer> {
+        Some(&self.renderer)
     }
 
-    fn present(&mut self, frame: &DisplayFrame) -> Result<Presented, PresentError> {
-        self.draw(PanelCodes::Host(frame))
-    }
-
-    fn shared_device(&self) -> Option<(wgpu::Device, wgpu::Queue)> {
-        Some((
-            self.renderer.device().clone(),
-            self.renderer.queue().clone(),
-        ))
-    }
-
-    fn present_device(&mut self, frame: &DeviceDisplayFrame) -> Result<Presented, PresentError> {
-        self.draw(PanelCodes::Device(frame))
-    }
-}
-
-impl WindowSink {
     /// Draws onto the swapchain's next texture and queues it.
-    fn draw(&mut self, frame: PanelCodes<'_>) -> Result<Presented, PresentError> {
+    fn present(&mut self, frame: PanelCodes<'_>) -> Result<Presented, PresentError> {
         let texture = match self.surface.get_current_texture() {
             wgpu::CurrentSurfaceTexture::Success(t) => t,
             wgpu::CurrentSurfaceTexture::Suboptimal(t) => {
@@ -405,7 +386,10 @@ impl WindowSink {
                 return Ok(Presented::Skipped);
             }
             wgpu::CurrentSurfaceTexture::Validation => {
-                return Err(err("acquiring the surface texture failed validation"));
+                return Err(PresentError::frame(
+                    "window sink",
+                    "acquiring the surface texture failed validation",
+                ));
             }
         };
         let view = texture

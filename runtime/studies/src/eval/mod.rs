@@ -136,20 +136,22 @@ impl ExternalDisplays {
     fn load(&self, input_file: &Path, input: &Image) -> Result<Image, AppError> {
         let name = input_file
             .file_name()
-            .ok_or_else(|| AppError::Usage("input without a file name".into()))?;
+            .ok_or_else(|| AppError::input(input_file.display(), "no file name"))?;
         let path = self.dir.join(name);
         // Its size must equal the input's after cropping: nothing larger is decoded.
         let im = load_cropped(&path, (input.width + 7, input.height + 7))?;
         if (im.width, im.height) != (input.width, input.height) {
-            return Err(AppError::Usage(format!(
-                "{}: display image is {}×{}, its input {} is {}×{} after cropping to multiples of 8; the sizes must match",
+            return Err(AppError::input(
                 path.display(),
-                im.width,
-                im.height,
-                input_file.display(),
-                input.width,
-                input.height
-            )));
+                format!(
+                    "display image is {}×{}, its input {} is {}×{} after cropping to multiples of 8; the sizes must match",
+                    im.width,
+                    im.height,
+                    input_file.display(),
+                    input.width,
+                    input.height
+                ),
+            ));
         }
         Ok(im)
     }
@@ -334,7 +336,7 @@ pub fn evaluate(
                 Some(engine) => Ok(engine.run(input)?),
                 None => match external {
                     Some(e) => e.load(file, input),
-                    None => Err(AppError::Usage("a row without a display image".into())),
+                    None => Err(AppError::Internal("a row without a display image".into())),
                 },
             })
             .collect::<Result<_, AppError>>()?;

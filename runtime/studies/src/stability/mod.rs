@@ -92,11 +92,10 @@ pub fn run(common: &CommonOptions, o: &StabilityOptions) -> Result<String, AppEr
     let inputs = load_all(&files, common.panel_px()?)?;
     let doe = o.model.with_extension("doe.safetensors");
     if !doe.exists() {
-        return Err(AppError::Usage(format!(
-            "{}: no DOE beside this D-CNN ({} is missing)",
+        return Err(AppError::input(
             o.model.display(),
-            doe.display()
-        )));
+            format!("no DOE beside this D-CNN ({} is missing)", doe.display()),
+        ));
     }
     check_output_folder(&o.out)?;
     let wiener_k = match crate::preprocess::dcnn_input(&o.model)? {

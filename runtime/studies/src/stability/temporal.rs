@@ -56,19 +56,22 @@ pub struct TemporalSection {
 /// The pan: `FRAMES` windows of `SIDE`×`SIDE` (smaller where the image
 /// is) from the image's centre, each `STEP_PX` further right, by bilinear
 /// interpolation.
-pub fn pan(image: &Image) -> Result<Vec<Image>, AppError> {
+pub fn pan(image_name: &str, image: &Image) -> Result<Vec<Image>, AppError> {
     let travel = (STEP_PX * FRAMES as f32).ceil() as usize + 2;
     let side = SIDE
         .min(image.height)
         .min(image.width.saturating_sub(travel));
     if side < 16 {
-        return Err(AppError::Usage(format!(
-            "the temporal study pans a window of at least 16×16 by {travel} pixels: the image must be at \
-             least {}×16, this one is {}×{}",
-            16 + travel,
-            image.width,
-            image.height
-        )));
+        return Err(AppError::input(
+            image_name,
+            format!(
+                "the temporal study pans a window of at least 16×16 by {travel} pixels: the image must be at \
+                 least {}×16, this one is {}×{}",
+                16 + travel,
+                image.width,
+                image.height
+            ),
+        ));
     }
     let (x0, y0) = ((image.width - side - travel) / 2, (image.height - side) / 2);
     Ok((0..FRAMES)
@@ -117,7 +120,7 @@ pub fn section(
     image: &Image,
     proposed: Option<Box<dyn Preprocess>>,
 ) -> Result<TemporalSection, AppError> {
-    let frames = pan(image)?;
+    let frames = pan(image_name, image)?;
     let problem = Arc::new(prepared.display_problem(Method::DoeWiener, Objective::Target)?);
     let mut engines: Vec<(String, Method, Engine)> = Vec::new();
     for m in [
@@ -221,7 +224,7 @@ mod tests {
         let (w, h) = (140, 100);
         let ramp: Vec<f32> = (0..w * h).map(|i| (i % w) as f32 / w as f32).collect();
         let image = Image::from_planes(w, h, vec![ramp.clone(), ramp.clone(), ramp]);
-        let frames = pan(&image).expect("pan");
+        let frames = pan("pan.png", &image).expect("pan");
         assert_eq!(frames.len(), FRAMES);
         assert_eq!((frames[0].width, frames[0].height), (SIDE, SIDE));
         for pair in frames.windows(2) {
@@ -233,9 +236,12 @@ mod tests {
         assert!((rms_change(&frames[1], &frames[0]) - (STEP_PX / w as f32) as f64).abs() < 1e-6);
         // A small image gets a smaller window; too small, a clear error.
         let small = Image::from_planes(40, 30, vec![vec![0.5; 1200]; 3]);
-        assert_eq!(pan(&small).expect("pan")[0].width, 30);
+        assert_eq!(pan("small.png", &small).expect("pan")[0].width, 30);
         let tiny = Image::from_planes(12, 12, vec![vec![0.5; 144]; 3]);
-        let e = pan(&tiny).err().map(|e| e.to_string()).unwrap_or_default();
-        assert!(e.contains("12×12"), "{e}");
+        let e = pan("tiny.png", &tiny)
+            .err()
+            .map(|e| e.to_string())
+            .unwrap_or_default();
+        assert!(e.starts_with("tiny.png: ") && e.contains("12×12"), "{e}");
     }
 }

@@ -80,7 +80,7 @@ pub fn sweep(sweeps: &[SweepCase], inputs: &[Image]) -> Result<WienerSection, Ap
         let filter = scorer
             .prepared
             .wiener(method)
-            .ok_or_else(|| AppError::Usage(format!("{method} has no Wiener filter")))?;
+            .ok_or_else(|| AppError::Unavailable(format!("{method} has no Wiener filter")))?;
         let unprocessed = [
             scorer.quality(method, inputs)?.mean_psnr_db,
             scorer.quality(method, &noisy_inputs)?.mean_psnr_db,

@@ -110,12 +110,12 @@ impl Table {
     /// Reads a table written by `nedrt tradeoff`, naming the file on error.
     pub fn load(path: &Path) -> Result<Self, AppError> {
         let text = std::fs::read_to_string(path)
-            .map_err(|e| AppError::Usage(format!("{}: cannot read: {e}", path.display())))?;
+            .map_err(|e| AppError::input(path.display(), format!("cannot read: {e}")))?;
         serde_json::from_str(&text).map_err(|e| {
-            AppError::Usage(format!(
-                "{}: not a table written by `nedrt tradeoff`: {e}",
-                path.display()
-            ))
+            AppError::input(
+                path.display(),
+                format!("not a table written by `nedrt tradeoff`: {e}"),
+            )
         })
     }
 }
@@ -168,11 +168,13 @@ fn time_median<E>(repeat: usize, mut f: impl FnMut() -> Result<(), E>) -> Result
 fn companion_doe(model: &Path) -> Result<PathBuf, AppError> {
     let doe = model.with_extension("doe.safetensors");
     if !doe.exists() {
-        return Err(AppError::Usage(format!(
-            "{}: no DOE beside this D-CNN ({} is missing); the proposed system is a D-CNN and the DOE it was trained with",
+        return Err(AppError::input(
             model.display(),
-            doe.display()
-        )));
+            format!(
+                "no DOE beside this D-CNN ({} is missing); the proposed system is a D-CNN and the DOE it was trained with",
+                doe.display()
+            ),
+        ));
     }
     Ok(doe)
 }
@@ -182,12 +184,13 @@ fn companion_doe(model: &Path) -> Result<PathBuf, AppError> {
 pub fn run(common: &CommonOptions, o: &TradeoffOptions) -> Result<String, AppError> {
     let start = Instant::now();
     if o.size.0 == 0 || o.size.1 == 0 {
-        return Err(AppError::Usage(
-            "--size: width and height must be positive".into(),
+        return Err(AppError::option(
+            "--size",
+            "width and height must be positive",
         ));
     }
     if o.models.is_empty() {
-        return Err(AppError::Usage(
+        return Err(AppError::Unavailable(
             "no trained D-CNN to compare (give --models FILE,…)".into(),
         ));
     }

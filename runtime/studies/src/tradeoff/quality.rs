@@ -66,7 +66,9 @@ pub fn score_depths(
     mut perceive: impl FnMut(f64, usize) -> Result<Image, AppError>,
 ) -> Result<Quality, AppError> {
     if depths_d.is_empty() || sharps.is_empty() {
-        return Err(AppError::Usage("no depths or no images to score".into()));
+        return Err(AppError::Unavailable(
+            "no depths or no images to score".into(),
+        ));
     }
     let mut per_depth = Vec::new();
     let mut ssim_sum = 0.0;

@@ -48,7 +48,7 @@ impl SocketSource {
         if !shm_dir.is_dir() {
             return Err(SourceError::Input {
                 path: shm_dir.to_path_buf(),
-                reason: "--shm-dir: not a folder (the clients' shared memory lives there)".into(),
+                reason: "not a folder (the folder for the clients' shared memory)".into(),
             });
         }
         if let Ok(meta) = std::fs::symlink_metadata(path) {

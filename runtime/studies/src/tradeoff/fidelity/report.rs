@@ -25,12 +25,12 @@ pub struct FidelityReport {
 pub fn replot(out_dir: &Path) -> Result<String, AppError> {
     let path = out_dir.join("fidelity.json");
     let text = std::fs::read_to_string(&path)
-        .map_err(|e| AppError::Usage(format!("{}: cannot read: {e}", path.display())))?;
+        .map_err(|e| AppError::input(path.display(), format!("cannot read: {e}")))?;
     let report: FidelityReport = serde_json::from_str(&text).map_err(|e| {
-        AppError::Usage(format!(
-            "{}: not a report written by `nedrt tradeoff`: {e}",
-            path.display()
-        ))
+        AppError::input(
+            path.display(),
+            format!("not a report written by `nedrt tradeoff`: {e}"),
+        )
     })?;
     write_outputs(&report, out_dir)
 }

@@ -1,0 +1,138 @@
+#!/usr/bin/env python3
+"""Flag names only in the binary (issue 32; scripts/check-layers.sh runs it):
+exit 0 when no string literal in the code of the crates below the commands'
+wiring (runtime/{core,gpu,optics,infer,service}/src) names a command-line
+flag (`--backend`, `--sink`, …); 1 naming each (file:line and the literal).
+
+A library is called from the binary, the trainer's tools, tests and other
+programs; a flag in its message is wrong for all but one of them. The
+library returns a typed error and the binary (cli/src/main.rs `hint`) or the
+command's wiring (nedrt-app, nedrt-studies, whose options are the flags)
+adds what to type. Test code does not count (the cut of
+import_cycles.without_tests), nor attributes (`#[ignore = "… --include-ignored"]`).
+
+    python3 tools/layers/flag_names.py            # the repository
+    python3 tools/layers/flag_names.py --rust DIR # those crates' src/ only
+
+Standard library only.
+"""
+import argparse
+import re
+import sys
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from import_cycles import REPO, display, is_test_file, without_tests  # noqa: E402
+
+LIBRARIES = ("core", "gpu", "optics", "infer", "service")
+FLAG = re.compile(r"(?<![\w-])--[a-z][a-z0-9]*(?:-[a-z0-9]+)*")
+
+
+def literals(text: str):
+    """[(line, literal, in_attribute)] of the Rust string literals in `text`
+    (plain, byte and raw), comments skipped."""
+    out, i, n, line = [], 0, len(text), 1
+    attr_depth = None  # bracket depth inside `#[…]`, or None outside one
+    while i < n:
+        c = text[i]
+        if c == "\n":
+            line += 1
+            i += 1
+        elif text.startswith("//", i):
+            j = text.find("\n", i)
+            i = n if j < 0 else j
+        elif text.startswith("/*", i):
+            j = text.find("*/", i + 2)
+            j = n if j < 0 else j + 2
+            line += text.count("\n", i, j)
+            i = j
+        elif c == "#" and text.startswith("[", i + 1) or c == "#" and text.startswith("![", i + 1):
+            attr_depth = 0
+            i += 1
+        elif c == "[" and attr_depth is not None:
+            attr_depth += 1
+            i += 1
+        elif c == "]" and attr_depth is not None:
+            attr_depth -= 1
+            if attr_depth == 0:
+                attr_depth = None
+            i += 1
+        elif c == "r" and re.match(r'r#*"', text[i:i + 258]) and not (i and (text[i - 1].isalnum() or text[i - 1] == "_")):
+            hashes = re.match(r'r(#*)"', text[i:]).group(1)
+            start = i + 2 + len(hashes)
+            end = text.find('"' + hashes, start)
+            end = n if end < 0 else end
+            out.append((line, text[start:end], attr_depth is not None))
+            line += text.count("\n", i, end)
+            i = end + 1 + len(hashes)
+        elif c == '"':
+            j = i + 1
+            while j < n and text[j] != '"':
+                j += 2 if text[j] == "\\" else 1
+            out.append((line, text[i + 1:j], attr_depth is not None))
+            line += text.count("\n", i, j)
+            i = j + 1
+        elif c == "'":
+            # A char literal ('x', '\n', '"'), or a lifetime ('a).
+            if text.startswith("\\", i + 1):
+                j = text.find("'", i + 2)
+                i = n if j < 0 else j + 1
+            elif i + 2 < n and text[i + 2] == "'":
+                i += 3
+            else:
+                i += 1
+        else:
+            i += 1
+    return out
+
+
+def check_crate(src: Path, root: Path):
+    """([report line], files checked) for one crate's src/."""
+    found, files = [], 0
+    for path in sorted(src.rglob("*.rs")):
+        rel = path.relative_to(src)
+        if is_test_file(rel):
+            continue
+        files += 1
+        for line, lit, in_attr in literals(without_tests(path.read_text(encoding="utf-8"))):
+            if in_attr:
+                continue
+            flags = FLAG.findall(lit)
+            if flags:
+                shown = lit if len(lit) <= 100 else lit[:97] + "…"
+                found.append(f"  {display(path, root)}:{line}: {', '.join(flags)} in \"{shown}\"")
+    return found, files
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--root", type=Path, default=REPO,
+                        help="repository whose crates to check (default: this one)")
+    parser.add_argument("--rust", type=Path, action="append", default=[], metavar="SRC",
+                        help="a crate's src/ directory to check instead (repeatable)")
+    args = parser.parse_args(argv)
+    root = args.root
+    rust = args.rust or [root / "runtime" / c / "src" for c in LIBRARIES]
+    missing = [p for p in rust if not p.is_dir()]
+    if missing:
+        for p in missing:
+            print(f"flag names: {p} is not a directory", file=sys.stderr)
+        return 2
+    lines, files = [], 0
+    for src in rust:
+        found, n = check_crate(src, root)
+        lines += found
+        files += n
+    if lines:
+        print("a library crate names a command-line flag (return a typed error; the binary "
+              "or the command's wiring adds the hint):")
+        print("\n".join(lines))
+        return 1
+    print(f"flag names: no string literal of {len(rust)} library crate(s) names a "
+          f"command-line flag ({files} files, test code and attributes excluded)")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
