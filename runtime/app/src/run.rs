@@ -69,6 +69,8 @@ pub fn run(
         height,
         refresh_hz: p.refresh_hz,
         transfer: Transfer::from_panel(p),
+        // A pixel subtends pitch / distance at the eyepiece.
+        pixels_per_tan: calib.lens_distance_m / calib.pixel_pitch_m,
     };
     let (w, h) = (panel.width as u32, panel.height as u32);
     // Output folders are checked before anything runs, not after.

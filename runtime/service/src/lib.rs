@@ -2,12 +2,14 @@
 //! ([`pipeline`]: sources, the socket protocol, validation, the threaded
 //! service, pacing and accounting), are preprocessed by any
 //! [`nedrt_core::Preprocess`], and go out to the panel ([`present`]: the
-//! transfer curve and the sinks).
+//! transfer curve and the sinks). Applications' quad layers are blended
+//! over each view's projection layer first ([`compose`]).
 //!
 //! Rule: depends on nedrt-core and nedrt-gpu only: it runs whatever
 //! preprocessing it is handed and knows neither optics nor networks; no
 //! console output (the live status line goes through a
 //! [`nedrt_core::Progress`] the binary supplies).
 
+pub mod compose;
 pub mod pipeline;
 pub mod present;

@@ -107,6 +107,78 @@ impl Pacer {
     }
 }
 
+/// When frames will be on the panel: what the present loop tells
+/// applications so they render for the time their frame is seen (as
+/// Monado's `u_pacing` answers xrWaitFrame). The present loop records each
+/// refresh it paces to and how long frames take from submission to ready;
+/// a frame submitted at `now` is predicted on the first refresh at or after
+/// `now` + that time. Lock-free: submitters read it on their own threads.
+#[derive(Debug)]
+pub struct DisplaySchedule {
+    period_ns: AtomicU64,
+    /// A refresh the present loop paced to: the refreshes' phase.
+    refresh_ns: AtomicU64,
+    /// Submission to ready (in the present slot), a running mean over
+    /// about the last [`DisplaySchedule::SMOOTHING`] frames, ns.
+    pipeline_ns: AtomicU64,
+}
+
+impl DisplaySchedule {
+    /// Frames the pipeline's time is averaged over (an exponential mean).
+    pub const SMOOTHING: u64 = 8;
+
+    /// Refreshes every `period_ns` from `start_ns` (as [`Pacer::new`]).
+    pub fn new(period_ns: u64, start_ns: u64) -> Self {
+        Self {
+            period_ns: AtomicU64::new(period_ns.max(1)),
+            refresh_ns: AtomicU64::new(start_ns + period_ns.max(1)),
+            pipeline_ns: AtomicU64::new(0),
+        }
+    }
+
+    pub fn period_ns(&self) -> u64 {
+        self.period_ns.load(Ordering::Relaxed)
+    }
+
+    /// The present loop paced to a refresh at `vsync_ns`.
+    pub fn observe_refresh(&self, vsync_ns: u64) {
+        self.refresh_ns.store(vsync_ns, Ordering::Relaxed);
+    }
+
+    /// A frame took `ns` from submission to ready.
+    pub fn observe_pipeline(&self, ns: u64) {
+        let old = self.pipeline_ns.load(Ordering::Relaxed);
+        let new = if old == 0 {
+            ns
+        } else {
+            (old * (Self::SMOOTHING - 1) + ns) / Self::SMOOTHING
+        };
+        self.pipeline_ns.store(new, Ordering::Relaxed);
+    }
+
+    /// The pipeline's recent submission-to-ready time, ns.
+    pub fn pipeline_ns(&self) -> u64 {
+        self.pipeline_ns.load(Ordering::Relaxed)
+    }
+
+    /// The first refresh at or after `t_ns`. The refresh the loop paces to
+    /// is the next one there is, so anything before it gets it.
+    pub fn refresh_at_or_after(&self, t_ns: u64) -> u64 {
+        let period = self.period_ns();
+        let phase = self.refresh_ns.load(Ordering::Relaxed);
+        if t_ns <= phase {
+            phase
+        } else {
+            phase + (t_ns - phase).div_ceil(period) * period
+        }
+    }
+
+    /// When a frame submitted at `now_ns` is predicted to be on the panel.
+    pub fn predicted_display_ns(&self, now_ns: u64) -> u64 {
+        self.refresh_at_or_after(now_ns + self.pipeline_ns())
+    }
+}
+
 /// Newest-wins hand-over of one item between two threads.
 #[derive(Debug, Default)]
 pub struct NewestSlot<T> {
@@ -177,6 +249,56 @@ mod tests {
         // Exactly on a refresh is not late.
         clock.sleep_until_ns(t3.vsync_ns);
         assert_eq!(pacer.next(clock.now_ns()).missed, 0);
+    }
+
+    #[test]
+    fn predictions_land_on_the_refresh_the_pacer_shows_the_frame_at_within_one_period() {
+        // The present loop on a fake clock at 90 Hz; frames take 2.4
+        // periods ± 0.3 from submission to ready (a slow D-CNN with jitter)
+        // and are submitted at odd moments. A frame is shown at the first
+        // tick at or after it is ready; the prediction made at submission
+        // must name that tick, or one beside it.
+        let clock = FakeClock::default();
+        let mut pacer = Pacer::new(90.0, clock.now_ns());
+        let period = pacer.period_ns();
+        let schedule = DisplaySchedule::new(period, clock.now_ns());
+        let mut ticks = Vec::new();
+        let mut exact = 0;
+        for i in 0..400u64 {
+            let submit = clock.now_ns() + (i * 7_919_993) % period;
+            let work = 24 * period / 10 + (i * 104_729 % (6 * period / 10)) - 3 * period / 10;
+            let predicted = schedule.predicted_display_ns(submit);
+            let ready = submit + work;
+            // The loop runs its ticks up to the one that shows the frame.
+            let shown = loop {
+                let tick = pacer.next(clock.now_ns());
+                clock.sleep_until_ns(tick.vsync_ns);
+                schedule.observe_refresh(tick.vsync_ns);
+                ticks.push(tick.vsync_ns);
+                if tick.vsync_ns >= ready {
+                    break tick.vsync_ns;
+                }
+            };
+            schedule.observe_pipeline(work);
+            if i >= DisplaySchedule::SMOOTHING {
+                assert!(
+                    predicted.abs_diff(shown) <= period,
+                    "frame {i}: predicted {predicted}, shown {shown}"
+                );
+                exact += u64::from(predicted == shown);
+            }
+            assert!(
+                ticks.contains(&predicted) || predicted > *ticks.last().unwrap_or(&0),
+                "frame {i}: predicted {predicted} off the grid; last tick {:?}, submit {submit}",
+                ticks.last()
+            );
+        }
+        // Most land exactly on the predicted refresh.
+        assert!(exact > 300, "{exact} of 392 exact");
+        // Before the refresh the loop paces to, that refresh is the next.
+        let last = *ticks.last().expect("ticks");
+        assert_eq!(schedule.refresh_at_or_after(last - 3 * period), last);
+        assert_eq!(schedule.refresh_at_or_after(last + 1), last + period);
     }
 
     #[test]

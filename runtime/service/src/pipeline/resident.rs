@@ -13,6 +13,8 @@
 use std::sync::Arc;
 
 use super::frame::{PixelFormat, SubmittedFrame, code_lut};
+use crate::compose::LayerSet;
+use crate::compose::gpu::LayerBlender;
 use crate::present::encode_gpu::{PanelEncoder, workgroups};
 use crate::present::transfer::Transfer;
 use crate::present::{DeviceDisplayFrame, PresentError};
@@ -69,6 +71,11 @@ pub struct DeviceFrames {
     /// frame waits on anyway, as the non-finite count does.
     timer: Option<PassTimer>,
     last_gpu_ns: Option<u64>,
+    /// The view's quad layers, blended after the unpack of a frame that
+    /// came up as it was sent (a decoded frame had them blended on the host).
+    layers: Option<Arc<LayerSet>>,
+    blender: LayerBlender,
+    last_blended: bool,
 }
 
 impl DeviceFrames {
@@ -188,7 +195,20 @@ impl DeviceFrames {
                 .and_then(|_| PassTimer::new(device, queue, 1)),
             stage,
             last_gpu_ns: None,
+            layers: None,
+            blender: LayerBlender::new(device, queue).map_err(PresentError::gpu(STAGE))?,
+            last_blended: false,
         })
+    }
+
+    /// Blends `layers` into every frame uploaded as it came.
+    pub fn attach_layers(&mut self, layers: Arc<LayerSet>) {
+        self.layers = Some(layers);
+    }
+
+    /// Whether the last frame had quad layers blended on the device.
+    pub fn last_blended(&self) -> bool {
+        self.last_blended
     }
 
     /// The device's own time for the stage's work on the last frame, ns,
@@ -314,6 +334,23 @@ impl DeviceFrames {
                 std::mem::size_of_val(im.data())
             }
         };
+        let mut layer_traffic = HostTraffic::default();
+        self.last_blended = false;
+        if let (DeviceInput::Client(_), Some(layers)) = (input, &self.layers) {
+            let snap = layers.snapshot();
+            let dims = (w as u32, h as u32, (w * h) as u32);
+            layer_traffic = self
+                .blender
+                .record(
+                    &mut encoder,
+                    &self.frame,
+                    dims,
+                    &snap.quads,
+                    snap.generation,
+                )
+                .map_err(|e| err(format!("the frame's layers: {e}")))?;
+            self.last_blended = !snap.quads.is_empty();
+        }
         let codes = self.free_codes();
         // Passes with no work of their own carry the stage's timestamps.
         let mark = |encoder: &mut wgpu::CommandEncoder, writes| {
@@ -363,15 +400,14 @@ impl DeviceFrames {
                 self.describe()
             )));
         }
-        Ok((
-            codes,
-            HostTraffic {
-                to_device_bytes: uploaded as u64,
-                uploads: 1,
-                to_host_bytes: 4 + timer_bytes,
-                read_backs: 0,
-            },
-        ))
+        let mut traffic = HostTraffic {
+            to_device_bytes: uploaded as u64,
+            uploads: 1,
+            to_host_bytes: 4 + timer_bytes,
+            read_backs: 0,
+        };
+        traffic.add(layer_traffic);
+        Ok((codes, traffic))
     }
 
     /// The display image of the last frame, read back (tests and checks
@@ -629,5 +665,72 @@ mod tests {
             let e = frames.run(3, &wrong).expect_err("wrong size").to_string();
             assert!(e.contains("4×4 frame for 8×4"), "{e}");
         }
+    }
+
+    #[test]
+    #[ignore = "needs a GPU adapter (run: scripts/test.sh, or cargo test -- --include-ignored)"]
+    fn quad_layers_are_blended_on_the_device_as_on_the_host_and_uploaded_once() {
+        use crate::compose::{Placement, QuadLayer, ViewGeometry, blend};
+        use crate::pipeline::frame::SubmittedFrame;
+        let (device, queue) = test_device(false);
+        let (w, h) = (37usize, 21usize);
+        let transfer = Transfer::from_gamma([2.2, 2.0, 2.4]);
+        let view = ViewGeometry {
+            width: w,
+            height: h,
+            pixels_per_tan: 1000.0,
+        };
+        let layers = Arc::new(LayerSet::default());
+        for (layer, z, x, y, qw, qh, a) in
+            [(1, 0, 3, 2, 20, 10, 0.6f32), (2, 1, 15, 8, 22, 13, 1.0)]
+        {
+            let rgba = (0..qw * qh)
+                .flat_map(|t| {
+                    let c = |k: usize| a * (((t * 17 + k * 29 + layer) % 97) as f32 / 96.0);
+                    [c(0), c(1), c(2), a]
+                })
+                .collect();
+            let quad = QuadLayer {
+                layer: layer as u32,
+                z,
+                placement: Placement::Pixels { x, y },
+                width: qw,
+                height: qh,
+                rgba,
+            };
+            layers
+                .set(9, quad.place(&view).expect("placed"))
+                .expect("set");
+        }
+        let mut frames = DeviceFrames::new(&device, &queue, w, h, &transfer, None).expect("frames");
+        frames.attach_layers(layers.clone());
+        let client = SubmittedFrame {
+            id: 0,
+            capture_ns: 0,
+            width: w,
+            height: h,
+            format: PixelFormat::Rgba8Srgb,
+            payload: (0..4 * w * h).map(|i| (i * 7 % 256) as u8).collect(),
+        };
+        let (frame, first) = frames
+            .run(0, &DeviceInput::Client(client.clone()))
+            .expect("runs");
+        assert!(frames.last_blended());
+        let on_device = frame.to_host().expect("codes").rgba8;
+        let mut im = decode(&client);
+        blend(&mut im, &layers.snapshot().quads).expect("blends");
+        let mut on_host = Vec::new();
+        transfer.encode_rgba8(&im, &mut on_host);
+        let worst = on_device
+            .iter()
+            .zip(&on_host)
+            .map(|(a, b)| a.abs_diff(*b))
+            .max()
+            .unwrap_or(0);
+        assert!(worst <= 1, "codes differ by {worst}");
+        // The same layers on the next frame: their texels stay on the device.
+        let (_, second) = frames.run(1, &DeviceInput::Client(client)).expect("runs");
+        assert!(second.to_device_bytes < first.to_device_bytes);
+        assert_eq!(second.read_backs, 0);
     }
 }

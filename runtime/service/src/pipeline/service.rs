@@ -33,16 +33,17 @@ use std::thread::JoinHandle;
 use crossbeam_channel::Receiver;
 
 use super::channel::newest_channel;
-use super::frame::{SubmittedFrame, decode};
-use super::pacing::{Clock, NewestSlot, Pacer};
+use super::frame::SubmittedFrame;
+use super::pacing::{Clock, DisplaySchedule, NewestSlot, Pacer};
 use super::resident::{DeviceFrames, DeviceInput};
 use super::stats::{RSS_EVERY, Report, Stage, Stats};
+use crate::compose::{LayerSet, ViewGeometry};
 use crate::present::transfer::Transfer;
 use crate::present::{DisplayFrame, PanelFrame, PresentError, Presented, Sink};
 pub use compositor::Compositor;
 use compositor::Timed;
 pub use control::Control;
-use engine::{Engine, Processed, UploadWork, host_stage};
+use engine::{Engine, Processed, UploadWork, decode_with_layers, host_stage};
 use nedrt_core::Image;
 use nedrt_core::preprocess::{Identity, Preprocess, PreprocessError};
 
@@ -167,6 +168,9 @@ pub struct PanelConfig {
     pub height: usize,
     pub refresh_hz: f64,
     pub transfer: Transfer,
+    /// Pixels per unit of tan(angle) seen through the eyepiece, to place
+    /// quad layers given in degrees ([`crate::compose::ViewGeometry`]).
+    pub pixels_per_tan: f64,
 }
 
 /// A running pipeline.
@@ -177,6 +181,7 @@ pub struct Service {
     slot: Arc<NewestSlot<Timed<PanelFrame>>>,
     stats: Arc<Stats>,
     clock: Arc<dyn Clock>,
+    schedule: Arc<DisplaySchedule>,
     /// Set when the last stage has finished (every sender dropped).
     drained: Arc<AtomicBool>,
     /// Set when the present loop has ended: stages then pass frames on
@@ -226,6 +231,9 @@ fn spawn_stage<I: Send + 'static, O: Send + 'static>(
                         id: t.id,
                         start_ns: t.start_ns,
                         work_ns: t.work_ns + ns,
+                        submit_ns: t.submit_ns,
+                        predicted_ns: t.predicted_ns,
+                        ready_ns: t0 + ns,
                     });
                 }
             }
@@ -241,7 +249,7 @@ impl Service {
         dcnn: DcnnStage,
         clock: Arc<dyn Clock>,
     ) -> std::io::Result<Self> {
-        Self::start_with(panel, Engine::Host(dcnn), None, clock)
+        Self::start_with(panel, Engine::Host(dcnn, None), None, clock)
     }
 
     /// Starts the resident path (module docs): frames stay on the sink's
@@ -259,6 +267,7 @@ impl Service {
         let engine = Engine::Device {
             frames: Box::new(frames),
             fallback,
+            layers: None,
         };
         Self::start_with(panel, engine, Some(host), clock)
     }
@@ -296,10 +305,20 @@ impl Service {
             stopping: stopping.clone(),
         };
         let mut threads = Vec::new();
+        // Quads are blended where the frame first is planes: on the host
+        // after the decode, or on the device after the unpack of a frame
+        // uploaded as it came.
+        let layers = Arc::new(LayerSet::default());
+        engine.attach_layers(layers.clone());
         let mut upload: UploadWork = match host {
-            None => Box::new(|f, _| Some(DeviceInput::Planar(decode(&f)))),
+            None => {
+                let layers = layers.clone();
+                Box::new(move |f, stats| {
+                    Some(DeviceInput::Planar(decode_with_layers(&f, &layers, stats)))
+                })
+            }
             Some(None) => Box::new(|f, _| Some(DeviceInput::Client(f))),
-            Some(Some(prep)) => Box::new(host_stage(prep)),
+            Some(Some(prep)) => Box::new(host_stage(prep, layers.clone())),
         };
         threads.push(spawn_stage(
             "upload",
@@ -352,12 +371,22 @@ impl Service {
                     drained_flag.store(true, Ordering::SeqCst);
                 })?,
         );
+        let pacer = Pacer::new(panel.refresh_hz, clock.now_ns());
+        let schedule = Arc::new(DisplaySchedule::new(pacer.period_ns(), clock.now_ns()));
         let compositor = Compositor {
+            schedule: schedule.clone(),
             tx: ingest_tx,
             stats: stats.clone(),
             clock: clock.clone(),
             width: panel.width,
             height: panel.height,
+            layers,
+            view: ViewGeometry {
+                width: panel.width,
+                height: panel.height,
+                pixels_per_tan: panel.pixels_per_tan,
+            },
+            owner: 0,
         };
         Ok(Self {
             panel,
@@ -365,6 +394,7 @@ impl Service {
             slot,
             stats,
             clock,
+            schedule,
             drained,
             stopping,
             threads,
@@ -412,6 +442,7 @@ impl Service {
                 progress.note(&self.stats.snapshot().table());
             }
             let tick = pacer.next(self.clock.now_ns());
+            self.schedule.observe_refresh(tick.vsync_ns);
             self.stats.missed_refreshes.fetch_add(tick.missed, Relaxed);
             if !sink.paced_by_display() {
                 self.clock.sleep_until_ns(tick.vsync_ns);
@@ -457,6 +488,13 @@ impl Service {
             match shown {
                 Presented::Shown => {
                     self.stats.present_traffic.record(sink.last_traffic());
+                    self.schedule
+                        .observe_pipeline(t.ready_ns.saturating_sub(t.submit_ns));
+                    self.stats.record_vs_prediction(
+                        tick.vsync_ns,
+                        t.predicted_ns,
+                        pacer.period_ns(),
+                    );
                     let present_ns = now - t0;
                     let e2e = now.saturating_sub(t.start_ns);
                     self.stats.record(Stage::Present, present_ns);

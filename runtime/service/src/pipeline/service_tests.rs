@@ -62,6 +62,7 @@ fn panel() -> PanelConfig {
         width: 4,
         height: 2,
         refresh_hz: 1000.0,
+        pixels_per_tan: 1000.0,
         transfer: Transfer::from_gamma([1.0, 1.0, 1.0]),
     }
 }
@@ -82,6 +83,15 @@ fn run_one_by_one(
     dcnn: DcnnStage,
     frames: &[SubmittedFrame],
 ) -> (Vec<DisplayFrame>, crate::pipeline::stats::Report) {
+    run_one_by_one_with(dcnn, frames, |_, _| {})
+}
+
+/// As [`run_one_by_one`], calling `before(i, compositor)` before frame `i`.
+fn run_one_by_one_with(
+    dcnn: DcnnStage,
+    frames: &[SubmittedFrame],
+    before: impl Fn(usize, &Compositor) + Send + 'static,
+) -> (Vec<DisplayFrame>, crate::pipeline::stats::Report) {
     let mut service = Service::start(panel(), dcnn, Arc::new(SystemClock)).expect("start");
     let compositor = service.compositor().expect("open");
     service.close_ingest();
@@ -92,6 +102,7 @@ fn run_one_by_one(
         let stats = service.stats().clone();
         std::thread::spawn(move || {
             for (i, f) in frames.into_iter().enumerate() {
+                before(i, &compositor);
                 let _ = compositor.submit(f);
                 let t = std::time::Instant::now();
                 while stats.presented.load(Ordering::Relaxed) + stats.rejected_total()
@@ -295,4 +306,49 @@ fn the_report_counts_host_traffic_per_frame_by_stage() {
     let per_frame = report.traffic_per_frame();
     assert_eq!(per_frame.to_device_bytes, 32.0);
     assert_eq!((per_frame.to_host_bytes, per_frame.read_backs), (0.0, 0.0));
+}
+
+#[test]
+fn quad_layers_are_blended_over_every_frame_until_their_owner_removes_them() {
+    use crate::compose::{Placement, QuadLayer};
+    let dcnn = DcnnStage {
+        primary: Box::new(Identity),
+        fallback: None,
+    };
+    // An opaque quad of 0.8 on pixels (1, 0) and (2, 0) from client 1; a
+    // half-transparent one of premultiplied 0.3 on (0, 1) and (1, 1) from
+    // client 2: 0.3 + 0.5·0.2 = 0.4 (code 102 on this linear panel).
+    let layer = |layer, x, y, c: f32, a: f32| QuadLayer {
+        layer,
+        z: 0,
+        placement: Placement::Pixels { x, y },
+        width: 2,
+        height: 1,
+        rgba: [c, c, c, a].repeat(2),
+    };
+    let frames: Vec<_> = (0..3).map(|i| grey(i, 51)).collect();
+    let (shown, report) = run_one_by_one_with(dcnn, &frames, move |i, compositor| {
+        let (one, two) = (compositor.for_owner(1), compositor.for_owner(2));
+        match i {
+            0 => {
+                one.submit_layer(layer(7, 1, 0, 0.8, 1.0)).expect("inside");
+                two.submit_layer(layer(7, 0, 1, 0.3, 0.5)).expect("inside");
+                // Outside the 4×2 view: refused, counted, the others kept.
+                assert!(two.submit_layer(layer(8, 3, 1, 0.1, 0.5)).is_err());
+            }
+            // Client 1 leaves: its layers go with it.
+            1 => assert_eq!(one.remove_owner_layers(), 1),
+            _ => assert!(two.remove_layer(7)),
+        }
+    });
+    let row = |f: &DisplayFrame, y: usize| -> Vec<u8> {
+        (0..4).map(|x| f.rgba8[4 * (4 * y + x)]).collect()
+    };
+    assert_eq!(row(&shown[0], 0), vec![51, 204, 204, 51]);
+    assert_eq!(row(&shown[0], 1), vec![102, 102, 51, 51]);
+    assert_eq!(row(&shown[1], 0), vec![51, 51, 51, 51]);
+    assert_eq!(row(&shown[1], 1), vec![102, 102, 51, 51]);
+    assert_eq!(row(&shown[2], 1), vec![51, 51, 51, 51]);
+    assert_eq!((report.layers_set, report.layers_refused), (2, 1));
+    assert_eq!(report.frames_with_layers, 2);
 }

@@ -88,6 +88,15 @@ pub struct Stats {
     /// Presented frames the sink then lost (a recorder's writes after its
     /// disk filled); these are also in `presented`.
     pub lost_by_sink: AtomicU64,
+    /// Quad layers set (a submission, or a newer one of the same layer).
+    pub layers_set: AtomicU64,
+    /// Quad layers refused (outside the view, non-finite, wrong size, …).
+    pub layers_refused: AtomicU64,
+    /// Frames blended with at least one quad layer.
+    pub frames_with_layers: AtomicU64,
+    /// Presented frames by refreshes between the one they were shown at
+    /// and the one predicted when they were submitted (negative: early).
+    vs_prediction: Mutex<std::collections::BTreeMap<i64, u64>>,
     /// Host↔device traffic of the D-CNN stage's frames.
     pub dcnn_traffic: TrafficCounter,
     /// Host↔device traffic of the sink's presented frames.
@@ -121,6 +130,19 @@ impl TrafficCounter {
             frames,
             total,
         }
+    }
+}
+
+impl Stats {
+    /// A frame shown at the refresh `shown_ns`, predicted at `predicted_ns`.
+    pub fn record_vs_prediction(&self, shown_ns: u64, predicted_ns: u64, period_ns: u64) {
+        let late = (shown_ns as f64 - predicted_ns as f64) / period_ns.max(1) as f64;
+        *self
+            .vs_prediction
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .entry(late.round() as i64)
+            .or_insert(0) += 1;
     }
 }
 
@@ -192,6 +214,16 @@ impl Stats {
             in_flight_at_stop: load(&self.in_flight_at_stop),
             failed: load(&self.failed),
             lost_by_sink: load(&self.lost_by_sink),
+            layers_set: load(&self.layers_set),
+            layers_refused: load(&self.layers_refused),
+            frames_with_layers: load(&self.frames_with_layers),
+            shown_vs_predicted: self
+                .vs_prediction
+                .lock()
+                .unwrap_or_else(|p| p.into_inner())
+                .iter()
+                .map(|(&k, &n)| (k, n))
+                .collect(),
             stages: Stage::ALL
                 .iter()
                 .map(|&s| {
@@ -291,6 +323,12 @@ pub struct Report {
     pub in_flight_at_stop: u64,
     pub failed: u64,
     pub lost_by_sink: u64,
+    pub layers_set: u64,
+    pub layers_refused: u64,
+    pub frames_with_layers: u64,
+    /// (refreshes late against the prediction at submission, frames);
+    /// 0 is on the predicted refresh, negative early.
+    pub shown_vs_predicted: Vec<(i64, u64)>,
     pub stages: Vec<StageReport>,
     /// Host↔device traffic per frame, by stage (the decode and encode
     /// stages run on the host and move nothing).
@@ -387,6 +425,28 @@ impl Report {
             s += &format!(
                 "{} presented frames lost by the sink (not recorded)\n",
                 self.lost_by_sink
+            );
+        }
+        let shown: u64 = self.shown_vs_predicted.iter().map(|&(_, n)| n).sum();
+        if shown > 0 {
+            let parts: Vec<String> = self
+                .shown_vs_predicted
+                .iter()
+                .map(|&(k, n)| {
+                    let at = match k {
+                        0 => "on the predicted refresh".to_string(),
+                        k if k > 0 => format!("{k} late"),
+                        k => format!("{} early", -k),
+                    };
+                    format!("{at} {:.1} %", 100.0 * n as f64 / shown as f64)
+                })
+                .collect();
+            s += &format!("shown vs predicted (refreshes): {}\n", parts.join(", "));
+        }
+        if self.layers_set + self.layers_refused > 0 {
+            s += &format!(
+                "layers: {} set, {} refused; {} frames blended with quad layers\n",
+                self.layers_set, self.layers_refused, self.frames_with_layers
             );
         }
         let rejected: Vec<String> = self

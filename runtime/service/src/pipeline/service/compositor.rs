@@ -4,9 +4,10 @@
 
 use std::sync::Arc;
 
+use crate::compose::{LayerError, LayerSet, QuadLayer, ViewGeometry};
 use crate::pipeline::channel::NewestSender;
 use crate::pipeline::frame::{FrameError, SubmittedFrame, validate};
-use crate::pipeline::pacing::Clock;
+use crate::pipeline::pacing::{Clock, DisplaySchedule};
 use crate::pipeline::stats::Stats;
 
 /// A frame in flight with its timing.
@@ -18,6 +19,12 @@ pub(super) struct Timed<T> {
     pub(super) start_ns: u64,
     /// Time spent in the stages' own work so far.
     pub(super) work_ns: u64,
+    /// When it was submitted, and the refresh predicted for it then.
+    pub(super) submit_ns: u64,
+    pub(super) predicted_ns: u64,
+    /// When the last stage so far finished it (after the encode: ready
+    /// for the panel).
+    pub(super) ready_ns: u64,
 }
 
 /// The in-process API: submit frames to a running service. Cheap to clone;
@@ -29,6 +36,12 @@ pub struct Compositor {
     pub(super) clock: Arc<dyn Clock>,
     pub(super) width: usize,
     pub(super) height: usize,
+    pub(super) layers: Arc<LayerSet>,
+    pub(super) schedule: Arc<DisplaySchedule>,
+    pub(super) view: ViewGeometry,
+    /// Whose layers this handle sets: each client of the socket has its
+    /// own; in-process callers share 0 unless they ask for one.
+    pub(super) owner: u64,
 }
 
 impl Compositor {
@@ -54,8 +67,67 @@ impl Compositor {
             item: frame,
             start_ns,
             work_ns: 0,
+            submit_ns: now,
+            predicted_ns: self.schedule.predicted_display_ns(now),
+            ready_ns: now,
         });
         Ok(())
+    }
+
+    /// When a frame submitted now is predicted to be on the panel,
+    /// CLOCK_MONOTONIC ns (the service's clock): the first refresh after
+    /// the pipeline's recent time from submission to ready.
+    pub fn predicted_display_ns(&self) -> u64 {
+        self.schedule.predicted_display_ns(self.clock.now_ns())
+    }
+
+    /// The panel's refresh period, ns.
+    pub fn refresh_period_ns(&self) -> u64 {
+        self.schedule.period_ns()
+    }
+
+    /// The same pipeline, setting layers as `owner` (a client's id).
+    pub fn for_owner(&self, owner: u64) -> Compositor {
+        Compositor {
+            owner,
+            ..self.clone()
+        }
+    }
+
+    /// Checks and places `quad` on the view and makes it this owner's
+    /// layer `quad.layer` from the next frame on (replacing an older
+    /// submission of it). Refused and counted when it is bad.
+    pub fn submit_layer(&self, quad: QuadLayer) -> Result<(), LayerError> {
+        use std::sync::atomic::Ordering::Relaxed;
+        let placed = quad
+            .place(&self.view)
+            .and_then(|q| self.layers.set(self.owner, q));
+        match placed {
+            Ok(()) => {
+                self.stats.layers_set.fetch_add(1, Relaxed);
+                Ok(())
+            }
+            Err(e) => {
+                self.stats.layers_refused.fetch_add(1, Relaxed);
+                tracing::warn!("{e}");
+                Err(e)
+            }
+        }
+    }
+
+    /// Removes this owner's layer `layer`; whether it was there.
+    pub fn remove_layer(&self, layer: u32) -> bool {
+        self.layers.remove(self.owner, layer)
+    }
+
+    /// Removes every layer of this owner (a client that left); how many.
+    pub fn remove_owner_layers(&self) -> usize {
+        self.layers.remove_owner(self.owner)
+    }
+
+    /// What quads are placed on.
+    pub fn view(&self) -> ViewGeometry {
+        self.view
     }
 
     /// The panel's resolution, which every frame must have.

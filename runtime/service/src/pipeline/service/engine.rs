@@ -4,6 +4,7 @@
 //! reads on its own.
 
 use super::{DcnnStage, HostPrep, switch_to_fallback};
+use crate::compose::LayerSet;
 use crate::pipeline::frame::{SubmittedFrame, decode};
 use crate::pipeline::resident::{DeviceFrames, DeviceInput};
 use crate::pipeline::service::FallbackFactory;
@@ -11,13 +12,15 @@ use crate::pipeline::stats::{Stage, Stats};
 use crate::present::DeviceDisplayFrame;
 use nedrt_core::Image;
 use nedrt_core::preprocess::PreprocessError;
+use std::sync::Arc;
 
 /// The dcnn stage's engine: on the host, or on the sink's device.
 pub(super) enum Engine {
-    Host(DcnnStage),
+    Host(DcnnStage, Option<Arc<LayerSet>>),
     Device {
         frames: Box<DeviceFrames>,
         fallback: Option<FallbackFactory>,
+        layers: Option<Arc<LayerSet>>,
     },
 }
 
@@ -27,26 +30,68 @@ pub(super) enum Processed {
     Device(DeviceDisplayFrame),
 }
 
-/// A frame from the upload stage as a host image.
-pub(super) fn host_image(input: DeviceInput) -> Image {
-    match input {
-        DeviceInput::Client(f) => decode(&f),
-        DeviceInput::Planar(im) => im,
+/// A client's frame decoded to planes with the view's quad layers blended
+/// over it (counted when there were any).
+pub(super) fn decode_with_layers(f: &SubmittedFrame, layers: &LayerSet, stats: &Stats) -> Image {
+    let mut im = decode(f);
+    let snap = layers.snapshot();
+    if !snap.quads.is_empty() {
+        match crate::compose::blend(&mut im, &snap.quads) {
+            Ok(()) => {
+                stats
+                    .frames_with_layers
+                    .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+            }
+            // The set holds at most MAX_QUADS: a bug, not the client's.
+            Err(e) => tracing::error!("blending frame {}: {e}", f.id),
+        }
+    }
+    im
+}
+
+/// A frame from the upload stage as a host image: a frame uploaded as it
+/// came is decoded here, with its layers (the device would have blended them).
+fn host_image(input: DeviceInput, layers: Option<&LayerSet>, stats: &Stats) -> Image {
+    match (input, layers) {
+        (DeviceInput::Client(f), Some(layers)) => decode_with_layers(&f, layers, stats),
+        (DeviceInput::Client(f), None) => decode(&f),
+        (DeviceInput::Planar(im), _) => im,
     }
 }
 
 impl Engine {
     pub(super) fn describe(&self) -> String {
         match self {
-            Engine::Host(d) => d.primary.describe(),
+            Engine::Host(d, _) => d.primary.describe(),
             Engine::Device { frames, .. } => frames.describe(),
         }
     }
 
+    /// The view's layers, for frames that reach this stage undecoded.
+    pub(super) fn attach_layers(&mut self, set: Arc<LayerSet>) {
+        match self {
+            Engine::Host(_, layers) => *layers = Some(set),
+            Engine::Device { frames, layers, .. } => {
+                frames.attach_layers(set.clone());
+                *layers = Some(set);
+            }
+        }
+    }
+
     pub(super) fn run(&mut self, id: u64, input: DeviceInput, stats: &Stats) -> Option<Processed> {
-        if let Engine::Device { frames, fallback } = self {
+        if let Engine::Device {
+            frames,
+            fallback,
+            layers,
+        } = self
+        {
             match frames.run(id, &input) {
                 Ok((frame, traffic)) => {
+                    if frames.last_blended() {
+                        stats
+                            .frames_with_layers
+                            .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                    }
                     if let Some(ns) = frames.last_gpu_ns() {
                         stats.record(Stage::DcnnGpu, ns);
                     }
@@ -59,17 +104,21 @@ impl Engine {
                         switch_to_fallback(fallback.take(), &frames.describe(), &reason, stats);
                     *stats.frame_path.lock().unwrap_or_else(|p| p.into_inner()) =
                         "host (after the device path failed)".into();
-                    *self = Engine::Host(DcnnStage {
-                        primary: next,
-                        fallback: None,
-                    });
+                    *self = Engine::Host(
+                        DcnnStage {
+                            primary: next,
+                            fallback: None,
+                        },
+                        layers.take(),
+                    );
                 }
             }
         }
-        let Engine::Host(dcnn) = self else {
+        let Engine::Host(dcnn, layers) = self else {
             return None;
         };
-        dcnn.run(&host_image(input), stats).map(Processed::Host)
+        let frame = host_image(input, layers.as_deref(), stats);
+        dcnn.run(&frame, stats).map(Processed::Host)
     }
 }
 
@@ -82,11 +131,12 @@ pub(super) type UploadWork = Box<dyn FnMut(SubmittedFrame, &Stats) -> Option<Dev
 /// then go up as decoded).
 pub(super) fn host_stage(
     mut prep: HostPrep,
+    layers: Arc<LayerSet>,
 ) -> impl FnMut(SubmittedFrame, &Stats) -> Option<DeviceInput> + Send {
     use std::sync::atomic::Ordering::Relaxed;
     let mut failed_over = false;
     move |f, stats| {
-        let decoded = decode(&f);
+        let decoded = decode_with_layers(&f, &layers, stats);
         if failed_over {
             return Some(DeviceInput::Planar(decoded));
         }
