@@ -9,7 +9,9 @@
 use std::path::{Path, PathBuf};
 
 use nedrt_core::Image;
+use nedrt_service::compose::Placement;
 use nedrt_service::pipeline::frame::{PixelFormat, planar_payload};
+use nedrt_service::pipeline::protocol::v2::{HEADER_V2_LEN, HeaderV2, QuadFormat, VERSION_2};
 use nedrt_service::pipeline::protocol::{FrameHeader, Hello};
 
 fn write(dir: &Path, name: &str, bytes: &[u8]) -> anyhow::Result<()> {
@@ -102,6 +104,66 @@ fn main() -> anyhow::Result<()> {
         }
         bytes.extend_from_slice(&payload);
         write(&protocol, &format!("{format:?}.bin"), &bytes)?;
+    }
+
+    // Version 2: a projection frame, a quad in pixels, one in degrees,
+    // and the removal of the first, their payloads after the headers.
+    {
+        let name = b"nedrt-seed";
+        let frame = (0..w * h * 4)
+            .map(|i| (i * 7 % 256) as u8)
+            .collect::<Vec<u8>>();
+        let quad: Vec<u8> = (0..6 * 4)
+            .flat_map(|i| {
+                let a = (i * 11 % 256) as u8;
+                [a / 2, a / 3, a, a]
+            })
+            .collect();
+        let headers_len = (4 * HEADER_V2_LEN) as u64;
+        let quad_at = headers_len + frame.len() as u64;
+        let headers = [
+            HeaderV2 {
+                offset: headers_len,
+                ..HeaderV2::projection(0, PixelFormat::Rgba8Linear, (w, h), 1, 1_000)
+            },
+            HeaderV2::quad(
+                0,
+                7,
+                1,
+                Placement::Pixels { x: 3, y: 2 },
+                QuadFormat::Rgba8Premultiplied,
+                (6, 4),
+                2,
+                quad_at,
+            ),
+            HeaderV2::quad(
+                0,
+                8,
+                -1,
+                Placement::Degrees {
+                    x_deg: 0.1,
+                    y_deg: -0.05,
+                },
+                QuadFormat::Rgba8Premultiplied,
+                (6, 4),
+                3,
+                quad_at,
+            ),
+            HeaderV2::remove(0, 7, 4),
+        ];
+        let mut bytes = Hello {
+            name_len: name.len(),
+            shm_size: quad_at + quad.len() as u64,
+        }
+        .to_bytes_version(VERSION_2)
+        .to_vec();
+        bytes.extend_from_slice(name);
+        for header in &headers {
+            bytes.extend_from_slice(&header.to_bytes());
+        }
+        bytes.extend_from_slice(&frame);
+        bytes.extend_from_slice(&quad);
+        write(&protocol, "v2-layers.bin", &bytes)?;
     }
 
     let images = root.join("image");

@@ -3,21 +3,48 @@
 //! (sRGB-encoded, as a typical render target), stamped with CLOCK_MONOTONIC
 //! capture times, at a given rate. Prints each rejection and a summary.
 //!
+//! With `--overlay` it speaks protocol version 2: it sets a translucent
+//! quad layer (a HUD bar, premultiplied RGBA8, centred near the bottom,
+//! redrawn once a second) over its frames, and reports how far ahead of
+//! their predicted display time its frames were submitted.
+//!
 //! ```sh
 //! nedrt run --source socket --socket /tmp/nedrt.sock &
 //! cargo run --release --example stream_client -- /tmp/nedrt.sock 600 90
+//! cargo run --release --example stream_client -- /tmp/nedrt.sock 600 90 --overlay
 //! ```
 
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
+use nedrt_service::compose::Placement;
 use nedrt_service::pipeline::frame::PixelFormat;
 use nedrt_service::pipeline::pacing::monotonic_ns;
+use nedrt_service::pipeline::protocol::v2::{HeaderV2, QuadFormat};
 use nedrt_service::pipeline::protocol::{Client, DEFAULT_SHM_DIR, FrameHeader, STATUS_OK};
 use nedrt_service::pipeline::source::pattern::pattern_rgba8;
 
+/// The HUD bar: a dark translucent band with a bright bar growing with
+/// `second`, premultiplied.
+fn hud(w: usize, h: usize, second: u64) -> Vec<u8> {
+    let filled = (second as usize * w / 10) % (w + 1);
+    (0..w * h)
+        .flat_map(|i| {
+            let (x, y) = (i % w, i / w);
+            let edge = y < 2 || y + 2 >= h || x < 2 || x + 2 >= w;
+            if edge || x < filled {
+                [200, 200, 200, 220]
+            } else {
+                [10, 10, 20, 96]
+            }
+        })
+        .collect()
+}
+
 fn main() -> Result<(), Box<dyn std::error::Error>> {
-    let mut args = std::env::args().skip(1);
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    let overlay = args.iter().any(|a| a == "--overlay");
+    let mut args = args.into_iter().filter(|a| a != "--overlay");
     let socket = PathBuf::from(args.next().unwrap_or_else(|| "/tmp/nedrt.sock".into()));
     let frames: u64 = args.next().map_or(Ok(300), |a| a.parse())?;
     let rate_hz: f64 = args.next().map_or(Ok(90.0), |a| a.parse())?;
@@ -27,17 +54,64 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let probe = Client::connect(&socket, DEFAULT_SHM_DIR.as_ref(), 0)?;
         probe.panel
     };
-    let bytes = w * h * PixelFormat::Rgba8Srgb.bytes_per_pixel();
-    let mut client = Client::connect(&socket, DEFAULT_SHM_DIR.as_ref(), bytes as u64)?;
-    println!("connected: panel {w}×{h}; streaming {frames} frames at {rate_hz} Hz");
+    let frame_bytes = w * h * PixelFormat::Rgba8Srgb.bytes_per_pixel();
+    // The HUD: a quarter of the width, 1/12 of the height, after the frame.
+    let (hud_w, hud_h) = ((w / 4).max(8), (h / 12).max(6));
+    let bytes = frame_bytes + if overlay { 4 * hud_w * hud_h } else { 0 };
+    let mut client = if overlay {
+        Client::connect_v2(&socket, DEFAULT_SHM_DIR.as_ref(), bytes as u64)?
+    } else {
+        Client::connect(&socket, DEFAULT_SHM_DIR.as_ref(), bytes as u64)?
+    };
+    println!(
+        "connected (protocol version {}): panel {w}×{h}; streaming {frames} frames at {rate_hz} Hz",
+        client.version
+    );
     let start = Instant::now();
     let mut rejected = 0;
+    // Version 2: how far ahead of the predicted refresh each frame went.
+    let mut lead_ms = Vec::new();
     for id in 0..frames {
         let due = start + Duration::from_secs_f64(id as f64 / rate_hz);
         std::thread::sleep(due.saturating_duration_since(Instant::now()));
         let pixels = pattern_rgba8(w, h, id, rate_hz);
-        let header = FrameHeader::new(PixelFormat::Rgba8Srgb, w, h, id, monotonic_ns());
-        let reply = client.send(&header, &pixels)?;
+        let second = (id as f64 / rate_hz) as u64;
+        // Once a second (the first frame of each): a quad stays until replaced.
+        let redraw_hud = overlay && (id == 0 || ((id - 1) as f64 / rate_hz) as u64 != second);
+        let reply = if overlay {
+            if redraw_hud {
+                let quad = HeaderV2::quad(
+                    0,
+                    1,
+                    1,
+                    Placement::Pixels {
+                        x: ((w - hud_w) / 2) as i64,
+                        y: (h - hud_h - h / 20) as i64,
+                    },
+                    QuadFormat::Rgba8Premultiplied,
+                    (hud_w, hud_h),
+                    id,
+                    frame_bytes as u64,
+                );
+                let r = client.send_v2(&quad, &hud(hud_w, hud_h, second))?;
+                if r.reply.status != STATUS_OK {
+                    eprintln!(
+                        "HUD refused (status {}): {}",
+                        r.reply.status, r.reply.message
+                    );
+                }
+            }
+            let predicted = client.timing.as_ref().map(|t| t.predicted_display_ns);
+            let now = monotonic_ns();
+            if let Some(p) = predicted {
+                lead_ms.push((p as f64 - now as f64) / 1e6);
+            }
+            let header = HeaderV2::projection(0, PixelFormat::Rgba8Srgb, (w, h), id, now);
+            client.send_v2(&header, &pixels)?.reply
+        } else {
+            let header = FrameHeader::new(PixelFormat::Rgba8Srgb, w, h, id, monotonic_ns());
+            client.send(&header, &pixels)?
+        };
         if reply.status != STATUS_OK {
             rejected += 1;
             eprintln!(
@@ -50,5 +124,15 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         "sent {frames} frames in {:.2} s, {rejected} rejected",
         start.elapsed().as_secs_f64()
     );
+    if !lead_ms.is_empty() {
+        lead_ms.sort_by(f64::total_cmp);
+        let q = |p: f64| lead_ms[((lead_ms.len() - 1) as f64 * p) as usize];
+        println!(
+            "submitted ahead of the predicted display time: p50 {:.1} ms, p10 {:.1}, p90 {:.1}",
+            q(0.5),
+            q(0.1),
+            q(0.9)
+        );
+    }
     Ok(())
 }

@@ -9,7 +9,7 @@ src = (pathlib.Path(__file__).parent.parent / "tests/cli/bad_input.rs").read_tex
 rows = re.findall(
     r'row\(\s*"([^"]+)",\s*&\[(.*?)\],\s*"((?:[^"\\]|\\.)*)",?\s*\)', src, re.S
 )
-protocol = re.findall(r'\(\s*"(protocol: [^"]+)",\s*.*?,\s*"((?:[^"\\]|\\.)*)",?\s*\),\n', src, re.S)
+protocol = re.findall(r'\(\s*"(protocol(?: v2)?: [^"]+)",\s*.*?,\s*"((?:[^"\\]|\\.)*)",?\s*\),\n', src, re.S)
 print("| # | Input | Command line (`{dir}`: the prepared files) | The one error line holds |")
 print("|---|---|---|---|")
 n = 0
@@ -19,4 +19,10 @@ for name, args, needle in rows:
     print(f"| {n} | {name} | `{args}` | `{needle}` |")
 for name, needle in protocol:
     n += 1
-    print(f"| {n} | {name} | the service's hello or header check | `{needle}` |")
+    if not name.startswith("protocol v2:"):
+        check = "the service's hello or header check"
+    elif needle in ("is not inside the 64×48 view", "premultiplied colour is at most its alpha"):
+        check = "the compositor's layer check"
+    else:
+        check = "the service's version 2 header check"
+    print(f"| {n} | {name} | {check} | `{needle}` |")

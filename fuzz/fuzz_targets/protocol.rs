@@ -1,14 +1,19 @@
 //! The socket protocol as the service reads it: a hello, its
-//! shared-memory name, then frame headers, each admitted or rejected before
-//! any payload is read; an admitted payload (taken from the input itself,
-//! standing in for the client's shared memory) is validated and decoded as
-//! the upload stage does.
+//! shared-memory name, then frame headers (version 1's 48 bytes or version
+//! 2's 72, as the hello asks), each admitted or rejected before any payload
+//! is read; an admitted payload (taken from the input itself, standing in
+//! for the client's shared memory) is validated and decoded as the upload
+//! stage does, and a version 2 quad is decoded, checked and placed as the
+//! compositor does.
 #![no_main]
 
 use libfuzzer_sys::fuzz_target;
 use nedrt_service::pipeline::frame::{self, SubmittedFrame};
+use nedrt_service::compose::{QuadLayer, ViewGeometry, blend};
 use nedrt_service::pipeline::protocol::{HEADER_LEN, HELLO_LEN, Hello, valid_shm_name};
+use nedrt_service::pipeline::protocol::v2::{HEADER_V2_LEN, VERSION_2};
 use nedrt_service::pipeline::source::socket::admit;
+use nedrt_service::pipeline::source::socket::v2::{self, AdmittedV2};
 
 /// The test panel's size (tests/data/small-panel.toml).
 const PANEL: (usize, usize) = (64, 48);
@@ -17,6 +22,7 @@ fuzz_target!(|data: &[u8]| {
     let Some((hello, rest)) = data.split_first_chunk::<HELLO_LEN>() else {
         return;
     };
+    let version = Hello::version_of(hello);
     let Ok(hello) = Hello::parse(hello) else {
         return;
     };
@@ -28,29 +34,93 @@ fuzz_target!(|data: &[u8]| {
     }
     // The input stands in for the shared memory; its announced size may lie.
     let shm = rest;
+    if version == VERSION_2 {
+        return version_2(shm, hello.shm_size);
+    }
     let mut headers = rest;
     while let Some((header, next)) = headers.split_first_chunk::<HEADER_LEN>() {
         headers = next;
         let Ok(req) = admit(header, PANEL, hello.shm_size) else {
             continue;
         };
-        let Some(payload) = usize::try_from(req.offset)
+        if let Some(payload) = usize::try_from(req.offset)
             .ok()
             .and_then(|o| shm.get(o..o.checked_add(req.length)?))
-        else {
-            continue;
-        };
-        let submitted = SubmittedFrame {
-            id: 0,
-            capture_ns: req.capture_ns,
-            width: PANEL.0,
-            height: PANEL.1,
-            format: req.format,
-            payload: payload.to_vec(),
-        };
-        if frame::validate(&submitted, PANEL.0, PANEL.1).is_ok() {
-            let image = frame::decode(&submitted);
-            assert!(image.data().iter().all(|v| (0.0..=1.0).contains(v)));
+        {
+            check_frame(payload, req.format, req.capture_ns);
         }
     }
 });
+
+/// The frame a payload of the input makes, checked as the pipeline does.
+fn check_frame(payload: &[u8], format: frame::PixelFormat, capture_ns: u64) {
+    let submitted = SubmittedFrame {
+        id: 0,
+        capture_ns,
+        width: PANEL.0,
+        height: PANEL.1,
+        format,
+        payload: payload.to_vec(),
+    };
+    if frame::validate(&submitted, PANEL.0, PANEL.1).is_ok() {
+        let image = frame::decode(&submitted);
+        assert!(image.data().iter().all(|v| (0.0..=1.0).contains(v)));
+    }
+}
+
+/// Version 2 headers: projections as version 1's frames, quads decoded,
+/// checked, placed and blended (the composition stays in [0, 1]).
+fn version_2(shm: &[u8], shm_size: u64) {
+    let view = ViewGeometry {
+        width: PANEL.0,
+        height: PANEL.1,
+        pixels_per_tan: 4597.7,
+    };
+    let mut headers = shm;
+    while let Some((header, next)) = headers.split_first_chunk::<HEADER_V2_LEN>() {
+        headers = next;
+        let Ok(admitted) = v2::admit(header, PANEL, 1, shm_size) else {
+            continue;
+        };
+        let slice = |offset: u64, length: usize| {
+            usize::try_from(offset)
+                .ok()
+                .and_then(|o| shm.get(o..o.checked_add(length)?))
+        };
+        match admitted {
+            AdmittedV2::Projection(req) => {
+                if let Some(payload) = slice(req.offset, req.length) {
+                    check_frame(payload, req.format, req.capture_ns);
+                }
+            }
+            AdmittedV2::Quad {
+                layer,
+                z,
+                placement,
+                format,
+                width,
+                height,
+                offset,
+                length,
+            } => {
+                let Some(payload) = slice(offset, length) else {
+                    continue;
+                };
+                let quad = QuadLayer {
+                    layer,
+                    z,
+                    placement,
+                    width,
+                    height,
+                    rgba: format.decode(payload),
+                };
+                if let Ok(placed) = quad.place(&view) {
+                    let mut im = nedrt_core::Image::rgb(PANEL.0, PANEL.1, vec![1.0; 3 * PANEL.0 * PANEL.1]);
+                    blend(&mut im, &[placed]).expect("one quad");
+                    assert!(im.data().iter().all(|v| (0.0..=1.0 + 1e-5).contains(v)));
+                }
+            }
+            AdmittedV2::Remove { .. } => {}
+        }
+    }
+}

@@ -14,6 +14,7 @@ use std::time::{Duration, Instant};
 use nedrt_service::pipeline::frame::PixelFormat;
 use nedrt_service::pipeline::protocol::{FrameHeader, HELLO_LEN, Hello, valid_shm_name};
 use nedrt_service::pipeline::source::socket::admit;
+use nedrt_service::pipeline::source::socket::v2;
 
 /// One bad input: a name (the row in docs/reliability.md), the command
 /// line (`{dir}` is the row's scratch folder holding the prepared files,
@@ -1112,7 +1113,7 @@ fn every_bad_protocol_message_is_refused_with_its_reason() {
             .expect_err("refused")
             .to_string()
     };
-    let rows: Vec<(&str, String, &str)> = vec![
+    let mut rows: Vec<(&str, String, &str)> = vec![
         (
             "protocol: hello with a bad magic",
             hello(|b| b[0] = b'X'),
@@ -1173,6 +1174,7 @@ fn every_bad_protocol_message_is_refused_with_its_reason() {
             "payload at 1+12288 lies outside",
         ),
     ];
+    rows.extend(version_2_rows(panel, shm));
     let reliability =
         std::fs::read_to_string(repo().join("docs/reliability.md")).expect("docs/reliability.md");
     for (name, got, needle) in &rows {
@@ -1193,4 +1195,89 @@ fn every_bad_protocol_message_is_refused_with_its_reason() {
         "{} rows",
         ROWS.len() + rows.len()
     );
+}
+
+/// Protocol version 2 rows: a submission header the service's version 2
+/// check refuses, or a quad the compositor refuses.
+fn version_2_rows(panel: (usize, usize), shm: u64) -> Vec<(&'static str, String, &'static str)> {
+    use nedrt_service::compose::{Placement, QuadLayer, ViewGeometry};
+    use nedrt_service::pipeline::protocol::v2::{HeaderV2, QuadFormat};
+    let quad = HeaderV2::quad(
+        0,
+        4,
+        0,
+        Placement::Pixels { x: 0, y: 0 },
+        QuadFormat::Rgba8Premultiplied,
+        (8, 6),
+        7,
+        0,
+    );
+    let admit_v2 = |h: HeaderV2, patch: fn(&mut [u8; 72])| {
+        let mut b = h.to_bytes();
+        patch(&mut b);
+        v2::admit(&b, panel, 1, shm)
+            .expect_err("refused")
+            .to_string()
+    };
+    let view = ViewGeometry {
+        width: panel.0,
+        height: panel.1,
+        pixels_per_tan: 4597.7,
+    };
+    let place = |x: i64, c: f32, a: f32| {
+        QuadLayer {
+            layer: 4,
+            z: 0,
+            placement: Placement::Pixels { x, y: 0 },
+            width: 8,
+            height: 6,
+            rgba: [c, c, c, a].repeat(48),
+        }
+        .place(&view)
+        .expect_err("refused")
+        .to_string()
+    };
+    vec![
+        (
+            "protocol v2: unknown layer kind",
+            admit_v2(quad, |b| b[48] = 3),
+            "layer kind 3",
+        ),
+        (
+            "protocol v2: projection for a view the service does not run",
+            admit_v2(
+                HeaderV2::projection(1, PixelFormat::Rgba8Linear, panel, 7, 0),
+                |_| {},
+            ),
+            "view 1 (this service runs 1 view",
+        ),
+        (
+            "protocol v2: quad larger than its view",
+            admit_v2(quad, |b| b[8..12].copy_from_slice(&65u32.to_le_bytes())),
+            "a 65×6 quad on a 64×48 view",
+        ),
+        (
+            "protocol v2: unknown quad texel format",
+            admit_v2(quad, |b| b[6..8].copy_from_slice(&9u16.to_le_bytes())),
+            "texel format 9",
+        ),
+        (
+            "protocol v2: placement in degrees that is not finite",
+            admit_v2(quad, |b| {
+                b[50] = 1;
+                b[60..64].copy_from_slice(&f32::INFINITY.to_le_bytes());
+            }),
+            "is not finite",
+        ),
+        (
+            "protocol v2: quad outside the view",
+            place(60, 0.1, 0.5),
+            "is not inside the 64×48 view",
+        ),
+        (
+            "protocol v2: quad colour over its alpha",
+            place(0, 0.6, 0.5),
+            "premultiplied colour is at most its alpha",
+        ),
+    ]
 }

@@ -9,6 +9,7 @@
 
 mod faults;
 mod hardware;
+mod layers;
 mod socket;
 #[path = "../common/xwd.rs"]
 mod xwd;

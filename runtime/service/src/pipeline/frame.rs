@@ -77,16 +77,20 @@ pub enum RejectReason {
     NonFinite,
     /// A float value outside the panel's [0, 1].
     OutOfRange,
+    /// A view the service does not run (protocol v2: view 1 of a mono
+    /// service).
+    UnknownView,
 }
 
 impl RejectReason {
-    pub const ALL: [RejectReason; 6] = [
+    pub const ALL: [RejectReason; 7] = [
         Self::Malformed,
         Self::UnsupportedFormat,
         Self::Truncated,
         Self::WrongSize,
         Self::NonFinite,
         Self::OutOfRange,
+        Self::UnknownView,
     ];
 
     /// Status code in the socket protocol's reply (0 is "accepted").
@@ -98,6 +102,7 @@ impl RejectReason {
             Self::WrongSize => 4,
             Self::NonFinite => 5,
             Self::OutOfRange => 6,
+            Self::UnknownView => 7,
         }
     }
 
@@ -113,6 +118,7 @@ impl RejectReason {
             Self::WrongSize => "wrong-size",
             Self::NonFinite => "non-finite",
             Self::OutOfRange => "out-of-range",
+            Self::UnknownView => "unknown-view",
         }
     }
 

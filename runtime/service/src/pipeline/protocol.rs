@@ -14,6 +14,8 @@ use std::path::{Path, PathBuf};
 
 use super::frame::PixelFormat;
 
+pub mod v2;
+
 pub const VERSION: u16 = 1;
 pub const HELLO_MAGIC: [u8; 4] = *b"NEDH";
 pub const FRAME_MAGIC: [u8; 4] = *b"NEDF";
@@ -50,21 +52,33 @@ pub struct Hello {
 
 impl Hello {
     pub fn to_bytes(&self) -> [u8; HELLO_LEN] {
+        self.to_bytes_version(VERSION)
+    }
+
+    /// The hello of a connection that speaks `version` (1 or 2).
+    pub fn to_bytes_version(&self, version: u16) -> [u8; HELLO_LEN] {
         let mut b = [0u8; HELLO_LEN];
         b[0..4].copy_from_slice(&HELLO_MAGIC);
-        b[4..6].copy_from_slice(&VERSION.to_le_bytes());
+        b[4..6].copy_from_slice(&version.to_le_bytes());
         b[6..8].copy_from_slice(&(self.name_len.min(u16::MAX as usize) as u16).to_le_bytes());
         b[8..16].copy_from_slice(&self.shm_size.to_le_bytes());
         b
     }
 
-    /// Parses a hello; `Err` is the reason the service replies with.
+    /// The version a hello asks for (checked by [`Hello::parse`]).
+    pub fn version_of(b: &[u8; HELLO_LEN]) -> u16 {
+        u16::from_le_bytes([b[4], b[5]])
+    }
+
+    /// Parses a hello of version 1 or 2; `Err` is the reason the service
+    /// replies with.
     pub fn parse(b: &[u8; HELLO_LEN]) -> Result<Self, Malformed> {
-        let version = u16::from_le_bytes([b[4], b[5]]);
-        if b[0..4] != HELLO_MAGIC || version != VERSION {
+        let version = Self::version_of(b);
+        if b[0..4] != HELLO_MAGIC || !(VERSION..=v2::VERSION_2).contains(&version) {
             return Err(Malformed(format!(
-                "bad hello (magic {:?}, version {version}; expected \"NEDH\", {VERSION})",
-                &b[0..4]
+                "bad hello (magic {:?}, version {version}; expected \"NEDH\", {VERSION} or {})",
+                &b[0..4],
+                v2::VERSION_2
             )));
         }
         let name_len = u16::from_le_bytes([b[6], b[7]]) as usize;
@@ -158,7 +172,7 @@ impl FrameHeader {
         };
         if h.version != VERSION {
             return Err(Malformed(format!(
-                "protocol version {} (this service speaks {VERSION})",
+                "protocol version {} on a version {VERSION} connection",
                 h.version
             )));
         }
@@ -246,6 +260,11 @@ pub struct Client {
     shm_size: u64,
     /// The panel's resolution, from the service's welcome.
     pub panel: (usize, usize),
+    /// The protocol version of the connection (1 or 2).
+    pub version: u16,
+    /// Version 2: the last reply's prediction of when a frame submitted
+    /// now is shown, the refresh period, and the views the service runs.
+    pub timing: Option<v2::ReplyV2>,
 }
 
 impl Client {
@@ -253,6 +272,22 @@ impl Client {
     /// bytes in `shm_dir`; the object's name is removed once the service
     /// has opened it, so nothing is left behind however either side ends.
     pub fn connect(socket: &Path, shm_dir: &Path, shm_size: u64) -> std::io::Result<Self> {
+        Self::connect_version(socket, shm_dir, shm_size, VERSION)
+    }
+
+    /// As [`Client::connect`], speaking protocol version 2: layers, views,
+    /// and the pacer's timing in every reply.
+    pub fn connect_v2(socket: &Path, shm_dir: &Path, shm_size: u64) -> std::io::Result<Self> {
+        Self::connect_version(socket, shm_dir, shm_size, v2::VERSION_2)
+    }
+
+    fn connect_version(
+        socket: &Path,
+        shm_dir: &Path,
+        shm_size: u64,
+        version: u16,
+    ) -> std::io::Result<Self> {
+        use v2::{ReplyV2, VERSION_2};
         let stream = UnixStream::connect(socket)
             .map_err(|e| std::io::Error::new(e.kind(), format!("{}: {e}", socket.display())))?;
         let nanos = std::time::SystemTime::now()
@@ -272,14 +307,27 @@ impl Client {
                 name_len: name.len(),
                 shm_size,
             }
-            .to_bytes()
+            .to_bytes_version(version)
             .to_vec();
             hello.extend_from_slice(name.as_bytes());
             (&stream).write_all(&hello)?;
-            Reply::read_from(&mut &stream)
+            // A refused hello is answered in version 1's reply: the
+            // service may not have understood which version was asked for.
+            let mut first = [0u8; REPLY_LEN];
+            (&stream).read_exact(&mut first)?;
+            let status = u32::from_le_bytes([first[4], first[5], first[6], first[7]]);
+            if version == VERSION_2 && status == STATUS_OK {
+                let mut rest = [0u8; v2::REPLY_V2_LEN - REPLY_LEN];
+                (&stream).read_exact(&mut rest)?;
+                let head: Vec<u8> = first.iter().chain(&rest).copied().collect();
+                let mut r = head.as_slice().chain(&stream);
+                ReplyV2::read_from(&mut r).map(|w| (w.reply.clone(), Some(w)))
+            } else {
+                Reply::read_from(&mut first.as_slice().chain(&stream)).map(|r| (r, None))
+            }
         })();
         let _ = std::fs::remove_file(&path);
-        let welcome = result?;
+        let (welcome, timing) = result?;
         if welcome.status != STATUS_OK {
             return Err(std::io::Error::new(
                 std::io::ErrorKind::ConnectionRefused,
@@ -291,7 +339,36 @@ impl Client {
             shm,
             shm_size,
             panel: (welcome.panel_width as usize, welcome.panel_height as usize),
+            version,
+            timing,
         })
+    }
+
+    /// Version 2: writes `payload` at the header's offset, sends the
+    /// header and waits for the reply (its timing is kept in
+    /// [`Client::timing`]).
+    pub fn send_v2(
+        &mut self,
+        header: &v2::HeaderV2,
+        payload: &[u8],
+    ) -> std::io::Result<v2::ReplyV2> {
+        let end = header.offset.checked_add(payload.len() as u64);
+        if end.is_none_or(|e| e > self.shm_size) {
+            return Err(std::io::Error::new(
+                std::io::ErrorKind::InvalidInput,
+                format!(
+                    "{} payload bytes at {} for {} of shared memory",
+                    payload.len(),
+                    header.offset,
+                    self.shm_size
+                ),
+            ));
+        }
+        self.shm.write_all_at(payload, header.offset)?;
+        self.stream.write_all(&header.to_bytes())?;
+        let reply = v2::ReplyV2::read_from(&mut self.stream)?;
+        self.timing = Some(reply.clone());
+        Ok(reply)
     }
 
     /// Writes `payload` at offset 0 of the shared memory, sends `header`

@@ -5,7 +5,9 @@ use super::*;
 use crate::pipeline::frame::{PixelFormat, RejectReason};
 use crate::pipeline::pacing::SystemClock;
 use crate::present::{PanelCodes, Presented};
+use nedrt_core::Image;
 use nedrt_core::preprocess::HostTraffic;
+use nedrt_core::preprocess::{Identity, Preprocess, PreprocessError};
 
 /// A backend that works for `ok` frames and then fails like a lost GPU.
 #[derive(Debug)]

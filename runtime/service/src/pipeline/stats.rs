@@ -63,7 +63,7 @@ impl Stage {
 #[derive(Debug, Default)]
 pub struct Stats {
     pub submitted: AtomicU64,
-    pub rejected: [AtomicU64; 6],
+    pub rejected: [AtomicU64; 7],
     /// Evicted from the ingest → upload, upload → D-CNN and D-CNN → encode queues.
     pub dropped_queued: Arc<AtomicU64>,
     /// Replaced in the present slot before a refresh showed them.

@@ -115,6 +115,14 @@ impl Compositor {
         }
     }
 
+    /// Counts a layer refused before it could be submitted (a header the
+    /// socket source could not turn into a quad).
+    pub fn count_layer_refused(&self) {
+        self.stats
+            .layers_refused
+            .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    }
+
     /// Removes this owner's layer `layer`; whether it was there.
     pub fn remove_layer(&self, layer: u32) -> bool {
         self.layers.remove(self.owner, layer)

@@ -20,6 +20,8 @@ use crate::pipeline::protocol::{
 };
 use crate::pipeline::service::Compositor;
 
+pub mod v2;
+
 /// How often blocked reads and accepts look at the stop flag.
 const POLL: Duration = Duration::from_millis(50);
 
@@ -96,6 +98,8 @@ impl Source for SocketSource {
                         let spawned = std::thread::Builder::new()
                             .name(format!("client-{clients}"))
                             .spawn_scoped(scope, move || {
+                                // Each client sets its own layers (protocol v2).
+                                let compositor = compositor.for_owner(clients);
                                 match serve(stream, &compositor, &shm_dir, stop) {
                                     Err(e)
                                         if matches!(
@@ -307,6 +311,36 @@ pub fn admit(
     })
 }
 
+/// Reads an admitted frame's payload from the client's shared memory and
+/// submits it: the reply's status and message.
+fn submit_frame(
+    compositor: &Compositor,
+    shm: &std::fs::File,
+    id: u64,
+    req: &Admitted,
+) -> (u32, String) {
+    let (w, h) = compositor.panel_size();
+    let mut payload = vec![0u8; req.length];
+    match shm.read_exact_at(&mut payload, req.offset) {
+        Err(e) => {
+            let detail = format!("reading the shared memory: {e}");
+            compositor.reject_before_submit(RejectReason::Truncated, id, &detail);
+            (RejectReason::Truncated.code(), detail)
+        }
+        Ok(()) => match compositor.submit(SubmittedFrame {
+            id,
+            capture_ns: req.capture_ns,
+            width: w,
+            height: h,
+            format: req.format,
+            payload,
+        }) {
+            Ok(()) => (STATUS_OK, String::new()),
+            Err(e) => (e.reason.code(), e.detail),
+        },
+    }
+}
+
 /// One client, from hello to hang-up.
 fn serve(
     mut stream: UnixStream,
@@ -360,6 +394,16 @@ fn serve(
         Ok(f) => f,
         Err(why) => return refuse(&mut stream, why.to_string()),
     };
+    if Hello::version_of(&hello) == crate::pipeline::protocol::v2::VERSION_2 {
+        let served = v2::serve(&mut stream, compositor, &shm, shm_size, stop);
+        // A client that left takes its quad layers with it: an overlay
+        // nobody updates or removes would stay on the panel for good.
+        let removed = compositor.remove_owner_layers();
+        if removed > 0 {
+            tracing::info!("a client left; its {removed} quad layers removed");
+        }
+        return served;
+    }
     reply(&mut stream, STATUS_OK, 0, format!("panel {w}×{h}"))?;
 
     loop {
@@ -379,27 +423,7 @@ fn serve(
                 compositor.reject_before_submit(e.reason, id, &e.detail);
                 (e.reason.code(), e.detail)
             }
-            Ok(req) => {
-                let mut payload = vec![0u8; req.length];
-                match shm.read_exact_at(&mut payload, req.offset) {
-                    Err(e) => {
-                        let detail = format!("reading the shared memory: {e}");
-                        compositor.reject_before_submit(RejectReason::Truncated, id, &detail);
-                        (RejectReason::Truncated.code(), detail)
-                    }
-                    Ok(()) => match compositor.submit(SubmittedFrame {
-                        id,
-                        capture_ns: req.capture_ns,
-                        width: w,
-                        height: h,
-                        format: req.format,
-                        payload,
-                    }) {
-                        Ok(()) => (STATUS_OK, String::new()),
-                        Err(e) => (e.reason.code(), e.detail),
-                    },
-                }
-            }
+            Ok(req) => submit_frame(compositor, &shm, id, &req),
         };
         if let Err(e) = reply(&mut stream, status, id, message) {
             if matches!(e.kind(), ErrorKind::BrokenPipe | ErrorKind::ConnectionReset) {

@@ -1,0 +1,486 @@
+//! Protocol version 2 (docs/protocol.md §6): a submission names its view
+//! and its layer — the view's projection layer, a quad layer with its
+//! placement and z-order, or the removal of a quad — and every reply
+//! carries the refresh a frame submitted now is predicted to be shown at
+//! and the refresh period, so a client renders for the time its frame is
+//! seen. The hello and the shared memory are version 1's; a connection
+//! speaks the version of its hello. Version 1 is served unchanged.
+
+use std::io::Read;
+
+use super::{FRAME_MAGIC, Malformed, REPLY_MAGIC, Reply};
+use crate::compose::Placement;
+use crate::pipeline::frame::PixelFormat;
+
+pub const VERSION_2: u16 = 2;
+/// Submission header: version 1's 48 bytes, then kind u8, view u8,
+/// placement u8, reserved u8, layer u32, z i32, x, y (i32 pixels or f32
+/// degrees), reserved u32.
+pub const HEADER_V2_LEN: usize = 72;
+/// Reply: version 1's 28 bytes, then predicted display time u64, refresh
+/// period u64, views u16, reserved u16; the message follows.
+pub const REPLY_V2_LEN: usize = 48;
+/// Reply status of a refused quad layer (outside the view, colour over
+/// alpha, too many, …); frames keep version 1's codes (and 7, unknown view).
+pub const STATUS_BAD_LAYER: u32 = 8;
+
+/// Quad texels: premultiplied linear RGBA.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum QuadFormat {
+    /// 8-bit, value/255 (format code 4).
+    Rgba8Premultiplied,
+    /// 32-bit float, interleaved (format code 5).
+    Rgba32fPremultiplied,
+}
+
+impl QuadFormat {
+    pub fn from_code(code: u16) -> Option<Self> {
+        match code {
+            4 => Some(Self::Rgba8Premultiplied),
+            5 => Some(Self::Rgba32fPremultiplied),
+            _ => None,
+        }
+    }
+
+    pub fn code(self) -> u16 {
+        match self {
+            Self::Rgba8Premultiplied => 4,
+            Self::Rgba32fPremultiplied => 5,
+        }
+    }
+
+    pub fn bytes_per_texel(self) -> usize {
+        match self {
+            Self::Rgba8Premultiplied => 4,
+            Self::Rgba32fPremultiplied => 16,
+        }
+    }
+
+    /// The texels as f32 RGBA (`payload` of the right length).
+    pub fn decode(self, payload: &[u8]) -> Vec<f32> {
+        match self {
+            Self::Rgba8Premultiplied => payload.iter().map(|&b| f32::from(b) / 255.0).collect(),
+            Self::Rgba32fPremultiplied => payload
+                .chunks_exact(4)
+                .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+                .collect(),
+        }
+    }
+}
+
+/// What a submission does.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Layer {
+    /// The view's projection layer: a frame of the view's size (pixel
+    /// formats 1–3, as version 1).
+    Projection,
+    /// A quad layer (formats 4–5): set, or replace the client's layer of
+    /// that id.
+    Quad {
+        layer: u32,
+        z: i32,
+        placement: Placement,
+    },
+    /// Removes the client's quad layer of that id (no payload).
+    Remove { layer: u32 },
+}
+
+/// A version 2 submission header.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct HeaderV2 {
+    pub format: u16,
+    pub width: u32,
+    pub height: u32,
+    pub frame_id: u64,
+    pub capture_ns: u64,
+    pub offset: u64,
+    pub length: u64,
+    pub view: u8,
+    pub layer: Layer,
+}
+
+impl HeaderV2 {
+    /// A projection frame for `view`, its payload at offset 0.
+    pub fn projection(
+        view: u8,
+        format: PixelFormat,
+        (width, height): (usize, usize),
+        frame_id: u64,
+        capture_ns: u64,
+    ) -> Self {
+        Self {
+            format: format.code(),
+            width: width as u32,
+            height: height as u32,
+            frame_id,
+            capture_ns,
+            offset: 0,
+            length: (width * height * format.bytes_per_pixel()) as u64,
+            view,
+            layer: Layer::Projection,
+        }
+    }
+
+    /// A quad layer on `view`, its texels at `offset`.
+    #[allow(clippy::too_many_arguments)]
+    pub fn quad(
+        view: u8,
+        layer: u32,
+        z: i32,
+        placement: Placement,
+        format: QuadFormat,
+        (width, height): (usize, usize),
+        frame_id: u64,
+        offset: u64,
+    ) -> Self {
+        Self {
+            format: format.code(),
+            width: width as u32,
+            height: height as u32,
+            frame_id,
+            capture_ns: 0,
+            offset,
+            length: (width * height * format.bytes_per_texel()) as u64,
+            view,
+            layer: Layer::Quad {
+                layer,
+                z,
+                placement,
+            },
+        }
+    }
+
+    /// Removes quad `layer` from `view`.
+    pub fn remove(view: u8, layer: u32, frame_id: u64) -> Self {
+        Self {
+            format: 0,
+            width: 0,
+            height: 0,
+            frame_id,
+            capture_ns: 0,
+            offset: 0,
+            length: 0,
+            view,
+            layer: Layer::Remove { layer },
+        }
+    }
+
+    pub fn to_bytes(&self) -> [u8; HEADER_V2_LEN] {
+        let mut b = [0u8; HEADER_V2_LEN];
+        b[0..4].copy_from_slice(&FRAME_MAGIC);
+        b[4..6].copy_from_slice(&VERSION_2.to_le_bytes());
+        b[6..8].copy_from_slice(&self.format.to_le_bytes());
+        b[8..12].copy_from_slice(&self.width.to_le_bytes());
+        b[12..16].copy_from_slice(&self.height.to_le_bytes());
+        b[16..24].copy_from_slice(&self.frame_id.to_le_bytes());
+        b[24..32].copy_from_slice(&self.capture_ns.to_le_bytes());
+        b[32..40].copy_from_slice(&self.offset.to_le_bytes());
+        b[40..48].copy_from_slice(&self.length.to_le_bytes());
+        b[49] = self.view;
+        let (kind, placement, layer, z, x, y) = match self.layer {
+            Layer::Projection => (0u8, 0u8, 0u32, 0i32, [0u8; 4], [0u8; 4]),
+            Layer::Quad {
+                layer,
+                z,
+                placement,
+            } => match placement {
+                Placement::Pixels { x, y } => (
+                    1,
+                    0,
+                    layer,
+                    z,
+                    (x.clamp(i32::MIN.into(), i32::MAX.into()) as i32).to_le_bytes(),
+                    (y.clamp(i32::MIN.into(), i32::MAX.into()) as i32).to_le_bytes(),
+                ),
+                Placement::Degrees { x_deg, y_deg } => (
+                    1,
+                    1,
+                    layer,
+                    z,
+                    (x_deg as f32).to_le_bytes(),
+                    (y_deg as f32).to_le_bytes(),
+                ),
+            },
+            Layer::Remove { layer } => (2, 0, layer, 0, [0; 4], [0; 4]),
+        };
+        b[48] = kind;
+        b[50] = placement;
+        b[52..56].copy_from_slice(&layer.to_le_bytes());
+        b[56..60].copy_from_slice(&z.to_le_bytes());
+        b[60..64].copy_from_slice(&x);
+        b[64..68].copy_from_slice(&y);
+        b
+    }
+
+    /// Parses a header; `Err` names what is wrong.
+    pub fn parse(b: &[u8; HEADER_V2_LEN]) -> Result<Self, Malformed> {
+        let u16_at = |i: usize| u16::from_le_bytes([b[i], b[i + 1]]);
+        let u32_at = |i: usize| u32::from_le_bytes([b[i], b[i + 1], b[i + 2], b[i + 3]]);
+        let u64_at = |i: usize| {
+            let mut a = [0u8; 8];
+            a.copy_from_slice(&b[i..i + 8]);
+            u64::from_le_bytes(a)
+        };
+        if b[0..4] != FRAME_MAGIC {
+            return Err(Malformed(format!(
+                "bad magic {:?} (expected \"NEDF\")",
+                &b[0..4]
+            )));
+        }
+        if u16_at(4) != VERSION_2 {
+            return Err(Malformed(format!(
+                "protocol version {} on a version {VERSION_2} connection",
+                u16_at(4)
+            )));
+        }
+        if b[51] != 0 || u32_at(68) != 0 {
+            return Err(Malformed("reserved bytes 51 and 68–71 must be 0".into()));
+        }
+        let (layer, z) = (u32_at(52), u32_at(56) as i32);
+        let layer = match (b[48], b[50]) {
+            (0, 0) if layer == 0 && z == 0 && u64_at(60) == 0 => Layer::Projection,
+            (0, _) => {
+                return Err(Malformed(
+                    "a projection layer has no placement, layer id or z (bytes 50, 52–67 must be 0)"
+                        .into(),
+                ));
+            }
+            (1, 0) => Layer::Quad {
+                layer,
+                z,
+                placement: Placement::Pixels {
+                    x: i64::from(u32_at(60) as i32),
+                    y: i64::from(u32_at(64) as i32),
+                },
+            },
+            (1, 1) => {
+                let (x_deg, y_deg) = (f32::from_bits(u32_at(60)), f32::from_bits(u32_at(64)));
+                if !(x_deg.is_finite() && y_deg.is_finite()) {
+                    return Err(Malformed(format!(
+                        "placement ({x_deg}°, {y_deg}°) is not finite"
+                    )));
+                }
+                Layer::Quad {
+                    layer,
+                    z,
+                    placement: Placement::Degrees {
+                        x_deg: f64::from(x_deg),
+                        y_deg: f64::from(y_deg),
+                    },
+                }
+            }
+            (1, p) => {
+                return Err(Malformed(format!(
+                    "placement kind {p} (0 pixels, 1 degrees)"
+                )));
+            }
+            (2, _) => Layer::Remove { layer },
+            (k, _) => {
+                return Err(Malformed(format!(
+                    "layer kind {k} (0 projection, 1 quad, 2 remove a quad)"
+                )));
+            }
+        };
+        Ok(Self {
+            format: u16_at(6),
+            width: u32_at(8),
+            height: u32_at(12),
+            frame_id: u64_at(16),
+            capture_ns: u64_at(24),
+            offset: u64_at(32),
+            length: u64_at(40),
+            view: b[49],
+            layer,
+        })
+    }
+}
+
+/// A version 2 reply: version 1's reply and the pacer's timing.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct ReplyV2 {
+    pub reply: Reply,
+    /// The refresh a frame submitted now is predicted to be shown at,
+    /// CLOCK_MONOTONIC ns.
+    pub predicted_display_ns: u64,
+    pub refresh_period_ns: u64,
+    /// Views the service runs (1: mono).
+    pub views: u16,
+}
+
+impl ReplyV2 {
+    pub fn to_bytes(&self) -> Vec<u8> {
+        let r = &self.reply;
+        let msg = r.message.as_bytes();
+        let mut b = Vec::with_capacity(REPLY_V2_LEN + msg.len());
+        b.extend_from_slice(&REPLY_MAGIC);
+        b.extend_from_slice(&r.status.to_le_bytes());
+        b.extend_from_slice(&r.frame_id.to_le_bytes());
+        b.extend_from_slice(&r.panel_width.to_le_bytes());
+        b.extend_from_slice(&r.panel_height.to_le_bytes());
+        b.extend_from_slice(&(msg.len() as u32).to_le_bytes());
+        b.extend_from_slice(&self.predicted_display_ns.to_le_bytes());
+        b.extend_from_slice(&self.refresh_period_ns.to_le_bytes());
+        b.extend_from_slice(&self.views.to_le_bytes());
+        b.extend_from_slice(&[0, 0]);
+        b.extend_from_slice(msg);
+        b
+    }
+
+    /// Reads one version 2 reply from `r`.
+    pub fn read_from(r: &mut impl Read) -> std::io::Result<Self> {
+        let mut b = [0u8; REPLY_V2_LEN];
+        r.read_exact(&mut b)?;
+        let bad = |m: &str| std::io::Error::new(std::io::ErrorKind::InvalidData, m.to_string());
+        if b[0..4] != REPLY_MAGIC {
+            return Err(bad("reply with a bad magic"));
+        }
+        let u32_at = |i: usize| u32::from_le_bytes([b[i], b[i + 1], b[i + 2], b[i + 3]]);
+        let u64_at = |i: usize| {
+            let mut a = [0u8; 8];
+            a.copy_from_slice(&b[i..i + 8]);
+            u64::from_le_bytes(a)
+        };
+        let len = u32_at(24) as usize;
+        if len > 64 * 1024 {
+            return Err(bad("reply message over 64 KiB"));
+        }
+        let mut msg = vec![0u8; len];
+        r.read_exact(&mut msg)?;
+        Ok(Self {
+            reply: Reply {
+                status: u32_at(4),
+                frame_id: u64_at(8),
+                panel_width: u32_at(16),
+                panel_height: u32_at(20),
+                message: String::from_utf8_lossy(&msg).into_owned(),
+            },
+            predicted_display_ns: u64_at(28),
+            refresh_period_ns: u64_at(36),
+            views: u16::from_le_bytes([b[44], b[45]]),
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    fn placement() -> impl Strategy<Value = Placement> {
+        prop_oneof![
+            (any::<i32>(), any::<i32>()).prop_map(|(x, y)| Placement::Pixels {
+                x: x.into(),
+                y: y.into()
+            }),
+            (-90.0f32..90.0, -90.0f32..90.0).prop_map(|(x, y)| Placement::Degrees {
+                x_deg: x.into(),
+                y_deg: y.into()
+            }),
+        ]
+    }
+
+    fn layer() -> impl Strategy<Value = Layer> {
+        prop_oneof![
+            Just(Layer::Projection),
+            (any::<u32>(), any::<i32>(), placement()).prop_map(|(layer, z, placement)| {
+                Layer::Quad {
+                    layer,
+                    z,
+                    placement,
+                }
+            }),
+            any::<u32>().prop_map(|layer| Layer::Remove { layer }),
+        ]
+    }
+
+    proptest! {
+        #[test]
+        fn headers_round_trip(format in 0u16..8, w in any::<u32>(), h in any::<u32>(),
+                              id in any::<u64>(), t in any::<u64>(), off in any::<u64>(),
+                              len in any::<u64>(), view in any::<u8>(), layer in layer()) {
+            let header = HeaderV2 { format, width: w, height: h, frame_id: id, capture_ns: t,
+                                    offset: off, length: len, view, layer };
+            prop_assert_eq!(HeaderV2::parse(&header.to_bytes()), Ok(header));
+        }
+
+        #[test]
+        fn any_bytes_parse_or_fail_cleanly(bytes in proptest::collection::vec(any::<u8>(), HEADER_V2_LEN)) {
+            let mut b = [0u8; HEADER_V2_LEN];
+            b.copy_from_slice(&bytes);
+            let _ = HeaderV2::parse(&b);
+            let _ = ReplyV2::read_from(&mut bytes.as_slice());
+        }
+
+        #[test]
+        fn replies_round_trip(status in any::<u32>(), id in any::<u64>(), msg in ".{0,40}",
+                              at in any::<u64>(), period in any::<u64>(), views in 1u16..3) {
+            let r = ReplyV2 {
+                reply: Reply { status, frame_id: id, panel_width: 64, panel_height: 48, message: msg },
+                predicted_display_ns: at, refresh_period_ns: period, views,
+            };
+            prop_assert_eq!(ReplyV2::read_from(&mut r.to_bytes().as_slice()).ok(), Some(r));
+        }
+    }
+
+    #[test]
+    fn bad_kinds_placements_and_reserved_bytes_are_named() {
+        let good = HeaderV2::quad(
+            0,
+            3,
+            1,
+            Placement::Pixels { x: 1, y: 2 },
+            QuadFormat::Rgba8Premultiplied,
+            (2, 2),
+            9,
+            0,
+        )
+        .to_bytes();
+        let with = |i: usize, v: u8| {
+            let mut b = good;
+            b[i] = v;
+            HeaderV2::parse(&b).expect_err("refused").0
+        };
+        assert!(with(48, 3).contains("layer kind 3"));
+        assert!(with(50, 2).contains("placement kind 2"));
+        assert!(with(51, 1).contains("reserved"));
+        assert!(with(4, 1).contains("version 1 on a version 2"));
+        let mut projection =
+            HeaderV2::projection(0, PixelFormat::Rgba8Linear, (2, 2), 1, 0).to_bytes();
+        projection[56] = 1;
+        assert!(
+            HeaderV2::parse(&projection)
+                .expect_err("z on a projection")
+                .0
+                .contains("no placement")
+        );
+        let mut degrees = HeaderV2::quad(
+            0,
+            3,
+            1,
+            Placement::Degrees {
+                x_deg: 1.0,
+                y_deg: 0.0,
+            },
+            QuadFormat::Rgba8Premultiplied,
+            (2, 2),
+            9,
+            0,
+        )
+        .to_bytes();
+        degrees[60..64].copy_from_slice(&f32::NAN.to_le_bytes());
+        assert!(
+            HeaderV2::parse(&degrees)
+                .expect_err("nan")
+                .0
+                .contains("not finite")
+        );
+        assert_eq!(
+            QuadFormat::Rgba32fPremultiplied.decode(&0.5f32.to_le_bytes()),
+            vec![0.5]
+        );
+        assert_eq!(
+            QuadFormat::Rgba8Premultiplied.decode(&[255, 0]),
+            vec![1.0, 0.0]
+        );
+    }
+}

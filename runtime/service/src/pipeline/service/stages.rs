@@ -1,0 +1,121 @@
+//! What the dcnn stage runs: the D-CNN stage with its fallback, a host
+//! stage before the device, the resident path's engines, and the switch to
+//! the fallback when an engine fails.
+
+use super::{DeviceFrames, Stage, Stats};
+use nedrt_core::Image;
+use nedrt_core::preprocess::{Identity, Preprocess, PreprocessError};
+
+/// Builds the preprocessor to switch to when the primary one fails.
+pub type FallbackFactory = Box<dyn FnOnce() -> Result<Box<dyn Preprocess>, PreprocessError> + Send>;
+
+/// The D-CNN stage's engines: the primary, and what replaces it if it
+/// fails (a lost GPU): the factory's preprocessor, else none ([`Identity`]).
+pub struct DcnnStage {
+    pub primary: Box<dyn Preprocess>,
+    pub fallback: Option<FallbackFactory>,
+}
+
+impl std::fmt::Debug for DcnnStage {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("DcnnStage")
+            .field("primary", &self.primary)
+            .field("fallback", &self.fallback.is_some())
+            .finish()
+    }
+}
+
+impl DcnnStage {
+    /// Runs the frame; on a backend failure logs it, switches to the
+    /// fallback for good and runs the frame there.
+    pub(super) fn run(&mut self, frame: &Image, stats: &Stats) -> Option<Image> {
+        loop {
+            match self.primary.run(frame) {
+                Ok(out) => {
+                    if let Some(ns) = self.primary.last_gpu_ns() {
+                        stats.record(Stage::DcnnGpu, ns);
+                    }
+                    stats.dcnn_traffic.record(self.primary.last_traffic());
+                    return Some(out);
+                }
+                Err(PreprocessError::Frame(e)) => {
+                    // Validated at submit, so this is a bug, not the client's fault.
+                    tracing::error!("D-CNN refused a validated frame: {e}");
+                    stats
+                        .failed
+                        .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                    return None;
+                }
+                Err(e) => {
+                    let failed = format!("D-CNN {}", self.primary.describe());
+                    self.primary =
+                        switch_to_fallback(self.fallback.take(), &failed, &e.to_string(), stats);
+                }
+            }
+        }
+    }
+}
+
+/// After a failure of the engine `failed` (`reason`): counts it and
+/// returns the fallback's preprocessor (the factory's, else [`Identity`]),
+/// logged and named in the report's backend.
+pub(super) fn switch_to_fallback(
+    fallback: Option<FallbackFactory>,
+    failed: &str,
+    reason: &str,
+    stats: &Stats,
+) -> Box<dyn Preprocess> {
+    stats
+        .dcnn_failures
+        .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    let next: Box<dyn Preprocess> = match fallback.map(|factory| factory()) {
+        Some(Ok(p)) => p,
+        Some(Err(fe)) => {
+            tracing::error!("fallback backend cannot start: {fe}");
+            Box::new(Identity)
+        }
+        None => Box::new(Identity),
+    };
+    tracing::error!(
+        "{failed} failed: {reason}; falling back to {}",
+        next.describe()
+    );
+    *stats.backend.lock().unwrap_or_else(|p| p.into_inner()) =
+        format!("{} (after a failure of {failed})", next.describe());
+    next
+}
+
+/// The work of a [`HostPrep`]: a decoded frame to the planes to upload.
+pub type HostWork = Box<dyn FnMut(&Image) -> Result<Image, PreprocessError> + Send>;
+
+/// Host work on a decoded frame before it goes to the device: a
+/// network's Wiener stage, or a linear prefilter with no device stage.
+pub struct HostPrep {
+    pub name: String,
+    pub run: HostWork,
+}
+
+impl std::fmt::Debug for HostPrep {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.name)
+    }
+}
+
+/// The resident path's engines: an optional host stage, the device side,
+/// and the host preprocessing to switch to if the device fails (it gets
+/// the host stage's output; none: [`Identity`]).
+pub struct ResidentStage {
+    pub host: Option<HostPrep>,
+    pub frames: DeviceFrames,
+    pub fallback: Option<FallbackFactory>,
+}
+
+impl std::fmt::Debug for ResidentStage {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("ResidentStage")
+            .field("host", &self.host)
+            .field("frames", &self.frames)
+            .field("fallback", &self.fallback.is_some())
+            .finish()
+    }
+}

@@ -1,0 +1,292 @@
+//! Protocol version 2 on a connection (docs/protocol.md §6): submissions
+//! name their view and layer; a projection frame goes through the
+//! pipeline as version 1's frames do, a quad layer is checked, placed and
+//! set for this client, a removal removes it; every reply carries the
+//! pacer's prediction. [`admit`] is pure, as version 1's, so the fuzz
+//! target `protocol` runs what the service runs.
+
+use std::io::ErrorKind;
+use std::os::unix::fs::FileExt;
+use std::os::unix::net::UnixStream;
+use std::sync::atomic::AtomicBool;
+
+use super::{Admitted, Fill, REPLY_DEADLINE, read_full, submit_frame, write_all_until};
+use crate::compose::{Placement, QuadLayer};
+use crate::pipeline::frame::{PixelFormat, RejectReason, check_shape};
+use crate::pipeline::protocol::v2::{
+    HEADER_V2_LEN, HeaderV2, Layer, QuadFormat, ReplyV2, STATUS_BAD_LAYER,
+};
+use crate::pipeline::protocol::{Reply, STATUS_OK};
+use crate::pipeline::service::Compositor;
+
+/// Views a service runs today (one: mono).
+pub const VIEWS: u8 = 1;
+
+/// A version 2 submission the service accepted.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum AdmittedV2 {
+    Projection(Admitted),
+    Quad {
+        layer: u32,
+        z: i32,
+        placement: Placement,
+        format: QuadFormat,
+        width: usize,
+        height: usize,
+        offset: u64,
+        length: usize,
+    },
+    Remove {
+        layer: u32,
+    },
+}
+
+/// A version 2 submission refused: the reply's status and message, and,
+/// for a frame, the reason it is counted under (a quad is counted as a
+/// refused layer).
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("submission {id} refused (status {status}): {detail}")]
+pub struct Refusal {
+    pub id: u64,
+    pub status: u32,
+    pub detail: String,
+    pub frame: Option<RejectReason>,
+}
+
+/// Checks a version 2 header against views of `view_size` (`views` of
+/// them) and a `shm_size`-byte shared memory, before any payload is read.
+pub fn admit(
+    header: &[u8; HEADER_V2_LEN],
+    view_size: (usize, usize),
+    views: u8,
+    shm_size: u64,
+) -> Result<AdmittedV2, Refusal> {
+    let mut id_bytes = [0u8; 8];
+    id_bytes.copy_from_slice(&header[16..24]);
+    let id = u64::from_le_bytes(id_bytes);
+    let frame = |reason: RejectReason, detail: String| Refusal {
+        id,
+        status: reason.code(),
+        detail,
+        frame: Some(reason),
+    };
+    let layer_refused = |detail: String| Refusal {
+        id,
+        status: STATUS_BAD_LAYER,
+        detail,
+        frame: None,
+    };
+    let hd = HeaderV2::parse(header).map_err(|m| match header[48] {
+        1 | 2 => layer_refused(m.0),
+        _ => frame(RejectReason::Malformed, m.0),
+    })?;
+    if hd.view >= views {
+        let detail = format!(
+            "view {} (this service runs {views} view{}: 0{})",
+            hd.view,
+            if views == 1 { "" } else { "s" },
+            if views == 2 { " left, 1 right" } else { "" }
+        );
+        return Err(match hd.layer {
+            Layer::Projection => frame(RejectReason::UnknownView, detail),
+            _ => layer_refused(detail),
+        });
+    }
+    let outside = |length: u64| {
+        hd.offset
+            .checked_add(length)
+            .is_none_or(|e| e > shm_size)
+            .then(|| {
+                format!(
+                    "payload at {}+{length} lies outside the {shm_size}-byte shared memory",
+                    hd.offset
+                )
+            })
+    };
+    match hd.layer {
+        Layer::Projection => {
+            let format = PixelFormat::from_code(hd.format).ok_or_else(|| {
+                frame(
+                    RejectReason::UnsupportedFormat,
+                    format!("pixel format {} for a projection layer (1–3)", hd.format),
+                )
+            })?;
+            check_shape(
+                id,
+                (hd.width as usize, hd.height as usize),
+                format,
+                hd.length,
+                view_size,
+            )
+            .map_err(|e| frame(e.reason, e.detail))?;
+            if let Some(detail) = outside(hd.length) {
+                return Err(frame(RejectReason::Truncated, detail));
+            }
+            Ok(AdmittedV2::Projection(Admitted {
+                format,
+                capture_ns: hd.capture_ns,
+                offset: hd.offset,
+                length: hd.length as usize,
+            }))
+        }
+        Layer::Quad {
+            layer,
+            z,
+            placement,
+        } => {
+            let format = QuadFormat::from_code(hd.format).ok_or_else(|| {
+                layer_refused(format!(
+                    "layer {layer}: texel format {} (4 RGBA8, 5 RGBA f32; premultiplied linear)",
+                    hd.format
+                ))
+            })?;
+            let (w, h) = (hd.width as usize, hd.height as usize);
+            // Bounds the allocation before anything is read: a quad larger
+            // than its view could not lie inside it.
+            if w == 0 || h == 0 || w > view_size.0 || h > view_size.1 {
+                return Err(layer_refused(format!(
+                    "layer {layer}: a {w}×{h} quad on a {}×{} view",
+                    view_size.0, view_size.1
+                )));
+            }
+            let want = (w * h * format.bytes_per_texel()) as u64;
+            if hd.length != want {
+                return Err(layer_refused(format!(
+                    "layer {layer}: {} payload bytes, {want} needed",
+                    hd.length
+                )));
+            }
+            if let Some(detail) = outside(hd.length) {
+                return Err(layer_refused(format!("layer {layer}: {detail}")));
+            }
+            Ok(AdmittedV2::Quad {
+                layer,
+                z,
+                placement,
+                format,
+                width: w,
+                height: h,
+                offset: hd.offset,
+                length: hd.length as usize,
+            })
+        }
+        Layer::Remove { layer } => Ok(AdmittedV2::Remove { layer }),
+    }
+}
+
+/// The submission's work: the reply's status and message.
+fn handle(
+    compositor: &Compositor,
+    shm: &std::fs::File,
+    id: u64,
+    admitted: AdmittedV2,
+) -> (u32, String) {
+    match admitted {
+        AdmittedV2::Projection(req) => submit_frame(compositor, shm, id, &req),
+        AdmittedV2::Quad {
+            layer,
+            z,
+            placement,
+            format,
+            width,
+            height,
+            offset,
+            length,
+        } => {
+            let mut payload = vec![0u8; length];
+            if let Err(e) = shm.read_exact_at(&mut payload, offset) {
+                compositor.count_layer_refused();
+                return (
+                    STATUS_BAD_LAYER,
+                    format!("layer {layer}: reading the shared memory: {e}"),
+                );
+            }
+            let quad = QuadLayer {
+                layer,
+                z,
+                placement,
+                width,
+                height,
+                rgba: format.decode(&payload),
+            };
+            match compositor.submit_layer(quad) {
+                Ok(()) => (STATUS_OK, String::new()),
+                Err(e) => (STATUS_BAD_LAYER, e.to_string()),
+            }
+        }
+        AdmittedV2::Remove { layer } => {
+            if compositor.remove_layer(layer) {
+                (STATUS_OK, String::new())
+            } else {
+                compositor.count_layer_refused();
+                (
+                    STATUS_BAD_LAYER,
+                    format!("layer {layer}: this client has no such quad layer"),
+                )
+            }
+        }
+    }
+}
+
+/// A version 2 connection after its hello: the welcome, then one reply per
+/// submission, until the client hangs up or the service stops.
+pub(super) fn serve(
+    stream: &mut UnixStream,
+    compositor: &Compositor,
+    shm: &std::fs::File,
+    shm_size: u64,
+    stop: &AtomicBool,
+) -> std::io::Result<()> {
+    let (w, h) = compositor.panel_size();
+    let reply = |stream: &mut UnixStream, status: u32, frame_id: u64, message: String| {
+        let r = ReplyV2 {
+            reply: Reply {
+                status,
+                frame_id,
+                panel_width: w as u32,
+                panel_height: h as u32,
+                message,
+            },
+            predicted_display_ns: compositor.predicted_display_ns(),
+            refresh_period_ns: compositor.refresh_period_ns(),
+            views: u16::from(VIEWS),
+        };
+        write_all_until(stream, &r.to_bytes(), stop, REPLY_DEADLINE)
+    };
+    reply(stream, STATUS_OK, 0, format!("panel {w}×{h}, {VIEWS} view"))?;
+    loop {
+        let mut header = [0u8; HEADER_V2_LEN];
+        match read_full(stream, &mut header, stop)? {
+            Fill::Full => {}
+            Fill::Closed | Fill::Stopped => return Ok(()),
+            Fill::Partial => {
+                compositor.count_disconnect_mid_frame();
+                tracing::warn!("a client disconnected in the middle of a header");
+                return Ok(());
+            }
+        }
+        let (id, status, message) = match admit(&header, (w, h), VIEWS, shm_size) {
+            Err(r) => {
+                match r.frame {
+                    Some(reason) => compositor.reject_before_submit(reason, r.id, &r.detail),
+                    None => {
+                        compositor.count_layer_refused();
+                        tracing::warn!("{r}");
+                    }
+                }
+                (r.id, r.status, r.detail)
+            }
+            Ok(admitted) => {
+                let id = u64::from_le_bytes(header[16..24].try_into().unwrap_or([0; 8]));
+                let (status, message) = handle(compositor, shm, id, admitted);
+                (id, status, message)
+            }
+        };
+        if let Err(e) = reply(stream, status, id, message) {
+            if matches!(e.kind(), ErrorKind::BrokenPipe | ErrorKind::ConnectionReset) {
+                return Ok(());
+            }
+            return Err(e);
+        }
+    }
+}

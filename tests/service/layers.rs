@@ -1,0 +1,183 @@
+//! Protocol version 2 end to end: clients submit a projection layer and
+//! quad layers; the recording is the D-CNN of the composition; bad layers
+//! get their own status while everyone keeps being served; a client that
+//! leaves takes its layers along; every reply carries the pacer's
+//! prediction; version 1 clients are served beside version 2 ones.
+
+use super::*;
+use nedrt_service::compose::{Placement, QuadLayer, ViewGeometry, blend};
+use nedrt_service::pipeline::protocol::v2::{HeaderV2, QuadFormat, STATUS_BAD_LAYER};
+
+/// A uniform premultiplied RGBA8 quad: colour `c` (per channel) at alpha `a`.
+fn quad_texels(w: usize, h: usize, c: [u8; 3], a: u8) -> Vec<u8> {
+    [c[0], c[1], c[2], a].repeat(w * h)
+}
+
+fn as_layer(
+    layer: u32,
+    z: i32,
+    placement: Placement,
+    (w, h): (usize, usize),
+    t: &[u8],
+) -> QuadLayer {
+    QuadLayer {
+        layer,
+        z,
+        placement,
+        width: w,
+        height: h,
+        rgba: QuadFormat::Rgba8Premultiplied.decode(t),
+    }
+}
+
+#[test]
+fn quad_layers_from_two_clients_are_blended_before_the_dcnn_and_leave_with_their_client() {
+    let service = Service::socket_recorder();
+    let shm = W * H * 12;
+    let connect = || {
+        Client::connect_v2(
+            &Service::socket(service.dir.path()),
+            &service.dir.path().join("shm"),
+            shm as u64,
+        )
+        .expect("connect v2")
+    };
+    let before = nedrt_service::pipeline::pacing::monotonic_ns();
+    let mut a = connect();
+    let mut b = connect();
+    let mut old = service.client(shm);
+    let welcome = a.timing.clone().expect("a version 2 welcome");
+    // tests/data/small-panel.toml refreshes at 240 Hz.
+    assert_eq!(welcome.refresh_period_ns, 4_166_667);
+    assert_eq!(welcome.views, 1);
+    // The welcome's prediction: a refresh after the hello, not in the past.
+    assert!(
+        welcome.predicted_display_ns >= before,
+        "predicted {} for a hello sent at {before}",
+        welcome.predicted_display_ns
+    );
+
+    let calib = Calibration::load(&small_panel()).expect("calib");
+    let view = ViewGeometry::of_panel(W, H, calib.pixel_pitch_m, calib.lens_distance_m);
+    // A: a half-transparent quad of layer 1 at pixels (10, 10). B: its own
+    // layer 1 (another layer: another client), opaque, centred at 0°, above.
+    let ta = quad_texels(8, 6, [60, 20, 100], 128);
+    let a_at = Placement::Pixels { x: 10, y: 10 };
+    let tb = quad_texels(6, 4, [200, 150, 30], 255);
+    let b_at = Placement::Degrees {
+        x_deg: 0.0,
+        y_deg: 0.0,
+    };
+    let fmt = QuadFormat::Rgba8Premultiplied;
+    let r = a
+        .send_v2(&HeaderV2::quad(0, 1, 0, a_at, fmt, (8, 6), 1, 0), &ta)
+        .expect("send");
+    assert_eq!(r.reply.status, STATUS_OK, "{}", r.reply.message);
+    let r = b
+        .send_v2(&HeaderV2::quad(0, 1, 2, b_at, fmt, (6, 4), 1, 0), &tb)
+        .expect("send");
+    assert_eq!(r.reply.status, STATUS_OK, "{}", r.reply.message);
+    // Bad submissions: each its status and reason; nobody is cut off.
+    let outside = Placement::Pixels { x: 60, y: 0 };
+    let r = b
+        .send_v2(&HeaderV2::quad(0, 2, 0, outside, fmt, (6, 4), 2, 0), &tb)
+        .expect("send");
+    assert_eq!(r.reply.status, STATUS_BAD_LAYER);
+    assert!(
+        r.reply.message.contains("not inside"),
+        "{}",
+        r.reply.message
+    );
+    let glow = quad_texels(2, 2, [90, 0, 0], 10);
+    let r = b
+        .send_v2(&HeaderV2::quad(0, 3, 0, a_at, fmt, (2, 2), 3, 0), &glow)
+        .expect("send");
+    assert_eq!(r.reply.status, STATUS_BAD_LAYER);
+    assert!(
+        r.reply.message.contains("premultiplied"),
+        "{}",
+        r.reply.message
+    );
+    let r = b.send_v2(&HeaderV2::remove(0, 9, 4), &[]).expect("send");
+    assert_eq!(r.reply.status, STATUS_BAD_LAYER);
+    let frame = test_frame(5);
+    let right_eye = HeaderV2::projection(1, PixelFormat::Rgb32fPlanar, (W, H), 5, 0);
+    let r = a
+        .send_v2(&right_eye, &planar_payload(&frame))
+        .expect("send");
+    assert_eq!(
+        r.reply.status,
+        RejectReason::UnknownView.code(),
+        "{}",
+        r.reply.message
+    );
+
+    let (mut dcnn, transfer) = reference();
+    let rec = service.dir.path().join("rec");
+    let mut show = |client: &mut Client, id: u64, layers: &[QuadLayer]| {
+        let frame = test_frame(id);
+        let h = HeaderV2::projection(0, PixelFormat::Rgb32fPlanar, (W, H), id, 0);
+        let r = client.send_v2(&h, &planar_payload(&frame)).expect("send");
+        assert_eq!(r.reply.status, STATUS_OK, "{}", r.reply.message);
+        assert_eq!(r.refresh_period_ns, 4_166_667);
+        wait_until("the frame to be recorded", || frame_path(&rec, id).exists());
+        let placed: Vec<_> = layers
+            .iter()
+            .map(|q| q.place(&view).expect("placed"))
+            .collect();
+        let mut composed = frame.clone();
+        blend(&mut composed, &placed).expect("blend");
+        let got = image::open(frame_path(&rec, id))
+            .expect("png")
+            .to_rgb8()
+            .into_raw();
+        assert_eq!(
+            got,
+            expected_rgb(&mut dcnn, &transfer, &composed),
+            "frame {id}"
+        );
+    };
+    let layer_a = as_layer(1, 0, a_at, (8, 6), &ta);
+    let layer_b = as_layer(1, 2, b_at, (6, 4), &tb);
+    show(&mut a, 10, &[layer_a.clone(), layer_b.clone()]);
+    // A version 1 client's frame is composed with the same layers.
+    let h = FrameHeader::new(PixelFormat::Rgb32fPlanar, W, H, 11, 0);
+    let r = old
+        .send(&h, &planar_payload(&test_frame(11)))
+        .expect("send v1");
+    assert_eq!(r.status, STATUS_OK, "{}", r.message);
+    wait_until("the v1 frame", || frame_path(&rec, 11).exists());
+    // A leaves: its quad goes with it once its thread has seen the hang-up
+    // (it looks every 50 ms).
+    drop(a);
+    std::thread::sleep(Duration::from_millis(500));
+    show(&mut b, 12, &[layer_b]);
+    // B removes its layer: the bare frame.
+    let r = b.send_v2(&HeaderV2::remove(0, 1, 13), &[]).expect("send");
+    assert_eq!(r.reply.status, STATUS_OK, "{}", r.reply.message);
+    show(&mut b, 14, &[]);
+
+    let (out, dir) = service.stop();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let r = report(dir.path());
+    assert_eq!(r["layers_set"].as_u64(), Some(2));
+    // Outside, colour over alpha, removing a layer never set.
+    assert_eq!(r["layers_refused"].as_u64(), Some(3));
+    assert!(r["frames_with_layers"].as_u64() >= Some(3));
+    let rejected = r["rejected"].as_array().expect("rejected");
+    assert!(
+        rejected.iter().any(|e| e[0] == "unknown-view" && e[1] == 1),
+        "{rejected:?}"
+    );
+    let shown: u64 = r["shown_vs_predicted"]
+        .as_array()
+        .expect("shown_vs_predicted")
+        .iter()
+        .map(|e| e[1].as_u64().unwrap_or(0))
+        .sum();
+    assert_eq!(shown, r["presented"].as_u64().expect("presented"));
+}
