@@ -29,6 +29,12 @@ fn socket_frames_are_recorded_exactly_as_the_backend_computes_them() {
         "{}",
         String::from_utf8_lossy(&out.stderr)
     );
+    // The socket listens only once the pipeline is prepared: a client that
+    // finds it is welcomed at once.
+    let log = String::from_utf8_lossy(&out.stderr);
+    let prepared = log.find("preprocess:").expect("the pipeline's line");
+    let listening = log.find("listening on").expect("the socket's line");
+    assert!(prepared < listening, "{log}");
     let r = report(dir.path());
     let presented = r["presented"].as_u64().expect("presented");
     let dropped = r["dropped_queued"].as_u64().expect("dropped")

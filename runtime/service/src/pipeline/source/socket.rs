@@ -35,12 +35,15 @@ pub const REPLY_DEADLINE: Duration = Duration::from_secs(2);
 pub struct SocketSource {
     path: PathBuf,
     shm_dir: PathBuf,
-    listener: UnixListener,
 }
 
 impl SocketSource {
-    /// Listens on `path`; a stale socket left by a dead service is
-    /// replaced, a live one or any other file is an error.
+    /// Checks `path` and `shm_dir` now, so that a bad one is an error before
+    /// anything starts: a stale socket left by a dead service is removed, a
+    /// live one or any other file is an error. The socket listens only once
+    /// the source runs, i.e. once the pipeline is prepared and can serve:
+    /// a client that finds the socket is welcomed at once, not after the
+    /// pipeline's preparation (seconds with a network).
     pub fn bind(path: &Path, shm_dir: &Path) -> Result<Self, SourceError> {
         let fail = |reason: String| SourceError::Socket {
             path: path.to_path_buf(),
@@ -63,15 +66,36 @@ impl SocketSource {
             std::fs::remove_file(path)
                 .map_err(|e| fail(format!("cannot remove the stale socket: {e}")))?;
         }
-        let listener = UnixListener::bind(path).map_err(|e| fail(format!("cannot listen: {e}")))?;
-        listener
-            .set_nonblocking(true)
-            .map_err(|e| fail(e.to_string()))?;
+        // Whether it can listen there at all (a missing folder, no
+        // permission): found now, not when the source starts.
+        let parent = path.parent().filter(|p| !p.as_os_str().is_empty());
+        if let Some(dir) = parent
+            && !dir.is_dir()
+        {
+            return Err(fail(format!(
+                "cannot listen: folder {} does not exist",
+                dir.display()
+            )));
+        }
         Ok(Self {
             path: path.to_path_buf(),
             shm_dir: shm_dir.to_path_buf(),
-            listener,
         })
+    }
+
+    /// Starts listening (the source's first act).
+    fn listen(&self) -> Result<UnixListener, SourceError> {
+        let fail = |reason: String| SourceError::Socket {
+            path: self.path.clone(),
+            reason,
+        };
+        let listener =
+            UnixListener::bind(&self.path).map_err(|e| fail(format!("cannot listen: {e}")))?;
+        listener
+            .set_nonblocking(true)
+            .map_err(|e| fail(e.to_string()))?;
+        tracing::info!("listening on {}", self.path.display());
+        Ok(listener)
     }
 }
 
@@ -87,10 +111,11 @@ impl Source for SocketSource {
     }
 
     fn run(&mut self, compositor: Compositor, stop: &AtomicBool) -> Result<u64, SourceError> {
+        let listener = self.listen()?;
         std::thread::scope(|scope| {
             let mut clients = 0u64;
             while !stop.load(Ordering::Relaxed) {
-                match self.listener.accept() {
+                match listener.accept() {
                     Ok((stream, _)) => {
                         clients += 1;
                         let compositor = compositor.clone();
