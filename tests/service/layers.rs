@@ -180,4 +180,19 @@ fn quad_layers_from_two_clients_are_blended_before_the_dcnn_and_leave_with_their
         .map(|e| e[1].as_u64().unwrap_or(0))
         .sum();
     assert_eq!(shown, r["presented"].as_u64().expect("presented"));
+    // Per client: A's, the version 1 client's and B's frames, each counted
+    // once, with how far ahead of its predicted refresh each was submitted.
+    let clients = r["clients"].as_array().expect("clients");
+    let per_client: u64 = clients
+        .iter()
+        .map(|c| c["shown"].as_u64().unwrap_or(0))
+        .sum();
+    assert_eq!(per_client, shown);
+    assert!(clients.len() >= 2, "{clients:?}");
+    assert!(clients.iter().all(|c| c["client"].as_u64() > Some(0)));
+    assert!(
+        clients
+            .iter()
+            .all(|c| c["mean_lead_ms"].as_f64() >= Some(0.0))
+    );
 }

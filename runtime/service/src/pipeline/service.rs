@@ -37,7 +37,7 @@ use super::channel::newest_channel;
 use super::frame::SubmittedFrame;
 use super::pacing::{Clock, DisplaySchedule, NewestSlot, Pacer};
 use super::resident::{DeviceFrames, DeviceInput};
-use super::stats::{RSS_EVERY, Report, Stage, Stats};
+use super::stats::{RSS_EVERY, Report, ShownFrame, Stage, Stats};
 use crate::compose::{LayerSet, ViewGeometry};
 use crate::present::transfer::Transfer;
 use crate::present::{DisplayFrame, PanelFrame, PresentError, Presented, Sink};
@@ -118,6 +118,7 @@ fn spawn_stage<I: Send + 'static, O: Send + 'static>(
                         id: t.id,
                         start_ns: t.start_ns,
                         work_ns: t.work_ns + ns,
+                        owner: t.owner,
                         submit_ns: t.submit_ns,
                         predicted_ns: t.predicted_ns,
                         ready_ns: t0 + ns,
@@ -377,11 +378,13 @@ impl Service {
                     self.stats.present_traffic.record(sink.last_traffic());
                     self.schedule
                         .observe_pipeline(t.ready_ns.saturating_sub(t.submit_ns));
-                    self.stats.record_vs_prediction(
-                        tick.vsync_ns,
-                        t.predicted_ns,
-                        pacer.period_ns(),
-                    );
+                    self.stats.record_vs_prediction(ShownFrame {
+                        owner: t.owner,
+                        submit_ns: t.submit_ns,
+                        predicted_ns: t.predicted_ns,
+                        shown_ns: tick.vsync_ns,
+                        period_ns: pacer.period_ns(),
+                    });
                     let present_ns = now - t0;
                     let e2e = now.saturating_sub(t.start_ns);
                     self.stats.record(Stage::Present, present_ns);

@@ -97,6 +97,8 @@ pub struct Stats {
     /// Presented frames by refreshes between the one they were shown at
     /// and the one predicted when they were submitted (negative: early).
     vs_prediction: Mutex<std::collections::BTreeMap<i64, u64>>,
+    /// The same by submitter (a socket client; 0 in process).
+    by_client: Mutex<std::collections::BTreeMap<u64, ClientTally>>,
     /// Host↔device traffic of the D-CNN stage's frames.
     pub dcnn_traffic: TrafficCounter,
     /// Host↔device traffic of the sink's presented frames.
@@ -133,16 +135,48 @@ impl TrafficCounter {
     }
 }
 
+/// One submitter's shown frames against their predictions.
+#[derive(Debug, Default, Clone, Copy)]
+struct ClientTally {
+    shown: u64,
+    on_time: u64,
+    late: u64,
+    early: u64,
+    /// Sum of (predicted display time − submission), ns.
+    lead_ns: u128,
+}
+
+/// A presented frame against its prediction: when it was submitted, the
+/// refresh predicted for it then, and the refresh it was shown at.
+#[derive(Debug, Clone, Copy)]
+pub struct ShownFrame {
+    pub owner: u64,
+    pub submit_ns: u64,
+    pub predicted_ns: u64,
+    pub shown_ns: u64,
+    pub period_ns: u64,
+}
+
 impl Stats {
     /// A frame shown at the refresh `shown_ns`, predicted at `predicted_ns`.
-    pub fn record_vs_prediction(&self, shown_ns: u64, predicted_ns: u64, period_ns: u64) {
-        let late = (shown_ns as f64 - predicted_ns as f64) / period_ns.max(1) as f64;
+    pub fn record_vs_prediction(&self, f: ShownFrame) {
+        let late = (f.shown_ns as f64 - f.predicted_ns as f64) / f.period_ns.max(1) as f64;
+        let late = late.round() as i64;
         *self
             .vs_prediction
             .lock()
             .unwrap_or_else(|p| p.into_inner())
-            .entry(late.round() as i64)
+            .entry(late)
             .or_insert(0) += 1;
+        let mut clients = self.by_client.lock().unwrap_or_else(|p| p.into_inner());
+        let t = clients.entry(f.owner).or_default();
+        t.shown += 1;
+        match late {
+            0 => t.on_time += 1,
+            k if k > 0 => t.late += 1,
+            _ => t.early += 1,
+        }
+        t.lead_ns += u128::from(f.predicted_ns.saturating_sub(f.submit_ns));
     }
 }
 
@@ -223,6 +257,24 @@ impl Stats {
                 .unwrap_or_else(|p| p.into_inner())
                 .iter()
                 .map(|(&k, &n)| (k, n))
+                .collect(),
+            clients: self
+                .by_client
+                .lock()
+                .unwrap_or_else(|p| p.into_inner())
+                .iter()
+                .map(|(&client, t)| ClientReport {
+                    client,
+                    shown: t.shown,
+                    on_time: t.on_time,
+                    late: t.late,
+                    early: t.early,
+                    mean_lead_ms: if t.shown == 0 {
+                        0.0
+                    } else {
+                        t.lead_ns as f64 / t.shown as f64 / 1e6
+                    },
+                })
                 .collect(),
             stages: Stage::ALL
                 .iter()
@@ -329,11 +381,27 @@ pub struct Report {
     /// (refreshes late against the prediction at submission, frames);
     /// 0 is on the predicted refresh, negative early.
     pub shown_vs_predicted: Vec<(i64, u64)>,
+    /// Each submitter's shown frames against their predictions.
+    pub clients: Vec<ClientReport>,
     pub stages: Vec<StageReport>,
     /// Host↔device traffic per frame, by stage (the decode and encode
     /// stages run on the host and move nothing).
     pub traffic: Vec<TrafficReport>,
     pub rss_kib: Vec<u64>,
+}
+
+/// One submitter's frames against the display-time predictions (client
+/// 0: in-process submissions).
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct ClientReport {
+    pub client: u64,
+    pub shown: u64,
+    pub on_time: u64,
+    pub late: u64,
+    pub early: u64,
+    /// Mean of (predicted display time − submission), ms: how far ahead of
+    /// the refresh it was predicted for the client submitted.
+    pub mean_lead_ms: f64,
 }
 
 impl Report {
@@ -442,6 +510,13 @@ impl Report {
                 })
                 .collect();
             s += &format!("shown vs predicted (refreshes): {}\n", parts.join(", "));
+        }
+        for c in self.clients.iter().filter(|c| c.client != 0) {
+            s += &format!(
+                "client {}: {} shown, {} on the predicted refresh, {} late, {} early; submitted \
+                 {:.1} ms before the predicted display time on average\n",
+                c.client, c.shown, c.on_time, c.late, c.early, c.mean_lead_ms
+            );
         }
         if self.layers_set + self.layers_refused > 0 {
             s += &format!(

@@ -19,6 +19,8 @@ pub(super) struct Timed<T> {
     pub(super) start_ns: u64,
     /// Time spent in the stages' own work so far.
     pub(super) work_ns: u64,
+    /// Who submitted it (a socket client's number; 0 in process).
+    pub(super) owner: u64,
     /// When it was submitted, and the refresh predicted for it then.
     pub(super) submit_ns: u64,
     pub(super) predicted_ns: u64,
@@ -67,6 +69,7 @@ impl Compositor {
             item: frame,
             start_ns,
             work_ns: 0,
+            owner: self.owner,
             submit_ns: now,
             predicted_ns: self.schedule.predicted_display_ns(now),
             ready_ns: now,
