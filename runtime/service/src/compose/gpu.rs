@@ -44,6 +44,8 @@ pub struct LayerBlender {
     texels: wgpu::Buffer,
     /// The generation whose quads and texels are on the device.
     uploaded: Option<u64>,
+    /// Bytes of `texels` in use.
+    texel_bytes: u64,
     count: u32,
 }
 
@@ -90,6 +92,7 @@ impl LayerBlender {
             ),
             texels: buffer("layer_blend texels", 16, storage),
             uploaded: None,
+            texel_bytes: 16,
             count: 0,
         })
     }
@@ -98,6 +101,9 @@ impl LayerBlender {
     /// view's R, G, B planes `plane_stride` values apart) on `encoder`;
     /// nothing is recorded without quads. Returns what went up to the
     /// device: the texels when `generation` is new, the uniform always.
+    /// Once per submission: the uniform and quads are written through the
+    /// queue, so a second record before the submit would see the last
+    /// one's (the service records one per frame and waits for it).
     pub fn record(
         &mut self,
         encoder: &mut wgpu::CommandEncoder,
@@ -130,14 +136,28 @@ impl LayerBlender {
                 texels.extend_from_slice(&q.rgba);
             }
             let bytes: &[u8] = bytemuck::cast_slice(&texels);
+            let limits = self.device.limits();
+            let limit = limits
+                .max_storage_buffer_binding_size
+                .min(limits.max_buffer_size);
+            if bytes.len() as u64 > limit {
+                return Err(LayerError::TooLarge {
+                    layer: quads.iter().map(|q| q.layer).max().unwrap_or(0),
+                    texels: texels.len() / 4,
+                    budget: (limit / 16) as usize,
+                });
+            }
             if bytes.len() as u64 > self.texels.size() {
+                // Grown by doubling within the device's limit.
+                let size = (bytes.len() as u64).max(2 * self.texels.size()).min(limit);
                 self.texels = self.device.create_buffer(&wgpu::BufferDescriptor {
                     label: Some("layer_blend texels"),
-                    size: (bytes.len() as u64).next_power_of_two(),
+                    size,
                     usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
                     mapped_at_creation: false,
                 });
             }
+            self.texel_bytes = bytes.len() as u64;
             let rect_bytes: &[u8] = bytemuck::cast_slice(&rects);
             self.queue.write_buffer(&self.quads, 0, rect_bytes);
             self.queue.write_buffer(&self.texels, 0, bytes);
@@ -170,7 +190,12 @@ impl LayerBlender {
                 },
                 wgpu::BindGroupEntry {
                     binding: 2,
-                    resource: self.texels.as_entire_binding(),
+                    // Only the texels in use (a texel is 16 bytes).
+                    resource: wgpu::BindingResource::Buffer(wgpu::BufferBinding {
+                        buffer: &self.texels,
+                        offset: 0,
+                        size: std::num::NonZeroU64::new(self.texel_bytes.max(16)),
+                    }),
                 },
                 wgpu::BindGroupEntry {
                     binding: 3,

@@ -25,6 +25,10 @@ use nedrt_core::Image;
 /// for every pixel).
 pub const MAX_QUADS: usize = 16;
 
+/// The most quads of one submitter, so that one client cannot take every
+/// slot.
+pub const MAX_QUADS_PER_OWNER: usize = 8;
+
 /// Where a quad sits on its view.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum Placement {
@@ -74,7 +78,8 @@ pub struct QuadLayer {
     pub rgba: Vec<f32>,
 }
 
-/// A quad checked and placed: its rectangle on the view.
+/// A quad checked and placed: its rectangle on the view. Its texels are
+/// shared (a snapshot of the set copies no texels).
 #[derive(Debug, Clone, PartialEq)]
 pub struct PlacedQuad {
     pub layer: u32,
@@ -83,7 +88,7 @@ pub struct PlacedQuad {
     pub y: usize,
     pub width: usize,
     pub height: usize,
-    pub rgba: Vec<f32>,
+    pub rgba: std::sync::Arc<[f32]>,
 }
 
 /// Why a layer is refused.
@@ -132,8 +137,22 @@ pub enum LayerError {
         view_width: usize,
         view_height: usize,
     },
-    #[error("{count} quads on one view; at most {MAX_QUADS}")]
+    #[error("{count} quads on one view; at most {MAX_QUADS}, {MAX_QUADS_PER_OWNER} of one client")]
     TooMany { count: usize },
+    #[error(
+        "layer {layer}: the view's quads would hold {texels} texels; at most {budget} (twice the \
+         view's pixels)"
+    )]
+    TooLarge {
+        layer: u32,
+        texels: usize,
+        budget: usize,
+    },
+    #[error(
+        "layer {layer}: direction ({x_deg}°, {y_deg}°) is not in front of the eye (each within \
+         ±90°)"
+    )]
+    Direction { layer: u32, x_deg: f64, y_deg: f64 },
 }
 
 /// Premultiplied colour may exceed its alpha by this much (8-bit rounding
@@ -162,7 +181,8 @@ impl QuadLayer {
                 want: want.unwrap_or(usize::MAX),
             });
         }
-        for (texel, px) in self.rgba.chunks_exact(4).enumerate() {
+        let mut rgba = self.rgba.clone();
+        for (texel, px) in rgba.chunks_exact_mut(4).enumerate() {
             if let Some(&value) = px.iter().find(|v| !(0.0..=1.0).contains(*v)) {
                 return Err(LayerError::OutOfRange {
                     layer,
@@ -178,10 +198,23 @@ impl QuadLayer {
                     alpha: px[3],
                 });
             }
+            // Within the slack: held to its alpha, so that the composition
+            // stays in [0, 1].
+            let alpha = px[3];
+            px[..3].iter_mut().for_each(|c| *c = c.min(alpha));
         }
         let (x, y) = match self.placement {
             Placement::Pixels { x, y } => (x, y),
             Placement::Degrees { x_deg, y_deg } => {
+                // tan repeats every 180°: a direction behind the eye would
+                // land in front of it.
+                if !(x_deg.abs() < 90.0 && y_deg.abs() < 90.0) {
+                    return Err(LayerError::Direction {
+                        layer,
+                        x_deg,
+                        y_deg,
+                    });
+                }
                 // The centre's pixel: the view's centre plus tan(angle) in
                 // pixels, y down on the panel.
                 let cx = view.width as f64 / 2.0 + x_deg.to_radians().tan() * view.pixels_per_tan;
@@ -220,7 +253,7 @@ impl QuadLayer {
             y: y as usize,
             width: w,
             height: h,
-            rgba: self.rgba.clone(),
+            rgba: rgba.into(),
         })
     }
 }
@@ -255,13 +288,28 @@ impl LayerSet {
     }
 
     /// Sets (or replaces) `owner`'s layer `quad.layer`. Refused when the
-    /// view would hold more than [`MAX_QUADS`].
-    pub fn set(&self, owner: u64, quad: PlacedQuad) -> Result<(), LayerError> {
+    /// view would hold more than [`MAX_QUADS`] (or the owner more than
+    /// [`MAX_QUADS_PER_OWNER`]), or its quads more than `texel_budget`
+    /// texels.
+    pub fn set(&self, owner: u64, quad: PlacedQuad, texel_budget: usize) -> Result<(), LayerError> {
         let mut s = self.state();
         let key = (owner, quad.layer);
-        if !s.quads.contains_key(&key) && s.quads.len() >= MAX_QUADS {
-            return Err(LayerError::TooMany {
-                count: s.quads.len() + 1,
+        let replaced = s.quads.get(&key).map_or(0, |q| q.width * q.height);
+        if replaced == 0 {
+            let owned = s.quads.keys().filter(|(o, _)| *o == owner).count();
+            if s.quads.len() >= MAX_QUADS || owned >= MAX_QUADS_PER_OWNER {
+                return Err(LayerError::TooMany {
+                    count: s.quads.len() + 1,
+                });
+            }
+        }
+        let texels: usize = s.quads.values().map(|q| q.width * q.height).sum::<usize>() - replaced
+            + quad.width * quad.height;
+        if texels > texel_budget {
+            return Err(LayerError::TooLarge {
+                layer: quad.layer,
+                texels,
+                budget: texel_budget,
             });
         }
         s.quads.insert(key, quad);
@@ -332,7 +380,7 @@ pub fn blend(view: &mut Image, quads: &[PlacedQuad]) -> Result<(), LayerError> {
                 let dst = &mut plane[(q.y + row) * width + q.x..][..q.width];
                 let src = &q.rgba[4 * row * q.width..][..4 * q.width];
                 for (d, s) in dst.iter_mut().zip(src.chunks_exact(4)) {
-                    // As the kernel: one fused multiply-add.
+                    // The kernel's fma (fused or not: equal within 1e-5).
                     *d = (1.0 - s[3]).mul_add(*d, s[c]);
                 }
             }

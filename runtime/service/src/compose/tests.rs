@@ -282,30 +282,18 @@ mod needs_gpu {
 fn a_layer_set_keeps_the_newest_submission_of_each_layer_of_each_owner() {
     let v = view(4, 4);
     let set = LayerSet::default();
+    let any = usize::MAX;
+    let placed = |layer, z, x| {
+        quad(layer, z, x, 0, (1, 1), 0.1, 1.0)
+            .place(&v)
+            .expect("placed")
+    };
     let g0 = set.snapshot().generation;
-    set.set(
-        1,
-        quad(5, 0, 0, 0, (1, 1), 0.1, 1.0)
-            .place(&v)
-            .expect("placed"),
-    )
-    .expect("set");
+    set.set(1, placed(5, 0, 0), any).expect("set");
     // The same layer id from another owner is another layer.
-    set.set(
-        2,
-        quad(5, 1, 1, 0, (1, 1), 0.2, 1.0)
-            .place(&v)
-            .expect("placed"),
-    )
-    .expect("set");
+    set.set(2, placed(5, 1, 1), any).expect("set");
     // A newer submission replaces owner 1's layer 5.
-    set.set(
-        1,
-        quad(5, 3, 2, 0, (1, 1), 0.3, 1.0)
-            .place(&v)
-            .expect("placed"),
-    )
-    .expect("set");
+    set.set(1, placed(5, 3, 2), any).expect("set");
     let snap = set.snapshot();
     assert!(snap.generation > g0);
     assert_eq!(snap.quads.len(), 2);
@@ -320,22 +308,54 @@ fn a_layer_set_keeps_the_newest_submission_of_each_layer_of_each_owner() {
     assert!(!set.remove(2, 5));
     assert_eq!(set.remove_owner(1), 1);
     assert!(set.snapshot().quads.is_empty());
-    for i in 0..MAX_QUADS as u32 {
-        set.set(
-            9,
-            quad(i, 0, 0, 0, (1, 1), 0.0, 0.0)
-                .place(&v)
-                .expect("placed"),
-        )
-        .expect("room");
+}
+
+#[test]
+fn a_layer_set_caps_quads_per_view_per_owner_and_in_texels() {
+    let v = view(4, 4);
+    let set = LayerSet::default();
+    let placed = |layer| {
+        quad(layer, 0, 0, 0, (2, 2), 0.0, 0.0)
+            .place(&v)
+            .expect("placed")
+    };
+    for i in 0..MAX_QUADS_PER_OWNER as u32 {
+        set.set(9, placed(i), usize::MAX).expect("room");
     }
-    assert!(
-        set.set(
-            9,
-            quad(99, 0, 0, 0, (1, 1), 0.0, 0.0)
-                .place(&v)
-                .expect("placed")
-        )
-        .is_err()
-    );
+    let e = set
+        .set(9, placed(99), usize::MAX)
+        .expect_err("one owner's cap");
+    assert!(e.to_string().contains("8 of one client"), "{e}");
+    // Replacing one of its own is no new quad.
+    set.set(9, placed(0), usize::MAX).expect("replaced");
+    for i in 0..(MAX_QUADS - MAX_QUADS_PER_OWNER) as u32 {
+        set.set(7, placed(i), usize::MAX).expect("room");
+    }
+    assert!(set.set(6, placed(0), usize::MAX).is_err(), "the view's cap");
+    // The texel budget counts what the set would hold after the change.
+    let small = LayerSet::default();
+    small.set(1, placed(0), 8).expect("4 of 8");
+    small.set(1, placed(0), 8).expect("replacing: still 4 of 8");
+    small.set(2, placed(0), 8).expect("8 of 8");
+    let e = small.set(3, placed(0), 8).expect_err("12 of 8");
+    assert!(e.to_string().contains("12 texels; at most 8"), "{e}");
+}
+
+#[test]
+fn directions_behind_the_eye_are_refused_and_slack_colour_is_held_to_alpha() {
+    let v = view(100, 60);
+    let mut q = quad(1, 0, 0, 0, (2, 2), 0.0, 0.0);
+    for (x_deg, y_deg) in [(180.0, 0.0), (0.0, -90.0), (1e30, 0.0)] {
+        q.placement = Placement::Degrees { x_deg, y_deg };
+        let e = q.place(&v).expect_err("behind").to_string();
+        assert!(e.contains("not in front of the eye"), "{e}");
+    }
+    // Colour over alpha within the 8-bit slack: accepted, held to alpha.
+    let glow = quad(1, 0, 0, 0, (1, 1), 0.0015, 0.0)
+        .place(&v)
+        .expect("within the slack");
+    assert_eq!(&glow.rgba[..], &[0.0, 0.0, 0.0, 0.0]);
+    let mut im = grey(100, 60, 1.0);
+    blend(&mut im, &[glow]).expect("blends");
+    assert!(im.data().iter().all(|&x| x <= 1.0));
 }

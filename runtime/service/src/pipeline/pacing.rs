@@ -121,6 +121,10 @@ pub struct DisplaySchedule {
     /// Submission to ready (in the present slot), a running mean over
     /// about the last [`DisplaySchedule::SMOOTHING`] frames, ns.
     pipeline_ns: AtomicU64,
+    /// How long before its refresh a frame must be ready: a period for a
+    /// sink whose present waits for the refresh (the loop takes the slot
+    /// a period ahead), none for one the loop paces itself.
+    latch_ns: AtomicU64,
 }
 
 impl DisplaySchedule {
@@ -133,7 +137,13 @@ impl DisplaySchedule {
             period_ns: AtomicU64::new(period_ns.max(1)),
             refresh_ns: AtomicU64::new(start_ns + period_ns.max(1)),
             pipeline_ns: AtomicU64::new(0),
+            latch_ns: AtomicU64::new(0),
         }
+    }
+
+    /// See the field: the present loop sets it from its sink.
+    pub fn set_latch_ns(&self, ns: u64) {
+        self.latch_ns.store(ns, Ordering::Relaxed);
     }
 
     pub fn period_ns(&self) -> u64 {
@@ -175,7 +185,8 @@ impl DisplaySchedule {
 
     /// When a frame submitted at `now_ns` is predicted to be on the panel.
     pub fn predicted_display_ns(&self, now_ns: u64) -> u64 {
-        self.refresh_at_or_after(now_ns + self.pipeline_ns())
+        let latch = self.latch_ns.load(Ordering::Relaxed);
+        self.refresh_at_or_after(now_ns + self.pipeline_ns() + latch)
     }
 }
 
@@ -295,6 +306,13 @@ mod tests {
         }
         // Most land exactly on the predicted refresh.
         assert!(exact > 300, "{exact} of 392 exact");
+        // A display-paced sink takes its frame a period before the refresh:
+        // the same frame is predicted one refresh later.
+        let last = *ticks.last().expect("ticks");
+        let unlatched = schedule.predicted_display_ns(last + 1);
+        schedule.set_latch_ns(period);
+        assert_eq!(schedule.predicted_display_ns(last + 1), unlatched + period);
+        schedule.set_latch_ns(0);
         // Before the refresh the loop paces to, that refresh is the next.
         let last = *ticks.last().expect("ticks");
         assert_eq!(schedule.refresh_at_or_after(last - 3 * period), last);

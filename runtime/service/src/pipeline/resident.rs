@@ -339,17 +339,22 @@ impl DeviceFrames {
         if let (DeviceInput::Client(_), Some(layers)) = (input, &self.layers) {
             let snap = layers.snapshot();
             let dims = (w as u32, h as u32, (w * h) as u32);
-            layer_traffic = self
-                .blender
-                .record(
-                    &mut encoder,
-                    &self.frame,
-                    dims,
-                    &snap.quads,
-                    snap.generation,
-                )
-                .map_err(|e| err(format!("the frame's layers: {e}")))?;
-            self.last_blended = !snap.quads.is_empty();
+            // Layers the device cannot hold are left out of the frame (and
+            // said so), not a failure of the device path.
+            let blended = self.blender.record(
+                &mut encoder,
+                &self.frame,
+                dims,
+                &snap.quads,
+                snap.generation,
+            );
+            match blended {
+                Ok(t) => {
+                    layer_traffic = t;
+                    self.last_blended = !snap.quads.is_empty();
+                }
+                Err(e) => tracing::warn!("a frame's quad layers are left out: {e}"),
+            }
         }
         let codes = self.free_codes();
         // Passes with no work of their own carry the stage's timestamps.
@@ -699,7 +704,7 @@ mod tests {
                 rgba,
             };
             layers
-                .set(9, quad.place(&view).expect("placed"))
+                .set(9, quad.place(&view).expect("placed"), usize::MAX)
                 .expect("set");
         }
         let mut frames = DeviceFrames::new(&device, &queue, w, h, &transfer, None).expect("frames");

@@ -314,6 +314,13 @@ impl Service {
     ) -> Result<Report, PresentError> {
         use std::sync::atomic::Ordering::Relaxed;
         let mut pacer = Pacer::new(self.panel.refresh_hz, self.clock.now_ns());
+        // A display-paced present takes its frame a period before the
+        // refresh it waits for: predictions move one refresh later.
+        self.schedule.set_latch_ns(if sink.paced_by_display() {
+            pacer.period_ns()
+        } else {
+            0
+        });
         let mut last: Option<PanelFrame> = None;
         let progress = &control.progress;
         progress.start("frames", 0);

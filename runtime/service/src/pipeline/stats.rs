@@ -6,11 +6,12 @@
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 
-use serde::Serialize;
-
 use super::frame::RejectReason;
 use super::latency::Histogram;
 use nedrt_core::preprocess::HostTraffic;
+
+mod report;
+pub use report::{ClientReport, HostTrafficMean, Report, StageReport, TrafficReport};
 
 /// The pipeline's stages, in order, for latency accounting.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -135,6 +136,10 @@ impl TrafficCounter {
     }
 }
 
+/// Clients the report names one by one; later ones are counted together
+/// as client `u64::MAX`.
+pub const MAX_CLIENTS_REPORTED: usize = 1024;
+
 /// One submitter's shown frames against their predictions.
 #[derive(Debug, Default, Clone, Copy)]
 struct ClientTally {
@@ -169,7 +174,14 @@ impl Stats {
             .entry(late)
             .or_insert(0) += 1;
         let mut clients = self.by_client.lock().unwrap_or_else(|p| p.into_inner());
-        let t = clients.entry(f.owner).or_default();
+        // Bounded however many clients come and go: past the first
+        // MAX_CLIENTS_REPORTED, the rest are one entry.
+        let owner = if clients.len() >= MAX_CLIENTS_REPORTED && !clients.contains_key(&f.owner) {
+            u64::MAX
+        } else {
+            f.owner
+        };
+        let t = clients.entry(owner).or_default();
         t.shown += 1;
         match late {
             0 => t.on_time += 1,
@@ -308,251 +320,4 @@ pub fn resident_kib() -> Option<u64> {
     let statm = std::fs::read_to_string("/proc/self/statm").ok()?;
     let pages: u64 = statm.split_whitespace().nth(1)?.parse().ok()?;
     Some(pages * 4)
-}
-
-/// Mean host↔device traffic of one frame.
-#[derive(Debug, Clone, Copy, Default, PartialEq)]
-pub struct HostTrafficMean {
-    pub to_device_bytes: f64,
-    pub uploads: f64,
-    pub to_host_bytes: f64,
-    pub read_backs: f64,
-}
-
-impl HostTrafficMean {
-    /// `total` over `frames` (nothing when there were none).
-    pub fn of(total: HostTraffic, frames: u64) -> Self {
-        if frames == 0 {
-            return Self::default();
-        }
-        let n = frames as f64;
-        Self {
-            to_device_bytes: total.to_device_bytes as f64 / n,
-            uploads: total.uploads as f64 / n,
-            to_host_bytes: total.to_host_bytes as f64 / n,
-            read_backs: total.read_backs as f64 / n,
-        }
-    }
-}
-
-/// Latency of one stage, milliseconds.
-#[derive(Debug, Clone, Serialize)]
-pub struct StageReport {
-    pub stage: String,
-    pub count: u64,
-    pub mean_ms: f64,
-    pub p50_ms: f64,
-    pub p99_ms: f64,
-    pub max_ms: f64,
-}
-
-/// Host↔device traffic of one stage, per frame it handled.
-#[derive(Debug, Clone, Serialize)]
-pub struct TrafficReport {
-    pub stage: String,
-    /// Frames the stage handled (a frame dropped later still counts here).
-    pub frames: u64,
-    pub total: HostTraffic,
-}
-
-/// Everything the service counted.
-#[derive(Debug, Clone, Serialize)]
-pub struct Report {
-    pub backend: String,
-    /// "device: …" when frames stay on the GPU from upload to panel, else
-    /// "host: …" and why.
-    pub frame_path: String,
-    pub submitted: u64,
-    pub rejected: Vec<(String, u64)>,
-    pub dropped_queued: u64,
-    pub dropped_at_present: u64,
-    pub presented: u64,
-    pub skipped: u64,
-    pub missed_refreshes: u64,
-    pub dcnn_failures: u64,
-    pub disconnects_mid_frame: u64,
-    pub clients_dropped: u64,
-    pub in_flight_at_stop: u64,
-    pub failed: u64,
-    pub lost_by_sink: u64,
-    pub layers_set: u64,
-    pub layers_refused: u64,
-    pub frames_with_layers: u64,
-    /// (refreshes late against the prediction at submission, frames);
-    /// 0 is on the predicted refresh, negative early.
-    pub shown_vs_predicted: Vec<(i64, u64)>,
-    /// Each submitter's shown frames against their predictions.
-    pub clients: Vec<ClientReport>,
-    pub stages: Vec<StageReport>,
-    /// Host↔device traffic per frame, by stage (the decode and encode
-    /// stages run on the host and move nothing).
-    pub traffic: Vec<TrafficReport>,
-    pub rss_kib: Vec<u64>,
-}
-
-/// One submitter's frames against the display-time predictions (client
-/// 0: in-process submissions).
-#[derive(Debug, Clone, PartialEq, serde::Serialize)]
-pub struct ClientReport {
-    pub client: u64,
-    pub shown: u64,
-    pub on_time: u64,
-    pub late: u64,
-    pub early: u64,
-    /// Mean of (predicted display time − submission), ms: how far ahead of
-    /// the refresh it was predicted for the client submitted.
-    pub mean_lead_ms: f64,
-}
-
-impl Report {
-    /// Host↔device traffic per presented frame: every stage's total over
-    /// the frames presented, so the work on frames dropped on the way is
-    /// charged to the ones shown.
-    pub fn traffic_per_frame(&self) -> HostTrafficMean {
-        let mut total = HostTraffic::default();
-        for t in &self.traffic {
-            total.add(t.total);
-        }
-        HostTrafficMean::of(total, self.presented)
-    }
-
-    fn traffic_line(&self) -> String {
-        let m = self.traffic_per_frame();
-        let parts: Vec<String> = self
-            .traffic
-            .iter()
-            .filter(|t| t.frames > 0)
-            .map(|t| {
-                let m = HostTrafficMean::of(t.total, t.frames);
-                format!(
-                    "{} {:.1} MB up in {:.2} uploads, {:.1} MB down, {:.2} read-backs over {} frames",
-                    t.stage,
-                    m.to_device_bytes / 1e6,
-                    m.uploads,
-                    m.to_host_bytes / 1e6,
-                    m.read_backs,
-                    t.frames
-                )
-            })
-            .collect();
-        format!(
-            "host traffic per presented frame: {:.1} MB to the device in {:.2} uploads, {:.1} MB \
-             back, {:.2} read-backs (per frame each stage handled: {})\n",
-            m.to_device_bytes / 1e6,
-            m.uploads,
-            m.to_host_bytes / 1e6,
-            m.read_backs,
-            if parts.is_empty() {
-                "no device stage".to_string()
-            } else {
-                parts.join("; ")
-            }
-        )
-    }
-
-    pub fn rejected_total(&self) -> u64 {
-        self.rejected.iter().map(|(_, n)| n).sum()
-    }
-
-    /// Every frame in exactly one bucket: the sum of the buckets. Once the
-    /// service has shut down this equals `submitted`; while it runs the
-    /// difference is the frames in flight.
-    pub fn accounted(&self) -> u64 {
-        self.presented
-            + self.rejected_total()
-            + self.dropped_queued
-            + self.dropped_at_present
-            + self.skipped
-            + self.in_flight_at_stop
-            + self.failed
-    }
-
-    /// The human-readable table printed at exit and on SIGUSR1.
-    pub fn table(&self) -> String {
-        let mut s = format!(
-            "frames: {} submitted, {} presented, {} rejected, {} dropped in queues, \
-             {} replaced before a refresh, {} skipped by the sink, {} in flight at stop, \
-             {} failed; {} refreshes missed; preprocess: {} ({} failures)\n",
-            self.submitted,
-            self.presented,
-            self.rejected_total(),
-            self.dropped_queued,
-            self.dropped_at_present,
-            self.skipped,
-            self.in_flight_at_stop,
-            self.failed,
-            self.missed_refreshes,
-            self.backend,
-            self.dcnn_failures
-        );
-        let pending = self.submitted.saturating_sub(self.accounted());
-        if pending > 0 {
-            s += &format!("{pending} frames in the pipeline now\n");
-        }
-        if self.lost_by_sink > 0 {
-            s += &format!(
-                "{} presented frames lost by the sink (not recorded)\n",
-                self.lost_by_sink
-            );
-        }
-        let shown: u64 = self.shown_vs_predicted.iter().map(|&(_, n)| n).sum();
-        if shown > 0 {
-            let parts: Vec<String> = self
-                .shown_vs_predicted
-                .iter()
-                .map(|&(k, n)| {
-                    let at = match k {
-                        0 => "on the predicted refresh".to_string(),
-                        k if k > 0 => format!("{k} late"),
-                        k => format!("{} early", -k),
-                    };
-                    format!("{at} {:.1} %", 100.0 * n as f64 / shown as f64)
-                })
-                .collect();
-            s += &format!("shown vs predicted (refreshes): {}\n", parts.join(", "));
-        }
-        for c in self.clients.iter().filter(|c| c.client != 0) {
-            s += &format!(
-                "client {}: {} shown, {} on the predicted refresh, {} late, {} early; submitted \
-                 {:.1} ms before the predicted display time on average\n",
-                c.client, c.shown, c.on_time, c.late, c.early, c.mean_lead_ms
-            );
-        }
-        if self.layers_set + self.layers_refused > 0 {
-            s += &format!(
-                "layers: {} set, {} refused; {} frames blended with quad layers\n",
-                self.layers_set, self.layers_refused, self.frames_with_layers
-            );
-        }
-        let rejected: Vec<String> = self
-            .rejected
-            .iter()
-            .filter(|(_, n)| *n > 0)
-            .map(|(r, n)| format!("{r} {n}"))
-            .collect();
-        if !rejected.is_empty() {
-            s += &format!("rejected: {}\n", rejected.join(", "));
-        }
-        let e2e = self
-            .stages
-            .iter()
-            .find(|r| r.stage == "end-to-end")
-            .map_or(0.0, |r| r.mean_ms);
-        s += &format!("frame path: {}\n", self.frame_path);
-        s += &self.traffic_line();
-        s += "stage        count     p50 ms     p99 ms     max ms   share of end-to-end\n";
-        for r in &self.stages {
-            // dcnn-gpu is inside dcnn; end-to-end is the whole.
-            let share = if r.stage == "end-to-end" || r.stage == "dcnn-gpu" || e2e <= 0.0 {
-                String::new()
-            } else {
-                format!("{:>5.1} %", 100.0 * r.mean_ms / e2e)
-            };
-            s += &format!(
-                "{:<10} {:>7} {:>10.3} {:>10.3} {:>10.3}   {share}\n",
-                r.stage, r.count, r.p50_ms, r.p99_ms, r.max_ms
-            );
-        }
-        s
-    }
 }

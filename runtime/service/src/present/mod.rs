@@ -47,17 +47,23 @@ impl DeviceDisplayFrame {
         let (w, h) = (self.width, self.height);
         let row_bytes = 4 * self.row_texels as u64;
         let bytes = row_bytes * h as u64;
-        if (self.row_texels as usize) < w || self.codes.size() < bytes {
+        if (self.row_texels as usize) < w
+            || self.codes.size() < bytes
+            || !self.codes.usage().contains(wgpu::BufferUsages::COPY_SRC)
+        {
             return Err(PresentError::frame(
                 "device frame",
                 format!(
-                    "frame {}: {} bytes of codes at {} texels a row for {w}×{h}",
+                    "frame {}: {} bytes of codes ({:?}) at {} texels a row for {w}×{h}",
                     self.id,
                     self.codes.size(),
+                    self.codes.usage(),
                     self.row_texels
                 ),
             ));
         }
+        let stage = "device frame read-back";
+        let scope = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
         let staging = self.device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("panel codes read-back"),
             size: bytes,
@@ -71,7 +77,12 @@ impl DeviceDisplayFrame {
             });
         encoder.copy_buffer_to_buffer(&self.codes, 0, &staging, 0, bytes);
         self.queue.submit([encoder.finish()]);
-        let stage = "device frame read-back";
+        if let Some(e) = pollster::block_on(scope.pop()) {
+            return Err(PresentError::Gpu {
+                stage,
+                source: e.into(),
+            });
+        }
         nedrt_gpu::map_and_wait(&self.device, &staging).map_err(PresentError::gpu(stage))?;
         let rgba8 = nedrt_gpu::read_mapped(&staging, |b| {
             b.chunks_exact(row_bytes as usize)

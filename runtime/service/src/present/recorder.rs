@@ -121,6 +121,7 @@ impl Sink for RecorderSink {
     /// Codes on a device are read back first (one read-back, counted).
     fn present(&mut self, frame: PanelCodes<'_>) -> Result<Presented, PresentError> {
         let tx = self.tx.as_ref().ok_or_else(|| err("already finished"))?;
+        self.traffic = HostTraffic::default();
         let (frame, traffic) = match frame {
             PanelCodes::Host(f) => (f.clone(), HostTraffic::default()),
             PanelCodes::Device(f) => (f.to_host()?, f.read_back_traffic()),

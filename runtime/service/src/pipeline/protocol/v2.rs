@@ -274,7 +274,22 @@ impl HeaderV2 {
                     "placement kind {p} (0 pixels, 1 degrees)"
                 )));
             }
-            (2, _) => Layer::Remove { layer },
+            (2, 0)
+                if z == 0
+                    && u64_at(60) == 0
+                    && u16_at(6) == 0
+                    && u64_at(8) == 0
+                    && u64_at(32) == 0
+                    && u64_at(40) == 0 =>
+            {
+                Layer::Remove { layer }
+            }
+            (2, _) => {
+                return Err(Malformed(
+                    "a removal has only a layer id (format, size, payload, placement, z, x, y must be 0)"
+                        .into(),
+                ));
+            }
             (k, _) => {
                 return Err(Malformed(format!(
                     "layer kind {k} (0 projection, 1 quad, 2 remove a quad)"
@@ -398,8 +413,12 @@ mod tests {
         fn headers_round_trip(format in 0u16..8, w in any::<u32>(), h in any::<u32>(),
                               id in any::<u64>(), t in any::<u64>(), off in any::<u64>(),
                               len in any::<u64>(), view in any::<u8>(), layer in layer()) {
-            let header = HeaderV2 { format, width: w, height: h, frame_id: id, capture_ns: t,
-                                    offset: off, length: len, view, layer };
+            let header = match layer {
+                // A removal carries only its layer id.
+                Layer::Remove { layer } => HeaderV2::remove(view, layer, id),
+                _ => HeaderV2 { format, width: w, height: h, frame_id: id, capture_ns: t,
+                                offset: off, length: len, view, layer },
+            };
             prop_assert_eq!(HeaderV2::parse(&header.to_bytes()), Ok(header));
         }
 
@@ -444,6 +463,14 @@ mod tests {
         assert!(with(50, 2).contains("placement kind 2"));
         assert!(with(51, 1).contains("reserved"));
         assert!(with(4, 1).contains("version 1 on a version 2"));
+        let mut removal = HeaderV2::remove(0, 3, 9).to_bytes();
+        removal[40] = 1;
+        assert!(
+            HeaderV2::parse(&removal)
+                .expect_err("a payload")
+                .0
+                .contains("only a layer id")
+        );
         let mut projection =
             HeaderV2::projection(0, PixelFormat::Rgba8Linear, (2, 2), 1, 0).to_bytes();
         projection[56] = 1;

@@ -104,7 +104,7 @@ impl Compositor {
         use std::sync::atomic::Ordering::Relaxed;
         let placed = quad
             .place(&self.view)
-            .and_then(|q| self.layers.set(self.owner, q));
+            .and_then(|q| self.layers.set(self.owner, q, self.layer_texel_budget()));
         match placed {
             Ok(()) => {
                 self.stats.layers_set.fetch_add(1, Relaxed);
@@ -124,6 +124,12 @@ impl Compositor {
         self.stats
             .layers_refused
             .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    }
+
+    /// The texels a view's quads may hold in all: twice the view's pixels
+    /// (the host keeps them as f32, the device binds them in one buffer).
+    pub fn layer_texel_budget(&self) -> usize {
+        2 * self.view.width * self.view.height
     }
 
     /// Removes this owner's layer `layer`; whether it was there.

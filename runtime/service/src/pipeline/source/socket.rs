@@ -35,7 +35,13 @@ pub const REPLY_DEADLINE: Duration = Duration::from_secs(2);
 pub struct SocketSource {
     path: PathBuf,
     shm_dir: PathBuf,
+    /// The socket file this source made (device, inode), once listening:
+    /// only that one is removed at the end, never another service's.
+    made: Option<(u64, u64)>,
 }
+
+/// The longest socket path Linux takes (`sun_path` is 108 bytes with its NUL).
+const MAX_SOCKET_PATH: usize = 107;
 
 impl SocketSource {
     /// Checks `path` and `shm_dir` now, so that a bad one is an error before
@@ -66,25 +72,41 @@ impl SocketSource {
             std::fs::remove_file(path)
                 .map_err(|e| fail(format!("cannot remove the stale socket: {e}")))?;
         }
-        // Whether it can listen there at all (a missing folder, no
-        // permission): found now, not when the source starts.
-        let parent = path.parent().filter(|p| !p.as_os_str().is_empty());
-        if let Some(dir) = parent
-            && !dir.is_dir()
-        {
+        // Whether it can listen there at all (a path too long, a missing
+        // folder, no permission): found now, not when the source starts.
+        use std::os::unix::ffi::OsStrExt;
+        if path.as_os_str().as_bytes().len() > MAX_SOCKET_PATH {
+            return Err(fail(format!(
+                "cannot listen: {} bytes; a socket path holds at most {MAX_SOCKET_PATH}",
+                path.as_os_str().as_bytes().len()
+            )));
+        }
+        let dir = path
+            .parent()
+            .filter(|p| !p.as_os_str().is_empty())
+            .unwrap_or(Path::new("."));
+        if !dir.is_dir() {
             return Err(fail(format!(
                 "cannot listen: folder {} does not exist",
+                dir.display()
+            )));
+        }
+        let access = rustix::fs::Access::WRITE_OK | rustix::fs::Access::EXEC_OK;
+        if let Err(e) = rustix::fs::access(dir, access) {
+            return Err(fail(format!(
+                "cannot listen: folder {} is not writable ({e})",
                 dir.display()
             )));
         }
         Ok(Self {
             path: path.to_path_buf(),
             shm_dir: shm_dir.to_path_buf(),
+            made: None,
         })
     }
 
     /// Starts listening (the source's first act).
-    fn listen(&self) -> Result<UnixListener, SourceError> {
+    fn listen(&mut self) -> Result<UnixListener, SourceError> {
         let fail = |reason: String| SourceError::Socket {
             path: self.path.clone(),
             reason,
@@ -94,14 +116,24 @@ impl SocketSource {
         listener
             .set_nonblocking(true)
             .map_err(|e| fail(e.to_string()))?;
+        self.made = std::fs::symlink_metadata(&self.path).ok().map(|m| {
+            use std::os::unix::fs::MetadataExt;
+            (m.dev(), m.ino())
+        });
         tracing::info!("listening on {}", self.path.display());
         Ok(listener)
     }
 }
 
 impl Drop for SocketSource {
+    /// Removes the socket this source made, if the path still names it.
     fn drop(&mut self) {
-        let _ = std::fs::remove_file(&self.path);
+        use std::os::unix::fs::MetadataExt;
+        let still_ours = std::fs::symlink_metadata(&self.path)
+            .is_ok_and(|m| self.made == Some((m.dev(), m.ino())));
+        if still_ours {
+            let _ = std::fs::remove_file(&self.path);
+        }
     }
 }
 
@@ -520,5 +552,36 @@ mod tests {
             .expect_err("fifo")
             .to_string();
         assert!(e.contains("not a regular file"), "{e}");
+    }
+
+    #[test]
+    fn a_source_that_loses_the_race_for_its_path_leaves_the_winners_socket() {
+        let dir = tempfile::tempdir().expect("tmp");
+        let path = dir.path().join("s.sock");
+        let shm = dir.path();
+        // Both checked before either listens (two services started at once).
+        let mut winner = SocketSource::bind(&path, shm).expect("checked");
+        let mut loser = SocketSource::bind(&path, shm).expect("checked");
+        let _listener = winner.listen().expect("listens");
+        let e = loser.listen().expect_err("taken").to_string();
+        assert!(e.contains("cannot listen"), "{e}");
+        drop(loser);
+        assert!(path.exists(), "the loser removed the winner's socket");
+        // A third finds a live service there at once.
+        let e = SocketSource::bind(&path, shm)
+            .expect_err("live")
+            .to_string();
+        assert!(e.contains("another service is listening there"), "{e}");
+        drop(winner);
+        assert!(!path.exists(), "the winner removes its own socket");
+        let long = dir.path().join("x".repeat(120));
+        let e = SocketSource::bind(&long, shm)
+            .expect_err("too long")
+            .to_string();
+        assert!(e.contains("a socket path holds at most 107"), "{e}");
+        let e = SocketSource::bind(&dir.path().join("no/such/s.sock"), shm)
+            .expect_err("no folder")
+            .to_string();
+        assert!(e.contains("does not exist"), "{e}");
     }
 }

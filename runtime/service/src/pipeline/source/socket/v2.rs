@@ -76,9 +76,18 @@ pub fn admit(
         detail,
         frame: None,
     };
-    let hd = HeaderV2::parse(header).map_err(|m| match header[48] {
-        1 | 2 => layer_refused(m.0),
-        _ => frame(RejectReason::Malformed, m.0),
+    // A header that is not version 2's (magic, version) or of no known kind
+    // is malformed whatever it claims to be; a quad's or removal's own
+    // fields that are wrong refuse that layer.
+    let is_layer = header[0..4] == crate::pipeline::protocol::FRAME_MAGIC
+        && header[4..6] == crate::pipeline::protocol::v2::VERSION_2.to_le_bytes()
+        && matches!(header[48], 1 | 2);
+    let hd = HeaderV2::parse(header).map_err(|m| {
+        if is_layer {
+            layer_refused(m.0)
+        } else {
+            frame(RejectReason::Malformed, m.0)
+        }
     })?;
     if hd.view >= views {
         let detail = format!(
