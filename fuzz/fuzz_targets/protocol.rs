@@ -8,10 +8,10 @@
 #![no_main]
 
 use libfuzzer_sys::fuzz_target;
-use nedrt_service::pipeline::frame::{self, SubmittedFrame};
 use nedrt_service::compose::{QuadLayer, ViewGeometry, blend};
-use nedrt_service::pipeline::protocol::{HEADER_LEN, HELLO_LEN, Hello, valid_shm_name};
+use nedrt_service::pipeline::frame::{self, SubmittedFrame};
 use nedrt_service::pipeline::protocol::v2::{HEADER_V2_LEN, VERSION_2};
+use nedrt_service::pipeline::protocol::{HEADER_LEN, HELLO_LEN, Hello, valid_shm_name};
 use nedrt_service::pipeline::source::socket::admit;
 use nedrt_service::pipeline::source::socket::v2::{self, AdmittedV2};
 
@@ -47,22 +47,27 @@ fuzz_target!(|data: &[u8]| {
             .ok()
             .and_then(|o| shm.get(o..o.checked_add(req.length)?))
         {
-            check_frame(payload, req.format, req.capture_ns);
+            check_frame(payload, req.format, req.capture_ns, PANEL);
         }
     }
 });
 
 /// The frame a payload of the input makes, checked as the pipeline does.
-fn check_frame(payload: &[u8], format: frame::PixelFormat, capture_ns: u64) {
+fn check_frame(
+    payload: &[u8],
+    format: frame::PixelFormat,
+    capture_ns: u64,
+    (w, h): (usize, usize),
+) {
     let submitted = SubmittedFrame {
         id: 0,
         capture_ns,
-        width: PANEL.0,
-        height: PANEL.1,
+        width: w,
+        height: h,
         format,
         payload: payload.to_vec(),
     };
-    if frame::validate(&submitted, PANEL.0, PANEL.1).is_ok() {
+    if frame::validate(&submitted, w, h).is_ok() {
         let image = frame::decode(&submitted);
         assert!(image.data().iter().all(|v| (0.0..=1.0).contains(v)));
     }
@@ -71,15 +76,12 @@ fn check_frame(payload: &[u8], format: frame::PixelFormat, capture_ns: u64) {
 /// Version 2 headers: projections as version 1's frames, quads decoded,
 /// checked, placed and blended (the composition stays in [0, 1]).
 fn version_2(shm: &[u8], shm_size: u64) {
-    let view = ViewGeometry {
-        width: PANEL.0,
-        height: PANEL.1,
-        pixels_per_tan: 4597.7,
-    };
     let mut headers = shm;
     while let Some((header, next)) = headers.split_first_chunk::<HEADER_V2_LEN>() {
         headers = next;
-        let Ok(admitted) = v2::admit(header, PANEL, 1, shm_size) else {
+        // The panel as two views side by side: every path of the check.
+        let views = [(PANEL.0 / 2, PANEL.1), (PANEL.0 - PANEL.0 / 2, PANEL.1)];
+        let Ok(admitted) = v2::admit(header, PANEL, &views, shm_size) else {
             continue;
         };
         let slice = |offset: u64, length: usize| {
@@ -88,12 +90,14 @@ fn version_2(shm: &[u8], shm_size: u64) {
                 .and_then(|o| shm.get(o..o.checked_add(length)?))
         };
         match admitted {
-            AdmittedV2::Projection(req) => {
+            AdmittedV2::Projection { view, frame: req } => {
+                let size = view.map_or(PANEL, |v| views[usize::from(v)]);
                 if let Some(payload) = slice(req.offset, req.length) {
-                    check_frame(payload, req.format, req.capture_ns);
+                    check_frame(payload, req.format, req.capture_ns, size);
                 }
             }
             AdmittedV2::Quad {
+                view,
                 layer,
                 z,
                 placement,
@@ -114,8 +118,14 @@ fn version_2(shm: &[u8], shm_size: u64) {
                     height,
                     rgba: format.decode(payload),
                 };
-                if let Ok(placed) = quad.place(&view) {
-                    let mut im = nedrt_core::Image::rgb(PANEL.0, PANEL.1, vec![1.0; 3 * PANEL.0 * PANEL.1]);
+                let (vw, vh) = views[usize::from(view)];
+                let geometry = ViewGeometry {
+                    width: vw,
+                    height: vh,
+                    pixels_per_tan: 4597.7,
+                };
+                if let Ok(placed) = quad.place(&geometry) {
+                    let mut im = nedrt_core::Image::rgb(vw, vh, vec![1.0; 3 * vw * vh]);
                     blend(&mut im, &[placed]).expect("one quad");
                     assert!(im.data().iter().all(|v| (0.0..=1.0 + 1e-5).contains(v)));
                 }

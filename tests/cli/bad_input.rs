@@ -1215,7 +1215,7 @@ fn version_2_rows(panel: (usize, usize), shm: u64) -> Vec<(&'static str, String,
     let admit_v2 = |h: HeaderV2, patch: fn(&mut [u8; 72])| {
         let mut b = h.to_bytes();
         patch(&mut b);
-        v2::admit(&b, panel, 1, shm)
+        v2::admit(&b, panel, &[panel], shm)
             .expect_err("refused")
             .to_string()
     };

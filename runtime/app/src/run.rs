@@ -71,6 +71,7 @@ pub fn run(
         transfer: Transfer::from_panel(p),
         // A pixel subtends pitch / distance at the eyepiece.
         pixels_per_tan: calib.lens_distance_m / calib.pixel_pitch_m,
+        views: Vec::new(),
     };
     let (w, h) = (panel.width as u32, panel.height as u32);
     // Output folders are checked before anything runs, not after.

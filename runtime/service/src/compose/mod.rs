@@ -39,6 +39,37 @@ pub enum Placement {
     Degrees { x_deg: f64, y_deg: f64 },
 }
 
+/// Where a view (an eye) lies on the panel, in panel pixels: side by side
+/// on one panel, or each on its own panel of a pair driven as one frame.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+pub struct ViewRegion {
+    pub x: usize,
+    pub y: usize,
+    pub width: usize,
+    pub height: usize,
+}
+
+impl ViewRegion {
+    /// The two halves of a `width`×`height` panel, left eye first.
+    pub fn side_by_side(width: usize, height: usize) -> [ViewRegion; 2] {
+        let half = width / 2;
+        [
+            ViewRegion {
+                x: 0,
+                y: 0,
+                width: half,
+                height,
+            },
+            ViewRegion {
+                x: half,
+                y: 0,
+                width: width - half,
+                height,
+            },
+        ]
+    }
+}
+
 /// What a quad is placed on: the view's size, and how directions map to
 /// its pixels.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -153,6 +184,8 @@ pub enum LayerError {
          ±90°)"
     )]
     Direction { layer: u32, x_deg: f64, y_deg: f64 },
+    #[error("layer {layer}: view {view} (this service runs {views} view(s))")]
+    UnknownView { layer: u32, view: u8, views: usize },
 }
 
 /// Premultiplied colour may exceed its alpha by this much (8-bit rounding

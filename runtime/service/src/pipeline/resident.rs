@@ -43,6 +43,9 @@ pub enum DeviceInput {
     Client(SubmittedFrame),
     /// Planes a host stage made from it.
     Planar(Image),
+    /// Each view's newest planes (two views on one panel); these go
+    /// through the host (`service::views`).
+    Views(Vec<crate::pipeline::service::ViewImage>),
 }
 
 /// The device side of the resident path for one panel size.
@@ -256,6 +259,9 @@ impl DeviceFrames {
             DeviceInput::Client(f) if (f.width, f.height) != (w, h) => {
                 return Err(err(format!("{}×{} frame for {w}×{h}", f.width, f.height)));
             }
+            DeviceInput::Views(_) => {
+                return Err(err("frames of two views go through the host"));
+            }
             DeviceInput::Planar(im) if (im.width, im.height, im.channels()) != (w, h, 3) => {
                 return Err(err(format!(
                     "{}×{} frame of {} planes for {w}×{h}×3",
@@ -333,6 +339,8 @@ impl DeviceFrames {
                     .write_buffer(&self.frame, 0, bytemuck::cast_slice(im.data()));
                 std::mem::size_of_val(im.data())
             }
+            // Refused by `run` before anything is recorded.
+            DeviceInput::Views(_) => 0,
         };
         let mut layer_traffic = HostTraffic::default();
         self.last_blended = false;

@@ -26,6 +26,7 @@ mod compositor;
 mod control;
 mod engine;
 mod stages;
+mod views;
 
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -34,19 +35,20 @@ use std::thread::JoinHandle;
 use crossbeam_channel::Receiver;
 
 use super::channel::newest_channel;
-use super::frame::SubmittedFrame;
 use super::pacing::{Clock, DisplaySchedule, NewestSlot, Pacer};
 use super::resident::{DeviceFrames, DeviceInput};
 use super::stats::{RSS_EVERY, Report, ShownFrame, Stage, Stats};
-use crate::compose::{LayerSet, ViewGeometry};
+use crate::compose::{LayerSet, ViewGeometry, ViewRegion};
 use crate::present::transfer::Transfer;
 use crate::present::{DisplayFrame, PanelFrame, PresentError, Presented, Sink};
 pub use compositor::Compositor;
-use compositor::Timed;
+use compositor::{Submission, Timed, ViewSlot};
 pub use control::Control;
 use engine::{Engine, Processed, UploadWork, decode_with_layers, host_stage};
 use stages::switch_to_fallback;
 pub use stages::{DcnnStage, FallbackFactory, HostPrep, HostWork, ResidentStage};
+pub use views::ViewImage;
+use views::{ViewEngines, ViewsUpload};
 
 /// The panel the service drives.
 #[derive(Debug, Clone)]
@@ -58,6 +60,9 @@ pub struct PanelConfig {
     /// Pixels per unit of tan(angle) seen through the eyepiece, to place
     /// quad layers given in degrees ([`crate::compose::ViewGeometry`]).
     pub pixels_per_tan: f64,
+    /// The views on the panel, each its own eyepiece and preprocessing;
+    /// empty: one view, the whole panel.
+    pub views: Vec<ViewRegion>,
 }
 
 /// A running pipeline.
@@ -160,6 +165,24 @@ impl Service {
         Self::start_with(panel, engine, Some(host), clock)
     }
 
+    /// Starts the host path with one engine per view of `panel.views` (two
+    /// eyes; [`views`]): each view's frames, quads and preprocessing are
+    /// its own, and the panel shows them side by side.
+    pub fn start_views(
+        panel: PanelConfig,
+        stages: Vec<DcnnStage>,
+        clock: Arc<dyn Clock>,
+    ) -> std::io::Result<Self> {
+        if panel.views.len() != stages.len() || stages.is_empty() {
+            return Err(std::io::Error::new(
+                std::io::ErrorKind::InvalidInput,
+                format!("{} engines for {} views", stages.len(), panel.views.len()),
+            ));
+        }
+        let engines = ViewEngines::new((panel.width, panel.height), panel.views.clone(), stages);
+        Self::start_with(panel, Engine::Views(Box::new(engines)), None, clock)
+    }
+
     /// `host`: the resident path's host stage (`Some(None)`: the resident
     /// path without one); `None`: the host path.
     fn start_with(
@@ -181,7 +204,19 @@ impl Service {
             ),
         };
         let queued = stats.dropped_queued.clone();
-        let (ingest_tx, ingest_rx) = newest_channel(1, queued.clone());
+        let regions = if panel.views.is_empty() {
+            vec![ViewRegion {
+                x: 0,
+                y: 0,
+                width: panel.width,
+                height: panel.height,
+            }]
+        } else {
+            panel.views.clone()
+        };
+        // A frame of each view may wait: one view's stream does not evict
+        // the other's newest.
+        let (ingest_tx, ingest_rx) = newest_channel(regions.len(), queued.clone());
         let (upload_tx, upload_rx) = newest_channel(1, queued.clone());
         let (dcnn_tx, dcnn_rx) = newest_channel(1, queued.clone());
         let slot = Arc::new(NewestSlot::<Timed<PanelFrame>>::new());
@@ -196,17 +231,39 @@ impl Service {
         // Quads are blended where the frame first is planes: on the host
         // after the decode, or on the device after the unpack of a frame
         // uploaded as it came.
-        let layers = Arc::new(LayerSet::default());
+        let slots: Vec<ViewSlot> = regions
+            .iter()
+            .map(|&region| ViewSlot {
+                region,
+                geometry: ViewGeometry {
+                    width: region.width,
+                    height: region.height,
+                    pixels_per_tan: panel.pixels_per_tan,
+                },
+                layers: Arc::new(LayerSet::default()),
+            })
+            .collect();
+        let layers = slots[0].layers.clone();
         engine.attach_layers(layers.clone());
         let mut upload: UploadWork = match host {
+            None if !panel.views.is_empty() => {
+                let mut views = ViewsUpload::new(
+                    regions.clone(),
+                    slots.iter().map(|s| s.layers.clone()).collect(),
+                );
+                Box::new(move |(view, f), stats| views.take(view, &f, stats))
+            }
             None => {
                 let layers = layers.clone();
-                Box::new(move |f, stats| {
+                Box::new(move |(_, f), stats| {
                     Some(DeviceInput::Planar(decode_with_layers(&f, &layers, stats)))
                 })
             }
-            Some(None) => Box::new(|f, _| Some(DeviceInput::Client(f))),
-            Some(Some(prep)) => Box::new(host_stage(prep, layers.clone())),
+            Some(None) => Box::new(|(_, f), _| Some(DeviceInput::Client(f))),
+            Some(Some(prep)) => {
+                let mut stage = host_stage(prep, layers.clone());
+                Box::new(move |(_, f), stats| stage(f, stats))
+            }
         };
         threads.push(spawn_stage(
             "upload",
@@ -214,7 +271,7 @@ impl Service {
             ingest_rx,
             move |t| upload_tx.send(t),
             context.clone(),
-            move |_, f: SubmittedFrame, stats| upload(f, stats),
+            move |_, f: Submission, stats| upload(f, stats),
         )?);
         threads.push(spawn_stage(
             "dcnn",
@@ -268,12 +325,7 @@ impl Service {
             clock: clock.clone(),
             width: panel.width,
             height: panel.height,
-            layers,
-            view: ViewGeometry {
-                width: panel.width,
-                height: panel.height,
-                pixels_per_tan: panel.pixels_per_tan,
-            },
+            views: slots.into(),
             owner: 0,
         };
         Ok(Self {

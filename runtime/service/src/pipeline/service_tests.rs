@@ -2,7 +2,7 @@
 //! backend failure, rejection counting, delivery order.
 
 use super::*;
-use crate::pipeline::frame::{PixelFormat, RejectReason};
+use crate::pipeline::frame::{PixelFormat, RejectReason, SubmittedFrame};
 use crate::pipeline::pacing::SystemClock;
 use crate::present::{PanelCodes, Presented};
 use nedrt_core::Image;
@@ -65,6 +65,7 @@ fn panel() -> PanelConfig {
         height: 2,
         refresh_hz: 1000.0,
         pixels_per_tan: 1000.0,
+        views: Vec::new(),
         transfer: Transfer::from_gamma([1.0, 1.0, 1.0]),
     }
 }
@@ -353,4 +354,103 @@ fn quad_layers_are_blended_over_every_frame_until_their_owner_removes_them() {
     assert_eq!(row(&shown[2], 1), vec![51, 51, 51, 51]);
     assert_eq!((report.layers_set, report.layers_refused), (2, 1));
     assert_eq!(report.frames_with_layers, 2);
+}
+
+#[test]
+fn two_views_each_get_their_frames_layers_and_engine_on_one_panel() {
+    use crate::compose::{Placement, QuadLayer, ViewRegion};
+    let mut config = panel();
+    config.views = ViewRegion::side_by_side(4, 2).to_vec();
+    // View 0 shows its frames as they are; view 1 inverts (another design).
+    let stages = vec![
+        DcnnStage {
+            primary: Box::new(Identity),
+            fallback: None,
+        },
+        DcnnStage {
+            primary: Box::new(Failing { ok: usize::MAX }),
+            fallback: None,
+        },
+    ];
+    let mut service = Service::start_views(config, stages, Arc::new(SystemClock)).expect("start");
+    let compositor = service.compositor().expect("open");
+    service.close_ingest();
+    let stats = service.stats().clone();
+    let view_frame = |id, v: u8| SubmittedFrame {
+        id,
+        capture_ns: 0,
+        width: 2,
+        height: 2,
+        format: PixelFormat::Rgba8Linear,
+        payload: vec![v; 16],
+    };
+    let feeder = std::thread::spawn(move || {
+        let wait_for = |n: u64| {
+            let t = std::time::Instant::now();
+            while stats.presented.load(Ordering::Relaxed) + stats.rejected_total() < n {
+                assert!(t.elapsed().as_secs() < 30, "frame {n} never arrived");
+                std::thread::sleep(std::time::Duration::from_millis(1));
+            }
+        };
+        // Left 0.2; the right eye has had no frame yet: black.
+        compositor.submit_view(0, view_frame(1, 51)).expect("left");
+        wait_for(1);
+        // Right 0.4, under a quad of its own (opaque 0.6 on its pixel (1, 0)).
+        compositor
+            .submit_layer_on(
+                1,
+                QuadLayer {
+                    layer: 1,
+                    z: 0,
+                    placement: Placement::Pixels { x: 1, y: 0 },
+                    width: 1,
+                    height: 1,
+                    rgba: vec![0.6, 0.6, 0.6, 1.0],
+                },
+            )
+            .expect("inside view 1");
+        compositor
+            .submit_view(1, view_frame(2, 102))
+            .expect("right");
+        wait_for(2);
+        // A frame of view 1's size is refused for a view that is not there,
+        // and a panel-sized frame for one view.
+        assert!(compositor.submit_view(2, view_frame(3, 0)).is_err());
+        assert!(compositor.submit_view(0, grey(4, 0)).is_err());
+        // A panel-sized frame feeds both views.
+        compositor.submit(grey(5, 153)).expect("both");
+        wait_for(5);
+    });
+    let mut sink = Collect::default();
+    service
+        .present_loop(&mut sink, &Control::default())
+        .expect("present");
+    feeder.join().expect("feeder");
+    let report = service.shutdown();
+    assert_eq!(report.presented, 3);
+    assert_eq!(report.rejected_total(), 2);
+    let rows = |f: &DisplayFrame| -> Vec<Vec<u8>> {
+        (0..2)
+            .map(|y| (0..4).map(|x| f.rgba8[4 * (4 * y + x)]).collect())
+            .collect()
+    };
+    let shown: Vec<_> = sink.0.iter().map(rows).collect();
+    // Frame 1: the left eye's 0.2; no frame for the right yet: black (its
+    // engine is not run on nothing).
+    assert_eq!(shown[0], vec![vec![51, 51, 0, 0], vec![51, 51, 0, 0]]);
+    // Frame 2: the right eye's 0.4 with its quad's 0.6, inverted by its own
+    // engine; the left eye keeps its frame.
+    assert_eq!(
+        shown[1],
+        vec![vec![51, 51, 153, 102], vec![51, 51, 153, 153]]
+    );
+    // Frame 5: one panel-sized frame of 0.6 for both eyes.
+    assert_eq!(
+        shown[2],
+        vec![vec![153, 153, 102, 102], vec![153, 153, 102, 102]]
+    );
+    assert_eq!(report.view_stages.len(), 2);
+    // The left engine ran for frames 1 and 5 only (frame 2 left it as it was).
+    assert_eq!(report.view_stages[0].count, 2);
+    assert_eq!(report.view_stages[1].count, 2);
 }

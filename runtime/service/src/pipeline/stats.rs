@@ -105,6 +105,9 @@ pub struct Stats {
     /// Host↔device traffic of the sink's presented frames.
     pub present_traffic: TrafficCounter,
     histograms: [Mutex<Histogram>; 7],
+    /// Each view's engine time, where the panel has two views (a view's
+    /// share of `dcnn`; a view whose image did not change is not run).
+    view_dcnn: [Mutex<Histogram>; 2],
     /// Resident set size samples (KiB) taken every `RSS_EVERY` presents.
     rss_kib: Mutex<Vec<u64>>,
     pub backend: Mutex<String>,
@@ -207,6 +210,13 @@ impl Stats {
             .sum()
     }
 
+    /// View `view`'s engine took `ns`.
+    pub fn record_view(&self, view: usize, ns: u64) {
+        if let Some(h) = self.view_dcnn.get(view) {
+            h.lock().unwrap_or_else(|p| p.into_inner()).record_ns(ns);
+        }
+    }
+
     pub fn record(&self, stage: Stage, ns: u64) {
         self.histograms[stage.index()]
             .lock()
@@ -300,6 +310,22 @@ impl Stats {
                         p99_ms: h.quantile_ns(0.99) as f64 / 1e6,
                         max_ms: h.max_ns() as f64 / 1e6,
                     }
+                })
+                .collect(),
+            view_stages: self
+                .view_dcnn
+                .iter()
+                .enumerate()
+                .filter_map(|(v, h)| {
+                    let h = h.lock().unwrap_or_else(|p| p.into_inner());
+                    (h.count() > 0).then(|| StageReport {
+                        stage: format!("dcnn view {v}"),
+                        count: h.count(),
+                        mean_ms: h.mean_ns() / 1e6,
+                        p50_ms: h.quantile_ns(0.5) as f64 / 1e6,
+                        p99_ms: h.quantile_ns(0.99) as f64 / 1e6,
+                        max_ms: h.max_ns() as f64 / 1e6,
+                    })
                 })
                 .collect(),
             traffic: vec![

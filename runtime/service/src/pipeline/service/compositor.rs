@@ -4,7 +4,7 @@
 
 use std::sync::Arc;
 
-use crate::compose::{LayerError, LayerSet, QuadLayer, ViewGeometry};
+use crate::compose::{LayerError, LayerSet, QuadLayer, ViewGeometry, ViewRegion};
 use crate::pipeline::channel::NewestSender;
 use crate::pipeline::frame::{FrameError, SubmittedFrame, validate};
 use crate::pipeline::pacing::{Clock, DisplaySchedule};
@@ -29,18 +29,30 @@ pub(super) struct Timed<T> {
     pub(super) ready_ns: u64,
 }
 
+/// A submission: a frame for one view, or (`None`) a panel-sized frame.
+pub(super) type Submission = (Option<u8>, SubmittedFrame);
+
+/// A view of the panel as submitters see it: where it lies, how quads are
+/// placed on it, and its quads.
+#[derive(Debug)]
+pub(super) struct ViewSlot {
+    pub(super) region: ViewRegion,
+    pub(super) geometry: ViewGeometry,
+    pub(super) layers: Arc<LayerSet>,
+}
+
 /// The in-process API: submit frames to a running service. Cheap to clone;
 /// the pipeline runs until every clone is dropped (or the service stops).
 #[derive(Debug, Clone)]
 pub struct Compositor {
-    pub(super) tx: NewestSender<Timed<SubmittedFrame>>,
+    pub(super) tx: NewestSender<Timed<Submission>>,
     pub(super) stats: Arc<Stats>,
     pub(super) clock: Arc<dyn Clock>,
     pub(super) width: usize,
     pub(super) height: usize,
-    pub(super) layers: Arc<LayerSet>,
     pub(super) schedule: Arc<DisplaySchedule>,
-    pub(super) view: ViewGeometry,
+    /// One view (the whole panel), or a headset's two eyes.
+    pub(super) views: Arc<[ViewSlot]>,
     /// Whose layers this handle sets: each client of the socket has its
     /// own; in-process callers share 0 unless they ask for one.
     pub(super) owner: u64,
@@ -51,9 +63,41 @@ impl Compositor {
     /// here, on the caller's thread, so the caller learns why at once.
     /// Never blocks on the pipeline: a full queue drops its oldest frame.
     pub fn submit(&self, frame: SubmittedFrame) -> Result<(), FrameError> {
+        self.submit_to(None, frame)
+    }
+
+    /// As [`Compositor::submit`], a frame of view `view`'s size for that
+    /// view alone (on a one-view panel, view 0 is the panel).
+    pub fn submit_view(&self, view: u8, frame: SubmittedFrame) -> Result<(), FrameError> {
+        if self.views.len() == 1 && view == 0 {
+            return self.submit_to(None, frame);
+        }
+        self.submit_to(Some(view), frame)
+    }
+
+    fn submit_to(&self, view: Option<u8>, frame: SubmittedFrame) -> Result<(), FrameError> {
         use std::sync::atomic::Ordering::Relaxed;
         self.stats.submitted.fetch_add(1, Relaxed);
-        if let Err(e) = validate(&frame, self.width, self.height) {
+        let size = match view {
+            None => Some((self.width, self.height)),
+            Some(v) => self
+                .views
+                .get(usize::from(v))
+                .map(|s| (s.region.width, s.region.height)),
+        };
+        let checked = match size {
+            Some((w, h)) => validate(&frame, w, h),
+            None => Err(FrameError {
+                id: frame.id,
+                reason: crate::pipeline::frame::RejectReason::UnknownView,
+                detail: format!(
+                    "view {} (this service runs {} views)",
+                    view.unwrap_or(0),
+                    self.views.len()
+                ),
+            }),
+        };
+        if let Err(e) = checked {
             self.stats.reject(e.reason);
             tracing::warn!("{e}");
             return Err(e);
@@ -66,7 +110,7 @@ impl Compositor {
         };
         self.tx.send(Timed {
             id: frame.id,
-            item: frame,
+            item: (view, frame),
             start_ns,
             work_ns: 0,
             owner: self.owner,
@@ -97,14 +141,27 @@ impl Compositor {
         }
     }
 
-    /// Checks and places `quad` on the view and makes it this owner's
-    /// layer `quad.layer` from the next frame on (replacing an older
-    /// submission of it). Refused and counted when it is bad.
+    /// Checks and places `quad` on view 0 and makes it this owner's layer
+    /// `quad.layer` from the next frame on (replacing an older submission
+    /// of it). Refused and counted when it is bad.
     pub fn submit_layer(&self, quad: QuadLayer) -> Result<(), LayerError> {
+        self.submit_layer_on(0, quad)
+    }
+
+    /// As [`Compositor::submit_layer`], on view `view`.
+    pub fn submit_layer_on(&self, view: u8, quad: QuadLayer) -> Result<(), LayerError> {
         use std::sync::atomic::Ordering::Relaxed;
-        let placed = quad
-            .place(&self.view)
-            .and_then(|q| self.layers.set(self.owner, q, self.layer_texel_budget()));
+        let placed = match self.views.get(usize::from(view)) {
+            Some(slot) => quad.place(&slot.geometry).and_then(|q| {
+                let budget = 2 * slot.region.width * slot.region.height;
+                slot.layers.set(self.owner, q, budget)
+            }),
+            None => Err(LayerError::UnknownView {
+                layer: quad.layer,
+                view,
+                views: self.views.len(),
+            }),
+        };
         match placed {
             Ok(()) => {
                 self.stats.layers_set.fetch_add(1, Relaxed);
@@ -126,25 +183,42 @@ impl Compositor {
             .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
     }
 
-    /// The texels a view's quads may hold in all: twice the view's pixels
-    /// (the host keeps them as f32, the device binds them in one buffer).
-    pub fn layer_texel_budget(&self) -> usize {
-        2 * self.view.width * self.view.height
-    }
-
-    /// Removes this owner's layer `layer`; whether it was there.
+    /// Removes this owner's layer `layer` of view 0; whether it was there.
     pub fn remove_layer(&self, layer: u32) -> bool {
-        self.layers.remove(self.owner, layer)
+        self.remove_layer_on(0, layer)
     }
 
-    /// Removes every layer of this owner (a client that left); how many.
+    /// Removes this owner's layer `layer` of view `view`.
+    pub fn remove_layer_on(&self, view: u8, layer: u32) -> bool {
+        self.views
+            .get(usize::from(view))
+            .is_some_and(|v| v.layers.remove(self.owner, layer))
+    }
+
+    /// Removes every layer of this owner on every view (a client that
+    /// left); how many.
     pub fn remove_owner_layers(&self) -> usize {
-        self.layers.remove_owner(self.owner)
+        self.views
+            .iter()
+            .map(|v| v.layers.remove_owner(self.owner))
+            .sum()
     }
 
-    /// What quads are placed on.
+    /// What quads are placed on: view 0.
     pub fn view(&self) -> ViewGeometry {
-        self.view
+        self.views[0].geometry
+    }
+
+    /// The views the service runs: 1, or 2 (a headset's eyes).
+    pub fn view_count(&self) -> usize {
+        self.views.len()
+    }
+
+    /// View `view`'s size, if there is one.
+    pub fn view_size(&self, view: u8) -> Option<(usize, usize)> {
+        self.views
+            .get(usize::from(view))
+            .map(|v| (v.region.width, v.region.height))
     }
 
     /// The panel's resolution, which every frame must have.

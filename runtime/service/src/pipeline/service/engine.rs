@@ -17,6 +17,8 @@ use std::sync::Arc;
 /// The dcnn stage's engine: on the host, or on the sink's device.
 pub(super) enum Engine {
     Host(DcnnStage, Option<Arc<LayerSet>>),
+    /// Each view its own engine, on the host.
+    Views(Box<super::views::ViewEngines>),
     Device {
         frames: Box<DeviceFrames>,
         fallback: Option<FallbackFactory>,
@@ -56,6 +58,8 @@ fn host_image(input: DeviceInput, layers: Option<&LayerSet>, stats: &Stats) -> I
         (DeviceInput::Client(f), Some(layers)) => decode_with_layers(&f, layers, stats),
         (DeviceInput::Client(f), None) => decode(&f),
         (DeviceInput::Planar(im), _) => im,
+        // Only the views' engine takes these.
+        (DeviceInput::Views(_), _) => Image::zeros(0, 0, 3),
     }
 }
 
@@ -63,6 +67,7 @@ impl Engine {
     pub(super) fn describe(&self) -> String {
         match self {
             Engine::Host(d, _) => d.primary.describe(),
+            Engine::Views(v) => v.describe(),
             Engine::Device { frames, .. } => frames.describe(),
         }
     }
@@ -71,6 +76,8 @@ impl Engine {
     pub(super) fn attach_layers(&mut self, set: Arc<LayerSet>) {
         match self {
             Engine::Host(_, layers) => *layers = Some(set),
+            // Each view's layers are blended in the upload stage.
+            Engine::Views(_) => {}
             Engine::Device { frames, layers, .. } => {
                 frames.attach_layers(set.clone());
                 *layers = Some(set);
@@ -114,6 +121,13 @@ impl Engine {
                 }
             }
         }
+        if let Engine::Views(views) = self {
+            let DeviceInput::Views(images) = input else {
+                tracing::error!("frame {id} is not of views");
+                return None;
+            };
+            return views.run(&images, stats).map(Processed::Host);
+        }
         let Engine::Host(dcnn, layers) = self else {
             return None;
         };
@@ -123,7 +137,8 @@ impl Engine {
 }
 
 /// The upload stage's work on a frame.
-pub(super) type UploadWork = Box<dyn FnMut(SubmittedFrame, &Stats) -> Option<DeviceInput> + Send>;
+pub(super) type UploadWork =
+    Box<dyn FnMut(super::Submission, &Stats) -> Option<DeviceInput> + Send>;
 
 /// The upload stage of the device path with a host stage: as the host
 /// path treats its engine, a frame the stage refuses is `failed`, and an

@@ -374,9 +374,13 @@ fn submit_frame(
     compositor: &Compositor,
     shm: &std::fs::File,
     id: u64,
+    view: Option<u8>,
     req: &Admitted,
 ) -> (u32, String) {
-    let (w, h) = compositor.panel_size();
+    let (w, h) = match view {
+        Some(v) => compositor.view_size(v).unwrap_or((0, 0)),
+        None => compositor.panel_size(),
+    };
     let mut payload = vec![0u8; req.length];
     match shm.read_exact_at(&mut payload, req.offset) {
         Err(e) => {
@@ -384,14 +388,20 @@ fn submit_frame(
             compositor.reject_before_submit(RejectReason::Truncated, id, &detail);
             (RejectReason::Truncated.code(), detail)
         }
-        Ok(()) => match compositor.submit(SubmittedFrame {
-            id,
-            capture_ns: req.capture_ns,
-            width: w,
-            height: h,
-            format: req.format,
-            payload,
-        }) {
+        Ok(()) => match {
+            let frame = SubmittedFrame {
+                id,
+                capture_ns: req.capture_ns,
+                width: w,
+                height: h,
+                format: req.format,
+                payload,
+            };
+            match view {
+                Some(v) => compositor.submit_view(v, frame),
+                None => compositor.submit(frame),
+            }
+        } {
             Ok(()) => (STATUS_OK, String::new()),
             Err(e) => (e.reason.code(), e.detail),
         },
@@ -480,7 +490,7 @@ fn serve(
                 compositor.reject_before_submit(e.reason, id, &e.detail);
                 (e.reason.code(), e.detail)
             }
-            Ok(req) => submit_frame(compositor, &shm, id, &req),
+            Ok(req) => submit_frame(compositor, &shm, id, None, &req),
         };
         if let Err(e) = reply(&mut stream, status, id, message) {
             if matches!(e.kind(), ErrorKind::BrokenPipe | ErrorKind::ConnectionReset) {

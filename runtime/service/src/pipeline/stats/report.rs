@@ -79,6 +79,8 @@ pub struct Report {
     /// Each submitter's shown frames against their predictions.
     pub clients: Vec<ClientReport>,
     pub stages: Vec<StageReport>,
+    /// Each view's engine (two views on the panel; empty for one).
+    pub view_stages: Vec<StageReport>,
     /// Host↔device traffic per frame, by stage (the decode and encode
     /// stages run on the host and move nothing).
     pub traffic: Vec<TrafficReport>,
@@ -245,6 +247,13 @@ impl Report {
             };
             s += &format!(
                 "{:<10} {:>7} {:>10.3} {:>10.3} {:>10.3}   {share}\n",
+                r.stage, r.count, r.p50_ms, r.p99_ms, r.max_ms
+            );
+        }
+        // Inside dcnn, each view's engine where it ran.
+        for r in &self.view_stages {
+            s += &format!(
+                "  {:<10} {:>5} {:>10.3} {:>10.3} {:>10.3}\n",
                 r.stage, r.count, r.p50_ms, r.p99_ms, r.max_ms
             );
         }

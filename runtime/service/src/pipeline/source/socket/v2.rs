@@ -19,14 +19,20 @@ use crate::pipeline::protocol::v2::{
 use crate::pipeline::protocol::{Reply, STATUS_OK};
 use crate::pipeline::service::Compositor;
 
-/// Views a service runs today (one: mono).
-pub const VIEWS: u8 = 1;
+/// The view byte of a panel-sized projection frame for every view.
+pub const ALL_VIEWS: u8 = 255;
 
 /// A version 2 submission the service accepted.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum AdmittedV2 {
-    Projection(Admitted),
+    /// A projection frame for view `view` (`None`: a panel-sized frame for
+    /// every view).
+    Projection {
+        view: Option<u8>,
+        frame: Admitted,
+    },
     Quad {
+        view: u8,
         layer: u32,
         z: i32,
         placement: Placement,
@@ -37,6 +43,7 @@ pub enum AdmittedV2 {
         length: usize,
     },
     Remove {
+        view: u8,
         layer: u32,
     },
 }
@@ -53,12 +60,13 @@ pub struct Refusal {
     pub frame: Option<RejectReason>,
 }
 
-/// Checks a version 2 header against views of `view_size` (`views` of
-/// them) and a `shm_size`-byte shared memory, before any payload is read.
+/// Checks a version 2 header against a `panel`-sized panel whose views
+/// have `view_sizes` (one view: the panel) and a `shm_size`-byte shared
+/// memory, before any payload is read.
 pub fn admit(
     header: &[u8; HEADER_V2_LEN],
-    view_size: (usize, usize),
-    views: u8,
+    panel: (usize, usize),
+    view_sizes: &[(usize, usize)],
     shm_size: u64,
 ) -> Result<AdmittedV2, Refusal> {
     let mut id_bytes = [0u8; 8];
@@ -89,18 +97,29 @@ pub fn admit(
             frame(RejectReason::Malformed, m.0)
         }
     })?;
-    if hd.view >= views {
-        let detail = format!(
-            "view {} (this service runs {views} view{}: 0{})",
-            hd.view,
-            if views == 1 { "" } else { "s" },
-            if views == 2 { " left, 1 right" } else { "" }
-        );
-        return Err(match hd.layer {
-            Layer::Projection => frame(RejectReason::UnknownView, detail),
-            _ => layer_refused(detail),
-        });
-    }
+    let views = view_sizes.len();
+    let all = hd.view == ALL_VIEWS && hd.layer == Layer::Projection;
+    let view_size = match view_sizes.get(usize::from(hd.view)) {
+        _ if all => panel,
+        Some(&size) => size,
+        None => {
+            let detail = format!(
+                "view {} (this service runs {views} view{}: 0{}{})",
+                hd.view,
+                if views == 1 { "" } else { "s" },
+                if views == 2 { " left, 1 right" } else { "" },
+                if hd.layer == Layer::Projection {
+                    ", or 255 for a panel-sized frame of every view"
+                } else {
+                    ""
+                }
+            );
+            return Err(match hd.layer {
+                Layer::Projection => frame(RejectReason::UnknownView, detail),
+                _ => layer_refused(detail),
+            });
+        }
+    };
     let outside = |length: u64| {
         hd.offset
             .checked_add(length)
@@ -131,18 +150,23 @@ pub fn admit(
             if let Some(detail) = outside(hd.length) {
                 return Err(frame(RejectReason::Truncated, detail));
             }
-            Ok(AdmittedV2::Projection(Admitted {
-                format,
-                capture_ns: hd.capture_ns,
-                offset: hd.offset,
-                length: hd.length as usize,
-            }))
+            Ok(AdmittedV2::Projection {
+                // One view's frame on a one-view panel is the panel's.
+                view: (!all && views > 1).then_some(hd.view),
+                frame: Admitted {
+                    format,
+                    capture_ns: hd.capture_ns,
+                    offset: hd.offset,
+                    length: hd.length as usize,
+                },
+            })
         }
         Layer::Quad {
             layer,
             z,
             placement,
         } => {
+            let view = hd.view;
             let format = QuadFormat::from_code(hd.format).ok_or_else(|| {
                 layer_refused(format!(
                     "layer {layer}: texel format {} (4 RGBA8, 5 RGBA f32; premultiplied linear)",
@@ -169,6 +193,7 @@ pub fn admit(
                 return Err(layer_refused(format!("layer {layer}: {detail}")));
             }
             Ok(AdmittedV2::Quad {
+                view,
                 layer,
                 z,
                 placement,
@@ -179,7 +204,10 @@ pub fn admit(
                 length: hd.length as usize,
             })
         }
-        Layer::Remove { layer } => Ok(AdmittedV2::Remove { layer }),
+        Layer::Remove { layer } => Ok(AdmittedV2::Remove {
+            view: hd.view,
+            layer,
+        }),
     }
 }
 
@@ -191,8 +219,9 @@ fn handle(
     admitted: AdmittedV2,
 ) -> (u32, String) {
     match admitted {
-        AdmittedV2::Projection(req) => submit_frame(compositor, shm, id, &req),
+        AdmittedV2::Projection { view, frame } => submit_frame(compositor, shm, id, view, &frame),
         AdmittedV2::Quad {
+            view,
             layer,
             z,
             placement,
@@ -218,13 +247,13 @@ fn handle(
                 height,
                 rgba: format.decode(&payload),
             };
-            match compositor.submit_layer(quad) {
+            match compositor.submit_layer_on(view, quad) {
                 Ok(()) => (STATUS_OK, String::new()),
                 Err(e) => (STATUS_BAD_LAYER, e.to_string()),
             }
         }
-        AdmittedV2::Remove { layer } => {
-            if compositor.remove_layer(layer) {
+        AdmittedV2::Remove { view, layer } => {
+            if compositor.remove_layer_on(view, layer) {
                 (STATUS_OK, String::new())
             } else {
                 compositor.count_layer_refused();
@@ -247,6 +276,10 @@ pub(super) fn serve(
     stop: &AtomicBool,
 ) -> std::io::Result<()> {
     let (w, h) = compositor.panel_size();
+    let views = compositor.view_count();
+    let view_sizes: Vec<(usize, usize)> = (0..views)
+        .map(|v| compositor.view_size(v as u8).unwrap_or((w, h)))
+        .collect();
     let reply = |stream: &mut UnixStream, status: u32, frame_id: u64, message: String| {
         let r = ReplyV2 {
             reply: Reply {
@@ -258,11 +291,20 @@ pub(super) fn serve(
             },
             predicted_display_ns: compositor.predicted_display_ns(),
             refresh_period_ns: compositor.refresh_period_ns(),
-            views: u16::from(VIEWS),
+            views: views as u16,
         };
         write_all_until(stream, &r.to_bytes(), stop, REPLY_DEADLINE)
     };
-    reply(stream, STATUS_OK, 0, format!("panel {w}×{h}, {VIEWS} view"))?;
+    let shape = match view_sizes.as_slice() {
+        [_] => "1 view".to_string(),
+        sizes => sizes
+            .iter()
+            .enumerate()
+            .map(|(v, (vw, vh))| format!("view {v} {vw}×{vh}"))
+            .collect::<Vec<_>>()
+            .join(", "),
+    };
+    reply(stream, STATUS_OK, 0, format!("panel {w}×{h}, {shape}"))?;
     loop {
         let mut header = [0u8; HEADER_V2_LEN];
         match read_full(stream, &mut header, stop)? {
@@ -274,7 +316,7 @@ pub(super) fn serve(
                 return Ok(());
             }
         }
-        let (id, status, message) = match admit(&header, (w, h), VIEWS, shm_size) {
+        let (id, status, message) = match admit(&header, (w, h), &view_sizes, shm_size) {
             Err(r) => {
                 match r.frame {
                     Some(reason) => compositor.reject_before_submit(reason, r.id, &r.detail),
