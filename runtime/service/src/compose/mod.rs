@@ -70,6 +70,14 @@ impl ViewRegion {
     }
 }
 
+/// A view's newest planes (its projection with its quads blended) and a
+/// number that changes with them (0: no frame yet).
+#[derive(Debug, Clone)]
+pub struct ViewImage {
+    pub generation: u64,
+    pub image: std::sync::Arc<Image>,
+}
+
 /// What a quad is placed on: the view's size, and how directions map to
 /// its pixels.
 #[derive(Debug, Clone, Copy, PartialEq)]

@@ -45,7 +45,7 @@ pub enum DeviceInput {
     Planar(Image),
     /// Each view's newest planes (two views on one panel); these go
     /// through the host (`service::views`).
-    Views(Vec<crate::pipeline::service::ViewImage>),
+    Views(Vec<crate::compose::ViewImage>),
 }
 
 /// The device side of the resident path for one panel size.

@@ -47,7 +47,6 @@ pub use control::Control;
 use engine::{Engine, Processed, UploadWork, decode_with_layers, host_stage};
 use stages::switch_to_fallback;
 pub use stages::{DcnnStage, FallbackFactory, HostPrep, HostWork, ResidentStage};
-pub use views::ViewImage;
 use views::{ViewEngines, ViewsUpload};
 
 /// The panel the service drives.

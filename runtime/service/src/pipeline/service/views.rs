@@ -14,17 +14,10 @@ use std::sync::Arc;
 use std::sync::atomic::Ordering::Relaxed;
 
 use super::{DcnnStage, Stats};
-use crate::compose::{LayerSet, ViewRegion, blend};
+use crate::compose::{LayerSet, ViewImage, ViewRegion, blend};
 use crate::pipeline::frame::{SubmittedFrame, decode};
 use crate::pipeline::resident::DeviceInput;
 use nedrt_core::Image;
-
-/// A view's newest planes and a number that changes with them.
-#[derive(Debug, Clone)]
-pub struct ViewImage {
-    pub generation: u64,
-    pub image: Arc<Image>,
-}
 
 /// The upload stage's state with views.
 #[derive(Debug)]

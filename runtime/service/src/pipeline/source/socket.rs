@@ -388,7 +388,7 @@ fn submit_frame(
             compositor.reject_before_submit(RejectReason::Truncated, id, &detail);
             (RejectReason::Truncated.code(), detail)
         }
-        Ok(()) => match {
+        Ok(()) => {
             let frame = SubmittedFrame {
                 id,
                 capture_ns: req.capture_ns,
@@ -397,14 +397,15 @@ fn submit_frame(
                 format: req.format,
                 payload,
             };
-            match view {
+            let submitted = match view {
                 Some(v) => compositor.submit_view(v, frame),
                 None => compositor.submit(frame),
+            };
+            match submitted {
+                Ok(()) => (STATUS_OK, String::new()),
+                Err(e) => (e.reason.code(), e.detail),
             }
-        } {
-            Ok(()) => (STATUS_OK, String::new()),
-            Err(e) => (e.reason.code(), e.detail),
-        },
+        }
     }
 }
 
