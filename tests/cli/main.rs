@@ -9,6 +9,7 @@ mod eval;
 mod prefilter;
 mod run;
 mod sim;
+mod stereo;
 mod studies;
 mod view;
 #[path = "../common/xwd.rs"]

@@ -7,6 +7,7 @@ mod engines;
 mod faults;
 mod options;
 mod serve;
+mod views;
 
 use std::sync::Arc;
 
@@ -141,6 +142,20 @@ pub fn run(
             Some((method, Arc::new(prepared.wiener_filter(method, k_reg)?)))
         }
     };
+    // Two views: each eye's engine, built (and its design checked) before
+    // the sink opens.
+    let views = if opts.stereo || !calib.views.is_empty() {
+        Some(views::views(
+            common,
+            opts,
+            &calib,
+            (panel.width, panel.height),
+            &stage,
+            model.as_ref(),
+        )?)
+    } else {
+        None
+    };
     let precision = dcnn.backend_options.precision;
     // The sink, and a GPU for the D-CNN to share with it.
     let (sink, device): (Box<dyn Sink>, _) = match opts.sink {
@@ -157,6 +172,19 @@ pub fn run(
         }
         SinkKind::Record => (Box::new(RecorderSink::new(&opts.record_dir)?), None),
     };
+    if let Some(views) = views {
+        let mut panel = panel;
+        panel.views = views.iter().map(|v| v.region).collect();
+        return serve(
+            opts,
+            control,
+            panel,
+            clock,
+            source,
+            sink,
+            Pipeline::Views(views),
+        );
+    }
     // The resident path where the sink and the engine allow it.
     let host_reason = match (&device, &model) {
         _ if opts.frame_path == FramePath::Host => Some("--frame-path host".to_string()),

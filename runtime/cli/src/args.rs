@@ -276,6 +276,11 @@ pub struct RunArgs {
     /// backend fails as a lost GPU does after N frames.
     #[arg(long, value_name = "N", hide = true)]
     pub inject_device_loss_after: Option<u64>,
+    /// Two views, a headset's eyes: the calibration's [[view]] tables (each
+    /// eye its region and design), else the panel's left and right halves
+    /// with this run's system. Frames go through the host.
+    #[arg(long)]
+    pub stereo: bool,
 }
 
 #[derive(Args, Debug)]

@@ -179,6 +179,7 @@ pub fn run(cli: Cli) -> Result<()> {
                 panel_size: None,
                 report_json: a.report_json,
                 inject_device_loss_after: a.inject_device_loss_after,
+                stereo: a.stereo,
             };
             let report = app::run::run(&common, &opts, &control)?;
             print!("{}", report.table());

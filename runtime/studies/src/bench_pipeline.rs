@@ -165,6 +165,7 @@ pub fn run(
                 panel_size: Some((w, h)),
                 report_json: None,
                 inject_device_loss_after: None,
+                stereo: false,
             };
             let (report, prepare_s) = run_case(&case, &opts, b.max_seconds)?;
             let stage = |name: &str| report.stages.iter().find(|s| s.stage == name).cloned();

@@ -160,4 +160,8 @@ pub struct RunOptions {
     /// Fault injection: the D-CNN backend fails, as a lost GPU makes it
     /// fail, from this frame on (0: the first).
     pub inject_device_loss_after: Option<u64>,
+    /// Two views (a headset's eyes): the calibration's `[[view]]` tables,
+    /// or the panel's halves with the run's own system. A calibration with
+    /// views runs them whether or not this is set.
+    pub stereo: bool,
 }

@@ -25,6 +25,8 @@ pub(super) enum Pipeline {
     },
     /// Frames on the sink's device.
     Resident(Box<ResidentStage>),
+    /// Two views, each its own engine, through the host.
+    Views(Vec<super::views::View>),
 }
 
 /// Starts the pipeline with its preprocessing, runs it to the end and
@@ -54,6 +56,33 @@ pub(super) fn serve(
                     .unwrap_or_else(|p| p.into_inner()) = format!("host: {reason}");
             }
             (service, what)
+        }
+        Pipeline::Views(views) => {
+            let what = views
+                .iter()
+                .map(|v| {
+                    format!(
+                        "{} ({}×{} at {}, {}): {}",
+                        v.name,
+                        v.region.width,
+                        v.region.height,
+                        v.region.x,
+                        v.region.y,
+                        v.stage.primary.describe()
+                    )
+                })
+                .collect::<Vec<_>>()
+                .join("; ");
+            let stages = views.into_iter().map(|v| v.stage).collect();
+            let service = Service::start_views(panel, stages, clock);
+            if let Ok(s) = &service {
+                *s.stats()
+                    .frame_path
+                    .lock()
+                    .unwrap_or_else(|p| p.into_inner()) =
+                    "host: two views, each its engine on the CPU".into();
+            }
+            (service, format!("two views, {what}"))
         }
         Pipeline::Resident(resident) => {
             let what = match &resident.host {

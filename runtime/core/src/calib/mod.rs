@@ -5,6 +5,7 @@
 mod eye;
 mod raw;
 mod validate;
+pub mod views;
 
 pub use eye::{EyeLca, EyeOverrides, EyeSettings, EyeStop, thibos_refraction_d};
 
@@ -124,6 +125,9 @@ pub struct Calibration {
     pub panel: PanelSettings,
     /// The viewer's eye (docs/model.md §4a); the default is the paper's.
     pub eye: EyeSettings,
+    /// The headset's views (`[[view]]`): where each eye's image lies on the
+    /// panel and its design; empty: one view, the whole panel.
+    pub views: Vec<views::ViewSettings>,
 }
 
 /// Largest panel side the runtime accepts (pixels): a guard against typos

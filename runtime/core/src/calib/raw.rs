@@ -20,6 +20,9 @@ pub struct RawCalibration {
     /// Optional: a file without `[eye]` has the paper's eye.
     #[serde(default)]
     pub eye: RawEye,
+    /// Optional: the headset's views (`[[view]]`); none: one, the panel.
+    #[serde(default)]
+    pub view: Vec<super::views::RawView>,
 }
 
 #[derive(Debug, Clone, Deserialize)]

@@ -204,6 +204,7 @@ impl Calibration {
         };
 
         let eye = eye::resolve(&raw.eye, name)?;
+        let views = super::views::resolve(&raw.view, (p.width_px, p.height_px), name)?;
 
         let calib = Calibration {
             source: name.to_string(),
@@ -240,6 +241,7 @@ impl Calibration {
             },
             panel,
             eye,
+            views,
         };
         eye::check_sees_light(&calib, name)?;
         Ok(calib)

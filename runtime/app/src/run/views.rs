@@ -1,0 +1,97 @@
+//! `nedrt run` with two views (a headset's eyes, issue 33): each eye its
+//! region of the panel and its own preprocessing, built from its design
+//! (`[[view]]` in the calibration; without tables, the panel's halves and
+//! the run's own system). On the host path: the service's `start_views`.
+
+use std::sync::Arc;
+
+use super::engines::{behind, linear_preprocessor};
+use super::{AppError, CommonOptions, RunOptions};
+use crate::design::Design;
+use nedrt_core::calib::Calibration;
+use nedrt_core::preprocess::Preprocess;
+use nedrt_infer::{BackendKind, Dcnn, ModelFile};
+use nedrt_optics::sim::Method;
+use nedrt_optics::sim::wiener::WienerFilter;
+use nedrt_service::compose::ViewRegion;
+use nedrt_service::pipeline::service::DcnnStage;
+
+/// A view of the run: its name, region and preprocessing.
+pub(super) struct View {
+    pub name: String,
+    pub region: ViewRegion,
+    pub stage: DcnnStage,
+}
+
+/// The views of `calib` (or the halves of a `width`×`height` panel), each
+/// with its engine. A view's design sets its DOE and Wiener K; the D-CNN
+/// methods run the network co-designed with its own DOE, so a view's design
+/// there is refused rather than ignored.
+pub(super) fn views(
+    common: &CommonOptions,
+    opts: &RunOptions,
+    calib: &Calibration,
+    (width, height): (usize, usize),
+    wiener_stage: &Option<(Method, Arc<WienerFilter>)>,
+    model: Option<&ModelFile>,
+) -> Result<Vec<View>, AppError> {
+    let layout: Vec<(String, ViewRegion, Option<String>)> = if calib.views.is_empty() {
+        let [left, right] = ViewRegion::side_by_side(width, height);
+        vec![("left".into(), left, None), ("right".into(), right, None)]
+    } else {
+        calib
+            .views
+            .iter()
+            .map(|v| {
+                let [x, y, w, h] = v.region_px;
+                let region = ViewRegion {
+                    x,
+                    y,
+                    width: w,
+                    height: h,
+                };
+                (v.name.clone(), region, v.design.clone())
+            })
+            .collect()
+    };
+    let mut out = Vec::new();
+    for (name, region, design) in layout {
+        let primary: Box<dyn Preprocess> = match (model, design.as_deref()) {
+            (Some(_), Some(d)) => {
+                return Err(AppError::Conflict(format!(
+                    "view {name:?}: design {d:?} with --preprocess {}: a D-CNN runs on the DOE it \
+                     was trained with; a view's design needs a method without a network \
+                     (doe+wiener, doe-only)",
+                    opts.preprocess
+                )));
+            }
+            (Some(model), None) => {
+                // Each eye its own engine on the host (tract, or ORT when chosen).
+                let kind = match common.dcnn.backend {
+                    BackendKind::Wgpu => BackendKind::Cpu,
+                    other => other,
+                };
+                let dcnn = Dcnn::from_model(model.clone(), kind, &common.dcnn.backend_options)?;
+                behind(wiener_stage, Box::new(dcnn))
+            }
+            (None, design) => {
+                let mut c = common.clone();
+                if let Some(d) = design {
+                    let d = Design::resolve(d)?;
+                    c.doe = Some(d.doe.clone());
+                    c.design = Some(d);
+                }
+                linear_preprocessor(&c, opts.preprocess, opts.prefilter)?
+            }
+        };
+        out.push(View {
+            name,
+            region,
+            stage: DcnnStage {
+                primary,
+                fallback: None,
+            },
+        });
+    }
+    Ok(out)
+}
