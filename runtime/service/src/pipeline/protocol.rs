@@ -265,6 +265,9 @@ pub struct Client {
     /// Version 2: the last reply's prediction of when a frame submitted
     /// now is shown, the refresh period, and the views the service runs.
     pub timing: Option<v2::ReplyV2>,
+    /// Version 2: where each view lies on the panel (x, y, width, height),
+    /// from the welcome.
+    pub views: Vec<[usize; 4]>,
 }
 
 impl Client {
@@ -339,6 +342,7 @@ impl Client {
             shm,
             shm_size,
             panel: (welcome.panel_width as usize, welcome.panel_height as usize),
+            views: v2::view_regions(&welcome.message),
             version,
             timing,
         })

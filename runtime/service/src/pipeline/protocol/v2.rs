@@ -310,6 +310,38 @@ impl HeaderV2 {
     }
 }
 
+/// The welcome's message: the panel and where each view lies on it,
+/// `panel 64×48; view 0 at 0,0 32×48; view 1 at 32,0 32×48` (read back by
+/// [`view_regions`]).
+pub fn welcome_message((w, h): (usize, usize), regions: &[[usize; 4]]) -> String {
+    let mut s = format!("panel {w}×{h}");
+    for (v, [x, y, vw, vh]) in regions.iter().enumerate() {
+        s += &format!("; view {v} at {x},{y} {vw}×{vh}");
+    }
+    s
+}
+
+/// The views of a welcome's message ([`welcome_message`]): x, y, width,
+/// height of each, in view order; empty if it names none.
+pub fn view_regions(message: &str) -> Vec<[usize; 4]> {
+    message
+        .split("; ")
+        .filter_map(|part| {
+            let rest = part.strip_prefix("view ")?;
+            let (_, rest) = rest.split_once(" at ")?;
+            let (xy, size) = rest.split_once(' ')?;
+            let (x, y) = xy.split_once(',')?;
+            let (w, h) = size.split_once('×')?;
+            Some([
+                x.parse().ok()?,
+                y.parse().ok()?,
+                w.parse().ok()?,
+                h.parse().ok()?,
+            ])
+        })
+        .collect()
+}
+
 /// A version 2 reply: version 1's reply and the pacer's timing.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct ReplyV2 {
@@ -439,6 +471,15 @@ mod tests {
             };
             prop_assert_eq!(ReplyV2::read_from(&mut r.to_bytes().as_slice()).ok(), Some(r));
         }
+    }
+
+    #[test]
+    fn the_welcome_names_each_view_and_reads_back() {
+        let regions = [[0, 0, 32, 48], [32, 0, 32, 48]];
+        let m = welcome_message((64, 48), &regions);
+        assert_eq!(m, "panel 64×48; view 0 at 0,0 32×48; view 1 at 32,0 32×48");
+        assert_eq!(view_regions(&m), regions.to_vec());
+        assert!(view_regions("panel 64×48").is_empty());
     }
 
     #[test]

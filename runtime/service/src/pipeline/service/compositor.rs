@@ -214,6 +214,13 @@ impl Compositor {
         self.views.len()
     }
 
+    /// Where view `view` lies on the panel: x, y, width, height.
+    pub fn view_region(&self, view: u8) -> Option<[usize; 4]> {
+        self.views
+            .get(usize::from(view))
+            .map(|v| [v.region.x, v.region.y, v.region.width, v.region.height])
+    }
+
     /// View `view`'s size, if there is one.
     pub fn view_size(&self, view: u8) -> Option<(usize, usize)> {
         self.views

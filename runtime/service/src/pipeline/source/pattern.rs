@@ -1,7 +1,10 @@
 //! A synthetic moving test pattern: colour ramps, a fine checkerboard
 //! (the panel's Nyquist detail, where preprocessing matters most) and a
 //! white bar sweeping one eighth of the width per second, so dropped or
-//! stale frames are visible at a glance.
+//! stale frames are visible at a glance. On a panel with two views it is
+//! drawn per eye, each view its own frame, the right eye's bar a few pixels
+//! to the left of the left eye's (a crossed disparity: the bar floats in
+//! front of the pattern).
 
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -41,10 +44,28 @@ impl PatternSource {
 
 /// Frame `id` of the pattern as RGBA8 (linear values).
 pub fn pattern_rgba8(width: usize, height: usize, id: u64, rate_hz: f64) -> Vec<u8> {
+    pattern_rgba8_shifted(width, height, id, rate_hz, 0)
+}
+
+/// The bar's disparity between the eyes, pixels: 1/64 of a view's width.
+pub fn stereo_disparity_px(view_width: usize) -> usize {
+    (view_width / 64).max(1)
+}
+
+/// As [`pattern_rgba8`] with the bar `shift` pixels to the left (the right
+/// eye's view of it).
+pub fn pattern_rgba8_shifted(
+    width: usize,
+    height: usize,
+    id: u64,
+    rate_hz: f64,
+    shift: usize,
+) -> Vec<u8> {
     let mut out = vec![255u8; 4 * width * height];
     let per_second = if rate_hz > 0.0 { rate_hz } else { 90.0 };
     let bar_w = (width / 16).max(1);
-    let bar_x = ((id as f64 / per_second) * width as f64 / 8.0) as usize % width.max(1);
+    let sweep = ((id as f64 / per_second) * width as f64 / 8.0) as usize;
+    let bar_x = (sweep + width.max(1) - shift % width.max(1)) % width.max(1);
     for y in 0..height {
         for x in 0..width {
             let px = &mut out[4 * (y * width + x)..4 * (y * width + x) + 4];
@@ -73,6 +94,9 @@ impl Source for PatternSource {
     }
 
     fn run(&mut self, compositor: Compositor, stop: &AtomicBool) -> Result<u64, SourceError> {
+        if compositor.view_count() > 1 {
+            return self.run_views(&compositor, stop);
+        }
         let mut id = 0;
         while self.count.is_none_or(|n| id < n) && !stop.load(Ordering::Relaxed) {
             let capture_ns = self.rate.wait();
@@ -85,6 +109,40 @@ impl Source for PatternSource {
                 payload: pattern_rgba8(self.width, self.height, id, self.rate_hz),
             });
             id += 1;
+        }
+        Ok(id)
+    }
+}
+
+impl PatternSource {
+    /// Each tick a frame per view (ids count submissions); `count` ticks.
+    fn run_views(
+        &mut self,
+        compositor: &Compositor,
+        stop: &AtomicBool,
+    ) -> Result<u64, SourceError> {
+        let (mut tick, mut id) = (0, 0);
+        while self.count.is_none_or(|n| tick < n) && !stop.load(Ordering::Relaxed) {
+            let capture_ns = self.rate.wait();
+            for v in 0..compositor.view_count() as u8 {
+                let Some((w, h)) = compositor.view_size(v) else {
+                    continue;
+                };
+                let shift = usize::from(v) * stereo_disparity_px(w);
+                let _ = compositor.submit_view(
+                    v,
+                    SubmittedFrame {
+                        id,
+                        capture_ns,
+                        width: w,
+                        height: h,
+                        format: PixelFormat::Rgba8Linear,
+                        payload: pattern_rgba8_shifted(w, h, tick, self.rate_hz, shift),
+                    },
+                );
+                id += 1;
+            }
+            tick += 1;
         }
         Ok(id)
     }

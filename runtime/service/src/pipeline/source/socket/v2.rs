@@ -14,7 +14,7 @@ use super::{Admitted, Fill, REPLY_DEADLINE, read_full, submit_frame, write_all_u
 use crate::compose::{Placement, QuadLayer};
 use crate::pipeline::frame::{PixelFormat, RejectReason, check_shape};
 use crate::pipeline::protocol::v2::{
-    HEADER_V2_LEN, HeaderV2, Layer, QuadFormat, ReplyV2, STATUS_BAD_LAYER,
+    HEADER_V2_LEN, HeaderV2, Layer, QuadFormat, ReplyV2, STATUS_BAD_LAYER, welcome_message,
 };
 use crate::pipeline::protocol::{Reply, STATUS_OK};
 use crate::pipeline::service::Compositor;
@@ -295,16 +295,10 @@ pub(super) fn serve(
         };
         write_all_until(stream, &r.to_bytes(), stop, REPLY_DEADLINE)
     };
-    let shape = match view_sizes.as_slice() {
-        [_] => "1 view".to_string(),
-        sizes => sizes
-            .iter()
-            .enumerate()
-            .map(|(v, (vw, vh))| format!("view {v} {vw}×{vh}"))
-            .collect::<Vec<_>>()
-            .join(", "),
-    };
-    reply(stream, STATUS_OK, 0, format!("panel {w}×{h}, {shape}"))?;
+    let regions: Vec<[usize; 4]> = (0..views)
+        .map(|v| compositor.view_region(v as u8).unwrap_or([0, 0, w, h]))
+        .collect();
+    reply(stream, STATUS_OK, 0, welcome_message((w, h), &regions))?;
     loop {
         let mut header = [0u8; HEADER_V2_LEN];
         match read_full(stream, &mut header, stop)? {
