@@ -357,6 +357,10 @@ pub struct BenchArgs {
     /// pipeline: the panel's size, WIDTHxHEIGHT (default: the calibration's).
     #[arg(long, value_parser = parse_size, value_name = "WxH")]
     pub panel: Option<(usize, usize)>,
+    /// pipeline: two views (eyes) side by side, each of the --panel size
+    /// (or the calibration's): a panel twice as wide; each eye's engine time.
+    #[arg(long)]
+    pub stereo: bool,
     /// Folder for the exact inputs, for the numpy side.
     #[arg(long, default_value = "out/bench", value_name = "DIR")]
     pub dump: PathBuf,

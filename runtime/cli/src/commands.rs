@@ -219,6 +219,7 @@ pub fn run(cli: Cli) -> Result<()> {
                     max_seconds: a.max_seconds,
                     panel_size: a.panel,
                     dump: a.dump,
+                    stereo: a.stereo,
                 };
                 let table =
                     studies::bench_pipeline::run(&bench, &common, &mut |r| println!("{r}"))?;

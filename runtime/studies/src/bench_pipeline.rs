@@ -88,6 +88,9 @@ pub struct PipelineBench {
     pub panel_size: Option<(usize, usize)>,
     /// Where the synthetic networks are written.
     pub dump: PathBuf,
+    /// Two views side by side, each of the panel's size (a panel twice as
+    /// wide), each eye its engine; the table adds each eye's engine time.
+    pub stereo: bool,
 }
 
 /// Runs every case, handing each result to `on_record` (JSON) as it is
@@ -106,18 +109,29 @@ pub fn run(
         )));
     }
     let calib = common.calibration()?;
-    let (w, h) = b
+    let (eye_w, h) = b
         .panel_size
         .unwrap_or((calib.panel.width_px, calib.panel.height_px));
+    let w = if b.stereo { 2 * eye_w } else { eye_w };
     std::fs::create_dir_all(&b.dump).map_err(|e| AppError::output(&b.dump, e))?;
+    let views = if b.stereo {
+        format!("two views of {eye_w}×{h} (each eye its frames and engine), ")
+    } else {
+        String::new()
+    };
+    let eye_columns = if b.stereo {
+        (" eye 0 p50 ms | eye 1 p50 ms |", " --- | --- |")
+    } else {
+        ("", "")
+    };
     let mut table = format!(
-        "`nedrt bench pipeline`: test pattern at {} Hz, {w}×{h}, wgpu backend, headless sink; \
+        "`nedrt bench pipeline`: test pattern at {} Hz, {w}×{h}, {views}wgpu backend, headless sink; \
          at most {} frames or {} s per case from its first frame \
          (prepare s: the PSFs and filters for the panel, before it)\n\n\
          | network | frame path | prepare s | shown | dropped | e2e p50 ms | e2e p99 ms | e2e max ms | \
-         MB up / frame | uploads / frame | MB back / frame | read-backs / frame |\n\
-         | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |\n",
-        calib.panel.refresh_hz, b.frames, b.max_seconds
+         MB up / frame | uploads / frame | MB back / frame | read-backs / frame |{}\n\
+         | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |{}\n",
+        calib.panel.refresh_hz, b.frames, b.max_seconds, eye_columns.0, eye_columns.1
     );
     for &network in &b.networks {
         let mut case = common.clone();
@@ -165,7 +179,7 @@ pub fn run(
                 panel_size: Some((w, h)),
                 report_json: None,
                 inject_device_loss_after: None,
-                stereo: false,
+                stereo: b.stereo,
             };
             let (report, prepare_s) = run_case(&case, &opts, b.max_seconds)?;
             let stage = |name: &str| report.stages.iter().find(|s| s.stage == name).cloned();
@@ -191,12 +205,23 @@ pub fn run(
                 "uploads": t.uploads,
                 "to_host_mb": t.to_host_bytes / 1e6,
                 "read_backs": t.read_backs,
+                "eyes": report.view_stages.iter().map(|s| json!({
+                    "stage": s.stage,
+                    "count": s.count,
+                    "p50_ms": s.p50_ms,
+                    "p99_ms": s.p99_ms,
+                })).collect::<Vec<_>>(),
             });
             on_record(&record);
             let ms = |v: Option<f64>| v.map_or("–".to_string(), |v| format!("{v:.1}"));
+            let eyes: String = report
+                .view_stages
+                .iter()
+                .map(|s| format!(" {:.1} |", s.p50_ms))
+                .collect();
             let _ = writeln!(
                 table,
-                "| {} | {} | {prepare_s:.1} | {} | {dropped} | {} | {} | {} | {:.2} | {:.2} | {:.2} | {:.2} |",
+                "| {} | {} | {prepare_s:.1} | {} | {dropped} | {} | {} | {} | {:.2} | {:.2} | {:.2} | {:.2} |{eyes}",
                 network.name(),
                 // "device" or "host" as it ran (a device case the engine
                 // could not run on the device says "host").
