@@ -197,3 +197,114 @@ fn quad_layers_from_two_clients_are_blended_before_the_dcnn_and_leave_with_their
             .all(|c| c["mean_lead_ms"].as_f64() >= Some(0.0))
     );
 }
+
+#[test]
+fn two_eyes_from_a_stereo_client_and_an_overlay_client_are_each_counted_and_stop_promptly() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    std::fs::create_dir_all(dir.path().join("shm")).expect("shm dir");
+    let socket = Service::socket(dir.path());
+    let args = [
+        "--backend".to_string(),
+        "cpu".into(),
+        "--stereo".into(),
+        "--source".into(),
+        "socket".into(),
+        "--socket".into(),
+        socket.display().to_string(),
+        "--shm-dir".into(),
+        dir.path().join("shm").display().to_string(),
+        "--sink".into(),
+        "record".into(),
+        "--record-dir".into(),
+        dir.path().join("rec").display().to_string(),
+        "--report-json".into(),
+        dir.path().join("report.json").display().to_string(),
+    ];
+    let args: Vec<&str> = args.iter().map(String::as_str).collect();
+    let service = Service::start(&args, dir);
+    wait_until("the socket to appear", || socket.exists());
+    let connect = || {
+        Client::connect_v2(
+            &socket,
+            &service.dir.path().join("shm"),
+            (W * H * 12) as u64,
+        )
+        .expect("connect v2")
+    };
+    let mut eyes = connect();
+    let mut overlay = connect();
+    assert_eq!(eyes.views, vec![[0, 0, W / 2, H], [W / 2, 0, W / 2, H]]);
+    assert_eq!(eyes.timing.as_ref().map(|t| t.views), Some(2));
+    // The overlay client: a quad on the right eye only.
+    let hud = quad_texels(8, 4, [40, 40, 40], 200);
+    let at = Placement::Pixels { x: 4, y: 4 };
+    let q = HeaderV2::quad(1, 1, 0, at, QuadFormat::Rgba8Premultiplied, (8, 4), 1, 0);
+    let r = overlay.send_v2(&q, &hud).expect("send");
+    assert_eq!(r.reply.status, STATUS_OK, "{}", r.reply.message);
+    // A frame of the whole panel's size for one eye is refused.
+    let whole = HeaderV2::projection(0, PixelFormat::Rgb32fPlanar, (W, H), 1, 0);
+    let r = eyes
+        .send_v2(&whole, &planar_payload(&test_frame(1)))
+        .expect("send");
+    assert_eq!(
+        r.reply.status,
+        RejectReason::WrongSize.code(),
+        "{}",
+        r.reply.message
+    );
+    let rec = service.dir.path().join("rec");
+    for id in 0..6u64 {
+        for v in 0..2u8 {
+            let frame = test_frame(id).crop(usize::from(v) * W / 2, 0, W / 2, H);
+            let h = HeaderV2::projection(
+                v,
+                PixelFormat::Rgb32fPlanar,
+                (W / 2, H),
+                2 * id + u64::from(v),
+                0,
+            );
+            let r = eyes.send_v2(&h, &planar_payload(&frame)).expect("send");
+            assert_eq!(r.reply.status, STATUS_OK, "{}", r.reply.message);
+        }
+        wait_until("the pair to be recorded", || {
+            frame_path(&rec, 2 * id + 1).exists()
+        });
+    }
+    let started = Instant::now();
+    let (out, dir) = service.stop();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(
+        started.elapsed() < Duration::from_secs(10),
+        "stopped in {:?}",
+        started.elapsed()
+    );
+    let r = report(dir.path());
+    let views = r["view_stages"].as_array().expect("view_stages");
+    assert_eq!(views.len(), 2, "{views:?}");
+    assert!(views.iter().all(|v| v["count"].as_u64() >= Some(1)));
+    // Every submission accounted for: shown, dropped, rejected or in flight.
+    let n = |k: &str| r[k].as_u64().unwrap_or(0);
+    let rejected: u64 = r["rejected"]
+        .as_array()
+        .expect("rejected")
+        .iter()
+        .map(|e| e[1].as_u64().unwrap_or(0))
+        .sum();
+    assert_eq!(n("submitted"), 13);
+    assert_eq!(
+        n("presented")
+            + n("dropped_queued")
+            + n("dropped_at_present")
+            + n("skipped")
+            + rejected
+            + n("in_flight_at_stop")
+            + n("failed"),
+        13
+    );
+    assert_eq!(n("layers_set"), 1);
+    assert!(!r["clients"].as_array().expect("clients").is_empty());
+}
