@@ -593,6 +593,19 @@ const ROWS: &[Row] = &[
         "--source-rate",
     ),
     row(
+        "run: two views that overlap",
+        &[
+            "run",
+            "--calib",
+            "{dir}/overlapping-views.toml",
+            "--sink",
+            "record",
+            "--record-dir",
+            "{out}",
+        ],
+        "view[1].region_px: overlaps view",
+    ),
+    row(
         "run: source rate 1e-300 Hz",
         &[
             "run",
@@ -822,6 +835,14 @@ fn prepare(dir: &Path) {
         .save(dir.join("alpha.png"))
         .expect("alpha");
     write_png(&dir.join("tiny.png"), 1, 1);
+    let panel = std::fs::read_to_string(small_panel()).expect("small-panel.toml");
+    w(
+        "overlapping-views.toml",
+        (panel
+            + "\n[[view]]\nname = \"left\"\nregion_px = [0, 0, 40, 48]\n\
+               \n[[view]]\nname = \"right\"\nregion_px = [32, 0, 32, 48]\n")
+            .as_bytes(),
+    );
     write_png(&dir.join("line.png"), 30000, 1);
     write_png(&dir.join("wide-photo.png"), 2000, 16);
     // A PNG signature and an IHDR chunk claiming 20000×20000, nothing after.
