@@ -14,8 +14,14 @@ struct Frame {
     // where the planes are padded).
     plane_stride: u32,
     // Texels from one row of `codes` to the next: the width padded to the
-    // 256-byte pitch of a buffer-to-texture copy.
+    // 256-byte pitch of a buffer-to-texture copy (a view of a wider panel:
+    // the panel's).
     row_texels: u32,
+    // The frame's first texel in `codes` (a view: its region's corner).
+    base_texel: u32,
+    _pad0: u32,
+    _pad1: u32,
+    _pad2: u32,
 }
 
 @group(0) @binding(0) var<storage, read> display: array<f32>;
@@ -79,6 +85,6 @@ fn main(@builtin(global_invocation_id) id: vec3<u32>) {
     let g = code(1u, x.y);
     let b = code(2u, x.z);
     let row = pixel / frame.width;
-    codes[row * frame.row_texels + pixel - row * frame.width] =
+    codes[frame.base_texel + row * frame.row_texels + pixel - row * frame.width] =
         r | (g << 8u) | (b << 16u) | (255u << 24u);
 }

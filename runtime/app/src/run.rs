@@ -175,15 +175,36 @@ pub fn run(
     if let Some(views) = views {
         let mut panel = panel;
         panel.views = views.iter().map(|v| v.region).collect();
-        return serve(
-            opts,
-            control,
-            panel,
-            clock,
-            source,
-            sink,
-            Pipeline::Views(views),
-        );
+        // On the sink's device where it has one and the views' stages run
+        // there; else through the host, and why.
+        let on_device = match (&device, opts.frame_path) {
+            (Some((d, q, _)), FramePath::Device) => {
+                views::device_stages(&views, opts, &panel, d, model.as_ref()).and_then(|stages| {
+                    nedrt_service::pipeline::device_views::DeviceViews::new(
+                        d,
+                        q,
+                        (panel.width, panel.height),
+                        &panel.views,
+                        &panel.transfer,
+                        stages,
+                    )
+                    .map_err(|e| e.to_string())
+                })
+            }
+            (None, _) => Err(format!(
+                "the {} sink takes frames in host memory",
+                opts.sink.name()
+            )),
+            (Some(_), FramePath::Host) => Err("--frame-path host".into()),
+        };
+        let pipeline = match on_device {
+            Ok(device_views) => Pipeline::DeviceViews(Box::new(device_views), views),
+            Err(why) => {
+                tracing::info!("the views run on the host: {why}");
+                Pipeline::Views(views)
+            }
+        };
+        return serve(opts, control, panel, clock, source, sink, pipeline);
     }
     // The resident path where the sink and the engine allow it.
     let host_reason = match (&device, &model) {

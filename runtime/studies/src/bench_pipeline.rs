@@ -214,11 +214,20 @@ pub fn run(
             });
             on_record(&record);
             let ms = |v: Option<f64>| v.map_or("–".to_string(), |v| format!("{v:.1}"));
-            let eyes: String = report
-                .view_stages
-                .iter()
-                .map(|s| format!(" {:.1} |", s.p50_ms))
-                .collect();
+            // Each eye's engine time, where it ran a stage ("–": no stage).
+            let eyes: String = if b.stereo {
+                (0..2)
+                    .map(|v| {
+                        let name = format!("dcnn view {v}");
+                        match report.view_stages.iter().find(|s| s.stage == name) {
+                            Some(s) => format!(" {:.1} |", s.p50_ms),
+                            None => " – |".to_string(),
+                        }
+                    })
+                    .collect()
+            } else {
+                String::new()
+            };
             let _ = writeln!(
                 table,
                 "| {} | {} | {prepare_s:.1} | {} | {dropped} | {} | {} | {} | {:.2} | {:.2} | {:.2} | {:.2} |{eyes}",

@@ -27,6 +27,11 @@ pub(super) enum Pipeline {
     Resident(Box<ResidentStage>),
     /// Two views, each its own engine, through the host.
     Views(Vec<super::views::View>),
+    /// Two views on the sink's device, the host engines their fallback.
+    DeviceViews(
+        Box<nedrt_service::pipeline::device_views::DeviceViews>,
+        Vec<super::views::View>,
+    ),
 }
 
 /// Starts the pipeline with its preprocessing, runs it to the end and
@@ -83,6 +88,14 @@ pub(super) fn serve(
                     "host: two views, each its engine on the CPU".into();
             }
             (service, format!("two views, {what}"))
+        }
+        Pipeline::DeviceViews(device, views) => {
+            let what = format!("two views, {}", device.describe());
+            let host = views.into_iter().map(|v| v.stage).collect();
+            (
+                Service::start_device_views(panel, *device, host, clock),
+                what,
+            )
         }
         Pipeline::Resident(resident) => {
             let what = match &resident.host {

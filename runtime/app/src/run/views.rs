@@ -5,7 +5,7 @@
 
 use std::sync::Arc;
 
-use super::engines::{behind, linear_preprocessor};
+use super::engines::{behind, linear_on_device, linear_preprocessor};
 use super::{AppError, CommonOptions, RunOptions};
 use crate::design::Design;
 use nedrt_core::calib::Calibration;
@@ -15,12 +15,54 @@ use nedrt_optics::sim::Method;
 use nedrt_optics::sim::wiener::WienerFilter;
 use nedrt_service::compose::ViewRegion;
 use nedrt_service::pipeline::service::DcnnStage;
+use nedrt_service::pipeline::service::PanelConfig;
 
-/// A view of the run: its name, region and preprocessing.
+/// A view of the run: its name, region and preprocessing (on the host),
+/// and its design's options (for its stage on the device).
 pub(super) struct View {
     pub name: String,
     pub region: ViewRegion,
     pub stage: DcnnStage,
+    pub common: CommonOptions,
+}
+
+/// Each view's stage on the sink's device, for a method without a network
+/// (its prefilter, or none); `Err` says why the views stay on the host.
+pub(super) fn device_stages(
+    views: &[View],
+    opts: &RunOptions,
+    panel: &PanelConfig,
+    device: &wgpu::Device,
+    model: Option<&ModelFile>,
+) -> Result<Vec<Option<Box<dyn nedrt_gpu::DeviceStage>>>, String> {
+    if model.is_some() {
+        return Err("a D-CNN's views run on the host".into());
+    }
+    let mut stages = Vec::new();
+    for v in views {
+        if !opts.preprocess.uses_wiener() && opts.prefilter.is_native() {
+            stages.push(None);
+            continue;
+        }
+        let view_panel = PanelConfig {
+            width: v.region.width,
+            height: v.region.height,
+            views: Vec::new(),
+            ..panel.clone()
+        };
+        match linear_on_device(&v.common, opts, &view_panel, device) {
+            Ok((Some(stage), _)) => stages.push(Some(stage)),
+            Ok((None, host)) => {
+                return Err(format!(
+                    "view {:?}: {} stays on the host",
+                    v.name,
+                    host.describe()
+                ));
+            }
+            Err(e) => return Err(format!("view {:?}: {e}", v.name)),
+        }
+    }
+    Ok(stages)
 }
 
 /// The views of `calib` (or the halves of a `width`×`height` panel), each
@@ -56,6 +98,12 @@ pub(super) fn views(
     };
     let mut out = Vec::new();
     for (name, region, design) in layout {
+        let mut c = common.clone();
+        if let Some(d) = design.as_deref().filter(|_| model.is_none()) {
+            let d = Design::resolve(d)?;
+            c.doe = Some(d.doe.clone());
+            c.design = Some(d);
+        }
         let primary: Box<dyn Preprocess> = match (model, design.as_deref()) {
             (Some(_), Some(d)) => {
                 return Err(AppError::Conflict(format!(
@@ -74,15 +122,7 @@ pub(super) fn views(
                 let dcnn = Dcnn::from_model(model.clone(), kind, &common.dcnn.backend_options)?;
                 behind(wiener_stage, Box::new(dcnn))
             }
-            (None, design) => {
-                let mut c = common.clone();
-                if let Some(d) = design {
-                    let d = Design::resolve(d)?;
-                    c.doe = Some(d.doe.clone());
-                    c.design = Some(d);
-                }
-                linear_preprocessor(&c, opts.preprocess, opts.prefilter)?
-            }
+            (None, _) => linear_preprocessor(&c, opts.preprocess, opts.prefilter)?,
         };
         out.push(View {
             name,
@@ -91,6 +131,7 @@ pub(super) fn views(
                 primary,
                 fallback: None,
             },
+            common: c,
         });
     }
     Ok(out)

@@ -8,6 +8,7 @@
 //! ([`stats`], [`latency`]).
 
 pub mod channel;
+pub mod device_views;
 pub mod frame;
 pub mod latency;
 pub mod pacing;

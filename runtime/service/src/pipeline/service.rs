@@ -35,6 +35,7 @@ use std::thread::JoinHandle;
 use crossbeam_channel::Receiver;
 
 use super::channel::newest_channel;
+use super::device_views::DeviceViews;
 use super::pacing::{Clock, DisplaySchedule, NewestSlot, Pacer};
 use super::resident::{DeviceFrames, DeviceInput};
 use super::stats::{RSS_EVERY, Report, ShownFrame, Stage, Stats};
@@ -180,6 +181,38 @@ impl Service {
         }
         let engines = ViewEngines::new((panel.width, panel.height), panel.views.clone(), stages);
         Self::start_with(panel, Engine::Views(Box::new(engines)), None, clock)
+    }
+
+    /// Starts two views on the sink's device ([`DeviceViews`]): each eye's
+    /// frames decoded and blended on the host, then both eyes' stages and
+    /// encodes in one submission; `host` (one stage per view) takes over
+    /// if the device fails.
+    pub fn start_device_views(
+        panel: PanelConfig,
+        views: DeviceViews,
+        host: Vec<DcnnStage>,
+        clock: Arc<dyn Clock>,
+    ) -> std::io::Result<Self> {
+        let host = (host.len() == panel.views.len() && !host.is_empty()).then(|| {
+            Box::new(ViewEngines::new(
+                (panel.width, panel.height),
+                panel.views.clone(),
+                host,
+            ))
+        });
+        let engine = Engine::DeviceViews {
+            views: Box::new(views),
+            host,
+        };
+        let service = Self::start_with(panel, engine, None, clock)?;
+        *service
+            .stats
+            .frame_path
+            .lock()
+            .unwrap_or_else(|p| p.into_inner()) = "device: two views, each eye's frame decoded \
+            on the host, both eyes' stages and encodes in one submission; no read-back"
+            .into();
+        Ok(service)
     }
 
     /// `host`: the resident path's host stage (`Some(None)`: the resident

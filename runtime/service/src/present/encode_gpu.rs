@@ -27,6 +27,18 @@ struct FrameUniform {
     height: u32,
     plane_stride: u32,
     row_texels: u32,
+    base_texel: u32,
+    _pad: [u32; 3],
+}
+
+/// Where an encoder writes its codes: rows `row_texels` apart from
+/// `base_texel` on, in a buffer of `rows` such rows (a frame of its own,
+/// or a view's region of a panel's codes).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct CodesTarget {
+    pub row_texels: u32,
+    pub base_texel: u32,
+    pub rows: u32,
 }
 
 /// Encodes planar f32 display images of one panel size on one device.
@@ -45,6 +57,8 @@ pub struct PanelEncoder {
     height: u32,
     plane_stride: u32,
     row_texels: u32,
+    /// Rows of the codes buffer it writes into (its height, or a panel's).
+    rows: u32,
     /// Bind groups made so far, by (display, codes) buffer: a frame into
     /// buffers seen before records without creating anything.
     bind_groups: Vec<(wgpu::Buffer, wgpu::Buffer, wgpu::BindGroup)>,
@@ -75,17 +89,51 @@ impl PanelEncoder {
         plane_stride: u32,
         transfer: &Transfer,
     ) -> Result<Self, PresentError> {
+        let target = CodesTarget {
+            row_texels: row_texels(width),
+            base_texel: 0,
+            rows: height,
+        };
+        Self::new_into(
+            device,
+            queue,
+            (width, height),
+            plane_stride,
+            transfer,
+            target,
+        )
+    }
+
+    /// As [`PanelEncoder::new`], writing into `target`: a view's region of
+    /// a wider panel's codes.
+    pub fn new_into(
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        (width, height): (u32, u32),
+        plane_stride: u32,
+        transfer: &Transfer,
+        target: CodesTarget,
+    ) -> Result<Self, PresentError> {
         let pixels = u64::from(width) * u64::from(height);
         if pixels == 0 || u64::from(plane_stride) < pixels {
             return Err(err(format!(
                 "a {width}×{height} frame with planes {plane_stride} values apart"
             )));
         }
+        let row_texels = target.row_texels;
+        let end = u64::from(target.base_texel)
+            + u64::from(row_texels) * u64::from(height - 1)
+            + u64::from(width);
+        if row_texels < width || end > u64::from(row_texels) * u64::from(target.rows) {
+            return Err(err(format!(
+                "a {width}×{height} frame at texel {} does not fit codes of {} rows of {row_texels}",
+                target.base_texel, target.rows
+            )));
+        }
         // The shader indexes in u32: three planes and the codes must fit,
         // and the codes one binding.
         let binding = device.limits().max_storage_buffer_binding_size;
-        let row_texels = row_texels(width);
-        let code_bytes = 4 * u64::from(row_texels) * u64::from(height);
+        let code_bytes = 4 * u64::from(row_texels) * u64::from(target.rows);
         if 3 * u64::from(plane_stride) > u64::from(u32::MAX) || code_bytes > binding {
             return Err(err(format!(
                 "a {width}×{height} frame is too large to encode in one dispatch on this adapter"
@@ -169,6 +217,8 @@ impl PanelEncoder {
             height,
             plane_stride,
             row_texels,
+            base_texel: target.base_texel,
+            _pad: [0; 3],
         };
         queue.write_buffer(&frame, 0, bytemuck::bytes_of(&u));
         let non_finite = buffer(
@@ -198,6 +248,7 @@ impl PanelEncoder {
             height,
             plane_stride,
             row_texels,
+            rows: target.rows,
             bind_groups: Vec::new(),
         })
     }
@@ -216,7 +267,7 @@ impl PanelEncoder {
     }
 
     fn codes_bytes(&self) -> u64 {
-        4 * u64::from(self.row_texels) * u64::from(self.height)
+        4 * u64::from(self.row_texels) * u64::from(self.rows)
     }
 
     /// Texels from one row of the codes to the next (≥ the width).

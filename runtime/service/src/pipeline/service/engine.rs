@@ -19,6 +19,12 @@ pub(super) enum Engine {
     Host(DcnnStage, Option<Arc<LayerSet>>),
     /// Each view its own engine, on the host.
     Views(Box<super::views::ViewEngines>),
+    /// Each view its own stage on the sink's device, one submission for
+    /// both; the host engines take over if the device fails.
+    DeviceViews {
+        views: Box<crate::pipeline::device_views::DeviceViews>,
+        host: Option<Box<super::views::ViewEngines>>,
+    },
     Device {
         frames: Box<DeviceFrames>,
         fallback: Option<FallbackFactory>,
@@ -68,6 +74,7 @@ impl Engine {
         match self {
             Engine::Host(d, _) => d.primary.describe(),
             Engine::Views(v) => v.describe(),
+            Engine::DeviceViews { views, .. } => views.describe(),
             Engine::Device { frames, .. } => frames.describe(),
         }
     }
@@ -77,7 +84,7 @@ impl Engine {
         match self {
             Engine::Host(_, layers) => *layers = Some(set),
             // Each view's layers are blended in the upload stage.
-            Engine::Views(_) => {}
+            Engine::Views(_) | Engine::DeviceViews { .. } => {}
             Engine::Device { frames, layers, .. } => {
                 frames.attach_layers(set.clone());
                 *layers = Some(set);
@@ -118,6 +125,44 @@ impl Engine {
                         },
                         layers.take(),
                     );
+                }
+            }
+        }
+        if let Engine::DeviceViews { views, host } = self {
+            let DeviceInput::Views(images) = &input else {
+                tracing::error!("frame {id} is not of views");
+                return None;
+            };
+            match views.run(id, images) {
+                Ok((frame, traffic)) => {
+                    for (v, ns) in views.last_view_ns().iter().enumerate() {
+                        if let Some(ns) = ns {
+                            stats.record_view(v, *ns);
+                        }
+                    }
+                    stats.dcnn_traffic.record(traffic);
+                    return Some(Processed::Device(frame));
+                }
+                Err(e) => {
+                    stats
+                        .dcnn_failures
+                        .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                    *stats.frame_path.lock().unwrap_or_else(|p| p.into_inner()) =
+                        "host (after the device path of the views failed)".into();
+                    match host.take() {
+                        Some(h) => {
+                            tracing::error!(
+                                "{} failed: {e}; the views now run on the host: {}",
+                                views.describe(),
+                                h.describe()
+                            );
+                            *self = Engine::Views(h);
+                        }
+                        None => {
+                            tracing::error!("{} failed: {e}; no host engines", views.describe());
+                            return None;
+                        }
+                    }
                 }
             }
         }
