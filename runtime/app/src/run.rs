@@ -178,18 +178,21 @@ pub fn run(
         // On the sink's device where it has one and the views' stages run
         // there; else through the host, and why.
         let on_device = match (&device, opts.frame_path) {
-            (Some((d, q, _)), FramePath::Device) => {
-                views::device_stages(&views, opts, &panel, d, model.as_ref()).and_then(|stages| {
-                    nedrt_service::pipeline::device_views::DeviceViews::new(
-                        d,
-                        q,
-                        (panel.width, panel.height),
-                        &panel.views,
-                        &panel.transfer,
-                        stages,
-                    )
-                    .map_err(|e| e.to_string())
-                })
+            (Some((d, q, name)), FramePath::Device) => {
+                let gpu = (d.clone(), q.clone(), name.clone());
+                views::device_stages(&views, opts, &panel, &gpu, model.as_ref(), &stage).and_then(
+                    |stages| {
+                        nedrt_service::pipeline::device_views::DeviceViews::new(
+                            d,
+                            q,
+                            (panel.width, panel.height),
+                            &panel.views,
+                            &panel.transfer,
+                            stages,
+                        )
+                        .map_err(|e| e.to_string())
+                    },
+                )
             }
             (None, _) => Err(format!(
                 "the {} sink takes frames in host memory",

@@ -8,8 +8,10 @@ use std::sync::Arc;
 use super::engines::{behind, linear_on_device, linear_preprocessor};
 use super::{AppError, CommonOptions, RunOptions};
 use crate::design::Design;
+use crate::device_prefilter::wiener_stage;
 use nedrt_core::calib::Calibration;
 use nedrt_core::preprocess::Preprocess;
+use nedrt_infer::gpu::DeviceDcnn;
 use nedrt_infer::{BackendKind, Dcnn, ModelFile};
 use nedrt_optics::sim::Method;
 use nedrt_optics::sim::wiener::WienerFilter;
@@ -26,19 +28,49 @@ pub(super) struct View {
     pub common: CommonOptions,
 }
 
-/// Each view's stage on the sink's device, for a method without a network
-/// (its prefilter, or none); `Err` says why the views stay on the host.
+/// Each view's stage on the sink's device: its D-CNN (on the wgpu
+/// backend) behind its Wiener stage where the model has one, or its
+/// prefilter, or none; `Err` says why the views stay on the host.
 pub(super) fn device_stages(
     views: &[View],
     opts: &RunOptions,
     panel: &PanelConfig,
-    device: &wgpu::Device,
+    (device, queue, name): &(wgpu::Device, wgpu::Queue, String),
     model: Option<&ModelFile>,
+    wiener: &Option<(Method, Arc<WienerFilter>)>,
 ) -> Result<Vec<Option<Box<dyn nedrt_gpu::DeviceStage>>>, String> {
-    if model.is_some() {
-        return Err("a D-CNN's views run on the host".into());
-    }
     let mut stages = Vec::new();
+    if let Some(model) = model {
+        if views[0].common.dcnn.backend != BackendKind::Wgpu {
+            return Err(format!(
+                "the D-CNN runs on the {} backend, on the host",
+                views[0].common.dcnn.backend.name()
+            ));
+        }
+        for v in views {
+            let precision = v.common.dcnn.backend_options.precision;
+            let net: Box<dyn nedrt_gpu::DeviceStage> = Box::new(
+                DeviceDcnn::on_device(model.clone(), device, queue, name.clone(), precision)
+                    .map_err(|e| format!("view {:?}: {e}", v.name))?,
+            );
+            let stage = match wiener {
+                Some((method, filter)) => {
+                    let what = format!(
+                        "the Wiener prefilter of {method} (K = {:e}) before the clamp",
+                        filter.k_reg
+                    );
+                    let size = Some((v.region.width, v.region.height));
+                    let w = wiener_stage(device, what, filter.clone(), size)
+                        .map_err(|e| format!("view {:?}: {e}", v.name))?;
+                    Box::new(nedrt_gpu::Chain::new(device, w, net))
+                        as Box<dyn nedrt_gpu::DeviceStage>
+                }
+                None => net,
+            };
+            stages.push(Some(stage));
+        }
+        return Ok(stages);
+    }
     for v in views {
         if !opts.preprocess.uses_wiener() && opts.prefilter.is_native() {
             stages.push(None);
