@@ -29,6 +29,7 @@ use nedrt_service::pipeline::protocol::{Client, DEFAULT_SHM_DIR, FrameHeader, ST
 use nedrt_service::pipeline::source::pattern::{
     pattern_rgba8, pattern_rgba8_shifted, stereo_disparity_px,
 };
+use nedrt_service::pipeline::source::socket::v2::ALL_VIEWS;
 
 /// The HUD bar: a dark translucent band with a bright bar growing with
 /// `second`, premultiplied.
@@ -101,10 +102,15 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         // Once a second (the first frame of each): a quad stays until replaced.
         let redraw_hud = overlay && (id == 0 || ((id - 1) as f64 / rate_hz) as u64 != second);
         let reply = if overlay || stereo {
-            let mut last = None;
-            for (v, &[_, _, vw, vh]) in views.iter().enumerate() {
-                let (hud_w, hud_h) = ((vw / 4).max(8).min(vw), (vh / 12).max(6).min(vh));
-                if overlay && redraw_hud {
+            if overlay && redraw_hud {
+                // A HUD on every view the service runs, placed in each.
+                let hud_views: Vec<[usize; 4]> = if client.views.is_empty() {
+                    vec![[0, 0, w, h]]
+                } else {
+                    client.views.clone()
+                };
+                for (v, &[_, _, vw, vh]) in hud_views.iter().enumerate() {
+                    let (hud_w, hud_h) = ((vw / 4).max(8).min(vw), (vh / 12).max(6).min(vh));
                     let quad = HeaderV2::quad(
                         v as u8,
                         1,
@@ -126,6 +132,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                         );
                     }
                 }
+            }
+            let mut last = None;
+            for (v, &[_, _, vw, vh]) in views.iter().enumerate() {
                 let predicted = client.timing.as_ref().map(|t| t.predicted_display_ns);
                 let now = monotonic_ns();
                 if let Some(p) = predicted {
@@ -134,6 +143,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 let (view, pixels) = if stereo {
                     let shift = v * stereo_disparity_px(vw);
                     (v as u8, pattern_rgba8_shifted(vw, vh, id, rate_hz, shift))
+                } else if client.views.len() > 1 {
+                    // One panel-sized frame for every view.
+                    (ALL_VIEWS, pixels.clone())
                 } else {
                     (0, pixels.clone())
                 };
