@@ -277,8 +277,9 @@ pub struct RunArgs {
     #[arg(long, value_name = "N", hide = true)]
     pub inject_device_loss_after: Option<u64>,
     /// Two views, a headset's eyes: the calibration's [[view]] tables (each
-    /// eye its region and design), else the panel's left and right halves
-    /// with this run's system. Frames go through the host.
+    /// eye its region and design; with tables every run has them), else the
+    /// panel's left and right halves with this run's system. On the sink's
+    /// GPU where it has one (both eyes in one submission), else the host.
     #[arg(long)]
     pub stereo: bool,
 }

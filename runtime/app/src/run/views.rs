@@ -109,10 +109,30 @@ pub(super) fn views(
     wiener_stage: &Option<(Method, Arc<WienerFilter>)>,
     model: Option<&ModelFile>,
 ) -> Result<Vec<View>, AppError> {
+    let min = nedrt_core::calib::views::MIN_VIEW_SIDE_PX;
     let layout: Vec<(String, ViewRegion, Option<String>)> = if calib.views.is_empty() {
+        if width / 2 < min || height < min {
+            return Err(AppError::Conflict(format!(
+                "--stereo on a {width}×{height} panel: each eye would be {}×{height}; a view is \
+                 at least {min} pixels a side",
+                width / 2
+            )));
+        }
         let [left, right] = ViewRegion::side_by_side(width, height);
         vec![("left".into(), left, None), ("right".into(), right, None)]
     } else {
+        // The calibration checked its views against its own panel; the run
+        // may drive another size (--panel in the benchmarks).
+        for v in &calib.views {
+            let [x, y, w, h] = v.region_px;
+            if x + w > width || y + h > height {
+                return Err(AppError::Conflict(format!(
+                    "{}: view {:?} ({w}×{h} at ({x}, {y})) is not inside the {width}×{height} \
+                     panel this run drives",
+                    calib.source, v.name
+                )));
+            }
+        }
         calib
             .views
             .iter()
@@ -151,7 +171,12 @@ pub(super) fn views(
                     BackendKind::Wgpu => BackendKind::Cpu,
                     other => other,
                 };
-                let dcnn = Dcnn::from_model(model.clone(), kind, &common.dcnn.backend_options)?;
+                // f32 on the host (the CPU engines offer no f16).
+                let options = nedrt_infer::BackendOptions {
+                    precision: nedrt_infer::Precision::F32,
+                    ..common.dcnn.backend_options.clone()
+                };
+                let dcnn = Dcnn::from_model(model.clone(), kind, &options)?;
                 behind(wiener_stage, Box::new(dcnn))
             }
             (None, _) => linear_preprocessor(&c, opts.preprocess, opts.prefilter)?,

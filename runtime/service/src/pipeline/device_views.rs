@@ -189,6 +189,8 @@ impl DeviceViews {
 
     /// Uploads the views whose image changed, records every view's stage
     /// (where it changed) and encode into one submission, and waits for it.
+    /// A view's generation, once it has had a frame, never goes back to 0
+    /// (the service's upload stage counts up): 0 is "no frame yet".
     pub fn run(
         &mut self,
         id: u64,
@@ -254,6 +256,9 @@ impl DeviceViews {
                 timestamp_writes: Some(writes),
             });
         };
+        // Which views were encoded into this submission (their non-finite
+        // counts come back with it).
+        let mut encoded = vec![false; self.views.len()];
         for (v, (image, view)) in images.iter().zip(&mut self.views).enumerate() {
             self.last_ran[v] = false;
             // No frame for this view yet: its region stays black.
@@ -286,11 +291,12 @@ impl DeviceViews {
                 &view.frame
             };
             view.encoder.record(&mut encoder, display, &codes)?;
+            encoded[v] = true;
         }
         let timer_bytes = self.timer.as_ref().map_or(0, |t| t.resolve(&mut encoder));
         let submission = self.queue.submit([encoder.finish()]);
         let ran: Vec<bool> = self.last_ran.clone();
-        for view in self.views.iter().filter(|v| v.generation != 0) {
+        for (view, _) in self.views.iter().zip(&encoded).filter(|(_, e)| **e) {
             view.encoder.map_non_finite();
         }
         if let Some(t) = &self.timer {
@@ -299,18 +305,22 @@ impl DeviceViews {
         nedrt_gpu::wait_for(&self.device, submission).map_err(PresentError::gpu(STAGE))?;
         let spans = self.timer.as_ref().and_then(|t| t.spans_ns().ok());
         for (v, ran) in ran.iter().enumerate() {
-            self.last_view_ns[v] = match (&spans, ran) {
+            // Only a view that ran a stage wrote its timestamps.
+            let staged = *ran && self.views[v].stage.is_some();
+            self.last_view_ns[v] = match (&spans, staged) {
                 (Some(s), true) => s.get(v).copied(),
                 _ => None,
             };
         }
         traffic.to_host_bytes += timer_bytes;
-        for (v, view) in self.views.iter().enumerate() {
-            if view.generation == 0 {
-                continue;
-            }
+        // Every count read (and its buffer unmapped) before any is judged.
+        let mut counts = Vec::new();
+        for (v, view) in self.views.iter().enumerate().filter(|(v, _)| encoded[*v]) {
             traffic.to_host_bytes += 4;
-            let non_finite = view.encoder.non_finite_pixels()?;
+            counts.push((v, view.encoder.non_finite_pixels()));
+        }
+        for (v, count) in counts {
+            let non_finite = count?;
             if non_finite > 0 {
                 return Err(err(format!(
                     "view {v}: the display image has {non_finite} pixels that are not finite"

@@ -223,6 +223,7 @@ impl Service {
         host: Option<Option<HostPrep>>,
         clock: Arc<dyn Clock>,
     ) -> std::io::Result<Self> {
+        views::check_regions(&panel.views, (panel.width, panel.height))?;
         let stats = Arc::new(Stats::default());
         *stats.backend.lock().unwrap_or_else(|p| p.into_inner()) = engine.describe();
         *stats.frame_path.lock().unwrap_or_else(|p| p.into_inner()) = match &host {
@@ -246,8 +247,9 @@ impl Service {
         } else {
             panel.views.clone()
         };
-        // A frame of each view may wait: one view's stream does not evict
-        // the other's newest.
+        // A frame of each view may wait (two eyes alternating); an eye that
+        // submits twice while the upload stage is busy can still evict the
+        // other's one queued frame: the upload stage, a decode, is quick.
         let (ingest_tx, ingest_rx) = newest_channel(regions.len(), queued.clone());
         let (upload_tx, upload_rx) = newest_channel(1, queued.clone());
         let (dcnn_tx, dcnn_rx) = newest_channel(1, queued.clone());

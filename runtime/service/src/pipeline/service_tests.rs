@@ -454,3 +454,51 @@ fn two_views_each_get_their_frames_layers_and_engine_on_one_panel() {
     assert_eq!(report.view_stages[0].count, 2);
     assert_eq!(report.view_stages[1].count, 2);
 }
+
+#[test]
+fn one_view_smaller_than_the_panel_takes_frames_of_its_own_size() {
+    use crate::compose::ViewRegion;
+    let mut config = panel();
+    config.views = vec![ViewRegion {
+        x: 1,
+        y: 0,
+        width: 2,
+        height: 2,
+    }];
+    let stages = vec![DcnnStage {
+        primary: Box::new(Identity),
+        fallback: None,
+    }];
+    let service = Service::start_views(config, stages, Arc::new(SystemClock)).expect("start");
+    let compositor = service.compositor().expect("open");
+    let view_frame = SubmittedFrame {
+        id: 1,
+        capture_ns: 0,
+        width: 2,
+        height: 2,
+        format: PixelFormat::Rgba8Linear,
+        payload: vec![51; 16],
+    };
+    assert!(compositor.submit_view(0, view_frame).is_ok());
+    assert!(
+        compositor.submit_view(0, grey(2, 51)).is_err(),
+        "a panel-sized frame for the view"
+    );
+    assert!(
+        compositor.submit(grey(3, 51)).is_ok(),
+        "a panel-sized frame for every view"
+    );
+    // Regions outside the panel are refused at start.
+    let mut bad = panel();
+    bad.views = vec![ViewRegion {
+        x: 3,
+        y: 0,
+        width: 2,
+        height: 2,
+    }];
+    let stages = vec![DcnnStage {
+        primary: Box::new(Identity),
+        fallback: None,
+    }];
+    assert!(Service::start_views(bad, stages, Arc::new(SystemClock)).is_err());
+}

@@ -69,7 +69,10 @@ impl Compositor {
     /// As [`Compositor::submit`], a frame of view `view`'s size for that
     /// view alone (on a one-view panel, view 0 is the panel).
     pub fn submit_view(&self, view: u8, frame: SubmittedFrame) -> Result<(), FrameError> {
-        if self.views.len() == 1 && view == 0 {
+        let whole = self.views.len() == 1
+            && (self.views[0].region.width, self.views[0].region.height)
+                == (self.width, self.height);
+        if whole && view == 0 {
             return self.submit_to(None, frame);
         }
         self.submit_to(Some(view), frame)

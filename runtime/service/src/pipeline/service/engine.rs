@@ -156,10 +156,17 @@ impl Engine {
                                 views.describe(),
                                 h.describe()
                             );
+                            *stats.backend.lock().unwrap_or_else(|p| p.into_inner()) = format!(
+                                "{} (after a failure of the views on the device)",
+                                h.describe()
+                            );
                             *self = Engine::Views(h);
                         }
                         None => {
                             tracing::error!("{} failed: {e}; no host engines", views.describe());
+                            stats
+                                .failed
+                                .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
                             return None;
                         }
                     }

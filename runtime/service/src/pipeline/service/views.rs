@@ -72,8 +72,12 @@ impl ViewsUpload {
                 None => decoded.crop(region.x, region.y, region.width, region.height),
             };
             let snap = layers.snapshot();
-            if !snap.quads.is_empty() && blend(&mut image, &snap.quads).is_ok() {
-                blended = true;
+            if !snap.quads.is_empty() {
+                match blend(&mut image, &snap.quads) {
+                    Ok(()) => blended = true,
+                    // The set holds at most MAX_QUADS: a bug, not the client's.
+                    Err(e) => tracing::error!("blending frame {} of view {v}: {e}", f.id),
+                }
             }
             self.generation += 1;
             self.latest[v] = ViewImage {
@@ -162,6 +166,27 @@ impl ViewEngines {
         }
         Some(panel)
     }
+}
+
+/// Refuses views that are empty or not inside a `width`×`height` panel.
+pub(super) fn check_regions(
+    regions: &[ViewRegion],
+    (width, height): (usize, usize),
+) -> std::io::Result<()> {
+    for r in regions {
+        let inside = r.x.checked_add(r.width).is_some_and(|e| e <= width)
+            && r.y.checked_add(r.height).is_some_and(|e| e <= height);
+        if !inside || r.width == 0 || r.height == 0 {
+            return Err(std::io::Error::new(
+                std::io::ErrorKind::InvalidInput,
+                format!(
+                    "a {}×{} view at ({}, {}) on a {width}×{height} panel",
+                    r.width, r.height, r.x, r.y
+                ),
+            ));
+        }
+    }
+    Ok(())
 }
 
 /// Copies `image` into `region` of `panel` (same channel count).

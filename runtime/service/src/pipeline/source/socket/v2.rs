@@ -151,8 +151,12 @@ pub fn admit(
                 return Err(frame(RejectReason::Truncated, detail));
             }
             Ok(AdmittedV2::Projection {
-                // One view's frame on a one-view panel is the panel's.
-                view: (!all && views > 1).then_some(hd.view),
+                // View 0 of a service whose one view is the panel is the
+                // panel's frame.
+                view: {
+                    let the_panel = views == 1 && view_size == panel;
+                    (!(all || the_panel)).then_some(hd.view)
+                },
                 frame: Admitted {
                     format,
                     capture_ns: hd.capture_ns,
