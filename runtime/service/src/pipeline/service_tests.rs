@@ -450,6 +450,8 @@ fn two_views_each_get_their_frames_layers_and_engine_on_one_panel() {
         vec![vec![153, 153, 102, 102], vec![153, 153, 102, 102]]
     );
     assert_eq!(report.view_stages.len(), 2);
+    // Frame 2 showed the left eye from its last frame (not waited for).
+    assert_eq!(report.view_frames_reused, 1);
     // The left engine ran for frames 1 and 5 only (frame 2 left it as it was).
     assert_eq!(report.view_stages[0].count, 2);
     assert_eq!(report.view_stages[1].count, 2);

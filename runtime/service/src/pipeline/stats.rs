@@ -95,6 +95,9 @@ pub struct Stats {
     pub layers_refused: AtomicU64,
     /// Frames blended with at least one quad layer.
     pub frames_with_layers: AtomicU64,
+    /// Two views: a view shown from its last frame in a composition made
+    /// for the other view's (its projection layer was not waited for).
+    pub view_frames_reused: AtomicU64,
     /// Presented frames by refreshes between the one they were shown at
     /// and the one predicted when they were submitted (negative: early).
     vs_prediction: Mutex<std::collections::BTreeMap<i64, u64>>,
@@ -273,6 +276,7 @@ impl Stats {
             layers_set: load(&self.layers_set),
             layers_refused: load(&self.layers_refused),
             frames_with_layers: load(&self.frames_with_layers),
+            view_frames_reused: load(&self.view_frames_reused),
             shown_vs_predicted: self
                 .vs_prediction
                 .lock()

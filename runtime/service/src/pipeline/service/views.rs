@@ -88,6 +88,15 @@ impl ViewsUpload {
         if blended {
             stats.frames_with_layers.fetch_add(1, Relaxed);
         }
+        // The other views, shown from their last frame (not waited for).
+        let updated = match view {
+            Some(_) => 1,
+            None => self.regions.len(),
+        };
+        let reused = self.latest.iter().filter(|l| l.generation != 0).count();
+        stats
+            .view_frames_reused
+            .fetch_add(reused.saturating_sub(updated) as u64, Relaxed);
         Some(DeviceInput::Views(self.latest.clone()))
     }
 }

@@ -73,6 +73,8 @@ pub struct Report {
     pub layers_set: u64,
     pub layers_refused: u64,
     pub frames_with_layers: u64,
+    /// Two views: a view shown from its last frame (its layer late).
+    pub view_frames_reused: u64,
     /// (refreshes late against the prediction at submission, frames);
     /// 0 is on the predicted refresh, negative early.
     pub shown_vs_predicted: Vec<(i64, u64)>,
@@ -213,6 +215,13 @@ impl Report {
                 "client {}: {} shown, {} on the predicted refresh, {} late, {} early; submitted \
                  {:.1} ms before the predicted display time on average\n",
                 c.client, c.shown, c.on_time, c.late, c.early, c.mean_lead_ms
+            );
+        }
+        if !self.view_stages.is_empty() {
+            s += &format!(
+                "views: {} times a view was shown from its last frame (its frame not \
+                 waited for)\n",
+                self.view_frames_reused
             );
         }
         if self.layers_set + self.layers_refused > 0 {
