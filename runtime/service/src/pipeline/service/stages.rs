@@ -29,13 +29,20 @@ impl DcnnStage {
     /// Runs the frame; on a backend failure logs it, switches to the
     /// fallback for good and runs the frame there.
     pub(super) fn run(&mut self, frame: &Image, stats: &Stats) -> Option<Image> {
+        let out = self.run_uncounted(frame, stats)?;
+        stats.dcnn_traffic.record(self.primary.last_traffic());
+        Some(out)
+    }
+
+    /// As [`DcnnStage::run`], leaving the frame's traffic to the caller
+    /// (two views: one record for both eyes' runs).
+    pub(super) fn run_uncounted(&mut self, frame: &Image, stats: &Stats) -> Option<Image> {
         loop {
             match self.primary.run(frame) {
                 Ok(out) => {
                     if let Some(ns) = self.primary.last_gpu_ns() {
                         stats.record(Stage::DcnnGpu, ns);
                     }
-                    stats.dcnn_traffic.record(self.primary.last_traffic());
                     return Some(out);
                 }
                 Err(PreprocessError::Frame(e)) => {

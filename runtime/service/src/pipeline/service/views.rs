@@ -156,6 +156,8 @@ impl ViewEngines {
     /// in a view that has had no frame yet.
     pub(super) fn run(&mut self, views: &[ViewImage], stats: &Stats) -> Option<Image> {
         let mut panel = Image::zeros(self.width, self.height, 3);
+        // One traffic record for the frame, whichever eyes ran.
+        let mut traffic = nedrt_core::preprocess::HostTraffic::default();
         for (v, (view, engine)) in views.iter().zip(&mut self.engines).enumerate() {
             // No frame for this view yet: black, its engine not run on nothing.
             if view.generation == 0 {
@@ -164,8 +166,9 @@ impl ViewEngines {
             let fresh = !matches!(&engine.last, Some((g, _)) if *g == view.generation);
             if fresh {
                 let t0 = std::time::Instant::now();
-                let out = engine.stage.run(&view.image, stats)?;
+                let out = engine.stage.run_uncounted(&view.image, stats)?;
                 stats.record_view(v, t0.elapsed().as_nanos() as u64);
+                traffic.add(engine.stage.primary.last_traffic());
                 engine.last = Some((view.generation, out));
             }
             let Some((_, out)) = &engine.last else {
@@ -173,6 +176,7 @@ impl ViewEngines {
             };
             paste(&mut panel, out, self.regions[v]);
         }
+        stats.dcnn_traffic.record(traffic);
         Some(panel)
     }
 }
