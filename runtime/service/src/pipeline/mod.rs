@@ -17,3 +17,5 @@ pub mod resident;
 pub mod service;
 pub mod source;
 pub mod stats;
+#[cfg(test)]
+pub(crate) mod test_stage;
