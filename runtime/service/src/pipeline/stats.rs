@@ -304,17 +304,7 @@ impl Stats {
                 .collect(),
             stages: Stage::ALL
                 .iter()
-                .map(|&s| {
-                    let h = self.histogram(s);
-                    StageReport {
-                        stage: s.name().to_string(),
-                        count: h.count(),
-                        mean_ms: h.mean_ns() / 1e6,
-                        p50_ms: h.quantile_ns(0.5) as f64 / 1e6,
-                        p99_ms: h.quantile_ns(0.99) as f64 / 1e6,
-                        max_ms: h.max_ns() as f64 / 1e6,
-                    }
-                })
+                .map(|&s| StageReport::of(s.name().to_string(), &self.histogram(s)))
                 .collect(),
             view_stages: self
                 .view_dcnn
@@ -322,14 +312,7 @@ impl Stats {
                 .enumerate()
                 .filter_map(|(v, h)| {
                     let h = h.lock().unwrap_or_else(|p| p.into_inner());
-                    (h.count() > 0).then(|| StageReport {
-                        stage: format!("dcnn view {v}"),
-                        count: h.count(),
-                        mean_ms: h.mean_ns() / 1e6,
-                        p50_ms: h.quantile_ns(0.5) as f64 / 1e6,
-                        p99_ms: h.quantile_ns(0.99) as f64 / 1e6,
-                        max_ms: h.max_ns() as f64 / 1e6,
-                    })
+                    (h.count() > 0).then(|| StageReport::of(format!("dcnn view {v}"), &h))
                 })
                 .collect(),
             traffic: vec![

@@ -41,6 +41,20 @@ pub struct StageReport {
     pub max_ms: f64,
 }
 
+impl StageReport {
+    /// The report of histogram `h` under `stage`.
+    pub fn of(stage: String, h: &crate::pipeline::latency::Histogram) -> Self {
+        Self {
+            stage,
+            count: h.count(),
+            mean_ms: h.mean_ns() / 1e6,
+            p50_ms: h.quantile_ns(0.5) as f64 / 1e6,
+            p99_ms: h.quantile_ns(0.99) as f64 / 1e6,
+            max_ms: h.max_ns() as f64 / 1e6,
+        }
+    }
+}
+
 /// Host↔device traffic of one stage, per frame it handled.
 #[derive(Debug, Clone, Serialize)]
 pub struct TrafficReport {
