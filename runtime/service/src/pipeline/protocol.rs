@@ -199,22 +199,27 @@ pub struct Reply {
 
 impl Reply {
     pub fn to_bytes(&self) -> Vec<u8> {
-        let msg = self.message.as_bytes();
-        let mut b = Vec::with_capacity(REPLY_LEN + msg.len());
-        b.extend_from_slice(&REPLY_MAGIC);
-        b.extend_from_slice(&self.status.to_le_bytes());
-        b.extend_from_slice(&self.frame_id.to_le_bytes());
-        b.extend_from_slice(&self.panel_width.to_le_bytes());
-        b.extend_from_slice(&self.panel_height.to_le_bytes());
-        b.extend_from_slice(&(msg.len() as u32).to_le_bytes());
-        b.extend_from_slice(msg);
+        let mut b = self.head().to_vec();
+        b.extend_from_slice(self.message.as_bytes());
         b
     }
 
-    /// Reads one reply from `r`.
-    pub fn read_from(r: &mut impl Read) -> std::io::Result<Self> {
+    /// The fixed part, magic to message length (version 2 puts its timing
+    /// between it and the message).
+    pub(super) fn head(&self) -> [u8; REPLY_LEN] {
         let mut b = [0u8; REPLY_LEN];
-        r.read_exact(&mut b)?;
+        b[0..4].copy_from_slice(&REPLY_MAGIC);
+        b[4..8].copy_from_slice(&self.status.to_le_bytes());
+        b[8..16].copy_from_slice(&self.frame_id.to_le_bytes());
+        b[16..20].copy_from_slice(&self.panel_width.to_le_bytes());
+        b[20..24].copy_from_slice(&self.panel_height.to_le_bytes());
+        b[24..28].copy_from_slice(&(self.message.len() as u32).to_le_bytes());
+        b
+    }
+
+    /// Parses the fixed part: the reply without its message, and the
+    /// message's length (at most 64 KiB).
+    pub(super) fn parse_head(b: &[u8; REPLY_LEN]) -> std::io::Result<(Self, usize)> {
         let bad = |m: &str| std::io::Error::new(std::io::ErrorKind::InvalidData, m.to_string());
         if b[0..4] != REPLY_MAGIC {
             return Err(bad("reply with a bad magic"));
@@ -226,15 +231,31 @@ impl Reply {
         if len > 64 * 1024 {
             return Err(bad("reply message over 64 KiB"));
         }
-        let mut msg = vec![0u8; len];
-        r.read_exact(&mut msg)?;
-        Ok(Self {
+        let reply = Self {
             status: u32_at(4),
             frame_id: u64::from_le_bytes(id),
             panel_width: u32_at(16),
             panel_height: u32_at(20),
-            message: String::from_utf8_lossy(&msg).into_owned(),
-        })
+            message: String::new(),
+        };
+        Ok((reply, len))
+    }
+
+    /// Reads the `len`-byte message that ends a reply.
+    pub(super) fn read_message(&mut self, r: &mut impl Read, len: usize) -> std::io::Result<()> {
+        let mut msg = vec![0u8; len];
+        r.read_exact(&mut msg)?;
+        self.message = String::from_utf8_lossy(&msg).into_owned();
+        Ok(())
+    }
+
+    /// Reads one reply from `r`.
+    pub fn read_from(r: &mut impl Read) -> std::io::Result<Self> {
+        let mut b = [0u8; REPLY_LEN];
+        r.read_exact(&mut b)?;
+        let (mut reply, len) = Self::parse_head(&b)?;
+        reply.read_message(r, len)?;
+        Ok(reply)
     }
 }
 
@@ -304,7 +325,7 @@ impl Client {
             .create_new(true)
             .mode(0o600)
             .open(&path)?;
-        let result = (|| {
+        let result = (|| -> std::io::Result<(Reply, Option<ReplyV2>)> {
             shm.set_len(shm_size)?;
             let mut hello = Hello {
                 name_len: name.len(),
@@ -318,15 +339,14 @@ impl Client {
             // service may not have understood which version was asked for.
             let mut first = [0u8; REPLY_LEN];
             (&stream).read_exact(&mut first)?;
-            let status = u32::from_le_bytes([first[4], first[5], first[6], first[7]]);
-            if version == VERSION_2 && status == STATUS_OK {
-                let mut rest = [0u8; v2::REPLY_V2_LEN - REPLY_LEN];
-                (&stream).read_exact(&mut rest)?;
-                let head: Vec<u8> = first.iter().chain(&rest).copied().collect();
-                let mut r = head.as_slice().chain(&stream);
-                ReplyV2::read_from(&mut r).map(|w| (w.reply.clone(), Some(w)))
+            let (reply, len) = Reply::parse_head(&first)?;
+            if version == VERSION_2 && reply.status == STATUS_OK {
+                let w = ReplyV2::read_after_head(&mut &stream, reply, len)?;
+                Ok((w.reply.clone(), Some(w)))
             } else {
-                Reply::read_from(&mut first.as_slice().chain(&stream)).map(|r| (r, None))
+                let mut reply = reply;
+                reply.read_message(&mut &stream, len)?;
+                Ok((reply, None))
             }
         })();
         let _ = std::fs::remove_file(&path);

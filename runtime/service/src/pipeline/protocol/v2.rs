@@ -8,7 +8,7 @@
 
 use std::io::Read;
 
-use super::{FRAME_MAGIC, Malformed, REPLY_MAGIC, Reply};
+use super::{FRAME_MAGIC, Malformed, REPLY_LEN, Reply};
 use crate::compose::Placement;
 use crate::pipeline::frame::PixelFormat;
 
@@ -356,15 +356,9 @@ pub struct ReplyV2 {
 
 impl ReplyV2 {
     pub fn to_bytes(&self) -> Vec<u8> {
-        let r = &self.reply;
-        let msg = r.message.as_bytes();
+        let msg = self.reply.message.as_bytes();
         let mut b = Vec::with_capacity(REPLY_V2_LEN + msg.len());
-        b.extend_from_slice(&REPLY_MAGIC);
-        b.extend_from_slice(&r.status.to_le_bytes());
-        b.extend_from_slice(&r.frame_id.to_le_bytes());
-        b.extend_from_slice(&r.panel_width.to_le_bytes());
-        b.extend_from_slice(&r.panel_height.to_le_bytes());
-        b.extend_from_slice(&(msg.len() as u32).to_le_bytes());
+        b.extend_from_slice(&self.reply.head());
         b.extend_from_slice(&self.predicted_display_ns.to_le_bytes());
         b.extend_from_slice(&self.refresh_period_ns.to_le_bytes());
         b.extend_from_slice(&self.views.to_le_bytes());
@@ -375,35 +369,32 @@ impl ReplyV2 {
 
     /// Reads one version 2 reply from `r`.
     pub fn read_from(r: &mut impl Read) -> std::io::Result<Self> {
-        let mut b = [0u8; REPLY_V2_LEN];
-        r.read_exact(&mut b)?;
-        let bad = |m: &str| std::io::Error::new(std::io::ErrorKind::InvalidData, m.to_string());
-        if b[0..4] != REPLY_MAGIC {
-            return Err(bad("reply with a bad magic"));
-        }
-        let u32_at = |i: usize| u32::from_le_bytes([b[i], b[i + 1], b[i + 2], b[i + 3]]);
+        let mut head = [0u8; REPLY_LEN];
+        r.read_exact(&mut head)?;
+        let (reply, len) = Reply::parse_head(&head)?;
+        Self::read_after_head(r, reply, len)
+    }
+
+    /// The rest of a version 2 reply whose fixed part (version 1's) was
+    /// read: the timing, then the `len`-byte message.
+    pub(super) fn read_after_head(
+        r: &mut impl Read,
+        mut reply: Reply,
+        len: usize,
+    ) -> std::io::Result<Self> {
+        let mut t = [0u8; REPLY_V2_LEN - REPLY_LEN];
+        r.read_exact(&mut t)?;
         let u64_at = |i: usize| {
             let mut a = [0u8; 8];
-            a.copy_from_slice(&b[i..i + 8]);
+            a.copy_from_slice(&t[i..i + 8]);
             u64::from_le_bytes(a)
         };
-        let len = u32_at(24) as usize;
-        if len > 64 * 1024 {
-            return Err(bad("reply message over 64 KiB"));
-        }
-        let mut msg = vec![0u8; len];
-        r.read_exact(&mut msg)?;
+        reply.read_message(r, len)?;
         Ok(Self {
-            reply: Reply {
-                status: u32_at(4),
-                frame_id: u64_at(8),
-                panel_width: u32_at(16),
-                panel_height: u32_at(20),
-                message: String::from_utf8_lossy(&msg).into_owned(),
-            },
-            predicted_display_ns: u64_at(28),
-            refresh_period_ns: u64_at(36),
-            views: u16::from_le_bytes([b[44], b[45]]),
+            reply,
+            predicted_display_ns: u64_at(0),
+            refresh_period_ns: u64_at(8),
+            views: u16::from_le_bytes([t[16], t[17]]),
         })
     }
 }
