@@ -8,7 +8,7 @@
 #![no_main]
 
 use libfuzzer_sys::fuzz_target;
-use nedrt_service::compose::{QuadLayer, ViewGeometry, blend};
+use nedrt_service::compose::{ViewGeometry, blend};
 use nedrt_service::pipeline::frame::{self, SubmittedFrame};
 use nedrt_service::pipeline::protocol::v2::{HEADER_V2_LEN, VERSION_2};
 use nedrt_service::pipeline::protocol::{HEADER_LEN, HELLO_LEN, Hello, valid_shm_name};
@@ -96,29 +96,12 @@ fn version_2(shm: &[u8], shm_size: u64) {
                     check_frame(payload, req.format, req.capture_ns, size);
                 }
             }
-            AdmittedV2::Quad {
-                view,
-                layer,
-                z,
-                placement,
-                format,
-                width,
-                height,
-                offset,
-                length,
-            } => {
-                let Some(payload) = slice(offset, length) else {
+            AdmittedV2::Quad(q) => {
+                let Some(payload) = slice(q.offset, q.length) else {
                     continue;
                 };
-                let quad = QuadLayer {
-                    layer,
-                    z,
-                    placement,
-                    width,
-                    height,
-                    rgba: format.decode(payload),
-                };
-                let (vw, vh) = views[usize::from(view)];
+                let quad = q.layer_of(payload);
+                let (vw, vh) = views[usize::from(q.view)];
                 let geometry = ViewGeometry {
                     width: vw,
                     height: vh,

@@ -331,41 +331,81 @@ pub fn admit(
     shm_size: u64,
 ) -> Result<Admitted, FrameError> {
     let id = FrameHeader::id_of(header);
-    let fail = |reason, detail: String| FrameError { id, reason, detail };
-    let hd = FrameHeader::parse(header).map_err(|d| fail(RejectReason::Malformed, d.0))?;
-    let format = PixelFormat::from_code(hd.format).ok_or_else(|| {
+    let hd = FrameHeader::parse(header).map_err(|d| FrameError {
+        id,
+        reason: RejectReason::Malformed,
+        detail: d.0,
+    })?;
+    let fields = FrameFields {
+        id,
+        format: hd.format,
+        size: (hd.width, hd.height),
+        capture_ns: hd.capture_ns,
+        offset: hd.offset,
+        length: hd.length,
+    };
+    admit_frame(&fields, panel, shm_size, "")
+}
+
+/// A frame header's fields, in either protocol version.
+pub(crate) struct FrameFields {
+    pub id: u64,
+    pub format: u16,
+    pub size: (u32, u32),
+    pub capture_ns: u64,
+    pub offset: u64,
+    pub length: u64,
+}
+
+/// The checks every frame header passes before its payload is read: a
+/// pixel format the service knows (`where_` says for what, in the
+/// message), the expected size and payload length, the payload inside the
+/// shared memory.
+pub(crate) fn admit_frame(
+    f: &FrameFields,
+    expected: (usize, usize),
+    shm_size: u64,
+    where_: &str,
+) -> Result<Admitted, FrameError> {
+    let fail = |reason, detail: String| FrameError {
+        id: f.id,
+        reason,
+        detail,
+    };
+    let format = PixelFormat::from_code(f.format).ok_or_else(|| {
         fail(
             RejectReason::UnsupportedFormat,
-            format!("pixel format {}", hd.format),
+            format!("pixel format {}{where_}", f.format),
         )
     })?;
     check_shape(
-        id,
-        (hd.width as usize, hd.height as usize),
+        f.id,
+        (f.size.0 as usize, f.size.1 as usize),
         format,
-        hd.length,
-        panel,
+        f.length,
+        expected,
     )?;
-    if hd
-        .offset
-        .checked_add(hd.length)
-        .is_none_or(|e| e > shm_size)
-    {
-        return Err(fail(
-            RejectReason::Truncated,
-            format!(
-                "payload at {}+{} lies outside the {shm_size}-byte shared memory",
-                hd.offset, hd.length
-            ),
-        ));
+    if let Some(detail) = outside_shm(f.offset, f.length, shm_size) {
+        return Err(fail(RejectReason::Truncated, detail));
     }
     Ok(Admitted {
         format,
-        capture_ns: hd.capture_ns,
-        offset: hd.offset,
-        // check_shape bounded it by the panel's frame size.
-        length: hd.length as usize,
+        capture_ns: f.capture_ns,
+        offset: f.offset,
+        // check_shape bounded it by the expected frame size.
+        length: f.length as usize,
     })
+}
+
+/// Why `length` bytes at `offset` are not inside a `shm_size`-byte shared
+/// memory, if they are not.
+pub(crate) fn outside_shm(offset: u64, length: u64, shm_size: u64) -> Option<String> {
+    offset
+        .checked_add(length)
+        .is_none_or(|e| e > shm_size)
+        .then(|| {
+            format!("payload at {offset}+{length} lies outside the {shm_size}-byte shared memory")
+        })
 }
 
 /// Reads an admitted frame's payload from the client's shared memory and

@@ -10,9 +10,12 @@ use std::os::unix::fs::FileExt;
 use std::os::unix::net::UnixStream;
 use std::sync::atomic::AtomicBool;
 
-use super::{Admitted, Fill, REPLY_DEADLINE, read_full, submit_frame, write_all_until};
+use super::{
+    Admitted, Fill, FrameFields, REPLY_DEADLINE, admit_frame, outside_shm, read_full, submit_frame,
+    write_all_until,
+};
 use crate::compose::{Placement, QuadLayer};
-use crate::pipeline::frame::{PixelFormat, RejectReason, check_shape};
+use crate::pipeline::frame::RejectReason;
 use crate::pipeline::protocol::v2::{
     HEADER_V2_LEN, HeaderV2, Layer, QuadFormat, ReplyV2, STATUS_BAD_LAYER, welcome_message,
 };
@@ -31,21 +34,40 @@ pub enum AdmittedV2 {
         view: Option<u8>,
         frame: Admitted,
     },
-    Quad {
-        view: u8,
-        layer: u32,
-        z: i32,
-        placement: Placement,
-        format: QuadFormat,
-        width: usize,
-        height: usize,
-        offset: u64,
-        length: usize,
-    },
+    Quad(AdmittedQuad),
     Remove {
         view: u8,
         layer: u32,
     },
+}
+
+/// A quad the service accepted: where it goes, and where its texels lie
+/// in the client's shared memory.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct AdmittedQuad {
+    pub view: u8,
+    pub layer: u32,
+    pub z: i32,
+    pub placement: Placement,
+    pub format: QuadFormat,
+    pub width: usize,
+    pub height: usize,
+    pub offset: u64,
+    pub length: usize,
+}
+
+impl AdmittedQuad {
+    /// The quad layer its texels (`payload`, `length` bytes) make.
+    pub fn layer_of(&self, payload: &[u8]) -> QuadLayer {
+        QuadLayer {
+            layer: self.layer,
+            z: self.z,
+            placement: self.placement,
+            width: self.width,
+            height: self.height,
+            rgba: self.format.decode(payload),
+        }
+    }
 }
 
 /// A version 2 submission refused: the reply's status and message, and,
@@ -120,36 +142,23 @@ pub fn admit(
             });
         }
     };
-    let outside = |length: u64| {
-        hd.offset
-            .checked_add(length)
-            .is_none_or(|e| e > shm_size)
-            .then(|| {
-                format!(
-                    "payload at {}+{length} lies outside the {shm_size}-byte shared memory",
-                    hd.offset
-                )
-            })
-    };
     match hd.layer {
         Layer::Projection => {
-            let format = PixelFormat::from_code(hd.format).ok_or_else(|| {
-                frame(
-                    RejectReason::UnsupportedFormat,
-                    format!("pixel format {} for a projection layer (1–3)", hd.format),
-                )
-            })?;
-            check_shape(
+            let fields = FrameFields {
                 id,
-                (hd.width as usize, hd.height as usize),
-                format,
-                hd.length,
+                format: hd.format,
+                size: (hd.width, hd.height),
+                capture_ns: hd.capture_ns,
+                offset: hd.offset,
+                length: hd.length,
+            };
+            let admitted = admit_frame(
+                &fields,
                 view_size,
+                shm_size,
+                " for a projection layer (1–3)",
             )
             .map_err(|e| frame(e.reason, e.detail))?;
-            if let Some(detail) = outside(hd.length) {
-                return Err(frame(RejectReason::Truncated, detail));
-            }
             Ok(AdmittedV2::Projection {
                 // View 0 of a service whose one view is the panel is the
                 // panel's frame.
@@ -157,12 +166,7 @@ pub fn admit(
                     let the_panel = views == 1 && view_size == panel;
                     (!(all || the_panel)).then_some(hd.view)
                 },
-                frame: Admitted {
-                    format,
-                    capture_ns: hd.capture_ns,
-                    offset: hd.offset,
-                    length: hd.length as usize,
-                },
+                frame: admitted,
             })
         }
         Layer::Quad {
@@ -193,10 +197,10 @@ pub fn admit(
                     hd.length
                 )));
             }
-            if let Some(detail) = outside(hd.length) {
+            if let Some(detail) = outside_shm(hd.offset, hd.length, shm_size) {
                 return Err(layer_refused(format!("layer {layer}: {detail}")));
             }
-            Ok(AdmittedV2::Quad {
+            Ok(AdmittedV2::Quad(AdmittedQuad {
                 view,
                 layer,
                 z,
@@ -206,7 +210,7 @@ pub fn admit(
                 height: h,
                 offset: hd.offset,
                 length: hd.length as usize,
-            })
+            }))
         }
         Layer::Remove { layer } => Ok(AdmittedV2::Remove {
             view: hd.view,
@@ -224,34 +228,16 @@ fn handle(
 ) -> (u32, String) {
     match admitted {
         AdmittedV2::Projection { view, frame } => submit_frame(compositor, shm, id, view, &frame),
-        AdmittedV2::Quad {
-            view,
-            layer,
-            z,
-            placement,
-            format,
-            width,
-            height,
-            offset,
-            length,
-        } => {
-            let mut payload = vec![0u8; length];
-            if let Err(e) = shm.read_exact_at(&mut payload, offset) {
+        AdmittedV2::Quad(q) => {
+            let mut payload = vec![0u8; q.length];
+            if let Err(e) = shm.read_exact_at(&mut payload, q.offset) {
                 compositor.count_layer_refused();
                 return (
                     STATUS_BAD_LAYER,
-                    format!("layer {layer}: reading the shared memory: {e}"),
+                    format!("layer {}: reading the shared memory: {e}", q.layer),
                 );
             }
-            let quad = QuadLayer {
-                layer,
-                z,
-                placement,
-                width,
-                height,
-                rgba: format.decode(&payload),
-            };
-            match compositor.submit_layer_on(view, quad) {
+            match compositor.submit_layer_on(q.view, q.layer_of(&payload)) {
                 Ok(()) => (STATUS_OK, String::new()),
                 Err(e) => (STATUS_BAD_LAYER, e.to_string()),
             }
