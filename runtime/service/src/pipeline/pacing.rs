@@ -78,7 +78,7 @@ pub struct Pacer {
 impl Pacer {
     /// Refreshes at `refresh_hz` from `start_ns` on.
     pub fn new(refresh_hz: f64, start_ns: u64) -> Self {
-        let period_ns = (1e9 / refresh_hz).round().max(1.0) as u64;
+        let period_ns = Self::period_ns_of(refresh_hz);
         Self {
             period_ns,
             next_vsync_ns: start_ns + period_ns,
@@ -87,6 +87,11 @@ impl Pacer {
 
     pub fn period_ns(&self) -> u64 {
         self.period_ns
+    }
+
+    /// The refresh period at `refresh_hz`, whole nanoseconds (at least 1).
+    pub fn period_ns_of(refresh_hz: f64) -> u64 {
+        (1e9 / refresh_hz).round().max(1.0) as u64
     }
 
     /// The next refresh at or after `now_ns`; refreshes already past are

@@ -350,8 +350,10 @@ impl Service {
                     drained_flag.store(true, Ordering::SeqCst);
                 })?,
         );
-        let pacer = Pacer::new(panel.refresh_hz, clock.now_ns());
-        let schedule = Arc::new(DisplaySchedule::new(pacer.period_ns(), clock.now_ns()));
+        let schedule = Arc::new(DisplaySchedule::new(
+            Pacer::period_ns_of(panel.refresh_hz),
+            clock.now_ns(),
+        ));
         let compositor = Compositor {
             schedule: schedule.clone(),
             tx: ingest_tx,
