@@ -200,29 +200,8 @@ fn quad_layers_from_two_clients_are_blended_before_the_dcnn_and_leave_with_their
 
 #[test]
 fn two_eyes_from_a_stereo_client_and_an_overlay_client_are_each_counted_and_stop_promptly() {
-    let dir = tempfile::tempdir().expect("tempdir");
-    std::fs::create_dir_all(dir.path().join("shm")).expect("shm dir");
-    let socket = Service::socket(dir.path());
-    let args = [
-        "--backend".to_string(),
-        "cpu".into(),
-        "--stereo".into(),
-        "--source".into(),
-        "socket".into(),
-        "--socket".into(),
-        socket.display().to_string(),
-        "--shm-dir".into(),
-        dir.path().join("shm").display().to_string(),
-        "--sink".into(),
-        "record".into(),
-        "--record-dir".into(),
-        dir.path().join("rec").display().to_string(),
-        "--report-json".into(),
-        dir.path().join("report.json").display().to_string(),
-    ];
-    let args: Vec<&str> = args.iter().map(String::as_str).collect();
-    let service = Service::start(&args, dir);
-    wait_until("the socket to appear", || socket.exists());
+    let service = Service::socket_recorder_with(&["--stereo"]);
+    let socket = Service::socket(service.dir.path());
     let connect = || {
         Client::connect_v2(
             &socket,

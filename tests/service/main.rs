@@ -72,6 +72,11 @@ impl Service {
 
     /// Starts a socket service recording into `<dir>/rec`.
     fn socket_recorder() -> Self {
+        Self::socket_recorder_with(&[])
+    }
+
+    /// As [`Service::socket_recorder`], with `extra` arguments (`--stereo`).
+    fn socket_recorder_with(extra: &[&str]) -> Self {
         let dir = tempfile::tempdir().expect("tempdir");
         std::fs::create_dir_all(dir.path().join("shm")).expect("shm dir");
         let socket = Self::socket(dir.path());
@@ -91,7 +96,11 @@ impl Service {
             "--report-json".into(),
             dir.path().join("report.json").display().to_string(),
         ];
-        let args: Vec<&str> = args.iter().map(String::as_str).collect();
+        let args: Vec<&str> = args
+            .iter()
+            .map(String::as_str)
+            .chain(extra.iter().copied())
+            .collect();
         let s = Self::start(&args, dir);
         wait_until("the socket to appear", || socket.exists());
         s
