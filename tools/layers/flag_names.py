@@ -16,13 +16,12 @@ import_cycles.without_tests), nor attributes (`#[ignore = "… --include-ignored
 
 Standard library only.
 """
-import argparse
 import re
 import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from import_cycles import REPO, display, is_test_file, without_tests  # noqa: E402
+from import_cycles import crate_check_main, display, is_test_file, without_tests  # noqa: E402
 
 LIBRARIES = ("core", "gpu", "optics", "infer", "service")
 FLAG = re.compile(r"(?<![\w-])--[a-z][a-z0-9]*(?:-[a-z0-9]+)*")
@@ -105,33 +104,12 @@ def check_crate(src: Path, root: Path):
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--root", type=Path, default=REPO,
-                        help="repository whose crates to check (default: this one)")
-    parser.add_argument("--rust", type=Path, action="append", default=[], metavar="SRC",
-                        help="a crate's src/ directory to check instead (repeatable)")
-    args = parser.parse_args(argv)
-    root = args.root
-    rust = args.rust or [root / "runtime" / c / "src" for c in LIBRARIES]
-    missing = [p for p in rust if not p.is_dir()]
-    if missing:
-        for p in missing:
-            print(f"flag names: {p} is not a directory", file=sys.stderr)
-        return 2
-    lines, files = [], 0
-    for src in rust:
-        found, n = check_crate(src, root)
-        lines += found
-        files += n
-    if lines:
-        print("a library crate names a command-line flag (return a typed error; the binary "
-              "or the command's wiring adds the hint):")
-        print("\n".join(lines))
-        return 1
-    print(f"flag names: no string literal of {len(rust)} library crate(s) names a "
-          f"command-line flag ({files} files, test code and attributes excluded)")
-    return 0
+    return crate_check_main(
+        argv, __doc__, "flag names", LIBRARIES, check_crate,
+        "a library crate names a command-line flag (return a typed error; the binary "
+        "or the command's wiring adds the hint):",
+        lambda crates, files: f"flag names: no string literal of {crates} library crate(s) "
+        f"names a command-line flag ({files} files, test code and attributes excluded)")
 
 
 if __name__ == "__main__":

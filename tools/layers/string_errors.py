@@ -18,12 +18,13 @@ the check).
 
 Standard library only.
 """
-import argparse
 import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from import_cycles import REPO, RUST_CRATES, display, is_test_file, tokens_of, without_tests  # noqa: E402
+from import_cycles import (  # noqa: E402
+    RUST_CRATES, crate_check_main, display, is_test_file, tokens_of, without_tests,
+)
 
 QUALIFIERS = {"const", "async", "unsafe", "extern", "default"}
 STRING = {"String", "std::string::String", "alloc::string::String"}
@@ -168,33 +169,12 @@ def check_crate(src: Path, root: Path):
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--root", type=Path, default=REPO,
-                        help="repository whose crates to check (default: this one)")
-    parser.add_argument("--rust", type=Path, action="append", default=[], metavar="SRC",
-                        help="a crate's src/ directory to check instead (repeatable)")
-    args = parser.parse_args(argv)
-    root = args.root
-    rust = args.rust or [root / "runtime" / c / "src" for c in RUST_CRATES]
-    missing = [p for p in rust if not p.is_dir()]
-    if missing:
-        for p in missing:
-            print(f"string errors: {p} is not a directory", file=sys.stderr)
-        return 2
-    lines, files = [], 0
-    for src in rust:
-        found, n = check_crate(src, root)
-        lines += found
-        files += n
-    if lines:
-        print("a library's public function or trait method returns Result<_, String> "
-              "(give it a typed error):")
-        print("\n".join(lines))
-        return 1
-    print(f"string errors: no public function nor trait method of {len(rust)} Rust crate(s) "
-          f"returns Result<_, String> ({files} files, test code excluded)")
-    return 0
+    return crate_check_main(
+        argv, __doc__, "string errors", RUST_CRATES, check_crate,
+        "a library's public function or trait method returns Result<_, String> "
+        "(give it a typed error):",
+        lambda crates, files: f"string errors: no public function nor trait method of {crates} "
+        f"Rust crate(s) returns Result<_, String> ({files} files, test code excluded)")
 
 
 if __name__ == "__main__":
