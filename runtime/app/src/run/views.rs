@@ -125,7 +125,13 @@ pub(super) fn views(
         // may drive another size (--panel in the benchmarks).
         for v in &calib.views {
             let [x, y, w, h] = v.region_px;
-            if x + w > width || y + h > height {
+            let region = ViewRegion {
+                x,
+                y,
+                width: w,
+                height: h,
+            };
+            if !region.fits((width, height)) {
                 return Err(AppError::Conflict(format!(
                     "{}: view {:?} ({w}×{h} at ({x}, {y})) is not inside the {width}×{height} \
                      panel this run drives",

@@ -50,6 +50,14 @@ pub struct ViewRegion {
 }
 
 impl ViewRegion {
+    /// Whether it is not empty and lies inside a `width`×`height` panel.
+    pub fn fits(&self, (width, height): (usize, usize)) -> bool {
+        self.width > 0
+            && self.height > 0
+            && self.x.checked_add(self.width).is_some_and(|e| e <= width)
+            && self.y.checked_add(self.height).is_some_and(|e| e <= height)
+    }
+
     /// The two halves of a `width`×`height` panel, left eye first.
     pub fn side_by_side(width: usize, height: usize) -> [ViewRegion; 2] {
         let half = width / 2;

@@ -359,3 +359,18 @@ fn directions_behind_the_eye_are_refused_and_slack_colour_is_held_to_alpha() {
     blend(&mut im, &[glow]).expect("blends");
     assert!(im.data().iter().all(|&x| x <= 1.0));
 }
+
+#[test]
+fn a_view_region_fits_a_panel_only_when_inside_and_not_empty() {
+    let [left, right] = ViewRegion::side_by_side(75, 21);
+    assert_eq!((left.width, right.x, right.width), (37, 37, 38));
+    assert!(left.fits((75, 21)) && right.fits((75, 21)));
+    assert!(!right.fits((74, 21)));
+    let empty = ViewRegion { width: 0, ..left };
+    assert!(!empty.fits((75, 21)));
+    let far = ViewRegion {
+        x: usize::MAX,
+        ..left
+    };
+    assert!(!far.fits((75, 21)));
+}

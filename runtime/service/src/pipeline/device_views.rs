@@ -80,9 +80,8 @@ impl DeviceViews {
         let row = row_texels(w32);
         let mut views = Vec::new();
         for (region, stage) in regions.iter().zip(stages) {
-            let inside = region.x + region.width <= width && region.y + region.height <= height;
             let pixels = region.width * region.height;
-            if !inside || pixels == 0 {
+            if !region.fits((width, height)) {
                 return Err(err(format!(
                     "a {}×{} view at ({}, {}) on a {width}×{height} panel",
                     region.width, region.height, region.x, region.y

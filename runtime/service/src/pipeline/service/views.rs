@@ -187,9 +187,7 @@ pub(super) fn check_regions(
     (width, height): (usize, usize),
 ) -> std::io::Result<()> {
     for r in regions {
-        let inside = r.x.checked_add(r.width).is_some_and(|e| e <= width)
-            && r.y.checked_add(r.height).is_some_and(|e| e <= height);
-        if !inside || r.width == 0 || r.height == 0 {
+        if !r.fits((width, height)) {
             return Err(std::io::Error::new(
                 std::io::ErrorKind::InvalidInput,
                 format!(
