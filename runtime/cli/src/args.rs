@@ -8,7 +8,7 @@ use clap::builder::{PossibleValue, PossibleValuesParser, TypedValueParser};
 use clap::{Args, Parser, Subcommand, ValueEnum};
 use nedrt_app::run::{FallbackKind, FramePath, SinkKind, SourceKind};
 use nedrt_core::Named;
-use nedrt_infer::{BackendKind, OrtProvider, Precision};
+use nedrt_infer::{BackendKind, ConvPath, OrtProvider, Precision};
 use nedrt_optics::sim::{Method, Optics};
 use nedrt_studies::bench_pipeline::PipelineNetwork;
 
@@ -99,6 +99,11 @@ pub struct GlobalArgs {
     /// Precision of the wgpu backend (f16 needs the adapter's shader-f16).
     #[arg(long, global = true, value_parser = named::<Precision>(), default_value = "f32")]
     pub precision: Precision,
+    /// Convolution kernels of the wgpu backend: auto (the tensor cores'
+    /// cooperative matrices where the adapter lists their shape, at f16) or
+    /// tiled (the register-tiled kernels only).
+    #[arg(long, global = true, value_parser = named::<ConvPath>(), default_value = "auto")]
+    pub conv_path: ConvPath,
     /// Execution provider of the ort backend.
     #[arg(long, global = true, value_parser = named::<OrtProvider>(), default_value = "cpu")]
     pub ort_provider: OrtProvider,

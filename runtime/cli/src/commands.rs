@@ -53,6 +53,7 @@ pub fn run(cli: Cli) -> Result<()> {
             backend_options: BackendOptions {
                 threads: g.threads,
                 precision: g.precision,
+                conv_path: g.conv_path,
                 ort_provider: g.ort_provider,
                 gpu: env.gpu.clone(),
                 ort_library: if may_use_ort {

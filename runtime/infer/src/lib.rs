@@ -231,6 +231,36 @@ impl Default for OrtLibrary {
     }
 }
 
+/// Which convolution kernels the wgpu backend may run (docs/inference.md).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum ConvPath {
+    /// The tensor cores (cooperative matrices) for the layers whose shape
+    /// the adapter lists, at f16; the register-tiled kernels elsewhere.
+    #[default]
+    Auto,
+    /// The register-tiled kernels for every layer.
+    Tiled,
+}
+
+impl Named for ConvPath {
+    const ALL: &'static [Self] = &[ConvPath::Auto, ConvPath::Tiled];
+    fn name(self) -> &'static str {
+        match self {
+            ConvPath::Auto => "auto",
+            ConvPath::Tiled => "tiled",
+        }
+    }
+    fn help(self) -> &'static str {
+        match self {
+            ConvPath::Auto => {
+                "cooperative matrices (tensor cores) where the adapter lists their f16 shape, \
+                 register-tiled kernels elsewhere"
+            }
+            ConvPath::Tiled => "the register-tiled kernels for every layer",
+        }
+    }
+}
+
 /// Options for building a backend.
 #[derive(Debug, Clone, Default)]
 pub struct BackendOptions {
@@ -241,6 +271,8 @@ pub struct BackendOptions {
     pub ort_library: OrtLibrary,
     /// How the wgpu backend opens its device.
     pub gpu: nedrt_gpu::GpuSettings,
+    /// Which convolution kernels the wgpu backend may use.
+    pub conv_path: ConvPath,
 }
 
 /// The D-CNN ready to preprocess frames of any size.
