@@ -1,22 +1,25 @@
 // 2×2 transposed convolution with stride 2 (the U-Net's upsampling), bias
 // and ReLU fused. A template filled by runtime/infer/src/gpu/codegen.rs.
-// Each thread reads one input pixel per input channel and writes its 2×2
-// output block for OC channels (OC vec4 accumulators, one per channel, its
-// four taps); the CI×OC×4 weights of a channel chunk are staged in
-// workgroup memory as one vec4 per input and output channel (one load on
-// lavapipe, see conv.wgsl) and shared by the workgroup's 16×16 input
-// pixels. The per-channel code is unrolled by codegen into named
-// accumulators.
+// Each thread reads one input pixel, four input channels (a quad) at a
+// time, and writes its 2×2 output block for OC channels (OC vec4
+// accumulators, one per channel, its four taps). The weights of CQ quads ×
+// OC channels are staged in workgroup memory as one 4×4 matrix per quad
+// and output channel (columns: input channels, rows: the four taps), packed
+// in that order once at load (`codegen::pack_conv_transpose`), so staging
+// them is a contiguous copy and a quad's multiply-adds are one matrix load
+// and 16 fused multiply-adds per channel. The per-channel code is unrolled
+// by codegen into named accumulators.
 {{ENABLE_F16}}
 
 {{LAYER_BINDINGS}}
 
+alias T = {{ARITH}};
 const OC: u32 = {{OC}}u;
-const CI: u32 = 16u;
+const CQ: u32 = {{CQ}}u;
 const THREADS: u32 = 256u;
 const RELU: bool = {{RELU}};
 
-var<workgroup> wtile: array<vec4<f32>, CI * OC>;
+var<workgroup> wtile: array<mat4x4<T>, CQ * OC>;
 
 @compute @workgroup_size(16, 16, 1)
 fn main(
@@ -26,30 +29,37 @@ fn main(
 ) {
     let x = wg.x * 16u + lid.x;
     let y = wg.y * 16u + lid.y;
-    let oc0 = wg.z * OC;
+    let blk = wg.z;
+    let oc0 = blk * OC;
     let inside = x < p.width && y < p.height;
     let plane = p.width * p.height;
+    let quads = (p.cin + 3u) / 4u;
 {{ACC_DECL}}
 
-    for (var c0 = 0u; c0 < p.cin; c0 += CI) {
-        for (var i = li; i < CI * OC; i += THREADS) {
-            let ci = i / OC;
-            let o = i % OC;
-            var v = vec4<f32>(0.0);
-            if (c0 + ci < p.cin && oc0 + o < p.cout) {
-                let at = p.w_offset + ((c0 + ci) * p.cout + oc0 + o) * 4u;
-                v = vec4<f32>(f32(weights[at]), f32(weights[at + 1u]), f32(weights[at + 2u]), f32(weights[at + 3u]));
+    for (var q0 = 0u; q0 < quads; q0 += CQ) {
+        // Packed: [block][quad][oc][column][row], CQ·OC matrices a step.
+        for (var i = li; i < CQ * OC * 4u; i += THREADS) {
+            var v = vec4<T>(0.0);
+            if (q0 + i / (OC * 4u) < quads) {
+                let at = p.w_offset + 4u * ((blk * quads + q0) * OC * 4u + i);
+                v = vec4<T>(T(weights[at]), T(weights[at + 1u]), T(weights[at + 2u]), T(weights[at + 3u]));
             }
-            wtile[i] = v;
+            wtile[i / 4u][i % 4u] = v;
         }
         workgroupBarrier();
         if (inside) {
-            for (var ci = 0u; ci < CI; ci++) {
-                if (c0 + ci >= p.cin) {
+            for (var qi = 0u; qi < CQ; qi++) {
+                let c = 4u * (q0 + qi);
+                if (c >= p.cin) {
                     break;
                 }
-                let v = vec4<f32>(f32(src[p.in_offset + (c0 + ci) * plane + y * p.width + x]));
-                let wbase = ci * OC;
+                let at = p.in_offset + c * plane + y * p.width + x;
+                var v = vec4<T>(0.0);
+                v.x = T(src[at]);
+                if (c + 1u < p.cin) { v.y = T(src[at + plane]); }
+                if (c + 2u < p.cin) { v.z = T(src[at + 2u * plane]); }
+                if (c + 3u < p.cin) { v.w = T(src[at + 3u * plane]); }
+                let wbase = qi * OC;
 {{TAPS}}
             }
         }
@@ -61,6 +71,8 @@ fn main(
     }
 {{STORES}}
 }
+
+{{MAC}}
 
 // The epilogue of one output channel's 2×2 block: bias, ReLU, store.
 fn emit(x: u32, y: u32, oc: u32, taps: vec4<f32>) {

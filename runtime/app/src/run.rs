@@ -256,7 +256,8 @@ pub fn run(
             if precision == nedrt_infer::Precision::F32
                 || d.features().contains(wgpu::Features::SHADER_F16) =>
         {
-            Dcnn::on_device(model.clone(), d, q, name.clone(), precision)
+            let path = dcnn.backend_options.conv_path;
+            Dcnn::on_device(model.clone(), d, q, name.clone(), precision, path)
                 .map(|x| Box::new(x) as Box<dyn Preprocess>)
         }
         (kind, _) => Dcnn::from_model(model.clone(), kind, &dcnn.backend_options)
@@ -486,8 +487,15 @@ mod tests {
                 .expect("cpu");
             let mut host = BehindWiener::new(Method::Proposed, filter.clone(), Box::new(cpu));
             let host = host.run(&input).expect("host");
-            let net = DeviceDcnn::on_device(model, &device, &queue, "test".into(), Precision::F32)
-                .expect("net");
+            let net = DeviceDcnn::on_device(
+                model,
+                &device,
+                &queue,
+                "test".into(),
+                Precision::F32,
+                nedrt_infer::ConvPath::Auto,
+            )
+            .expect("net");
             let wiener =
                 wiener_stage(&device, "test Wiener".into(), filter, Some((w, h))).expect("stage");
             let chain = Box::new(nedrt_gpu::Chain::new(&device, wiener, Box::new(net)));

@@ -117,14 +117,81 @@ pub fn open_device(
         }
         features |= wgpu::Features::SHADER_F16;
     }
+    // The tensor cores: only half-precision kernels use them (the D-CNN's
+    // cooperative-matrix path), and only where the adapter lists the shape
+    // they use; so a device with the feature is one that has the shape.
+    let coop = wgpu::Features::EXPERIMENTAL_COOPERATIVE_MATRIX | wgpu::Features::SUBGROUP;
+    let experimental = if shader_f16
+        && adapter.features().contains(coop)
+        && lists_coop_shape(&adapter.cooperative_matrix_properties())
+    {
+        features |= coop;
+        experimental_features()
+    } else {
+        wgpu::ExperimentalFeatures::disabled()
+    };
     let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
         label: Some("nedrt"),
         required_features: features,
         required_limits: adapter.limits(),
+        experimental_features: experimental,
         ..Default::default()
     }))
     .map_err(|e| GpuError::RequestDevice(e.to_string()))?;
     Ok((adapter, device, queue))
+}
+
+/// The cooperative-matrix shape nedrt's kernels use: M = N = K = 16, f16
+/// inputs, f32 accumulators (the D-CNN's `shaders/conv_coop.wgsl`).
+pub const COOP_SHAPE: (u32, u32, u32) = (16, 16, 16);
+
+/// Whether `properties` (an adapter's) list [`COOP_SHAPE`] with f16 inputs
+/// and f32 accumulators.
+pub fn lists_coop_shape(properties: &[wgpu::wgt::CooperativeMatrixProperties]) -> bool {
+    use wgpu::wgt::CooperativeScalarType as S;
+    properties.iter().any(|p| {
+        (p.m_size, p.n_size, p.k_size) == COOP_SHAPE && p.ab_type == S::F16 && p.cr_type == S::F32
+    })
+}
+
+/// An adapter's cooperative-matrix shapes, one per line, for reports:
+/// "16×16×16 F16→F32", or "none listed".
+pub fn describe_coop_shapes(properties: &[wgpu::wgt::CooperativeMatrixProperties]) -> String {
+    if properties.is_empty() {
+        return "none listed".into();
+    }
+    properties
+        .iter()
+        .map(|p| {
+            format!(
+                "{}×{}×{} {:?}→{:?}{}",
+                p.m_size,
+                p.n_size,
+                p.k_size,
+                p.ab_type,
+                p.cr_type,
+                if p.saturating_accumulation {
+                    " (saturating)"
+                } else {
+                    ""
+                }
+            )
+        })
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
+/// wgpu's token for its experimental features, here only cooperative
+/// matrices.
+#[allow(unsafe_code)]
+fn experimental_features() -> wgpu::ExperimentalFeatures {
+    // SAFETY: the token is the caller's acknowledgement that an experimental
+    // feature may have bugs in wgpu; it touches no memory itself. The one
+    // experimental feature requested with it, cooperative matrices, runs
+    // only in kernels that naga validates (tests build every variant), on
+    // shapes the adapter lists, and its results are checked against the
+    // tiled kernels by the device check (docs/inference.md).
+    unsafe { wgpu::ExperimentalFeatures::enabled() }
 }
 
 /// Maps `buffer` for reading and waits for the GPU, which also completes

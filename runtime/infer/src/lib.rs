@@ -184,6 +184,11 @@ pub trait Backend: Send + std::fmt::Debug {
             reason: format!("{} cannot time single layers (wgpu can)", self.describe()),
         })
     }
+    /// Which kernel each convolution runs on and why (wgpu: tiled or
+    /// cooperative matrix); empty for engines without a choice.
+    fn conv_paths(&self) -> Vec<String> {
+        Vec::new()
+    }
 }
 
 /// ONNX Runtime execution provider of the `ort` backend.
@@ -346,14 +351,16 @@ impl Dcnn {
         queue: &wgpu::Queue,
         adapter_name: String,
         precision: Precision,
+        conv_path: ConvPath,
     ) -> Result<Self, InferenceError> {
         let network = model.lower()?;
-        let backend = Box::new(gpu::GpuBackend::new(
+        let backend = Box::new(gpu::GpuBackend::new_with(
             device,
             queue,
             adapter_name,
             &network,
             precision,
+            gpu::ConvSupport::of_device(device, conv_path),
         )?);
         Ok(Self {
             model,
@@ -364,6 +371,12 @@ impl Dcnn {
 
     pub fn describe(&self) -> String {
         self.backend.describe()
+    }
+
+    /// Which kernel each convolution runs on and why (wgpu), one line a
+    /// layer; empty for the other engines.
+    pub fn conv_paths(&self) -> Vec<String> {
+        self.backend.conv_paths()
     }
 
     /// GPU time of the last frame's network, if the backend measures it.

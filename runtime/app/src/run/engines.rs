@@ -110,6 +110,7 @@ pub(super) fn resident_stage(
                 queue,
                 name.clone(),
                 precision,
+                common.dcnn.backend_options.conv_path,
             )?);
             let mut host = None;
             let mut on_device_stage = None;

@@ -48,9 +48,10 @@ pub(super) fn device_stages(
             ));
         }
         for v in views {
-            let precision = v.common.dcnn.backend_options.precision;
+            let options = &v.common.dcnn.backend_options;
+            let (precision, path) = (options.precision, options.conv_path);
             let net: Box<dyn nedrt_gpu::DeviceStage> = Box::new(
-                DeviceDcnn::on_device(model.clone(), device, queue, name.clone(), precision)
+                DeviceDcnn::on_device(model.clone(), device, queue, name.clone(), precision, path)
                     .map_err(|e| format!("view {:?}: {e}", v.name))?,
             );
             let stage = match wiener {

@@ -18,17 +18,20 @@
 //! accumulates in f32; the frame in and the display out stay f32.
 
 mod banding;
+mod choose;
 pub mod codegen;
+mod pack;
 pub mod params;
 mod plan;
 mod profile;
 mod resident;
 
+pub use choose::ConvSupport;
 pub use resident::DeviceDcnn;
 
 use std::collections::HashMap;
 
-use codegen::{Dtype, KernelKey, KernelKind};
+use codegen::{Dtype, KernelKey};
 use nedrt_gpu::PassTimer;
 use plan::SizedPlan;
 use wgpu::util::DeviceExt;
@@ -116,6 +119,8 @@ pub struct GpuBackend {
     window: resident::WindowKernel,
     /// Those copies for one frame size and pair of buffers.
     resident: Option<resident::ResidentPlan>,
+    /// Each convolution's kernel and why (`conv_paths`).
+    conv_paths: Vec<String>,
 }
 
 impl GpuBackend {
@@ -127,17 +132,33 @@ impl GpuBackend {
         let (adapter, device, queue) = open_device(&options.gpu, options.precision)?;
         let info = adapter.get_info();
         let name = format!("{} ({:?}, {:?})", info.name, info.backend, info.device_type);
-        Self::new(&device, &queue, name, network, options.precision)
+        let support = ConvSupport::of_device(&device, options.conv_path);
+        Self::new_with(&device, &queue, name, network, options.precision, support)
     }
 
-    /// Prepares `network` on a given device: its kernels' keys and weights
-    /// (the pipelines are built by the first frame size that needs them).
+    /// Prepares `network` on a given device, each convolution on the
+    /// kernels the device offers (`ConvPath::Auto`).
     pub fn new(
         device: &wgpu::Device,
         queue: &wgpu::Queue,
         adapter_name: String,
         network: &Network,
         precision: Precision,
+    ) -> Result<Self, InferenceError> {
+        let support = ConvSupport::of_device(device, crate::ConvPath::Auto);
+        Self::new_with(device, queue, adapter_name, network, precision, support)
+    }
+
+    /// Prepares `network` on a given device: its kernels' keys and weights
+    /// (the pipelines are built by the first frame size that needs them),
+    /// each convolution on the kernels `support` allows.
+    pub fn new_with(
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        adapter_name: String,
+        network: &Network,
+        precision: Precision,
+        support: ConvSupport,
     ) -> Result<Self, InferenceError> {
         if precision == Precision::F16 && !device.features().contains(wgpu::Features::SHADER_F16) {
             return Err(err("the device was opened without shader-f16"));
@@ -215,48 +236,24 @@ impl GpuBackend {
         let mut layer_keys = Vec::new();
         let mut weights: Vec<f32> = Vec::new();
         let mut weight_offsets = Vec::new();
-        for layer in &network.layers {
-            let (kind, input, residual) = match layer {
-                Layer::Conv(c) => {
-                    if c.kernel > codegen::MAX_CONV_KERNEL {
-                        return Err(err(format!(
-                            "{}×{} convolutions are not supported (at most {}×{})",
-                            c.kernel,
-                            c.kernel,
-                            codegen::MAX_CONV_KERNEL,
-                            codegen::MAX_CONV_KERNEL
-                        )));
-                    }
-                    (
-                        KernelKind::Conv {
-                            kernel: c.kernel,
-                            relu: c.relu,
-                            residual: c.residual.is_some(),
-                            clamp: c.output == network.output,
-                            tile: codegen::ConvTile::LARGE,
-                        },
-                        c.input,
-                        c.residual,
-                    )
-                }
-                Layer::ConvTranspose(c) => {
-                    (KernelKind::ConvTranspose { relu: c.relu }, c.input, None)
-                }
-                Layer::MaxPool { input, .. } => (KernelKind::MaxPool, *input, None),
-                Layer::Concat { .. } => {
-                    layer_keys.push(None);
-                    weight_offsets.push((0, 0));
-                    continue;
-                }
+        let mut conv_paths = Vec::new();
+        for (li, layer) in network.layers.iter().enumerate() {
+            let Some(k) = choose::layer_kernel(layer, network, t, &support)? else {
+                layer_keys.push(None);
+                weight_offsets.push((0, 0));
+                continue;
             };
-            let (w, b): (&[f32], &[f32]) = match layer {
-                Layer::Conv(c) => (&c.weight, &c.bias),
-                Layer::ConvTranspose(c) => (&c.weight, &c.bias),
-                _ => (&[], &[]),
-            };
-            weight_offsets.push((weights.len(), weights.len() + w.len()));
-            weights.extend_from_slice(w);
-            weights.extend_from_slice(b);
+            if let Some(path) = k.path {
+                tracing::info!("D-CNN layer {li}, {path}");
+                conv_paths.push(format!("layer {li}, {path}"));
+            }
+            let (kind, input, residual) = (k.kind, k.input, k.residual);
+            // Cooperative loads want 16-byte aligned matrices: every
+            // layer's weights start at a multiple of 16 elements.
+            weights.resize(weights.len().next_multiple_of(16), 0.0);
+            weight_offsets.push((weights.len(), weights.len() + k.weights.len()));
+            weights.extend_from_slice(&k.weights);
+            weights.extend_from_slice(&k.bias);
             let key = KernelKey {
                 kind,
                 src: dtype(root(input)),
@@ -317,6 +314,7 @@ impl GpuBackend {
             banded_size: None,
             window: resident::WindowKernel::new(device),
             resident: None,
+            conv_paths,
         })
     }
 
@@ -328,6 +326,12 @@ impl GpuBackend {
         self.plan = None;
         self.resident = None;
         self
+    }
+
+    /// Each convolution's kernel, tiled or cooperative matrix, and why:
+    /// one line a layer, in the network's order.
+    pub fn conv_paths(&self) -> &[String] {
+        &self.conv_paths
     }
 
     fn dtype(&self, root: ValueId) -> Dtype {
@@ -391,11 +395,26 @@ impl Backend for GpuBackend {
             Precision::F32 => "f32",
             Precision::F16 => "f16",
         };
-        format!("wgpu {p} on {}", self.adapter_name)
+        let coop = self
+            .conv_paths
+            .iter()
+            .filter(|l| l.contains(": cooperative matrix"))
+            .count();
+        let tiled = self.conv_paths.len() - coop;
+        let paths = match (coop, tiled) {
+            (0, _) => "tiled convolutions".to_string(),
+            (_, 0) => "convolutions on cooperative matrices".to_string(),
+            _ => format!("{coop} convolutions on cooperative matrices, {tiled} tiled"),
+        };
+        format!("wgpu {p} on {}, {paths}", self.adapter_name)
     }
 
     fn last_gpu_ns(&self) -> Option<u64> {
         self.last_gpu_ns
+    }
+
+    fn conv_paths(&self) -> Vec<String> {
+        self.conv_paths.clone()
     }
 
     fn last_traffic(&self) -> HostTraffic {

@@ -58,6 +58,8 @@ impl GpuBackend {
                     *tile = codegen::ConvTile::for_layer(
                         (width >> level) as u32,
                         (height >> level) as u32,
+                        c.kernel,
+                        key.weights,
                     );
                 }
                 Some(key)
@@ -233,7 +235,16 @@ impl GpuBackend {
                     let (t, oc) = codegen::CONV_TRANSPOSE_TILE;
                     [lw.div_ceil(t), lh.div_ceil(t), cout.div_ceil(oc)]
                 }
-                _ => {
+                KernelKind::CoopConv { transposed, .. } => {
+                    use codegen::coop;
+                    let columns = if transposed { 4 * cout } else { cout };
+                    [
+                        lw.div_ceil(coop::SIZE),
+                        lh.div_ceil(coop::ROWS),
+                        columns.div_ceil(coop::SIZE).div_ceil(coop::SUBGROUPS),
+                    ]
+                }
+                KernelKind::MaxPool => {
                     let t = codegen::POOL_TILE;
                     [(lw / 2).div_ceil(t), (lh / 2).div_ceil(t), cout]
                 }

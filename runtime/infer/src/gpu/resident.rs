@@ -352,9 +352,12 @@ impl DeviceDcnn {
         queue: &wgpu::Queue,
         adapter_name: String,
         precision: Precision,
+        conv_path: crate::ConvPath,
     ) -> Result<Self, InferenceError> {
         let network = model.lower()?;
-        let backend = GpuBackend::new(device, queue, adapter_name, &network, precision)?;
+        let support = super::ConvSupport::of_device(device, conv_path);
+        let backend =
+            GpuBackend::new_with(device, queue, adapter_name, &network, precision, support)?;
         Ok(Self { model, backend })
     }
 

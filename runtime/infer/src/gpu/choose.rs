@@ -1,0 +1,165 @@
+//! Each layer's kernel, chosen once when the network is prepared: the
+//! register-tiled kernels, or cooperative matrices (the tensor cores) for
+//! the convolutions where the adapter and the layer allow them; with the
+//! reason, for `nedrt bench inference` and `nedrt run` to print.
+
+use super::codegen::{self, Dtype, KernelKind, coop};
+use super::{err, pack};
+use crate::network::{Layer, Network, ValueId};
+use crate::{ConvPath, InferenceError};
+
+/// What the convolutions may use on a device.
+#[derive(Debug, Clone)]
+pub struct ConvSupport {
+    pub path: ConvPath,
+    /// The adapter's cooperative-matrix support, or why there is none.
+    pub coop: Result<coop::CoopAdapter, String>,
+}
+
+impl ConvSupport {
+    /// What `device` offers, under `path`.
+    pub fn of_device(device: &wgpu::Device, path: ConvPath) -> Self {
+        let info = device.adapter_info();
+        Self {
+            path,
+            coop: coop::device_support(
+                device.features(),
+                (info.subgroup_min_size, info.subgroup_max_size),
+            ),
+        }
+    }
+
+    /// Tiled kernels only, for `reason`.
+    pub fn tiled(reason: &str) -> Self {
+        Self {
+            path: ConvPath::Tiled,
+            coop: Err(reason.into()),
+        }
+    }
+
+    /// The cooperative path for a layer of `cin` → `cout` channels, or why not.
+    fn coop_for(&self, cin: usize, cout: usize, weights: Dtype) -> Result<u32, String> {
+        if self.path == ConvPath::Tiled {
+            return Err(self
+                .coop
+                .as_ref()
+                .err()
+                .cloned()
+                .unwrap_or_else(|| "tiled kernels asked for".into()));
+        }
+        let adapter = self.coop.as_ref().map_err(Clone::clone)?;
+        coop::layer_fits(cin, cout, weights)?;
+        Ok(adapter.subgroup_size)
+    }
+}
+
+/// One layer's kernel: what it runs, reads, and its packed weights.
+#[derive(Debug)]
+pub(super) struct LayerKernel {
+    pub(super) kind: KernelKind,
+    pub(super) input: ValueId,
+    pub(super) residual: Option<ValueId>,
+    /// Weights in the order the kernel reads them, then the bias.
+    pub(super) weights: Vec<f32>,
+    pub(super) bias: Vec<f32>,
+    /// "tiled" or "cooperative matrix", and why, for convolutions.
+    pub(super) path: Option<String>,
+}
+
+/// `layer`'s kernel in `weights` storage, or None for a concat (it costs
+/// nothing: its inputs are written in place).
+pub(super) fn layer_kernel(
+    layer: &Layer,
+    network: &Network,
+    weights: Dtype,
+    support: &ConvSupport,
+) -> Result<Option<LayerKernel>, InferenceError> {
+    Ok(Some(match layer {
+        Layer::Conv(c) => {
+            if c.kernel > codegen::MAX_CONV_KERNEL {
+                return Err(err(format!(
+                    "{}×{} convolutions are not supported (at most {}×{})",
+                    c.kernel,
+                    c.kernel,
+                    codegen::MAX_CONV_KERNEL,
+                    codegen::MAX_CONV_KERNEL
+                )));
+            }
+            let (relu, residual, clamp) =
+                (c.relu, c.residual.is_some(), c.output == network.output);
+            let what = format!("conv {0}×{0} {1}→{2}", c.kernel, c.cin, c.cout);
+            let (kind, packed, path) = match support.coop_for(c.cin, c.cout, weights) {
+                Ok(subgroup_size) => (
+                    KernelKind::CoopConv {
+                        kernel: c.kernel,
+                        relu,
+                        residual,
+                        clamp,
+                        transposed: false,
+                        subgroup_size,
+                    },
+                    pack::coop_conv(&c.weight, c.cin, c.cout, c.kernel),
+                    format!("{what}: cooperative matrix 16×16×16 f16→f32"),
+                ),
+                Err(why) => (
+                    KernelKind::Conv {
+                        kernel: c.kernel,
+                        relu,
+                        residual,
+                        clamp,
+                        tile: codegen::ConvTile::LARGE,
+                    },
+                    pack::conv(&c.weight, c.cin, c.cout, c.kernel),
+                    format!("{what}: tiled ({why})"),
+                ),
+            };
+            LayerKernel {
+                kind,
+                input: c.input,
+                residual: c.residual,
+                weights: packed,
+                bias: c.bias.clone(),
+                path: Some(path),
+            }
+        }
+        Layer::ConvTranspose(c) => {
+            let what = format!("transposed conv 2×2 {}→{}", c.cin, c.cout);
+            let (kind, packed, path) = match support.coop_for(c.cin, c.cout, weights) {
+                Ok(subgroup_size) => (
+                    KernelKind::CoopConv {
+                        kernel: 1,
+                        relu: c.relu,
+                        residual: false,
+                        clamp: false,
+                        transposed: true,
+                        subgroup_size,
+                    },
+                    pack::coop_conv_transpose(&c.weight, c.cin, c.cout),
+                    format!("{what}: cooperative matrix 16×16×16 f16→f32"),
+                ),
+                Err(why) => (
+                    KernelKind::ConvTranspose { relu: c.relu },
+                    pack::conv_transpose(&c.weight, c.cin, c.cout),
+                    format!("{what}: tiled ({why})"),
+                ),
+            };
+            LayerKernel {
+                kind,
+                input: c.input,
+                residual: None,
+                weights: packed,
+                bias: c.bias.clone(),
+                path: Some(path),
+            }
+        }
+        Layer::MaxPool { input, .. } => LayerKernel {
+            kind: KernelKind::MaxPool,
+            input: *input,
+            residual: None,
+            weights: Vec::new(),
+            bias: Vec::new(),
+            path: None,
+        },
+        Layer::Concat { .. } => return Ok(None),
+    }))
+}

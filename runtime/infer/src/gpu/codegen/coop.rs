@@ -1,0 +1,95 @@
+//! The cooperative-matrix path (`shaders/conv_coop.wgsl`): which layers
+//! take it on which adapter, and the template's unrolled parts.
+
+use super::Dtype;
+
+/// Pixel rows of 16 a subgroup accumulates (one 16×16 f32 matrix each).
+pub const ROWS: u32 = 4;
+/// Subgroups in a workgroup, each its own block of 16 output columns,
+/// sharing the staged input tile.
+pub const SUBGROUPS: u32 = 4;
+/// The one matrix shape the template uses: M = N = K = 16.
+pub const SIZE: u32 = 16;
+
+/// Where the adapter can run the template: its subgroup size.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub struct CoopAdapter {
+    pub subgroup_size: u32,
+}
+
+/// The cooperative-matrix path on a device, or why not: its features
+/// (`nedrt_gpu::open_device` enables cooperative matrices only where the
+/// adapter lists the 16×16×16 f16→f32 shape) and its subgroup sizes.
+pub fn device_support(
+    features: wgpu::Features,
+    subgroup_sizes: (u32, u32),
+) -> Result<CoopAdapter, String> {
+    if !features.contains(wgpu::Features::EXPERIMENTAL_COOPERATIVE_MATRIX) {
+        return Err(
+            "the device has no cooperative matrices (its adapter lists no 16×16×16 f16→f32 \
+             shape, or it was opened without f16)"
+                .into(),
+        );
+    }
+    let needed = wgpu::Features::SUBGROUP | wgpu::Features::SHADER_F16;
+    if !features.contains(needed) {
+        return Err(format!(
+            "the device was opened without {:?}",
+            needed - (features & needed)
+        ));
+    }
+    let (min, max) = subgroup_sizes;
+    if min != max || min == 0 || min > 128 || !min.is_power_of_two() {
+        return Err(format!(
+            "the adapter's subgroups are {min}–{max} invocations; the kernel needs one size"
+        ));
+    }
+    Ok(CoopAdapter { subgroup_size: min })
+}
+
+/// Why a layer of `cin` → `cout` channels in `weights` storage does or
+/// does not take the cooperative-matrix path on a capable adapter.
+pub fn layer_fits(cin: usize, cout: usize, weights: Dtype) -> Result<(), String> {
+    if weights != Dtype::F16 {
+        return Err("needs f16 (--precision f16)".into());
+    }
+    if cin < SIZE as usize {
+        return Err(format!("{cin} input channels, under one 16-channel matrix"));
+    }
+    if cout < 4 {
+        return Err(format!(
+            "{cout} output channels, under a quarter of a matrix"
+        ));
+    }
+    Ok(())
+}
+
+/// The accumulators: `c{r}`, one 16×16 f32 matrix per pixel row.
+pub(super) fn accumulators() -> String {
+    (0..ROWS)
+        .map(|r| format!("    var c{r} = coop_mat16x16<f32, C>();\n"))
+        .collect()
+}
+
+/// One tap's products: per pixel row, its 16 pixels × 16 channels from
+/// the staged tile times the tap's weights.
+pub(super) fn taps() -> String {
+    (0..ROWS)
+        .map(|r| {
+            format!(
+                "            let a{r} = coopLoadT<coop_mat16x16<f16, A>>(&a_tile[(({r}u + ky) * IN_W + kx) * 16u], 16u);\n            c{r} = coopMultiplyAdd(a{r}, b, c{r});\n"
+            )
+        })
+        .collect()
+}
+
+/// Each accumulator out through workgroup memory and the epilogue.
+pub(super) fn stores() -> String {
+    (0..ROWS)
+        .map(|r| {
+            format!(
+                "    coopStoreT(c{r}, &c_tile[sg * 256u], 16u);\n    workgroupBarrier();\n    drain(sg, lane, blk, x0, y0 + {r}u);\n    workgroupBarrier();\n"
+            )
+        })
+        .collect()
+}

@@ -1,0 +1,137 @@
+// A K×K "same" convolution (bias, ReLU, residual, clamp fused), or the 2×2
+// stride-2 transposed one (bias, ReLU), as an implicit GEMM on cooperative
+// matrices (the tensor cores): M = 16 pixels of a row, K = 16 input
+// channels of one tap, N = 16 output columns (16 channels, or for the
+// transposed conv 4 channels × its 4 taps). f16 inputs, f32 accumulators.
+// A template filled by runtime/infer/src/gpu/codegen/coop.rs; chosen only
+// where the adapter lists the 16×16×16 f16 shape (docs/inference.md).
+//
+// A workgroup is SUBGROUPS subgroups of SG invocations (the adapter's one
+// subgroup size; the builtins say which subgroup an invocation is in, so
+// nothing assumes how invocations are grouped). Per 16-channel
+// chunk it stages its input tile (ROWS + K − 1 rows of 16 + K − 1 pixels,
+// 16 channels each, channels innermost so that a row of 16 pixels is a
+// row-major 16×16 matrix with stride 16) in workgroup memory once; each
+// subgroup then multiplies it by its own block of output columns, whose
+// weights were packed at load as one row-major 16×16 matrix per block,
+// chunk and tap (`codegen::pack_coop`), read straight from the weight
+// buffer (every workgroup reads the same few KiB: they stay in cache).
+// Each subgroup holds ROWS accumulators (ROWS × 16 pixels × 16 columns);
+// the epilogue goes through workgroup memory, one matrix at a time, so
+// that it can address pixels and channels.
+enable f16;
+enable wgpu_cooperative_matrix;
+
+{{LAYER_BINDINGS}}
+
+const K: u32 = {{K}}u;
+const R: u32 = K / 2u;
+const SG: u32 = {{SG}}u;
+const SUBGROUPS: u32 = {{SUBGROUPS}}u;
+const THREADS: u32 = SG * SUBGROUPS;
+const ROWS: u32 = {{ROWS}}u;
+const IN_W: u32 = 16u + K - 1u;
+const IN_H: u32 = ROWS + K - 1u;
+const TRANSPOSED: bool = {{TRANSPOSED}};
+const RELU: bool = {{RELU}};
+const RESIDUAL: bool = {{RESIDUAL}};
+const CLAMP: bool = {{CLAMP}};
+
+// [row][column][channel of the chunk].
+var<workgroup> a_tile: array<f16, IN_H * IN_W * 16u>;
+// Each subgroup's accumulator on its way out: [pixel][column].
+var<workgroup> c_tile: array<f32, SUBGROUPS * 256u>;
+
+@compute @workgroup_size({{THREADS}}, 1, 1)
+fn main(
+    @builtin(workgroup_id) wg: vec3<u32>,
+    @builtin(local_invocation_index) li: u32,
+    @builtin(subgroup_id) sg: u32,
+    @builtin(subgroup_invocation_id) lane: u32,
+) {
+    let x0 = wg.x * 16u;
+    let y0 = wg.y * ROWS;
+    // This subgroup's block of 16 output columns.
+    let blk = wg.z * SUBGROUPS + sg;
+    let plane = p.width * p.height;
+    let chunks = (p.cin + 15u) / 16u;
+{{ACC_DECL}}
+
+    for (var chunk = 0u; chunk < chunks; chunk++) {
+        // Pixels innermost in the loop, so neighbouring invocations read
+        // neighbouring pixels of one plane.
+        for (var i = li; i < 16u * IN_H * IN_W; i += THREADS) {
+            let ci = i / (IN_H * IN_W);
+            let pix = i % (IN_H * IN_W);
+            let gx = i32(x0 + pix % IN_W) - i32(R);
+            let gy = i32(y0 + pix / IN_W) - i32(R);
+            let c = chunk * 16u + ci;
+            var v = f16(0.0);
+            if (c < p.cin && gx >= 0 && gx < i32(p.width) && gy >= 0 && gy < i32(p.height)) {
+                v = f16(src[p.in_offset + c * plane + u32(gy) * p.width + u32(gx)]);
+            }
+            a_tile[pix * 16u + ci] = v;
+        }
+        workgroupBarrier();
+        for (var tap = 0u; tap < K * K; tap++) {
+            let ky = tap / K;
+            let kx = tap % K;
+            let b = coopLoadT<coop_mat16x16<f16, B>>(
+                &weights[p.w_offset + ((blk * chunks + chunk) * K * K + tap) * 256u], 16u);
+{{TAPS}}
+        }
+        workgroupBarrier();
+    }
+
+{{STORES}}
+}
+
+// Accumulator `row` of this subgroup out through workgroup memory, each
+// value through the epilogue.
+fn drain(sg: u32, lane: u32, blk: u32, x0: u32, y: u32) {
+    for (var i = lane; i < 256u; i += SG) {
+        // Pixels innermost: neighbouring invocations write neighbours.
+        let px = i % 16u;
+        let col = i / 16u;
+        let sum = c_tile[sg * 256u + px * 16u + col];
+        emit(x0 + px, y, blk * 16u + col, sum);
+    }
+}
+
+// The epilogue of one output value (column `n` of the GEMM): bias, ReLU,
+// residual, clamp, store.
+fn emit(x: u32, y: u32, n: u32, sum: f32) {
+    if (x >= p.width || y >= p.height) {
+        return;
+    }
+    if (TRANSPOSED) {
+        let oc = n / 4u;
+        let tap = n % 4u;
+        if (oc >= p.cout) {
+            return;
+        }
+        let ow = 2u * p.width;
+        var v = sum + f32(weights[p.b_offset + oc]);
+        if (RELU) {
+            v = max(v, 0.0);
+        }
+        let at = oc * 4u * p.width * p.height + (2u * y + tap / 2u) * ow + 2u * x + tap % 2u;
+        dst[p.out_offset + at] = {{DST_T}}(v);
+    } else {
+        if (n >= p.cout) {
+            return;
+        }
+        let at = n * p.width * p.height + y * p.width + x;
+        var v = sum + f32(weights[p.b_offset + n]);
+        if (RELU) {
+            v = max(v, 0.0);
+        }
+        if (RESIDUAL) {
+            v += f32(residual[p.res_offset + at]);
+        }
+        if (CLAMP) {
+            v = clamp(v, 0.0, 1.0);
+        }
+        dst[p.out_offset + at] = {{DST_T}}(v);
+    }
+}
