@@ -14,6 +14,11 @@ pub struct ConvSupport {
     pub path: ConvPath,
     /// The adapter's cooperative-matrix support, or why there is none.
     pub coop: Result<coop::CoopAdapter, String>,
+    /// Whether the tiled kernels sum in f16 at `--precision f16`: on GPUs,
+    /// where f16 runs at twice the f32 rate or more; not on a CPU adapter
+    /// (lavapipe), where LLVM converts every f16 operation to f32 and back,
+    /// so f16 stays a storage type there (docs/inference.md).
+    pub f16_arithmetic: bool,
 }
 
 impl ConvSupport {
@@ -26,6 +31,7 @@ impl ConvSupport {
                 device.features(),
                 (info.subgroup_min_size, info.subgroup_max_size),
             ),
+            f16_arithmetic: info.device_type != wgpu::DeviceType::Cpu,
         }
     }
 
@@ -34,6 +40,7 @@ impl ConvSupport {
         Self {
             path: ConvPath::Tiled,
             coop: Err(reason.into()),
+            f16_arithmetic: false,
         }
     }
 
@@ -162,4 +169,47 @@ pub(super) fn layer_kernel(
         },
         Layer::Concat { .. } => return Ok(None),
     }))
+}
+
+/// The network with its cooperative-matrix layers against the same network
+/// all tiled, on the default adapter, for one frame: the largest absolute
+/// difference of their outputs, or None where no layer takes the
+/// cooperative path (then there is nothing to compare). The device check's
+/// proof that the tensor-core kernels compute what the tiled ones do, on
+/// the one kind of machine that runs them.
+pub fn cooperative_against_tiled(
+    network: &Network,
+    options: &crate::BackendOptions,
+    frame: &nedrt_core::Image,
+) -> Result<Option<f32>, InferenceError> {
+    let auto = crate::BackendOptions {
+        conv_path: ConvPath::Auto,
+        ..options.clone()
+    };
+    let mut coop = super::GpuBackend::new_default(network, &auto)?;
+    if !coop
+        .conv_paths()
+        .iter()
+        .any(|l| l.contains(": cooperative matrix"))
+    {
+        return Ok(None);
+    }
+    let tiled = crate::BackendOptions {
+        conv_path: ConvPath::Tiled,
+        ..options.clone()
+    };
+    let mut reference = super::GpuBackend::new_default(network, &tiled)?;
+    let (w, h) = (frame.width, frame.height);
+    let a = coop.run_tensor(frame.data(), w, h)?;
+    let b = reference.run_tensor(frame.data(), w, h)?;
+    Ok(Some(
+        a.iter()
+            .zip(&b)
+            // A NaN on either side is the largest difference, not none.
+            .map(|(x, y)| (x - y).abs())
+            .fold(
+                0.0,
+                |m, d| if d.is_nan() { f32::INFINITY } else { m.max(d) },
+            ),
+    ))
 }

@@ -140,9 +140,12 @@ pub struct KernelKey {
     pub src: Dtype,
     pub dst: Dtype,
     pub residual: Dtype,
-    /// The weights' storage type, and the type the products are summed in
-    /// before the f32 accumulators.
+    /// The weights' storage type.
     pub weights: Dtype,
+    /// The type the tiled kernels stage in and sum a tap's products in
+    /// before the f32 accumulators: f16 where the weights are f16 and the
+    /// adapter is a GPU (`ConvSupport::f16_arithmetic`).
+    pub arith: Dtype,
 }
 
 /// Largest conv kernel the tiled template's workgroup memory fits.
@@ -166,7 +169,7 @@ const CONV_TRANSPOSE_QUADS: u32 = 4;
 
 impl KernelKey {
     pub fn uses_f16(&self) -> bool {
-        [self.src, self.dst, self.residual, self.weights].contains(&Dtype::F16)
+        [self.src, self.dst, self.residual, self.weights, self.arith].contains(&Dtype::F16)
     }
 
     /// The WGSL source of this variant.
@@ -179,7 +182,7 @@ impl KernelKey {
                 clamp,
                 tile,
             } => {
-                let cq = tile.quads(kernel, self.weights);
+                let cq = tile.quads(kernel, self.arith);
                 (
                     CONV,
                     vec![
@@ -258,8 +261,8 @@ impl KernelKey {
             .replace("{{DST_T}}", self.dst.wgsl())
             .replace("{{RES_T}}", self.residual.wgsl())
             .replace("{{W_T}}", self.weights.wgsl())
-            .replace("{{ARITH}}", self.weights.wgsl())
-            .replace("{{MAC}}", &tiled::mac(self.weights));
+            .replace("{{ARITH}}", self.arith.wgsl())
+            .replace("{{MAC}}", &tiled::mac(self.arith));
         for (name, value) in fields {
             s = s.replace(&format!("{{{{{name}}}}}"), &value);
         }
@@ -311,7 +314,19 @@ mod tests {
                     dst: t,
                     residual: Dtype::F32,
                     weights: t,
+                    arith: t,
                 });
+                // f16 storage summed in f32 (a CPU adapter's choice).
+                if t == Dtype::F16 {
+                    keys.push(KernelKey {
+                        kind,
+                        src: t,
+                        dst: t,
+                        residual: Dtype::F32,
+                        weights: t,
+                        arith: Dtype::F32,
+                    });
+                }
             }
         }
         keys
@@ -384,6 +399,7 @@ mod tests {
                     dst: Dtype::F16,
                     residual: Dtype::F32,
                     weights: Dtype::F16,
+                    arith: Dtype::F16,
                 });
             }
         }

@@ -26,7 +26,7 @@ mod plan;
 mod profile;
 mod resident;
 
-pub use choose::ConvSupport;
+pub use choose::{ConvSupport, cooperative_against_tiled};
 pub use resident::DeviceDcnn;
 
 use std::collections::HashMap;
@@ -260,6 +260,11 @@ impl GpuBackend {
                 dst: dtype(root(layer.output())),
                 residual: residual.map_or(Dtype::F32, |r| dtype(root(r))),
                 weights: t,
+                arith: if support.f16_arithmetic {
+                    t
+                } else {
+                    Dtype::F32
+                },
             };
             layer_keys.push(Some(key));
         }

@@ -56,6 +56,7 @@ mod tests {
                 dst: Dtype::F32,
                 residual: Dtype::F32,
                 weights: Dtype::F32,
+                arith: Dtype::F32,
             };
             let module = naga::front::wgsl::parse_str(&key.wgsl()).expect("parses");
             let (_, ty) = module

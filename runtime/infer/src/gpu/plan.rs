@@ -59,7 +59,7 @@ impl GpuBackend {
                         (width >> level) as u32,
                         (height >> level) as u32,
                         c.kernel,
-                        key.weights,
+                        key.arith,
                     );
                 }
                 Some(key)
