@@ -81,6 +81,14 @@ pub(super) fn layer_kernel(
     weights: Dtype,
     support: &ConvSupport,
 ) -> Result<Option<LayerKernel>, InferenceError> {
+    // How a tiled kernel sums at f16 storage, said with its placement.
+    let arith = match (weights, support.f16_arithmetic) {
+        (Dtype::F32, _) => "",
+        (Dtype::F16, true) => ", f16 arithmetic",
+        (Dtype::F16, false) => {
+            ", f32 arithmetic on f16 storage (a CPU adapter converts every f16 operation)"
+        }
+    };
     Ok(Some(match layer {
         Layer::Conv(c) => {
             if c.kernel > codegen::MAX_CONV_KERNEL {
@@ -117,7 +125,7 @@ pub(super) fn layer_kernel(
                         tile: codegen::ConvTile::LARGE,
                     },
                     pack::conv(&c.weight, c.cin, c.cout, c.kernel),
-                    format!("{what}: tiled ({why})"),
+                    format!("{what}: tiled ({why}){arith}"),
                 ),
             };
             LayerKernel {
@@ -147,7 +155,7 @@ pub(super) fn layer_kernel(
                 Err(why) => (
                     KernelKind::ConvTranspose { relu: c.relu },
                     pack::conv_transpose(&c.weight, c.cin, c.cout),
-                    format!("{what}: tiled ({why})"),
+                    format!("{what}: tiled ({why}){arith}"),
                 ),
             };
             LayerKernel {

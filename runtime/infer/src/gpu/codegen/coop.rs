@@ -93,3 +93,45 @@ pub(super) fn stores() -> String {
         })
         .collect()
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_path_is_taken_only_where_device_and_layer_allow_it() {
+        use wgpu::Features as F;
+        let all = F::EXPERIMENTAL_COOPERATIVE_MATRIX | F::SUBGROUP | F::SHADER_F16;
+        assert_eq!(
+            device_support(all, (32, 32)),
+            Ok(CoopAdapter { subgroup_size: 32 })
+        );
+        // lavapipe: no cooperative matrices listed, so none enabled.
+        let e = device_support(F::SHADER_F16 | F::SUBGROUP, (8, 8)).expect_err("none");
+        assert!(e.contains("no cooperative matrices"), "{e}");
+        let e = device_support(F::EXPERIMENTAL_COOPERATIVE_MATRIX | F::SHADER_F16, (32, 32))
+            .expect_err("no subgroups");
+        assert!(e.contains("SUBGROUP"), "{e}");
+        // A subgroup size that varies (AMD's 32–64) leaves the kernel unsure
+        // how many subgroups a workgroup holds.
+        let e = device_support(all, (32, 64)).expect_err("varies");
+        assert!(e.contains("32–64"), "{e}");
+
+        assert_eq!(layer_fits(16, 16, Dtype::F16), Ok(()));
+        assert!(
+            layer_fits(32, 32, Dtype::F32)
+                .expect_err("f32")
+                .contains("f16")
+        );
+        assert!(
+            layer_fits(3, 32, Dtype::F16)
+                .expect_err("first layer")
+                .contains("3 input")
+        );
+        assert!(
+            layer_fits(32, 3, Dtype::F16)
+                .expect_err("output layer")
+                .contains("3 output")
+        );
+    }
+}
