@@ -437,30 +437,6 @@ mod needs_gpu {
         }
     }
 
-    /// The acceptance size, too slow for CI on lavapipe (the shipped network
-    /// is about two minutes a frame there, the full one about seven): run
-    /// it by name, `cargo test --release -p nedrt-infer --lib -- --ignored
-    /// networks_at_1080p` (docs/inference.md, Tests).
-    #[test]
-    #[ignore = "slow: a 1920×1080 frame of both networks on the GPU and the CPU twin; run by name"]
-    fn networks_at_1080p_match_the_cpu_twin() {
-        let full = model_from(&synth::unet(32, 4, 5), "full.onnx");
-        let (w, h) = (1920, 1080);
-        let frame = random_frame(w, h, 32);
-        for (name, model) in [("shipped", trained_model()), ("full", full)] {
-            let net = model.lower().expect("lowers");
-            let want = reference::run(&net, frame.data(), h, w);
-            for precision in [Precision::F32, Precision::F16] {
-                let (device, queue) = gpu_device(precision);
-                let mut gpu = GpuBackend::new(&device, &queue, "test".into(), &net, precision)
-                    .expect("builds");
-                let got = gpu.run_tensor(frame.data(), w, h).expect("runs");
-                let d = max_abs_diff(&want, &got);
-                assert!(d <= tolerance(precision), "{name} {precision:?} 1080p: {d}");
-            }
-        }
-    }
-
     #[test]
     #[ignore = "needs a GPU adapter (run: scripts/test.sh, or cargo test -- --include-ignored)"]
     fn f16_arithmetic_matches_the_cpu_twin() {
@@ -575,6 +551,36 @@ mod needs_gpu_and_ort {
                 let want = ort_dcnn_frame(&frame);
                 let d = max_abs_diff(want.data(), got.data());
                 assert!(d <= tolerance(precision), "{precision:?} {w}×{h}: {d}");
+            }
+        }
+    }
+}
+
+/// Outside `needs_gpu`, so that scripts/test.sh's `needs_` filter leaves it
+/// out: run by name (`-- --ignored at_full_size`).
+mod at_full_size {
+    use super::*;
+
+    /// The acceptance size, too slow for CI on lavapipe (the shipped network
+    /// is about two minutes a frame there, the full one about seven): run
+    /// it by name, `cargo test --release -p nedrt-infer --lib -- --ignored
+    /// at_full_size` (docs/inference.md, Tests).
+    #[test]
+    #[ignore = "slow: a 1920×1080 frame of both networks on the GPU and the CPU twin; run by name"]
+    fn networks_at_1080p_match_the_cpu_twin() {
+        let full = model_from(&synth::unet(32, 4, 5), "full.onnx");
+        let (w, h) = (1920, 1080);
+        let frame = random_frame(w, h, 32);
+        for (name, model) in [("shipped", trained_model()), ("full", full)] {
+            let net = model.lower().expect("lowers");
+            let want = reference::run(&net, frame.data(), h, w);
+            for precision in [Precision::F32, Precision::F16] {
+                let (device, queue) = gpu_device(precision);
+                let mut gpu = GpuBackend::new(&device, &queue, "test".into(), &net, precision)
+                    .expect("builds");
+                let got = gpu.run_tensor(frame.data(), w, h).expect("runs");
+                let d = max_abs_diff(&want, &got);
+                assert!(d <= tolerance(precision), "{name} {precision:?} 1080p: {d}");
             }
         }
     }
