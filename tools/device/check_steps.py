@@ -126,10 +126,12 @@ def peaks(ceilings: Step) -> dict:
     # peak is the f32 FMA rate, which a cuBLAS SGEMM with TF32 off reaches.
     # The cooperative-matrix kernels run on the tensor cores at f16: their
     # peak is half the f16 GEMM's FLOP rate (where it was measured).
-    out = {"--peak-gmacs": f"{rec['f32_gemm_tflops'] * 1e3 / 2:.0f}"}
+    # Six digits: a GPU's rates print whole, a loaded CPU's (the smoke)
+    # stay above zero.
+    out = {"--peak-gmacs": f"{rec['f32_gemm_tflops'] * 1e3 / 2:.6g}"}
     if rec.get("f16_gemm_tflops"):
-        out["--peak-tensor-gmacs"] = f"{rec['f16_gemm_tflops'] * 1e3 / 2:.0f}"
-    out["--peak-gbps"] = f"{rec['copy_gbps']:.0f}"
+        out["--peak-tensor-gmacs"] = f"{rec['f16_gemm_tflops'] * 1e3 / 2:.6g}"
+    out["--peak-gbps"] = f"{rec['copy_gbps']:.6g}"
     return out
 
 

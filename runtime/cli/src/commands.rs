@@ -208,7 +208,7 @@ pub fn run(cli: Cli) -> Result<()> {
                     },
                 };
                 if bench.per_layer {
-                    print!("{}", studies::bench_inference::per_layer(&bench, &common)?);
+                    print!("{}", studies::bench_layers::per_layer(&bench, &common)?);
                 } else {
                     let table =
                         studies::bench_inference::run(&bench, &common, &mut |r| println!("{r}"))?;

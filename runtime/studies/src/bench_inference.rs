@@ -9,8 +9,6 @@ use std::time::Instant;
 
 use serde_json::json;
 
-pub use super::bench_layers::{Peaks, per_layer};
-
 use super::AppError;
 use super::bench::median;
 use crate::CommonOptions;
@@ -34,6 +32,39 @@ pub struct InferenceBench {
     pub per_layer: bool,
     /// The adapter's peak rates for the per-layer floors.
     pub peaks: Peaks,
+}
+
+/// The adapter's peak rates for the floors; `None`: not given (the best
+/// any layer of the table reached stands in).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct Peaks {
+    /// The general (CUDA) cores' multiply-adds, GMAC/s.
+    pub gmacs: Option<f64>,
+    /// The tensor cores' (matrix units') multiply-adds at f16, GMAC/s.
+    pub tensor_gmacs: Option<f64>,
+    /// Memory bandwidth, GB/s (bytes read plus written).
+    pub gbps: Option<f64>,
+}
+
+impl Peaks {
+    /// Every given rate must be a positive number; the error names its flag.
+    pub fn check(&self) -> Result<(), AppError> {
+        for (flag, v) in [
+            ("--peak-gmacs", self.gmacs),
+            ("--peak-tensor-gmacs", self.tensor_gmacs),
+            ("--peak-gbps", self.gbps),
+        ] {
+            if let Some(v) = v
+                && !(v.is_finite() && v > 0.0)
+            {
+                return Err(AppError::option(
+                    format!("{flag} {v}"),
+                    "must be a positive rate",
+                ));
+            }
+        }
+        Ok(())
+    }
 }
 
 /// The trainer's 4-level U-Net of first-level `width`, random weights.

@@ -12,42 +12,9 @@ use std::time::Instant;
 
 use super::AppError;
 use super::bench::median;
-use super::bench_inference::{InferenceBench, adapter, adapter_line, bench_frame, synth_model};
+use super::bench_inference::{InferenceBench, Peaks, adapter, adapter_line, bench_frame, synth_model};
 use crate::CommonOptions;
 use nedrt_infer::{BackendKind, BackendOptions, Dcnn, LayerTiming};
-
-/// The adapter's peak rates for the floors; `None`: not given (the best
-/// any layer of the table reached stands in).
-#[derive(Debug, Clone, Copy, Default, PartialEq)]
-pub struct Peaks {
-    /// The general (CUDA) cores' multiply-adds, GMAC/s.
-    pub gmacs: Option<f64>,
-    /// The tensor cores' (matrix units') multiply-adds at f16, GMAC/s.
-    pub tensor_gmacs: Option<f64>,
-    /// Memory bandwidth, GB/s (bytes read plus written).
-    pub gbps: Option<f64>,
-}
-
-impl Peaks {
-    /// Every given rate must be a positive number; the error names its flag.
-    pub fn check(&self) -> Result<(), AppError> {
-        for (flag, v) in [
-            ("--peak-gmacs", self.gmacs),
-            ("--peak-tensor-gmacs", self.tensor_gmacs),
-            ("--peak-gbps", self.gbps),
-        ] {
-            if let Some(v) = v
-                && !(v.is_finite() && v > 0.0)
-            {
-                return Err(AppError::option(
-                    format!("{flag} {v}"),
-                    "must be a positive rate",
-                ));
-            }
-        }
-        Ok(())
-    }
-}
 
 /// The rates one table's floors are taken from, and where each came from.
 #[derive(Debug, Clone, PartialEq)]
