@@ -16,7 +16,8 @@ def report(steps: dict, meta: dict) -> str:
     text = lambda name: getattr(steps.get(name), "text", "")
     adapter = next(iter(records("setup", "adapter")), None)
     if adapter:
-        md += ["", f"Adapter ({head}): {adapter.get('describe')}; cooperative matrices (M×N×K A·B→C): "
+        name = adapter.get("name") or adapter.get("describe")
+        md += ["", f"Adapter ({head}): {name}; cooperative matrices (M×N×K A·B→C): "
                    f"{adapter.get('cooperative_matrices_text', 'not reported')}; wgpu's "
                    f"EXPERIMENTAL_COOPERATIVE_MATRIX: "
                    f"{'offered' if adapter.get('cooperative_matrix_feature') else 'not offered'}."]
@@ -77,8 +78,13 @@ def dcnn_table(wgsl: list, torch_rows: list, head: str) -> list:
         md.append(f"| {x['model']} | {x['backend']} | {x['precision']} | {x.get('conv_path') or '–'} | "
                   f"{x['width']}×{x['height']} | {ms(x['median_s'])} | "
                   f"{ms(x.get('gpu_median_s') if x['backend'] == 'wgpu' else x['median_s'])} | "
-                  f"{'–' if rate is None else f'{rate:.0f}'} | {ratio[0]} | {ratio[1]} |")
+                  f"{gmacs(rate)} | {ratio[0]} | {ratio[1]} |")
     return md
+
+
+def gmacs(rate) -> str:
+    """A GPU's rate whole, a CPU's (the smoke) with its first digits."""
+    return "–" if rate is None else f"{rate:.0f}" if rate >= 100 else f"{rate:.3g}"
 
 
 def training(rows: list, head: str) -> list:

@@ -157,7 +157,7 @@ def step_per_layer(r: Runner, s: Step, z: dict, ceilings: Step):
     for path in CONV_PATHS:
         out = r.sh([r.nedrt, "--conv-path", path, "bench", "inference", "--per-layer", "--sizes", z["layer_frame"],
                     "--repeat", z["repeat"], *flags(peaks(ceilings))], s.cap_s, parse_json=False)
-        texts.append(f"\n#### --conv-path {path}\n\n{out.strip()}\n")
+        texts.append(f"\n**--conv-path {path}**\n\n{out.strip()}\n")
     s.text = "".join(texts)
 
 
