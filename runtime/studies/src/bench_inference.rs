@@ -13,6 +13,7 @@ use super::AppError;
 use super::bench::median;
 use crate::CommonOptions;
 use nedrt_core::{Image, Named};
+use nedrt_gpu::GpuError;
 use nedrt_gpu::adapter::{AdapterReport, describe_cooperative_matrices, scalar_name};
 use nedrt_infer::{BackendKind, BackendOptions, Dcnn, ModelFile, synth};
 
@@ -87,8 +88,8 @@ pub(crate) fn bench_frame(w: usize, h: usize) -> Image {
 }
 
 /// The adapter wgpu takes for the bench's settings, or why there is none.
-pub(crate) fn adapter(common: &CommonOptions) -> Result<AdapterReport, String> {
-    nedrt_gpu::adapter::default_adapter(&common.dcnn.backend_options.gpu).map_err(|e| e.to_string())
+pub(crate) fn adapter(common: &CommonOptions) -> Result<AdapterReport, GpuError> {
+    nedrt_gpu::adapter::default_adapter(&common.dcnn.backend_options.gpu)
 }
 
 /// The bench's first line for the wgpu backend: the adapter wgpu takes,
@@ -96,7 +97,7 @@ pub(crate) fn adapter(common: &CommonOptions) -> Result<AdapterReport, String> {
 /// `--conv-path` lets the backend use (so that a run on a lent GPU records
 /// what its tensor cores offered).
 pub(crate) fn adapter_line(
-    adapter: &Result<AdapterReport, String>,
+    adapter: &Result<AdapterReport, GpuError>,
     common: &CommonOptions,
 ) -> String {
     let path = common.dcnn.backend_options.conv_path;
@@ -113,7 +114,7 @@ pub(crate) fn adapter_line(
 
 /// The adapter as a record for the JSON lines (`kind: "adapter"`).
 fn adapter_record(
-    adapter: &Result<AdapterReport, String>,
+    adapter: &Result<AdapterReport, GpuError>,
     common: &CommonOptions,
 ) -> serde_json::Value {
     let conv_path = common.dcnn.backend_options.conv_path.name();
@@ -133,7 +134,9 @@ fn adapter_record(
             "cooperative_matrices_text": describe_cooperative_matrices(&a.cooperative_matrices),
             "conv_path": conv_path,
         }),
-        Err(e) => json!({"kind": "adapter", "name": null, "error": e, "conv_path": conv_path}),
+        Err(e) => {
+            json!({"kind": "adapter", "name": null, "error": e.to_string(), "conv_path": conv_path})
+        }
     }
 }
 

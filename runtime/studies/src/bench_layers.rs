@@ -12,7 +12,9 @@ use std::time::Instant;
 
 use super::AppError;
 use super::bench::median;
-use super::bench_inference::{InferenceBench, Peaks, adapter, adapter_line, bench_frame, synth_model};
+use super::bench_inference::{
+    InferenceBench, Peaks, adapter, adapter_line, bench_frame, synth_model,
+};
 use crate::CommonOptions;
 use nedrt_infer::{BackendKind, BackendOptions, Dcnn, LayerTiming};
 
