@@ -720,6 +720,19 @@ const ROWS: &[Row] = &[
         "--peak-gmacs 0: must be a positive rate",
     ),
     row(
+        "bench: a tensor-core peak rate that is not a number",
+        &[
+            "bench",
+            "inference",
+            "--per-layer",
+            "--sizes",
+            "32x32",
+            "--peak-tensor-gmacs",
+            "NaN",
+        ],
+        "--peak-tensor-gmacs NaN: must be a positive rate",
+    ),
+    row(
         "bench: a pipeline of no frames",
         &["bench", "pipeline", "--frames", "0"],
         "--frames 0 and --max-seconds 120 must be positive",

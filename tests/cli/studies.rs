@@ -165,6 +165,80 @@ fn tradeoff_writes_the_chart_and_the_picker_reads_it() {
 mod needs_gpu {
     use super::*;
 
+    /// `bench inference` names the adapter with its cooperative-matrix
+    /// shapes (a record and the header) and gives each case's GPU time
+    /// beside its wall time; `--per-layer` the whole frame's two times and
+    /// each layer against its floors.
+    #[test]
+    #[ignore = "needs a GPU adapter (run: scripts/test.sh, or cargo test -- --include-ignored)"]
+    fn bench_inference_tells_gpu_time_from_wall_time() {
+        let o = run(&[
+            "bench",
+            "inference",
+            "--backends",
+            "wgpu",
+            "--sizes",
+            "16x16",
+            "--repeat",
+            "1",
+        ]);
+        assert!(o.status.success(), "{}", stderr(&o));
+        let out = stdout(&o);
+        let records: Vec<serde_json::Value> = out
+            .lines()
+            .filter(|l| l.starts_with('{'))
+            .map(|l| serde_json::from_str(l).expect("json"))
+            .collect();
+        let adapter = records
+            .iter()
+            .find(|r| r["kind"] == "adapter")
+            .expect("an adapter record");
+        assert!(adapter["cooperative_matrices"].is_array(), "{adapter}");
+        assert!(
+            out.contains("cooperative matrices (M×N×K A·B→C): "),
+            "{out}"
+        );
+        assert!(out.contains("--conv-path auto"), "{out}");
+        assert!(
+            out.contains("| wall median ms | wall min ms | GPU median ms | GPU min ms |"),
+            "{out}"
+        );
+        let cases: Vec<_> = records
+            .iter()
+            .filter(|r| r["kind"] == "dcnn_latency")
+            .collect();
+        assert!(!cases.is_empty(), "{out}");
+        for r in cases {
+            assert_eq!(r["conv_path"], "auto", "{r}");
+            assert!(
+                r["gpu_median_s"].is_f64() || r["gpu_median_s"].is_null(),
+                "{r}"
+            );
+        }
+        let o = run(&[
+            "--conv-path",
+            "tiled",
+            "bench",
+            "inference",
+            "--per-layer",
+            "--sizes",
+            "16x16",
+            "--repeat",
+            "1",
+        ]);
+        assert!(o.status.success(), "{}", stderr(&o));
+        let out = stdout(&o);
+        for says in [
+            "--conv-path tiled",
+            "ms wall",
+            "ms GPU",
+            "CUDA-core floor = max(MACs",
+            "| × it | tensor-core floor ms | × it |",
+        ] {
+            assert!(out.contains(says), "{says}: {out}");
+        }
+    }
+
     /// `--backends …,wgpu` adds each prefilter the device runs as a row
     /// of its own, scored as the CPU's row (the same display images) and
     /// timed on the device.

@@ -1,12 +1,17 @@
-"""tools/device/check.py (scripts/device-check.sh) without running its steps
-(CI runs `--smoke`, which runs them all): the plan counts what travels as
-the device tool does and refuses more than the limit; the steps' caps fit
-the envelope with time left to train; the report renders a run whose steps
-failed or found no figures; a bad --only is refused; side-by-side commands
-run no more at once than memory holds and a killed one is named."""
+"""tools/device/check.py (scripts/device-check.sh) and its modules without
+running their steps (CI runs `--smoke`, which runs them all): the plan
+counts what travels as the device tool does and refuses more than the
+limit; each call's caps fit its envelope, the first with time left to
+train, and both calls fit the device time a task is lent; the report
+renders a run whose steps failed or found no figures, and the new tables
+(the adapter's cooperative matrices, wall and GPU time, refine:10 per
+frame, the tradeoff); a bad --only or --call is refused; the smoke without
+the trainer's .venv says how to make it; side-by-side commands run no more
+at once than memory holds and a killed one is named."""
 import importlib.util
 import json
 import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -15,74 +20,147 @@ REPO = Path(__file__).resolve().parents[2]
 spec = importlib.util.spec_from_file_location("device_check", REPO / "tools" / "device" / "check.py")
 check = importlib.util.module_from_spec(spec)
 spec.loader.exec_module(check)
+# Loading check.py puts tools/device on the path, so its modules import by name.
+import check_report  # noqa: E402
+import check_runner  # noqa: E402
+import check_steps  # noqa: E402
+import check_travel  # noqa: E402
 
 
 def test_the_plan_counts_every_tracked_file():
     listed = subprocess.run(["git", "ls-files", "-z"], cwd=REPO, capture_output=True, text=True,
                             check=True).stdout.split("\0")
     tracked = sum((REPO / p).stat().st_size for p in listed if p and (REPO / p).is_file())
-    items = dict(check.travelling())
+    items = dict(check_travel.travelling())
     assert sum(n for p, n in items.items() if p in set(listed)) == tracked
     assert all(not p.startswith((".venv/", "target/")) for p in items)
 
 
 def test_the_plan_refuses_more_than_the_limit(monkeypatch, capsys):
-    monkeypatch.setattr(check, "TRAVEL_LIMIT", 1)
-    assert check.plan() == 1
-    assert "over" in capsys.readouterr().err
+    monkeypatch.setattr(check_travel, "TRAVEL_LIMIT", 1)
+    assert check_travel.plan() == 1
+    captured = capsys.readouterr()
+    assert "over" in captured.err
+    # Both calls are named with their commands.
+    assert 'run(command="bash scripts/device-check.sh --call 2"' in captured.out
 
 
-def test_the_caps_fit_the_envelope_and_leave_time_to_train():
-    fixed = sum(c for n, _, c in check.caps() if n != "train")
-    assert fixed + check.AFTER_TRAIN_S < check.ENVELOPE_S
+def test_the_caps_fit_the_envelopes_and_leave_time_to_train():
+    fixed = sum(c for n, _, c in check_steps.caps(1) if n != "train")
+    assert fixed + check_runner.AFTER_TRAIN_S < check_runner.ENVELOPE_S
     # The training gets at least two and a half minutes, whatever the benchmarks take.
-    assert check.ENVELOPE_S - fixed >= 150
-    # One tool call is at most 600 s.
-    assert check.ENVELOPE_S <= 540
+    assert check_runner.ENVELOPE_S - fixed >= 150
+    # One tool call is at most 600 s, with a minute for its start and $OUT.
+    assert check_runner.ENVELOPE_S <= 540 and check_runner.ENVELOPE2_S <= 540
+    second = check_steps.caps(2)
+    assert [n for n, _, _ in second] == ["setup", "tradeoff"]
+    assert sum(c for _, _, c in second) <= check_runner.ENVELOPE2_S
+    # Both calls and a machine's start within a task's device time.
+    assert check_runner.START_S + check_runner.ENVELOPE_S + check_runner.ENVELOPE2_S < check_runner.DEVICE_TIME_S
+    # Every step belongs to a call, and the smoke (all calls) runs each once.
+    assert {n for n, *_ in check_steps.STEPS} == {n for n, _, _ in check_steps.caps()}
+    assert check_steps.calls() == [1, 2]
 
 
-def test_the_report_renders_failed_and_empty_steps():
-    steps = {n: check.Step(n, w, c) for n, w, c in check.caps()}
+def test_the_tensor_core_peak_is_half_the_f16_gemm_rate():
+    ceilings = check_runner.Step("ceilings", "", 20)
+    ceilings.status = "ok"
+    ceilings.records.append({"kind": "ceilings", "copy_gbps": 4179.0, "f32_gemm_tflops": 50.8,
+                             "tf32_gemm_tflops": 432.1, "f16_gemm_tflops": 799.2})
+    assert check_steps.peaks(ceilings) == {"--peak-gmacs": "25400", "--peak-tensor-gmacs": "399600",
+                                           "--peak-gbps": "4179"}
+    ceilings.records[0]["f16_gemm_tflops"] = None  # the CPU has no f16 GEMM
+    assert "--peak-tensor-gmacs" not in check_steps.peaks(ceilings)
+    # A slow CPU's rate (the smoke) is not rounded to zero, which the bench refuses.
+    ceilings.records[0]["f32_gemm_tflops"] = 0.0004
+    assert check_steps.peaks(ceilings)["--peak-gmacs"] == "0.2"
+
+
+def steps_of_a_run():
+    steps = {n: check_runner.Step(n, w, c) for n, w, c in check_steps.caps()}
     steps["setup"].status = "ok"
+    steps["setup"].records.append({"kind": "adapter", "describe": "GPU (Vulkan, DiscreteGpu)",
+                                   "cooperative_matrix_feature": True,
+                                   "cooperative_matrices_text": "16×16×16 f16·f16→f32"})
     steps["wgsl"].status, steps["wgsl"].note = "failed", "exit 1: no | adapter"
     steps["ceilings"].status = "ok"
     steps["ceilings"].records.append({"kind": "ceilings", "copy_gbps": 3000.0, "f32_gemm_tflops": 50.0,
                                       "tf32_gemm_tflops": None, "f16_gemm_tflops": 700.0})
     steps["torch"].records.append({"kind": "dcnn_latency", "model": "half", "backend": "pytorch",
-                                   "precision": "f32", "width": 8, "height": 8, "median_s": 1e-3, "min_s": 1e-3,
+                                   "precision": "f16", "width": 8, "height": 8, "median_s": 1e-3, "min_s": 1e-3,
                                    "gmac_per_s": 1.0})
+    return steps
+
+
+def test_the_report_renders_failed_and_empty_steps():
+    steps = steps_of_a_run()
     meta = {"mode": "device", "date": "today", "commit": "abc", "dirty": False, "device": "GPU"}
-    md = check.report(steps, meta)
+    md = check_report.report(steps, meta)
     assert "| wgsl | failed |" in md and "no / adapter" in md
     assert "3000 GB/s" in md and "– in TF32" in md
-    assert "| half | pytorch | f32 | 8×8 |" in md
+    assert "| half | pytorch | f16 | – | 8×8 |" in md
+    assert "cooperative matrices (M×N×K A·B→C): 16×16×16 f16·f16→f32" in md
     json.dumps([s.summary() for s in steps.values()])
+    # Nothing but setup: every section without figures is left out.
+    md = check_report.report({"setup": check_runner.Step("setup", "", 20)}, meta)
+    assert "## " not in md
 
 
-def test_a_bad_only_is_refused(capsys):
+def test_the_report_shows_wall_and_gpu_time_refine_and_the_tradeoff():
+    steps = steps_of_a_run()
+    steps["wgsl"].records.append({"kind": "dcnn_latency", "model": "half", "backend": "wgpu", "precision": "f16",
+                                  "conv_path": "auto", "width": 8, "height": 8, "median_s": 4e-3, "min_s": 4e-3,
+                                  "gpu_median_s": 2e-3, "gmac_per_s": 1.0, "gpu_gmac_per_s": 2.0})
+    steps["pipeline"].records.append({"kind": "pipeline", "network": "refine10", "frame_path": "device",
+                                      "width": 8, "height": 8, "presented": 5, "dropped": 0, "gpu_p50_ms": 3.25,
+                                      "e2e_p50_ms": 12.5})
+    steps["tradeoff"].text = "| configuration | latency ms |\n| --- | --- |\n| refine:10 wgpu | 3.3 |"
+    md = check_report.report(steps, {"mode": "device", "date": "today", "commit": "abc", "device": "GPU",
+                                     "call_flag": " --call 2"})
+    # wall 4 ms and GPU 2 ms against PyTorch's 1 ms.
+    assert "| half | wgpu | f16 | auto | 8×8 | 4.00 | 2.00 | 2 | 4.00 | 2.00 |" in md
+    assert "GPU p50 3.2 ms a frame" in md and "end to end p50 12.5 ms" in md
+    assert "| refine:10 wgpu | 3.3 |" in md
+    assert "device-check.sh --call 2`" in md
+
+
+def test_a_bad_only_or_call_is_refused(capsys):
     assert check.main(["--only", "setup,warp"]) == 2
     assert "no step warp" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as e:
+        check.main(["--call", "3"])
+    assert e.value.code == 2
+
+
+def test_the_smoke_without_the_trainers_venv_says_how_to_make_it(tmp_path, monkeypatch, capsys):
+    monkeypatch.setattr(check, "missing_modules", lambda python, env: ["torch", "nedrt_train"])
+    assert check.check(tmp_path / "out", smoke=True) == 2
+    err = capsys.readouterr().err
+    assert "cannot import torch, nedrt_train" in err and "bash scripts/test.sh" in err
+    assert not (tmp_path / "out").exists()
+    # The probe itself: a module that exists is not missing, one that does not is.
+    monkeypatch.setattr(check_runner, "NEEDED_MODULES", ["json", "no_such_module_of_nedrt"])
+    assert check_runner.missing_modules(sys.executable, {}) == ["no_such_module_of_nedrt"]
 
 
 def test_parallel_runs_no_more_at_once_than_memory_holds_and_names_a_killed_child(tmp_path, monkeypatch):
-    import sys
     import time
 
-    r = check.Runner(tmp_path, smoke=True)
-    r.step = check.Step("teacher", "test", 60)
+    r = check_runner.Runner(tmp_path, smoke=True)
+    r.step = check_runner.Step("teacher", "test", 60)
     # Each child holds a lock file while it runs; a second holder means two at once.
     script = ("import os,sys,time; p=sys.argv[1]; fd=os.open(p,os.O_CREAT|os.O_EXCL); time.sleep(0.3); "
               "os.close(fd); os.remove(p)")
     lock = tmp_path / "lock"
-    monkeypatch.setattr(check, "available_gib", lambda: 9.0)
+    monkeypatch.setattr(check_runner, "available_gib", lambda: 9.0)
     r.parallel([[sys.executable, "-c", script, lock] for _ in range(3)], time.monotonic() + 30, mem_gib=5)
     assert len(r.step.commands) == 3
     # Unbounded, the three overlap and two of them find the lock taken.
-    with pytest.raises(check.Failed, match="exit 1"):
+    with pytest.raises(check_runner.Failed, match="exit 1"):
         r.parallel([[sys.executable, "-c", script, lock] for _ in range(3)], time.monotonic() + 30)
     time.sleep(0.5)
-    with pytest.raises(check.Failed, match="killed by SIGKILL"):
+    with pytest.raises(check_runner.Failed, match="killed by SIGKILL"):
         r.parallel([[sys.executable, "-c", "import os,signal; os.kill(os.getpid(), signal.SIGKILL)"]],
                    time.monotonic() + 30)
-    with pytest.raises(check.Failed, match="timed out"):
+    with pytest.raises(check_runner.Failed, match="timed out"):
         r.parallel([[sys.executable, "-c", "import time; time.sleep(30)"]], time.monotonic() + 0.5)

@@ -377,10 +377,17 @@ pub struct BenchArgs {
     /// and say which sit furthest from the floor; fft: each dispatch.
     #[arg(long)]
     pub per_layer: bool,
-    /// inference --per-layer: the adapter's peak multiply-add rate, GMAC/s
-    /// (default: the best any layer reaches in the run).
+    /// inference --per-layer: the general (CUDA) cores' peak multiply-add
+    /// rate, GMAC/s, the CUDA-core floor (default: the best any layer on
+    /// them reaches in the run).
     #[arg(long, value_name = "GMAC/S")]
     pub peak_gmacs: Option<f64>,
+    /// inference --per-layer: the tensor cores' (matrix units') peak
+    /// multiply-add rate at f16, GMAC/s, the floor of the layers on
+    /// cooperative matrices (half the f16 GEMM's FLOP rate; default: the
+    /// best any such layer reaches in the run).
+    #[arg(long, value_name = "GMAC/S")]
+    pub peak_tensor_gmacs: Option<f64>,
     /// inference --per-layer, fft: the adapter's peak memory bandwidth, GB/s
     /// (inference: default the best any layer reaches in the run; fft: no floor).
     #[arg(long, value_name = "GB/S")]

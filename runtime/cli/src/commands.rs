@@ -201,11 +201,14 @@ pub fn run(cli: Cli) -> Result<()> {
                     max_seconds: a.max_seconds,
                     threads: g.threads,
                     per_layer: a.per_layer,
-                    peak_gmacs: a.peak_gmacs,
-                    peak_gbps: a.peak_gbps,
+                    peaks: studies::bench_inference::Peaks {
+                        gmacs: a.peak_gmacs,
+                        tensor_gmacs: a.peak_tensor_gmacs,
+                        gbps: a.peak_gbps,
+                    },
                 };
                 if bench.per_layer {
-                    print!("{}", studies::bench_inference::per_layer(&bench, &common)?);
+                    print!("{}", studies::bench_layers::per_layer(&bench, &common)?);
                 } else {
                     let table =
                         studies::bench_inference::run(&bench, &common, &mut |r| println!("{r}"))?;

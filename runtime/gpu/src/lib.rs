@@ -7,6 +7,7 @@
 //! ([`GpuError`], the FFT's [`fft::FftError`]), and the caller wraps them in
 //! its own error type.
 
+pub mod adapter;
 pub mod fft;
 pub mod refine;
 

@@ -159,6 +159,10 @@ pub struct LayerTiming {
     /// precision: the least memory traffic the layer can have.
     pub bytes: u64,
     pub gpu_ns: u64,
+    /// Whether the layer ran on cooperative matrices (the tensor cores or
+    /// matrix units), so that its floor is the matrix rate's, not the
+    /// general cores'.
+    pub tensor_cores: bool,
 }
 
 /// An engine that runs the lowered network on frames whose sides are

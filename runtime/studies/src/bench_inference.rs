@@ -12,7 +12,9 @@ use serde_json::json;
 use super::AppError;
 use super::bench::median;
 use crate::CommonOptions;
-use nedrt_core::Image;
+use nedrt_core::{Image, Named};
+use nedrt_gpu::GpuError;
+use nedrt_gpu::adapter::{AdapterReport, describe_cooperative_matrices, scalar_name};
 use nedrt_infer::{BackendKind, BackendOptions, Dcnn, ModelFile, synth};
 
 /// What to time.
@@ -29,165 +31,45 @@ pub struct InferenceBench {
     pub threads: usize,
     /// Time each layer on the wgpu backend instead (timestamp queries).
     pub per_layer: bool,
-    /// The adapter's peak rates for the per-layer floor (GMAC/s, GB/s);
-    /// `None`: the best any layer reached in the run.
-    pub peak_gmacs: Option<f64>,
-    pub peak_gbps: Option<f64>,
+    /// The adapter's peak rates for the per-layer floors.
+    pub peaks: Peaks,
 }
 
-/// Each layer of each model on the wgpu backend at each size: device time,
-/// work, rates, and how far from the floor (MACs over the peak rate or
-/// bytes over the peak bandwidth, whichever is larger).
-pub fn per_layer(b: &InferenceBench, common: &CommonOptions) -> Result<String, AppError> {
-    for (flag, v) in [("--peak-gmacs", b.peak_gmacs), ("--peak-gbps", b.peak_gbps)] {
-        if let Some(v) = v
-            && !(v.is_finite() && v > 0.0)
-        {
-            return Err(AppError::option(
-                format!("{flag} {v}"),
-                "must be a positive rate",
-            ));
-        }
-    }
-    let mut md = String::new();
-    for (name, width) in &b.models {
-        let model = synth_model(name, *width)?;
-        for &precision in BackendKind::Wgpu.precisions() {
-            let options = BackendOptions {
-                precision,
-                ..common.dcnn.backend_options.clone()
-            };
-            let mut dcnn = match Dcnn::from_model(model.clone(), BackendKind::Wgpu, &options) {
-                Ok(d) => d,
-                Err(e) => {
-                    let _ = writeln!(md, "\n{name} wgpu {precision:?}: skipped: {e}");
-                    continue;
-                }
-            };
-            for &(w, h) in &b.sizes {
-                let frame = bench_frame(w, h);
-                // The first run prepares the plan; the best of `repeat` after it.
-                let mut best = dcnn.layer_timings(&frame);
-                for _ in 0..b.repeat.max(1) {
-                    let Ok(prev) = &best else { break };
-                    best = dcnn.layer_timings(&frame).map(|next| {
-                        prev.iter()
-                            .zip(next)
-                            .map(|(a, mut n)| {
-                                n.gpu_ns = n.gpu_ns.min(a.gpu_ns);
-                                n
-                            })
-                            .collect()
-                    });
-                }
-                match best {
-                    Ok(rows) => {
-                        md += &layer_table(
-                            &format!("{name} on {}, {w}×{h}", dcnn.describe()),
-                            &rows,
-                            b.peak_gmacs,
-                            b.peak_gbps,
-                        )
-                    }
-                    Err(e) => {
-                        let _ = writeln!(md, "\n{name} {}, {w}×{h}: skipped: {e}", dcnn.describe());
-                    }
-                }
+/// The adapter's peak rates for the floors; `None`: not given (the best
+/// any layer of the table reached stands in).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct Peaks {
+    /// The general (CUDA) cores' multiply-adds, GMAC/s.
+    pub gmacs: Option<f64>,
+    /// The tensor cores' (matrix units') multiply-adds at f16, GMAC/s.
+    pub tensor_gmacs: Option<f64>,
+    /// Memory bandwidth, GB/s (bytes read plus written).
+    pub gbps: Option<f64>,
+}
+
+impl Peaks {
+    /// Every given rate must be a positive number; the error names its flag.
+    pub fn check(&self) -> Result<(), AppError> {
+        for (flag, v) in [
+            ("--peak-gmacs", self.gmacs),
+            ("--peak-tensor-gmacs", self.tensor_gmacs),
+            ("--peak-gbps", self.gbps),
+        ] {
+            if let Some(v) = v
+                && !(v.is_finite() && v > 0.0)
+            {
+                return Err(AppError::option(
+                    format!("{flag} {v}"),
+                    "must be a positive rate",
+                ));
             }
         }
+        Ok(())
     }
-    Ok(md)
-}
-
-/// One run's per-layer table and the layers furthest from the floor.
-fn layer_table(
-    title: &str,
-    rows: &[nedrt_infer::LayerTiming],
-    peak_gmacs: Option<f64>,
-    peak_gbps: Option<f64>,
-) -> String {
-    let secs = |r: &nedrt_infer::LayerTiming| (r.gpu_ns.max(1)) as f64 * 1e-9;
-    let gmacs = |r: &nedrt_infer::LayerTiming| r.macs as f64 / secs(r) / 1e9;
-    let gbps = |r: &nedrt_infer::LayerTiming| r.bytes as f64 / secs(r) / 1e9;
-    let best =
-        |f: &dyn Fn(&nedrt_infer::LayerTiming) -> f64| rows.iter().map(f).fold(0.0f64, f64::max);
-    let whence = |given: Option<f64>| {
-        if given.is_some() {
-            "as given"
-        } else {
-            "the best any layer reached here"
-        }
-    };
-    let (pm, pb) = (
-        peak_gmacs.unwrap_or_else(|| best(&gmacs)),
-        peak_gbps.unwrap_or_else(|| best(&gbps)),
-    );
-    let whence = format!(
-        "MAC rate {}, bandwidth {}{}",
-        whence(peak_gmacs),
-        whence(peak_gbps),
-        if peak_gmacs.is_some() && peak_gbps.is_some() {
-            ""
-        } else {
-            " (--peak-gmacs and --peak-gbps give the adapter's own)"
-        }
-    );
-    let floor_s = |r: &nedrt_infer::LayerTiming| {
-        (r.macs as f64 / (pm * 1e9)).max(r.bytes as f64 / (pb * 1e9))
-    };
-    let total: f64 = rows.iter().map(secs).sum();
-    let mut md = format!(
-        "\n### {title}\n\nFloor = max(MACs / {pm:.2} GMAC/s, bytes / {pb:.2} GB/s); {whence}. \
-         Layers in passes of their own: {:.2} ms in all.\n\n\
-         | # | layer | output C×H×W | MMAC | MB | ms | share | GMAC/s | GB/s | × floor |\n\
-         | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |\n",
-        total * 1e3
-    );
-    for r in rows {
-        let _ = writeln!(
-            md,
-            "| {} | {} | {}×{}×{} | {:.1} | {:.1} | {:.3} | {:.1} % | {:.2} | {:.2} | {:.1} |",
-            r.layer,
-            r.kind,
-            r.output[0],
-            r.output[1],
-            r.output[2],
-            r.macs as f64 / 1e6,
-            r.bytes as f64 / 1e6,
-            secs(r) * 1e3,
-            100.0 * secs(r) / total,
-            gmacs(r),
-            gbps(r),
-            secs(r) / floor_s(r)
-        );
-    }
-    let mut order: Vec<&nedrt_infer::LayerTiming> = rows.iter().collect();
-    // Furthest from the floor, weighted by the time it costs: the layers
-    // whose tuning would pay most.
-    order.sort_by(|a, b| (secs(b) - floor_s(b)).total_cmp(&(secs(a) - floor_s(a))));
-    let worst: Vec<String> = order
-        .iter()
-        .take(3)
-        .map(|r| {
-            format!(
-                "#{} {} ({:.1}× its floor, {:.2} ms above it)",
-                r.layer,
-                r.kind,
-                secs(r) / floor_s(r),
-                (secs(r) - floor_s(r)) * 1e3
-            )
-        })
-        .collect();
-    let _ = writeln!(
-        md,
-        "\nFurthest from the floor (time above it): {}.",
-        worst.join("; ")
-    );
-    md
 }
 
 /// The trainer's 4-level U-Net of first-level `width`, random weights.
-fn synth_model(name: &str, width: i64) -> Result<ModelFile, AppError> {
+pub(crate) fn synth_model(name: &str, width: i64) -> Result<ModelFile, AppError> {
     Ok(ModelFile::from_bytes(
         std::path::Path::new(&format!("synth-{name}.onnx")),
         synth::encode(&synth::unet(width, 4, 1)),
@@ -205,6 +87,109 @@ pub(crate) fn bench_frame(w: usize, h: usize) -> Image {
     )
 }
 
+/// The adapter wgpu takes for the bench's settings, or why there is none.
+pub(crate) fn adapter(common: &CommonOptions) -> Result<AdapterReport, GpuError> {
+    nedrt_gpu::adapter::default_adapter(&common.dcnn.backend_options.gpu)
+}
+
+/// The bench's first line for the wgpu backend: the adapter wgpu takes,
+/// the cooperative-matrix shapes it lists, and the convolution kernels
+/// `--conv-path` lets the backend use (so that a run on a lent GPU records
+/// what its tensor cores offered).
+pub(crate) fn adapter_line(
+    adapter: &Result<AdapterReport, GpuError>,
+    common: &CommonOptions,
+) -> String {
+    let path = common.dcnn.backend_options.conv_path;
+    let adapter = match adapter {
+        Ok(a) => a.describe(),
+        Err(e) => format!("none ({e})"),
+    };
+    format!(
+        "wgpu adapter: {adapter}. Convolution kernels: --conv-path {} ({}).\n",
+        path.name(),
+        path.help()
+    )
+}
+
+/// The adapter as a record for the JSON lines (`kind: "adapter"`).
+fn adapter_record(
+    adapter: &Result<AdapterReport, GpuError>,
+    common: &CommonOptions,
+) -> serde_json::Value {
+    let conv_path = common.dcnn.backend_options.conv_path.name();
+    match adapter {
+        Ok(a) => json!({
+            "kind": "adapter",
+            "name": a.name,
+            "cooperative_matrix_feature": a.cooperative_matrix_feature,
+            "cooperative_matrices": a.cooperative_matrices.iter().map(|p| json!({
+                "m": p.m_size,
+                "n": p.n_size,
+                "k": p.k_size,
+                "ab": scalar_name(p.ab_type),
+                "cr": scalar_name(p.cr_type),
+                "saturating": p.saturating_accumulation,
+            })).collect::<Vec<_>>(),
+            "cooperative_matrices_text": describe_cooperative_matrices(&a.cooperative_matrices),
+            "conv_path": conv_path,
+        }),
+        Err(e) => {
+            json!({"kind": "adapter", "name": null, "error": e.to_string(), "conv_path": conv_path})
+        }
+    }
+}
+
+/// The table's head: what the wall and the GPU columns measure.
+pub const TABLE_HEAD: &str = "Wall: each frame as the host sees it (the frame's upload, the \
+network, its read-back and the host's checks); GPU: the network alone on the device, from \
+timestamp queries around its pass (– where the engine measures none). Median and least of \
+--repeat runs after a warm-up; GMAC/s over each.\n\n\
+| model | backend | precision | frame | wall median ms | wall min ms | GPU median ms | GPU min ms | \
+GMAC/s (wall) | GMAC/s (GPU) |\n\
+| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |\n";
+
+/// Medians and least of a case's runs, seconds: wall always, GPU where
+/// every run measured it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CaseTimes {
+    pub wall_median: f64,
+    pub wall_min: f64,
+    pub gpu: Option<(f64, f64)>,
+}
+
+impl CaseTimes {
+    pub fn new(wall: &[f64], gpu: &[Option<f64>]) -> Self {
+        let least = |v: &[f64]| v.iter().copied().fold(f64::MAX, f64::min);
+        let gpu: Option<Vec<f64>> = gpu.iter().copied().collect();
+        Self {
+            wall_median: median(wall.to_vec()),
+            wall_min: least(wall),
+            gpu: gpu
+                .filter(|g| !g.is_empty())
+                .map(|g| (median(g.clone()), least(&g))),
+        }
+    }
+
+    /// The row's time and rate cells after the frame's (`macs` per frame).
+    pub fn cells(&self, macs: f64) -> String {
+        let (gm, gl, gr) = match self.gpu {
+            Some((m, l)) => (
+                format!("{:.2}", m * 1e3),
+                format!("{:.2}", l * 1e3),
+                format!("{:.1}", macs / m / 1e9),
+            ),
+            None => ("–".into(), "–".into(), "–".into()),
+        };
+        format!(
+            "{:.2} | {:.2} | {gm} | {gl} | {:.1} | {gr}",
+            self.wall_median * 1e3,
+            self.wall_min * 1e3,
+            macs / self.wall_median / 1e9
+        )
+    }
+}
+
 /// Runs every case, handing each result to `on_record` as it is measured
 /// (JSON), and returns the Markdown table.
 pub fn run(
@@ -215,9 +200,14 @@ pub fn run(
     let bar = common.phase("cases");
     let variants: usize = b.backends.iter().map(|&k| k.precisions().len()).sum();
     bar.set_length((b.models.len() * variants * b.sizes.len()) as u64);
-    let mut table = String::from(
-        "| model | backend | precision | frame | median ms | min ms | GMAC/s |\n| --- | --- | --- | --- | --- | --- | --- |\n",
-    );
+    let mut table = String::new();
+    if b.backends.contains(&BackendKind::Wgpu) {
+        let adapter = adapter(common);
+        on_record(&adapter_record(&adapter, common));
+        table += &adapter_line(&adapter, common);
+        table.push('\n');
+    }
+    table += TABLE_HEAD;
     for (name, width) in &b.models {
         let model = synth_model(name, *width)?;
         for &kind in &b.backends {
@@ -233,7 +223,7 @@ pub fn run(
                         tracing::warn!("{name} {} {precision:?}: skipped: {e}", kind.name());
                         let _ = writeln!(
                             table,
-                            "| {name} | {} | {precision:?} | – | skipped: {e} | | |",
+                            "| {name} | {} | {precision:?} | – | skipped: {e} | | | | | |",
                             kind.name()
                         );
                         bar.inc(b.sizes.len() as u64);
@@ -249,7 +239,7 @@ pub fn run(
                     {
                         let _ = writeln!(
                             table,
-                            "| {name} | {} | {precision:?} | {w}×{h} | skipped (≈ {:.0} s per frame) | | |",
+                            "| {name} | {} | {precision:?} | {w}×{h} | skipped (≈ {:.0} s per frame) | | | | | |",
                             kind.name(),
                             spp * pixels
                         );
@@ -261,23 +251,22 @@ pub fn run(
                     let t = Instant::now();
                     dcnn.run_frame(&frame)?;
                     let first = t.elapsed().as_secs_f64();
-                    let mut times = Vec::new();
+                    let (mut wall, mut gpu) = (Vec::new(), Vec::new());
                     for _ in 0..b.repeat.max(1) {
                         let t = Instant::now();
                         dcnn.run_frame(&frame)?;
-                        times.push(t.elapsed().as_secs_f64());
+                        wall.push(t.elapsed().as_secs_f64());
+                        gpu.push(dcnn.last_gpu_ns().map(|ns| ns as f64 * 1e-9));
                     }
-                    let med = median(times.clone());
-                    let min = times.iter().copied().fold(f64::MAX, f64::min);
-                    seconds_per_pixel = Some(med / pixels);
-                    let gmacs = macs * pixels / med / 1e9;
+                    let times = CaseTimes::new(&wall, &gpu);
+                    seconds_per_pixel = Some(times.wall_median / pixels);
                     let _ = writeln!(
                         table,
-                        "| {name} | {} | {precision:?} | {w}×{h} | {:.1} | {:.1} | {gmacs:.1} |",
+                        "| {name} | {} | {precision:?} | {w}×{h} | {} |",
                         dcnn.describe(),
-                        med * 1e3,
-                        min * 1e3
+                        times.cells(macs * pixels)
                     );
+                    let gpu_field = |f: fn((f64, f64)) -> f64| times.gpu.map(f);
                     on_record(&json!({
                         "kind": "dcnn_latency",
                         "model": name,
@@ -285,13 +274,18 @@ pub fn run(
                         "backend": kind.name(),
                         "device": dcnn.describe(),
                         "precision": format!("{precision:?}").to_lowercase(),
+                        "conv_path": (kind == BackendKind::Wgpu)
+                            .then(|| options.conv_path.name()),
                         "width": w,
                         "height": h,
                         "first_run_s": first,
-                        "median_s": med,
-                        "min_s": min,
+                        "median_s": times.wall_median,
+                        "min_s": times.wall_min,
+                        "gpu_median_s": gpu_field(|g| g.0),
+                        "gpu_min_s": gpu_field(|g| g.1),
                         "repeat": b.repeat,
-                        "gmac_per_s": gmacs,
+                        "gmac_per_s": macs * pixels / times.wall_median / 1e9,
+                        "gpu_gmac_per_s": gpu_field(|g| g.0).map(|s| macs * pixels / s / 1e9),
                     }));
                     bar.inc(1);
                 }
@@ -300,4 +294,38 @@ pub fn run(
     }
     bar.finish_and_clear();
     Ok(table)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn gpu_time_is_shown_only_where_every_run_measured_it() {
+        let t = CaseTimes::new(
+            &[0.003, 0.001, 0.002],
+            &[Some(0.0015), Some(0.0005), Some(0.001)],
+        );
+        assert_eq!(t.wall_median, 0.002);
+        assert_eq!(t.wall_min, 0.001);
+        assert_eq!(t.gpu, Some((0.001, 0.0005)));
+        // 2e9 MACs a frame: 1000 GMAC/s on the wall median, 2000 on the GPU's.
+        assert_eq!(t.cells(2e9), "2.00 | 1.00 | 1.00 | 0.50 | 1000.0 | 2000.0");
+        let host = CaseTimes::new(&[0.002], &[None]);
+        assert_eq!(host.gpu, None);
+        assert_eq!(host.cells(2e9), "2.00 | 2.00 | – | – | 1000.0 | –");
+        let partly = CaseTimes::new(&[0.002, 0.002], &[Some(0.001), None]);
+        assert_eq!(partly.gpu, None);
+    }
+
+    #[test]
+    fn the_head_names_the_wall_and_the_gpu_columns() {
+        let cells = TABLE_HEAD
+            .lines()
+            .find(|l| l.starts_with("| model"))
+            .unwrap();
+        assert_eq!(cells.matches('|').count(), 11);
+        assert!(TABLE_HEAD.contains("GPU: the network alone on the device, from timestamp"));
+        assert!(TABLE_HEAD.contains("Wall: each frame as the host sees it"));
+    }
 }

@@ -127,10 +127,11 @@ pub fn run(
     let mut table = format!(
         "`nedrt bench pipeline`: test pattern at {} Hz, {w}×{h}, {views}wgpu backend, headless sink; \
          at most {} frames or {} s per case from its first frame \
-         (prepare s: the PSFs and filters for the panel, before it)\n\n\
+         (prepare s: the PSFs and filters for the panel, before it; GPU p50: the engine's own \
+         time on the device per frame, from timestamp queries)\n\n\
          | network | frame path | prepare s | shown | dropped | e2e p50 ms | e2e p99 ms | e2e max ms | \
-         MB up / frame | uploads / frame | MB back / frame | read-backs / frame |{}\n\
-         | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |{}\n",
+         GPU p50 ms | MB up / frame | uploads / frame | MB back / frame | read-backs / frame |{}\n\
+         | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |{}\n",
         calib.panel.refresh_hz, b.frames, b.max_seconds, eye_columns.0, eye_columns.1
     );
     for &network in &b.networks {
@@ -184,6 +185,8 @@ pub fn run(
             let (report, prepare_s) = run_case(&case, &opts, b.max_seconds)?;
             let stage = |name: &str| report.stages.iter().find(|s| s.stage == name).cloned();
             let e2e = stage("end-to-end");
+            // The engine's own time on the device (timestamps), per frame.
+            let gpu = stage("dcnn-gpu");
             let t = report.traffic_per_frame();
             let dropped = report.dropped_queued + report.dropped_at_present;
             let record = json!({
@@ -201,6 +204,7 @@ pub fn run(
                 "e2e_p50_ms": e2e.as_ref().map(|s| s.p50_ms),
                 "e2e_p99_ms": e2e.as_ref().map(|s| s.p99_ms),
                 "e2e_max_ms": e2e.as_ref().map(|s| s.max_ms),
+                "gpu_p50_ms": gpu.as_ref().map(|s| s.p50_ms),
                 "to_device_mb": t.to_device_bytes / 1e6,
                 "uploads": t.uploads,
                 "to_host_mb": t.to_host_bytes / 1e6,
@@ -230,7 +234,7 @@ pub fn run(
             };
             let _ = writeln!(
                 table,
-                "| {} | {} | {prepare_s:.1} | {} | {dropped} | {} | {} | {} | {:.2} | {:.2} | {:.2} | {:.2} |{eyes}",
+                "| {} | {} | {prepare_s:.1} | {} | {dropped} | {} | {} | {} | {} | {:.2} | {:.2} | {:.2} | {:.2} |{eyes}",
                 network.name(),
                 // "device" or "host" as it ran (a device case the engine
                 // could not run on the device says "host").
@@ -239,6 +243,7 @@ pub fn run(
                 ms(e2e.as_ref().map(|s| s.p50_ms)),
                 ms(e2e.as_ref().map(|s| s.p99_ms)),
                 ms(e2e.as_ref().map(|s| s.max_ms)),
+                ms(gpu.as_ref().map(|s| s.p50_ms)),
                 t.to_device_bytes / 1e6,
                 t.uploads,
                 t.to_host_bytes / 1e6,

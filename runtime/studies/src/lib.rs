@@ -12,6 +12,7 @@
 pub mod bench;
 pub mod bench_fft;
 pub mod bench_inference;
+pub mod bench_layers;
 pub mod bench_pipeline;
 pub mod eval;
 pub mod focus_cues;

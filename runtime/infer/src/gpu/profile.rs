@@ -123,6 +123,9 @@ impl GpuBackend {
                 macs,
                 bytes,
                 gpu_ns: spans[i],
+                // Every kernel runs on the general cores until the
+                // cooperative-matrix path (issue 38) marks its layers here.
+                tensor_cores: false,
             });
         }
         Ok(rows)

@@ -1,0 +1,103 @@
+"""The device check's report.md (tools/device/check.py writes it beside
+summary.json): each step's status, then every table the steps brought back,
+each naming the device and the commit, in the order docs/benchmarks.md
+quotes them."""
+
+
+def report(steps: dict, meta: dict) -> str:
+    head = f"{meta['device']}, commit {meta['commit']}{' (+ local changes)' if meta.get('dirty') else ''}"
+    md = [f"# Device check: {head}", "",
+          f"Mode {meta['mode']}, {meta['date']}; `bash scripts/device-check.sh"
+          f"{' --smoke' if meta['mode'] == 'smoke' else ''}{meta.get('call_flag', '')}`. Steps:", "",
+          "| step | status | seconds | cap s | note |", "| --- | --- | --- | --- | --- |"]
+    for s in steps.values():
+        md.append(f"| {s.name} | {s.status} | {s.seconds:.1f} | {s.cap_s:.0f} | {s.note.replace('|', '/')} |")
+    records = lambda name, kind: [x for x in getattr(steps.get(name), "records", []) if x.get("kind") == kind]
+    text = lambda name: getattr(steps.get(name), "text", "")
+    adapter = next(iter(records("setup", "adapter")), None)
+    if adapter:
+        name = adapter.get("name") or adapter.get("describe")
+        md += ["", f"Adapter ({head}): {name}; cooperative matrices (M×N×K A·B→C): "
+                   f"{adapter.get('cooperative_matrices_text', 'not reported')}; wgpu's "
+                   f"EXPERIMENTAL_COOPERATIVE_MATRIX: "
+                   f"{'offered' if adapter.get('cooperative_matrix_feature') else 'not offered'}."]
+    ceil = next(iter(records("ceilings", "ceilings")), None)
+    if ceil:
+        rate = lambda k: "–" if ceil.get(k) is None else f"{ceil[k]:.1f}"
+        md += ["", f"Ceilings ({head}): device copy {ceil['copy_gbps']:.0f} GB/s (read + write), GEMM "
+                   f"{rate('f32_gemm_tflops')} TFLOP/s in f32 (TF32 off), {rate('tf32_gemm_tflops')} in TF32, "
+                   f"{rate('f16_gemm_tflops')} in f16."]
+    md += dcnn_table(records("wgsl", "dcnn_latency"), records("torch", "dcnn_latency"), head)
+    if text("per-layer"):
+        md += ["", f"## Per layer ({head})", "", "GPU time from timestamp queries, each layer in a pass of its "
+               "own, against its CUDA-core floor and, on cooperative matrices, its tensor-core floor.",
+               text("per-layer")]
+    if text("fft"):
+        md += ["", f"## The prefilters' DCT filter ({head})", "", text("fft")]
+        for x in getattr(steps.get("fft"), "records", []):
+            if x.get("backend") == "torch.fft":
+                md.append(f"\ntorch.fft (mirror, rfft2, gain, irfft2) {x['width']}×{x['height']}: "
+                          f"{x['median_s'] * 1e3:.3f} ms median on {x['device']}.")
+    refine = next((x for x in records("pipeline", "pipeline") if x.get("network") == "refine10"), None)
+    if refine:
+        ms = lambda v: "–" if v is None else f"{v:.1f}"
+        md += ["", f"## refine:10 per frame ({head})", "",
+               f"{refine['width']}×{refine['height']} on the {refine['frame_path']} path: GPU p50 "
+               f"{ms(refine.get('gpu_p50_ms'))} ms a frame (timestamps), end to end p50 "
+               f"{ms(refine.get('e2e_p50_ms'))} ms; {refine['presented']} shown, {refine['dropped']} dropped."]
+    if text("pipeline"):
+        md += ["", f"## The pipeline end to end ({head})", "", text("pipeline")]
+    if text("tradeoff"):
+        md += ["", f"## Speed against accuracy with the GPU's rows ({head})", "",
+               "tradeoff.md, .json, .svg and .png beside this report; the table:", "", text("tradeoff")]
+    md += training(records("train", "train"), head)
+    return "\n".join(md) + "\n"
+
+
+def dcnn_table(wgsl: list, torch_rows: list, head: str) -> list:
+    """nedrt's WGSL (wall and GPU time, per conv path) against PyTorch."""
+    if not (wgsl or torch_rows):
+        return []
+    md = ["", f"## The D-CNN, nedrt's WGSL against PyTorch ({head})", "",
+          "Wall: the host's view of a frame (upload, network, read-back, checks); GPU: the network's own time "
+          "(timestamps); PyTorch: CUDA events around the network. Ratios against PyTorch at the same precision.",
+          "", "| model | backend | precision | conv path | frame | wall median ms | GPU median ms | GMAC/s (GPU) | "
+          "wall ÷ PyTorch | GPU ÷ PyTorch |", "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+    ms = lambda v: "–" if v is None else f"{v * 1e3:.2f}"
+    for x in wgsl + torch_rows:
+        ratio = ["", ""]
+        if x["backend"] == "wgpu":
+            twin = "f32" if x["precision"] == "f32" else "f16"
+            t = next((y for y in torch_rows if y["model"] == x["model"] and y["precision"] == twin
+                      and (y["width"], y["height"]) == (x["width"], x["height"])), None)
+            if t:
+                ratio[0] = f"{x['median_s'] / t['median_s']:.2f}"
+                if x.get("gpu_median_s") is not None:
+                    ratio[1] = f"{x['gpu_median_s'] / t['median_s']:.2f}"
+        rate = x.get("gpu_gmac_per_s") if x["backend"] == "wgpu" else x.get("gmac_per_s")
+        md.append(f"| {x['model']} | {x['backend']} | {x['precision']} | {x.get('conv_path') or '–'} | "
+                  f"{x['width']}×{x['height']} | {ms(x['median_s'])} | "
+                  f"{ms(x.get('gpu_median_s') if x['backend'] == 'wgpu' else x['median_s'])} | "
+                  f"{gmacs(rate)} | {ratio[0]} | {ratio[1]} |")
+    return md
+
+
+def gmacs(rate) -> str:
+    """A GPU's rate whole, a CPU's (the smoke) with its first digits."""
+    return "–" if rate is None else f"{rate:.0f}" if rate >= 100 else f"{rate:.3g}"
+
+
+def training(rows: list, head: str) -> list:
+    tr = next(iter(rows), None)
+    if not tr:
+        return []
+    v = tr["validation"][0] if tr["validation"] else {}
+    fmt = lambda k: f"{v[k]:.2f}" if isinstance(v.get(k), (int, float)) else "–"
+    return ["", f"## The full-width D-CNN trained on the device ({head})", "",
+            f"{tr['steps']} steps of batch {tr['batch']} in {tr['seconds']:.0f} s on {tr['device']}. "
+            "Validation (the trainer's, on data/images/val):", "",
+            "| | mean / worst vs target dB | mean / worst vs sharp dB |", "| --- | --- | --- |",
+            f"| D-CNN | {fmt('dcnn_mean_db')} / {fmt('dcnn_worst_db')} | "
+            f"{fmt('dcnn_sharp_mean_db')} / {fmt('dcnn_sharp_worst_db')} |",
+            f"| its Wiener | {fmt('wiener_mean_db')} / {fmt('wiener_worst_db')} | "
+            f"{fmt('wiener_sharp_mean_db')} / {fmt('wiener_sharp_worst_db')} |"]

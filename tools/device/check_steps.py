@@ -1,0 +1,223 @@
+"""The device check's benchmark steps (tools/device/check.py runs them in
+order; check_train.py holds the training's): their sizes, their caps and
+calls, and each step's commands. Every step writes its figures as records
+(the commands' JSON lines) and, where it prints a table, as text."""
+import json
+import lzma
+import shutil
+import subprocess
+from pathlib import Path
+
+from check_runner import (CARRY, ENVELOPE2_S, NVIDIA_EGL, NVIDIA_ICD, REPO, TRAIN_BUDGET_S, Failed, Runner, Step,
+                          git_commit)
+
+def sizes(smoke: bool) -> dict:
+    """Every size the steps use, full or smoke."""
+    if smoke:
+        return {"frame": "64x64", "layer_frame": "32x32", "panel": "128x72", "frames": 5, "repeat": 1,
+                "torch_repeat": 2, "pipeline_s": 20, "train_images": 2, "val_images": 1, "crop": 64, "val_crop": 48,
+                "patch": 32, "width": 4, "levels": 2, "ceiling_iterations": 3, "ceiling_shards": 2,
+                "steps": 3, "validate_every": 2, "max_batch": 2, "budget_s": 60, "copy_mb": 16, "gemm": 256,
+                "tradeoff_size": "64x64", "tradeoff_prefilters": "lsq,refine:1", "tradeoff_designs": "multifocal"}
+    return {"frame": "1920x1080", "layer_frame": "1920x1080", "panel": "1920x1080", "frames": 200, "repeat": 10,
+            "torch_repeat": 20, "pipeline_s": 8, "train_images": None, "val_images": None, "crop": None,
+            "val_crop": None, "patch": 128, "width": 32, "levels": 4, "ceiling_iterations": 200, "ceiling_shards": 16,
+            "steps": 1_000_000, "validate_every": 500, "max_batch": 64, "budget_s": TRAIN_BUDGET_S,
+            "copy_mb": 2048, "gemm": 8192, "tradeoff_size": "1920x1080",
+            "tradeoff_prefilters": "lsq,refine:1,refine:3,refine:10", "tradeoff_designs": None}
+
+
+#: (step, what, cap s, call): the first call's steps fill its envelope (the
+#: training takes what the others leave); the second call's are those the
+#: first leaves no room for, run right after it (`--call 2`); call 0: every
+#: call (setup).
+STEPS = [
+    ("setup", "the binary unpacked, the Vulkan loader, the adapter named with its cooperative-matrix shapes",
+     20, 0),
+    ("ceilings", "the GPU's copy bandwidth and GEMM rates through PyTorch (the floors' peaks)", 20, 1),
+    ("wgsl", "the D-CNN at 1920×1080 through nedrt's WGSL, wall and GPU time: full and half, f32, f16 with "
+             "--conv-path tiled and f16 with --conv-path auto (cooperative matrices where listed)", 30, 1),
+    ("per-layer", "each layer's GPU time against its CUDA-core and tensor-core floors, --conv-path tiled and "
+                  "auto", 30, 1),
+    ("torch", "the same networks in PyTorch: f32 (TF32 off), TF32, f16 channels-last; cuDNN benchmark", 40, 1),
+    ("fft", "the prefilters' DCT filter at 1920×1080: nedrt's on the device, the CPU's, torch.fft (cuFFT)", 30, 1),
+    ("pipeline", "nedrt bench pipeline at 1920×1080 on the device path: none, the Wiener, refine:10 (its GPU "
+                 "time per frame), half, full, the shipped model", 90, 1),
+    ("teacher", "the D-CNN's teacher: nedrt prefilter on the CPU, the training ceiling on CUDA", 105, 1),
+    ("train", "the full-width D-CNN on CUDA (bf16 autocast, the largest batch that fits)", TRAIN_BUDGET_S, 1),
+    ("export", "the network as the runtime's ONNX with its card", 20, 1),
+    ("tradeoff", "the speed-against-accuracy chart with the GPU's rows: nedrt tradeoff with the wgpu "
+                 "configurations at 1920×1080", ENVELOPE2_S - 20 - 20, 2),
+]
+
+
+def caps(call: int | None = None) -> list:
+    """(step, what, cap s) of the full run's `call` (every call's if
+    None); the training's cap is its budget."""
+    return [(n, w, c) for n, w, c, k in STEPS if call is None or k in (0, call)]
+
+
+def calls() -> list:
+    """The calls of the device tool a full check takes, in order."""
+    return sorted({k for *_, k in STEPS} - {0})
+
+
+# ---------------------------------------------------------------- the steps
+
+def step_setup(r: Runner, s: Step, z: dict):
+    if r.smoke:
+        binary = REPO / "target" / "release" / "nedrt"
+        if not binary.is_file():
+            r.sh(["cargo", "build", "--release", "-p", "nedrt"], 1800, parse_json=False)
+        r.nedrt = binary
+    else:
+        packed = CARRY / "nedrt.xz"
+        if not packed.is_file():
+            raise Failed(f"{packed}: not here; run `bash scripts/device-check.sh --prepare` here and carry .devcheck")
+        binary = r.work / "nedrt"
+        with lzma.open(packed) as src, open(binary, "wb") as dst:
+            shutil.copyfileobj(src, dst)
+        binary.chmod(0o755)
+        r.nedrt = binary
+        libs = subprocess.run(["ldconfig", "-p"], capture_output=True, text=True).stdout
+        if "libvulkan.so.1" not in libs:
+            debs = sorted((CARRY / "gl").glob("*.deb"))
+            if not debs:
+                raise Failed(f"{CARRY / 'gl'}: no loader packages, and the machine has no libvulkan")
+            for deb in debs:
+                r.sh(["dpkg", "-x", deb, "/"], 30, parse_json=False)
+            r.sh(["ldconfig"], 30, parse_json=False)
+        icds = [p for d in ("/usr/share/vulkan/icd.d", "/etc/vulkan/icd.d") for p in Path(d).glob("*.json")]
+        if not any("nvidia" in p.name for p in icds) and Path(NVIDIA_ICD).is_file():
+            r.env["VK_DRIVER_FILES"] = NVIDIA_ICD
+            r.env["__EGL_VENDOR_LIBRARY_FILENAMES"] = NVIDIA_EGL
+        if shutil.which("nvidia-smi"):
+            s.text = r.sh(["nvidia-smi", "--query-gpu=name,driver_version,memory.total,clocks.max.sm",
+                           "--format=csv,noheader"], 20, parse_json=False).strip()
+    r.sh([r.nedrt, "--version"], 20, parse_json=False)
+    # Which adapter wgpu takes: on the device it must be the GPU, not a
+    # software one (a 1080p network on llvmpipe would eat the envelope).
+    # Its cooperative-matrix shapes come with it (the bench's "adapter" record).
+    r.sh([r.nedrt, "bench", "inference", "--backends", "wgpu", "--sizes", "16x16", "--repeat", "1"], 60)
+    adapter = next((x["device"] for x in s.records if x.get("kind") == "dcnn_latency"), "none")
+    listed = next((x for x in s.records if x.get("kind") == "adapter"), {})
+    s.records[:] = [x for x in s.records if x.get("kind") not in ("dcnn_latency", "adapter")]
+    s.records.append({**listed, "kind": "adapter", "describe": adapter})
+    r.adapter = adapter
+    r.coop = listed.get("cooperative_matrices_text", "not reported (" + listed.get("error", "no adapter record") + ")")
+    r.say(f"   adapter {adapter}; cooperative matrices: {r.coop}")
+    manifest = CARRY / "manifest.json"
+    s.records.append({"kind": "build", **(json.loads(manifest.read_text()) if manifest.is_file() and not r.smoke
+                                          else {"commit": git_commit()})})
+
+
+def step_ceilings(r: Runner, s: Step, z: dict):
+    r.sh([r.python, REPO / "tools/bench/torch_dcnn.py", "--ceilings", "--copy-mb", z["copy_mb"],
+          "--gemm", z["gemm"]], 60)
+
+
+def peaks(ceilings: Step) -> dict:
+    """The floors' flags from the measured ceilings: {"--peak-gmacs": …,
+    "--peak-gbps": …}, or nothing where they were not measured."""
+    rec = next((x for x in ceilings.records if x.get("kind") == "ceilings"), None)
+    if ceilings.status != "ok" or rec is None:
+        return {}
+    # The WGSL kernels run on the CUDA cores, not the tensor cores: their
+    # peak is the f32 FMA rate, which a cuBLAS SGEMM with TF32 off reaches.
+    # The cooperative-matrix kernels run on the tensor cores at f16: their
+    # peak is half the f16 GEMM's FLOP rate (where it was measured).
+    # Six digits: a GPU's rates print whole, a loaded CPU's (the smoke)
+    # stay above zero.
+    out = {"--peak-gmacs": f"{rec['f32_gemm_tflops'] * 1e3 / 2:.6g}"}
+    if rec.get("f16_gemm_tflops"):
+        out["--peak-tensor-gmacs"] = f"{rec['f16_gemm_tflops'] * 1e3 / 2:.6g}"
+    out["--peak-gbps"] = f"{rec['copy_gbps']:.6g}"
+    return out
+
+
+def flags(pairs: dict) -> list:
+    return [v for kv in pairs.items() for v in kv]
+
+
+#: The convolution kernels each wgpu step runs: the register-tiled ones
+#: alone, then cooperative matrices where the adapter lists their shape.
+CONV_PATHS = ("tiled", "auto")
+
+
+def step_wgsl(r: Runner, s: Step, z: dict):
+    r.need_gpu_adapter()
+    for path in CONV_PATHS:
+        r.sh([r.nedrt, "--conv-path", path, "bench", "inference", "--backends", "wgpu", "--sizes", z["frame"],
+              "--repeat", z["repeat"], "--max-seconds", 60], s.cap_s)
+
+
+def step_per_layer(r: Runner, s: Step, z: dict, ceilings: Step):
+    r.need_gpu_adapter()
+    texts = []
+    for path in CONV_PATHS:
+        out = r.sh([r.nedrt, "--conv-path", path, "bench", "inference", "--per-layer", "--sizes", z["layer_frame"],
+                    "--repeat", z["repeat"], *flags(peaks(ceilings))], s.cap_s, parse_json=False)
+        texts.append(f"\n**--conv-path {path}**\n\n{out.strip()}\n")
+    s.text = "".join(texts)
+
+
+def step_torch(r: Runner, s: Step, z: dict):
+    r.sh([r.python, REPO / "tools/bench/torch_dcnn.py", "--sizes", z["frame"], "--repeat", z["torch_repeat"]],
+         s.cap_s)
+
+
+def step_fft(r: Runner, s: Step, z: dict, ceilings: Step):
+    r.need_gpu_adapter()
+    bw = flags({k: v for k, v in peaks(ceilings).items() if k == "--peak-gbps"})
+    out = r.sh([r.nedrt, "bench", "fft", "--sizes", z["frame"], "--repeat", z["torch_repeat"], "--per-layer", *bw],
+               s.cap_s)
+    s.text = "\n".join(line for line in out.splitlines() if not line.startswith("{"))
+    r.sh([r.python, REPO / "tools/bench/torch_dcnn.py", "--fft", "--sizes", z["frame"], "--repeat",
+          z["torch_repeat"]], s.cap_s)
+
+
+def step_pipeline(r: Runner, s: Step, z: dict):
+    r.need_gpu_adapter()
+    out = r.sh([r.nedrt, "--design", "multifocal", "bench", "pipeline", "--networks",
+                "none,wiener,refine10,half,full,model", "--frame-paths", "device",
+                "--panel", z["panel"], "--frames", z["frames"], "--max-seconds", z["pipeline_s"]], s.cap_s)
+    s.text = "\n".join(line for line in out.splitlines() if not line.startswith("{"))
+
+
+def step_tradeoff(r: Runner, s: Step, z: dict):
+    """The chart of docs/speed-accuracy.md with the GPU's rows: every
+    configuration the wgpu backend runs priced at the panel's size on this
+    GPU, beside the CPU's; the quality on the test photographs (on the
+    smoke, a tiny crop). optimal is left out: its quality is a bounded
+    solve per photograph on the CPU, longer than the step's cap, and its
+    row is docs/tradeoff's already."""
+    r.need_gpu_adapter()
+    images = REPO / "data" / "images" / "test"
+    if r.smoke:
+        images = tiny_test_images(r.work / "tradeoff-images", z)
+    out = r.work / "tradeoff"
+    cmd = [r.nedrt, "tradeoff", "--backends", "wgpu", "--images", images, "--out-dir", out, "--size",
+           z["tradeoff_size"], "--no-fidelity", "--repeat", 1 if r.smoke else 3, "--max-seconds", 20, "--prefilter",
+           z["tradeoff_prefilters"]]
+    if z["tradeoff_designs"]:
+        cmd += ["--designs", z["tradeoff_designs"]]
+    r.sh(cmd, s.cap_s, parse_json=False)
+    for name in ("tradeoff.md", "tradeoff.json", "tradeoff.svg", "tradeoff.png"):
+        if (out / name).is_file():
+            shutil.copyfile(out / name, r.out / name)
+    md = out / "tradeoff.md"
+    if not md.is_file():
+        raise Failed(f"{md}: not written")
+    s.text = md.read_text()
+
+
+def tiny_test_images(root: Path, z: dict) -> Path:
+    """Smoke: one test photograph, a centre crop of the tradeoff's size."""
+    from PIL import Image
+    side = int(z["tradeoff_size"].split("x")[0])
+    root.mkdir(parents=True, exist_ok=True)
+    path = sorted((REPO / "data" / "images" / "test").glob("*.png"))[0]
+    im = Image.open(path).convert("RGB")
+    x, y = (im.width - side) // 2, (im.height - side) // 2
+    im.crop((x, y, x + side, y + side)).save(root / path.name)
+    return root
