@@ -155,33 +155,6 @@ pub fn lists_coop_shape(properties: &[wgpu::wgt::CooperativeMatrixProperties]) -
     })
 }
 
-/// An adapter's cooperative-matrix shapes, one per line, for reports:
-/// "16×16×16 F16→F32", or "none listed".
-pub fn describe_coop_shapes(properties: &[wgpu::wgt::CooperativeMatrixProperties]) -> String {
-    if properties.is_empty() {
-        return "none listed".into();
-    }
-    properties
-        .iter()
-        .map(|p| {
-            format!(
-                "{}×{}×{} {:?}→{:?}{}",
-                p.m_size,
-                p.n_size,
-                p.k_size,
-                p.ab_type,
-                p.cr_type,
-                if p.saturating_accumulation {
-                    " (saturating)"
-                } else {
-                    ""
-                }
-            )
-        })
-        .collect::<Vec<_>>()
-        .join(", ")
-}
-
 /// wgpu's token for its experimental features, here only cooperative
 /// matrices.
 #[allow(unsafe_code)]

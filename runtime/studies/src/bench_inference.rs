@@ -208,6 +208,8 @@ pub fn run(
         table.push('\n');
     }
     table += TABLE_HEAD;
+    // Where each wgpu network's convolutions run, after the table.
+    let mut placements = String::new();
     for (name, width) in &b.models {
         let model = synth_model(name, *width)?;
         for &kind in &b.backends {
@@ -230,6 +232,9 @@ pub fn run(
                         continue;
                     }
                 };
+                if kind == BackendKind::Wgpu {
+                    placements += &conv_placements(name, &dcnn, &options, b.sizes.first());
+                }
                 let macs = dcnn.network.macs_per_pixel;
                 let mut seconds_per_pixel: Option<f64> = None;
                 for &(w, h) in &b.sizes {
@@ -293,7 +298,46 @@ pub fn run(
         }
     }
     bar.finish_and_clear();
+    if !placements.is_empty() {
+        table += "\nWhere each convolution runs (tiled kernels, or cooperative matrices on the \
+                  tensor cores), and why:\n";
+        table += &placements;
+    }
     Ok(table)
+}
+
+/// One wgpu network's convolution placements, a line each; where some
+/// layer runs on cooperative matrices, the whole network against the same
+/// network all tiled on one frame of `size` (rounded up to the network's
+/// multiple): the check that the tensor-core kernels compute what the
+/// tiled ones do, on the machines that have them.
+fn conv_placements(
+    name: &str,
+    dcnn: &Dcnn,
+    options: &BackendOptions,
+    size: Option<&(usize, usize)>,
+) -> String {
+    let mut s = format!("\n{name}, {}:\n", dcnn.describe());
+    let paths = dcnn.conv_paths();
+    for line in &paths {
+        let _ = writeln!(s, "- {line}");
+    }
+    if let Some(&(w, h)) = size
+        && paths.iter().any(|l| l.contains(": cooperative matrix"))
+    {
+        let m = dcnn.network.multiple.max(1);
+        let (w, h) = (w.div_ceil(m) * m, h.div_ceil(m) * m);
+        let frame = bench_frame(w, h);
+        let _ = match nedrt_infer::gpu::cooperative_against_tiled(&dcnn.network, options, &frame) {
+            Ok(Some(d)) => writeln!(
+                s,
+                "- cooperative against tiled at {w}×{h}: max |Δ| = {d:.2e} (f16's tolerance: 2e-2)"
+            ),
+            Ok(None) => Ok(()),
+            Err(e) => writeln!(s, "- cooperative against tiled at {w}×{h}: failed: {e}"),
+        };
+    }
+    s
 }
 
 #[cfg(test)]

@@ -123,9 +123,8 @@ impl GpuBackend {
                 macs,
                 bytes,
                 gpu_ns: spans[i],
-                // Every kernel runs on the general cores until the
-                // cooperative-matrix path (issue 38) marks its layers here.
-                tensor_cores: false,
+                tensor_cores: self.layer_keys[d.layer]
+                    .is_some_and(|k| matches!(k.kind, super::codegen::KernelKind::CoopConv { .. })),
             });
         }
         Ok(rows)
