@@ -3,7 +3,7 @@
 //! of the DCT's real sequences and complex pairs. Apart from the filters
 //! (`complex`, `dct`) that record them: this is the plumbing they share.
 
-use super::{FftError, checked, init_buffer, radices, storage};
+use super::{FftError, FftPath, checked, init_buffer, radices, storage};
 use crate::workgroups;
 use std::collections::HashMap;
 
@@ -69,6 +69,13 @@ pub struct FftKernels {
     pub(super) dct3_pack: wgpu::ComputePipeline,
     pub(super) dct2_unpack: wgpu::ComputePipeline,
     pub(super) dct3_unpack: wgpu::ComputePipeline,
+    /// The workgroup-memory kernels: one generated module per length,
+    /// its pipelines per entry point, made on first use.
+    pub(super) fused_layout: wgpu::BindGroupLayout,
+    pub(super) fused_pipeline_layout: wgpu::PipelineLayout,
+    pub(super) fused_modules: HashMap<usize, wgpu::ShaderModule>,
+    pub(super) fused: HashMap<(usize, &'static str), wgpu::ComputePipeline>,
+    pub(super) path: FftPath,
 }
 
 impl FftKernels {
@@ -135,7 +142,13 @@ impl FftKernels {
                     cache: None,
                 })
             };
+            let (fused_layout, fused_pipeline_layout) = super::fused::layout(device);
             Self {
+                fused_layout,
+                fused_pipeline_layout,
+                fused_modules: HashMap::new(),
+                fused: HashMap::new(),
+                path: FftPath::Auto,
                 device: device.clone(),
                 fft_pipeline_layout: pipeline_layout("fft_pass", &fft_layout),
                 fft_layout,
@@ -149,6 +162,15 @@ impl FftKernels {
                 unpack_layout,
             }
         })
+    }
+
+    /// Which kernels the filters and transforms made from now on use.
+    pub fn set_path(&mut self, path: FftPath) {
+        self.path = path;
+    }
+
+    pub fn path(&self) -> FftPath {
+        self.path
     }
 
     /// The pass pipeline of `radix`, compiled on first use.
