@@ -608,6 +608,64 @@ mod tests {
 
         #[test]
         #[ignore = "needs a GPU adapter (run: scripts/test.sh, or cargo test -- --include-ignored)"]
+        fn two_gain_sets_sharing_the_forward_rows_equal_two_filters() {
+            let (device, queue) = crate::test_device(false);
+            let (w, h) = (40, 27);
+            let frame = signal(3 * w * h, 5);
+            let set = |k: f32| -> Vec<Vec<f32>> {
+                (0..3)
+                    .map(|c| {
+                        (0..w * h)
+                            .map(|i| 1.0 / (1.0 + k * (i + c) as f32))
+                            .collect()
+                    })
+                    .collect()
+            };
+            let (g0, g1) = (set(0.01), set(0.2));
+            for path in [FftPath::Auto, FftPath::MultiPass] {
+                let mut kernels = FftKernels::new(&device).expect("kernels");
+                kernels.set_path(path);
+                let mut filter =
+                    DctFilter::with_gain_sets(&mut kernels, w, h, &[&g0, &g1]).expect("filter");
+                let input = data_buffer(&device, &frame, wgpu::BufferUsages::empty());
+                let outs: Vec<wgpu::Buffer> = (0..4)
+                    .map(|_| {
+                        data_buffer(
+                            &device,
+                            &vec![f32::NAN; frame.len()],
+                            wgpu::BufferUsages::empty(),
+                        )
+                    })
+                    .collect();
+                let mut enc = device.create_command_encoder(&Default::default());
+                filter
+                    .record_sets(&mut enc, &input, &[(&outs[0], 1), (&outs[1], 0)])
+                    .expect("record");
+                filter
+                    .record_set(&mut enc, &input, &outs[2], 1)
+                    .expect("record");
+                filter
+                    .record_set(&mut enc, &input, &outs[3], 0)
+                    .expect("record");
+                queue.submit([enc.finish()]);
+                let got: Vec<Vec<f32>> = outs
+                    .iter()
+                    .map(|b| read(&device, &queue, b, b.size()))
+                    .collect();
+                assert_eq!(got[0], got[2], "{path:?}: set 1");
+                assert_eq!(got[1], got[3], "{path:?}: set 0");
+                assert!(got[0].iter().all(|v| v.is_finite()));
+                assert_ne!(got[0], got[1]);
+                let mut enc = device.create_command_encoder(&Default::default());
+                assert!(matches!(
+                    filter.record_sets(&mut enc, &input, &[(&outs[0], 2)]),
+                    Err(FftError::Gains(_))
+                ));
+            }
+        }
+
+        #[test]
+        #[ignore = "needs a GPU adapter (run: scripts/test.sh, or cargo test -- --include-ignored)"]
         fn unit_gains_give_the_frame_back_and_bad_gains_are_refused() {
             let (device, queue) = crate::test_device(false);
             let mut kernels = FftKernels::new(&device).expect("kernels");

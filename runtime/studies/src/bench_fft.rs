@@ -14,7 +14,7 @@ use serde_json::json;
 use super::AppError;
 use super::bench::median;
 use super::bench_inference::bench_frame;
-use nedrt_gpu::fft::{DctFilter, FftKernels};
+use nedrt_gpu::fft::{DctFilter, FftKernels, FftPath};
 use nedrt_optics::Psf;
 use nedrt_optics::sim::wiener::WienerFilter;
 
@@ -28,6 +28,9 @@ pub struct FftBench {
     pub gpu: nedrt_gpu::GpuSettings,
     /// Also each dispatch's device time (timestamp queries) beside its bytes and floor.
     pub per_pass: bool,
+    /// The device paths to time, side by side (the multi-pass fallback
+    /// against the workgroup-memory kernels).
+    pub paths: Vec<FftPath>,
 }
 
 /// One PSF per channel (the filter's cost does not depend on the kernel;
@@ -60,8 +63,9 @@ pub fn run(
     let mut md = format!(
         "`nedrt bench fft`: the Wiener prefilter of three planes, median of {} after a warm-up; \
          device: {adapter}; CPU: {} threads\n\n\
-         | frame | device ms | CPU ms | device ÷ CPU | device MB moved | floor ms (bytes ÷ bandwidth) | × floor |\n\
-         | --- | --- | --- | --- | --- | --- | --- |\n",
+         wall: record, submit and wait; GPU: timestamps around the filter's passes\n\n\
+         | frame | path | dispatches | wall ms | GPU ms | CPU ms | wall ÷ CPU | GPU ÷ CPU | device MB moved | floor ms (bytes ÷ bandwidth) | GPU × floor |\n\
+         | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |\n",
         b.repeat.max(1),
         rayon::current_num_threads()
     );
@@ -77,10 +81,10 @@ pub fn run(
             std::hint::black_box(filter.apply_unclamped(&input));
             cpu.push(t.elapsed().as_secs_f64());
         }
+        let c = median(cpu);
         // The device: the same gains, the frame already on the device
         // (the service's case); each run one submission and a wait.
         let gains = plan.dct_gains()?;
-        let mut dct = DctFilter::new(&mut kernels, w, h, &gains)?;
         use wgpu::util::DeviceExt;
         let src = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
             label: Some("bench frame"),
@@ -93,42 +97,99 @@ pub fn run(
             usage: wgpu::BufferUsages::STORAGE,
             mapped_at_creation: false,
         });
-        let mut once = || -> Result<f64, AppError> {
-            let t = Instant::now();
-            let mut enc = device.create_command_encoder(&Default::default());
-            dct.record(&mut enc, &src, &dst)?;
-            let s = queue.submit([enc.finish()]);
-            nedrt_gpu::wait_for(&device, s)?;
-            Ok(t.elapsed().as_secs_f64())
-        };
-        once()?;
-        let mut gpu = Vec::new();
-        for _ in 0..b.repeat.max(1) {
-            gpu.push(once()?);
+        for &path in &b.paths {
+            kernels.set_path(path);
+            let mut dct = DctFilter::new(&mut kernels, w, h, &gains)?;
+            let (wall, gpu) = time_filter(&device, &queue, &mut dct, &src, &dst, b.repeat)?;
+            let bytes = dct.bytes_per_frame();
+            let floor = b.peak_gbps.map(|bw| bytes as f64 / (bw * 1e9));
+            let kind = if dct.in_workgroup_memory() {
+                "workgroup memory"
+            } else {
+                "multi-pass"
+            };
+            let ms = |v: Option<f64>| v.map_or("–".into(), |v| format!("{:.2}", v * 1e3));
+            let _ = writeln!(
+                md,
+                "| {w}×{h} | {kind} | {} | {:.2} | {} | {:.2} | {:.2} | {} | {:.0} | {} | {} |",
+                dct.passes(0).len(),
+                wall * 1e3,
+                ms(gpu),
+                c * 1e3,
+                wall / c,
+                gpu.map_or("–".into(), |g| format!("{:.2}", g / c)),
+                bytes as f64 / 1e6,
+                floor.map_or("– (--peak-gbps)".into(), |f| format!("{:.3}", f * 1e3)),
+                floor
+                    .zip(gpu)
+                    .map_or("–".into(), |(f, g)| format!("{:.1}", g / f)),
+            );
+            if b.per_pass {
+                md += &per_pass(&device, &queue, &mut dct, &src, &dst, b, (w, h), on_record)?;
+            }
+            on_record(&json!({
+                "kind": "fft_filter", "width": w, "height": h, "device": adapter, "path": kind,
+                "dispatches": dct.passes(0).len(),
+                "device_median_s": wall, "gpu_median_s": gpu, "cpu_median_s": c,
+                "cpu_threads": rayon::current_num_threads(),
+                "bytes_per_frame": bytes, "floor_s": floor, "repeat": b.repeat,
+            }));
         }
-        let (g, c) = (median(gpu), median(cpu));
-        let bytes = dct.bytes_per_frame();
-        let floor = b.peak_gbps.map(|bw| bytes as f64 / (bw * 1e9));
-        let _ = writeln!(
-            md,
-            "| {w}×{h} | {:.2} | {:.2} | {:.2} | {:.0} | {} | {} |",
-            g * 1e3,
-            c * 1e3,
-            g / c,
-            bytes as f64 / 1e6,
-            floor.map_or("– (--peak-gbps)".into(), |f| format!("{:.3}", f * 1e3)),
-            floor.map_or("–".into(), |f| format!("{:.1}", g / f)),
-        );
-        if b.per_pass {
-            md += &per_pass(&device, &queue, &mut dct, &src, &dst, b, (w, h), on_record)?;
-        }
-        on_record(&json!({
-            "kind": "fft_filter", "width": w, "height": h, "device": adapter,
-            "device_median_s": g, "cpu_median_s": c, "cpu_threads": rayon::current_num_threads(),
-            "bytes_per_frame": bytes, "floor_s": floor, "repeat": b.repeat,
-        }));
     }
     Ok(md)
+}
+
+/// The filter's median wall time (record, submit, wait) and median GPU
+/// time (timestamps around its passes; none where the adapter has no
+/// timestamp queries) over `repeat` frames after a warm-up.
+fn time_filter(
+    device: &wgpu::Device,
+    queue: &wgpu::Queue,
+    dct: &mut DctFilter,
+    src: &wgpu::Buffer,
+    dst: &wgpu::Buffer,
+    repeat: usize,
+) -> Result<(f64, Option<f64>), AppError> {
+    let timer = nedrt_gpu::PassTimer::new(device, queue, 1);
+    let mut once = || -> Result<(f64, Option<f64>), AppError> {
+        let t = Instant::now();
+        let mut enc = device.create_command_encoder(&Default::default());
+        // Empty passes carry the timestamps: the filter records its own.
+        if let Some(timer) = &timer {
+            drop(enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some("bench start"),
+                timestamp_writes: Some(timer.start(0)),
+            }));
+        }
+        dct.record(&mut enc, src, dst)?;
+        if let Some(timer) = &timer {
+            drop(enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some("bench end"),
+                timestamp_writes: Some(timer.end(0)),
+            }));
+            timer.resolve(&mut enc);
+        }
+        let s = queue.submit([enc.finish()]);
+        nedrt_gpu::wait_for(device, s)?;
+        let wall = t.elapsed().as_secs_f64();
+        let gpu = match &timer {
+            Some(timer) => {
+                timer.map_and_wait(device)?;
+                timer.spans_ns()?.first().map(|ns| *ns as f64 * 1e-9)
+            }
+            None => None,
+        };
+        Ok((wall, gpu))
+    };
+    once()?;
+    let (mut walls, mut gpus) = (Vec::new(), Vec::new());
+    for _ in 0..repeat.max(1) {
+        let (w, g) = once()?;
+        walls.push(w);
+        gpus.extend(g);
+    }
+    let gpu = (!gpus.is_empty()).then(|| median(gpus));
+    Ok((median(walls), gpu))
 }
 
 /// Each dispatch of the filter in a pass of its own between timestamps

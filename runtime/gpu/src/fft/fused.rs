@@ -57,9 +57,10 @@ impl FftKernels {
                 n,
                 limits
                     .max_compute_invocations_per_workgroup
-                    .min(limits.max_compute_workgroup_size_x),
+                    .min(limits.max_compute_workgroup_size_x)
+                    .min(self.max_threads),
             );
-            let source = wgsl::module_source(n, &super::radices(n)?, threads);
+            let source = wgsl::module_source(n, &wgsl::fused_radices(n)?, threads);
             let module = checked(&device, || {
                 device.create_shader_module(wgpu::ShaderModuleDescriptor {
                     label: Some("fft_fused"),

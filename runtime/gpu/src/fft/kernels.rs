@@ -76,6 +76,8 @@ pub struct FftKernels {
     pub(super) fused_modules: HashMap<usize, wgpu::ShaderModule>,
     pub(super) fused: HashMap<(usize, &'static str), wgpu::ComputePipeline>,
     pub(super) path: FftPath,
+    /// Threads a workgroup of the generated kernels at most.
+    pub(super) max_threads: u32,
 }
 
 impl FftKernels {
@@ -149,6 +151,13 @@ impl FftKernels {
                 fused_modules: HashMap::new(),
                 fused: HashMap::new(),
                 path: FftPath::Auto,
+                // lavapipe runs a workgroup's lanes as coroutines that switch
+                // at every barrier: fewer of them is faster there.
+                max_threads: if device.adapter_info().device_type == wgpu::DeviceType::Cpu {
+                    64
+                } else {
+                    256
+                },
                 device: device.clone(),
                 fft_pipeline_layout: pipeline_layout("fft_pass", &fft_layout),
                 fft_layout,

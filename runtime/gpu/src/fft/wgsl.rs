@@ -22,10 +22,39 @@ const COMMON: &str = concat!(
 );
 
 /// Threads of one workgroup for a length: about one per radix-4 butterfly,
-/// 64 at least (a warp or two), at most `max_threads`.
+/// 64 at least (a warp or two), at most `max_threads` (64 on a CPU
+/// adapter, where each barrier switches every group of SIMD lanes).
 pub(super) fn workgroup_threads(n: usize, max_threads: u32) -> u32 {
     let want = n.div_ceil(4).next_power_of_two().clamp(64, 256) as u32;
     want.min(max_threads).max(1)
+}
+
+/// The passes of length `n` in workgroup memory: the factors of
+/// [`super::radices`] regrouped into 8s and 9s where they can be (fewer
+/// passes, fewer barriers), then 4, 2, 3, 5, 7, 11, 13.
+pub(super) fn fused_radices(n: usize) -> Result<Vec<u32>, super::FftError> {
+    let factors = super::radices(n)?;
+    let twos: u32 = factors
+        .iter()
+        .map(|r| match r {
+            4 => 2,
+            2 => 1,
+            _ => 0,
+        })
+        .sum();
+    let threes = factors.iter().filter(|r| **r == 3).count();
+    let mut out = vec![8; (twos / 3) as usize];
+    match twos % 3 {
+        2 => out.push(4),
+        1 => out.push(2),
+        _ => {}
+    }
+    out.extend(std::iter::repeat_n(9, threes / 2));
+    if threes % 2 == 1 {
+        out.push(3);
+    }
+    out.extend(factors.iter().filter(|r| **r > 4));
+    Ok(out)
 }
 
 /// The module of length `n` (radices from [`super::radices`]), `threads`
@@ -72,17 +101,21 @@ fn fft_function(n: usize, radices: &[u32], threads: u32, inverse: bool) -> Strin
                 s += "    {\n";
             }
             let _ = writeln!(s, "        let k = t{i} % {ns}u;");
+            if ns > 1 {
+                // One table read a butterfly; the other twiddles are its
+                // powers (a few ulps, far inside the tests' 1e-5).
+                let conj = if inverse { "conj" } else { "" };
+                let _ = writeln!(s, "        let w1 = {conj}(twiddle[k * {tw_step}u]);");
+                for q in 2..r {
+                    let _ = writeln!(s, "        let w{q} = cmul(w{}, w1);", q - 1);
+                }
+            }
             for q in 0..r {
                 let load = format!("sm[t{i} + {}u]", q * butterflies);
                 if q == 0 || ns == 1 {
                     let _ = writeln!(s, "        let x{q} = {load};");
                 } else {
-                    let conj = if inverse { "conj" } else { "" };
-                    let _ = writeln!(
-                        s,
-                        "        let x{q} = cmul({load}, {conj}(twiddle[k * {}u]));",
-                        q * tw_step
-                    );
+                    let _ = writeln!(s, "        let x{q} = cmul({load}, w{q});");
                 }
             }
             s += &butterfly(r, inverse, &format!("v{i}_"));
@@ -143,7 +176,44 @@ fn butterfly(r: usize, inverse: bool, out: &str) -> String {
                 rot("x1 - x3")
             );
         }
+        8 => {
+            // Two radix-4 DFTs: of x_k + x_{k+4} (the even outputs) and of
+            // (x_k − x_{k+4})·W8^k (the odd ones), W8 = e^{∓iπ/4}.
+            let h = lit(std::f64::consts::FRAC_1_SQRT_2);
+            let (w1, w3) = if inverse {
+                (
+                    "vec2<f32>(d1.x - d1.y, d1.x + d1.y)",
+                    "vec2<f32>(-d3.x - d3.y, d3.x - d3.y)",
+                )
+            } else {
+                (
+                    "vec2<f32>(d1.x + d1.y, d1.y - d1.x)",
+                    "vec2<f32>(d3.y - d3.x, -d3.x - d3.y)",
+                )
+            };
+            let _ = writeln!(
+                s,
+                "        let e0 = x0 + x4;\n        let e1 = x1 + x5;\n        let e2 = x2 + x6;\n        let e3 = x3 + x7;\n\
+                 let o0 = x0 - x4;\n        let d1 = x1 - x5;\n        let o1 = {h} * {w1};\n\
+                 let o2 = {};\n        let d3 = x3 - x7;\n        let o3 = {h} * {w3};",
+                rot("x2 - x6")
+            );
+            for (src, first) in [("e", 0), ("o", 1)] {
+                let _ = writeln!(
+                    s,
+                    "        {{\n            let s0 = {src}0 + {src}2;\n            let d0 = {src}0 - {src}2;\n\
+                     let s1 = {src}1 + {src}3;\n            let d1 = {};\n\
+                     {out}{} = s0 + s1;\n            {out}{} = d0 + d1;\n            {out}{} = s0 - s1;\n            {out}{} = d0 - d1;\n        }}",
+                    rot(&format!("{src}1 - {src}3")),
+                    first,
+                    first + 2,
+                    first + 4,
+                    first + 6
+                );
+            }
+        }
         _ => {
+            // Any odd radix (primes, and 9).
             let h = (r - 1) / 2;
             for m in 1..=h {
                 let _ = writeln!(
@@ -223,7 +293,7 @@ mod tests {
         for n in [
             1, 2, 3, 4, 5, 7, 8, 11, 13, 45, 98, 143, 1080, 1920, 2160, 3840, 5005,
         ] {
-            let radices = super::super::radices(n).expect("radices");
+            let radices = fused_radices(n).expect("radices");
             for threads in [workgroup_threads(n, 256), 64] {
                 let src = module_source(n, &radices, threads);
                 let module = naga::front::wgsl::parse_str(&src)
@@ -236,6 +306,16 @@ mod tests {
                 .unwrap_or_else(|e| panic!("{n}, {threads} threads: {e:?}"));
             }
         }
+    }
+
+    #[test]
+    fn radices_regroup_into_eights_and_nines() {
+        assert_eq!(fused_radices(1920).ok(), Some(vec![8, 8, 2, 3, 5]));
+        assert_eq!(fused_radices(1080).ok(), Some(vec![8, 9, 3, 5]));
+        assert_eq!(fused_radices(2160).ok(), Some(vec![8, 2, 9, 3, 5]));
+        assert_eq!(fused_radices(16 * 81 * 7).ok(), Some(vec![8, 2, 9, 9, 7]));
+        assert_eq!(fused_radices(1).ok(), Some(vec![]));
+        assert!(fused_radices(17).is_err());
     }
 
     #[test]
