@@ -31,7 +31,7 @@ pub(super) fn workgroup_threads(n: usize, max_threads: u32) -> u32 {
 
 /// The passes of length `n` in workgroup memory: the factors of
 /// [`super::radices`] regrouped into 8s and 9s where they can be (fewer
-/// passes, fewer barriers), then 4, 2, 3, 5, 7, 11, 13.
+/// passes, fewer barriers), then 4, 2, 3 (or 15 with a 5), 5, 7, 11, 13.
 pub(super) fn fused_radices(n: usize) -> Result<Vec<u32>, super::FftError> {
     let factors = super::radices(n)?;
     let twos: u32 = factors
@@ -50,10 +50,16 @@ pub(super) fn fused_radices(n: usize) -> Result<Vec<u32>, super::FftError> {
         _ => {}
     }
     out.extend(std::iter::repeat_n(9, threes / 2));
+    let mut rest: Vec<u32> = factors.iter().copied().filter(|r| *r > 4).collect();
     if threes % 2 == 1 {
-        out.push(3);
+        // 3·5 as one radix-15 pass where there is a 5: a pass fewer, about
+        // the same arithmetic (the symmetric DFT).
+        match rest.iter().position(|r| *r == 5) {
+            Some(i) => rest[i] = 15,
+            None => out.push(3),
+        }
     }
-    out.extend(factors.iter().filter(|r| **r > 4));
+    out.extend(rest);
     Ok(out)
 }
 
@@ -213,7 +219,7 @@ fn butterfly(r: usize, inverse: bool, out: &str) -> String {
             }
         }
         _ => {
-            // Any odd radix (primes, and 9).
+            // Any odd radix (primes, 9 and 15).
             let h = (r - 1) / 2;
             for m in 1..=h {
                 let _ = writeln!(
@@ -310,9 +316,10 @@ mod tests {
 
     #[test]
     fn radices_regroup_into_eights_and_nines() {
-        assert_eq!(fused_radices(1920).ok(), Some(vec![8, 8, 2, 3, 5]));
-        assert_eq!(fused_radices(1080).ok(), Some(vec![8, 9, 3, 5]));
-        assert_eq!(fused_radices(2160).ok(), Some(vec![8, 2, 9, 3, 5]));
+        assert_eq!(fused_radices(1920).ok(), Some(vec![8, 8, 2, 15]));
+        assert_eq!(fused_radices(1080).ok(), Some(vec![8, 9, 15]));
+        assert_eq!(fused_radices(2160).ok(), Some(vec![8, 2, 9, 15]));
+        assert_eq!(fused_radices(3 * 7).ok(), Some(vec![3, 7]));
         assert_eq!(fused_radices(16 * 81 * 7).ok(), Some(vec![8, 2, 9, 9, 7]));
         assert_eq!(fused_radices(1).ok(), Some(vec![]));
         assert!(fused_radices(17).is_err());
