@@ -30,8 +30,9 @@ pub(super) fn workgroup_threads(n: usize, max_threads: u32) -> u32 {
 }
 
 /// The passes of length `n` in workgroup memory: the factors of
-/// [`super::radices`] regrouped into 8s and 9s where they can be (fewer
-/// passes, fewer barriers), then 4, 2, 3 (or 15 with a 5), 5, 7, 11, 13.
+/// [`super::radices`] regrouped into 16s (and one 8, 4 or 2) and 9s where
+/// they can be (fewer passes, fewer barriers), then 3 (or 15 with a 5), 5,
+/// 7, 11, 13.
 pub(super) fn fused_radices(n: usize) -> Result<Vec<u32>, super::FftError> {
     let factors = super::radices(n)?;
     let twos: u32 = factors
@@ -43,8 +44,9 @@ pub(super) fn fused_radices(n: usize) -> Result<Vec<u32>, super::FftError> {
         })
         .sum();
     let threes = factors.iter().filter(|r| **r == 3).count();
-    let mut out = vec![8; (twos / 3) as usize];
-    match twos % 3 {
+    let mut out = vec![16; (twos / 4) as usize];
+    match twos % 4 {
+        3 => out.push(8),
         2 => out.push(4),
         1 => out.push(2),
         _ => {}
@@ -182,6 +184,35 @@ fn butterfly(r: usize, inverse: bool, out: &str) -> String {
                 rot("x1 - x3")
             );
         }
+        16 => {
+            // Radix 4 of radix 4: DFT4 over x_{k+4n} for each k, × W16^{k·m},
+            // then DFT4 over k for each m: y_{m+4j}.
+            for k in 0..4 {
+                for m in 0..4 {
+                    let _ = writeln!(s, "        var a{k}_{m}: vec2<f32>;");
+                }
+                let ins = [0, 4, 8, 12].map(|n| format!("x{}", k + n));
+                let outs = [0, 1, 2, 3].map(|m| format!("a{k}_{m}"));
+                s += &dft4(&ins, &outs, &rot);
+                for m in 1..4 {
+                    let angle = std::f64::consts::TAU * (k * m) as f64 / 16.0;
+                    let sin = if inverse { angle.sin() } else { -angle.sin() };
+                    if k > 0 {
+                        let _ = writeln!(
+                            s,
+                            "        a{k}_{m} = cmul(a{k}_{m}, vec2<f32>({}, {}));",
+                            lit(angle.cos()),
+                            lit(sin)
+                        );
+                    }
+                }
+            }
+            for m in 0..4 {
+                let ins = [0, 1, 2, 3].map(|k| format!("a{k}_{m}"));
+                let outs = [0, 4, 8, 12].map(|j| format!("{out}{}", m + j));
+                s += &dft4(&ins, &outs, &rot);
+            }
+        }
         8 => {
             // Two radix-4 DFTs: of x_k + x_{k+4} (the even outputs) and of
             // (x_k − x_{k+4})·W8^k (the odd ones), W8 = e^{∓iπ/4}.
@@ -257,6 +288,18 @@ fn butterfly(r: usize, inverse: bool, out: &str) -> String {
     s
 }
 
+/// A radix-4 DFT of `ins` into the (declared) `outs`, in a block.
+fn dft4(ins: &[String; 4], outs: &[String; 4], rot: &dyn Fn(&str) -> String) -> String {
+    let [i0, i1, i2, i3] = ins;
+    let [o0, o1, o2, o3] = outs;
+    format!(
+        "        {{\n            let s0 = {i0} + {i2};\n            let d0 = {i0} - {i2};\n\
+         let s1 = {i1} + {i3};\n            let d1 = {};\n\
+         {o0} = s0 + s1;\n            {o1} = d0 + d1;\n            {o2} = s0 - s1;\n            {o3} = d0 - d1;\n        }}\n",
+        rot(&format!("{i1} - {i3}"))
+    )
+}
+
 /// `dct_filter`'s middle: each thread's coefficients, gained and packed
 /// for the DCT-III, held in registers across the barrier (the same array
 /// is read at k and N − k, then written at k).
@@ -315,12 +358,14 @@ mod tests {
     }
 
     #[test]
-    fn radices_regroup_into_eights_and_nines() {
-        assert_eq!(fused_radices(1920).ok(), Some(vec![8, 8, 2, 15]));
+    fn radices_regroup_into_sixteens_and_nines() {
+        assert_eq!(fused_radices(1920).ok(), Some(vec![16, 8, 15]));
         assert_eq!(fused_radices(1080).ok(), Some(vec![8, 9, 15]));
-        assert_eq!(fused_radices(2160).ok(), Some(vec![8, 2, 9, 15]));
+        assert_eq!(fused_radices(2160).ok(), Some(vec![16, 9, 15]));
+        assert_eq!(fused_radices(64).ok(), Some(vec![16, 4]));
+        assert_eq!(fused_radices(32).ok(), Some(vec![16, 2]));
         assert_eq!(fused_radices(3 * 7).ok(), Some(vec![3, 7]));
-        assert_eq!(fused_radices(16 * 81 * 7).ok(), Some(vec![8, 2, 9, 9, 7]));
+        assert_eq!(fused_radices(16 * 81 * 7).ok(), Some(vec![16, 9, 9, 7]));
         assert_eq!(fused_radices(1).ok(), Some(vec![]));
         assert!(fused_radices(17).is_err());
     }
