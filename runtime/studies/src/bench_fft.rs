@@ -18,6 +18,9 @@ use nedrt_gpu::fft::{DctFilter, FftKernels, FftPath};
 use nedrt_optics::Psf;
 use nedrt_optics::sim::wiener::WienerFilter;
 
+/// One frame's wall time and GPU time (none without timestamps), seconds.
+type FrameTimes = (f64, Option<f64>);
+
 /// What to time.
 #[derive(Debug, Clone)]
 pub struct FftBench {
@@ -103,7 +106,7 @@ pub fn run(
         // path, so that a machine shared with other work loads all sides
         // alike; the ratios are medians of each repetition's own.
         let mut cpu = Vec::new();
-        let mut times: Vec<Vec<(f64, Option<f64>)>> = vec![Vec::new(); filters.len()];
+        let mut times: Vec<Vec<FrameTimes>> = vec![Vec::new(); filters.len()];
         for _ in 0..b.repeat.max(1) {
             let t = Instant::now();
             std::hint::black_box(filter.apply_unclamped(&input));
@@ -117,7 +120,7 @@ pub fn run(
             let wall = median(t.iter().map(|x| x.0).collect());
             let gpus: Vec<f64> = t.iter().filter_map(|x| x.1).collect();
             let gpu = (gpus.len() == t.len()).then(|| median(gpus));
-            let ratio = |f: &dyn Fn(&(f64, Option<f64>)) -> Option<f64>| {
+            let ratio = |f: &dyn Fn(&FrameTimes) -> Option<f64>| {
                 let r: Option<Vec<f64>> = t
                     .iter()
                     .zip(&cpu)
@@ -175,7 +178,7 @@ fn frame(
     src: &wgpu::Buffer,
     dst: &wgpu::Buffer,
     timer: Option<&nedrt_gpu::PassTimer>,
-) -> Result<(f64, Option<f64>), AppError> {
+) -> Result<FrameTimes, AppError> {
     let t = Instant::now();
     let mut enc = device.create_command_encoder(&Default::default());
     // Empty passes carry the timestamps: the filter records its own.

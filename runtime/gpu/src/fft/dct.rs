@@ -3,14 +3,11 @@
 //! workgroup memory, and the baseline its benchmark compares against.
 
 use super::kernels::{
-    FftKernels, Op, SeqParams, Tables, axis, check_binding, entry, fft_ops, io_bytes, on_axis,
-    pair_layout, record_ops,
+    BIND_GROUPS_KEPT, FftKernels, Op, SeqParams, Tables, axis, check_binding, entry, fft_ops,
+    io_bytes, on_axis, pair_layout, record_ops,
 };
 use super::{FftError, init_buffer};
 use crate::workgroups;
-
-/// Bind groups kept per cached input or output buffer.
-pub(super) const BIND_GROUPS_KEPT: usize = 8;
 
 /// The filter of [`super::DctFilter`] by separate passes through device
 /// memory (pack, each radix's Stockham pass, unpack; 32 dispatches at

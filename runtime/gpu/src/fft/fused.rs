@@ -5,31 +5,9 @@
 //! where both sides fit the adapter's workgroup memory; the multi-pass
 //! filter (`dct.rs`) is the fallback.
 
-use super::kernels::{FftKernels, SeqParams, Tables, axis, entry};
-use super::{FftError, checked, init_buffer, storage, wgsl};
+use super::kernels::{BIND_GROUPS_KEPT, FftKernels, SeqParams, Tables, axis, entry};
+use super::{FftError, checked, init_buffer, wgsl};
 use crate::MAX_GROUPS_X;
-
-/// The bindings of every generated module: `Seqs`, src, dst, twiddles,
-/// quarter shifts, gain (`shaders/fft_fused.wgsl`).
-pub(super) fn layout(device: &wgpu::Device) -> (wgpu::BindGroupLayout, wgpu::PipelineLayout) {
-    let l = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-        label: Some("fft_fused"),
-        entries: &[
-            storage(0, true),
-            storage(1, true),
-            storage(2, false),
-            storage(3, true),
-            storage(4, true),
-            storage(5, true),
-        ],
-    });
-    let pl = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-        label: Some("fft_fused"),
-        bind_group_layouts: &[Some(&l)],
-        immediate_size: 0,
-    });
-    (l, pl)
-}
 
 /// Whether a length's sequence fits one workgroup's memory on `device`.
 pub fn fits_workgroup(device: &wgpu::Device, n: usize) -> bool {
@@ -278,7 +256,7 @@ fn cached(
         return g.clone();
     }
     let g = make(buffer);
-    if kept.len() == super::dct::BIND_GROUPS_KEPT {
+    if kept.len() == BIND_GROUPS_KEPT {
         kept.remove(0);
     }
     kept.push((buffer.clone(), g.clone()));

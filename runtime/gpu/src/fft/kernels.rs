@@ -144,7 +144,7 @@ impl FftKernels {
                     cache: None,
                 })
             };
-            let (fused_layout, fused_pipeline_layout) = super::fused::layout(device);
+            let (fused_layout, fused_pipeline_layout) = fused_layout(device);
             Self {
                 fused_layout,
                 fused_pipeline_layout,
@@ -205,6 +205,31 @@ impl FftKernels {
         self.fft.insert(radix, p.clone());
         Ok(p)
     }
+}
+
+/// Bind groups kept per cached input or output buffer.
+pub(super) const BIND_GROUPS_KEPT: usize = 8;
+
+/// The bindings of every generated module: `Seqs`, src, dst, twiddles,
+/// quarter shifts, gain (`shaders/fft_fused.wgsl`).
+pub(super) fn fused_layout(device: &wgpu::Device) -> (wgpu::BindGroupLayout, wgpu::PipelineLayout) {
+    let l = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+        label: Some("fft_fused"),
+        entries: &[
+            storage(0, true),
+            storage(1, true),
+            storage(2, false),
+            storage(3, true),
+            storage(4, true),
+            storage(5, true),
+        ],
+    });
+    let pl = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+        label: Some("fft_fused"),
+        bind_group_layouts: &[Some(&l)],
+        immediate_size: 0,
+    });
+    (l, pl)
 }
 
 /// One recorded dispatch.
