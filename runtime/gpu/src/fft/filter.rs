@@ -60,12 +60,14 @@ impl DctFilter {
         let fused = kernels.path == FftPath::Auto
             && fits_workgroup(&device, width)
             && fits_workgroup(&device, height);
-        let imp = if fused {
-            Imp::Fused(FusedFilter::new(kernels, width, height, sets)?)
-        } else {
-            Imp::MultiPass(MultiPassFilter::with_gain_sets(
+        // A driver that refuses the generated kernels (a limit wgpu does not
+        // report) still gets a filter: the fallback's.
+        let imp = match fused.then(|| FusedFilter::new(kernels, width, height, sets)) {
+            Some(Ok(f)) => Imp::Fused(f),
+            Some(Err(e)) if !matches!(e, FftError::Device(_)) => return Err(e),
+            _ => Imp::MultiPass(MultiPassFilter::with_gain_sets(
                 kernels, width, height, sets,
-            )?)
+            )?),
         };
         Ok(Self {
             width,
