@@ -392,4 +392,25 @@ pub struct BenchArgs {
     /// (inference: default the best any layer reaches in the run; fft: no floor).
     #[arg(long, value_name = "GB/S")]
     pub peak_gbps: Option<f64>,
+    /// fft: the device FFT paths to time side by side.
+    #[arg(long, value_delimiter = ',', value_enum, default_values = ["auto", "multipass"])]
+    pub fft_paths: Vec<FftPathArg>,
+}
+
+/// `nedrt bench fft --fft-paths`: which kernels run the DCT filter.
+#[derive(ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum FftPathArg {
+    /// One dispatch per axis in workgroup memory where the sides fit, else the passes.
+    Auto,
+    /// The multi-pass fallback (each radix a dispatch through device memory), forced.
+    Multipass,
+}
+
+impl From<FftPathArg> for nedrt_gpu::fft::FftPath {
+    fn from(p: FftPathArg) -> Self {
+        match p {
+            FftPathArg::Auto => Self::Auto,
+            FftPathArg::Multipass => Self::MultiPass,
+        }
+    }
 }

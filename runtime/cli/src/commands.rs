@@ -236,6 +236,7 @@ pub fn run(cli: Cli) -> Result<()> {
                     peak_gbps: a.peak_gbps,
                     gpu: common.dcnn.backend_options.gpu.clone(),
                     per_pass: a.per_layer,
+                    paths: a.fft_paths.iter().map(|p| (*p).into()).collect(),
                 };
                 let table = studies::bench_fft::run(&bench, &mut |r| println!("{r}"))?;
                 print!("{table}");

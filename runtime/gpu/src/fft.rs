@@ -6,6 +6,12 @@
 //! (docs/gpu-fft.md), which this module runs with half the data and a
 //! quarter of the transforms' work of the mirrored FFT:
 //!
+//! - in workgroup memory (`fused.rs`, `wgsl.rs`, `fft_fused.wgsl`): one
+//!   dispatch per axis, each workgroup holding a pair of rows or columns
+//!   through every pass of its FFT, the radices written out with constant
+//!   butterflies, the gain fused: three dispatches a filter, where both
+//!   sides fit the adapter's workgroup memory;
+//! - else by passes through device memory, the fallback:
 //! - `fft_pass.wgsl`: one Stockham pass of a batched complex FFT (radices
 //!   2 and 4, and a generic odd DFT up to [`MAX_PRIME`]); the passes of a
 //!   length's radices give its DFT in natural order;
@@ -21,11 +27,15 @@
 
 mod complex;
 mod dct;
+mod filter;
+mod fused;
 mod kernels;
 mod spectral;
+mod wgsl;
 
 pub use complex::ComplexFft2d;
-pub use dct::DctFilter;
+pub use filter::DctFilter;
+pub use fused::fits_workgroup;
 pub use kernels::FftKernels;
 pub use spectral::{GainsFor, SpectralStage, TermsError};
 
@@ -35,6 +45,18 @@ use kernels::{FFT_SHADER, PACK_SHADER, PassParams, SeqParams, UNPACK_SHADER};
 /// The largest prime factor of a transform length the device FFT takes
 /// (the generic DFT's registers grow with it; `fft_pass.wgsl`'s MAX_RADIX).
 pub const MAX_PRIME: usize = 13;
+
+/// Which kernels the device transforms use.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum FftPath {
+    /// One dispatch per axis in workgroup memory where every length fits
+    /// the adapter's workgroup memory, else the multi-pass kernels.
+    #[default]
+    Auto,
+    /// The multi-pass kernels (each radix a dispatch through device
+    /// memory) at every size: the fallback, forced for comparisons.
+    MultiPass,
+}
 
 /// Why a device transform cannot be made.
 #[derive(Debug, thiserror::Error)]
@@ -303,11 +325,44 @@ mod tests {
             out
         }
 
+        /// A device whose workgroup memory is `bytes` (the adapter's other
+        /// limits): 16 KiB is WebGPU's default and the smallest an adapter
+        /// offers, where 2160 no longer fits and the fallback runs.
+        fn device_with_workgroup_bytes(bytes: u32) -> (wgpu::Device, wgpu::Queue) {
+            let instance = wgpu::Instance::new(crate::GpuSettings::default().descriptor());
+            let adapter = pollster::block_on(
+                instance.request_adapter(&wgpu::RequestAdapterOptions::default()),
+            )
+            .expect("this test needs a GPU adapter");
+            let mut limits = adapter.limits();
+            limits.max_compute_workgroup_storage_size =
+                bytes.min(limits.max_compute_workgroup_storage_size);
+            pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
+                required_limits: limits,
+                ..Default::default()
+            }))
+            .expect("device")
+        }
+
         /// The device 2-D FFT of one random array against rustfft, both
         /// directions: the largest error over the largest magnitude.
-        fn fft2_error(cols: usize, rows: usize) -> f32 {
+        fn fft2_error(cols: usize, rows: usize) -> (f32, bool) {
             let (device, queue) = crate::test_device(false);
+            fft2_error_on(&device, &queue, cols, rows, FftPath::Auto)
+        }
+
+        /// As [`fft2_error`] on `device` by `path`; and whether the
+        /// transform ran in workgroup memory.
+        fn fft2_error_on(
+            device: &wgpu::Device,
+            queue: &wgpu::Queue,
+            cols: usize,
+            rows: usize,
+            path: FftPath,
+        ) -> (f32, bool) {
+            let (device, queue) = (device.clone(), queue.clone());
             let mut kernels = FftKernels::new(&device).expect("kernels");
+            kernels.set_path(path);
             let data = signal(2 * cols * rows, (cols * 31 + rows) as u64);
             let a = data_buffer(&device, &data, wgpu::BufferUsages::COPY_DST);
             let b = data_buffer(
@@ -340,7 +395,7 @@ mod tests {
                     );
                 worst = worst.max(err / peak);
             }
-            worst
+            (worst, fft.in_workgroup_memory())
         }
 
         #[test]
@@ -355,15 +410,68 @@ mod tests {
                 (7 * 16, 11 * 13),
                 (98, 45),
             ] {
-                let e = fft2_error(cols, rows);
+                let (e, fused) = fft2_error(cols, rows);
                 eprintln!(
-                    "device FFT {cols}×{rows}: largest error {e:.2e} of the largest magnitude"
+                    "device FFT {cols}×{rows} ({}): largest error {e:.2e} of the largest magnitude",
+                    if fused {
+                        "workgroup memory"
+                    } else {
+                        "multi-pass"
+                    }
                 );
                 assert!(
                     e <= 1e-5,
                     "{cols}×{rows}: error {e:e} of the largest magnitude"
                 );
             }
+        }
+
+        /// Every length the multi-pass kernels take factors into 2, 3, 4,
+        /// 5, 7, 11 and 13: each radix alone, mixed, the prefilters' sides,
+        /// and every factorable length up to 130, along rows and along
+        /// columns, in workgroup memory and by the fallback.
+        #[test]
+        #[ignore = "needs a GPU adapter (run: scripts/test.sh, or cargo test -- --include-ignored)"]
+        fn the_workgroup_fft_equals_rustfft_at_every_radix_and_mix() {
+            let (device, queue) = crate::test_device(false);
+            let mut lengths: Vec<usize> = (1..=130).filter(|n| radices(*n).is_ok()).collect();
+            lengths.extend([
+                3 * 5 * 7 * 11,
+                13 * 11 * 4,
+                5 * 5 * 5 * 3,
+                1000,
+                1080,
+                1200,
+                1280,
+                1920,
+            ]);
+            for n in lengths {
+                for (cols, rows) in [(n, 3), (2, n)] {
+                    for path in [FftPath::Auto, FftPath::MultiPass] {
+                        let (e, fused) = fft2_error_on(&device, &queue, cols, rows, path);
+                        assert_eq!(fused, path == FftPath::Auto, "{cols}×{rows}");
+                        assert!(
+                            e <= 1e-5,
+                            "{cols}×{rows} {path:?}: error {e:e} of the largest magnitude"
+                        );
+                    }
+                }
+            }
+        }
+
+        #[test]
+        #[ignore = "needs a GPU adapter (run: scripts/test.sh, or cargo test -- --include-ignored)"]
+        fn a_side_beyond_workgroup_memory_falls_back_to_the_passes() {
+            // 16 KiB: 1920 complex values fit (15,360 bytes), 2160 do not.
+            let (device, queue) = device_with_workgroup_bytes(16 * 1024);
+            let (e, fused) = fft2_error_on(&device, &queue, 1920, 1080, FftPath::Auto);
+            assert!(fused && e <= 1e-5, "{e:e}");
+            let (e, fused) = fft2_error_on(&device, &queue, 2160, 1080, FftPath::Auto);
+            assert!(!fused && e <= 1e-5, "{e:e}");
+            let (e, w) = filter_error_on(&device, &queue, 2160, 9, 3, FftPath::Auto);
+            assert!(!w && e <= 1e-5, "{e:e}");
+            let (e, w) = filter_error_on(&device, &queue, 1920, 9, 3, FftPath::Auto);
+            assert!(w && e <= 1e-5, "{e:e}");
         }
 
         #[test]
@@ -417,7 +525,28 @@ mod tests {
 
         fn filter_error(w: usize, h: usize, channels: usize) -> f32 {
             let (device, queue) = crate::test_device(false);
+            let (auto, fused) = filter_error_on(&device, &queue, w, h, channels, FftPath::Auto);
+            assert!(fused, "{w}×{h}: not in workgroup memory");
+            let (passes, fused) =
+                filter_error_on(&device, &queue, w, h, channels, FftPath::MultiPass);
+            assert!(!fused);
+            auto.max(passes)
+        }
+
+        /// The DCT filter by `path` against the mirrored-grid filter: the
+        /// largest error over the largest value, and whether it ran in
+        /// workgroup memory.
+        fn filter_error_on(
+            device: &wgpu::Device,
+            queue: &wgpu::Queue,
+            w: usize,
+            h: usize,
+            channels: usize,
+            path: FftPath,
+        ) -> (f32, bool) {
+            let (device, queue) = (device.clone(), queue.clone());
             let mut kernels = FftKernels::new(&device).expect("kernels");
+            kernels.set_path(path);
             let frame = signal(channels * w * h, (w * 7 + h) as u64);
             // A smooth low-pass with a sharpening bump, different per channel.
             let gains: Vec<Vec<f32>> = (0..channels)
@@ -452,7 +581,7 @@ mod tests {
                     worst = worst.max(if e.is_nan() { f32::INFINITY } else { e / peak });
                 }
             }
-            worst
+            (worst, filter.in_workgroup_memory())
         }
 
         #[test]
@@ -460,10 +589,78 @@ mod tests {
         fn the_dct_filter_is_the_mirrored_grid_filter() {
             // Odd and even sides, an odd number of sequences (a pair
             // with one sequence), one channel and three.
-            for (w, h, c) in [(16, 12, 3), (15, 9, 1), (40, 27, 3), (7, 5, 3)] {
+            for (w, h, c) in [
+                (16, 12, 3),
+                (15, 9, 1),
+                (40, 27, 3),
+                (7, 5, 3),
+                (1, 1, 1),
+                (1, 6, 3),
+                (98, 1, 1),
+                (143, 112, 3),
+                (1920, 1080, 3),
+            ] {
                 let e = filter_error(w, h, c);
                 eprintln!("DCT filter {w}×{h}×{c}: largest error {e:.2e} of the largest value");
                 assert!(e <= 1e-5, "{w}×{h}×{c}: error {e:e} of the largest value");
+            }
+        }
+
+        #[test]
+        #[ignore = "needs a GPU adapter (run: scripts/test.sh, or cargo test -- --include-ignored)"]
+        fn two_gain_sets_sharing_the_forward_rows_equal_two_filters() {
+            let (device, queue) = crate::test_device(false);
+            let (w, h) = (40, 27);
+            let frame = signal(3 * w * h, 5);
+            let set = |k: f32| -> Vec<Vec<f32>> {
+                (0..3)
+                    .map(|c| {
+                        (0..w * h)
+                            .map(|i| 1.0 / (1.0 + k * (i + c) as f32))
+                            .collect()
+                    })
+                    .collect()
+            };
+            let (g0, g1) = (set(0.01), set(0.2));
+            for path in [FftPath::Auto, FftPath::MultiPass] {
+                let mut kernels = FftKernels::new(&device).expect("kernels");
+                kernels.set_path(path);
+                let mut filter =
+                    DctFilter::with_gain_sets(&mut kernels, w, h, &[&g0, &g1]).expect("filter");
+                let input = data_buffer(&device, &frame, wgpu::BufferUsages::empty());
+                let outs: Vec<wgpu::Buffer> = (0..4)
+                    .map(|_| {
+                        data_buffer(
+                            &device,
+                            &vec![f32::NAN; frame.len()],
+                            wgpu::BufferUsages::empty(),
+                        )
+                    })
+                    .collect();
+                let mut enc = device.create_command_encoder(&Default::default());
+                filter
+                    .record_sets(&mut enc, &input, &[(&outs[0], 1), (&outs[1], 0)])
+                    .expect("record");
+                filter
+                    .record_set(&mut enc, &input, &outs[2], 1)
+                    .expect("record");
+                filter
+                    .record_set(&mut enc, &input, &outs[3], 0)
+                    .expect("record");
+                queue.submit([enc.finish()]);
+                let got: Vec<Vec<f32>> = outs
+                    .iter()
+                    .map(|b| read(&device, &queue, b, b.size()))
+                    .collect();
+                assert_eq!(got[0], got[2], "{path:?}: set 1");
+                assert_eq!(got[1], got[3], "{path:?}: set 0");
+                assert!(got[0].iter().all(|v| v.is_finite()));
+                assert_ne!(got[0], got[1]);
+                let mut enc = device.create_command_encoder(&Default::default());
+                assert!(matches!(
+                    filter.record_sets(&mut enc, &input, &[(&outs[0], 2)]),
+                    Err(FftError::Gains(_))
+                ));
             }
         }
 

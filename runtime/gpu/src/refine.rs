@@ -305,9 +305,10 @@ impl crate::DeviceStage for RefineStage {
                 g
             }
         };
-        // b = Σ A_Dᵀ t_D(I); the start: the linear prefilter, clamped.
-        plan.filter.record_set(encoder, input, &plan.b, 1)?;
-        plan.filter.record_set(encoder, input, &plan.xn, 0)?;
+        // b = Σ A_Dᵀ t_D(I); the start: the linear prefilter, clamped. One
+        // input: the two share its rows' forward transform.
+        plan.filter
+            .record_sets(encoder, input, &[(&plan.b, 1), (&plan.xn, 0)])?;
         let [gx, gy, c] = plan.groups;
         let p = &self.pipelines;
         let dispatch = |encoder: &mut wgpu::CommandEncoder,

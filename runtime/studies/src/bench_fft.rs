@@ -14,9 +14,12 @@ use serde_json::json;
 use super::AppError;
 use super::bench::median;
 use super::bench_inference::bench_frame;
-use nedrt_gpu::fft::{DctFilter, FftKernels};
+use nedrt_gpu::fft::{DctFilter, FftKernels, FftPath};
 use nedrt_optics::Psf;
 use nedrt_optics::sim::wiener::WienerFilter;
+
+/// One frame's wall time and GPU time (none without timestamps), seconds.
+type FrameTimes = (f64, Option<f64>);
 
 /// What to time.
 #[derive(Debug, Clone)]
@@ -28,6 +31,9 @@ pub struct FftBench {
     pub gpu: nedrt_gpu::GpuSettings,
     /// Also each dispatch's device time (timestamp queries) beside its bytes and floor.
     pub per_pass: bool,
+    /// The device paths to time, side by side (the multi-pass fallback
+    /// against the workgroup-memory kernels).
+    pub paths: Vec<FftPath>,
 }
 
 /// One PSF per channel (the filter's cost does not depend on the kernel;
@@ -58,10 +64,12 @@ pub fn run(
     let mut kernels = FftKernels::new(&device)?;
     let filter = WienerFilter::new(&psfs(), 1e-2);
     let mut md = format!(
-        "`nedrt bench fft`: the Wiener prefilter of three planes, median of {} after a warm-up; \
+        "`nedrt bench fft`: the Wiener prefilter of three planes, median of {} after a warm-up, \
+         the CPU and each path interleaved (the ratios: medians of each repetition's); \
          device: {adapter}; CPU: {} threads\n\n\
-         | frame | device ms | CPU ms | device ÷ CPU | device MB moved | floor ms (bytes ÷ bandwidth) | × floor |\n\
-         | --- | --- | --- | --- | --- | --- | --- |\n",
+         wall: record, submit and wait; GPU: timestamps around the filter's passes\n\n\
+         | frame | path | dispatches | wall ms | GPU ms | CPU ms | wall ÷ CPU | GPU ÷ CPU | device MB moved | floor ms (bytes ÷ bandwidth) | GPU × floor |\n\
+         | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |\n",
         b.repeat.max(1),
         rayon::current_num_threads()
     );
@@ -71,16 +79,9 @@ pub fn run(
         // gains, inverse, crop).
         let plan = filter.plan(w, h);
         let _ = filter.apply_unclamped(&input);
-        let mut cpu = Vec::new();
-        for _ in 0..b.repeat.max(1) {
-            let t = Instant::now();
-            std::hint::black_box(filter.apply_unclamped(&input));
-            cpu.push(t.elapsed().as_secs_f64());
-        }
         // The device: the same gains, the frame already on the device
-        // (the service's case); each run one submission and a wait.
+        // (the service's case); each frame one submission and a wait.
         let gains = plan.dct_gains()?;
-        let mut dct = DctFilter::new(&mut kernels, w, h, &gains)?;
         use wgpu::util::DeviceExt;
         let src = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
             label: Some("bench frame"),
@@ -93,42 +94,119 @@ pub fn run(
             usage: wgpu::BufferUsages::STORAGE,
             mapped_at_creation: false,
         });
-        let mut once = || -> Result<f64, AppError> {
-            let t = Instant::now();
-            let mut enc = device.create_command_encoder(&Default::default());
-            dct.record(&mut enc, &src, &dst)?;
-            let s = queue.submit([enc.finish()]);
-            nedrt_gpu::wait_for(&device, s)?;
-            Ok(t.elapsed().as_secs_f64())
-        };
-        once()?;
-        let mut gpu = Vec::new();
+        let timer = nedrt_gpu::PassTimer::new(&device, &queue, 1);
+        let mut filters = Vec::new();
+        for &path in &b.paths {
+            kernels.set_path(path);
+            let mut dct = DctFilter::new(&mut kernels, w, h, &gains)?;
+            frame(&device, &queue, &mut dct, &src, &dst, timer.as_ref())?;
+            filters.push(dct);
+        }
+        // Interleaved: each repetition one CPU frame, then one frame per
+        // path, so that a machine shared with other work loads all sides
+        // alike; the ratios are medians of each repetition's own.
+        let mut cpu = Vec::new();
+        let mut times: Vec<Vec<FrameTimes>> = vec![Vec::new(); filters.len()];
         for _ in 0..b.repeat.max(1) {
-            gpu.push(once()?);
+            let t = Instant::now();
+            std::hint::black_box(filter.apply_unclamped(&input));
+            cpu.push(t.elapsed().as_secs_f64());
+            for (dct, out) in filters.iter_mut().zip(&mut times) {
+                out.push(frame(&device, &queue, dct, &src, &dst, timer.as_ref())?);
+            }
         }
-        let (g, c) = (median(gpu), median(cpu));
-        let bytes = dct.bytes_per_frame();
-        let floor = b.peak_gbps.map(|bw| bytes as f64 / (bw * 1e9));
-        let _ = writeln!(
-            md,
-            "| {w}×{h} | {:.2} | {:.2} | {:.2} | {:.0} | {} | {} |",
-            g * 1e3,
-            c * 1e3,
-            g / c,
-            bytes as f64 / 1e6,
-            floor.map_or("– (--peak-gbps)".into(), |f| format!("{:.3}", f * 1e3)),
-            floor.map_or("–".into(), |f| format!("{:.1}", g / f)),
-        );
-        if b.per_pass {
-            md += &per_pass(&device, &queue, &mut dct, &src, &dst, b, (w, h), on_record)?;
+        let c = median(cpu.clone());
+        for (dct, t) in filters.iter_mut().zip(&times) {
+            let wall = median(t.iter().map(|x| x.0).collect());
+            let gpus: Vec<f64> = t.iter().filter_map(|x| x.1).collect();
+            let gpu = (gpus.len() == t.len()).then(|| median(gpus));
+            let ratio = |f: &dyn Fn(&FrameTimes) -> Option<f64>| {
+                let r: Option<Vec<f64>> = t
+                    .iter()
+                    .zip(&cpu)
+                    .map(|(x, c)| f(x).map(|v| v / c))
+                    .collect();
+                r.map(median)
+            };
+            let wall_ratio = ratio(&|x| Some(x.0)).unwrap_or(f64::NAN);
+            let gpu_ratio = ratio(&|x| x.1);
+            let bytes = dct.bytes_per_frame();
+            let floor = b.peak_gbps.map(|bw| bytes as f64 / (bw * 1e9));
+            let kind = if dct.in_workgroup_memory() {
+                "workgroup memory"
+            } else {
+                "multi-pass"
+            };
+            let ms = |v: Option<f64>| v.map_or("–".into(), |v| format!("{:.2}", v * 1e3));
+            let _ = writeln!(
+                md,
+                "| {w}×{h} | {kind} | {} | {:.2} | {} | {:.2} | {:.2} | {} | {:.0} | {} | {} |",
+                dct.passes(0).len(),
+                wall * 1e3,
+                ms(gpu),
+                c * 1e3,
+                wall_ratio,
+                gpu_ratio.map_or("–".into(), |g| format!("{g:.2}")),
+                bytes as f64 / 1e6,
+                floor.map_or("– (--peak-gbps)".into(), |f| format!("{:.3}", f * 1e3)),
+                floor
+                    .zip(gpu)
+                    .map_or("–".into(), |(f, g)| format!("{:.1}", g / f)),
+            );
+            if b.per_pass {
+                md += &per_pass(&device, &queue, dct, &src, &dst, b, (w, h), on_record)?;
+            }
+            on_record(&json!({
+                "kind": "fft_filter", "width": w, "height": h, "device": adapter, "path": kind,
+                "dispatches": dct.passes(0).len(),
+                "device_median_s": wall, "gpu_median_s": gpu, "cpu_median_s": c,
+                "device_over_cpu": wall_ratio, "gpu_over_cpu": gpu_ratio,
+                "cpu_threads": rayon::current_num_threads(),
+                "bytes_per_frame": bytes, "floor_s": floor, "repeat": b.repeat,
+            }));
         }
-        on_record(&json!({
-            "kind": "fft_filter", "width": w, "height": h, "device": adapter,
-            "device_median_s": g, "cpu_median_s": c, "cpu_threads": rayon::current_num_threads(),
-            "bytes_per_frame": bytes, "floor_s": floor, "repeat": b.repeat,
-        }));
     }
     Ok(md)
+}
+
+/// One frame of the filter: its wall time (record, submit, wait) and its
+/// GPU time (timestamps around its passes, where the adapter has them).
+fn frame(
+    device: &wgpu::Device,
+    queue: &wgpu::Queue,
+    dct: &mut DctFilter,
+    src: &wgpu::Buffer,
+    dst: &wgpu::Buffer,
+    timer: Option<&nedrt_gpu::PassTimer>,
+) -> Result<FrameTimes, AppError> {
+    let t = Instant::now();
+    let mut enc = device.create_command_encoder(&Default::default());
+    // Empty passes carry the timestamps: the filter records its own.
+    if let Some(timer) = timer {
+        drop(enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
+            label: Some("bench start"),
+            timestamp_writes: Some(timer.start(0)),
+        }));
+    }
+    dct.record(&mut enc, src, dst)?;
+    if let Some(timer) = timer {
+        drop(enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
+            label: Some("bench end"),
+            timestamp_writes: Some(timer.end(0)),
+        }));
+        timer.resolve(&mut enc);
+    }
+    let s = queue.submit([enc.finish()]);
+    nedrt_gpu::wait_for(device, s)?;
+    let wall = t.elapsed().as_secs_f64();
+    let gpu = match timer {
+        Some(timer) => {
+            timer.map_and_wait(device)?;
+            timer.spans_ns()?.first().map(|ns| *ns as f64 * 1e-9)
+        }
+        None => None,
+    };
+    Ok((wall, gpu))
 }
 
 /// Each dispatch of the filter in a pass of its own between timestamps

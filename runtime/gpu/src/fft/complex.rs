@@ -1,8 +1,11 @@
 //! The batched 2-D complex FFT: a reference for the tests and benchmarks,
 //! apart from the DCT filter the prefilters run.
 
-use super::FftError;
-use super::kernels::{FftKernels, Layout, Op, Tables, check_binding, fft_ops, record_ops};
+use super::fused::{self, fits_workgroup};
+use super::kernels::{
+    FftKernels, Layout, Op, SeqParams, Tables, check_binding, fft_ops, record_ops,
+};
+use super::{FftError, FftPath, init_buffer};
 
 /// A batched 2-D complex FFT of `rows`×`cols` arrays on the device: the
 /// transform over each row, then over each column, in place between two
@@ -16,6 +19,13 @@ pub struct ComplexFft2d {
     /// Whether each direction's result ends in the second buffer.
     forward_in_b: bool,
     inverse_in_b: bool,
+}
+
+impl ComplexFft2d {
+    /// Whether each axis is one dispatch in workgroup memory.
+    pub fn in_workgroup_memory(&self) -> bool {
+        self.forward.len() == 2 && self.forward.iter().all(|o| o.what.contains("workgroup"))
+    }
 }
 
 impl ComplexFft2d {
@@ -40,6 +50,12 @@ impl ComplexFft2d {
                     limit: buf.size(),
                 });
             }
+        }
+        if kernels.path == FftPath::Auto
+            && fits_workgroup(&device, cols)
+            && fits_workgroup(&device, rows)
+        {
+            return Self::fused_axes(kernels, cols, rows, batch, a, b);
         }
         let row_tables = Tables::new(&device, cols)?;
         let col_tables = Tables::new(&device, rows)?;
@@ -79,6 +95,69 @@ impl ComplexFft2d {
             inverse,
             forward_in_b,
             inverse_in_b,
+        })
+    }
+
+    /// One dispatch per axis, each sequence in workgroup memory: rows
+    /// a → b, columns b → a.
+    fn fused_axes(
+        kernels: &mut FftKernels,
+        cols: usize,
+        rows: usize,
+        batch: usize,
+        a: &wgpu::Buffer,
+        b: &wgpu::Buffer,
+    ) -> Result<Self, FftError> {
+        let device = kernels.device.clone();
+        let (r, c) = (rows as u32, cols as u32);
+        let seqs = |n: u32, count: u32, group, plane, group_stride, elem_stride| SeqParams {
+            n,
+            count,
+            pairs: count,
+            group,
+            plane,
+            group_stride,
+            elem_stride,
+            pair_stride: 0,
+            celem_stride: 0,
+            pair_fastest: 0,
+            use_gain: 0,
+            pad: 0,
+        };
+        let row_q = seqs(c, batch as u32 * r, batch as u32 * r, 0, c, 1);
+        let col_q = seqs(r, batch as u32 * c, c, r * c, 1, c);
+        let (row_tables, col_tables) = (Tables::new(&device, cols)?, Tables::new(&device, rows)?);
+        let dummy = init_buffer(&device, "no gains", &[0u8; 16]);
+        let bytes = 16 * (batch * rows * cols) as u64;
+        let mut made = Vec::new();
+        for entry_point in ["fft_forward", "fft_inverse"] {
+            let mut ops = Vec::new();
+            for (q, n, tables, src, dst, axis) in [
+                (&row_q, cols, &row_tables, a, b, "rows"),
+                (&col_q, rows, &col_tables, b, a, "columns"),
+            ] {
+                let params = init_buffer(&device, "fft_fused axis", bytemuck::bytes_of(q));
+                ops.push(Op {
+                    pipeline: kernels.fused_pipeline(n, entry_point)?,
+                    bind: fused::bind(
+                        &device,
+                        &kernels.fused_layout,
+                        [&params, src, dst, &tables.twiddle, &tables.quarter, &dummy],
+                    ),
+                    groups: fused::groups(q.count),
+                    what: format!("{axis}: {entry_point} (workgroup memory)"),
+                    bytes,
+                });
+            }
+            made.push(ops);
+        }
+        let inverse = made.pop().unwrap_or_default();
+        let forward = made.pop().unwrap_or_default();
+        Ok(Self {
+            forward,
+            inverse,
+            forward_in_b: false,
+            inverse_in_b: false,
         })
     }
 

@@ -1,28 +1,24 @@
-//! The DCT filter: a real, even spectrum applied to a frame's planes by a
-//! DCT-II, a product and a DCT-III. Apart from the kernels it records
-//! (`kernels`) and from the stage that caches it per frame size (`spectral`).
+//! The DCT filter by separate passes through device memory: the fallback
+//! of the workgroup-memory filter (`fused.rs`) where a side does not fit
+//! workgroup memory, and the baseline its benchmark compares against.
 
 use super::kernels::{
-    FftKernels, Op, SeqParams, Tables, axis, check_binding, entry, fft_ops, io_bytes, on_axis,
-    pair_layout, record_ops,
+    BIND_GROUPS_KEPT, FftKernels, Op, SeqParams, Tables, axis, check_binding, entry, fft_ops,
+    io_bytes, on_axis, pair_layout, record_ops,
 };
 use super::{FftError, init_buffer};
 use crate::workgroups;
 
-/// Bind groups kept per cached input or output buffer.
-pub(super) const BIND_GROUPS_KEPT: usize = 8;
-
-/// A real, even spectrum applied to `channels` planes of one frame size:
-/// out = DCT-III(gain · DCT-II(in)) per plane (both unnormalised; the
-/// inverse carries 1/(w·h)), i.e. the mirrored frame's circular
-/// convolution with the spectrum's kernel, cropped. `gains` holds one
-/// plane of `height` rows of `width` values per channel, indexed by the
-/// DCT's (ky, kx): the mirrored 2w×2h grid's spectrum at (ky, kx).
+/// The filter of [`super::DctFilter`] by separate passes through device
+/// memory (pack, each radix's Stockham pass, unpack; 32 dispatches at
+/// 1080p): any length the radices take, at any workgroup-memory size. The
+/// fallback of the workgroup-memory filter (`fused.rs`) and its
+/// benchmark's baseline.
 #[derive(Debug)]
-pub struct DctFilter {
-    pub width: usize,
-    pub height: usize,
-    pub channels: usize,
+pub(super) struct MultiPassFilter {
+    width: usize,
+    height: usize,
+    channels: usize,
     /// Between the input's rows transform and the output's: up to the
     /// gain, the gain (one op per set), after it.
     before_gain: Vec<Op>,
@@ -50,62 +46,17 @@ pub struct DctFilter {
 #[derive(Debug, Clone)]
 pub(super) struct SeqParamsBuffer(wgpu::Buffer);
 
-impl DctFilter {
-    /// Prepares the filter for `width`×`height` frames of `channels`
-    /// planes, with `gains` (see the type).
-    pub fn new(
-        kernels: &mut FftKernels,
-        width: usize,
-        height: usize,
-        gains: &[Vec<f32>],
-    ) -> Result<Self, FftError> {
-        Self::with_gain_sets(kernels, width, height, &[gains])
-    }
-
-    /// The same with several sets of gains sharing the buffers and passes:
-    /// [`DctFilter::record_set`] picks one per recording (the refinement's
-    /// three operators).
-    pub fn with_gain_sets(
+impl MultiPassFilter {
+    /// Gains checked by the caller (`filter.rs`): one or more sets of
+    /// equally many channels of width·height finite values.
+    pub(super) fn with_gain_sets(
         kernels: &mut FftKernels,
         width: usize,
         height: usize,
         sets: &[&[Vec<f32>]],
     ) -> Result<Self, FftError> {
         let device = kernels.device.clone();
-        let Some(gains) = sets.first() else {
-            return Err(FftError::Gains("no gains".into()));
-        };
-        let channels = gains.len();
-        if sets.iter().any(|g| g.len() != channels) {
-            return Err(FftError::Gains(
-                "gain sets of different channel counts".into(),
-            ));
-        }
-        if channels == 0 || width == 0 || height == 0 {
-            return Err(FftError::Gains(format!(
-                "{channels} channels of {width}×{height}: nothing to filter"
-            )));
-        }
-        if let Some((c, g)) = sets
-            .iter()
-            .flat_map(|g| g.iter())
-            .enumerate()
-            .find(|(_, g)| g.len() != width * height)
-        {
-            return Err(FftError::Gains(format!(
-                "channel {c} has {} values, a {width}×{height} frame needs {}",
-                g.len(),
-                width * height
-            )));
-        }
-        if sets
-            .iter()
-            .flat_map(|g| g.iter())
-            .flatten()
-            .any(|v| !v.is_finite())
-        {
-            return Err(FftError::Gains("a gain is not finite".into()));
-        }
+        let channels = sets.first().map_or(0, |g| g.len());
         let real_bytes = (channels * width * height * 4) as u64;
         let rows_q = axis(width, height, channels, false, false);
         let cols_q = axis(width, height, channels, true, false);
@@ -310,16 +261,13 @@ impl DctFilter {
         })
     }
 
-    /// Bytes the filter moves through device memory per frame at least:
-    /// every dispatch reads and writes its data once (the floor of
-    /// docs/benchmarks.md's bytes-over-bandwidth).
-    pub fn bytes_per_frame(&self) -> u64 {
-        self.passes(0).iter().map(|(_, b)| b).sum()
+    pub(super) fn sets(&self) -> usize {
+        self.gain_ops.len()
     }
 
     /// Each dispatch of a frame with gain set `set`, in order: what it
     /// does and the bytes it moves at least.
-    pub fn passes(&self, set: usize) -> Vec<(String, u64)> {
+    pub(super) fn passes(&self, set: usize) -> Vec<(String, u64)> {
         let first = ("rows: DCT-II pack (the input)".to_string(), self.first.3);
         let last = ("rows: DCT-III unpack (the output)".to_string(), self.last.3);
         std::iter::once(first)
@@ -335,10 +283,10 @@ impl DctFilter {
             .collect()
     }
 
-    /// As [`DctFilter::record`], each dispatch in a compute pass of its own
+    /// As [`MultiPassFilter::record_set`] with set 0, each dispatch in a compute pass of its own
     /// between two of `timer`'s timestamps (pair i for dispatch i of
-    /// [`DctFilter::passes`]); the timer needs that many pairs.
-    pub fn record_timed(
+    /// [`super::DctFilter::passes`]); the timer needs that many pairs.
+    pub(super) fn record_timed(
         &mut self,
         encoder: &mut wgpu::CommandEncoder,
         input: &wgpu::Buffer,
@@ -370,19 +318,8 @@ impl DctFilter {
         Ok(())
     }
 
-    /// Records the filter of the frame in `input` into `output` (each
-    /// `channels` planes of width·height f32, planes width·height apart).
-    pub fn record(
-        &mut self,
-        encoder: &mut wgpu::CommandEncoder,
-        input: &wgpu::Buffer,
-        output: &wgpu::Buffer,
-    ) -> Result<(), FftError> {
-        self.record_set(encoder, input, output, 0)
-    }
-
-    /// As [`DctFilter::record`], with gain set `set`.
-    pub fn record_set(
+    /// Records the filter with gain set `set` (checked by the caller).
+    pub(super) fn record_set(
         &mut self,
         encoder: &mut wgpu::CommandEncoder,
         input: &wgpu::Buffer,

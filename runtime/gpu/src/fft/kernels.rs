@@ -3,7 +3,7 @@
 //! of the DCT's real sequences and complex pairs. Apart from the filters
 //! (`complex`, `dct`) that record them: this is the plumbing they share.
 
-use super::{FftError, checked, init_buffer, radices, storage};
+use super::{FftError, FftPath, checked, init_buffer, radices, storage};
 use crate::workgroups;
 use std::collections::HashMap;
 
@@ -69,6 +69,15 @@ pub struct FftKernels {
     pub(super) dct3_pack: wgpu::ComputePipeline,
     pub(super) dct2_unpack: wgpu::ComputePipeline,
     pub(super) dct3_unpack: wgpu::ComputePipeline,
+    /// The workgroup-memory kernels: one generated module per length,
+    /// its pipelines per entry point, made on first use.
+    pub(super) fused_layout: wgpu::BindGroupLayout,
+    pub(super) fused_pipeline_layout: wgpu::PipelineLayout,
+    pub(super) fused_modules: HashMap<usize, wgpu::ShaderModule>,
+    pub(super) fused: HashMap<(usize, &'static str), wgpu::ComputePipeline>,
+    pub(super) path: FftPath,
+    /// Threads a workgroup of the generated kernels at most.
+    pub(super) max_threads: u32,
 }
 
 impl FftKernels {
@@ -135,7 +144,20 @@ impl FftKernels {
                     cache: None,
                 })
             };
+            let (fused_layout, fused_pipeline_layout) = fused_layout(device);
             Self {
+                fused_layout,
+                fused_pipeline_layout,
+                fused_modules: HashMap::new(),
+                fused: HashMap::new(),
+                path: FftPath::Auto,
+                // lavapipe runs a workgroup's lanes as coroutines that switch
+                // at every barrier: fewer of them is faster there.
+                max_threads: if device.adapter_info().device_type == wgpu::DeviceType::Cpu {
+                    64
+                } else {
+                    256
+                },
                 device: device.clone(),
                 fft_pipeline_layout: pipeline_layout("fft_pass", &fft_layout),
                 fft_layout,
@@ -149,6 +171,15 @@ impl FftKernels {
                 unpack_layout,
             }
         })
+    }
+
+    /// Which kernels the filters and transforms made from now on use.
+    pub fn set_path(&mut self, path: FftPath) {
+        self.path = path;
+    }
+
+    pub fn path(&self) -> FftPath {
+        self.path
     }
 
     /// The pass pipeline of `radix`, compiled on first use.
@@ -174,6 +205,31 @@ impl FftKernels {
         self.fft.insert(radix, p.clone());
         Ok(p)
     }
+}
+
+/// Bind groups kept per cached input or output buffer.
+pub(super) const BIND_GROUPS_KEPT: usize = 8;
+
+/// The bindings of every generated module: `Seqs`, src, dst, twiddles,
+/// quarter shifts, gain (`shaders/fft_fused.wgsl`).
+pub(super) fn fused_layout(device: &wgpu::Device) -> (wgpu::BindGroupLayout, wgpu::PipelineLayout) {
+    let l = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+        label: Some("fft_fused"),
+        entries: &[
+            storage(0, true),
+            storage(1, true),
+            storage(2, false),
+            storage(3, true),
+            storage(4, true),
+            storage(5, true),
+        ],
+    });
+    let pl = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+        label: Some("fft_fused"),
+        bind_group_layouts: &[Some(&l)],
+        immediate_size: 0,
+    });
+    (l, pl)
 }
 
 /// One recorded dispatch.

@@ -3,7 +3,7 @@
 //! the refinement stage also records.
 
 use super::FftError;
-use super::dct::DctFilter;
+use super::filter::DctFilter;
 use super::kernels::FftKernels;
 
 /// Why a stage's host-side terms (gains, refinement terms) could not be

@@ -1,0 +1,288 @@
+//! The DCT filter in workgroup memory: three dispatches a frame (the rows'
+//! DCT-II; the columns' DCT-II, gain and DCT-III; the rows' DCT-III), each
+//! workgroup holding a pair of rows or columns in workgroup memory through
+//! every pass of its FFT (`wgsl.rs` generates the kernels per length). Used
+//! where both sides fit the adapter's workgroup memory; the multi-pass
+//! filter (`dct.rs`) is the fallback.
+
+use super::kernels::{BIND_GROUPS_KEPT, FftKernels, SeqParams, Tables, axis, entry};
+use super::{FftError, checked, init_buffer, wgsl};
+use crate::MAX_GROUPS_X;
+
+/// Whether a length's sequence fits one workgroup's memory on `device`.
+pub fn fits_workgroup(device: &wgpu::Device, n: usize) -> bool {
+    let limits = device.limits();
+    (n as u64) * 8 <= u64::from(limits.max_compute_workgroup_storage_size)
+        && limits.max_compute_invocations_per_workgroup >= 64
+        && limits.max_compute_workgroup_size_x >= 64
+}
+
+impl FftKernels {
+    /// The generated pipeline of length `n`'s `entry_point`, compiled on
+    /// first use; the caller checked [`fits_workgroup`].
+    pub(super) fn fused_pipeline(
+        &mut self,
+        n: usize,
+        entry_point: &'static str,
+    ) -> Result<wgpu::ComputePipeline, FftError> {
+        if let Some(p) = self.fused.get(&(n, entry_point)) {
+            return Ok(p.clone());
+        }
+        let device = self.device.clone();
+        if !self.fused_modules.contains_key(&n) {
+            let limits = device.limits();
+            let threads = wgsl::workgroup_threads(
+                n,
+                limits
+                    .max_compute_invocations_per_workgroup
+                    .min(limits.max_compute_workgroup_size_x)
+                    .min(self.max_threads),
+            );
+            let source = wgsl::module_source(n, &wgsl::fused_radices(n)?, threads);
+            let module = checked(&device, || {
+                device.create_shader_module(wgpu::ShaderModuleDescriptor {
+                    label: Some("fft_fused"),
+                    source: wgpu::ShaderSource::Wgsl(source.into()),
+                })
+            })?;
+            self.fused_modules.insert(n, module);
+        }
+        let module = &self.fused_modules[&n];
+        let p = checked(&device, || {
+            device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                label: Some(entry_point),
+                layout: Some(&self.fused_pipeline_layout),
+                module,
+                entry_point: Some(entry_point),
+                compilation_options: Default::default(),
+                cache: None,
+            })
+        })?;
+        self.fused.insert((n, entry_point), p.clone());
+        Ok(p)
+    }
+}
+
+/// Workgroups for `count` workgroups' worth of sequences: rows of at most
+/// 65,535 (the kernels' `group_index`).
+pub(super) fn groups(count: u32) -> [u32; 2] {
+    if count <= MAX_GROUPS_X {
+        [count.max(1), 1]
+    } else {
+        [MAX_GROUPS_X, count.div_ceil(MAX_GROUPS_X)]
+    }
+}
+
+/// One dispatch of a generated kernel and its bind group's fixed parts.
+#[derive(Debug)]
+struct Kernel {
+    pipeline: wgpu::ComputePipeline,
+    params: wgpu::Buffer,
+    groups: [u32; 2],
+    bytes: u64,
+}
+
+/// The three-dispatch filter (see the module).
+#[derive(Debug)]
+pub(super) struct FusedFilter {
+    device: wgpu::Device,
+    layout: wgpu::BindGroupLayout,
+    rows_fwd: Kernel,
+    cols: Kernel,
+    rows_inv: Kernel,
+    /// The rows' tables (the columns' live in their bind groups).
+    rows: Tables,
+    /// The column kernels' bind groups, one per gain set (tmp → tmp2).
+    col_binds: Vec<wgpu::BindGroup>,
+    dummy_gain: wgpu::Buffer,
+    /// The rows' DCT-II (input → tmp) and the columns' result (tmp2).
+    tmp: wgpu::Buffer,
+    tmp2: wgpu::Buffer,
+    inputs: Vec<(wgpu::Buffer, wgpu::BindGroup)>,
+    outputs: Vec<(wgpu::Buffer, wgpu::BindGroup)>,
+}
+
+impl FusedFilter {
+    /// `gains` checked by the caller (`filter.rs`).
+    pub(super) fn new(
+        kernels: &mut FftKernels,
+        width: usize,
+        height: usize,
+        sets: &[&[Vec<f32>]],
+    ) -> Result<Self, FftError> {
+        let device = kernels.device.clone();
+        let channels = sets.first().map_or(0, |g| g.len());
+        let real_bytes = (channels * width * height * 4) as u64;
+        let rows_q = axis(width, height, channels, false, false);
+        // The column kernel applies the gain itself, before its DCT-III (no use_gain).
+        let cols_q = axis(width, height, channels, true, false);
+        let kernel = |kernels: &mut FftKernels, n, entry_point, q: &SeqParams, bytes| {
+            Ok::<_, FftError>(Kernel {
+                pipeline: kernels.fused_pipeline(n, entry_point)?,
+                params: init_buffer(&device, "fft_fused axis", bytemuck::bytes_of(q)),
+                groups: groups(q.pairs),
+                bytes,
+            })
+        };
+        let rows_fwd = kernel(kernels, width, "dct2", &rows_q, io_real(&rows_q, false))?;
+        let cols = kernel(
+            kernels,
+            height,
+            "dct_filter",
+            &cols_q,
+            io_real(&cols_q, true),
+        )?;
+        let rows_inv = kernel(kernels, width, "dct3", &rows_q, io_real(&rows_q, false))?;
+        let plane = |label| {
+            device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some(label),
+                size: real_bytes,
+                usage: wgpu::BufferUsages::STORAGE,
+                mapped_at_creation: false,
+            })
+        };
+        let (tmp, tmp2) = (plane("dct rows"), plane("dct columns"));
+        let rows = Tables::new(&device, width)?;
+        let columns = Tables::new(&device, height)?;
+        let layout = kernels.fused_layout.clone();
+        let col_binds = sets
+            .iter()
+            .map(|g| {
+                let flat: Vec<f32> = g.iter().flatten().copied().collect();
+                let gain = init_buffer(&device, "dct gains", bytemuck::cast_slice(&flat));
+                bind(
+                    &device,
+                    &layout,
+                    [
+                        &cols.params,
+                        &tmp,
+                        &tmp2,
+                        &columns.twiddle,
+                        &columns.quarter,
+                        &gain,
+                    ],
+                )
+            })
+            .collect();
+        Ok(Self {
+            dummy_gain: init_buffer(&device, "no gains", &[0u8; 16]),
+            device,
+            layout,
+            rows_fwd,
+            cols,
+            rows_inv,
+            rows,
+            col_binds,
+            tmp,
+            tmp2,
+            inputs: Vec::new(),
+            outputs: Vec::new(),
+        })
+    }
+
+    pub(super) fn sets(&self) -> usize {
+        self.col_binds.len()
+    }
+
+    /// The dispatches of a frame: what each does and the bytes it moves at
+    /// least.
+    pub(super) fn passes(&self) -> Vec<(String, u64)> {
+        vec![
+            (
+                "rows: DCT-II (workgroup memory)".into(),
+                self.rows_fwd.bytes,
+            ),
+            (
+                "columns: DCT-II × gain, DCT-III (workgroup memory)".into(),
+                self.cols.bytes,
+            ),
+            (
+                "rows: DCT-III (workgroup memory)".into(),
+                self.rows_inv.bytes,
+            ),
+        ]
+    }
+
+    /// The frame's dispatches for `input` and each (output, gain set):
+    /// the rows' forward transform once, shared by every output.
+    pub(super) fn steps(
+        &mut self,
+        input: &wgpu::Buffer,
+        outs: &[(&wgpu::Buffer, usize)],
+    ) -> Vec<(wgpu::ComputePipeline, wgpu::BindGroup, [u32; 2])> {
+        let first = self.input_bind(input);
+        let mut steps = vec![(self.rows_fwd.pipeline.clone(), first, self.rows_fwd.groups)];
+        for &(output, set) in outs {
+            let last = self.output_bind(output);
+            steps.push((
+                self.cols.pipeline.clone(),
+                self.col_binds[set].clone(),
+                self.cols.groups,
+            ));
+            steps.push((self.rows_inv.pipeline.clone(), last, self.rows_inv.groups));
+        }
+        steps
+    }
+
+    fn input_bind(&mut self, input: &wgpu::Buffer) -> wgpu::BindGroup {
+        let (params, tmp) = (&self.rows_fwd.params, &self.tmp);
+        let (tw, qu, g) = (&self.rows.twiddle, &self.rows.quarter, &self.dummy_gain);
+        cached(&mut self.inputs, input, |input| {
+            bind(&self.device, &self.layout, [params, input, tmp, tw, qu, g])
+        })
+    }
+
+    fn output_bind(&mut self, output: &wgpu::Buffer) -> wgpu::BindGroup {
+        let (params, tmp2) = (&self.rows_inv.params, &self.tmp2);
+        let (tw, qu, g) = (&self.rows.twiddle, &self.rows.quarter, &self.dummy_gain);
+        cached(&mut self.outputs, output, |output| {
+            bind(
+                &self.device,
+                &self.layout,
+                [params, tmp2, output, tw, qu, g],
+            )
+        })
+    }
+}
+
+/// The bind group kept for `buffer`, made by `make` on first use (a few
+/// kept: the service's pool of frame buffers).
+fn cached(
+    kept: &mut Vec<(wgpu::Buffer, wgpu::BindGroup)>,
+    buffer: &wgpu::Buffer,
+    make: impl FnOnce(&wgpu::Buffer) -> wgpu::BindGroup,
+) -> wgpu::BindGroup {
+    if let Some((_, g)) = kept.iter().find(|(b, _)| b == buffer) {
+        return g.clone();
+    }
+    let g = make(buffer);
+    if kept.len() == BIND_GROUPS_KEPT {
+        kept.remove(0);
+    }
+    kept.push((buffer.clone(), g.clone()));
+    g
+}
+
+pub(super) fn bind(
+    device: &wgpu::Device,
+    layout: &wgpu::BindGroupLayout,
+    buffers: [&wgpu::Buffer; 6],
+) -> wgpu::BindGroup {
+    let entries: Vec<wgpu::BindGroupEntry> = buffers
+        .iter()
+        .enumerate()
+        .map(|(i, b)| entry(i as u32, b))
+        .collect();
+    device.create_bind_group(&wgpu::BindGroupDescriptor {
+        label: Some("fft_fused"),
+        layout,
+        entries: &entries,
+    })
+}
+
+/// Bytes a fused axis moves at least: the real sequences read and
+/// written once each (and the gain read where applied); nothing complex
+/// leaves workgroup memory.
+fn io_real(q: &SeqParams, gain: bool) -> u64 {
+    4 * u64::from(q.count) * u64::from(q.n) * (2 + u64::from(gain))
+}
