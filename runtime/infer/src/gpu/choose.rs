@@ -13,7 +13,7 @@ use crate::{ConvPath, InferenceError};
 pub struct ConvSupport {
     pub path: ConvPath,
     /// The adapter's cooperative-matrix support, or why there is none.
-    pub coop: Result<coop::CoopAdapter, String>,
+    pub coop: Result<coop::CoopAdapter, coop::NoCoop>,
     /// Whether the tiled kernels sum in f16 at `--precision f16`: on GPUs,
     /// where f16 runs at twice the f32 rate or more; not on a CPU adapter
     /// (lavapipe), where LLVM converts every f16 operation to f32 and back,
@@ -35,24 +35,15 @@ impl ConvSupport {
         }
     }
 
-    /// Tiled kernels only, for `reason`.
-    pub fn tiled(reason: &str) -> Self {
-        Self {
-            path: ConvPath::Tiled,
-            coop: Err(reason.into()),
-            f16_arithmetic: false,
-        }
-    }
-
     /// The cooperative path for a layer of `cin` → `cout` channels, or why not.
-    fn coop_for(&self, cin: usize, cout: usize, weights: Dtype) -> Result<u32, String> {
+    fn coop_for(&self, cin: usize, cout: usize, weights: Dtype) -> Result<u32, coop::NoCoop> {
         if self.path == ConvPath::Tiled {
             return Err(self
                 .coop
                 .as_ref()
                 .err()
                 .cloned()
-                .unwrap_or_else(|| "tiled kernels asked for".into()));
+                .unwrap_or(coop::NoCoop::TiledAsked));
         }
         let adapter = self.coop.as_ref().map_err(Clone::clone)?;
         coop::layer_fits(cin, cout, weights)?;

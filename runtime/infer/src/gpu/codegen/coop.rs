@@ -17,49 +17,63 @@ pub struct CoopAdapter {
     pub subgroup_size: u32,
 }
 
+/// Why a convolution does not run on cooperative matrices.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum NoCoop {
+    #[error(
+        "the device has no cooperative matrices (its adapter lists no 16×16×16 f16→f32 shape, \
+         or it was opened without f16)"
+    )]
+    NotOnDevice,
+    #[error("the device was opened without {0}")]
+    MissingFeatures(String),
+    #[error("the adapter's subgroups are {min}–{max} invocations; the kernel needs one size")]
+    SubgroupSizes { min: u32, max: u32 },
+    #[error("tiled kernels asked for")]
+    TiledAsked,
+    #[error("needs f16 storage")]
+    NeedsF16,
+    #[error("{0} input channels, under one 16-channel matrix")]
+    FewInputs(usize),
+    #[error("{0} output channels, under a quarter of a matrix")]
+    FewOutputs(usize),
+}
+
 /// The cooperative-matrix path on a device, or why not: its features
 /// (`nedrt_gpu::open_device` enables cooperative matrices only where the
 /// adapter lists the 16×16×16 f16→f32 shape) and its subgroup sizes.
 pub fn device_support(
     features: wgpu::Features,
     subgroup_sizes: (u32, u32),
-) -> Result<CoopAdapter, String> {
+) -> Result<CoopAdapter, NoCoop> {
     if !features.contains(wgpu::Features::EXPERIMENTAL_COOPERATIVE_MATRIX) {
-        return Err(
-            "the device has no cooperative matrices (its adapter lists no 16×16×16 f16→f32 \
-             shape, or it was opened without f16)"
-                .into(),
-        );
+        return Err(NoCoop::NotOnDevice);
     }
     let needed = wgpu::Features::SUBGROUP | wgpu::Features::SHADER_F16;
     if !features.contains(needed) {
-        return Err(format!(
-            "the device was opened without {:?}",
+        return Err(NoCoop::MissingFeatures(format!(
+            "{:?}",
             needed - (features & needed)
-        ));
+        )));
     }
     let (min, max) = subgroup_sizes;
     if min != max || min == 0 || min > 128 || !min.is_power_of_two() {
-        return Err(format!(
-            "the adapter's subgroups are {min}–{max} invocations; the kernel needs one size"
-        ));
+        return Err(NoCoop::SubgroupSizes { min, max });
     }
     Ok(CoopAdapter { subgroup_size: min })
 }
 
-/// Why a layer of `cin` → `cout` channels in `weights` storage does or
-/// does not take the cooperative-matrix path on a capable adapter.
-pub fn layer_fits(cin: usize, cout: usize, weights: Dtype) -> Result<(), String> {
+/// Whether a layer of `cin` → `cout` channels in `weights` storage can take
+/// the cooperative-matrix path on a capable device, or why not.
+pub fn layer_fits(cin: usize, cout: usize, weights: Dtype) -> Result<(), NoCoop> {
     if weights != Dtype::F16 {
-        return Err("needs f16 (--precision f16)".into());
+        return Err(NoCoop::NeedsF16);
     }
     if cin < SIZE as usize {
-        return Err(format!("{cin} input channels, under one 16-channel matrix"));
+        return Err(NoCoop::FewInputs(cin));
     }
     if cout < 4 {
-        return Err(format!(
-            "{cout} output channels, under a quarter of a matrix"
-        ));
+        return Err(NoCoop::FewOutputs(cout));
     }
     Ok(())
 }
@@ -108,30 +122,18 @@ mod tests {
         );
         // lavapipe: no cooperative matrices listed, so none enabled.
         let e = device_support(F::SHADER_F16 | F::SUBGROUP, (8, 8)).expect_err("none");
-        assert!(e.contains("no cooperative matrices"), "{e}");
+        assert!(e.to_string().contains("no cooperative matrices"), "{e}");
         let e = device_support(F::EXPERIMENTAL_COOPERATIVE_MATRIX | F::SHADER_F16, (32, 32))
             .expect_err("no subgroups");
-        assert!(e.contains("SUBGROUP"), "{e}");
+        assert!(e.to_string().contains("SUBGROUP"), "{e}");
         // A subgroup size that varies (AMD's 32–64) leaves the kernel unsure
         // how many subgroups a workgroup holds.
         let e = device_support(all, (32, 64)).expect_err("varies");
-        assert!(e.contains("32–64"), "{e}");
+        assert!(e.to_string().contains("32–64"), "{e}");
 
         assert_eq!(layer_fits(16, 16, Dtype::F16), Ok(()));
-        assert!(
-            layer_fits(32, 32, Dtype::F32)
-                .expect_err("f32")
-                .contains("f16")
-        );
-        assert!(
-            layer_fits(3, 32, Dtype::F16)
-                .expect_err("first layer")
-                .contains("3 input")
-        );
-        assert!(
-            layer_fits(32, 3, Dtype::F16)
-                .expect_err("output layer")
-                .contains("3 output")
-        );
+        assert_eq!(layer_fits(32, 32, Dtype::F32), Err(NoCoop::NeedsF16));
+        assert_eq!(layer_fits(3, 32, Dtype::F16), Err(NoCoop::FewInputs(3)));
+        assert_eq!(layer_fits(32, 3, Dtype::F16), Err(NoCoop::FewOutputs(3)));
     }
 }
