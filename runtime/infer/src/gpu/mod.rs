@@ -20,6 +20,8 @@
 mod banding;
 mod choose;
 pub mod codegen;
+#[cfg(test)]
+mod coop_model;
 mod pack;
 pub mod params;
 mod plan;

@@ -1,0 +1,166 @@
+//! The cooperative-matrix kernel (`shaders/conv_coop.wgsl`) has no adapter
+//! here to run on, so its dataflow is modelled on the CPU with the index
+//! arithmetic of the WGSL, step for step (workgroups, subgroups, the staged
+//! tile, the weight offsets, the 16×16 products and the drain), over the
+//! weights `pack` writes for it, and held to the CPU twin. What the model
+//! cannot show is the driver's own matrix instructions: the device check
+//! compares the cooperative network with the tiled one on a GPU.
+
+use super::codegen::coop::{ROWS, SUBGROUPS};
+use super::pack;
+use crate::network::{Conv, ConvTranspose};
+use crate::reference::{self, Epilogue};
+use crate::synth::SplitMix;
+
+/// The kernel's output for an input of `cin`×`h`×`w`: a "same" `k`×`k`
+/// conv, or (`transposed`) the 2×2 stride-2 one; no ReLU.
+fn model(
+    input: &[f32],
+    (w, h): (usize, usize),
+    (cin, cout, k): (usize, usize, usize),
+    packed: &[f32],
+    bias: &[f32],
+    transposed: bool,
+) -> Vec<f32> {
+    let (rows, sgs) = (ROWS as usize, SUBGROUPS as usize);
+    let (in_w, in_h, r) = (16 + k - 1, rows + k - 1, (k / 2) as isize);
+    let columns = if transposed { 4 * cout } else { cout };
+    let chunks = cin.div_ceil(16);
+    let plane = w * h;
+    let mut out = vec![0f32; if transposed { 4 } else { 1 } * cout * plane];
+    for gz in 0..columns.div_ceil(16).div_ceil(sgs) {
+        for gy in 0..h.div_ceil(rows) {
+            for gx in 0..w.div_ceil(16) {
+                let (x0, y0) = (gx * 16, gy * rows);
+                // acc[sg][row][pixel][column]
+                let mut acc = vec![[[0f32; 16]; 16]; sgs * rows];
+                for chunk in 0..chunks {
+                    let mut a_tile = vec![0f32; in_h * in_w * 16];
+                    for i in 0..16 * in_h * in_w {
+                        let (ci, pix) = (i / (in_h * in_w), i % (in_h * in_w));
+                        let gxx = (x0 + pix % in_w) as isize - r;
+                        let gyy = (y0 + pix / in_w) as isize - r;
+                        let c = chunk * 16 + ci;
+                        if c < cin
+                            && gxx >= 0
+                            && (gxx as usize) < w
+                            && gyy >= 0
+                            && (gyy as usize) < h
+                        {
+                            a_tile[pix * 16 + ci] =
+                                input[c * plane + gyy as usize * w + gxx as usize];
+                        }
+                    }
+                    for tap in 0..k * k {
+                        let (ky, kx) = (tap / k, tap % k);
+                        for sg in 0..sgs {
+                            let blk = gz * sgs + sg;
+                            let b = ((blk * chunks + chunk) * k * k + tap) * 256;
+                            for row in 0..rows {
+                                let a = ((row + ky) * in_w + kx) * 16;
+                                let c = &mut acc[sg * rows + row];
+                                for (m, c_row) in c.iter_mut().enumerate() {
+                                    for (n, v) in c_row.iter_mut().enumerate() {
+                                        for kk in 0..16 {
+                                            *v += a_tile[a + m * 16 + kk] * packed[b + kk * 16 + n];
+                                        }
+                                    }
+                                }
+                            }
+                        }
+                    }
+                }
+                for sg in 0..sgs {
+                    let blk = gz * sgs + sg;
+                    for row in 0..rows {
+                        for i in 0..256 {
+                            let (px, col) = (i % 16, i / 16);
+                            let sum = acc[sg * rows + row][px][col];
+                            let (x, y, n) = (x0 + px, y0 + row, blk * 16 + col);
+                            if x >= w || y >= h {
+                                continue;
+                            }
+                            if transposed {
+                                let (oc, tap) = (n / 4, n % 4);
+                                if oc < cout {
+                                    let at = oc * 4 * plane
+                                        + (2 * y + tap / 2) * 2 * w
+                                        + 2 * x
+                                        + tap % 2;
+                                    out[at] = sum + bias[oc];
+                                }
+                            } else if n < cout {
+                                out[n * plane + y * w + x] = sum + bias[n];
+                            }
+                        }
+                    }
+                }
+            }
+        }
+    }
+    out
+}
+
+fn max_abs_diff(a: &[f32], b: &[f32]) -> f32 {
+    assert_eq!(a.len(), b.len());
+    a.iter()
+        .zip(b)
+        .map(|(x, y)| (x - y).abs())
+        .fold(0.0, f32::max)
+}
+
+#[test]
+fn the_cooperative_kernels_addressing_computes_the_convolution() {
+    // Channel counts that fill no matrix or workgroup exactly, a frame no
+    // tile divides, 3×3 and 1×1.
+    let mut rng = SplitMix::new(38);
+    let (w, h) = (37, 11);
+    for (cin, cout, k) in [(20, 10, 3), (16, 70, 3), (33, 5, 1)] {
+        let input: Vec<f32> = (0..cin * w * h).map(|_| rng.symmetric(1.0)).collect();
+        let conv = Conv {
+            input: 0,
+            output: 1,
+            cin,
+            cout,
+            kernel: k,
+            weight: (0..cout * cin * k * k)
+                .map(|_| rng.symmetric(0.3))
+                .collect(),
+            bias: (0..cout).map(|_| rng.symmetric(0.3)).collect(),
+            relu: false,
+            residual: None,
+        };
+        let want = reference::conv_same(
+            &input,
+            h,
+            w,
+            &conv,
+            Epilogue {
+                relu: false,
+                residual: None,
+                clamp: false,
+            },
+        );
+        let packed = pack::coop_conv(&conv.weight, cin, cout, k);
+        let got = model(&input, (w, h), (cin, cout, k), &packed, &conv.bias, false);
+        let d = max_abs_diff(&want, &got);
+        assert!(d < 1e-4, "conv {k}×{k} {cin}→{cout}: {d}");
+    }
+    for (cin, cout) in [(20, 10), (64, 32)] {
+        let input: Vec<f32> = (0..cin * w * h).map(|_| rng.symmetric(1.0)).collect();
+        let ct = ConvTranspose {
+            input: 0,
+            output: 1,
+            cin,
+            cout,
+            weight: (0..cin * cout * 4).map(|_| rng.symmetric(0.3)).collect(),
+            bias: (0..cout).map(|_| rng.symmetric(0.3)).collect(),
+            relu: false,
+        };
+        let want = reference::conv_transpose2(&input, h, w, &ct);
+        let packed = pack::coop_conv_transpose(&ct.weight, cin, cout);
+        let got = model(&input, (w, h), (cin, cout, 1), &packed, &ct.bias, true);
+        let d = max_abs_diff(&want, &got);
+        assert!(d < 1e-4, "transposed {cin}→{cout}: {d}");
+    }
+}
