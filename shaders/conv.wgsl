@@ -131,21 +131,12 @@ fn main(
 
 {{MAC}}
 
-// The epilogue of one output value: bias, ReLU, residual, clamp, store.
+// One output value, if inside the layer, through the epilogue.
 fn emit(x: u32, y: u32, oc: u32, sum: f32) {
     if (x >= p.width || oc >= p.cout) {
         return;
     }
-    let at = oc * p.width * p.height + y * p.width + x;
-    var v = sum + f32(weights[p.b_offset + oc]);
-    if (RELU) {
-        v = max(v, 0.0);
-    }
-    if (RESIDUAL) {
-        v += f32(residual[p.res_offset + at]);
-    }
-    if (CLAMP) {
-        v = clamp(v, 0.0, 1.0);
-    }
-    dst[p.out_offset + at] = {{DST_T}}(v);
+    epilogue(oc * p.width * p.height + y * p.width + x, oc, sum);
 }
+
+{{CONV_EPILOGUE}}

@@ -98,8 +98,8 @@ fn drain(sg: u32, lane: u32, blk: u32, x0: u32, y: u32) {
     }
 }
 
-// The epilogue of one output value (column `n` of the GEMM): bias, ReLU,
-// residual, clamp, store.
+// One output value (column `n` of the GEMM), if inside the layer, through
+// the epilogue (the transposed conv has no residual and no clamp).
 fn emit(x: u32, y: u32, n: u32, sum: f32) {
     if (x >= p.width || y >= p.height) {
         return;
@@ -107,31 +107,13 @@ fn emit(x: u32, y: u32, n: u32, sum: f32) {
     if (TRANSPOSED) {
         let oc = n / 4u;
         let tap = n % 4u;
-        if (oc >= p.cout) {
-            return;
+        if (oc < p.cout) {
+            let ow = 2u * p.width;
+            epilogue(oc * 4u * p.width * p.height + (2u * y + tap / 2u) * ow + 2u * x + tap % 2u, oc, sum);
         }
-        let ow = 2u * p.width;
-        var v = sum + f32(weights[p.b_offset + oc]);
-        if (RELU) {
-            v = max(v, 0.0);
-        }
-        let at = oc * 4u * p.width * p.height + (2u * y + tap / 2u) * ow + 2u * x + tap % 2u;
-        dst[p.out_offset + at] = {{DST_T}}(v);
-    } else {
-        if (n >= p.cout) {
-            return;
-        }
-        let at = n * p.width * p.height + y * p.width + x;
-        var v = sum + f32(weights[p.b_offset + n]);
-        if (RELU) {
-            v = max(v, 0.0);
-        }
-        if (RESIDUAL) {
-            v += f32(residual[p.res_offset + at]);
-        }
-        if (CLAMP) {
-            v = clamp(v, 0.0, 1.0);
-        }
-        dst[p.out_offset + at] = {{DST_T}}(v);
+    } else if (n < p.cout) {
+        epilogue(n * p.width * p.height + y * p.width + x, n, sum);
     }
 }
+
+{{CONV_EPILOGUE}}

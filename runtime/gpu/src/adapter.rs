@@ -33,17 +33,10 @@ impl AdapterReport {
     }
 }
 
-/// The adapter [`crate::open_device`] takes for `settings` (the same
-/// request, so the same adapter), without opening a device on it.
+/// The adapter [`crate::open_device`] takes for `settings`
+/// ([`crate::request_adapter`]), without opening a device on it.
 pub fn default_adapter(settings: &GpuSettings) -> Result<AdapterReport, GpuError> {
-    let instance = wgpu::Instance::new(settings.descriptor());
-    let adapter = pollster::block_on(instance.request_adapter(&wgpu::RequestAdapterOptions {
-        power_preference: wgpu::PowerPreference::HighPerformance,
-        force_fallback_adapter: false,
-        compatible_surface: None,
-        apply_limit_buckets: false,
-    }))
-    .map_err(|e| GpuError::NoAdapter(e.to_string()))?;
+    let adapter = crate::request_adapter(settings)?;
     let info = adapter.get_info();
     Ok(AdapterReport {
         name: format!("{} ({:?}, {:?})", info.name, info.backend, info.device_type),

@@ -94,6 +94,18 @@ impl From<wgpu::Error> for GpuError {
     }
 }
 
+/// The adapter `settings` select: the high-performance one, no surface.
+pub fn request_adapter(settings: &GpuSettings) -> Result<wgpu::Adapter, GpuError> {
+    let instance = wgpu::Instance::new(settings.descriptor());
+    pollster::block_on(instance.request_adapter(&wgpu::RequestAdapterOptions {
+        power_preference: wgpu::PowerPreference::HighPerformance,
+        force_fallback_adapter: false,
+        compatible_surface: None,
+        apply_limit_buckets: false,
+    }))
+    .map_err(|e| GpuError::NoAdapter(e.to_string()))
+}
+
 /// Requests the default adapter of `settings` and a device with the
 /// adapter's limits, timestamp queries where offered and, if `shader_f16`,
 /// half-precision shaders.
@@ -101,14 +113,7 @@ pub fn open_device(
     settings: &GpuSettings,
     shader_f16: bool,
 ) -> Result<(wgpu::Adapter, wgpu::Device, wgpu::Queue), GpuError> {
-    let instance = wgpu::Instance::new(settings.descriptor());
-    let adapter = pollster::block_on(instance.request_adapter(&wgpu::RequestAdapterOptions {
-        power_preference: wgpu::PowerPreference::HighPerformance,
-        force_fallback_adapter: false,
-        compatible_surface: None,
-        apply_limit_buckets: false,
-    }))
-    .map_err(|e| GpuError::NoAdapter(e.to_string()))?;
+    let adapter = request_adapter(settings)?;
     let mut features = adapter.features() & wgpu::Features::TIMESTAMP_QUERY;
     if shader_f16 {
         if !adapter.features().contains(wgpu::Features::SHADER_F16) {

@@ -156,6 +156,7 @@ const CONV_TRANSPOSE: &str = include_str!("../../../../shaders/conv_transpose.wg
 const MAX_POOL: &str = include_str!("../../../../shaders/max_pool.wgsl");
 const CONV_COOP: &str = include_str!("../../../../shaders/conv_coop.wgsl");
 const LAYER_BINDINGS: &str = include_str!("../../../../shaders/layer_bindings.wgsl");
+const CONV_EPILOGUE: &str = include_str!("../../../../shaders/conv_epilogue.wgsl");
 
 /// ConvTranspose input pixels per workgroup side and output channels.
 pub const CONV_TRANSPOSE_TILE: (u32, u32) = (16, CONV_TRANSPOSE_OC);
@@ -256,6 +257,7 @@ impl KernelKey {
         };
         let mut s = template
             .replace("{{LAYER_BINDINGS}}", LAYER_BINDINGS)
+            .replace("{{CONV_EPILOGUE}}", CONV_EPILOGUE)
             .replace("{{ENABLE_F16}}", enable)
             .replace("{{SRC_T}}", self.src.wgsl())
             .replace("{{DST_T}}", self.dst.wgsl())
