@@ -167,6 +167,21 @@ fn random_unets_on_the_gpu_match(
     }
 }
 
+/// A random `w`×`h` frame, reflected out to the network's multiple, on the
+/// GPU and the CPU twin: the largest difference of the two outputs.
+fn padded_against_twin(
+    gpu: &mut GpuBackend,
+    net: &Network,
+    (w, h): (usize, usize),
+    seed: u64,
+) -> f32 {
+    let m = net.multiple;
+    let (pw, ph) = (w.div_ceil(m) * m, h.div_ceil(m) * m);
+    let frame = random_frame(w, h, seed).pad_reflect(pw, ph);
+    let got = gpu.run_tensor(frame.data(), pw, ph).expect("runs");
+    max_abs_diff(&reference::run(net, frame.data(), ph, pw), &got)
+}
+
 mod needs_gpu {
     use super::*;
 
@@ -421,13 +436,8 @@ mod needs_gpu {
                 let (device, queue) = gpu_device(precision);
                 let mut gpu = GpuBackend::new(&device, &queue, "test".into(), &net, precision)
                     .expect("builds");
-                for (w, h) in [(97usize, 61usize), (37, 23), (1, 1)] {
-                    let m = net.multiple;
-                    let (pw, ph) = (w.div_ceil(m) * m, h.div_ceil(m) * m);
-                    let frame = random_frame(w, h, 31).pad_reflect(pw, ph);
-                    let got = gpu.run_tensor(frame.data(), pw, ph).expect("runs");
-                    let want = reference::run(&net, frame.data(), ph, pw);
-                    let d = max_abs_diff(&want, &got);
+                for (w, h) in [(97, 61), (37, 23), (1, 1)] {
+                    let d = padded_against_twin(&mut gpu, &net, (w, h), 31);
                     assert!(
                         d <= tolerance(precision),
                         "{name} {precision:?} {w}×{h}: {d}"
@@ -460,13 +470,8 @@ mod needs_gpu {
                 support.clone(),
             )
             .expect("builds");
-            for (w, h) in [(40usize, 24usize), (97, 61)] {
-                let m = net.multiple;
-                let (pw, ph) = (w.div_ceil(m) * m, h.div_ceil(m) * m);
-                let frame = random_frame(w, h, 33).pad_reflect(pw, ph);
-                let got = gpu.run_tensor(frame.data(), pw, ph).expect("runs");
-                let want = reference::run(&net, frame.data(), ph, pw);
-                let d = max_abs_diff(&want, &got);
+            for (w, h) in [(40, 24), (97, 61)] {
+                let d = padded_against_twin(&mut gpu, &net, (w, h), 33);
                 assert!(d <= tolerance(Precision::F16), "{name} {w}×{h}: {d}");
             }
         }
