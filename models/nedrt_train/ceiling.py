@@ -32,7 +32,8 @@ import numpy as np
 import torch
 
 from .data import load_photos, resolve_root
-from .distill import Objective, load_teacher, photo_names
+from .distill_data import load_teacher, photo_names
+from .objective import Objective
 
 
 class DepthErrors:
