@@ -9,7 +9,7 @@ programs; a flag in its message is wrong for all but one of them. The
 library returns a typed error and the binary (cli/src/main.rs `hint`) or the
 command's wiring (nedrt-app, nedrt-studies, whose options are the flags)
 adds what to type. Test code does not count (the cut of
-import_cycles.without_tests), nor attributes (`#[ignore = "… --include-ignored"]`).
+rust_source.without_tests), nor attributes (`#[ignore = "… --include-ignored"]`).
 
     python3 tools/layers/flag_names.py            # the repository
     python3 tools/layers/flag_names.py --rust DIR # those crates' src/ only
@@ -21,7 +21,8 @@ import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from import_cycles import crate_check_main, display, is_test_file, without_tests  # noqa: E402
+from layer_check import crate_check_main, display  # noqa: E402
+from rust_source import is_test_file, without_tests  # noqa: E402
 
 LIBRARIES = ("core", "gpu", "optics", "infer", "service")
 FLAG = re.compile(r"(?<![\w-])--[a-z][a-z0-9]*(?:-[a-z0-9]+)*")

@@ -28,17 +28,30 @@ one module is a cycle.
     python3 tools/layers/import_cycles.py                # the repository
     python3 tools/layers/import_cycles.py --rust DIR --python DIR   # those only
 
-Standard library only.
+The reading of Rust source (test code, tokens, `use` trees) is in
+rust_source.py, what the checkers share (the repository, the crates, a
+per-crate command line) in layer_check.py; this file builds the module
+graphs and finds their cycles. Standard library only.
 """
 import argparse
 import ast
-import bisect
 import re
 import sys
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[2]
-RUST_CRATES = ("core", "gpu", "optics", "infer", "service", "app", "studies")
+# The modules beside this file, however it is loaded (script or test).
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from layer_check import REPO, RUST_CRATES, display  # noqa: E402
+from rust_source import (  # noqa: E402
+    attribute_end, is_cfg_test, is_test_file, module_of, parse_use, skip_item, tokens_of,
+)
+# Names the other checkers imported from here before rust_source.py and
+# layer_check.py held them; still importable from here.
+from layer_check import crate_check_main  # noqa: E402,F401
+from rust_source import CLOSE, ITEM_KEYWORDS, OPEN, TEST_MODULE, TOKEN  # noqa: E402,F401
+from rust_source import blank_literals, matching, without_tests  # noqa: E402,F401
+
 PYTHON_PACKAGE = "models/nedrt_train"
 
 
@@ -80,212 +93,6 @@ def strongly_connected(nodes, edges):
 
 
 # ------------------------------------------------------------------ Rust
-
-
-# A test module: `#[cfg(test)]` (maybe with more attributes) on a `mod`. A
-# `#[cfg(test)] use` line above it does not start the tests.
-TEST_MODULE = re.compile(r"^[ \t]*#\[cfg\((?:all\()?test\b[^\n]*\n(?:[ \t]*#\[[^\n]*\n)*[ \t]*(?:pub(?:\([^)]*\))? )?mod ",
-                         re.M)
-
-
-def without_tests(text: str) -> str:
-    """`text` up to its first `#[cfg(test)]` module (tests sit at a file's end)."""
-    m = TEST_MODULE.search(text)
-    return text if m is None else text[:m.start()]
-
-
-def is_test_file(rel: Path) -> bool:
-    """`rel` relative to the crate's src/."""
-    return (rel.name == "tests.rs" or rel.name.endswith("_tests.rs")
-            or "tests" in rel.parts[:-1])
-
-
-def module_of(rel: Path) -> tuple:
-    """The module path of a file relative to src/: lib.rs → (), a/b.rs and
-    a/b/mod.rs → ("a", "b")."""
-    parts = list(rel.with_suffix("").parts)
-    if parts == ["lib"] or parts == ["main"]:
-        return ()
-    if parts[-1] == "mod":
-        parts.pop()
-    return tuple(parts)
-
-
-def blank_literals(text: str) -> str:
-    """`text` with comments, strings and char literals replaced by spaces
-    (newlines kept, so lines still count)."""
-    out = list(text)
-    n, i = len(text), 0
-
-    def blank(a, b):
-        for k in range(a, b):
-            if out[k] != "\n":
-                out[k] = " "
-
-    while i < n:
-        c = text[i]
-        if text.startswith("//", i):
-            j = text.find("\n", i)
-            j = n if j < 0 else j
-            blank(i, j)
-            i = j
-        elif text.startswith("/*", i):
-            depth, j = 1, i + 2
-            while j < n and depth:
-                if text.startswith("/*", j):
-                    depth, j = depth + 1, j + 2
-                elif text.startswith("*/", j):
-                    depth, j = depth - 1, j + 2
-                else:
-                    j += 1
-            blank(i, j)
-            i = j
-        elif c in "rbc" and (i == 0 or not (text[i - 1].isalnum() or text[i - 1] == "_")) \
-                and (m := re.match(r'(?:br|cr|r)(#*)"', text[i:i + 260])):
-            close = '"' + m.group(1)
-            j = text.find(close, i + m.end())
-            j = n if j < 0 else j + len(close)
-            blank(i, j)
-            i = j
-        elif c == '"':
-            j = i + 1
-            while j < n and text[j] != '"':
-                j += 2 if text[j] == "\\" else 1
-            blank(i, j + 1)
-            i = j + 1
-        elif c == "'":
-            # A char literal ('x', '\n', '\u{…}'), else a lifetime or label.
-            if i + 1 < n and text[i + 1] == "\\":
-                j = text.find("'", i + 3)
-                j = n if j < 0 else j
-                blank(i, j + 1)
-                i = j + 1
-            elif i + 2 < n and text[i + 2] == "'":
-                blank(i, i + 3)
-                i += 3
-            else:
-                i += 1
-        else:
-            i += 1
-    return "".join(out)
-
-
-TOKEN = re.compile(r"\$?[A-Za-z_][A-Za-z0-9_]*|::|\S")
-OPEN, CLOSE = "([{", ")]}"
-ITEM_KEYWORDS = {"fn", "mod", "impl", "struct", "enum", "trait", "union", "extern", "unsafe",
-                 "async", "const", "static", "type", "use", "macro_rules", "pub", "default"}
-
-
-def tokens_of(text: str):
-    """[(token, line)] of the source with literals and comments blanked."""
-    clean = blank_literals(text)
-    starts = [0] + [m.end() for m in re.finditer("\n", clean)]
-    return [(m.group(), bisect.bisect_right(starts, m.start())) for m in TOKEN.finditer(clean)]
-
-
-def matching(toks, i):
-    """Index just past the bracket group opening at toks[i]."""
-    depth = 0
-    for j in range(i, len(toks)):
-        t = toks[j][0]
-        if t in OPEN:
-            depth += 1
-        elif t in CLOSE:
-            depth -= 1
-            if depth == 0:
-                return j + 1
-    return len(toks)
-
-
-def attribute_end(toks, i):
-    """toks[i] is `#`: (index past the attribute, its tokens) or None."""
-    j = i + 1
-    if j < len(toks) and toks[j][0] == "!":
-        j += 1
-    if j < len(toks) and toks[j][0] == "[":
-        end = matching(toks, j)
-        return end, [t for t, _ in toks[j + 1:end - 1]]
-    return None
-
-
-def is_cfg_test(attr) -> bool:
-    """`cfg(test)` or `cfg(all(test, …))`: code that only tests build."""
-    return attr[:4] == ["cfg", "(", "test", ")"] or attr[:6] == ["cfg", "(", "all", "(", "test", ","] \
-        or attr[:6] == ["cfg", "(", "all", "(", "test", ")"]
-
-
-def skip_item(toks, i):
-    """Index past the item (or field, statement, arm) starting at toks[i],
-    with its own attributes; also the name of a `mod NAME;` it declares."""
-    while i < len(toks) and toks[i][0] == "#":
-        a = attribute_end(toks, i)
-        if a is None:
-            break
-        i = a[0]
-    first = toks[i][0] if i < len(toks) else ""
-    item = first in ITEM_KEYWORDS
-    declared = None
-    j = i
-    while j < len(toks):
-        t = toks[j][0]
-        if t in CLOSE:
-            return j, declared  # the end of the enclosing group
-        if t == ";":
-            return j + 1, declared
-        if t == "," and not item:
-            return j + 1, declared
-        if t == "mod" and j + 2 < len(toks) and toks[j + 2][0] == ";":
-            declared = toks[j + 1][0]
-        if t == "{" and (item and first not in ("const", "static", "type", "use") or not item):
-            return matching(toks, j), declared
-        if t in OPEN:
-            j = matching(toks, j)
-            continue
-        j += 1
-    return j, declared
-
-
-def parse_use(toks, i):
-    """toks[i] follows `use`: ([(segments, glob, line)], index past the `;`)."""
-    paths = []
-
-    def tree(j, prefix):
-        segs = list(prefix)
-        line = toks[j][1] if j < len(toks) else 0
-        if j < len(toks) and toks[j][0] == "::":
-            segs.append("::")
-            j += 1
-        while j < len(toks):
-            t, line = toks[j]
-            if t == "{":
-                j += 1
-                while j < len(toks) and toks[j][0] != "}":
-                    j = tree(j, segs)
-                    if j < len(toks) and toks[j][0] == ",":
-                        j += 1
-                return j + 1
-            if t == "*":
-                paths.append((segs, True, line))
-                return j + 1
-            if re.fullmatch(r"\$?\w+", t):
-                segs = segs + [t]
-                j += 1
-                if j < len(toks) and toks[j][0] == "as":
-                    j += 2
-                if j < len(toks) and toks[j][0] == "::":
-                    j += 1
-                    continue
-                if segs and segs[-1] == "self":
-                    segs = segs[:-1]
-                paths.append((segs, False, line))
-                return j
-            return j  # something else: stop
-        return j
-
-    j = tree(i, [])
-    while j < len(toks) and toks[j][0] != ";":
-        j += 1
-    return paths, j + 1
 
 
 class RustCrate:
@@ -538,45 +345,6 @@ class PythonPackage:
                         path, line, text = self.edges[a][b]
                         lines.append(f"  {a} -> {b}: {display(path, root)}:{line}: {text}")
         return lines
-
-
-def display(path: Path, root: Path) -> str:
-    try:
-        return str(path.resolve().relative_to(root.resolve()))
-    except ValueError:
-        return str(path)
-
-
-def crate_check_main(argv, doc, name, crates, check_crate, failure, success) -> int:
-    """The command line of a per-crate checker (string_errors, flag_names):
-    `--root` or `--rust SRC`...; runs `check_crate(src, root)` → (lines,
-    files) on each, prints `failure` and the lines (exit 1) or
-    `success(crates, files)` (exit 0); 2 for a missing directory."""
-    parser = argparse.ArgumentParser(description=doc.split("\n\n")[0],
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--root", type=Path, default=REPO,
-                        help="repository whose crates to check (default: this one)")
-    parser.add_argument("--rust", type=Path, action="append", default=[], metavar="SRC",
-                        help="a crate's src/ directory to check instead (repeatable)")
-    args = parser.parse_args(argv)
-    root = args.root
-    rust = args.rust or [root / "runtime" / c / "src" for c in crates]
-    missing = [p for p in rust if not p.is_dir()]
-    if missing:
-        for p in missing:
-            print(f"{name}: {p} is not a directory", file=sys.stderr)
-        return 2
-    lines, files = [], 0
-    for src in rust:
-        found, n = check_crate(src, root)
-        lines += found
-        files += n
-    if lines:
-        print(failure)
-        print("\n".join(lines))
-        return 1
-    print(success(len(rust), files))
-    return 0
 
 
 def main(argv=None) -> int:

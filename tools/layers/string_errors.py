@@ -22,9 +22,8 @@ import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from import_cycles import (  # noqa: E402
-    RUST_CRATES, crate_check_main, display, is_test_file, tokens_of, without_tests,
-)
+from layer_check import RUST_CRATES, crate_check_main, display  # noqa: E402
+from rust_source import is_test_file, tokens_of, without_tests  # noqa: E402
 
 QUALIFIERS = {"const", "async", "unsafe", "extern", "default"}
 STRING = {"String", "std::string::String", "alloc::string::String"}
