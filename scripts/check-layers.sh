@@ -5,9 +5,9 @@
 # environment outside its tests; and no module imports in a circle, neither
 # in the Rust library crates nor in the trainer (tools/layers/import_cycles.py);
 # and no library crate's pub fn or trait method returns Result<_, String>
-# (tools/layers/string_errors.py); and no source file holds over 550 lines
-# outside its tests nor a crate over 25 % of the Rust lines
-# (tools/layers/sizes.py). Exit 1 naming every violation.
+# (tools/layers/string_errors.py); and no source file, Rust or Python,
+# holds over 550 lines outside its tests nor a crate over 25 % of the Rust
+# lines (tools/layers/sizes.py). Exit 1 naming every violation.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -71,13 +71,15 @@ if ! flags=$(python3 tools/layers/flag_names.py 2>&1); then
     echo "$flags"
     status=1
 fi
-# Sizes: no file over 550 lines outside its tests, no crate over a quarter
-# of the Rust lines (a newcomer reads a crate as one kind of thing).
+# Sizes: no Rust or Python source file over 550 lines outside its tests
+# (the trainer, tools/, scripts/, bench/ and the rest of the repository's
+# Python too), no crate over a quarter of the Rust lines (a newcomer reads a
+# crate as one kind of thing).
 if ! sizes=$(python3 tools/layers/sizes.py 2>&1); then
     echo "$sizes"
     status=1
 fi
 if [ "$status" = 0 ]; then
-    echo "layers: every library crate depends only on the crates below it; none on clap, indicatif or anyhow; none reads the environment; no import cycle in the Rust library crates nor in the trainer; no public function or trait method of a library crate returns Result<_, String>; no library below nedrt-app names a command-line flag; no source file over 550 lines outside tests, no crate over 25 % of the Rust lines"
+    echo "layers: every library crate depends only on the crates below it; none on clap, indicatif or anyhow; none reads the environment; no import cycle in the Rust library crates nor in the trainer; no public function or trait method of a library crate returns Result<_, String>; no library below nedrt-app names a command-line flag; no Rust or Python source file over 550 lines outside tests, no crate over 25 % of the Rust lines"
 fi
 exit "$status"

@@ -1,6 +1,6 @@
 """tools/layers/sizes.py (scripts/check-layers.sh): a file over 550 lines
 outside its tests, or a crate over a quarter of the Rust lines, is named;
-test code does not count."""
+so is a Python source file over 550 lines; test code does not count."""
 import importlib.util
 from pathlib import Path
 
@@ -49,3 +49,40 @@ def test_a_test_only_use_line_does_not_end_the_count(tmp_path, capsys):
     (src / "lib.rs").write_text("#[cfg(test)]\nuse x::y;\n" + lines(600) + "#[cfg(test)]\n#[path = \"t.rs\"]\nmod tests;\n")
     code, out = check(capsys, tmp_path)
     assert code == 1 and "lib.rs: 602 lines outside tests" in out, out
+
+
+# ---------------------------------------------------------------- Python
+
+
+def py_lines(n: int) -> str:
+    return "".join(f"x{i} = {i}\n" for i in range(n))
+
+
+def test_a_python_file_over_550_lines_is_named_and_one_of_550_is_not(tmp_path, capsys):
+    (tmp_path / "pkg").mkdir()
+    (tmp_path / "pkg" / "big.py").write_text(py_lines(551))
+    (tmp_path / "pkg" / "full.py").write_text(py_lines(550))
+    (tmp_path / "tools").mkdir()
+    (tmp_path / "tools" / "tail.py").write_text(py_lines(550) + "x = 0")  # a last line without its newline
+    code, out = sizes.main(["--python", str(tmp_path)]), capsys.readouterr().out
+    assert code == 1
+    assert out.splitlines() == [f"{Path('pkg/big.py')}: 551 lines (at most 550)",
+                                f"{Path('tools/tail.py')}: 551 lines (at most 550)"]
+
+
+def test_python_test_files_and_build_folders_do_not_count(tmp_path, capsys):
+    long = py_lines(900)
+    for rel in ["pkg/test_long.py", "pkg/long_test.py", "pkg/conftest.py", "tests/python/helper.py",
+                "models/tests/ddp_draws.py", ".venv/lib/site.py", "env/lib/site.py", "target/gen.py",
+                "pkg/__pycache__/x.py"]:
+        path = tmp_path / rel
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(long)
+    (tmp_path / "env" / "pyvenv.cfg").write_text("home = /usr/bin\n")  # a virtual environment by another name
+    (tmp_path / "pkg" / "small.py").write_text(py_lines(10))
+    assert sizes.main(["--python", str(tmp_path)]) == 0
+    assert capsys.readouterr().out == ""
+
+
+def test_the_repository_holds_no_file_over_the_limit(capsys):
+    assert sizes.main([]) == 0, capsys.readouterr().out
