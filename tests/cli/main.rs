@@ -6,6 +6,7 @@
 mod bad_input;
 mod dcnn;
 mod eval;
+mod plan;
 mod prefilter;
 mod run;
 mod sim;

@@ -9,7 +9,7 @@ use nedrt_service::present::transfer::Transfer;
 
 /// The small-aperture calibration on a 64×48 panel at 240 Hz with two
 /// `[[view]]` tables: left the multifocal design, right the all-sharp one.
-fn stereo_calibration(dir: &Path) -> PathBuf {
+pub(super) fn stereo_calibration(dir: &Path) -> PathBuf {
     let text = std::fs::read_to_string(small_calib()).expect("small-aperture.toml");
     let text = text
         .replace("width_px = 1920", "width_px = 64")

@@ -41,8 +41,9 @@ STEPS = [
                   "auto", 30, 1),
     ("torch", "the same networks in PyTorch: f32 (TF32 off), TF32, f16 channels-last; cuDNN benchmark", 40, 1),
     ("fft", "the prefilters' DCT filter at 1920×1080: nedrt's on the device, the CPU's, torch.fft (cuFFT)", 30, 1),
-    ("pipeline", "nedrt bench pipeline at 1920×1080 on the device path: none, the Wiener, refine:10 (its GPU "
-                 "time per frame), half, full, the shipped model", 90, 1),
+    ("pipeline", "nedrt bench pipeline at 1920×1080 and the panel's refresh on the device path: none, the "
+                 "Wiener, refine:10 (its GPU time per frame), half, full, the shipped model; then two views "
+                 "(--stereo): none and the shipped model", 120, 1),
     ("teacher", "the D-CNN's teacher: nedrt prefilter on the CPU, the training ceiling on CUDA", 105, 1),
     ("train", "the full-width D-CNN on CUDA (bf16 autocast, the largest batch that fits)", TRAIN_BUDGET_S, 1),
     ("export", "the network as the runtime's ONNX with its card", 20, 1),
@@ -178,10 +179,14 @@ def step_fft(r: Runner, s: Step, z: dict, ceilings: Step):
 
 def step_pipeline(r: Runner, s: Step, z: dict):
     r.need_gpu_adapter()
+    common = ["--frame-paths", "device", "--panel", z["panel"], "--frames", z["frames"], "--max-seconds",
+              z["pipeline_s"]]
     out = r.sh([r.nedrt, "--design", "multifocal", "bench", "pipeline", "--networks",
-                "none,wiener,refine10,half,full,model", "--frame-paths", "device",
-                "--panel", z["panel"], "--frames", z["frames"], "--max-seconds", z["pipeline_s"]], s.cap_s)
-    s.text = "\n".join(line for line in out.splitlines() if not line.startswith("{"))
+                "none,wiener,refine10,half,full,model", *common], s.cap_s)
+    # One view and two (issue 39): the no-network and the shipped-model cases.
+    stereo = r.sh([r.nedrt, "--design", "multifocal", "bench", "pipeline", "--stereo", "--networks",
+                   "none,model", *common], s.cap_s)
+    s.text = "\n".join(line for line in (out + "\n" + stereo).splitlines() if not line.startswith("{"))
 
 
 def step_tradeoff(r: Runner, s: Step, z: dict):

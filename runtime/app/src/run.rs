@@ -6,6 +6,7 @@
 mod engines;
 mod faults;
 mod options;
+mod plan;
 mod serve;
 mod views;
 
@@ -15,7 +16,6 @@ use super::{AppError, CommonOptions};
 use crate::preprocess::DcnnInput;
 use engines::{behind, fallback_factory, linear_preprocessor, resident_stage};
 use faults::LosesDeviceAfter;
-use nedrt_core::Named;
 use nedrt_core::preprocess::Preprocess;
 use nedrt_infer::gpu::open_device;
 use nedrt_infer::{BackendKind, Dcnn, ModelFile};
@@ -23,7 +23,7 @@ use nedrt_optics::sim::{Method, Simulator};
 use nedrt_service::pipeline::pacing::{Clock, SystemClock};
 use nedrt_service::pipeline::service::{Control, PanelConfig};
 use nedrt_service::pipeline::source::{
-    Source, dir::DirSource, pattern::PatternSource, socket::SocketSource,
+    Source, SourceRate, dir::DirSource, pattern::PatternSource, socket::SocketSource,
 };
 use nedrt_service::pipeline::stats::Report;
 use nedrt_service::present::Sink;
@@ -35,6 +35,7 @@ pub use options::{
     FallbackKind, FramePath, MAX_SOURCE_RATE_HZ, MIN_SOURCE_RATE_HZ, RunOptions, SinkKind,
     SourceKind,
 };
+pub use plan::{PlannedPath, Probe, RunPlan};
 use serve::{Pipeline, serve};
 
 /// Runs the service until its source ends (and the last frame is shown)
@@ -44,36 +45,7 @@ pub fn run(
     opts: &RunOptions,
     control: &Control,
 ) -> Result<Report, AppError> {
-    // 0 is "as fast as the pipeline takes them"; anything else must give a
-    // period a clock can wait (NaN, inf or 1e-300 Hz would run unpaced).
-    if let Some(rate_hz) = opts.source_rate_hz
-        && !(rate_hz == 0.0 || (MIN_SOURCE_RATE_HZ..=MAX_SOURCE_RATE_HZ).contains(&rate_hz))
-    {
-        return Err(AppError::option(
-            format!("--source-rate {rate_hz}"),
-            format!(
-                "give 0 (unpaced) or a rate from {MIN_SOURCE_RATE_HZ} to {MAX_SOURCE_RATE_HZ} Hz"
-            ),
-        ));
-    }
-    let calib = common.calibration()?;
-    let p = &calib.panel;
-    let (width, height) = opts.panel_size.unwrap_or((p.width_px, p.height_px));
-    if width == 0 || height == 0 {
-        return Err(AppError::option(
-            format!("--panel {width}x{height}"),
-            "the panel's sides must be positive",
-        ));
-    }
-    let panel = PanelConfig {
-        width,
-        height,
-        refresh_hz: p.refresh_hz,
-        transfer: Transfer::from_panel(p),
-        // A pixel subtends pitch / distance at the eyepiece.
-        pixels_per_tan: calib.lens_distance_m / calib.pixel_pitch_m,
-        views: Vec::new(),
-    };
+    let (calib, panel) = checked_panel(common, opts)?;
     let (w, h) = (panel.width as u32, panel.height as u32);
     // Output folders are checked before anything runs, not after.
     if let Some(dir) = opts
@@ -85,14 +57,18 @@ pub fn run(
         std::fs::create_dir_all(dir).map_err(|e| AppError::output(dir, e))?;
     }
     let clock: Arc<dyn Clock> = Arc::new(SystemClock);
-    let rate_hz = opts.source_rate_hz.unwrap_or(panel.refresh_hz);
+    // Without a rate of their own, sources make each frame for the refresh
+    // it will be shown at, on the present loop's clock.
+    let rate = opts
+        .source_rate_hz
+        .map_or(SourceRate::Display, SourceRate::Hz);
     // Sources first: a bad input is reported before any window opens.
     let source: Box<dyn Source> = match opts.source {
         SourceKind::Pattern => Box::new(PatternSource::new(
             panel.width,
             panel.height,
             opts.frames,
-            rate_hz,
+            rate,
             clock.clone(),
         )),
         SourceKind::Dir => {
@@ -104,7 +80,7 @@ pub fn run(
                 panel.width,
                 panel.height,
                 opts.frames,
-                rate_hz,
+                rate,
                 clock.clone(),
             )?)
         }
@@ -112,25 +88,14 @@ pub fn run(
     };
 
     let dcnn = &common.dcnn;
-    let uses_dcnn = opts.preprocess.uses_dcnn() && opts.prefilter.is_native();
-    let model = if uses_dcnn {
-        Some(ModelFile::read(match opts.preprocess {
-            Method::LensDcnn => &dcnn.lens_path,
-            _ => &dcnn.path,
-        })?)
-    } else {
-        None
-    };
     // A network trained on its optics' Wiener output runs behind that
     // Wiener (its card says so), on every engine and fallback alike; read
     // before the sink opens, so that a bad card leaves nothing behind.
-    let stage = match model
-        .as_ref()
-        .map(|m| crate::preprocess::dcnn_input(&m.path))
-        .transpose()?
-    {
+    let network = network_of(common, opts)?;
+    let model = network.as_ref().map(|(m, _)| m.clone());
+    let stage = match network.as_ref().map(|(_, input)| input) {
         None | Some(DcnnInput::Frame) => None,
-        Some(DcnnInput::WienerRaw { k_reg }) => {
+        Some(&DcnnInput::WienerRaw { k_reg }) => {
             let method = opts.preprocess;
             let sim = Simulator::new(
                 common.calibration()?,
@@ -172,13 +137,30 @@ pub fn run(
         }
         SinkKind::Record => (Box::new(RecorderSink::new(&opts.record_dir)?), None),
     };
+    // The plan, from the device the sink offers: what is built below.
+    let probe = match &device {
+        Some((d, _, name)) => Probe::Adapter {
+            name: name.clone(),
+            shader_f16: d.features().contains(wgpu::Features::SHADER_F16),
+        },
+        None => Probe::NotNeeded,
+    };
+    let planned = plan::plan(&plan_inputs(
+        common,
+        opts,
+        &calib,
+        &panel,
+        network.as_ref(),
+        probe,
+    )?);
+    tracing::info!("plan:\n{planned}");
     if let Some(views) = views {
         let mut panel = panel;
         panel.views = views.iter().map(|v| v.region).collect();
-        // On the sink's device where it has one and the views' stages run
-        // there; else through the host, and why.
-        let on_device = match (&device, opts.frame_path) {
-            (Some((d, q, name)), FramePath::Device) => {
+        // On the sink's device where the plan puts them; else through the
+        // host, and why.
+        let on_device = match (&device, planned.path) {
+            (Some((d, q, name)), PlannedPath::Device) => {
                 let gpu = (d.clone(), q.clone(), name.clone());
                 views::device_stages(&views, opts, &panel, &gpu, model.as_ref(), &stage).and_then(
                     |stages| {
@@ -194,11 +176,7 @@ pub fn run(
                     },
                 )
             }
-            (None, _) => Err(format!(
-                "the {} sink takes frames in host memory",
-                opts.sink.name()
-            )),
-            (Some(_), FramePath::Host) => Err("--frame-path host".into()),
+            _ => Err(planned.path_reason.clone()),
         };
         let pipeline = match on_device {
             Ok(device_views) => Pipeline::DeviceViews(Box::new(device_views), views),
@@ -209,39 +187,29 @@ pub fn run(
         };
         return serve(opts, control, panel, clock, source, sink, pipeline);
     }
-    // The resident path where the sink and the engine allow it.
-    let host_reason = match (&device, &model) {
-        _ if opts.frame_path == FramePath::Host => Some("--frame-path host".to_string()),
-        (None, _) => Some(format!(
-            "the {} sink takes frames in host memory, so every display image is read back",
-            opts.sink.name()
-        )),
-        (Some(_), Some(_)) if dcnn.backend != BackendKind::Wgpu => Some(format!(
-            "the D-CNN runs on the {} backend, on the host",
-            dcnn.backend.name()
-        )),
-        (Some(_), None) if opts.inject_device_loss_after.is_some() => {
-            Some("the injected device loss needs a network".to_string())
+    // The resident path where the plan puts the frames.
+    let host_reason = match (&device, planned.path) {
+        (Some(d), PlannedPath::Device) => {
+            match resident_stage(common, opts, &panel, d, model.clone(), &stage) {
+                Ok(resident) => {
+                    return serve(
+                        opts,
+                        control,
+                        panel,
+                        clock,
+                        source,
+                        sink,
+                        Pipeline::Resident(Box::new(resident)),
+                    );
+                }
+                Err(e) => {
+                    tracing::warn!("frames cannot stay on the GPU: {e}; they go through the host");
+                    e.to_string()
+                }
+            }
         }
-        (Some(d), _) => match resident_stage(common, opts, &panel, d, model.clone(), &stage) {
-            Ok(resident) => {
-                return serve(
-                    opts,
-                    control,
-                    panel,
-                    clock,
-                    source,
-                    sink,
-                    Pipeline::Resident(Box::new(resident)),
-                );
-            }
-            Err(e) => {
-                tracing::warn!("frames cannot stay on the GPU: {e}; they go through the host");
-                Some(e.to_string())
-            }
-        },
+        _ => planned.path_reason.clone(),
     };
-    let host_reason = host_reason.unwrap_or_default();
     let Some(model) = model else {
         let primary = linear_preprocessor(common, opts.preprocess, opts.prefilter)?;
         let pipeline = Pipeline::Host {
@@ -289,6 +257,123 @@ pub fn run(
         reason: host_reason,
     };
     serve(opts, control, panel, clock, source, sink, pipeline)
+}
+
+/// The calibration and the panel a run drives, its options checked.
+fn checked_panel(
+    common: &CommonOptions,
+    opts: &RunOptions,
+) -> Result<(nedrt_core::calib::Calibration, PanelConfig), AppError> {
+    // 0 is "as fast as the pipeline takes them"; anything else must give a
+    // period a clock can wait (NaN, inf or 1e-300 Hz would run unpaced).
+    if let Some(rate_hz) = opts.source_rate_hz
+        && !(rate_hz == 0.0 || (MIN_SOURCE_RATE_HZ..=MAX_SOURCE_RATE_HZ).contains(&rate_hz))
+    {
+        return Err(AppError::option(
+            format!("--source-rate {rate_hz}"),
+            format!(
+                "give 0 (unpaced) or a rate from {MIN_SOURCE_RATE_HZ} to {MAX_SOURCE_RATE_HZ} Hz"
+            ),
+        ));
+    }
+    let calib = common.calibration()?;
+    let p = &calib.panel;
+    let (width, height) = opts.panel_size.unwrap_or((p.width_px, p.height_px));
+    if width == 0 || height == 0 {
+        return Err(AppError::option(
+            format!("--panel {width}x{height}"),
+            "the panel's sides must be positive",
+        ));
+    }
+    let panel = PanelConfig {
+        width,
+        height,
+        refresh_hz: p.refresh_hz,
+        transfer: Transfer::from_panel(p),
+        // A pixel subtends pitch / distance at the eyepiece.
+        pixels_per_tan: calib.lens_distance_m / calib.pixel_pitch_m,
+        views: Vec::new(),
+    };
+    Ok((calib, panel))
+}
+
+/// The network of a run (its file and card), if its system has one.
+fn network_of(
+    common: &CommonOptions,
+    opts: &RunOptions,
+) -> Result<Option<(ModelFile, DcnnInput)>, AppError> {
+    let dcnn = &common.dcnn;
+    if !(opts.preprocess.uses_dcnn() && opts.prefilter.is_native()) {
+        return Ok(None);
+    }
+    let model = ModelFile::read(match opts.preprocess {
+        Method::LensDcnn => &dcnn.lens_path,
+        _ => &dcnn.path,
+    })?;
+    let input = crate::preprocess::dcnn_input(&model.path)?;
+    Ok(Some((model, input)))
+}
+
+/// The inputs of the plan: the panel's views and the network's facts.
+fn plan_inputs<'a>(
+    common: &CommonOptions,
+    opts: &'a RunOptions,
+    calib: &nedrt_core::calib::Calibration,
+    panel: &PanelConfig,
+    network: Option<&(ModelFile, DcnnInput)>,
+    probe: Probe,
+) -> Result<plan::PlanInputs<'a>, AppError> {
+    let views = if opts.stereo || !calib.views.is_empty() {
+        views::layout(calib, (panel.width, panel.height))?
+    } else {
+        vec![plan::ViewFacts {
+            name: "panel".into(),
+            region: nedrt_service::compose::ViewRegion {
+                x: 0,
+                y: 0,
+                width: panel.width,
+                height: panel.height,
+            },
+            design: None,
+        }]
+    };
+    Ok(plan::PlanInputs {
+        opts,
+        panel: (panel.width, panel.height, panel.refresh_hz),
+        views,
+        network: network.map(|(m, input)| plan::NetworkFacts {
+            path: m.path.display().to_string(),
+            behind_wiener_k: match input {
+                DcnnInput::Frame => None,
+                DcnnInput::WienerRaw { k_reg } => Some(*k_reg),
+            },
+        }),
+        backend: common.dcnn.backend,
+        precision: common.dcnn.backend_options.precision,
+        probe,
+    })
+}
+
+/// `nedrt run --plan`: what the run would build and why, from the options,
+/// the calibration and the adapter found, building nothing (no source is
+/// started, no window opened, no socket bound).
+pub fn plan_run(common: &CommonOptions, opts: &RunOptions) -> Result<RunPlan, AppError> {
+    let (calib, panel) = checked_panel(common, opts)?;
+    let network = network_of(common, opts)?;
+    let probe = match opts.sink {
+        SinkKind::Record => Probe::NotNeeded,
+        SinkKind::Window | SinkKind::Headless => {
+            match nedrt_gpu::request_adapter(&common.dcnn.backend_options.gpu) {
+                Ok(a) => Probe::Adapter {
+                    name: a.get_info().name,
+                    shader_f16: a.features().contains(wgpu::Features::SHADER_F16),
+                },
+                Err(e) => Probe::Missing(e.to_string()),
+            }
+        }
+    };
+    let inputs = plan_inputs(common, opts, &calib, &panel, network.as_ref(), probe)?;
+    Ok(plan::plan(&inputs))
 }
 
 #[cfg(test)]

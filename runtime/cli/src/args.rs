@@ -241,8 +241,9 @@ pub struct RunArgs {
     /// stopped, a folder once through).
     #[arg(long, value_name = "N")]
     pub frames: Option<u64>,
-    /// Submission rate of the pattern and folder sources in Hz (default:
-    /// the panel's refresh; 0: as fast as the pipeline takes them).
+    /// Submission rate of the pattern and folder sources in Hz, on a timer
+    /// of their own (default: each frame made just in time for the panel
+    /// refresh it will be shown at; 0: as fast as the pipeline takes them).
     #[arg(long, value_name = "HZ")]
     pub source_rate: Option<f64>,
     /// Where frames go.
@@ -271,6 +272,11 @@ pub struct RunArgs {
     /// Keep showing the last frame after the source ends, until Ctrl-C or the window closes.
     #[arg(long)]
     pub keep_open: bool,
+    /// Print what the run would build (views, each view's stages, the frame
+    /// path, where the network runs, the pacing) and why, then exit:
+    /// nothing is started, opened or bound.
+    #[arg(long)]
+    pub plan: bool,
     /// Write a Chrome/Perfetto trace of every stage span to FILE.
     #[arg(long, value_name = "FILE")]
     pub trace: Option<PathBuf>,

@@ -182,6 +182,10 @@ pub fn run(cli: Cli) -> Result<()> {
                 inject_device_loss_after: a.inject_device_loss_after,
                 stereo: a.stereo,
             };
+            if a.plan {
+                print!("{}", app::run::plan_run(&common, &opts)?);
+                return Ok(());
+            }
             let report = app::run::run(&common, &opts, &control)?;
             print!("{}", report.table());
         }

@@ -6,6 +6,7 @@
 use std::sync::Arc;
 
 use super::engines::{behind, linear_on_device, linear_preprocessor};
+use super::plan::ViewFacts;
 use super::{AppError, CommonOptions, RunOptions};
 use crate::design::Design;
 use crate::device_prefilter::wiener_stage;
@@ -110,53 +111,14 @@ pub(super) fn views(
     wiener_stage: &Option<(Method, Arc<WienerFilter>)>,
     model: Option<&ModelFile>,
 ) -> Result<Vec<View>, AppError> {
-    let min = nedrt_core::calib::views::MIN_VIEW_SIDE_PX;
-    let layout: Vec<(String, ViewRegion, Option<String>)> = if calib.views.is_empty() {
-        if width / 2 < min || height < min {
-            return Err(AppError::Conflict(format!(
-                "--stereo on a {width}×{height} panel: each eye would be {}×{height}; a view is \
-                 at least {min} pixels a side",
-                width / 2
-            )));
-        }
-        let [left, right] = ViewRegion::side_by_side(width, height);
-        vec![("left".into(), left, None), ("right".into(), right, None)]
-    } else {
-        // The calibration checked its views against its own panel; the run
-        // may drive another size (--panel in the benchmarks).
-        for v in &calib.views {
-            let [x, y, w, h] = v.region_px;
-            let region = ViewRegion {
-                x,
-                y,
-                width: w,
-                height: h,
-            };
-            if !region.fits((width, height)) {
-                return Err(AppError::Conflict(format!(
-                    "{}: view {:?} ({w}×{h} at ({x}, {y})) is not inside the {width}×{height} \
-                     panel this run drives",
-                    calib.source, v.name
-                )));
-            }
-        }
-        calib
-            .views
-            .iter()
-            .map(|v| {
-                let [x, y, w, h] = v.region_px;
-                let region = ViewRegion {
-                    x,
-                    y,
-                    width: w,
-                    height: h,
-                };
-                (v.name.clone(), region, v.design.clone())
-            })
-            .collect()
-    };
+    let layout = layout(calib, (width, height))?;
     let mut out = Vec::new();
-    for (name, region, design) in layout {
+    for super::plan::ViewFacts {
+        name,
+        region,
+        design,
+    } in layout
+    {
         let mut c = common.clone();
         if let Some(d) = design.as_deref().filter(|_| model.is_none()) {
             let d = Design::resolve(d)?;
@@ -199,4 +161,73 @@ pub(super) fn views(
         });
     }
     Ok(out)
+}
+
+/// The views of `calib`, or the halves of a `width`×`height` panel when it
+/// has none (`--stereo`), each checked to fit the panel this run drives.
+pub(super) fn layout(
+    calib: &Calibration,
+    (width, height): (usize, usize),
+) -> Result<Vec<ViewFacts>, AppError> {
+    let min = nedrt_core::calib::views::MIN_VIEW_SIDE_PX;
+    let layout: Vec<ViewFacts> = if calib.views.is_empty() {
+        if width / 2 < min || height < min {
+            return Err(AppError::Conflict(format!(
+                "--stereo on a {width}×{height} panel: each eye would be {}×{height}; a view is \
+                 at least {min} pixels a side",
+                width / 2
+            )));
+        }
+        let [left, right] = ViewRegion::side_by_side(width, height);
+        vec![
+            ViewFacts {
+                name: "left".into(),
+                region: left,
+                design: None,
+            },
+            ViewFacts {
+                name: "right".into(),
+                region: right,
+                design: None,
+            },
+        ]
+    } else {
+        // The calibration checked its views against its own panel; the run
+        // may drive another size (--panel in the benchmarks).
+        for v in &calib.views {
+            let [x, y, w, h] = v.region_px;
+            let region = ViewRegion {
+                x,
+                y,
+                width: w,
+                height: h,
+            };
+            if !region.fits((width, height)) {
+                return Err(AppError::Conflict(format!(
+                    "{}: view {:?} ({w}×{h} at ({x}, {y})) is not inside the {width}×{height} \
+                     panel this run drives",
+                    calib.source, v.name
+                )));
+            }
+        }
+        calib
+            .views
+            .iter()
+            .map(|v| {
+                let [x, y, w, h] = v.region_px;
+                let region = ViewRegion {
+                    x,
+                    y,
+                    width: w,
+                    height: h,
+                };
+                ViewFacts {
+                    name: v.name.clone(),
+                    region,
+                    design: v.design.clone(),
+                }
+            })
+            .collect()
+    };
+    Ok(layout)
 }

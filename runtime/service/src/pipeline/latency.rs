@@ -2,8 +2,10 @@
 //! allocation per sample, so it can sit on a real-time thread) reporting
 //! p50, p99 and max in nanoseconds.
 
-/// Buckets per power of two: 8 gives ≤ 9 % relative bucket width.
-const SUB: u32 = 8;
+/// Buckets per power of two: 128 gives ≤ 0.8 % relative bucket width, so a
+/// reported percentile is within 1 % of the exact one (8, before, read
+/// "16.8 ms" for anything in 15.7–16.8).
+const SUB: u32 = 128;
 /// Covers 1 ns … 2^40 ns (≈ 18 min).
 const OCTAVES: u32 = 40;
 const BUCKETS: usize = (OCTAVES * SUB) as usize;
@@ -77,7 +79,7 @@ impl Histogram {
     }
 
     /// The `q`-quantile (0…1) as the upper edge of its bucket (an
-    /// over-estimate by at most one bucket width, ≤ 12.5 %), never above the
+    /// over-estimate by at most one bucket width, < 1 %), never above the
     /// maximum seen. 0 when empty.
     pub fn quantile_ns(&self, q: f64) -> u64 {
         if self.count == 0 {
@@ -129,7 +131,7 @@ mod tests {
         }
         let p50 = h.quantile_ns(0.5) as f64 / 1e6;
         let p99 = h.quantile_ns(0.99) as f64 / 1e6;
-        assert!((50.0..=50.0 * 1.125).contains(&p50), "p50 {p50}");
+        assert!((50.0..=50.0 * 1.01).contains(&p50), "p50 {p50}");
         assert!((99.0..=100.0).contains(&p99), "p99 {p99}");
         assert_eq!(h.max_ns(), 100_000_000);
         assert_eq!(h.count(), 100);
@@ -152,7 +154,7 @@ mod tests {
             let truth = samples[rank - 1];
             let got = h.quantile_ns(q);
             prop_assert!(got >= truth.min(h.max_ns()) || got == h.max_ns());
-            prop_assert!(got as f64 <= truth as f64 * 1.125 + 1.0, "{got} vs {truth}");
+            prop_assert!(got as f64 <= truth as f64 * 1.01 + 1.0, "{got} vs {truth}");
         }
 
         #[test]

@@ -9,6 +9,9 @@ use std::sync::Mutex;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Duration;
 
+mod jit;
+pub use jit::{Estimate, Finished, PresentPacer, Wake};
+
 /// Monotonic time in nanoseconds since an arbitrary origin.
 pub trait Clock: Send + Sync + std::fmt::Debug {
     fn now_ns(&self) -> u64;
@@ -115,40 +118,46 @@ impl Pacer {
 /// When frames will be on the panel: what the present loop tells
 /// applications so they render for the time their frame is seen (as
 /// Monado's `u_pacing` answers xrWaitFrame). The present loop records each
-/// refresh it paces to and how long frames take from submission to ready;
-/// a frame submitted at `now` is predicted on the first refresh at or after
-/// `now` + that time. Lock-free: submitters read it on their own threads.
+/// refresh it paces to, how long before a refresh it takes its frame (its
+/// lead), and how long frames take from submission to ready; a frame
+/// submitted at `now` is predicted on the first refresh whose take is at
+/// or after `now` + that time (an [`Estimate`]'s bound, so a jittering
+/// stage is still in time). Lock-free: submitters read it on their own
+/// threads.
 #[derive(Debug)]
 pub struct DisplaySchedule {
     period_ns: AtomicU64,
     /// A refresh the present loop paced to: the refreshes' phase.
     refresh_ns: AtomicU64,
-    /// Submission to ready (in the present slot), a running mean over
-    /// about the last [`DisplaySchedule::SMOOTHING`] frames, ns.
+    /// Submission to ready (in the present slot): the estimate's mean and
+    /// deviation ([`Estimate`]), ns.
     pipeline_ns: AtomicU64,
-    /// How long before its refresh a frame must be ready: a period for a
-    /// sink whose present waits for the refresh (the loop takes the slot
-    /// a period ahead), none for one the loop paces itself.
+    pipeline_dev_ns: AtomicU64,
+    /// How long before its refresh a frame must be ready: the loop's lead
+    /// ([`PresentPacer::lead_ns`]), or a period for a sink whose present
+    /// waits for the refresh (the loop takes the slot a period ahead).
     latch_ns: AtomicU64,
 }
 
 impl DisplaySchedule {
-    /// Frames the pipeline's time is averaged over (an exponential mean).
-    pub const SMOOTHING: u64 = 8;
-
     /// Refreshes every `period_ns` from `start_ns` (as [`Pacer::new`]).
     pub fn new(period_ns: u64, start_ns: u64) -> Self {
         Self {
             period_ns: AtomicU64::new(period_ns.max(1)),
             refresh_ns: AtomicU64::new(start_ns + period_ns.max(1)),
             pipeline_ns: AtomicU64::new(0),
+            pipeline_dev_ns: AtomicU64::new(0),
             latch_ns: AtomicU64::new(0),
         }
     }
 
-    /// See the field: the present loop sets it from its sink.
+    /// See the field: the present loop sets it from its sink and pacer.
     pub fn set_latch_ns(&self, ns: u64) {
         self.latch_ns.store(ns, Ordering::Relaxed);
+    }
+
+    pub fn latch_ns(&self) -> u64 {
+        self.latch_ns.load(Ordering::Relaxed)
     }
 
     pub fn period_ns(&self) -> u64 {
@@ -160,20 +169,32 @@ impl DisplaySchedule {
         self.refresh_ns.store(vsync_ns, Ordering::Relaxed);
     }
 
-    /// A frame took `ns` from submission to ready.
-    pub fn observe_pipeline(&self, ns: u64) {
-        let old = self.pipeline_ns.load(Ordering::Relaxed);
-        let new = if old == 0 {
-            ns
-        } else {
-            (old * (Self::SMOOTHING - 1) + ns) / Self::SMOOTHING
-        };
-        self.pipeline_ns.store(new, Ordering::Relaxed);
+    /// The pipeline's estimate, as last published.
+    pub fn pipeline(&self) -> (u64, u64) {
+        (
+            self.pipeline_ns.load(Ordering::Relaxed),
+            self.pipeline_dev_ns.load(Ordering::Relaxed),
+        )
     }
 
-    /// The pipeline's recent submission-to-ready time, ns.
+    /// Publishes the pipeline's estimate (the present loop keeps it).
+    pub fn publish_pipeline(&self, estimate: &Estimate) {
+        self.pipeline_ns
+            .store(estimate.mean_ns(), Ordering::Relaxed);
+        self.pipeline_dev_ns
+            .store(estimate.dev_ns(), Ordering::Relaxed);
+    }
+
+    /// The pipeline's recent submission-to-ready time (the mean), ns.
     pub fn pipeline_ns(&self) -> u64 {
-        self.pipeline_ns.load(Ordering::Relaxed)
+        self.pipeline().0
+    }
+
+    /// Submission to ready that the predictions plan with: the estimate's
+    /// bound ([`Estimate::bound_ns`]).
+    pub fn pipeline_bound_ns(&self) -> u64 {
+        let (mean, dev) = self.pipeline();
+        mean + Estimate::DEVIATIONS * dev
     }
 
     /// The first refresh at or after `t_ns`. The refresh the loop paces to
@@ -190,9 +211,34 @@ impl DisplaySchedule {
 
     /// When a frame submitted at `now_ns` is predicted to be on the panel.
     pub fn predicted_display_ns(&self, now_ns: u64) -> u64 {
-        let latch = self.latch_ns.load(Ordering::Relaxed);
-        self.refresh_at_or_after(now_ns + self.pipeline_ns() + latch)
+        self.refresh_at_or_after(now_ns + self.pipeline_bound_ns() + self.latch_ns())
     }
+
+    /// A source's next frame: the first refresh after `after_ns` that a
+    /// frame started now (taking `make_ns` to make before it is submitted)
+    /// can reach, and when to start making it so that it is submitted just
+    /// in time for that refresh, with a thirty-second of a period to spare
+    /// (so that the estimate moving a little between the plan and the
+    /// submission does not move the prediction to the next refresh).
+    pub fn plan_submission(&self, now_ns: u64, after_ns: u64, make_ns: u64) -> SubmitPlan {
+        let period = self.period_ns();
+        let ahead = make_ns + self.pipeline_bound_ns() + self.latch_ns() + period / 32;
+        let mut refresh_ns = self.refresh_at_or_after(now_ns + ahead);
+        if refresh_ns <= after_ns {
+            refresh_ns = self.refresh_at_or_after(after_ns + 1);
+        }
+        SubmitPlan {
+            refresh_ns,
+            start_ns: refresh_ns.saturating_sub(ahead).max(now_ns),
+        }
+    }
+}
+
+/// When a source is to start its next frame, and for which refresh.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct SubmitPlan {
+    pub refresh_ns: u64,
+    pub start_ns: u64,
 }
 
 /// Newest-wins hand-over of one item between two threads.
@@ -265,63 +311,6 @@ mod tests {
         // Exactly on a refresh is not late.
         clock.sleep_until_ns(t3.vsync_ns);
         assert_eq!(pacer.next(clock.now_ns()).missed, 0);
-    }
-
-    #[test]
-    fn predictions_land_on_the_refresh_the_pacer_shows_the_frame_at_within_one_period() {
-        // The present loop on a fake clock at 90 Hz; frames take 2.4
-        // periods ± 0.3 from submission to ready (a slow D-CNN with jitter)
-        // and are submitted at odd moments. A frame is shown at the first
-        // tick at or after it is ready; the prediction made at submission
-        // must name that tick, or one beside it.
-        let clock = FakeClock::default();
-        let mut pacer = Pacer::new(90.0, clock.now_ns());
-        let period = pacer.period_ns();
-        let schedule = DisplaySchedule::new(period, clock.now_ns());
-        let mut ticks = Vec::new();
-        let mut exact = 0;
-        for i in 0..400u64 {
-            let submit = clock.now_ns() + (i * 7_919_993) % period;
-            let work = 24 * period / 10 + (i * 104_729 % (6 * period / 10)) - 3 * period / 10;
-            let predicted = schedule.predicted_display_ns(submit);
-            let ready = submit + work;
-            // The loop runs its ticks up to the one that shows the frame.
-            let shown = loop {
-                let tick = pacer.next(clock.now_ns());
-                clock.sleep_until_ns(tick.vsync_ns);
-                schedule.observe_refresh(tick.vsync_ns);
-                ticks.push(tick.vsync_ns);
-                if tick.vsync_ns >= ready {
-                    break tick.vsync_ns;
-                }
-            };
-            schedule.observe_pipeline(work);
-            if i >= DisplaySchedule::SMOOTHING {
-                assert!(
-                    predicted.abs_diff(shown) <= period,
-                    "frame {i}: predicted {predicted}, shown {shown}"
-                );
-                exact += u64::from(predicted == shown);
-            }
-            assert!(
-                ticks.contains(&predicted) || predicted > *ticks.last().unwrap_or(&0),
-                "frame {i}: predicted {predicted} off the grid; last tick {:?}, submit {submit}",
-                ticks.last()
-            );
-        }
-        // Most land exactly on the predicted refresh.
-        assert!(exact > 300, "{exact} of 392 exact");
-        // A display-paced sink takes its frame a period before the refresh:
-        // the same frame is predicted one refresh later.
-        let last = *ticks.last().expect("ticks");
-        let unlatched = schedule.predicted_display_ns(last + 1);
-        schedule.set_latch_ns(period);
-        assert_eq!(schedule.predicted_display_ns(last + 1), unlatched + period);
-        schedule.set_latch_ns(0);
-        // Before the refresh the loop paces to, that refresh is the next.
-        let last = *ticks.last().expect("ticks");
-        assert_eq!(schedule.refresh_at_or_after(last - 3 * period), last);
-        assert_eq!(schedule.refresh_at_or_after(last + 1), last + period);
     }
 
     #[test]

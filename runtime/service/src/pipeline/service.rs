@@ -25,6 +25,7 @@
 mod compositor;
 mod control;
 mod engine;
+mod present_loop;
 mod stages;
 mod views;
 
@@ -38,10 +39,10 @@ use super::channel::newest_channel;
 use super::device_views::DeviceViews;
 use super::pacing::{Clock, DisplaySchedule, NewestSlot, Pacer};
 use super::resident::{DeviceFrames, DeviceInput};
-use super::stats::{RSS_EVERY, Report, ShownFrame, Stage, Stats};
+use super::stats::{Report, Stage, Stats};
 use crate::compose::{LayerSet, ViewGeometry, ViewRegion};
 use crate::present::transfer::Transfer;
-use crate::present::{DisplayFrame, PanelFrame, PresentError, Presented, Sink};
+use crate::present::{DisplayFrame, PanelFrame};
 pub use compositor::Compositor;
 use compositor::{Submission, Timed, ViewSlot};
 pub use control::Control;
@@ -390,126 +391,6 @@ impl Service {
 
     pub fn stats(&self) -> &Arc<Stats> {
         &self.stats
-    }
-
-    /// Presents at the panel's refresh until the pipeline has drained (all
-    /// handles dropped and the last frame shown), the sink goes away, or
-    /// `control.stop` is set. Returns the counts and latencies.
-    pub fn present_loop(
-        &mut self,
-        sink: &mut dyn Sink,
-        control: &Control,
-    ) -> Result<Report, PresentError> {
-        use std::sync::atomic::Ordering::Relaxed;
-        let mut pacer = Pacer::new(self.panel.refresh_hz, self.clock.now_ns());
-        // A display-paced present takes its frame a period before the
-        // refresh it waits for: predictions move one refresh later.
-        self.schedule.set_latch_ns(if sink.paced_by_display() {
-            pacer.period_ns()
-        } else {
-            0
-        });
-        let mut last: Option<PanelFrame> = None;
-        let progress = &control.progress;
-        progress.start("frames", 0);
-        loop {
-            if control.stop.load(Relaxed) || !sink.poll() {
-                break;
-            }
-            if control.report.swap(false, Relaxed) {
-                // The slot counts its replacements itself; bring the
-                // count up to date for a mid-run table.
-                self.stats
-                    .dropped_at_present
-                    .store(self.slot.dropped(), Relaxed);
-                progress.note(&self.stats.snapshot().table());
-            }
-            let tick = pacer.next(self.clock.now_ns());
-            self.schedule.observe_refresh(tick.vsync_ns);
-            self.stats.missed_refreshes.fetch_add(tick.missed, Relaxed);
-            if !sink.paced_by_display() {
-                self.clock.sleep_until_ns(tick.vsync_ns);
-            }
-            let t = match self.slot.take() {
-                Some(t) => Some(t),
-                None => {
-                    // Read before the second look: once drained, no frame can
-                    // arrive after it.
-                    let drained = self.drained.load(Ordering::SeqCst);
-                    match self.slot.take() {
-                        Some(t) => Some(t),
-                        None if drained && !control.keep_open => break,
-                        None => {
-                            if drained && let Some(frame) = &last {
-                                // Keep the window's content (uncounted re-present).
-                                sink.present(frame.codes())?;
-                            } else if sink.paced_by_display() {
-                                self.clock.sleep_until_ns(tick.vsync_ns);
-                            }
-                            None
-                        }
-                    }
-                }
-            };
-            let Some(t) = t else {
-                continue;
-            };
-            let t0 = self.clock.now_ns();
-            let shown = {
-                let _span =
-                    tracing::info_span!("stage", stage = %"present", frame = t.id).entered();
-                match sink.present(t.item.codes()) {
-                    Ok(shown) => shown,
-                    Err(e) => {
-                        self.stats.failed.fetch_add(1, Relaxed);
-                        self.stop_stages();
-                        return Err(e);
-                    }
-                }
-            };
-            let now = self.clock.now_ns();
-            match shown {
-                Presented::Shown => {
-                    self.stats.present_traffic.record(sink.last_traffic());
-                    self.schedule
-                        .observe_pipeline(t.ready_ns.saturating_sub(t.submit_ns));
-                    self.stats.record_vs_prediction(ShownFrame {
-                        owner: t.owner,
-                        submit_ns: t.submit_ns,
-                        predicted_ns: t.predicted_ns,
-                        shown_ns: tick.vsync_ns,
-                        period_ns: pacer.period_ns(),
-                    });
-                    let present_ns = now - t0;
-                    let e2e = now.saturating_sub(t.start_ns);
-                    self.stats.record(Stage::Present, present_ns);
-                    self.stats.record(Stage::EndToEnd, e2e);
-                    self.stats
-                        .record(Stage::Queued, e2e.saturating_sub(t.work_ns + present_ns));
-                    let n = self.stats.presented.fetch_add(1, Relaxed) + 1;
-                    if n.is_multiple_of(RSS_EVERY) {
-                        self.stats.sample_rss();
-                    }
-                    if n.is_multiple_of(10) {
-                        let s = self.stats.snapshot();
-                        progress.status(&format!(
-                            "{} presented, {} dropped, {} rejected, e2e p50 {:.1} ms",
-                            s.presented,
-                            s.dropped_queued + s.dropped_at_present,
-                            s.rejected_total(),
-                            self.stats.histogram(Stage::EndToEnd).quantile_ns(0.5) as f64 / 1e6
-                        ));
-                    }
-                }
-                Presented::Skipped => {
-                    self.stats.skipped.fetch_add(1, Relaxed);
-                }
-            }
-            last = Some(t.item);
-        }
-        progress.finish();
-        self.stop_stages();
-        Ok(self.stats.snapshot())
     }
 
     /// Ends presenting: the slot's replacements so far are counted, and

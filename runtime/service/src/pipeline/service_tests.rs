@@ -4,7 +4,7 @@
 use super::*;
 use crate::pipeline::frame::{PixelFormat, RejectReason, SubmittedFrame};
 use crate::pipeline::pacing::SystemClock;
-use crate::present::{PanelCodes, Presented};
+use crate::present::{PanelCodes, PresentError, Presented, Sink};
 use nedrt_core::Image;
 use nedrt_core::preprocess::HostTraffic;
 use nedrt_core::preprocess::{Identity, Preprocess, PreprocessError};

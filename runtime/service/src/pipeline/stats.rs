@@ -28,7 +28,7 @@ pub enum Stage {
     Present,
     /// Waiting between stages (queues and the wait for a refresh).
     Queued,
-    /// Capture (or submission) to present.
+    /// Capture to the refresh the frame is on ([`END_TO_END_FROM`]).
     EndToEnd,
 }
 
@@ -108,6 +108,9 @@ pub struct Stats {
     /// Host↔device traffic of the sink's presented frames.
     pub present_traffic: TrafficCounter,
     histograms: [Mutex<Histogram>; 7],
+    /// Frames shown after the refresh predicted at their submission: by
+    /// how much (a whole number of periods).
+    late: Mutex<Histogram>,
     /// Each view's engine time, where the panel has two views (a view's
     /// share of `dcnn`; a view whose image did not change is not run).
     view_dcnn: [Mutex<Histogram>; 2],
@@ -173,6 +176,12 @@ impl Stats {
     pub fn record_vs_prediction(&self, f: ShownFrame) {
         let late = (f.shown_ns as f64 - f.predicted_ns as f64) / f.period_ns.max(1) as f64;
         let late = late.round() as i64;
+        if f.shown_ns > f.predicted_ns {
+            self.late
+                .lock()
+                .unwrap_or_else(|p| p.into_inner())
+                .record_ns(f.shown_ns - f.predicted_ns);
+        }
         *self
             .vs_prediction
             .lock()
@@ -197,6 +206,11 @@ impl Stats {
         t.lead_ns += u128::from(f.predicted_ns.saturating_sub(f.submit_ns));
     }
 }
+
+/// What the end-to-end latency is measured between (the report says it).
+pub const END_TO_END_FROM: &str = "from the frame's capture time (a socket client's \
+    stamp; the pattern and folder sources stamp a frame once it is made) to the refresh \
+    it is on (for a sink paced by the display, to the end of its present)";
 
 /// Presents between resident-memory samples.
 pub const RSS_EVERY: u64 = 100;
@@ -306,6 +320,11 @@ impl Stats {
                 .iter()
                 .map(|&s| StageReport::of(s.name().to_string(), &self.histogram(s)))
                 .collect(),
+            late: StageReport::of(
+                "late".into(),
+                &self.late.lock().unwrap_or_else(|p| p.into_inner()),
+            ),
+            end_to_end_from: END_TO_END_FROM.into(),
             view_stages: self
                 .view_dcnn
                 .iter()

@@ -7,7 +7,7 @@ use std::sync::Arc;
 use crate::compose::{LayerError, LayerSet, QuadLayer, ViewGeometry, ViewRegion};
 use crate::pipeline::channel::NewestSender;
 use crate::pipeline::frame::{FrameError, SubmittedFrame, validate};
-use crate::pipeline::pacing::{Clock, DisplaySchedule};
+use crate::pipeline::pacing::{Clock, DisplaySchedule, SubmitPlan};
 use crate::pipeline::stats::Stats;
 
 /// A frame in flight with its timing.
@@ -63,22 +63,50 @@ impl Compositor {
     /// here, on the caller's thread, so the caller learns why at once.
     /// Never blocks on the pipeline: a full queue drops its oldest frame.
     pub fn submit(&self, frame: SubmittedFrame) -> Result<(), FrameError> {
-        self.submit_to(None, frame)
+        self.submit_to(None, frame, None)
+    }
+
+    /// As [`Compositor::submit`], for a frame made for the refresh at
+    /// `refresh_ns` ([`Compositor::submit_view_for`]).
+    pub fn submit_for(
+        &self,
+        frame: SubmittedFrame,
+        refresh_ns: Option<u64>,
+    ) -> Result<(), FrameError> {
+        self.submit_to(None, frame, refresh_ns)
     }
 
     /// As [`Compositor::submit`], a frame of view `view`'s size for that
     /// view alone (on a one-view panel, view 0 is the panel).
     pub fn submit_view(&self, view: u8, frame: SubmittedFrame) -> Result<(), FrameError> {
+        self.submit_view_for(view, frame, None)
+    }
+
+    /// As [`Compositor::submit_view`], for a frame made for the refresh at
+    /// `refresh_ns` (from [`Compositor::plan_submission`]): that refresh is
+    /// its prediction, as the display time an OpenXR frame is rendered for
+    /// is (`None`: predicted at submission).
+    pub fn submit_view_for(
+        &self,
+        view: u8,
+        frame: SubmittedFrame,
+        refresh_ns: Option<u64>,
+    ) -> Result<(), FrameError> {
         let whole = self.views.len() == 1
             && (self.views[0].region.width, self.views[0].region.height)
                 == (self.width, self.height);
         if whole && view == 0 {
-            return self.submit_to(None, frame);
+            return self.submit_to(None, frame, refresh_ns);
         }
-        self.submit_to(Some(view), frame)
+        self.submit_to(Some(view), frame, refresh_ns)
     }
 
-    fn submit_to(&self, view: Option<u8>, frame: SubmittedFrame) -> Result<(), FrameError> {
+    fn submit_to(
+        &self,
+        view: Option<u8>,
+        frame: SubmittedFrame,
+        refresh_ns: Option<u64>,
+    ) -> Result<(), FrameError> {
         use std::sync::atomic::Ordering::Relaxed;
         self.stats.submitted.fetch_add(1, Relaxed);
         let size = match view {
@@ -118,7 +146,7 @@ impl Compositor {
             work_ns: 0,
             owner: self.owner,
             submit_ns: now,
-            predicted_ns: self.schedule.predicted_display_ns(now),
+            predicted_ns: refresh_ns.unwrap_or_else(|| self.schedule.predicted_display_ns(now)),
             ready_ns: now,
         });
         Ok(())
@@ -132,6 +160,14 @@ impl Compositor {
     }
 
     /// The panel's refresh period, ns.
+    /// When to start making the next frame, and for which refresh: the
+    /// first after `after_ns` that a frame taking `make_ns` to make can
+    /// reach ([`DisplaySchedule::plan_submission`]).
+    pub fn plan_submission(&self, after_ns: u64, make_ns: u64) -> SubmitPlan {
+        self.schedule
+            .plan_submission(self.clock.now_ns(), after_ns, make_ns)
+    }
+
     pub fn refresh_period_ns(&self) -> u64 {
         self.schedule.period_ns()
     }

@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 
-use super::{Rate, Source, SourceError};
+use super::{Rate, Source, SourceError, SourceRate};
 use crate::pipeline::frame::{PixelFormat, SubmittedFrame, planar_payload};
 use crate::pipeline::pacing::Clock;
 use crate::pipeline::service::Compositor;
@@ -36,7 +36,7 @@ impl DirSource {
         width: usize,
         height: usize,
         count: Option<u64>,
-        rate_hz: f64,
+        rate: SourceRate,
         clock: Arc<dyn Clock>,
     ) -> Result<Self, SourceError> {
         let input = |reason: String| SourceError::Input {
@@ -93,7 +93,7 @@ impl DirSource {
             width,
             height,
             count,
-            rate: Rate::new(rate_hz, clock),
+            rate: Rate::new(rate, clock),
         })
     }
 }
@@ -109,17 +109,19 @@ impl Source for DirSource {
             if stop.load(Ordering::Relaxed) {
                 return Ok(id);
             }
-            let capture_ns = self.rate.wait();
+            let made_for = self.rate.wait(&compositor);
             let payload = self.payloads[(id % self.payloads.len() as u64) as usize].clone();
+            let capture_ns = self.rate.made();
             // Validated at load; a refusal here is counted by the service.
-            let _ = compositor.submit(SubmittedFrame {
+            let frame = SubmittedFrame {
                 id,
                 capture_ns,
                 width: self.width,
                 height: self.height,
                 format: PixelFormat::Rgb32fPlanar,
                 payload,
-            });
+            };
+            let _ = compositor.submit_for(frame, made_for);
         }
         Ok(total)
     }

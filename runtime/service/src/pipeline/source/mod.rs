@@ -45,25 +45,81 @@ pub fn spawn(
         .spawn(move || source.run(compositor, &stop))
 }
 
-/// Submission pacing: frames at `rate_hz` (0: as fast as they are made).
+/// When a pattern or folder source submits.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum SourceRate {
+    /// Each frame made for a refresh of the panel, just in time for it
+    /// ([`DisplaySchedule::plan_submission`](super::pacing::DisplaySchedule::plan_submission)),
+    /// on the present loop's clock.
+    Display,
+    /// At a rate of its own, Hz, on its own timer (0: as fast as frames
+    /// are made).
+    Hz(f64),
+}
+
+/// Submission pacing of a source that makes its frames.
 #[derive(Debug)]
 pub(crate) struct Rate {
+    rate: SourceRate,
     pacer: Option<super::pacing::Pacer>,
     clock: Arc<dyn super::pacing::Clock>,
+    /// How long making a frame takes, to start it in time.
+    make: super::pacing::Estimate,
+    started_ns: u64,
+    /// The refresh the last frame was made for.
+    last_refresh_ns: u64,
 }
 
 impl Rate {
-    pub(crate) fn new(rate_hz: f64, clock: Arc<dyn super::pacing::Clock>) -> Self {
-        let pacer = (rate_hz > 0.0).then(|| super::pacing::Pacer::new(rate_hz, clock.now_ns()));
-        Self { pacer, clock }
+    pub(crate) fn new(rate: SourceRate, clock: Arc<dyn super::pacing::Clock>) -> Self {
+        let pacer = match rate {
+            SourceRate::Hz(hz) if hz > 0.0 => Some(super::pacing::Pacer::new(hz, clock.now_ns())),
+            _ => None,
+        };
+        Self {
+            rate,
+            pacer,
+            clock,
+            make: Default::default(),
+            started_ns: 0,
+            last_refresh_ns: 0,
+        }
     }
 
-    /// Waits for the next slot; returns the capture time to stamp.
-    pub(crate) fn wait(&mut self) -> u64 {
+    pub(crate) fn rate(&self) -> SourceRate {
+        self.rate
+    }
+
+    /// Frames a second, for a source whose content moves with time.
+    pub(crate) fn frames_per_second(&self, compositor: &Compositor) -> f64 {
+        match self.rate {
+            SourceRate::Hz(hz) => hz,
+            SourceRate::Display => 1e9 / compositor.refresh_period_ns().max(1) as f64,
+        }
+    }
+
+    /// Waits until the next frame is to be made; returns the refresh it is
+    /// made for, when the source follows the display.
+    pub(crate) fn wait(&mut self, compositor: &Compositor) -> Option<u64> {
+        let mut made_for = None;
         if let Some(p) = &mut self.pacer {
             let tick = p.next(self.clock.now_ns());
             self.clock.sleep_until_ns(tick.vsync_ns);
+        } else if self.rate == SourceRate::Display {
+            let plan = compositor.plan_submission(self.last_refresh_ns, self.make.bound_ns());
+            self.last_refresh_ns = plan.refresh_ns;
+            self.clock.sleep_until_ns(plan.start_ns);
+            made_for = Some(plan.refresh_ns);
         }
-        self.clock.now_ns()
+        self.started_ns = self.clock.now_ns();
+        made_for
+    }
+
+    /// The frame is made: the capture time to stamp (now), and how long
+    /// making it took is learnt.
+    pub(crate) fn made(&mut self) -> u64 {
+        let now = self.clock.now_ns();
+        self.make.observe(now.saturating_sub(self.started_ns));
+        now
     }
 }

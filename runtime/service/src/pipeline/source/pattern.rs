@@ -9,18 +9,17 @@
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 
-use super::{Rate, Source, SourceError};
+use super::{Rate, Source, SourceError, SourceRate};
 use crate::pipeline::frame::{PixelFormat, SubmittedFrame};
 use crate::pipeline::pacing::Clock;
 use crate::pipeline::service::Compositor;
 
-/// The pattern at `rate_hz`, `count` frames (`None`: until stopped).
+/// The pattern at `rate`, `count` frames (`None`: until stopped).
 #[derive(Debug)]
 pub struct PatternSource {
     width: usize,
     height: usize,
     count: Option<u64>,
-    rate_hz: f64,
     rate: Rate,
 }
 
@@ -29,15 +28,14 @@ impl PatternSource {
         width: usize,
         height: usize,
         count: Option<u64>,
-        rate_hz: f64,
+        rate: SourceRate,
         clock: Arc<dyn Clock>,
     ) -> Self {
         Self {
             width,
             height,
             count,
-            rate_hz,
-            rate: Rate::new(rate_hz, clock),
+            rate: Rate::new(rate, clock),
         }
     }
 }
@@ -87,10 +85,11 @@ pub fn pattern_rgba8_shifted(
 
 impl Source for PatternSource {
     fn describe(&self) -> String {
-        format!(
-            "test pattern {}×{} at {} Hz",
-            self.width, self.height, self.rate_hz
-        )
+        let rate = match self.rate.rate() {
+            SourceRate::Display => "each frame made for its refresh".to_string(),
+            SourceRate::Hz(hz) => format!("at {hz} Hz"),
+        };
+        format!("test pattern {}×{} {rate}", self.width, self.height)
     }
 
     fn run(&mut self, compositor: Compositor, stop: &AtomicBool) -> Result<u64, SourceError> {
@@ -98,16 +97,20 @@ impl Source for PatternSource {
             return self.run_views(&compositor, stop);
         }
         let mut id = 0;
+        let per_second = self.rate.frames_per_second(&compositor);
         while self.count.is_none_or(|n| id < n) && !stop.load(Ordering::Relaxed) {
-            let capture_ns = self.rate.wait();
-            let _ = compositor.submit(SubmittedFrame {
+            let made_for = self.rate.wait(&compositor);
+            let payload = pattern_rgba8(self.width, self.height, id, per_second);
+            let capture_ns = self.rate.made();
+            let frame = SubmittedFrame {
                 id,
                 capture_ns,
                 width: self.width,
                 height: self.height,
                 format: PixelFormat::Rgba8Linear,
-                payload: pattern_rgba8(self.width, self.height, id, self.rate_hz),
-            });
+                payload,
+            };
+            let _ = compositor.submit_for(frame, made_for);
             id += 1;
         }
         Ok(id)
@@ -122,24 +125,30 @@ impl PatternSource {
         stop: &AtomicBool,
     ) -> Result<u64, SourceError> {
         let (mut tick, mut id) = (0, 0);
+        let per_second = self.rate.frames_per_second(compositor);
         while self.count.is_none_or(|n| tick < n) && !stop.load(Ordering::Relaxed) {
-            let capture_ns = self.rate.wait();
-            for v in 0..compositor.view_count() as u8 {
-                let Some((w, h)) = compositor.view_size(v) else {
-                    continue;
-                };
-                let shift = usize::from(v) * stereo_disparity_px(w);
-                let _ = compositor.submit_view(
-                    v,
-                    SubmittedFrame {
-                        id,
-                        capture_ns,
+            let made_for = self.rate.wait(compositor);
+            // Both eyes are made, then submitted with one capture time.
+            let frames: Vec<(u8, SubmittedFrame)> = (0..compositor.view_count() as u8)
+                .filter_map(|v| {
+                    let (w, h) = compositor.view_size(v)?;
+                    let shift = usize::from(v) * stereo_disparity_px(w);
+                    let frame = SubmittedFrame {
+                        id: 0,
+                        capture_ns: 0,
                         width: w,
                         height: h,
                         format: PixelFormat::Rgba8Linear,
-                        payload: pattern_rgba8_shifted(w, h, tick, self.rate_hz, shift),
-                    },
-                );
+                        payload: pattern_rgba8_shifted(w, h, tick, per_second, shift),
+                    };
+                    Some((v, frame))
+                })
+                .collect();
+            let capture_ns = self.rate.made();
+            for (v, mut frame) in frames {
+                frame.id = id;
+                frame.capture_ns = capture_ns;
+                let _ = compositor.submit_view_for(v, frame, made_for);
                 id += 1;
             }
             tick += 1;

@@ -95,6 +95,11 @@ pub struct Report {
     /// Each submitter's shown frames against their predictions.
     pub clients: Vec<ClientReport>,
     pub stages: Vec<StageReport>,
+    /// Frames shown after the refresh predicted at their submission, and
+    /// by how much.
+    pub late: StageReport,
+    /// What `end-to-end` is measured between.
+    pub end_to_end_from: String,
     /// Each view's engine (two views on the panel; empty for one).
     pub view_stages: Vec<StageReport>,
     /// Host↔device traffic per frame, by stage (the decode and encode
@@ -224,6 +229,13 @@ impl Report {
                 .collect();
             s += &format!("shown vs predicted (refreshes): {}\n", parts.join(", "));
         }
+        if self.late.count > 0 {
+            s += &format!(
+                "late: {} frames shown after their predicted refresh, by p50 {:.3} ms, max \
+                 {:.3} ms\n",
+                self.late.count, self.late.p50_ms, self.late.max_ms
+            );
+        }
         for c in self.clients.iter().filter(|c| c.client != 0) {
             s += &format!(
                 "client {}: {} shown, {} on the predicted refresh, {} late, {} early; submitted \
@@ -280,6 +292,7 @@ impl Report {
                 r.stage, r.count, r.p50_ms, r.p99_ms, r.max_ms
             );
         }
+        s += &format!("end-to-end: {}\n", self.end_to_end_from);
         s
     }
 }

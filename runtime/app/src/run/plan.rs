@@ -1,0 +1,349 @@
+//! What `nedrt run` will build, decided before anything is built: the
+//! views, each view's stage chain, the frame path, where the network runs,
+//! the pacing, and the reason for each choice. A pure function of the
+//! options, the calibration's facts and the adapter found ([`Probe`]);
+//! `nedrt run --plan` prints it and exits, and `run` builds what it says
+//! (a part that then fails to build on the device falls back to the host,
+//! and the report's frame path says so).
+
+use std::fmt;
+
+use super::{FallbackKind, FramePath, RunOptions, SinkKind, SourceKind};
+use nedrt_core::Named;
+use nedrt_infer::{BackendKind, Precision};
+use nedrt_optics::sim::Method;
+use nedrt_service::compose::ViewRegion;
+
+/// The GPU the sink offers, as probed.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Probe {
+    /// The sink keeps frames in host memory (a recorder): no GPU asked for.
+    NotNeeded,
+    /// An adapter: its name and whether it runs f16 shaders.
+    Adapter { name: String, shader_f16: bool },
+    /// None could be opened, and why.
+    Missing(String),
+}
+
+/// The network a run uses, from its file and card.
+#[derive(Debug, Clone, PartialEq)]
+pub struct NetworkFacts {
+    pub path: String,
+    /// The Wiener stage it runs behind (its card's `wiener_k`), if any.
+    pub behind_wiener_k: Option<f64>,
+}
+
+/// A view to plan: its name, region and design (from `[[view]]`, or the
+/// panel's halves, or the whole panel).
+#[derive(Debug, Clone, PartialEq)]
+pub struct ViewFacts {
+    pub name: String,
+    pub region: ViewRegion,
+    pub design: Option<String>,
+}
+
+/// Everything the plan is decided from.
+#[derive(Debug, Clone)]
+pub struct PlanInputs<'a> {
+    pub opts: &'a RunOptions,
+    pub panel: (usize, usize, f64),
+    /// The views; one view covering the panel for a run without views.
+    pub views: Vec<ViewFacts>,
+    pub network: Option<NetworkFacts>,
+    pub backend: BackendKind,
+    pub precision: Precision,
+    pub probe: Probe,
+}
+
+/// Where the frames go between the client and the panel.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum PlannedPath {
+    Device,
+    Host,
+}
+
+/// One view's plan.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ViewPlan {
+    pub name: String,
+    pub region: ViewRegion,
+    /// The stages a frame goes through, in order.
+    pub stages: Vec<String>,
+}
+
+/// What `nedrt run` builds, and why.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RunPlan {
+    pub panel: String,
+    pub source: String,
+    pub sink: String,
+    pub adapter: String,
+    pub path: PlannedPath,
+    pub path_reason: String,
+    pub network: String,
+    pub fallback: String,
+    pub pacing: String,
+    pub views: Vec<ViewPlan>,
+}
+
+/// Decides the run's plan.
+pub fn plan(inputs: &PlanInputs<'_>) -> RunPlan {
+    let opts = inputs.opts;
+    let (width, height, refresh_hz) = inputs.panel;
+    let two = inputs.views.len() > 1;
+    let device = match &inputs.probe {
+        Probe::Adapter { .. } => true,
+        Probe::NotNeeded | Probe::Missing(_) => false,
+    };
+    let network_on_device = inputs.backend == BackendKind::Wgpu;
+    let f16_missing = matches!(
+        &inputs.probe,
+        Probe::Adapter {
+            shader_f16: false,
+            ..
+        }
+    ) && inputs.precision == Precision::F16;
+    // The same order of reasons as the build: the first that holds.
+    let host_reason = if opts.frame_path == FramePath::Host {
+        Some("--frame-path host".to_string())
+    } else if let Probe::Missing(why) = &inputs.probe {
+        Some(format!("no GPU adapter ({why})"))
+    } else if !device {
+        Some(format!(
+            "the {} sink takes frames in host memory",
+            opts.sink.name()
+        ))
+    } else if inputs.network.is_some() && !network_on_device {
+        Some(format!(
+            "the D-CNN runs on the {} backend, on the host",
+            inputs.backend.name()
+        ))
+    } else if inputs.network.is_some() && f16_missing {
+        Some("the adapter has no f16 shaders for the f16 network".to_string())
+    } else if !two && inputs.network.is_none() && opts.inject_device_loss_after.is_some() {
+        Some("the injected device loss needs a network".to_string())
+    } else {
+        None
+    };
+    let path = if host_reason.is_some() {
+        PlannedPath::Host
+    } else {
+        PlannedPath::Device
+    };
+    let path_reason = host_reason.unwrap_or_else(|| {
+        if two {
+            "each view's frame decoded and blended on the host, both views' stages and encodes \
+             in one submission on the sink's GPU; no read-back"
+                .into()
+        } else {
+            "the sink has a GPU and every stage runs there: one upload, no read-back".into()
+        }
+    });
+    let on_device = path == PlannedPath::Device;
+    let where_net = |view_count: usize| match (&inputs.network, on_device) {
+        (None, _) => String::new(),
+        (Some(_), true) => format!(
+            "wgpu on the sink's GPU, {}",
+            precision_name(inputs.precision)
+        ),
+        // The views' host engines run f32 on the CPU (tract, or ORT).
+        (Some(_), false) if view_count > 1 || inputs.backend == BackendKind::Wgpu => {
+            let kind = match inputs.backend {
+                BackendKind::Wgpu => BackendKind::Cpu,
+                other => other,
+            };
+            format!("{} on the host, f32", kind.name())
+        }
+        (Some(_), false) => format!(
+            "{} on the host, {}",
+            inputs.backend.name(),
+            precision_name(inputs.precision)
+        ),
+    };
+    let network = match &inputs.network {
+        None => format!("none ({} has no network)", method_line(opts)),
+        Some(n) => format!("{}: {}", n.path, where_net(inputs.views.len())),
+    };
+    let fallback = match (&inputs.network, opts.fallback) {
+        (None, _) => "none needed (no network)".to_string(),
+        (Some(_), FallbackKind::Cpu) => {
+            "the same network on the CPU (tract), if the engine fails".into()
+        }
+        (Some(n), FallbackKind::Passthrough) => match n.behind_wiener_k {
+            Some(_) => "its Wiener stage alone, if the engine fails".into(),
+            None => "the frame as submitted, if the engine fails".into(),
+        },
+    };
+    let views = inputs
+        .views
+        .iter()
+        .map(|v| ViewPlan {
+            name: v.name.clone(),
+            region: v.region,
+            stages: stages(inputs, v, on_device),
+        })
+        .collect();
+    let source = match (opts.source, opts.source_rate_hz) {
+        (SourceKind::Socket, _) => format!(
+            "applications on {} (they render for the predicted display time in each reply)",
+            opts.socket.display()
+        ),
+        (kind, None) => format!(
+            "{}, each frame made just in time for the refresh it is shown at",
+            source_name(kind)
+        ),
+        (kind, Some(0.0)) => format!("{}, unpaced", source_name(kind)),
+        (kind, Some(hz)) => format!("{} at {hz} Hz on its own timer", source_name(kind)),
+    };
+    let pacing = match opts.sink {
+        SinkKind::Window => "paced by the display: the window's present waits for the refresh, \
+                             and frames are taken a period ahead of it"
+            .to_string(),
+        _ => "just in time: the present loop wakes at each refresh minus its own work and a \
+              margin it learns, and takes the newest finished frame then"
+            .to_string(),
+    };
+    let adapter = match &inputs.probe {
+        Probe::NotNeeded => "not used (the sink keeps frames in host memory)".to_string(),
+        Probe::Adapter { name, shader_f16 } => format!(
+            "{name} ({})",
+            if *shader_f16 {
+                "f16 shaders"
+            } else {
+                "no f16 shaders"
+            }
+        ),
+        Probe::Missing(why) => format!("none: {why}"),
+    };
+    RunPlan {
+        panel: format!(
+            "{width}×{height} at {refresh_hz} Hz, {} view{}",
+            inputs.views.len(),
+            if two { "s" } else { "" }
+        ),
+        source,
+        sink: format!("{} ({})", opts.sink.name(), opts.sink.help()),
+        adapter,
+        path,
+        path_reason,
+        network,
+        fallback,
+        pacing,
+        views,
+    }
+}
+
+/// The stages a frame of view `v` goes through.
+fn stages(inputs: &PlanInputs<'_>, v: &ViewFacts, on_device: bool) -> Vec<String> {
+    let opts = inputs.opts;
+    let two = inputs.views.len() > 1;
+    let here = if on_device {
+        "on the GPU"
+    } else {
+        "on the host"
+    };
+    let mut s = Vec::new();
+    s.push(if on_device && !two {
+        "upload as sent, unpack on the GPU".to_string()
+    } else {
+        "decode on the host".to_string()
+    });
+    s.push("quad layers blended".into());
+    let design = v
+        .design
+        .as_deref()
+        .map(|d| format!(" (design {d})"))
+        .unwrap_or_default();
+    match &inputs.network {
+        Some(n) => {
+            if let Some(k) = n.behind_wiener_k {
+                s.push(format!(
+                    "Wiener prefilter of {} (K = {k:.3e}) {here}",
+                    opts.preprocess
+                ));
+            }
+            s.push(format!("D-CNN {here}"));
+        }
+        None if !opts.prefilter.is_native() => {
+            s.push(format!(
+                "{} prefilter of {}{design} {here}",
+                opts.prefilter, opts.preprocess
+            ));
+        }
+        None if opts.preprocess.uses_wiener() => {
+            s.push(format!(
+                "Wiener prefilter of {}{design} {here}",
+                opts.preprocess
+            ));
+        }
+        None => {}
+    }
+    s.push(format!(
+        "clamp to [0, 1] and the panel's transfer curve {here}"
+    ));
+    s.push(if on_device {
+        "the sink copies the codes on the GPU".into()
+    } else {
+        "the sink takes the codes from host memory".into()
+    });
+    s
+}
+
+fn precision_name(p: Precision) -> &'static str {
+    match p {
+        Precision::F32 => "f32",
+        Precision::F16 => "f16",
+    }
+}
+
+fn source_name(kind: SourceKind) -> &'static str {
+    match kind {
+        SourceKind::Pattern => "the test pattern",
+        SourceKind::Dir => "the images of --input",
+        SourceKind::Socket => "applications",
+    }
+}
+
+fn method_line(opts: &RunOptions) -> String {
+    let m: Method = opts.preprocess;
+    if opts.prefilter.is_native() {
+        format!("--preprocess {m}")
+    } else {
+        format!("--preprocess {m} --prefilter {}", opts.prefilter)
+    }
+}
+
+impl fmt::Display for RunPlan {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        writeln!(f, "panel:      {}", self.panel)?;
+        writeln!(f, "source:     {}", self.source)?;
+        writeln!(f, "sink:       {}", self.sink)?;
+        writeln!(f, "adapter:    {}", self.adapter)?;
+        let path = match self.path {
+            PlannedPath::Device => "device",
+            PlannedPath::Host => "host",
+        };
+        writeln!(f, "frame path: {path}, because {}", self.path_reason)?;
+        writeln!(f, "network:    {}", self.network)?;
+        writeln!(f, "fallback:   {}", self.fallback)?;
+        writeln!(f, "pacing:     {}", self.pacing)?;
+        for v in &self.views {
+            let r = v.region;
+            writeln!(
+                f,
+                "view {:?} {}×{} at ({}, {}): {}",
+                v.name,
+                r.width,
+                r.height,
+                r.x,
+                r.y,
+                v.stages.join(" → ")
+            )?;
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+#[path = "plan_tests.rs"]
+mod tests;

@@ -1,0 +1,203 @@
+use super::*;
+use std::path::PathBuf;
+
+fn opts() -> RunOptions {
+    RunOptions {
+        preprocess: Method::Proposed,
+        prefilter: crate::preprocess::Prefilter::Native,
+        source: SourceKind::Pattern,
+        input: None,
+        socket: PathBuf::from("/tmp/nedrt.sock"),
+        shm_dir: PathBuf::from("/dev/shm"),
+        frames: None,
+        source_rate_hz: None,
+        sink: SinkKind::Window,
+        record_dir: PathBuf::from("frames"),
+        window: Default::default(),
+        fallback: FallbackKind::Cpu,
+        frame_path: FramePath::Device,
+        panel_size: None,
+        report_json: None,
+        inject_device_loss_after: None,
+        stereo: false,
+    }
+}
+
+fn whole(w: usize, h: usize) -> Vec<ViewFacts> {
+    vec![ViewFacts {
+        name: "panel".into(),
+        region: ViewRegion {
+            x: 0,
+            y: 0,
+            width: w,
+            height: h,
+        },
+        design: None,
+    }]
+}
+
+fn gpu() -> Probe {
+    Probe::Adapter {
+        name: "test GPU".into(),
+        shader_f16: true,
+    }
+}
+
+fn network() -> Option<NetworkFacts> {
+    Some(NetworkFacts {
+        path: "models/dcnn.onnx".into(),
+        behind_wiener_k: Some(0.01),
+    })
+}
+
+fn inputs(opts: &RunOptions, views: Vec<ViewFacts>, probe: Probe) -> PlanInputs<'_> {
+    PlanInputs {
+        opts,
+        panel: (1920, 1080, 90.0),
+        views,
+        network: network(),
+        backend: BackendKind::Wgpu,
+        precision: Precision::F16,
+        probe,
+    }
+}
+
+#[test]
+fn the_default_run_keeps_frames_on_the_sinks_gpu() {
+    let o = opts();
+    let p = plan(&inputs(&o, whole(1920, 1080), gpu()));
+    assert_eq!(p.path, PlannedPath::Device);
+    assert_eq!(p.views.len(), 1);
+    assert_eq!(
+        p.views[0].stages,
+        [
+            "upload as sent, unpack on the GPU",
+            "quad layers blended",
+            "Wiener prefilter of proposed (K = 1.000e-2) on the GPU",
+            "D-CNN on the GPU",
+            "clamp to [0, 1] and the panel's transfer curve on the GPU",
+            "the sink copies the codes on the GPU",
+        ]
+    );
+    assert_eq!(p.network, "models/dcnn.onnx: wgpu on the sink's GPU, f16");
+    assert!(p.pacing.starts_with("paced by the display"), "{}", p.pacing);
+    assert!(p.source.contains("just in time"), "{}", p.source);
+    let text = p.to_string();
+    assert!(
+        text.contains("frame path: device, because the sink has a GPU"),
+        "{text}"
+    );
+}
+
+#[test]
+fn each_reason_for_the_host_is_named() {
+    let mut o = opts();
+    o.frame_path = FramePath::Host;
+    let p = plan(&inputs(&o, whole(64, 48), gpu()));
+    assert_eq!(
+        (p.path, p.path_reason.as_str()),
+        (PlannedPath::Host, "--frame-path host")
+    );
+    assert_eq!(p.network, "models/dcnn.onnx: cpu on the host, f32");
+
+    let o = opts();
+    let p = plan(&inputs(
+        &o,
+        whole(64, 48),
+        Probe::Missing("no Vulkan ICD".into()),
+    ));
+    assert_eq!(p.path, PlannedPath::Host);
+    assert_eq!(p.path_reason, "no GPU adapter (no Vulkan ICD)");
+    assert_eq!(p.adapter, "none: no Vulkan ICD");
+
+    let mut o = opts();
+    o.sink = SinkKind::Record;
+    let p = plan(&inputs(&o, whole(64, 48), Probe::NotNeeded));
+    assert_eq!(p.path_reason, "the record sink takes frames in host memory");
+    assert!(p.pacing.starts_with("just in time"), "{}", p.pacing);
+
+    let o = opts();
+    let mut i = inputs(&o, whole(64, 48), gpu());
+    i.backend = BackendKind::Cpu;
+    let p = plan(&i);
+    assert_eq!(
+        p.path_reason,
+        "the D-CNN runs on the cpu backend, on the host"
+    );
+
+    let o = opts();
+    let mut i = inputs(
+        &o,
+        whole(64, 48),
+        Probe::Adapter {
+            name: "old".into(),
+            shader_f16: false,
+        },
+    );
+    i.precision = Precision::F16;
+    assert_eq!(plan(&i).path, PlannedPath::Host);
+    i.precision = Precision::F32;
+    assert_eq!(plan(&i).path, PlannedPath::Device);
+}
+
+#[test]
+fn two_views_each_get_their_stage_chain() {
+    let mut o = opts();
+    o.stereo = true;
+    o.preprocess = Method::DoeWiener;
+    let [left, right] = ViewRegion::side_by_side(1920, 1080);
+    let views = vec![
+        ViewFacts {
+            name: "left".into(),
+            region: left,
+            design: Some("designs/a".into()),
+        },
+        ViewFacts {
+            name: "right".into(),
+            region: right,
+            design: None,
+        },
+    ];
+    let mut i = inputs(&o, views, gpu());
+    i.network = None;
+    let p = plan(&i);
+    assert_eq!(p.path, PlannedPath::Device);
+    assert!(
+        p.path_reason.contains("both views' stages"),
+        "{}",
+        p.path_reason
+    );
+    assert_eq!(p.views[0].name, "left");
+    assert_eq!(p.views[0].stages[0], "decode on the host");
+    assert_eq!(
+        p.views[0].stages[2],
+        "Wiener prefilter of doe+wiener (design designs/a) on the GPU"
+    );
+    assert_eq!(
+        p.views[1].stages[2],
+        "Wiener prefilter of doe+wiener on the GPU"
+    );
+    assert!(p.panel.ends_with("2 views"), "{}", p.panel);
+    assert_eq!(p.network, "none (--preprocess doe+wiener has no network)");
+    let text = p.to_string();
+    assert!(
+        text.contains("view \"right\" 960×1080 at (960, 0): decode on the host"),
+        "{text}"
+    );
+}
+
+#[test]
+fn a_conventional_run_has_no_network_and_no_prefilter_stage() {
+    let mut o = opts();
+    o.preprocess = Method::Conventional;
+    o.sink = SinkKind::Headless;
+    o.source_rate_hz = Some(60.0);
+    let mut i = inputs(&o, whole(64, 48), gpu());
+    i.network = None;
+    let p = plan(&i);
+    assert_eq!(p.path, PlannedPath::Device);
+    assert_eq!(p.views[0].stages.len(), 4, "{:?}", p.views[0].stages);
+    assert_eq!(p.fallback, "none needed (no network)");
+    assert_eq!(p.source, "the test pattern at 60 Hz on its own timer");
+    assert!(p.pacing.starts_with("just in time"), "{}", p.pacing);
+}

@@ -1,0 +1,258 @@
+//! The pacing on a fake clock: a source that renders for the refresh it
+//! will be shown at, a stage of a given cost behind a newest-wins hand-over,
+//! the present slot, and the present loop on the real [`PresentPacer`] and
+//! [`DisplaySchedule`], run as one event loop in time order.
+
+use super::*;
+use crate::pipeline::pacing::{Clock, DisplaySchedule, FakeClock, NewestSlot};
+use crate::pipeline::stats::{ShownFrame, Stats};
+
+#[derive(Debug, Clone, Copy)]
+struct Frame {
+    id: u64,
+    submit_ns: u64,
+    predicted_ns: u64,
+    ready_ns: u64,
+}
+
+/// What a run showed.
+#[derive(Debug, Default)]
+struct Outcome {
+    shown: Vec<(Frame, u64)>,
+    /// (refresh, end of the present work, margin when woken) per present.
+    presents: Vec<(u64, u64, u64)>,
+    /// Frames replaced in the stage's input before it took them.
+    dropped_before_stage: u64,
+    most_waiting: usize,
+}
+
+/// `refreshes` refreshes at 90 Hz; the stage's cost for frame `id` is
+/// `stage_ns(id)`, the present's work `present_ns`.
+fn run(refreshes: u64, stage_ns: impl Fn(u64) -> u64, present_ns: u64, stats: &Stats) -> Outcome {
+    let clock = FakeClock::default();
+    let mut pacer = PresentPacer::new(90.0, clock.now_ns());
+    let period = pacer.period_ns();
+    let schedule = DisplaySchedule::new(period, clock.now_ns());
+    let mut pipeline = Estimate::default();
+    let slot = NewestSlot::<Frame>::new();
+    let mut out = Outcome::default();
+    // The stage: one frame in work, one waiting (newest wins).
+    let mut in_stage: Option<Frame> = None;
+    let mut waiting: Option<Frame> = None;
+    let mut next_id = 0;
+    let mut plan = schedule.plan_submission(0, 0, 0);
+    let mut last_target = 0;
+    // Runs the source and the stage up to `t`, in time order.
+    let mut advance = |t: u64,
+                       in_stage: &mut Option<Frame>,
+                       waiting: &mut Option<Frame>,
+                       out: &mut Outcome| loop {
+        let stage_done = in_stage.map(|f| f.ready_ns);
+        let source_due = plan.start_ns;
+        let next = stage_done.map_or(source_due, |d| d.min(source_due));
+        if next > t {
+            break;
+        }
+        clock.sleep_until_ns(next);
+        if stage_done == Some(next) {
+            let f = in_stage.take().expect("in stage");
+            slot.put(f);
+            if let Some(mut w) = waiting.take() {
+                w.ready_ns = next + stage_ns(w.id);
+                *in_stage = Some(w);
+            }
+            continue;
+        }
+        // The source submits the frame it made for the planned refresh
+        // (making it takes no time here).
+        let now = clock.now_ns();
+        let f = Frame {
+            id: next_id,
+            submit_ns: now,
+            predicted_ns: plan.refresh_ns,
+            ready_ns: 0,
+        };
+        next_id += 1;
+        if in_stage.is_none() {
+            *in_stage = Some(Frame {
+                ready_ns: now + stage_ns(f.id),
+                ..f
+            });
+        } else if waiting.replace(f).is_some() {
+            out.dropped_before_stage += 1;
+        }
+        out.most_waiting = out.most_waiting.max(usize::from(waiting.is_some()));
+        last_target = last_target.max(plan.refresh_ns);
+        plan = schedule.plan_submission(now, last_target, 0);
+    };
+    for _ in 0..refreshes {
+        let wake = pacer.next(clock.now_ns());
+        schedule.observe_refresh(wake.vsync_ns);
+        schedule.set_latch_ns(pacer.lead_ns());
+        let margin = pacer.margin_ns();
+        advance(wake.wake_ns, &mut in_stage, &mut waiting, &mut out);
+        clock.sleep_until_ns(wake.wake_ns);
+        let Some(f) = slot.take() else {
+            continue;
+        };
+        let done = wake.wake_ns + present_ns;
+        advance(done, &mut in_stage, &mut waiting, &mut out);
+        clock.sleep_until_ns(done);
+        let finished = pacer.finished(&wake, done);
+        pipeline.observe(f.ready_ns - f.submit_ns);
+        schedule.publish_pipeline(&pipeline);
+        stats.record_vs_prediction(ShownFrame {
+            owner: 0,
+            submit_ns: f.submit_ns,
+            predicted_ns: f.predicted_ns,
+            shown_ns: finished.shown_ns,
+            period_ns: period,
+        });
+        out.shown.push((f, finished.shown_ns));
+        out.presents.push((wake.vsync_ns, done, margin));
+    }
+    out
+}
+
+const PERIOD: u64 = 11_111_111;
+/// The estimates settle within this many frames.
+const WARM_UP: usize = 24;
+
+fn assert_on_time(out: &Outcome, what: &str) {
+    assert!(out.shown.len() > 300, "{what}: {} shown", out.shown.len());
+    for (i, &(f, shown)) in out.shown.iter().enumerate().skip(WARM_UP) {
+        assert_eq!(
+            shown, f.predicted_ns,
+            "{what}: frame {} (shown #{i}) predicted {} shown {}",
+            f.id, f.predicted_ns, shown
+        );
+    }
+    for &(vsync, done, margin) in out.presents.iter().skip(WARM_UP) {
+        assert!(
+            done <= vsync,
+            "{what}: a present ended {} ns late",
+            done - vsync
+        );
+        assert!(
+            vsync - done <= margin,
+            "{what}: woke {} ns before its work needed, margin {margin}",
+            vsync - done
+        );
+    }
+    // Every frame's end-to-end time is its stage, the present and the
+    // margins: no wait for a refresh's grid.
+    for &(f, shown) in out.shown.iter().skip(WARM_UP) {
+        assert!(
+            shown - f.submit_ns < 2 * PERIOD,
+            "{what}: {} ns",
+            shown - f.submit_ns
+        );
+    }
+}
+
+#[test]
+fn a_fixed_cost_stage_is_shown_on_its_predicted_refresh_just_after_the_wake() {
+    let stats = Stats::default();
+    let out = run(400, |_| 4 * PERIOD / 10, 700_000, &stats);
+    assert_on_time(&out, "fixed");
+    assert_eq!(out.dropped_before_stage, 0);
+    // A frame is made for its refresh: submission to display is the stage,
+    // the present and the margins, well under two periods.
+    let (f, shown) = out.shown[300];
+    let e2e = shown - f.submit_ns;
+    assert!(e2e < PERIOD, "{e2e} ns from submission to display");
+    let late = out
+        .shown
+        .iter()
+        .filter(|(f, s)| *s > f.predicted_ns)
+        .count();
+    assert_eq!(stats.snapshot().late.count as usize, late);
+}
+
+#[test]
+fn a_jittering_stage_below_a_period_is_shown_on_its_predicted_refresh() {
+    let stats = Stats::default();
+    // 0.3–0.8 of a period, in a scrambled order.
+    let jitter =
+        |id: u64| 3 * PERIOD / 10 + (id.wrapping_mul(2_654_435_761) % 1000) * PERIOD / 2000;
+    let out = run(400, jitter, 700_000, &stats);
+    assert_on_time(&out, "jitter");
+}
+
+#[test]
+fn a_stage_longer_than_a_period_drops_newest_wins_and_counts_the_late() {
+    let stats = Stats::default();
+    let out = run(400, |_| 3 * PERIOD / 2, 700_000, &stats);
+    // Frames are dropped, never queued: at most one waits for the stage.
+    assert!(
+        out.dropped_before_stage > 50,
+        "{} dropped",
+        out.dropped_before_stage
+    );
+    assert!(out.most_waiting <= 1);
+    assert!(out.shown.len() > 150, "{} shown", out.shown.len());
+    for &(f, shown) in out.shown.iter().skip(WARM_UP) {
+        assert!(
+            shown - f.submit_ns < 5 * PERIOD,
+            "frame {}: {} ns from submission to display",
+            f.id,
+            shown - f.submit_ns
+        );
+    }
+    let r = stats.snapshot();
+    let late: u64 = r
+        .shown_vs_predicted
+        .iter()
+        .filter(|(k, _)| *k > 0)
+        .map(|(_, n)| n)
+        .sum();
+    assert!(late > 0, "{:?}", r.shown_vs_predicted);
+    assert_eq!(r.late.count, late);
+    assert!(r.late.max_ms >= PERIOD as f64 / 1e6 * 0.99, "{:?}", r.late);
+}
+
+#[test]
+fn a_late_present_raises_the_margin_and_the_wake_moves_earlier() {
+    let mut pacer = PresentPacer::new(90.0, 0);
+    let period = pacer.period_ns();
+    let mut work = 1_000_000;
+    let mut now = 0;
+    for i in 0..60u64 {
+        let w = pacer.next(now);
+        assert!(
+            w.vsync_ns - w.wake_ns <= period,
+            "the lead is at most a period"
+        );
+        // The work doubles at frame 30.
+        if i == 30 {
+            work *= 2;
+        }
+        let done = w.wake_ns + work;
+        let f = pacer.finished(&w, done);
+        if i == 30 {
+            assert!(f.late_ns > 0, "the jump is late once");
+            assert_eq!(f.shown_ns, w.vsync_ns + period);
+        }
+        if i > 33 {
+            assert_eq!(f.late_ns, 0, "frame {i} late after the margin grew");
+        }
+        now = done.max(w.vsync_ns);
+    }
+}
+
+#[test]
+fn estimates_follow_the_mean_and_the_deviation() {
+    let mut e = Estimate::default();
+    e.observe(1000);
+    assert_eq!((e.mean_ns(), e.dev_ns()), (1000, 500));
+    for _ in 0..200 {
+        e.observe(2000);
+    }
+    assert!(e.mean_ns().abs_diff(2000) < 10, "{e:?}");
+    assert!(e.dev_ns() < 10, "{e:?}");
+    for i in 0..400 {
+        e.observe(if i % 2 == 0 { 1000 } else { 3000 });
+    }
+    assert!(e.mean_ns().abs_diff(2000) < 200, "{e:?}");
+    assert!(e.bound_ns() >= 3000, "{e:?}");
+}

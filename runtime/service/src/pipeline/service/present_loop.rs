@@ -1,0 +1,154 @@
+//! The present loop: on the caller's thread, at the panel's refresh, just
+//! in time ([`PresentPacer`]): it wakes at the refresh minus its own work
+//! and a learnt margin, takes the newest finished frame and presents it.
+
+use std::sync::atomic::Ordering;
+
+use super::Service;
+use super::control::Control;
+use crate::pipeline::pacing::{Estimate, PresentPacer};
+use crate::pipeline::stats::{RSS_EVERY, Report, ShownFrame, Stage};
+use crate::present::{PanelFrame, PresentError, Presented, Sink};
+
+impl Service {
+    /// Presents at the panel's refresh until the pipeline has drained (all
+    /// handles dropped and the last frame shown), the sink goes away, or
+    /// `control.stop` is set. Returns the counts and latencies.
+    pub fn present_loop(
+        &mut self,
+        sink: &mut dyn Sink,
+        control: &Control,
+    ) -> Result<Report, PresentError> {
+        use std::sync::atomic::Ordering::Relaxed;
+        let mut pacer = PresentPacer::new(self.panel.refresh_hz, self.clock.now_ns());
+        let display_paced = sink.paced_by_display();
+        // Submission to ready, learnt from the frames shown; published for
+        // the predictions and the sources' plans.
+        let mut pipeline = Estimate::default();
+        let mut last: Option<PanelFrame> = None;
+        let progress = &control.progress;
+        progress.start("frames", 0);
+        loop {
+            if control.stop.load(Relaxed) || !sink.poll() {
+                break;
+            }
+            if control.report.swap(false, Relaxed) {
+                // The slot counts its replacements itself; bring the
+                // count up to date for a mid-run table.
+                self.stats
+                    .dropped_at_present
+                    .store(self.slot.dropped(), Relaxed);
+                progress.note(&self.stats.snapshot().table());
+            }
+            // Just in time (pacing::jit): wake at the refresh minus this
+            // loop's own work and its margin, take the newest frame then.
+            // A display-paced present takes its frame a period before the
+            // refresh it waits for.
+            let wake = if display_paced {
+                pacer.next_display_paced(self.clock.now_ns())
+            } else {
+                pacer.next(self.clock.now_ns())
+            };
+            self.schedule.observe_refresh(wake.vsync_ns);
+            self.schedule.set_latch_ns(if display_paced {
+                pacer.period_ns()
+            } else {
+                pacer.lead_ns()
+            });
+            self.stats.missed_refreshes.fetch_add(wake.missed, Relaxed);
+            if !display_paced {
+                self.clock.sleep_until_ns(wake.wake_ns);
+            }
+            let t = match self.slot.take() {
+                Some(t) => Some(t),
+                None => {
+                    // Read before the second look: once drained, no frame can
+                    // arrive after it.
+                    let drained = self.drained.load(Ordering::SeqCst);
+                    match self.slot.take() {
+                        Some(t) => Some(t),
+                        None if drained && !control.keep_open => break,
+                        None => {
+                            if drained && let Some(frame) = &last {
+                                // Keep the window's content (uncounted re-present).
+                                sink.present(frame.codes())?;
+                            } else {
+                                // Nothing to show at this refresh: let it pass.
+                                self.clock.sleep_until_ns(wake.vsync_ns);
+                            }
+                            None
+                        }
+                    }
+                }
+            };
+            let Some(t) = t else {
+                continue;
+            };
+            let t0 = self.clock.now_ns();
+            let shown = {
+                let _span =
+                    tracing::info_span!("stage", stage = %"present", frame = t.id).entered();
+                match sink.present(t.item.codes()) {
+                    Ok(shown) => shown,
+                    Err(e) => {
+                        self.stats.failed.fetch_add(1, Relaxed);
+                        self.stop_stages();
+                        return Err(e);
+                    }
+                }
+            };
+            let now = self.clock.now_ns();
+            let on_panel = if display_paced {
+                wake.vsync_ns.max(now)
+            } else {
+                pacer.finished(&wake, now).shown_ns
+            };
+            match shown {
+                Presented::Shown => {
+                    self.stats.present_traffic.record(sink.last_traffic());
+                    pipeline.observe(t.ready_ns.saturating_sub(t.submit_ns));
+                    self.schedule.publish_pipeline(&pipeline);
+                    self.stats.record_vs_prediction(ShownFrame {
+                        owner: t.owner,
+                        submit_ns: t.submit_ns,
+                        predicted_ns: t.predicted_ns,
+                        shown_ns: if display_paced {
+                            wake.vsync_ns
+                        } else {
+                            on_panel
+                        },
+                        period_ns: pacer.period_ns(),
+                    });
+                    let present_ns = now - t0;
+                    // To the refresh the frame is on (stats::END_TO_END_FROM).
+                    let e2e = on_panel.saturating_sub(t.start_ns);
+                    self.stats.record(Stage::Present, present_ns);
+                    self.stats.record(Stage::EndToEnd, e2e);
+                    self.stats
+                        .record(Stage::Queued, e2e.saturating_sub(t.work_ns + present_ns));
+                    let n = self.stats.presented.fetch_add(1, Relaxed) + 1;
+                    if n.is_multiple_of(RSS_EVERY) {
+                        self.stats.sample_rss();
+                    }
+                    if n.is_multiple_of(10) {
+                        let s = self.stats.snapshot();
+                        progress.status(&format!(
+                            "{} presented, {} dropped, {} rejected, e2e p50 {:.1} ms",
+                            s.presented,
+                            s.dropped_queued + s.dropped_at_present,
+                            s.rejected_total(),
+                            self.stats.histogram(Stage::EndToEnd).quantile_ns(0.5) as f64 / 1e6
+                        ));
+                    }
+                }
+                Presented::Skipped => {
+                    self.stats.skipped.fetch_add(1, Relaxed);
+                }
+            }
+            last = Some(t.item);
+        }
+        progress.finish();
+        self.stop_stages();
+        Ok(self.stats.snapshot())
+    }
+}

@@ -1,0 +1,143 @@
+//! `nedrt run --plan` (issue 39): what a run would build and why, printed
+//! without starting anything, for the default run, two views, the host
+//! frame path, a `[[view]]` calibration and a machine without an adapter.
+
+use super::*;
+
+/// `nedrt run --plan` on the small panel with `args`; its stdout.
+fn plan(args: &[&str], envs: &[(&str, &str)]) -> String {
+    let mut c = nedrt();
+    c.current_dir(repo())
+        .args(["run", "--plan", "--calib", path(&small_panel())])
+        .args(args);
+    for (k, v) in envs {
+        c.env(k, v);
+    }
+    let o = c.output().expect("run --plan");
+    assert!(o.status.success(), "{}", stderr(&o));
+    stdout(&o)
+}
+
+fn line<'a>(text: &'a str, key: &str) -> &'a str {
+    text.lines()
+        .find(|l| l.starts_with(key))
+        .unwrap_or_else(|| panic!("no {key:?} line in:\n{text}"))
+}
+
+#[test]
+fn the_host_frame_path_says_why() {
+    let text = plan(&["--frame-path", "host", "--sink", "record"], &[]);
+    assert_eq!(
+        line(&text, "frame path:"),
+        "frame path: host, because --frame-path host"
+    );
+    assert_eq!(line(&text, "panel:"), "panel:      64×48 at 240 Hz, 1 view");
+    assert_eq!(
+        line(&text, "network:"),
+        "network:    models/dcnn.onnx: cpu on the host, f32"
+    );
+    assert!(
+        line(&text, "view ").starts_with("view \"panel\" 64×48 at (0, 0): decode on the host"),
+        "{text}"
+    );
+}
+
+#[test]
+fn a_missing_adapter_puts_frames_on_the_host_and_says_so() {
+    let text = plan(
+        &["--sink", "headless"],
+        &[
+            ("VK_ICD_FILENAMES", "/nonexistent"),
+            ("WGPU_BACKEND", "vulkan"),
+        ],
+    );
+    assert!(
+        line(&text, "adapter:").starts_with("adapter:    none: "),
+        "{text}"
+    );
+    assert!(
+        line(&text, "frame path:").starts_with("frame path: host, because no GPU adapter ("),
+        "{text}"
+    );
+}
+
+#[test]
+fn two_views_of_the_stereo_flag_are_the_panels_halves() {
+    let text = plan(
+        &[
+            "--stereo",
+            "--preprocess",
+            "conventional",
+            "--sink",
+            "record",
+        ],
+        &[],
+    );
+    assert_eq!(
+        line(&text, "panel:"),
+        "panel:      64×48 at 240 Hz, 2 views"
+    );
+    assert_eq!(
+        line(&text, "frame path:"),
+        "frame path: host, because the record sink takes frames in host memory"
+    );
+    let views: Vec<&str> = text.lines().filter(|l| l.starts_with("view ")).collect();
+    assert_eq!(views.len(), 2, "{text}");
+    assert!(
+        views[0].starts_with("view \"left\" 32×48 at (0, 0)"),
+        "{text}"
+    );
+    assert!(
+        views[1].starts_with("view \"right\" 32×48 at (32, 0)"),
+        "{text}"
+    );
+}
+
+#[test]
+fn a_view_calibration_names_each_views_design() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let calib = super::stereo::stereo_calibration(dir.path());
+    let o = nedrt()
+        .current_dir(repo())
+        .args([
+            "--calib",
+            path(&calib),
+            "run",
+            "--plan",
+            "--preprocess",
+            "doe+wiener",
+        ])
+        .args(["--sink", "record"])
+        .output()
+        .expect("run --plan");
+    assert!(o.status.success(), "{}", stderr(&o));
+    let text = stdout(&o);
+    let views: Vec<&str> = text.lines().filter(|l| l.starts_with("view ")).collect();
+    assert_eq!(views.len(), 2, "{text}");
+    assert!(views[0].contains("multifocal.toml"), "{text}");
+    assert!(views[1].contains("allsharp.toml"), "{text}");
+    assert!(
+        views[0].contains("Wiener prefilter of doe+wiener"),
+        "{text}"
+    );
+}
+
+mod needs_gpu {
+    use super::*;
+
+    #[test]
+    #[ignore = "needs a GPU adapter (run: scripts/test.sh, or cargo test -- --include-ignored)"]
+    fn the_default_run_keeps_frames_on_the_gpu() {
+        let text = plan(&[], &[]);
+        assert_eq!(
+            line(&text, "frame path:"),
+            "frame path: device, because the sink has a GPU and every stage runs there: one \
+             upload, no read-back"
+        );
+        assert!(
+            line(&text, "pacing:").starts_with("pacing:     paced by the display"),
+            "{text}"
+        );
+        assert!(line(&text, "view ").contains("D-CNN on the GPU"), "{text}");
+    }
+}
