@@ -43,7 +43,7 @@ STEPS = [
     ("fft", "the prefilters' DCT filter at 1920×1080: nedrt's on the device, the CPU's, torch.fft (cuFFT)", 30, 1),
     ("pipeline", "nedrt bench pipeline at 1920×1080 and the panel's refresh on the device path: none, the "
                  "Wiener, refine:10 (its GPU time per frame), half, full, the shipped model; then two views "
-                 "(--stereo): none and the shipped model", 120, 1),
+                 "(--stereo): none and the shipped model", 90, 1),
     ("teacher", "the D-CNN's teacher: nedrt prefilter on the CPU, the training ceiling on CUDA", 105, 1),
     ("train", "the full-width D-CNN on CUDA (bf16 autocast, the largest batch that fits)", TRAIN_BUDGET_S, 1),
     ("export", "the network as the runtime's ONNX with its card", 20, 1),
