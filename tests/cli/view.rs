@@ -6,8 +6,8 @@
 use super::*;
 
 use image::AnimationDecoder;
-use nedrt_app::view::compose::Layout;
-use nedrt_app::view::scene::encode8;
+use nedrt_app::viewer::compose::Layout;
+use nedrt_app::viewer::scene::encode8;
 
 /// A 32×32 input (64×64 on the retinal grid) in a scratch folder.
 fn input(dir: &Path) -> PathBuf {

@@ -18,7 +18,7 @@ pub mod preprocess;
 pub mod run;
 pub mod sim;
 pub mod tune;
-pub mod view;
+pub mod viewer;
 
 use std::path::{Path, PathBuf};
 

@@ -110,13 +110,13 @@ pub fn run(cli: Cli) -> Result<()> {
             )
         }
         Some(Command::View(a)) => {
-            let opts = app::view::ViewOptions {
+            let opts = app::viewer::ViewOptions {
                 step_d: a.step,
                 accommodation_d: a.accom,
                 shown: match a.show {
-                    ShownArg::Perceived => app::view::scene::Shown::Perceived,
-                    ShownArg::Sharp => app::view::scene::Shown::Sharp,
-                    ShownArg::Target => app::view::scene::Shown::Target,
+                    ShownArg::Perceived => app::viewer::scene::Shown::Perceived,
+                    ShownArg::Sharp => app::viewer::scene::Shown::Sharp,
+                    ShownArg::Target => app::viewer::scene::Shown::Target,
                 },
                 headless: a.headless,
                 screenshot: a.screenshot,
@@ -128,17 +128,17 @@ pub fn run(cli: Cli) -> Result<()> {
                     ..Default::default()
                 },
             };
-            print!("{}", app::view::view(&common, &a.scene.into(), &opts)?);
+            print!("{}", app::viewer::view(&common, &a.scene.into(), &opts)?);
         }
         Some(Command::Sweep(a)) => {
-            let opts = app::view::SweepOptions {
+            let opts = app::viewer::SweepOptions {
                 from_d: a.from,
                 to_d: a.to,
                 step_d: a.step,
                 fps: a.fps,
                 out: a.out,
             };
-            print!("{}", app::view::sweep(&common, &a.scene.into(), &opts)?);
+            print!("{}", app::viewer::sweep(&common, &a.scene.into(), &opts)?);
         }
         Some(Command::TuneWiener(a)) => {
             print!("{}", app::tune::run(&common, &a.images, a.method, a.write)?)

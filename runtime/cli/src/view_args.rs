@@ -27,10 +27,10 @@ pub struct SceneArgs {
     pub methods: Vec<Method>,
     /// Show only this region of the input, WxH+X+Y (every retinal pixel 1:1).
     #[arg(long, value_parser = parse_crop, value_name = "WxH+X+Y")]
-    pub crop: Option<nedrt_app::view::Crop>,
+    pub crop: Option<nedrt_app::viewer::Crop>,
 }
 
-impl From<SceneArgs> for nedrt_app::view::SceneSource {
+impl From<SceneArgs> for nedrt_app::viewer::SceneSource {
     fn from(a: SceneArgs) -> Self {
         Self {
             input: a.input,
@@ -103,13 +103,13 @@ pub struct SweepArgs {
 }
 
 /// `WxH+X+Y` (a region `W`×`H` at `X`, `Y`; as ImageMagick's geometry).
-fn parse_crop(s: &str) -> Result<nedrt_app::view::Crop, String> {
+fn parse_crop(s: &str) -> Result<nedrt_app::viewer::Crop, String> {
     let bad = || format!("{s:?}: expected WxH+X+Y, e.g. 128x128+200+100");
     let (size, offset) = s.split_once('+').ok_or_else(bad)?;
     let (x, y) = offset.split_once('+').ok_or_else(bad)?;
     let (width, height) = parse_size(size)?;
     let number = |v: &str| v.parse::<usize>().map_err(|_| bad());
-    Ok(nedrt_app::view::Crop {
+    Ok(nedrt_app::viewer::Crop {
         x: number(x)?,
         y: number(y)?,
         width,

@@ -23,5 +23,5 @@ pub mod tradeoff;
 // The wiring the studies are built on, under the names they use.
 pub(crate) use nedrt_app::{
     AppError, CommonOptions, charts, check_output_folder, create_dir, design, device_prefilter,
-    preprocess, run, sim, view, write_text,
+    preprocess, run, sim, viewer, write_text,
 };

@@ -463,7 +463,7 @@ pub fn evaluate(
                 stem(file)
             };
             let out = dir.join(format!("{name}.png"));
-            let opts = crate::view::SweepOptions {
+            let opts = crate::viewer::SweepOptions {
                 from_d: sim.calib.range_d[0],
                 to_d: sim.calib.range_d[1],
                 step_d: 0.1,
@@ -471,7 +471,7 @@ pub fn evaluate(
                 out: out.clone(),
             };
             let name = file.display().to_string();
-            crate::view::sweep_image(common, &sim.calib, image.clone(), name, &methods, &opts)?;
+            crate::viewer::sweep_image(common, &sim.calib, image.clone(), name, &methods, &opts)?;
             written.push(out.display().to_string());
         }
     }

@@ -368,7 +368,7 @@ mod tests {
     use super::*;
 
     fn state() -> (ViewState, Layout) {
-        let depths = crate::view::depth_grid(0.0, 3.0, 0.05).expect("grid");
+        let depths = crate::viewer::depth_grid(0.0, 3.0, 0.05).expect("grid");
         (
             ViewState::new(30, Shown::Perceived, &depths),
             Layout::new(3, 64, 64, true),
