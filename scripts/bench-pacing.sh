@@ -32,7 +32,7 @@ import json, sys
 b, i, path = sys.argv[1:]
 r = json.load(open(path))
 s = {x["stage"]: x for x in r["stages"]}
-stages = sum(s[k]["p50_ms"] for k in ("upload", "dcnn", "encode", "present"))
+stages = sum(s[k]["p50_ms"] for k in ("upload", "preprocess", "encode", "present"))
 e2e = s["end-to-end"]["p50_ms"]
 third = 1000 / 240 / 3
 print(f"{b} run {i}: end-to-end p50 {e2e:.3f} ms, stages {stages:.3f} ms, "

@@ -120,7 +120,7 @@ fn run_records_a_folder_and_writes_a_trace_and_report() {
         .iter()
         .filter_map(|e| e["args"]["stage"].as_str().map(str::to_string))
         .collect();
-    for stage in ["upload", "dcnn", "encode", "present"] {
+    for stage in ["upload", "preprocess", "encode", "present"] {
         assert!(
             names.iter().any(|n| n == stage),
             "no {stage} span in the trace: {names:?}"

@@ -152,7 +152,7 @@ mod needs_gpu {
                     .unwrap_or_else(|| panic!("no {name} traffic: {r}"))
                     .clone()
             };
-            let (dcnn, present) = (stage("dcnn"), stage("present"));
+            let (dcnn, present) = (stage("preprocess"), stage("present"));
             let n = |t: &serde_json::Value, k: &str| t["total"][k].as_u64().expect(k);
             let frames = dcnn["frames"].as_u64().expect("frames");
             let shown = present["frames"].as_u64().expect("frames");
@@ -170,7 +170,7 @@ mod needs_gpu {
                     .as_array()
                     .expect("stages")
                     .iter()
-                    .filter(|s| s["stage"] == "dcnn-gpu" && s["count"].as_u64() > Some(0))
+                    .filter(|s| s["stage"] == "preprocess-gpu" && s["count"].as_u64() > Some(0))
                     .count();
                 let stamps = if gpu_rows > 0 { 16 } else { 0 };
                 assert_eq!(
@@ -256,7 +256,7 @@ mod needs_gpu_prefilters {
                 .as_array()
                 .expect("traffic")
                 .iter()
-                .find(|t| t["stage"] == "dcnn")
+                .find(|t| t["stage"] == "preprocess")
                 .cloned()
                 .unwrap_or_else(|| panic!("no dcnn traffic: {r}"));
             let n = |k: &str| dcnn["total"][k].as_u64().expect(k);

@@ -186,7 +186,7 @@ pub fn run(
             let stage = |name: &str| report.stages.iter().find(|s| s.stage == name).cloned();
             let e2e = stage("end-to-end");
             // The engine's own time on the device (timestamps), per frame.
-            let gpu = stage("dcnn-gpu");
+            let gpu = stage("preprocess-gpu");
             let t = report.traffic_per_frame();
             let dropped = report.dropped_queued + report.dropped_at_present;
             let record = json!({
@@ -222,7 +222,7 @@ pub fn run(
             let eyes: String = if b.stereo {
                 (0..2)
                     .map(|v| {
-                        let name = format!("dcnn view {v}");
+                        let name = format!("preprocess view {v}");
                         match report.view_stages.iter().find(|s| s.stage == name) {
                             Some(s) => format!(" {:.1} |", s.p50_ms),
                             None => " – |".to_string(),

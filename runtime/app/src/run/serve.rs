@@ -9,7 +9,7 @@ use super::{AppError, RunOptions};
 use nedrt_core::preprocess::Preprocess;
 use nedrt_service::pipeline::pacing::Clock;
 use nedrt_service::pipeline::service::{
-    Control, DcnnStage, FallbackFactory, PanelConfig, ResidentStage, Service,
+    Control, FallbackFactory, PanelConfig, PreprocessStage, ResidentStage, Service,
 };
 use nedrt_service::pipeline::source::{self, Source};
 use nedrt_service::pipeline::stats::Report;
@@ -53,7 +53,7 @@ pub(super) fn serve(
             reason,
         } => {
             let what = format!("{} (frames through the host: {reason})", primary.describe());
-            let service = Service::start(panel, DcnnStage { primary, fallback }, clock);
+            let service = Service::start(panel, PreprocessStage { primary, fallback }, clock);
             if let Ok(s) = &service {
                 *s.stats()
                     .frame_path

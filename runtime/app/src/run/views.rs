@@ -17,15 +17,15 @@ use nedrt_infer::{BackendKind, Dcnn, ModelFile};
 use nedrt_optics::sim::Method;
 use nedrt_optics::sim::wiener::WienerFilter;
 use nedrt_service::compose::ViewRegion;
-use nedrt_service::pipeline::service::DcnnStage;
 use nedrt_service::pipeline::service::PanelConfig;
+use nedrt_service::pipeline::service::PreprocessStage;
 
 /// A view of the run: its name, region and preprocessing (on the host),
 /// and its design's options (for its stage on the device).
 pub(super) struct View {
     pub name: String,
     pub region: ViewRegion,
-    pub stage: DcnnStage,
+    pub stage: PreprocessStage,
     pub common: CommonOptions,
 }
 
@@ -153,7 +153,7 @@ pub(super) fn views(
         out.push(View {
             name,
             region,
-            stage: DcnnStage {
+            stage: PreprocessStage {
                 primary,
                 fallback: None,
             },

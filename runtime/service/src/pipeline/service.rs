@@ -48,7 +48,7 @@ use compositor::{Submission, Timed, ViewSlot};
 pub use control::Control;
 use engine::{Engine, Processed, UploadWork, decode_with_layers, host_stage};
 use stages::switch_to_fallback;
-pub use stages::{DcnnStage, FallbackFactory, HostPrep, HostWork, ResidentStage};
+pub use stages::{FallbackFactory, HostPrep, HostWork, PreprocessStage, ResidentStage};
 use views::{ViewEngines, ViewsUpload};
 
 /// The panel the service drives.
@@ -140,7 +140,7 @@ impl Service {
     /// [`Service::present_loop`].
     pub fn start(
         panel: PanelConfig,
-        dcnn: DcnnStage,
+        dcnn: PreprocessStage,
         clock: Arc<dyn Clock>,
     ) -> std::io::Result<Self> {
         Self::start_with(panel, Engine::Host(dcnn, None), None, clock)
@@ -171,7 +171,7 @@ impl Service {
     /// its own, and the panel shows them side by side.
     pub fn start_views(
         panel: PanelConfig,
-        stages: Vec<DcnnStage>,
+        stages: Vec<PreprocessStage>,
         clock: Arc<dyn Clock>,
     ) -> std::io::Result<Self> {
         if panel.views.len() != stages.len() || stages.is_empty() {
@@ -191,7 +191,7 @@ impl Service {
     pub fn start_device_views(
         panel: PanelConfig,
         views: DeviceViews,
-        host: Vec<DcnnStage>,
+        host: Vec<PreprocessStage>,
         clock: Arc<dyn Clock>,
     ) -> std::io::Result<Self> {
         let host = (host.len() == panel.views.len() && !host.is_empty()).then(|| {
@@ -309,8 +309,8 @@ impl Service {
             move |_, f: Submission, stats| upload(f, stats),
         )?);
         threads.push(spawn_stage(
-            "dcnn",
-            Stage::Dcnn,
+            "preprocess",
+            Stage::Preprocess,
             upload_rx,
             move |t| dcnn_tx.send(t),
             context.clone(),

@@ -83,7 +83,7 @@ fn grey(id: u64, v: u8) -> SubmittedFrame {
 
 /// Submits frames one at a time, waiting for each to be shown.
 fn run_one_by_one(
-    dcnn: DcnnStage,
+    dcnn: PreprocessStage,
     frames: &[SubmittedFrame],
 ) -> (Vec<DisplayFrame>, crate::pipeline::stats::Report) {
     run_one_by_one_with(dcnn, frames, |_, _| {})
@@ -91,7 +91,7 @@ fn run_one_by_one(
 
 /// As [`run_one_by_one`], calling `before(i, compositor)` before frame `i`.
 fn run_one_by_one_with(
-    dcnn: DcnnStage,
+    dcnn: PreprocessStage,
     frames: &[SubmittedFrame],
     before: impl Fn(usize, &Compositor) + Send + 'static,
 ) -> (Vec<DisplayFrame>, crate::pipeline::stats::Report) {
@@ -127,7 +127,7 @@ fn run_one_by_one_with(
 #[test]
 fn a_failing_backend_falls_back_without_losing_the_frame() {
     let fallback: FallbackFactory = Box::new(|| Ok(Box::new(Identity) as Box<dyn Preprocess>));
-    let dcnn = DcnnStage {
+    let dcnn = PreprocessStage {
         primary: Box::new(Failing { ok: 2 }),
         fallback: Some(fallback),
     };
@@ -147,7 +147,7 @@ fn a_failing_backend_falls_back_without_losing_the_frame() {
 
 #[test]
 fn without_a_fallback_factory_the_panel_gets_the_unprocessed_frame() {
-    let dcnn = DcnnStage {
+    let dcnn = PreprocessStage {
         primary: Box::new(Failing { ok: 0 }),
         fallback: None,
     };
@@ -158,7 +158,7 @@ fn without_a_fallback_factory_the_panel_gets_the_unprocessed_frame() {
 
 #[test]
 fn rejected_frames_are_counted_and_the_rest_delivered_in_order() {
-    let dcnn = DcnnStage {
+    let dcnn = PreprocessStage {
         primary: Box::new(Identity),
         fallback: None,
     };
@@ -212,7 +212,7 @@ impl Preprocess for Gate {
 #[test]
 fn frames_inside_the_stages_at_a_stop_are_counted_in_flight_not_lost() {
     let gate = Arc::new(std::sync::Barrier::new(2));
-    let dcnn = DcnnStage {
+    let dcnn = PreprocessStage {
         primary: Box::new(Gate(gate.clone())),
         fallback: None,
     };
@@ -278,7 +278,7 @@ impl Preprocess for OnDevice {
 #[test]
 fn the_report_counts_host_traffic_per_frame_by_stage() {
     let frames: Vec<_> = (0..3).map(|i| grey(i, 77)).collect();
-    let dcnn = DcnnStage {
+    let dcnn = PreprocessStage {
         primary: Box::new(OnDevice),
         fallback: None,
     };
@@ -301,7 +301,7 @@ fn the_report_counts_host_traffic_per_frame_by_stage() {
         report.table()
     );
     // A host engine moves nothing: only the sink's upload is left.
-    let dcnn = DcnnStage {
+    let dcnn = PreprocessStage {
         primary: Box::new(Identity),
         fallback: None,
     };
@@ -314,7 +314,7 @@ fn the_report_counts_host_traffic_per_frame_by_stage() {
 #[test]
 fn quad_layers_are_blended_over_every_frame_until_their_owner_removes_them() {
     use crate::compose::{Placement, QuadLayer};
-    let dcnn = DcnnStage {
+    let dcnn = PreprocessStage {
         primary: Box::new(Identity),
         fallback: None,
     };
@@ -363,11 +363,11 @@ fn two_views_each_get_their_frames_layers_and_engine_on_one_panel() {
     config.views = ViewRegion::side_by_side(4, 2).to_vec();
     // View 0 shows its frames as they are; view 1 inverts (another design).
     let stages = vec![
-        DcnnStage {
+        PreprocessStage {
             primary: Box::new(Identity),
             fallback: None,
         },
-        DcnnStage {
+        PreprocessStage {
             primary: Box::new(Failing { ok: usize::MAX }),
             fallback: None,
         },
@@ -467,7 +467,7 @@ fn one_view_smaller_than_the_panel_takes_frames_of_its_own_size() {
         width: 2,
         height: 2,
     }];
-    let stages = vec![DcnnStage {
+    let stages = vec![PreprocessStage {
         primary: Box::new(Identity),
         fallback: None,
     }];
@@ -498,7 +498,7 @@ fn one_view_smaller_than_the_panel_takes_frames_of_its_own_size() {
         width: 2,
         height: 2,
     }];
-    let stages = vec![DcnnStage {
+    let stages = vec![PreprocessStage {
         primary: Box::new(Identity),
         fallback: None,
     }];

@@ -19,9 +19,10 @@ pub enum Stage {
     /// Decoding the submitted payload to the network's planar linear input.
     Upload,
     /// The D-CNN (for wgpu: upload to the GPU, dispatches, read-back).
-    Dcnn,
-    /// The D-CNN's own GPU time (timestamp queries; part of `Dcnn`).
-    DcnnGpu,
+    Preprocess,
+    /// The preprocessing's own GPU time (timestamp queries; part of
+    /// `Preprocess`).
+    PreprocessGpu,
     /// Clamp and the panel's transfer curve.
     Encode,
     /// Drawing onto the sink (for a window: until the swapchain takes it).
@@ -35,8 +36,8 @@ pub enum Stage {
 impl Stage {
     pub const ALL: [Stage; 7] = [
         Stage::Upload,
-        Stage::Dcnn,
-        Stage::DcnnGpu,
+        Stage::Preprocess,
+        Stage::PreprocessGpu,
         Stage::Encode,
         Stage::Present,
         Stage::Queued,
@@ -50,8 +51,8 @@ impl Stage {
     pub fn name(self) -> &'static str {
         match self {
             Stage::Upload => "upload",
-            Stage::Dcnn => "dcnn",
-            Stage::DcnnGpu => "dcnn-gpu",
+            Stage::Preprocess => "preprocess",
+            Stage::PreprocessGpu => "preprocess-gpu",
             Stage::Encode => "encode",
             Stage::Present => "present",
             Stage::Queued => "queued",
@@ -331,11 +332,11 @@ impl Stats {
                 .enumerate()
                 .filter_map(|(v, h)| {
                     let h = h.lock().unwrap_or_else(|p| p.into_inner());
-                    (h.count() > 0).then(|| StageReport::of(format!("dcnn view {v}"), &h))
+                    (h.count() > 0).then(|| StageReport::of(format!("preprocess view {v}"), &h))
                 })
                 .collect(),
             traffic: vec![
-                self.dcnn_traffic.report("dcnn"),
+                self.dcnn_traffic.report("preprocess"),
                 self.present_traffic.report("present"),
             ],
             rss_kib: self

@@ -3,7 +3,7 @@
 //! Apart from the service's threads so that what a stage does to a frame
 //! reads on its own.
 
-use super::{DcnnStage, HostPrep, switch_to_fallback};
+use super::{HostPrep, PreprocessStage, switch_to_fallback};
 use crate::compose::LayerSet;
 use crate::pipeline::frame::{SubmittedFrame, decode};
 use crate::pipeline::resident::{DeviceFrames, DeviceInput};
@@ -16,7 +16,7 @@ use std::sync::Arc;
 
 /// The dcnn stage's engine: on the host, or on the sink's device.
 pub(super) enum Engine {
-    Host(DcnnStage, Option<Arc<LayerSet>>),
+    Host(PreprocessStage, Option<Arc<LayerSet>>),
     /// Each view its own engine, on the host.
     Views(Box<super::views::ViewEngines>),
     /// Each view its own stage on the sink's device, one submission for
@@ -107,7 +107,7 @@ impl Engine {
                             .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
                     }
                     if let Some(ns) = frames.last_gpu_ns() {
-                        stats.record(Stage::DcnnGpu, ns);
+                        stats.record(Stage::PreprocessGpu, ns);
                     }
                     stats.dcnn_traffic.record(traffic);
                     return Some(Processed::Device(frame));
@@ -119,7 +119,7 @@ impl Engine {
                     *stats.frame_path.lock().unwrap_or_else(|p| p.into_inner()) =
                         "host (after the device path failed)".into();
                     *self = Engine::Host(
-                        DcnnStage {
+                        PreprocessStage {
                             primary: next,
                             fallback: None,
                         },

@@ -11,21 +11,21 @@ pub type FallbackFactory = Box<dyn FnOnce() -> Result<Box<dyn Preprocess>, Prepr
 
 /// The D-CNN stage's engines: the primary, and what replaces it if it
 /// fails (a lost GPU): the factory's preprocessor, else none ([`Identity`]).
-pub struct DcnnStage {
+pub struct PreprocessStage {
     pub primary: Box<dyn Preprocess>,
     pub fallback: Option<FallbackFactory>,
 }
 
-impl std::fmt::Debug for DcnnStage {
+impl std::fmt::Debug for PreprocessStage {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("DcnnStage")
+        f.debug_struct("PreprocessStage")
             .field("primary", &self.primary)
             .field("fallback", &self.fallback.is_some())
             .finish()
     }
 }
 
-impl DcnnStage {
+impl PreprocessStage {
     /// Runs the frame; on a backend failure logs it, switches to the
     /// fallback for good and runs the frame there.
     pub(super) fn run(&mut self, frame: &Image, stats: &Stats) -> Option<Image> {
@@ -34,14 +34,14 @@ impl DcnnStage {
         Some(out)
     }
 
-    /// As [`DcnnStage::run`], leaving the frame's traffic to the caller
+    /// As [`PreprocessStage::run`], leaving the frame's traffic to the caller
     /// (two views: one record for both eyes' runs).
     pub(super) fn run_uncounted(&mut self, frame: &Image, stats: &Stats) -> Option<Image> {
         loop {
             match self.primary.run(frame) {
                 Ok(out) => {
                     if let Some(ns) = self.primary.last_gpu_ns() {
-                        stats.record(Stage::DcnnGpu, ns);
+                        stats.record(Stage::PreprocessGpu, ns);
                     }
                     return Some(out);
                 }

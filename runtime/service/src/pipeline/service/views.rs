@@ -13,7 +13,7 @@
 use std::sync::Arc;
 use std::sync::atomic::Ordering::Relaxed;
 
-use super::{DcnnStage, Stats};
+use super::{PreprocessStage, Stats};
 use crate::compose::{LayerSet, ViewImage, ViewRegion, blend};
 use crate::pipeline::frame::{SubmittedFrame, decode};
 use crate::pipeline::resident::DeviceInput;
@@ -103,7 +103,7 @@ impl ViewsUpload {
 
 /// One view's engine and its last output.
 struct ViewEngine {
-    stage: DcnnStage,
+    stage: PreprocessStage,
     last: Option<(u64, Image)>,
 }
 
@@ -128,7 +128,7 @@ impl ViewEngines {
     pub(super) fn new(
         (width, height): (usize, usize),
         regions: Vec<ViewRegion>,
-        stages: Vec<DcnnStage>,
+        stages: Vec<PreprocessStage>,
     ) -> Self {
         Self {
             regions,

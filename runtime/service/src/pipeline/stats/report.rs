@@ -272,23 +272,23 @@ impl Report {
             .map_or(0.0, |r| r.mean_ms);
         s += &format!("frame path: {}\n", self.frame_path);
         s += &self.traffic_line();
-        s += "stage        count     p50 ms     p99 ms     max ms   share of end-to-end\n";
+        s += "stage            count     p50 ms     p99 ms     max ms   share of end-to-end\n";
         for r in &self.stages {
             // dcnn-gpu is inside dcnn; end-to-end is the whole.
-            let share = if r.stage == "end-to-end" || r.stage == "dcnn-gpu" || e2e <= 0.0 {
+            let share = if r.stage == "end-to-end" || r.stage == "preprocess-gpu" || e2e <= 0.0 {
                 String::new()
             } else {
                 format!("{:>5.1} %", 100.0 * r.mean_ms / e2e)
             };
             s += &format!(
-                "{:<10} {:>7} {:>10.3} {:>10.3} {:>10.3}   {share}\n",
+                "{:<14} {:>7} {:>10.3} {:>10.3} {:>10.3}   {share}\n",
                 r.stage, r.count, r.p50_ms, r.p99_ms, r.max_ms
             );
         }
         // Inside dcnn, each view's engine where it ran.
         for r in &self.view_stages {
             s += &format!(
-                "  {:<10} {:>5} {:>10.3} {:>10.3} {:>10.3}\n",
+                "  {:<16} {:>5} {:>10.3} {:>10.3} {:>10.3}\n",
                 r.stage, r.count, r.p50_ms, r.p99_ms, r.max_ms
             );
         }
