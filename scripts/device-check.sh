@@ -13,8 +13,9 @@
 #        run(command="bash scripts/device-check.sh --call 2", carry=[".devcheck"], timeout_s=270)
 #      each ends within its envelope (each step under its cap; --plan lists
 #      them) and writes under $OUT: summary.json, report.md, log.txt; the
-#      first also metrics.csv, dcnn-full.{onnx,card.json,doe.safetensors};
-#      the second tradeoff.{md,json,svg,png}
+#      first also metrics.csv, checkpoint/ (the continued carried checkpoint:
+#      card.json and its tensors file; docs/training.md says how to commit it)
+#      and dcnn-full.{onnx,card.json}; the second tradeoff.{md,json,svg,png}
 #   3. give_back; report.md's tables go into docs/benchmarks.md; the network
 #      is scored here with nedrt eval (docs/benchmarks.md says how).
 #

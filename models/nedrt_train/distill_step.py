@@ -13,6 +13,14 @@ from .distill_config import DistillConfig
 from .distill_data import Patches
 from .objective import Objective, db
 
+#: What a step computes, declared: the network (unet.py), the loss and the
+#: clamp, the optimiser, the schedule and the batches' draws
+#: (distill_data.py). A carried checkpoint (distill_checkpoint.py) records
+#: it in its identity and a run of another version refuses it, so bump it
+#: when a change makes a continued run train another thing than the run
+#: it continues (a new term, another draw order); refactors leave it.
+STEP_VERSION = 1
+
 
 def forward(net, image, base=None, cfg=None):
     """The raw display image: I + UNet(I), base + UNet(I) − I (`--base
@@ -102,10 +110,12 @@ def validate(net, objective: Objective, images: torch.Tensor, teacher: torch.Ten
     return out
 
 
-def lr_at(cfg: DistillConfig, step: int, elapsed: float = 0.0) -> float:
-    """Linear warm-up over 200 steps, then cosine decay to 1 % of the peak
-    over the steps, or over the time budget where there is one."""
-    warm = min(1.0, (step + 1) / 200)
+def lr_at(cfg: DistillConfig, step: int, elapsed: float = 0.0, warm_start: int = 0) -> float:
+    """Linear warm-up over 200 steps from `warm_start` (the step Adam's
+    moments started at: 0, or where a carried checkpoint without them was
+    continued), then cosine decay to 1 % of the peak over the steps, or
+    over the time budget where there is one."""
+    warm = min(1.0, (step - warm_start + 1) / 200)
     progress = min(1.0, elapsed / cfg.time_budget) if cfg.time_budget > 0 else step / max(cfg.steps, 1)
     return cfg.lr * warm * (0.01 + 0.99 * 0.5 * (1 + math.cos(math.pi * progress)))
 

@@ -7,7 +7,9 @@ renders a run whose steps failed or found no figures, and the new tables
 (the adapter's cooperative matrices, wall and GPU time, refine:10 per
 frame, the tradeoff); a bad --only or --call is refused; the smoke without
 the trainer's .venv says how to make it; side-by-side commands run no more
-at once than memory holds and a killed one is named."""
+at once than memory holds and a killed one is named; what a call brings
+back fits the tool's 8 files; the continued checkpoint that comes back is
+checked against its card, and the report says where the training started."""
 import importlib.util
 import json
 import subprocess
@@ -24,6 +26,7 @@ spec.loader.exec_module(check)
 import check_report  # noqa: E402
 import check_runner  # noqa: E402
 import check_steps  # noqa: E402
+import check_train  # noqa: E402
 import check_travel  # noqa: E402
 
 
@@ -164,3 +167,57 @@ def test_parallel_runs_no_more_at_once_than_memory_holds_and_names_a_killed_chil
                    time.monotonic() + 30)
     with pytest.raises(check_runner.Failed, match="timed out"):
         r.parallel([[sys.executable, "-c", "import time; time.sleep(30)"]], time.monotonic() + 0.5)
+
+
+def test_what_a_call_brings_back_fits_the_tools_file_limit():
+    """summary.json, report.md, log.txt and the steps' files: at most 8 a
+    call (the device tool's limit), none more than two folders down."""
+    for call in check_steps.calls():
+        files = ["summary.json", "report.md", "log.txt"]
+        files += [f for n, _, _ in check_steps.caps(call) for f in check_runner.STEP_FILES.get(n, [])]
+        assert len(files) <= check_runner.FILES_BACK == 8, (call, files)
+        assert all(f.count("/") <= 2 for f in files)
+    assert any(f.startswith(check_train.RETURNED + "/") for f in check_runner.STEP_FILES["train"])
+
+
+def test_the_returned_checkpoint_is_checked_against_its_card(tmp_path):
+    import hashlib
+    folder = tmp_path / check_train.RETURNED
+    folder.mkdir()
+    data = b"tensors"
+    name = f"tensors-{hashlib.sha256(data).hexdigest()[:16]}.safetensors"
+    (folder / name).write_bytes(data)
+    card = {"step": 12, "seconds": 30.0, "moments": "none", "sessions": [{}, {}],
+            "tensors": {"file": name, "sha256": hashlib.sha256(data).hexdigest(), "bytes": len(data)}}
+    (folder / "card.json").write_text(json.dumps(card))
+    got = check_train.returned_checkpoint(folder)
+    assert got == {"step": 12, "seconds": 30.0, "moments": "none", "mib": 0.0, "file": f"checkpoint/{name}",
+                   "sessions": 2}
+    (folder / "stray.tmp").write_bytes(b"")
+    with pytest.raises(check_runner.Failed, match="does not name: stray.tmp"):
+        check_train.returned_checkpoint(folder)
+    (folder / "stray.tmp").unlink()
+    (folder / name).write_bytes(b"tampered")
+    with pytest.raises(check_runner.Failed, match="its card says"):
+        check_train.returned_checkpoint(folder)
+    with pytest.raises(check_runner.Failed, match="was not written"):
+        check_train.returned_checkpoint(tmp_path / "none")
+
+
+def test_the_report_says_where_the_training_started_and_what_came_back():
+    meta = {"mode": "device", "date": "today", "commit": "abc", "device": "GPU"}
+    steps = {"train": check_runner.Step("train", "", 300)}
+    record = {"kind": "train", "steps": 20000, "seconds": 580.0, "batch": 64, "device": "NVIDIA H100",
+              "validation": [{"dcnn_mean_db": 29.5}],
+              "started": {"checkpoint": "models/checkpoints/dcnn-full", "step": 10248, "sessions": 1},
+              "checkpoint": {"step": 20000, "seconds": 580.0, "moments": "none", "mib": 7.35,
+                             "file": "checkpoint/tensors-0123456789abcdef.safetensors", "sessions": 2}}
+    steps["train"].records.append(record)
+    md = check_report.report(steps, meta)
+    assert ("Continued `models/checkpoints/dcnn-full` from step 10248 (1 session before this one): step 20000 now"
+            in md)
+    assert "`checkpoint/tensors-0123456789abcdef.safetensors`" in md and "7.35 MiB" in md
+    assert "| D-CNN | 29.50 / – |" in md
+    record["started"] = {"fresh": "checkpoint models/checkpoints/dcnn-full: network.width 32 ≠ this run's 16"}
+    md = check_report.report(steps, meta)
+    assert "Started fresh (checkpoint models/checkpoints/dcnn-full: network.width 32" in md

@@ -24,9 +24,10 @@ Modes:
 What comes back (at most 8 files a call, 16 MiB each): summary.json (each
 step with its status, time, cap and figures), report.md (the tables for
 docs/benchmarks.md), log.txt (every command's output); from call 1 also
-metrics.csv (the training's per-step log) and the trained network as the
-runtime's model: dcnn-full.onnx, dcnn-full.card.json,
-dcnn-full.doe.safetensors; from call 2 tradeoff.md, .json, .svg and .png.
+metrics.csv (the training's per-step log), checkpoint/ (the continued
+carried checkpoint: card.json and its tensors file, docs/training.md) and
+the trained network as the runtime's model: dcnn-full.onnx and its card;
+from call 2 tradeoff.md, .json, .svg and .png.
 """
 import argparse
 import json
@@ -93,6 +94,7 @@ def check(out: Path, smoke: bool, only: set | None = None, call: int | None = No
             "commit": built.get("commit") or git_commit(), "dirty": built.get("dirty", git_dirty()),
             "device": "this machine's CPU and lavapipe" if smoke else "unknown", "envelope_s": envelope,
             "call": call or "all", "call_flag": f" --call {call}" if call and call != 1 else ""}
+    r.commit = meta["commit"]
     run = bodies(r, z, steps, device)
     for name, s in steps.items():
         body, needs = run[name]

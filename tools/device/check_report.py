@@ -93,9 +93,21 @@ def training(rows: list, head: str) -> list:
         return []
     v = tr["validation"][0] if tr["validation"] else {}
     fmt = lambda k: f"{v[k]:.2f}" if isinstance(v.get(k), (int, float)) else "–"
+    started = tr.get("started") or {}
+    if "checkpoint" in started:
+        n = started["sessions"]
+        origin = (f"Continued `{started['checkpoint']}` from step {started['step']} ({n} session{'s' if n != 1 else ''} "
+                  f"before this one): step {tr['steps']} now, batch {tr['batch']}, {tr['seconds']:.0f} s of "
+                  f"training in all, this session's on {tr['device']}. ")
+    else:
+        origin = (f"Started fresh ({started.get('fresh', 'no checkpoint')}): {tr['steps']} steps of batch "
+                  f"{tr['batch']} in {tr['seconds']:.0f} s on {tr['device']}. ")
+    back = tr.get("checkpoint")
+    carried = (f"The continued checkpoint came back as `{back['file']}` with its card (step {back['step']}, "
+               f"{back['mib']} MiB, Adam's moments: {back['moments']}; docs/training.md says how to commit it). "
+               if back else "")
     return ["", f"## The full-width D-CNN trained on the device ({head})", "",
-            f"{tr['steps']} steps of batch {tr['batch']} in {tr['seconds']:.0f} s on {tr['device']}. "
-            "Validation (the trainer's, on data/images/val):", "",
+            f"{origin}{carried}Validation (the trainer's, on data/images/val):", "",
             "| | mean / worst vs target dB | mean / worst vs sharp dB |", "| --- | --- | --- |",
             f"| D-CNN | {fmt('dcnn_mean_db')} / {fmt('dcnn_worst_db')} | "
             f"{fmt('dcnn_sharp_mean_db')} / {fmt('dcnn_sharp_worst_db')} |",

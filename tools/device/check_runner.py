@@ -17,6 +17,9 @@ CARRY = REPO / ".devcheck"
 MIB = 1 << 20
 #: What may travel: the device tool's limit is 64 MiB; 4 MiB stay spare.
 TRAVEL_LIMIT = 60 * MIB
+#: What may come back from one call: the device tool's limit is 8 files
+#: (summary.json, report.md, log.txt and the steps' STEP_FILES).
+FILES_BACK = 8
 #: The whole run on the device: one tool call is at most 10 minutes; this
 #: leaves a minute for the machine's own start of the command and the
 #: transfer of $OUT.
@@ -63,8 +66,8 @@ class Step:
 
 #: The files under $OUT each step writes (every step's output is also in
 #: log.txt, and its figures in summary.json and report.md).
-STEP_FILES = {"train": ["metrics.csv"],
-              "export": ["dcnn-full.onnx", "dcnn-full.card.json", "dcnn-full.doe.safetensors"],
+STEP_FILES = {"train": ["metrics.csv", "checkpoint/card.json", "checkpoint/tensors-<sha256[:16]>.safetensors"],
+              "export": ["dcnn-full.onnx", "dcnn-full.card.json"],
               "tradeoff": ["tradeoff.md", "tradeoff.json", "tradeoff.svg", "tradeoff.png"]}
 
 
@@ -91,6 +94,8 @@ class Runner:
         # What one step leaves for the next: the teacher, the images, the run.
         self.teacher = self.images = self.run_dir = None
         self.teacher_set = "train-ceiling"
+        # The commit the run is of (the session's note in the carried checkpoint).
+        self.commit = "unknown"
         self.adapter = None
         # The adapter's cooperative-matrix shapes, as the bench names them.
         self.coop = None

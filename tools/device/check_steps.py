@@ -17,12 +17,13 @@ def sizes(smoke: bool) -> dict:
         return {"frame": "64x64", "layer_frame": "32x32", "panel": "128x72", "frames": 5, "repeat": 1,
                 "torch_repeat": 2, "pipeline_s": 20, "train_images": 2, "val_images": 1, "crop": 64, "val_crop": 48,
                 "patch": 32, "width": 4, "levels": 2, "ceiling_iterations": 3, "ceiling_shards": 2,
-                "steps": 3, "validate_every": 2, "max_batch": 2, "budget_s": 60, "copy_mb": 16, "gemm": 256,
+                "steps": 4, "seed_steps": 2, "validate_every": 2, "max_batch": 2, "budget_s": 60, "copy_mb": 16,
+                "gemm": 256,
                 "tradeoff_size": "64x64", "tradeoff_prefilters": "lsq,refine:1", "tradeoff_designs": "multifocal"}
     return {"frame": "1920x1080", "layer_frame": "1920x1080", "panel": "1920x1080", "frames": 200, "repeat": 10,
             "torch_repeat": 20, "pipeline_s": 8, "train_images": None, "val_images": None, "crop": None,
             "val_crop": None, "patch": 128, "width": 32, "levels": 4, "ceiling_iterations": 200, "ceiling_shards": 16,
-            "steps": 1_000_000, "validate_every": 500, "max_batch": 64, "budget_s": TRAIN_BUDGET_S,
+            "steps": 1_000_000, "seed_steps": None, "validate_every": 500, "max_batch": 64, "budget_s": TRAIN_BUDGET_S,
             "copy_mb": 2048, "gemm": 8192, "tradeoff_size": "1920x1080",
             "tradeoff_prefilters": "lsq,refine:1,refine:3,refine:10", "tradeoff_designs": None}
 
@@ -67,7 +68,11 @@ def calls() -> list:
 
 def step_setup(r: Runner, s: Step, z: dict):
     if r.smoke:
-        binary = REPO / "target" / "release" / "nedrt"
+        # $NEDRT names a built binary (as for tests/python), else the release build here.
+        named = r.env.get("NEDRT")
+        binary = Path(named) if named else REPO / "target" / "release" / "nedrt"
+        if named and not binary.is_file():
+            raise Failed(f"{binary}: NEDRT names no file")
         if not binary.is_file():
             r.sh(["cargo", "build", "--release", "-p", "nedrt"], 1800, parse_json=False)
         r.nedrt = binary
