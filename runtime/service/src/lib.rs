@@ -13,3 +13,8 @@
 pub mod compose;
 pub mod pipeline;
 pub mod present;
+
+/// Deadlines for the unit tests (shared with the integration tests).
+#[cfg(test)]
+#[path = "../../../tests/common/deadline.rs"]
+mod deadline;

@@ -76,7 +76,13 @@ mod tests {
         assert_eq!(rx.try_iter().collect::<Vec<_>>(), vec![3, 4]);
         assert_eq!(dropped.load(Ordering::Relaxed), 3);
         drop(tx);
-        assert!(rx.recv().is_err(), "dropping every sender ends the stream");
+        assert!(
+            matches!(
+                rx.recv_timeout(crate::deadline::THREAD),
+                Err(crossbeam_channel::RecvTimeoutError::Disconnected)
+            ),
+            "dropping every sender ends the stream"
+        );
     }
 
     #[test]
@@ -95,7 +101,11 @@ mod tests {
             tx.send(i);
         }
         drop(tx);
-        let got = consumer.join().expect("consumer");
+        let got = crate::deadline::join_within(
+            consumer,
+            crate::deadline::THREAD,
+            "the consumer to take every item",
+        );
         assert!(got.windows(2).all(|w| w[0] < w[1]));
         assert_eq!(got.last(), Some(&19_999));
         assert_eq!(got.len() as u64 + dropped.load(Ordering::Relaxed), 20_000);

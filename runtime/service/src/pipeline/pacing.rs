@@ -340,12 +340,17 @@ mod tests {
             })
         };
         let mut taken = Vec::new();
+        let start = std::time::Instant::now();
         while !producer.is_finished() {
+            assert!(
+                start.elapsed() < crate::deadline::THREAD,
+                "timed out waiting for the producer's 10 000 frames"
+            );
             if let Some(v) = slot.take() {
                 taken.push(v);
             }
         }
-        producer.join().expect("producer");
+        crate::deadline::join_within(producer, crate::deadline::THREAD, "the producer to end");
         taken.extend(slot.take());
         assert!(taken.windows(2).all(|w| w[0] < w[1]), "in order");
         assert_eq!(taken.last(), Some(&9_999), "the last frame is never lost");

@@ -2,6 +2,7 @@
 //! backend failure, rejection counting, delivery order.
 
 use super::*;
+use crate::deadline::{THREAD, join_within, recv_within, wait_until_within, within};
 use crate::pipeline::frame::{PixelFormat, RejectReason, SubmittedFrame};
 use crate::pipeline::pacing::SystemClock;
 use crate::present::{PanelCodes, PresentError, Presented, Sink};
@@ -98,8 +99,6 @@ fn run_one_by_one_with(
     let mut service = Service::start(panel(), dcnn, Arc::new(SystemClock)).expect("start");
     let compositor = service.compositor().expect("open");
     service.close_ingest();
-    let control = Control::default();
-    let mut sink = Collect::default();
     let feeder = {
         let frames = frames.to_vec();
         let stats = service.stats().clone();
@@ -107,21 +106,40 @@ fn run_one_by_one_with(
             for (i, f) in frames.into_iter().enumerate() {
                 before(i, &compositor);
                 let _ = compositor.submit(f);
-                let t = std::time::Instant::now();
-                while stats.presented.load(Ordering::Relaxed) + stats.rejected_total()
-                    < i as u64 + 1
-                {
-                    assert!(t.elapsed().as_secs() < 30, "frame {i} never arrived");
-                    std::thread::sleep(std::time::Duration::from_millis(1));
-                }
+                wait_until_within(
+                    THREAD,
+                    &format!("frame {i} to be shown or rejected"),
+                    || stats.presented.load(Ordering::Relaxed) + stats.rejected_total() > i as u64,
+                );
             }
         })
     };
-    let report = service.present_loop(&mut sink, &control).expect("present");
-    feeder.join().expect("feeder");
-    let report_after = service.shutdown();
+    let (report, sink, service) = present_until_drained(service, Control::default());
+    join_within(feeder, THREAD, "the feeder to submit every frame");
+    let report_after = within(THREAD, "the service to shut down", move || {
+        service.shutdown()
+    });
     assert_eq!(report.presented, report_after.presented);
     (sink.0, report)
+}
+
+/// Runs the present loop into a [`Collect`] until the pipeline drains, on
+/// a thread of its own: a pipeline that never drains (a stage stuck) fails
+/// the test instead of hanging it. The limit leaves a feeder's own
+/// deadline ([`THREAD`] per frame) the first word.
+fn present_until_drained(
+    mut service: Service,
+    control: Control,
+) -> (crate::pipeline::stats::Report, Collect, Service) {
+    within(
+        2 * THREAD,
+        "the present loop to end (the pipeline to drain)",
+        move || {
+            let mut sink = Collect::default();
+            let report = service.present_loop(&mut sink, &control).expect("present");
+            (report, sink, service)
+        },
+    )
 }
 
 #[test]
@@ -195,25 +213,41 @@ fn rejected_frames_are_counted_and_the_rest_delivered_in_order() {
     );
 }
 
-/// A backend that holds every frame until the test lets it go.
+/// A backend that holds each frame until the test lets it go: it says on
+/// `entered` that it has taken a frame, then waits on `release` (a message
+/// lets one frame through; the sender dropped lets every later one
+/// through).
 #[derive(Debug)]
-struct Gate(Arc<std::sync::Barrier>);
+struct Gate {
+    entered: std::sync::mpsc::Sender<()>,
+    release: std::sync::mpsc::Receiver<()>,
+}
 
 impl Preprocess for Gate {
     fn describe(&self) -> String {
         "gated test backend".into()
     }
     fn run(&mut self, frame: &Image) -> Result<Image, PreprocessError> {
-        self.0.wait();
-        Ok(frame.clone())
+        use std::sync::mpsc::RecvTimeoutError;
+        let _ = self.entered.send(());
+        match self.release.recv_timeout(THREAD) {
+            Ok(()) | Err(RecvTimeoutError::Disconnected) => Ok(frame.clone()),
+            Err(RecvTimeoutError::Timeout) => {
+                panic!("the test never released the gated frame within {THREAD:?}")
+            }
+        }
     }
 }
 
 #[test]
 fn frames_inside_the_stages_at_a_stop_are_counted_in_flight_not_lost() {
-    let gate = Arc::new(std::sync::Barrier::new(2));
+    let (entered_tx, entered) = std::sync::mpsc::channel();
+    let (release, release_rx) = std::sync::mpsc::channel();
     let dcnn = PreprocessStage {
-        primary: Box::new(Gate(gate.clone())),
+        primary: Box::new(Gate {
+            entered: entered_tx,
+            release: release_rx,
+        }),
         fallback: None,
     };
     let mut service = Service::start(panel(), dcnn, Arc::new(SystemClock)).expect("start");
@@ -221,21 +255,23 @@ fn frames_inside_the_stages_at_a_stop_are_counted_in_flight_not_lost() {
     service.close_ingest();
     // One frame held inside the D-CNN, the next ones queued behind it (a
     // queue keeps only the newest, so each waits for the one before).
-    let uploaded = |n: u64| {
-        while service.stats().histogram(Stage::Upload).count() < n {
-            std::thread::sleep(std::time::Duration::from_millis(1));
-        }
-    };
+    // Frame 0 is waited for until the gated stage has taken it: its upload
+    // alone does not say so, and under load a frame submitted meanwhile
+    // replaces it in the queue before the stage gets there (the test then
+    // waited for a frame the stage never ran: issue 39).
     compositor.submit(grey(0, 9)).expect("valid");
-    uploaded(1);
+    recv_within(&entered, THREAD, "the D-CNN stage to take frame 0");
     compositor.submit(grey(1, 9)).expect("valid");
-    uploaded(2);
+    wait_until_within(THREAD, "frame 1's upload", || {
+        service.stats().histogram(Stage::Upload).count() >= 2
+    });
     for id in 2..4 {
         compositor.submit(grey(id, 9)).expect("valid");
     }
     let control = Control::default();
     control.stop.store(true, Ordering::Relaxed);
     let mut sink = Collect::default();
+    // Returns at once: the loop looks at `stop` before anything else.
     let mid = service.present_loop(&mut sink, &control).expect("present");
     assert_eq!(mid.presented, 0);
     assert!(
@@ -243,9 +279,12 @@ fn frames_inside_the_stages_at_a_stop_are_counted_in_flight_not_lost() {
         "frames still inside: {mid:?}"
     );
     drop(compositor);
-    // The held frame finishes its D-CNN run; nothing after it runs.
-    gate.wait();
-    let report = service.shutdown();
+    // The held frame finishes its D-CNN run; the stages, stopped, count
+    // every later frame in flight instead of running it.
+    drop(release);
+    let report = within(THREAD, "the service to shut down", move || {
+        service.shutdown()
+    });
     assert_eq!(report.submitted, 4);
     assert_eq!(report.accounted(), 4, "{}", report.table());
     assert!(report.in_flight_at_stop >= 1, "{}", report.table());
@@ -386,11 +425,11 @@ fn two_views_each_get_their_frames_layers_and_engine_on_one_panel() {
     };
     let feeder = std::thread::spawn(move || {
         let wait_for = |n: u64| {
-            let t = std::time::Instant::now();
-            while stats.presented.load(Ordering::Relaxed) + stats.rejected_total() < n {
-                assert!(t.elapsed().as_secs() < 30, "frame {n} never arrived");
-                std::thread::sleep(std::time::Duration::from_millis(1));
-            }
+            wait_until_within(
+                THREAD,
+                &format!("frame {n} to be shown or rejected"),
+                || stats.presented.load(Ordering::Relaxed) + stats.rejected_total() >= n,
+            );
         };
         // Left 0.2; the right eye has had no frame yet: black.
         compositor.submit_view(0, view_frame(1, 51)).expect("left");
@@ -421,12 +460,11 @@ fn two_views_each_get_their_frames_layers_and_engine_on_one_panel() {
         compositor.submit(grey(5, 153)).expect("both");
         wait_for(5);
     });
-    let mut sink = Collect::default();
-    service
-        .present_loop(&mut sink, &Control::default())
-        .expect("present");
-    feeder.join().expect("feeder");
-    let report = service.shutdown();
+    let (_, sink, service) = present_until_drained(service, Control::default());
+    join_within(feeder, THREAD, "the feeder to submit every frame");
+    let report = within(THREAD, "the service to shut down", move || {
+        service.shutdown()
+    });
     assert_eq!(report.presented, 3);
     assert_eq!(report.rejected_total(), 2);
     let rows = |f: &DisplayFrame| -> Vec<Vec<u8>> {

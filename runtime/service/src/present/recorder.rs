@@ -176,23 +176,26 @@ impl Drop for RecorderSink {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::deadline::{THREAD, within};
 
     #[test]
     fn every_presented_frame_is_on_disk_after_finish() {
         let dir = tempfile::tempdir().expect("tempdir");
         let mut sink = RecorderSink::new(&dir.path().join("rec")).expect("sink");
         let (w, h) = (5usize, 3usize);
-        for id in 0..20u64 {
-            let rgba8 = (0..4 * w * h).map(|i| (i as u64 * 13 + id) as u8).collect();
-            let frame = DisplayFrame {
-                id,
-                width: w,
-                height: h,
-                rgba8,
-            };
-            sink.present(PanelCodes::Host(&frame)).expect("present");
-        }
-        sink.finish().expect("finish");
+        within(THREAD, "the recorder to write 20 frames", move || {
+            for id in 0..20u64 {
+                let rgba8 = (0..4 * w * h).map(|i| (i as u64 * 13 + id) as u8).collect();
+                let frame = DisplayFrame {
+                    id,
+                    width: w,
+                    height: h,
+                    rgba8,
+                };
+                sink.present(PanelCodes::Host(&frame)).expect("present");
+            }
+            sink.finish().expect("finish");
+        });
         for id in 0..20u64 {
             let img = image::open(frame_path(&dir.path().join("rec"), id))
                 .expect("png")
@@ -210,16 +213,18 @@ mod tests {
         let dir = tempfile::tempdir().expect("tempdir");
         let rec = dir.path().join("rec");
         let mut sink = RecorderSink::new(&rec).expect("sink");
-        for (id, level) in [(7u64, 10u8), (7, 20), (7, 30)] {
-            let frame = DisplayFrame {
-                id,
-                width: 1,
-                height: 1,
-                rgba8: vec![level, level, level, 255],
-            };
-            sink.present(PanelCodes::Host(&frame)).expect("present");
-        }
-        sink.finish().expect("finish");
+        within(THREAD, "the recorder to write 3 frames", move || {
+            for (id, level) in [(7u64, 10u8), (7, 20), (7, 30)] {
+                let frame = DisplayFrame {
+                    id,
+                    width: 1,
+                    height: 1,
+                    rgba8: vec![level, level, level, 255],
+                };
+                sink.present(PanelCodes::Host(&frame)).expect("present");
+            }
+            sink.finish().expect("finish");
+        });
         let level = |p: PathBuf| image::open(p).expect("png").to_rgb8().into_raw()[0];
         assert_eq!(level(frame_path(&rec, 7)), 10);
         assert_eq!(level(repeated_frame_path(&rec, 7, 1)), 20);
@@ -281,13 +286,16 @@ mod tests {
             };
             let dir = tempfile::tempdir().expect("tempdir");
             let mut sink = RecorderSink::new(dir.path()).expect("sink");
-            sink.present(PanelCodes::Device(&on_device))
-                .expect("device codes");
-            assert_eq!(sink.last_traffic().read_backs, 1);
-            sink.present(PanelCodes::Host(&on_host))
-                .expect("host codes");
-            assert_eq!(sink.last_traffic(), HostTraffic::default());
-            sink.finish().expect("finish");
+            let host_codes = on_host.rgba8.clone();
+            within(THREAD, "the recorder to write 2 frames", move || {
+                sink.present(PanelCodes::Device(&on_device))
+                    .expect("device codes");
+                assert_eq!(sink.last_traffic().read_backs, 1);
+                sink.present(PanelCodes::Host(&on_host))
+                    .expect("host codes");
+                assert_eq!(sink.last_traffic(), HostTraffic::default());
+                sink.finish().expect("finish");
+            });
             let png = |id| {
                 image::open(frame_path(dir.path(), id))
                     .expect("png")
@@ -295,7 +303,7 @@ mod tests {
                     .into_raw()
             };
             assert_eq!(png(3), png(4));
-            assert_eq!(png(4), crate::present::rgb8_of_rgba8(&on_host.rgba8));
+            assert_eq!(png(4), crate::present::rgb8_of_rgba8(&host_codes));
         }
     }
 }
