@@ -105,6 +105,7 @@ def test_bicubic_reproduces_quadratics_and_doe_file_loads_in_nedrt(tmp_path):
     exe = REPO / "target" / "release" / "nedrt"
     if not exe.exists():
         pytest.skip("nedrt not built")
-    out = subprocess.run([str(exe), "doe", "--doe", str(path), "--out-dir", str(tmp_path)], capture_output=True, text=True)
+    out = subprocess.run([str(exe), "doe", "--doe", str(path), "--out-dir", str(tmp_path)], capture_output=True, text=True,
+                         timeout=600)
     assert out.returncode == 0, out.stderr
     assert "1668×1668 at 6.000 µm" in out.stdout

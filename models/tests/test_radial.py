@@ -182,7 +182,8 @@ def test_trainer_psfs_agree_with_nedrt_for_the_same_doe(tmp_path, eye):
     save_doe(doe, fabricated, CAL.doe_fabrication_pitch_m, CAL.doe_max_height_m, CAL.material_name,
              CAL.channels[CAL.design_channel].wavelength_m, "three-lens profile")
     out = subprocess.run([str(exe), "--doe", str(doe), "--cache-dir", str(tmp_path / "cache"), *eye, "psf",
-                          "--out-dir", str(tmp_path), "--step", "1.0"], capture_output=True, text=True)
+                          "--out-dir", str(tmp_path), "--step", "1.0"], capture_output=True, text=True,
+                         timeout=600)
     assert out.returncode == 0, out.stderr
     rows = list(csv.DictReader(open(next(tmp_path.glob("*.csv")))))
     names = [c.name for c in CAL.channels]

@@ -170,7 +170,8 @@ def test_displays_are_exact_16_bit_pngs_that_nedrt_evaluates(tmp_path):
     import json
     out = subprocess.run([str(exe), "--calib", str(REPO / "tests/data/small-aperture.toml"), "eval",
                           "--images", str(imgs), "--out-dir", str(tmp_path / "eval"), "--methods", "doe-only",
-                          "--display-dir", str(tmp_path / "displays")], capture_output=True, text=True)
+                          "--display-dir", str(tmp_path / "displays")], capture_output=True, text=True,
+                         timeout=600)
     assert out.returncode == 0, out.stderr
     methods = json.loads((tmp_path / "eval" / "eval.json").read_text())["methods"]
     # The identity D-CNN's 16-bit display scores as the unprocessed input (to 16-bit rounding).

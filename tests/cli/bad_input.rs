@@ -8,8 +8,7 @@
 
 use super::*;
 
-use std::process::Stdio;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use nedrt_service::pipeline::frame::PixelFormat;
 use nedrt_service::pipeline::protocol::{FrameHeader, HELLO_LEN, Hello, valid_shm_name};
@@ -1041,25 +1040,6 @@ fn crc32(bytes: &[u8]) -> u32 {
     !crc
 }
 
-/// Runs `command`, killing it if it has not ended within `limit`.
-fn output_within(command: &mut Command, limit: Duration) -> Option<Output> {
-    let mut child = command
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .expect("start nedrt");
-    let start = Instant::now();
-    while child.try_wait().expect("wait").is_none() {
-        if start.elapsed() > limit {
-            let _ = child.kill();
-            let _ = child.wait();
-            return None;
-        }
-        std::thread::sleep(Duration::from_millis(20));
-    }
-    Some(child.wait_with_output().expect("output"))
-}
-
 /// Files under `dir`, recursively.
 fn files_under(dir: &Path) -> Vec<PathBuf> {
     let mut out = Vec::new();
@@ -1087,12 +1067,20 @@ fn every_row_of_the_bad_input_catalogue_is_a_clean_error_with_nothing_written() 
         let scratch = tempfile::tempdir().expect("tempdir");
         let out = scratch.path().join("out.png");
         let args = command_line(r, inputs.path(), &out);
-        let Some(o) = output_within(
-            nedrt().current_dir(repo()).args(&args),
-            Duration::from_secs(120),
-        ) else {
-            failures.push(format!("{}: still running after 120 s (killed)", r.name));
-            continue;
+        let o = match nedrt()
+            .current_dir(repo())
+            .args(&args)
+            .try_output_within(Duration::from_secs(120), r.name)
+        {
+            Ok(o) => o,
+            Err(o) => {
+                failures.push(format!(
+                    "{}: still running after 120 s (killed); stderr {}",
+                    r.name,
+                    nedrt_core::util::bounded(&stderr(&o), 600)
+                ));
+                continue;
+            }
         };
         let err = stderr(&o);
         let lines: Vec<&str> = err.lines().filter(|l| l.starts_with("error:")).collect();

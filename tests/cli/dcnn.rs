@@ -105,8 +105,7 @@ fn sim_and_service_with(method: &str, extra: &[&str]) -> SimAndService {
         .args([path(&input), "--out", path(&dir.path().join("p.png"))])
         .args(["--display-out", path(&display)])
         .args(extra)
-        .output()
-        .expect("sim");
+        .output_within(deadline::COMMAND, "nedrt sim");
     assert!(o.status.success(), "{method}: {}", stderr(&o));
 
     let record = dir.path().join("rec");
@@ -117,8 +116,7 @@ fn sim_and_service_with(method: &str, extra: &[&str]) -> SimAndService {
         .args([path(&input), "--frames", "1", "--source-rate", "0"])
         .args(["--sink", "record", "--record-dir", path(&record)])
         .args(extra)
-        .output()
-        .expect("run");
+        .output_within(deadline::COMMAND, "nedrt run");
     assert!(o.status.success(), "{method}: {}", stderr(&o));
     let recorded = std::fs::read_dir(&record)
         .expect("recording")
@@ -270,8 +268,7 @@ fn bad_dcnn_inputs_are_clear_errors() {
                 backend,
             ])
             .env(var, value)
-            .output()
-            .expect("run")
+            .output_within(deadline::COMMAND, "nedrt --sim")
     };
     let o = with_backend("ort", "ORT_DYLIB_PATH", "/nonexistent/libonnxruntime.so");
     assert_clean_error(
@@ -358,8 +355,7 @@ fn a_network_on_the_wiener_output_runs_behind_the_wiener_in_sim_and_service() {
             .args(["--preprocess", "proposed", "--dcnn", path(&model)])
             .args(["--source", "pattern", "--frames", "1", "--source-rate", "0"])
             .args(["--sink", "record", "--record-dir", path(&record)])
-            .output()
-            .expect("run");
+            .output_within(deadline::COMMAND, "nedrt run");
         assert_clean_error(&o, "w.card.json");
         assert!(!record.exists(), "{card}: the recorder's folder was made");
     }

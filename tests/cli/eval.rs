@@ -103,8 +103,7 @@ fn eval_runs_the_built_in_methods_and_the_shipped_dcnn_by_default() {
             path(&imgs),
         ])
         .args(["--out-dir", path(&out)])
-        .output()
-        .expect("eval");
+        .output_within(deadline::COMMAND, "nedrt eval");
     assert!(o.status.success(), "{}", stderr(&o));
     let md = std::fs::read_to_string(out.join("eval.md")).expect("md");
     let json: serde_json::Value =

@@ -5,6 +5,8 @@
 
 mod bad_input;
 mod dcnn;
+#[path = "../common/deadline.rs"]
+mod deadline;
 mod eval;
 mod plan;
 mod prefilter;
@@ -18,6 +20,8 @@ mod xwd;
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
+
+use deadline::CommandWithin;
 
 fn nedrt() -> Command {
     let mut c = Command::new(env!("CARGO_BIN_EXE_nedrt"));
@@ -38,8 +42,9 @@ fn small_calib() -> PathBuf {
     repo().join("tests/data/small-aperture.toml")
 }
 
+/// `nedrt` with `args`, to its end ([`deadline::COMMAND`] at most).
 fn run(args: &[&str]) -> Output {
-    nedrt().args(args).output().expect("run nedrt")
+    nedrt().args(args).output_within(deadline::COMMAND, "nedrt")
 }
 
 /// `nedrt --sim --accom D --out OUT` with extra arguments.

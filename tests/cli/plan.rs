@@ -13,7 +13,7 @@ fn plan(args: &[&str], envs: &[(&str, &str)]) -> String {
     for (k, v) in envs {
         c.env(k, v);
     }
-    let o = c.output().expect("run --plan");
+    let o = c.output_within(deadline::COMMAND, "nedrt run --plan");
     assert!(o.status.success(), "{}", stderr(&o));
     stdout(&o)
 }
@@ -108,8 +108,7 @@ fn a_view_calibration_names_each_views_design() {
             "doe+wiener",
         ])
         .args(["--sink", "record"])
-        .output()
-        .expect("run --plan");
+        .output_within(deadline::COMMAND, "nedrt run --plan");
     assert!(o.status.success(), "{}", stderr(&o));
     let text = stdout(&o);
     let views: Vec<&str> = text.lines().filter(|l| l.starts_with("view ")).collect();

@@ -6,7 +6,11 @@ use super::*;
 fn run_refuses_bad_sources_sinks_and_models_with_one_error_line() {
     let dir = tempfile::tempdir().expect("tempdir");
     let panel = small_panel();
-    let run_with = |extra: &[&str]| run_on_small_panel().args(extra).output().expect("run");
+    let run_with = |extra: &[&str]| {
+        run_on_small_panel()
+            .args(extra)
+            .output_within(deadline::COMMAND, "nedrt run")
+    };
     // An image of the wrong size is named before anything starts.
     let big = dir.path().join("big.png");
     image::RgbImage::new(65, 48).save(&big).expect("save");
@@ -55,8 +59,7 @@ fn run_refuses_bad_sources_sinks_and_models_with_one_error_line() {
         .env_remove("DISPLAY")
         .env_remove("WAYLAND_DISPLAY")
         .args(["--frames", "1", "--sink", "window"])
-        .output()
-        .expect("run");
+        .output_within(deadline::COMMAND, "nedrt run");
     assert_clean_error(&o, "window sink");
     // A calibration whose panel makes no sense.
     let bad = dir.path().join("bad-panel.toml");
@@ -66,8 +69,7 @@ fn run_refuses_bad_sources_sinks_and_models_with_one_error_line() {
     std::fs::write(&bad, text).expect("write");
     let o = nedrt()
         .args(["run", "--calib", path(&bad), "--sink", "record"])
-        .output()
-        .expect("run");
+        .output_within(deadline::COMMAND, "nedrt run");
     assert_clean_error(&o, "panel.refresh_hz");
 }
 
@@ -98,8 +100,7 @@ fn run_records_a_folder_and_writes_a_trace_and_report() {
             path(&rec),
         ])
         .args(["--trace", path(&trace), "--report-json", path(&report)])
-        .output()
-        .expect("run");
+        .output_within(deadline::COMMAND, "nedrt run");
     assert!(o.status.success(), "{}", stderr(&o));
     assert!(
         stdout(&o).contains("3 submitted, 3 presented"),
@@ -159,8 +160,7 @@ fn run_falls_back_to_the_cpu_when_the_chosen_backend_cannot_start() {
                 path(&dir.path().join(rec)),
             ])
             .args(extra)
-            .output()
-            .expect("run")
+            .output_within(deadline::COMMAND, "nedrt run")
     };
     let o = run_without_ort(&[], "rec");
     assert!(o.status.success(), "{}", stderr(&o));
@@ -217,8 +217,9 @@ fn run_refuses_a_source_rate_it_cannot_pace() {
 }
 
 /// `nedrt run` of the test pattern into `<dir>/rec` with its report in
-/// `<dir>/report.json`, once its first frame is on disk.
-fn recording_pattern() -> (std::process::Child, tempfile::TempDir) {
+/// `<dir>/report.json`, once its first frame is on disk (killed if the
+/// test fails before it ends: not left running to slow every later test).
+fn recording_pattern() -> (deadline::Watched, tempfile::TempDir) {
     let dir = tempfile::tempdir().expect("tempdir");
     let rec = dir.path().join("rec");
     // The shipped network without its card: no Wiener stage to prepare
@@ -226,34 +227,25 @@ fn recording_pattern() -> (std::process::Child, tempfile::TempDir) {
     // a loaded machine with a cold cache), as these tests are about the stop.
     let network = dir.path().join("network.onnx");
     std::fs::copy(repo().join("models/dcnn.onnx"), &network).expect("copy the model");
-    let mut child = run_on_small_panel()
+    let child = run_on_small_panel()
         .arg("--dcnn")
         .arg(&network)
         .args(["--source", "pattern", "--sink", "record", "--record-dir"])
         .args([path(&rec), "--report-json"])
         .arg(dir.path().join("report.json"))
-        .stdout(std::process::Stdio::piped())
-        .stderr(std::process::Stdio::piped())
-        .spawn()
-        .expect("start");
-    let started = std::time::Instant::now();
+        .spawn_watched("nedrt run (recording the pattern)");
     // Any frame: under load the present stage may show a later frame in
     // frame 0's place (the newest ready frame wins its refresh).
-    let recorded = || {
-        std::fs::read_dir(&rec).is_ok_and(|d| {
-            d.flatten()
-                .any(|e| e.path().extension().is_some_and(|x| x == "png"))
-        })
-    };
-    while !recorded() {
-        if started.elapsed() > std::time::Duration::from_secs(60) {
-            // Not left running to slow every later test.
-            let _ = child.kill();
-            let _ = child.wait();
-            panic!("no frame recorded in 60 s");
-        }
-        std::thread::sleep(std::time::Duration::from_millis(50));
-    }
+    deadline::wait_until_within(
+        std::time::Duration::from_secs(60),
+        "a frame to be recorded",
+        || {
+            std::fs::read_dir(&rec).is_ok_and(|d| {
+                d.flatten()
+                    .any(|e| e.path().extension().is_some_and(|x| x == "png"))
+            })
+        },
+    );
     (child, dir)
 }
 
@@ -271,7 +263,10 @@ fn two_stop_signals_at_once_still_write_the_report() {
             .expect("kill");
         assert!(killed.success());
     }
-    let out = child.wait_with_output().expect("wait");
+    let out = child.wait_within(
+        std::time::Duration::from_secs(60),
+        "nedrt run to stop after two SIGTERMs",
+    );
     assert!(out.status.success(), "{}", stderr(&out));
     let json: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(&report).expect("report written"))
@@ -290,7 +285,10 @@ fn a_failing_recorder_still_leaves_the_report() {
     // Moved away in one step (removing it would race the writer's next
     // file): every later write into `rec` fails.
     std::fs::rename(&rec, dir.path().join("gone")).expect("move the recording folder away");
-    let out = child.wait_with_output().expect("wait");
+    let out = child.wait_within(
+        deadline::COMMAND,
+        "nedrt run to fail once its recording folder is gone",
+    );
     assert!(!out.status.success(), "the run must fail");
     assert!(stderr(&out).contains("cannot write"), "{}", stderr(&out));
     let json: serde_json::Value =
@@ -323,8 +321,7 @@ fn without_a_vulkan_driver_run_records_with_the_dcnn_on_the_cpu_and_gpu_sinks_sa
     let o = on_small_panel_without_vulkan()
         .args(["--source", "pattern", "--frames", "3", "--source-rate", "4"])
         .args(["--sink", "record", "--record-dir", path(&rec)])
-        .output()
-        .expect("run");
+        .output_within(deadline::COMMAND, "nedrt run");
     assert!(o.status.success(), "{}", stderr(&o));
     let err = stderr(&o);
     assert!(
@@ -346,7 +343,6 @@ fn without_a_vulkan_driver_run_records_with_the_dcnn_on_the_cpu_and_gpu_sinks_sa
     // A sink that needs a GPU says which one does not.
     let o = on_small_panel_without_vulkan()
         .args(["--source", "pattern", "--frames", "1", "--sink", "headless"])
-        .output()
-        .expect("run");
+        .output_within(deadline::COMMAND, "nedrt run");
     assert_clean_error(&o, "`nedrt run --sink record` needs no GPU");
 }

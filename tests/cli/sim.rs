@@ -11,8 +11,7 @@ fn readme_main_command_runs_on_shipped_defaults() {
         nedrt()
             .current_dir(repo())
             .args(["--sim", "--accom", "1.0", "--out", path(&out)])
-            .output()
-            .expect("run nedrt")
+            .output_within(deadline::COMMAND, "nedrt")
     };
     let o = readme();
     assert!(o.status.success(), "{}", stderr(&o));
@@ -273,8 +272,7 @@ fn designs_are_selected_by_name_and_bad_selections_are_refused() {
         nedrt()
             .current_dir(repo())
             .args(args)
-            .output()
-            .expect("run nedrt")
+            .output_within(deadline::COMMAND, "nedrt")
     };
     for name in ["allsharp", "multifocal"] {
         let o = in_repo(&["--design", name, "calib"]);

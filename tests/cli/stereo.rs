@@ -49,8 +49,7 @@ fn each_eye_shows_what_sim_gives_for_its_own_design() {
         .args(["--calib", path(&calib), "run", "--preprocess", "doe+wiener"])
         .args(["--source", "dir", "--input", path(&input), "--frames", "1"])
         .args(["--sink", "record", "--record-dir", path(&rec)])
-        .output()
-        .expect("run");
+        .output_within(deadline::COMMAND, "nedrt run");
     assert!(o.status.success(), "{}", stderr(&o));
     assert!(stderr(&o).contains("two views"), "{}", stderr(&o));
     let recorded = image::open(rec.join("frame-00000000.png"))
@@ -79,8 +78,7 @@ fn each_eye_shows_what_sim_gives_for_its_own_design() {
                 path(&dir.path().join("p.png")),
             ])
             .args(["--display-out", path(&display)])
-            .output()
-            .expect("sim");
+            .output_within(deadline::COMMAND, "nedrt sim");
         assert!(o.status.success(), "{}", stderr(&o));
         let display = nedrt_core::image_io::load(&display)
             .expect("display image")

@@ -255,8 +255,7 @@ fn without_a_display_the_viewer_says_to_use_headless() {
             "--step",
             "0.5",
         ])
-        .output()
-        .expect("run");
+        .output_within(deadline::COMMAND, "nedrt view");
     assert_clean_error(&o, "--headless");
     assert!(stderr(&o).contains("no display"), "{}", stderr(&o));
 }
@@ -296,26 +295,6 @@ mod needs_gpu_and_window {
         }
     }
 
-    struct KillOnDrop(Option<std::process::Child>);
-
-    impl KillOnDrop {
-        fn get(&mut self) -> &mut std::process::Child {
-            self.0.as_mut().expect("running")
-        }
-        fn take(&mut self) -> std::process::Child {
-            self.0.take().expect("running")
-        }
-    }
-
-    impl Drop for KillOnDrop {
-        fn drop(&mut self) {
-            if let Some(c) = &mut self.0 {
-                let _ = c.kill();
-                let _ = c.wait();
-            }
-        }
-    }
-
     /// Key presses to the viewer as a user's (XTEST, to the focused
     /// window): `key --window` would send synthetic events, which winit
     /// ignores.
@@ -323,8 +302,7 @@ mod needs_gpu_and_window {
         let xdotool = |args: &[&str]| {
             let o = Command::new("xdotool")
                 .args(args)
-                .output()
-                .expect("xdotool");
+                .output_within(deadline::TOOL, "xdotool");
             assert!(o.status.success(), "xdotool {args:?}: {}", stderr(&o));
             stdout(&o)
         };
@@ -351,7 +329,8 @@ mod needs_gpu_and_window {
         let input = input(dir.path());
         let at_half = simulated_rgb8(dir.path(), &input, "ai", "0.5").2;
         let at_one_and_half = simulated_rgb8(dir.path(), &input, "ai", "1.5").2;
-        let child = nedrt()
+        // Killed if an assertion fails first, so no window outlives the test.
+        let mut child = nedrt()
             .args([
                 "--calib",
                 path(&small_calib()),
@@ -365,12 +344,7 @@ mod needs_gpu_and_window {
                 "--accom",
                 "0.5",
             ])
-            .stdout(std::process::Stdio::piped())
-            .stderr(std::process::Stdio::piped())
-            .spawn()
-            .expect("start nedrt view");
-        // Killed if an assertion fails first, so no window outlives the test.
-        let mut child = KillOnDrop(Some(child));
+            .spawn_watched("nedrt view");
         let layout = Layout::new(2, 64, 64, true);
         let before = wait_for(&layout, 1, &at_half, "ai at 0.5 D");
         // Two steps of the 0.5 D grid: 1.5 D.
@@ -383,18 +357,8 @@ mod needs_gpu_and_window {
             "the labels changed with the accommodation"
         );
         keys(&["q"]);
-        let start = Instant::now();
-        let status = loop {
-            if let Some(s) = child.get().try_wait().expect("wait") {
-                break s;
-            }
-            assert!(
-                start.elapsed() < Duration::from_secs(20),
-                "q did not close the viewer"
-            );
-            std::thread::sleep(Duration::from_millis(100));
-        };
-        let out = child.take().wait_with_output().expect("output");
+        let status = child.exit_within(Duration::from_secs(20), "q to close the viewer");
+        let out = child.output();
         assert!(status.success(), "{}", stderr(&out));
         assert!(stdout(&out).contains("pictures drawn"), "{}", stdout(&out));
     }

@@ -33,12 +33,22 @@ fn parse_xwd(b: &[u8]) -> Option<(usize, usize, Vec<u8>)> {
     Some((w, h, rgb))
 }
 
-/// A screenshot of the window named `name` (`xwd`, x11-apps), or why not.
+/// A screenshot of the window named `name` (`xwd`, x11-apps), or why not
+/// (an `xwd` that has not finished within 20 s, a fraction of the callers'
+/// own deadlines for their retries, is killed). No `xwd` at all fails the
+/// test.
 pub fn screenshot(name: &str) -> Result<(usize, usize, Vec<u8>), String> {
+    use super::deadline::CommandWithin;
+    const XWD_WITHIN: std::time::Duration = std::time::Duration::from_secs(20);
     let shot = std::process::Command::new("xwd")
         .args(["-name", name, "-silent"])
-        .output()
-        .map_err(|e| format!("xwd (x11-apps): {e}"))?;
+        .try_output_within(XWD_WITHIN, "xwd (x11-apps)")
+        .map_err(|o| {
+            format!(
+                "xwd did not finish within {XWD_WITHIN:?}: {}",
+                String::from_utf8_lossy(&o.stderr)
+            )
+        })?;
     if shot.status.success() {
         parse_xwd(&shot.stdout).ok_or_else(|| "a truncated dump".to_string())
     } else {

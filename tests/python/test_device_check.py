@@ -32,7 +32,7 @@ import check_travel  # noqa: E402
 
 def test_the_plan_counts_every_tracked_file():
     listed = subprocess.run(["git", "ls-files", "-z"], cwd=REPO, capture_output=True, text=True,
-                            check=True).stdout.split("\0")
+                            check=True, timeout=120).stdout.split("\0")
     tracked = sum((REPO / p).stat().st_size for p in listed if p and (REPO / p).is_file())
     items = dict(check_travel.travelling())
     assert sum(n for p, n in items.items() if p in set(listed)) == tracked

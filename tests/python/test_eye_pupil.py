@@ -112,7 +112,7 @@ def test_a_4mm_pupil_in_the_lens_plane_scores_as_the_independent_model(tmp_path,
     out = subprocess.run(
         [str(NEDRT), "--no-cache", "sim", "--method", "conventional", "--pupil-mm", "4", "--eye-relief-mm", "0",
          "--accom", str(accommodation_d), "--input", str(tmp_path / "in.png"), "--out", str(tmp_path / "p.tif")],
-        capture_output=True, text=True, check=True).stdout
+        capture_output=True, text=True, check=True, timeout=600).stdout
     line = next(line for line in out.splitlines() if line.startswith("vs sharp"))
     theirs = float(line.split()[3])
     assert "radial" in out and "pupil 4.0 mm at 0.0 mm" in out, out

@@ -76,24 +76,17 @@ fn recording_run(dir: &Path, extra: &[&str]) -> Command {
 
 /// Sends each of `signals` and waits; the exit must come within
 /// [`STOP_WITHIN`] (past 20 s the child is killed and the test fails).
-fn signal_and_wait(mut child: Child, signals: &[&str]) -> Output {
+fn signal_and_wait(mut child: Watched, signals: &[&str]) -> Output {
     let started = Instant::now();
     for s in signals {
-        let status = Command::new("kill")
-            .args([*s, child.id().to_string().as_str()])
-            .status()
-            .expect("kill");
-        assert!(status.success());
+        signal(&child, s);
     }
-    while child.try_wait().expect("wait").is_none() {
-        if started.elapsed() > Duration::from_secs(20) {
-            let _ = child.kill();
-            panic!("{signals:?}: still running after 20 s");
-        }
-        std::thread::sleep(Duration::from_millis(10));
-    }
+    child.exit_within(
+        Duration::from_secs(20),
+        &format!("the exit after {signals:?}"),
+    );
     let elapsed = started.elapsed();
-    let out = child.wait_with_output().expect("wait");
+    let out = child.output();
     assert!(
         elapsed < STOP_WITHIN,
         "{signals:?} took {elapsed:?}: {}",
@@ -132,7 +125,7 @@ fn frames_in_flight_at_a_stop_are_counted_once_each() {
     let dir_path = service.dir.path().to_path_buf();
     let out = signal_and_wait(service.child, &["-TERM"]);
     stop.store(true, Ordering::Relaxed);
-    let accepted = sender.join().expect("client");
+    let accepted = deadline::join_within(sender, REPLY_WITHIN, "the flooding client to stop");
     assert!(
         out.status.success(),
         "{}",
@@ -165,7 +158,7 @@ fn a_client_killed_mid_frame_leaves_the_others_presenting() {
         let header = FrameHeader::new(PixelFormat::Rgb32fPlanar, W, H, id, 0);
         let reply = client
             .send(&header, &planar_payload(&test_frame(id)))
-            .expect("send");
+            .expect("a reply to the frame");
         assert_eq!(reply.status, STATUS_OK, "{}", reply.message);
     }
     let rec = service.dir.path().join("rec");
@@ -205,7 +198,9 @@ fn twenty_clients_at_once_with_one_hostile_all_get_through_and_stop_is_prompt() 
                 for k in 0..frames_each {
                     let id = c * 1000 + k;
                     let header = FrameHeader::new(PixelFormat::Rgba8Linear, W, H, id, 0);
-                    let reply = client.send(&header, &payload).expect("send");
+                    let reply = client
+                        .send(&header, &payload)
+                        .expect("a reply to the frame");
                     assert_eq!(
                         (reply.status, reply.frame_id),
                         (STATUS_OK, id),
@@ -217,7 +212,7 @@ fn twenty_clients_at_once_with_one_hostile_all_get_through_and_stop_is_prompt() 
         })
         .collect();
     for t in good {
-        t.join().expect("a good client got every frame through");
+        deadline::join_within(t, REPLY_WITHIN, "a good client to get its frames through");
     }
     let dir_path = service.dir.path().to_path_buf();
     let out = signal_and_wait(service.child, &["-TERM"]);
@@ -242,7 +237,11 @@ fn twenty_clients_at_once_with_one_hostile_all_get_through_and_stop_is_prompt() 
     );
     assert_whole_recording(&dir_path.join("rec"));
     drop(hostile);
-    hostile_writer.join().expect("hostile writer");
+    deadline::join_within(
+        hostile_writer,
+        REPLY_WITHIN,
+        "the hostile writer to stop once the service is gone",
+    );
     drop(service.dir);
 }
 
@@ -285,12 +284,9 @@ mod needs_root {
             );
         };
         let child = recording_run(dir.path(), &["--frames", "400"])
-            .stdout(Stdio::piped())
-            .stderr(Stdio::piped())
-            .spawn()
-            .expect("start");
+            .spawn_watched("nedrt run recording onto a full disk");
         let started = Instant::now();
-        let out = child.wait_with_output().expect("wait");
+        let out = child.wait_within(deadline::COMMAND, "the run to fail on the full disk");
         let err = String::from_utf8_lossy(&out.stderr);
         assert!(
             !out.status.success(),
@@ -336,8 +332,7 @@ fn a_gpu_lost_mid_run_falls_back_without_losing_a_frame() {
         ],
     )
     .env("NEDRT_LOG", "nedrt=info")
-    .output()
-    .expect("run");
+    .output_within(deadline::COMMAND, "nedrt run losing its GPU");
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success(), "{err}");
     assert!(err.contains("device lost (injected fault)"), "{err}");
@@ -368,10 +363,7 @@ fn stop_signals_during_a_recording_end_it_cleanly_with_every_frame_accounted() {
         let dir = tempfile::tempdir().expect("tempdir");
         let rec = dir.path().join("rec");
         let child = recording_run(dir.path(), &["--source-rate", "0"])
-            .stdout(Stdio::piped())
-            .stderr(Stdio::piped())
-            .spawn()
-            .expect("start");
+            .spawn_watched("nedrt run (unpaced recording)");
         // Unpaced, early frames are replaced before a refresh: any will do.
         wait_until("a frame to be recorded", || {
             std::fs::read_dir(&rec).is_ok_and(|mut d| d.next().is_some())
@@ -412,10 +404,7 @@ fn stop_signals_during_eval_leave_no_half_written_output() {
             .arg(repo().join("tests/data/small-aperture.toml"))
             .args(["eval", "--images", "data/images/test", "--out-dir"])
             .arg(&out_dir)
-            .stdout(Stdio::piped())
-            .stderr(Stdio::piped())
-            .spawn()
-            .expect("start eval");
+            .spawn_watched("nedrt eval");
         std::thread::sleep(Duration::from_millis(after_ms));
         let out = signal_and_wait(child, signals);
         let err = String::from_utf8_lossy(&out.stderr);
@@ -463,19 +452,12 @@ fn a_mid_run_table_counts_frames_replaced_before_a_refresh() {
         dir.path(),
         &["--source-rate", "0", "--preprocess", "conventional"],
     )
-    .stdout(Stdio::piped())
-    .stderr(Stdio::piped())
-    .spawn()
-    .expect("start");
+    .spawn_watched("nedrt run (unpaced, conventional)");
     wait_until("a frame to be recorded", || {
         std::fs::read_dir(&rec).is_ok_and(|mut d| d.next().is_some())
     });
     std::thread::sleep(Duration::from_millis(500));
-    let status = Command::new("kill")
-        .args(["-USR1", child.id().to_string().as_str()])
-        .status()
-        .expect("kill");
-    assert!(status.success());
+    signal(&child, "-USR1");
     std::thread::sleep(Duration::from_millis(300));
     let out = signal_and_wait(child, &["-TERM"]);
     let err = String::from_utf8_lossy(&out.stderr);

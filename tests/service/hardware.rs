@@ -43,8 +43,7 @@ mod needs_gpu {
                 "--report-json",
             ])
             .arg(&report_path)
-            .output()
-            .expect("run");
+            .output_within(deadline::COMMAND, "nedrt run (a soak of 3000 frames)");
         assert!(
             out.status.success(),
             "{}",
@@ -120,8 +119,7 @@ mod needs_gpu {
                 .args(["--backend", "wgpu", "--source", "pattern", "--frames", "4"])
                 .args(["--sink", "headless", "--frame-path", path, "--report-json"])
                 .arg(&report_path)
-                .output()
-                .expect("run");
+                .output_within(deadline::COMMAND, "nedrt run (4 frames on the GPU)");
             assert!(
                 out.status.success(),
                 "{}",
@@ -237,8 +235,7 @@ mod needs_gpu_prefilters {
                 .args(extra)
                 .args(["--sink", "headless", "--report-json"])
                 .arg(&report_path)
-                .output()
-                .expect("run");
+                .output_within(deadline::COMMAND, "nedrt run (a prefilter on the GPU)");
             assert!(
                 out.status.success(),
                 "{extra:?}: {}",
@@ -305,8 +302,7 @@ mod needs_gpu_fault {
             .args(["--frames", &frames.to_string(), "--sink", "headless"])
             .args(["--inject-device-loss-after", "1", "--report-json"])
             .arg(&report_path)
-            .output()
-            .expect("run");
+            .output_within(deadline::COMMAND, "nedrt run (a device lost mid-run)");
         let err = String::from_utf8_lossy(&out.stderr);
         assert!(out.status.success(), "{err}");
         assert!(err.contains("device lost (injected fault)"), "{err}");
@@ -355,8 +351,7 @@ mod needs_gpu_bench {
             .args(["--panel", "32x32", "--frames", "2", "--max-seconds", "100"])
             .arg("--dump")
             .arg(dir.path())
-            .output()
-            .expect("run");
+            .output_within(deadline::COMMAND, "nedrt bench pipeline");
         let stdout = String::from_utf8_lossy(&out.stdout);
         assert!(
             out.status.success(),
@@ -465,8 +460,8 @@ mod needs_gpu_and_window {
         let mut last;
         loop {
             // A service that stopped will never show it: say why now.
-            if let Ok(Some(status)) = service.child.try_wait() {
-                let out = service.child.wait_with_output().expect("output");
+            if let Some(status) = service.child.try_wait() {
+                let out = service.child.output();
                 panic!(
                     "the service ({args:?}) exited with {status} before showing the frame: {}",
                     String::from_utf8_lossy(&out.stderr)

@@ -34,14 +34,7 @@ fn as_layer(
 fn quad_layers_from_two_clients_are_blended_before_the_dcnn_and_leave_with_their_client() {
     let service = Service::socket_recorder();
     let shm = W * H * 12;
-    let connect = || {
-        Client::connect_v2(
-            &Service::socket(service.dir.path()),
-            &service.dir.path().join("shm"),
-            shm as u64,
-        )
-        .expect("connect v2")
-    };
+    let connect = || service.client_v2(shm);
     let before = nedrt_service::pipeline::pacing::monotonic_ns();
     let mut a = connect();
     let mut b = connect();
@@ -71,17 +64,17 @@ fn quad_layers_from_two_clients_are_blended_before_the_dcnn_and_leave_with_their
     let fmt = QuadFormat::Rgba8Premultiplied;
     let r = a
         .send_v2(&HeaderV2::quad(0, 1, 0, a_at, fmt, (8, 6), 1, 0), &ta)
-        .expect("send");
+        .expect("a reply to the frame");
     assert_eq!(r.reply.status, STATUS_OK, "{}", r.reply.message);
     let r = b
         .send_v2(&HeaderV2::quad(0, 1, 2, b_at, fmt, (6, 4), 1, 0), &tb)
-        .expect("send");
+        .expect("a reply to the frame");
     assert_eq!(r.reply.status, STATUS_OK, "{}", r.reply.message);
     // Bad submissions: each its status and reason; nobody is cut off.
     let outside = Placement::Pixels { x: 60, y: 0 };
     let r = b
         .send_v2(&HeaderV2::quad(0, 2, 0, outside, fmt, (6, 4), 2, 0), &tb)
-        .expect("send");
+        .expect("a reply to the frame");
     assert_eq!(r.reply.status, STATUS_BAD_LAYER);
     assert!(
         r.reply.message.contains("not inside"),
@@ -91,20 +84,22 @@ fn quad_layers_from_two_clients_are_blended_before_the_dcnn_and_leave_with_their
     let glow = quad_texels(2, 2, [90, 0, 0], 10);
     let r = b
         .send_v2(&HeaderV2::quad(0, 3, 0, a_at, fmt, (2, 2), 3, 0), &glow)
-        .expect("send");
+        .expect("a reply to the frame");
     assert_eq!(r.reply.status, STATUS_BAD_LAYER);
     assert!(
         r.reply.message.contains("premultiplied"),
         "{}",
         r.reply.message
     );
-    let r = b.send_v2(&HeaderV2::remove(0, 9, 4), &[]).expect("send");
+    let r = b
+        .send_v2(&HeaderV2::remove(0, 9, 4), &[])
+        .expect("a reply to the frame");
     assert_eq!(r.reply.status, STATUS_BAD_LAYER);
     let frame = test_frame(5);
     let right_eye = HeaderV2::projection(1, PixelFormat::Rgb32fPlanar, (W, H), 5, 0);
     let r = a
         .send_v2(&right_eye, &planar_payload(&frame))
-        .expect("send");
+        .expect("a reply to the frame");
     assert_eq!(
         r.reply.status,
         RejectReason::UnknownView.code(),
@@ -119,7 +114,9 @@ fn quad_layers_from_two_clients_are_blended_before_the_dcnn_and_leave_with_their
     let mut shows = |client: &mut Client, id: u64, layers: &[QuadLayer]| -> bool {
         let frame = test_frame(id);
         let h = HeaderV2::projection(0, PixelFormat::Rgb32fPlanar, (W, H), id, 0);
-        let r = client.send_v2(&h, &planar_payload(&frame)).expect("send");
+        let r = client
+            .send_v2(&h, &planar_payload(&frame))
+            .expect("a reply to the frame");
         assert_eq!(r.reply.status, STATUS_OK, "{}", r.reply.message);
         assert_eq!(r.refresh_period_ns, 4_166_667);
         wait_until("the frame to be recorded", || frame_path(&rec, id).exists());
@@ -145,7 +142,7 @@ fn quad_layers_from_two_clients_are_blended_before_the_dcnn_and_leave_with_their
     let h = FrameHeader::new(PixelFormat::Rgb32fPlanar, W, H, 11, 0);
     let r = old
         .send(&h, &planar_payload(&test_frame(11)))
-        .expect("send v1");
+        .expect("a reply to the version 1 frame");
     assert_eq!(r.status, STATUS_OK, "{}", r.message);
     wait_until("the v1 frame", || frame_path(&rec, 11).exists());
     // A leaves: its quad goes with it once its thread has seen the hang-up
@@ -154,7 +151,9 @@ fn quad_layers_from_two_clients_are_blended_before_the_dcnn_and_leave_with_their
     let gone = (12..112).find(|&id| shows(&mut b, id, std::slice::from_ref(&layer_b)));
     assert!(gone.is_some(), "A's quad stayed after A left");
     // B removes its layer: the bare frame.
-    let r = b.send_v2(&HeaderV2::remove(0, 1, 200), &[]).expect("send");
+    let r = b
+        .send_v2(&HeaderV2::remove(0, 1, 200), &[])
+        .expect("a reply to the frame");
     assert_eq!(r.reply.status, STATUS_OK, "{}", r.reply.message);
     assert!(shows(&mut b, 201, &[]), "frame 201");
 
@@ -201,15 +200,7 @@ fn quad_layers_from_two_clients_are_blended_before_the_dcnn_and_leave_with_their
 #[test]
 fn two_eyes_from_a_stereo_client_and_an_overlay_client_are_each_counted_and_stop_promptly() {
     let service = Service::socket_recorder_with(&["--stereo"]);
-    let socket = Service::socket(service.dir.path());
-    let connect = || {
-        Client::connect_v2(
-            &socket,
-            &service.dir.path().join("shm"),
-            (W * H * 12) as u64,
-        )
-        .expect("connect v2")
-    };
+    let connect = || service.client_v2(W * H * 12);
     let mut eyes = connect();
     let mut overlay = connect();
     assert_eq!(eyes.views, vec![[0, 0, W / 2, H], [W / 2, 0, W / 2, H]]);
@@ -218,13 +209,13 @@ fn two_eyes_from_a_stereo_client_and_an_overlay_client_are_each_counted_and_stop
     let hud = quad_texels(8, 4, [40, 40, 40], 200);
     let at = Placement::Pixels { x: 4, y: 4 };
     let q = HeaderV2::quad(1, 1, 0, at, QuadFormat::Rgba8Premultiplied, (8, 4), 1, 0);
-    let r = overlay.send_v2(&q, &hud).expect("send");
+    let r = overlay.send_v2(&q, &hud).expect("a reply to the frame");
     assert_eq!(r.reply.status, STATUS_OK, "{}", r.reply.message);
     // A frame of the whole panel's size for one eye is refused.
     let whole = HeaderV2::projection(0, PixelFormat::Rgb32fPlanar, (W, H), 1, 0);
     let r = eyes
         .send_v2(&whole, &planar_payload(&test_frame(1)))
-        .expect("send");
+        .expect("a reply to the frame");
     assert_eq!(
         r.reply.status,
         RejectReason::WrongSize.code(),
@@ -242,7 +233,9 @@ fn two_eyes_from_a_stereo_client_and_an_overlay_client_are_each_counted_and_stop
                 2 * id + u64::from(v),
                 0,
             );
-            let r = eyes.send_v2(&h, &planar_payload(&frame)).expect("send");
+            let r = eyes
+                .send_v2(&h, &planar_payload(&frame))
+                .expect("a reply to the frame");
             assert_eq!(r.reply.status, STATUS_OK, "{}", r.reply.message);
         }
         wait_until("the pair to be recorded", || {

@@ -7,6 +7,8 @@
 //! X display): `#[ignore]`d, in modules named after what they need, and run
 //! by `scripts/test.sh` where the machine has it.
 
+#[path = "../common/deadline.rs"]
+mod deadline;
 mod faults;
 mod hardware;
 mod layers;
@@ -15,8 +17,10 @@ mod socket;
 mod xwd;
 
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Output, Stdio};
+use std::process::{Command, Output, Stdio};
 use std::time::{Duration, Instant};
+
+use deadline::{CommandWithin, Watched};
 
 use nedrt_core::Image;
 use nedrt_core::calib::Calibration;
@@ -37,9 +41,19 @@ fn small_panel() -> PathBuf {
     repo().join("tests/data/small-panel.toml")
 }
 
-/// A running service with its scratch folder.
+/// How long a client waits for the service's welcome or a reply, and a
+/// test for a client's thread: past it the test fails (a hang, not
+/// slowness: a reply takes milliseconds).
+const REPLY_WITHIN: Duration = Duration::from_secs(120);
+
+/// How long the service may take to exit after SIGTERM before the test
+/// fails (tests that hold it to a promptness bound assert that apart).
+const EXIT_WITHIN: Duration = Duration::from_secs(60);
+
+/// A running service with its scratch folder; killed if the test fails
+/// before stopping it.
 struct Service {
-    child: Child,
+    child: Watched,
     dir: tempfile::TempDir,
 }
 
@@ -59,10 +73,7 @@ impl Service {
             .arg("--dcnn")
             .arg(&network)
             .args(args)
-            .stdout(Stdio::piped())
-            .stderr(Stdio::piped())
-            .spawn()
-            .expect("start nedrt run");
+            .spawn_watched("the service (nedrt run)");
         Self { child, dir }
     }
 
@@ -106,36 +117,62 @@ impl Service {
         s
     }
 
+    /// A protocol version 1 client with `shm_bytes` of shared memory.
     fn client(&self, shm_bytes: usize) -> Client {
-        Client::connect(
-            &Self::socket(self.dir.path()),
-            &self.dir.path().join("shm"),
-            shm_bytes as u64,
-        )
-        .expect("connect")
+        let (socket, shm) = (Self::socket(self.dir.path()), self.dir.path().join("shm"));
+        bounded_client("the service's welcome (version 1)", move || {
+            Client::connect(&socket, &shm, shm_bytes as u64)
+        })
+    }
+
+    /// As [`Service::client`], speaking protocol version 2.
+    fn client_v2(&self, shm_bytes: usize) -> Client {
+        let (socket, shm) = (Self::socket(self.dir.path()), self.dir.path().join("shm"));
+        bounded_client("the service's welcome (version 2)", move || {
+            Client::connect_v2(&socket, &shm, shm_bytes as u64)
+        })
     }
 
     /// SIGTERM, then the exit status and output.
     fn stop(self) -> (Output, tempfile::TempDir) {
-        let status = Command::new("kill")
-            .args(["-TERM", &self.child.id().to_string()])
-            .status()
-            .expect("kill");
-        assert!(status.success());
-        let out = self.child.wait_with_output().expect("wait");
+        signal(&self.child, "-TERM");
+        let out = self
+            .child
+            .wait_within(EXIT_WITHIN, "the service to exit after SIGTERM");
         (out, self.dir)
     }
 }
 
-fn wait_until(what: &str, mut ok: impl FnMut() -> bool) {
-    let start = Instant::now();
-    while !ok() {
-        assert!(
-            start.elapsed() < Duration::from_secs(120),
-            "timed out waiting for {what}"
-        );
-        std::thread::sleep(Duration::from_millis(20));
-    }
+/// Sends `signal` ("-TERM") to `child` (`kill`, which returns at once).
+fn signal(child: &Watched, signal: &str) {
+    let status = Command::new("kill")
+        .args([signal, &child.id().to_string()])
+        .status()
+        .expect("kill");
+    assert!(status.success(), "kill {signal} {}", child.id());
+}
+
+/// A client connected by `connect` within [`REPLY_WITHIN`], whose every
+/// later wait for a reply (or to send) fails past it, with an error the
+/// test's `expect` names, instead of blocking.
+fn bounded_client(
+    what: &str,
+    connect: impl FnOnce() -> std::io::Result<Client> + Send + 'static,
+) -> Client {
+    let mut client =
+        deadline::within(REPLY_WITHIN, what, connect).unwrap_or_else(|e| panic!("{what}: {e}"));
+    let stream = client.stream();
+    stream
+        .set_read_timeout(Some(REPLY_WITHIN))
+        .expect("a read timeout");
+    stream
+        .set_write_timeout(Some(REPLY_WITHIN))
+        .expect("a write timeout");
+    client
+}
+
+fn wait_until(what: &str, ok: impl FnMut() -> bool) {
+    deadline::wait_until_within(Duration::from_secs(120), what, ok);
 }
 
 fn report(dir: &Path) -> serde_json::Value {

@@ -11,7 +11,9 @@ fn socket_frames_are_recorded_exactly_as_the_backend_computes_them() {
     for id in 0..n {
         let frame = test_frame(id);
         let header = FrameHeader::new(PixelFormat::Rgb32fPlanar, W, H, id, 0);
-        let reply = client.send(&header, &planar_payload(&frame)).expect("send");
+        let reply = client
+            .send(&header, &planar_payload(&frame))
+            .expect("a reply to the frame");
         assert_eq!(
             (reply.status, reply.frame_id),
             (STATUS_OK, id),
@@ -161,6 +163,9 @@ fn every_kind_of_bad_frame_is_rejected_and_good_frames_still_arrive() {
         use std::io::{Read, Write};
         let mut raw = std::os::unix::net::UnixStream::connect(Service::socket(service.dir.path()))
             .expect("connect");
+        // The service answers and hangs up; past the timeout the read
+        // ends with what came, and the assertion below says so.
+        raw.set_read_timeout(Some(REPLY_WITHIN)).expect("timeout");
         raw.write_all(b"HELLO, this is not the protocol")
             .expect("write");
         let mut buf = Vec::new();
@@ -284,7 +289,11 @@ fn a_client_that_never_reads_its_replies_is_dropped_and_counted() {
     );
     assert_eq!(report(dir.path())["clients_dropped"].as_u64(), Some(1));
     drop(client);
-    writer.join().expect("writer");
+    deadline::join_within(
+        writer,
+        REPLY_WITHIN,
+        "the writer to stop once the service dropped its client",
+    );
 }
 
 /// SIGTERM, which must end the service cleanly within 10 s whatever its

@@ -20,6 +20,11 @@ pub mod sim;
 pub mod tune;
 pub mod viewer;
 
+/// Deadlines for the unit tests (shared with the integration tests).
+#[cfg(test)]
+#[path = "../../../tests/common/deadline.rs"]
+mod deadline;
+
 use std::path::{Path, PathBuf};
 
 use std::sync::Arc;

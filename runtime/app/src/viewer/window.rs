@@ -459,16 +459,29 @@ mod tests {
 
     #[test]
     fn the_newest_request_replaces_a_waiting_one() {
-        let latest = Latest::default();
+        // `take` waits while nothing is there and the slot is open: a
+        // regression there fails the test instead of hanging it.
+        let latest = std::sync::Arc::new(Latest::default());
         for depth in 0..5 {
             latest.put(Request {
                 depth,
                 shown: Shown::Perceived,
             });
         }
-        assert_eq!(latest.take().map(|r| r.depth), Some(4));
+        let waiting = latest.clone();
+        let taken = crate::deadline::within(
+            crate::deadline::THREAD,
+            "take() to return the waiting request",
+            move || waiting.take(),
+        );
+        assert_eq!(taken.map(|r| r.depth), Some(4));
         latest.close();
-        assert_eq!(latest.take(), None);
+        let closed = crate::deadline::within(
+            crate::deadline::THREAD,
+            "take() to return None once closed",
+            move || latest.take(),
+        );
+        assert_eq!(closed, None);
     }
 
     #[test]
