@@ -185,11 +185,6 @@ impl DisplaySchedule {
             .store(estimate.dev_ns(), Ordering::Relaxed);
     }
 
-    /// The pipeline's recent submission-to-ready time (the mean), ns.
-    pub fn pipeline_ns(&self) -> u64 {
-        self.pipeline().0
-    }
-
     /// Submission to ready that the predictions plan with: the estimate's
     /// bound ([`Estimate::bound_ns`]).
     pub fn pipeline_bound_ns(&self) -> u64 {

@@ -43,10 +43,6 @@ impl Estimate {
         self.dev_ns
     }
 
-    pub fn samples(&self) -> u64 {
-        self.samples
-    }
-
     /// Mean + [`Estimate::DEVIATIONS`] deviations.
     pub fn bound_ns(&self) -> u64 {
         self.mean_ns + Self::DEVIATIONS * self.dev_ns
