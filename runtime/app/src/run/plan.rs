@@ -140,29 +140,31 @@ pub fn plan(inputs: &PlanInputs<'_>) -> RunPlan {
         }
     });
     let on_device = path == PlannedPath::Device;
-    let where_net = |view_count: usize| match (&inputs.network, on_device) {
-        (None, _) => String::new(),
-        (Some(_), true) => format!(
-            "wgpu on the sink's GPU, {}",
-            precision_name(inputs.precision)
-        ),
-        // The views' host engines run f32 on the CPU (tract, or ORT).
-        (Some(_), false) if view_count > 1 || inputs.backend == BackendKind::Wgpu => {
-            let kind = match inputs.backend {
-                BackendKind::Wgpu => BackendKind::Cpu,
-                other => other,
-            };
-            format!("{} on the host, f32", kind.name())
-        }
-        (Some(_), false) => format!(
-            "{} on the host, {}",
-            inputs.backend.name(),
-            precision_name(inputs.precision)
-        ),
-    };
     let network = match &inputs.network {
         None => format!("none ({} has no network)", method_line(opts)),
-        Some(n) => format!("{}: {}", n.path, where_net(inputs.views.len())),
+        Some(n) => {
+            let engine = if on_device {
+                format!(
+                    "wgpu on the sink's GPU, {}",
+                    precision_name(inputs.precision)
+                )
+            } else if two || inputs.backend == BackendKind::Wgpu {
+                // The views' host engines, and wgpu's host fallback, run f32
+                // on the CPU (tract, or ORT where chosen).
+                let kind = match inputs.backend {
+                    BackendKind::Wgpu => BackendKind::Cpu,
+                    other => other,
+                };
+                format!("{} on the host, f32", kind.name())
+            } else {
+                format!(
+                    "{} on the host, {}",
+                    inputs.backend.name(),
+                    precision_name(inputs.precision)
+                )
+            };
+            format!("{}: {engine}", n.path)
+        }
     };
     let fallback = match (&inputs.network, opts.fallback) {
         (None, _) => "none needed (no network)".to_string(),
