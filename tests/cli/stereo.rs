@@ -51,7 +51,7 @@ fn each_eye_shows_what_sim_gives_for_its_own_design() {
         .args(["--sink", "record", "--record-dir", path(&rec)])
         .output_within(deadline::COMMAND, "nedrt run");
     assert!(o.status.success(), "{}", stderr(&o));
-    assert!(stderr(&o).contains("two views"), "{}", stderr(&o));
+    assert!(stderr(&o).contains("2 views"), "{}", stderr(&o));
     let recorded = image::open(rec.join("frame-00000000.png"))
         .expect("recorded")
         .to_rgb8();

@@ -14,14 +14,15 @@ use std::sync::Arc;
 
 use super::{AppError, CommonOptions};
 use crate::preprocess::DcnnInput;
-use engines::{behind, fallback_factory, linear_preprocessor, resident_stage};
+use engines::{behind, device_engines, fallback_factory, linear_preprocessor};
 use faults::LosesDeviceAfter;
 use nedrt_core::preprocess::Preprocess;
 use nedrt_infer::gpu::open_device;
 use nedrt_infer::{BackendKind, Dcnn, ModelFile};
+use nedrt_optics::sim::wiener::WienerFilter;
 use nedrt_optics::sim::{Method, Simulator};
 use nedrt_service::pipeline::pacing::{Clock, SystemClock};
-use nedrt_service::pipeline::service::{Control, PanelConfig};
+use nedrt_service::pipeline::service::{Control, Engines, PanelConfig, PreprocessStage};
 use nedrt_service::pipeline::source::{
     Source, SourceRate, dir::DirSource, pattern::PatternSource, socket::SocketSource,
 };
@@ -36,7 +37,7 @@ pub use options::{
     SourceKind,
 };
 pub use plan::{PlannedPath, Probe, RunPlan};
-use serve::{Pipeline, serve};
+use serve::{Built, serve};
 
 /// Runs the service until its source ends (and the last frame is shown)
 /// or `control.stop` is set.
@@ -154,53 +155,59 @@ pub fn run(
         probe,
     )?);
     tracing::info!("plan:\n{planned}");
-    if let Some(views) = views {
-        let mut panel = panel;
-        panel.views = views.iter().map(|v| v.region).collect();
-        // On the sink's device where the plan puts them; else through the
-        // host, and why.
-        let on_device = match (&device, planned.path) {
-            (Some((d, q, name)), PlannedPath::Device) => {
-                let gpu = (d.clone(), q.clone(), name.clone());
-                views::device_stages(&views, opts, &panel, &gpu, model.as_ref(), &stage).and_then(
-                    |stages| {
-                        nedrt_service::pipeline::device_views::DeviceViews::new(
-                            d,
-                            q,
-                            (panel.width, panel.height),
-                            &panel.views,
-                            &panel.transfer,
-                            stages,
-                        )
-                        .map_err(|e| e.to_string())
-                    },
-                )
-            }
-            _ => Err(planned.path_reason.clone()),
-        };
-        let pipeline = match on_device {
-            Ok(device_views) => Pipeline::DeviceViews(Box::new(device_views), views),
-            Err(why) => {
-                tracing::info!("the views run on the host: {why}");
-                Pipeline::Views(views)
-            }
-        };
-        return serve(opts, control, panel, clock, source, sink, pipeline);
-    }
-    // The resident path where the plan puts the frames.
-    let host_reason = match (&device, planned.path) {
+    let mut panel = panel;
+    let built = match views {
+        Some(views) => {
+            panel.views = views.iter().map(|v| v.region).collect();
+            views::engines(
+                views,
+                opts,
+                &panel,
+                device.as_ref(),
+                &planned,
+                model.as_ref(),
+                &stage,
+            )
+        }
+        None => one_view(
+            common,
+            opts,
+            &panel,
+            device.as_ref(),
+            &planned,
+            model,
+            stage,
+        )?,
+    };
+    serve(opts, control, panel, clock, source, sink, built)
+}
+
+/// The engines of a run of one view: on the sink's device where the plan
+/// puts the frames and they can be built there, else on the host, and why.
+fn one_view(
+    common: &CommonOptions,
+    opts: &RunOptions,
+    panel: &PanelConfig,
+    device: Option<&(wgpu::Device, wgpu::Queue, String)>,
+    planned: &RunPlan,
+    model: Option<ModelFile>,
+    stage: Option<(Method, Arc<WienerFilter>)>,
+) -> Result<Built, AppError> {
+    let host_reason = match (device, planned.path) {
         (Some(d), PlannedPath::Device) => {
-            match resident_stage(common, opts, &panel, d, model.clone(), &stage) {
-                Ok(resident) => {
-                    return serve(
-                        opts,
-                        control,
-                        panel,
-                        clock,
-                        source,
-                        sink,
-                        Pipeline::Resident(Box::new(resident)),
-                    );
+            match device_engines(common, opts, panel, d, model.clone(), &stage) {
+                Ok(engines) => {
+                    let what = match &engines.host[0] {
+                        Some(h) => {
+                            format!("{}, then on the GPU: {}", h.name, engines.frames.describe())
+                        }
+                        None => format!("on the GPU: {}", engines.frames.describe()),
+                    };
+                    return Ok(Built {
+                        engines: Engines::Device(Box::new(engines)),
+                        what,
+                        host_reason: None,
+                    });
                 }
                 Err(e) => {
                     tracing::warn!("frames cannot stay on the GPU: {e}; they go through the host");
@@ -210,16 +217,24 @@ pub fn run(
         }
         _ => planned.path_reason.clone(),
     };
+    let host = |primary: Box<dyn Preprocess>, fallback| {
+        let what = format!(
+            "{} (frames through the host: {host_reason})",
+            primary.describe()
+        );
+        Built {
+            engines: Engines::host(PreprocessStage { primary, fallback }),
+            what,
+            host_reason: Some(host_reason.clone()),
+        }
+    };
     let Some(model) = model else {
         let primary = linear_preprocessor(common, opts.preprocess, opts.prefilter)?;
-        let pipeline = Pipeline::Host {
-            primary,
-            fallback: None,
-            reason: host_reason,
-        };
-        return serve(opts, control, panel, clock, source, sink, pipeline);
+        return Ok(host(primary, None));
     };
-    let primary: Result<Box<dyn Preprocess>, _> = match (dcnn.backend, &device) {
+    let dcnn = &common.dcnn;
+    let precision = dcnn.backend_options.precision;
+    let primary: Result<Box<dyn Preprocess>, _> = match (dcnn.backend, device) {
         (BackendKind::Wgpu, Some((d, q, name)))
             if precision == nedrt_infer::Precision::F32
                 || d.features().contains(wgpu::Features::SHADER_F16) =>
@@ -251,12 +266,7 @@ pub fn run(
         }),
         None => primary,
     };
-    let pipeline = Pipeline::Host {
-        primary,
-        fallback,
-        reason: host_reason,
-    };
-    serve(opts, control, panel, clock, source, sink, pipeline)
+    Ok(host(primary, fallback))
 }
 
 /// The calibration and the panel a run drives, its options checked.
@@ -387,7 +397,8 @@ mod tests {
         use nedrt_infer::{BackendKind, BackendOptions, Dcnn, ModelFile, Precision, synth};
         use nedrt_optics::Psf;
         use nedrt_optics::sim::wiener::WienerFilter;
-        use nedrt_service::pipeline::resident::{DeviceFrames, DeviceInput};
+        use nedrt_service::pipeline::device_frames::DeviceFrames;
+        use nedrt_service::pipeline::frame::{ViewContent, ViewFrame};
         use nedrt_service::present::headless::HeadlessSink;
         use nedrt_service::present::transfer::Transfer;
         use nedrt_service::present::{PanelCodes, Sink};
@@ -445,10 +456,12 @@ mod tests {
             let mut sink =
                 HeadlessSink::new(device, queue, "test".into(), w as u32, h as u32).expect("sink");
             let mut frames =
-                DeviceFrames::new(device, queue, w, h, transfer, Some(stage)).expect("frames");
-            let (frame, traffic) = frames
-                .run(0, &DeviceInput::Planar(input.clone()))
-                .expect("runs");
+                DeviceFrames::single(device, queue, (w, h), transfer, Some(stage)).expect("frames");
+            let planes = ViewFrame {
+                generation: 1,
+                content: ViewContent::Planar(Arc::new(input.clone())),
+            };
+            let (frame, traffic) = frames.run(0, &[planes]).expect("runs");
             assert_eq!(traffic.read_backs, 0);
             sink.present(PanelCodes::Device(&frame)).expect("shown");
             sink.read_back().expect("panel")

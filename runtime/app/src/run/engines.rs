@@ -1,6 +1,6 @@
 //! The engines `nedrt run` builds: the D-CNN's fallback, the linear
-//! prefilters on the host, and the resident (on-device) stage with its
-//! host part and fallback. Apart from `run` so that the wiring reads as
+//! prefilters on the host, and one view's device engines with its host
+//! part and fallback. Apart from `run` so that the wiring reads as
 //! one sequence of choices and the construction details live here.
 
 use std::sync::Arc;
@@ -14,8 +14,8 @@ use nedrt_infer::gpu::DeviceDcnn;
 use nedrt_infer::{BackendKind, Dcnn, ModelFile};
 use nedrt_optics::sim::wiener::WienerFilter;
 use nedrt_optics::sim::{Method, Simulator};
-use nedrt_service::pipeline::resident::DeviceFrames;
-use nedrt_service::pipeline::service::{FallbackFactory, HostPrep, PanelConfig, ResidentStage};
+use nedrt_service::pipeline::device_frames::DeviceFrames;
+use nedrt_service::pipeline::service::{DeviceEngines, FallbackFactory, HostPrep, PanelConfig};
 
 /// `network` behind its Wiener stage where the model has one.
 pub(super) fn behind(
@@ -88,19 +88,19 @@ pub(super) fn prepared_for(
     )?)
 }
 
-/// The resident path's engines on the sink's device `d`: the network's
+/// One view's engines on the sink's device `d`: the network's
 /// kernels behind its Wiener stage (on the device, where the device FFT
 /// takes the panel's size; else on the host first), or no network and the
 /// method's linear prefilter (its Wiener, or `lsq`) on the device, or the
 /// least-squares solvers on the host, or nothing.
-pub(super) fn resident_stage(
+pub(super) fn device_engines(
     common: &CommonOptions,
     opts: &RunOptions,
     panel: &PanelConfig,
     (device, queue, name): &(wgpu::Device, wgpu::Queue, String),
     model: Option<ModelFile>,
     stage: &Option<(Method, Arc<WienerFilter>)>,
-) -> Result<ResidentStage, AppError> {
+) -> Result<DeviceEngines, AppError> {
     let (host, network, fallback) = match model {
         Some(model) => {
             let precision = common.dcnn.backend_options.precision;
@@ -172,19 +172,14 @@ pub(super) fn resident_stage(
             }
         },
     };
-    let frames = DeviceFrames::new(
+    let frames = DeviceFrames::single(
         device,
         queue,
-        panel.width,
-        panel.height,
+        (panel.width, panel.height),
         &panel.transfer,
         network,
     )?;
-    Ok(ResidentStage {
-        host,
-        frames,
-        fallback,
-    })
+    Ok(DeviceEngines::single(frames, host, fallback))
 }
 
 /// A prefilter's device stage, if the device runs it, and the same on the host.

@@ -1,37 +1,24 @@
-//! The last step of `nedrt run`: start the pipeline (host or resident),
-//! run the source and the present loop to the end, and write the report.
-//! Apart from the construction in `run` and `engines`.
+//! The last step of `nedrt run`: start the pipeline with the engines
+//! built for it (host or device, any number of views), run the source and
+//! the present loop to the end, and write the report. Apart from the
+//! construction in `run` and `engines`.
 
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 
 use super::{AppError, RunOptions};
-use nedrt_core::preprocess::Preprocess;
 use nedrt_service::pipeline::pacing::Clock;
-use nedrt_service::pipeline::service::{
-    Control, FallbackFactory, PanelConfig, PreprocessStage, ResidentStage, Service,
-};
+use nedrt_service::pipeline::service::{Control, Engines, PanelConfig, Service};
 use nedrt_service::pipeline::source::{self, Source};
 use nedrt_service::pipeline::stats::Report;
 use nedrt_service::present::Sink;
 
-/// The pipeline `serve` starts.
-pub(super) enum Pipeline {
-    /// Frames through the host, and why.
-    Host {
-        primary: Box<dyn Preprocess>,
-        fallback: Option<FallbackFactory>,
-        reason: String,
-    },
-    /// Frames on the sink's device.
-    Resident(Box<ResidentStage>),
-    /// Two views, each its own engine, through the host.
-    Views(Vec<super::views::View>),
-    /// Two views on the sink's device, the host engines their fallback.
-    DeviceViews(
-        Box<nedrt_service::pipeline::device_views::DeviceViews>,
-        Vec<super::views::View>,
-    ),
+/// The engines `serve` starts the pipeline with, what they are (for the
+/// log), and why frames go through the host when they do.
+pub(super) struct Built {
+    pub engines: Engines,
+    pub what: String,
+    pub host_reason: Option<String>,
 }
 
 /// Starts the pipeline with its preprocessing, runs it to the end and
@@ -43,72 +30,21 @@ pub(super) fn serve(
     clock: Arc<dyn Clock>,
     source: Box<dyn Source>,
     mut sink: Box<dyn Sink>,
-    pipeline: Pipeline,
+    built: Built,
 ) -> Result<Report, AppError> {
     let (width, height, refresh_hz) = (panel.width, panel.height, panel.refresh_hz);
-    let (service, what) = match pipeline {
-        Pipeline::Host {
-            primary,
-            fallback,
-            reason,
-        } => {
-            let what = format!("{} (frames through the host: {reason})", primary.describe());
-            let service = Service::start(panel, PreprocessStage { primary, fallback }, clock);
-            if let Ok(s) = &service {
-                *s.stats()
-                    .frame_path
-                    .lock()
-                    .unwrap_or_else(|p| p.into_inner()) = format!("host: {reason}");
-            }
-            (service, what)
-        }
-        Pipeline::Views(views) => {
-            let what = views
-                .iter()
-                .map(|v| {
-                    format!(
-                        "{} ({}×{} at {}, {}): {}",
-                        v.name,
-                        v.region.width,
-                        v.region.height,
-                        v.region.x,
-                        v.region.y,
-                        v.stage.primary.describe()
-                    )
-                })
-                .collect::<Vec<_>>()
-                .join("; ");
-            let stages = views.into_iter().map(|v| v.stage).collect();
-            let service = Service::start_views(panel, stages, clock);
-            if let Ok(s) = &service {
-                *s.stats()
-                    .frame_path
-                    .lock()
-                    .unwrap_or_else(|p| p.into_inner()) =
-                    "host: two views, each its engine on the CPU".into();
-            }
-            (service, format!("two views, {what}"))
-        }
-        Pipeline::DeviceViews(device, views) => {
-            let what = format!("two views, {}", device.describe());
-            let host = views.into_iter().map(|v| v.stage).collect();
-            (
-                Service::start_device_views(panel, *device, host, clock),
-                what,
-            )
-        }
-        Pipeline::Resident(resident) => {
-            let what = match &resident.host {
-                Some(h) => format!(
-                    "{}, then on the GPU: {}",
-                    h.name,
-                    resident.frames.describe()
-                ),
-                None => format!("on the GPU: {}", resident.frames.describe()),
-            };
-            (Service::start_resident(panel, *resident, clock), what)
-        }
-    };
+    let Built {
+        engines,
+        what,
+        host_reason,
+    } = built;
+    let service = Service::start(panel, engines, clock);
+    if let (Ok(s), Some(reason)) = (&service, host_reason) {
+        *s.stats()
+            .frame_path
+            .lock()
+            .unwrap_or_else(|p| p.into_inner()) = format!("host: {reason}");
+    }
     tracing::info!(
         "panel {width}×{height} at {refresh_hz} Hz; source: {}; preprocess: {what}; sink: {}",
         source.describe(),

@@ -1,12 +1,15 @@
 //! `nedrt run` with two views (a headset's eyes, issue 33): each eye its
 //! region of the panel and its own preprocessing, built from its design
 //! (`[[view]]` in the calibration; without tables, the panel's halves and
-//! the run's own system). On the host path: the service's `start_views`.
+//! the run's own system). The service runs them as it runs one view: on
+//! the sink's device where every eye's stage can be built there, else on
+//! the host.
 
 use std::sync::Arc;
 
 use super::engines::{behind, linear_on_device, linear_preprocessor};
 use super::plan::ViewFacts;
+use super::serve::Built;
 use super::{AppError, CommonOptions, RunOptions};
 use crate::design::Design;
 use crate::device_prefilter::wiener_stage;
@@ -17,8 +20,10 @@ use nedrt_infer::{BackendKind, Dcnn, ModelFile};
 use nedrt_optics::sim::Method;
 use nedrt_optics::sim::wiener::WienerFilter;
 use nedrt_service::compose::ViewRegion;
-use nedrt_service::pipeline::service::PanelConfig;
-use nedrt_service::pipeline::service::PreprocessStage;
+use nedrt_service::pipeline::device_frames::{DeviceFrames, DeviceView};
+use nedrt_service::pipeline::service::{
+    DeviceEngines, Engines, FallbackFactory, PanelConfig, PreprocessStage,
+};
 
 /// A view of the run: its name, region and preprocessing (on the host),
 /// and its design's options (for its stage on the device).
@@ -29,10 +34,87 @@ pub(super) struct View {
     pub common: CommonOptions,
 }
 
+/// The engines of the views: on the sink's device where the plan puts the
+/// frames and every view's stage is built there (each view's host engine
+/// its fallback), else each view's engine on the host, and why.
+pub(super) fn engines(
+    views: Vec<View>,
+    opts: &RunOptions,
+    panel: &PanelConfig,
+    device: Option<&(wgpu::Device, wgpu::Queue, String)>,
+    planned: &super::RunPlan,
+    model: Option<&ModelFile>,
+    wiener: &Option<(Method, Arc<WienerFilter>)>,
+) -> Built {
+    let on_device = match (device, planned.path) {
+        (Some(gpu), super::PlannedPath::Device) => {
+            device_stages(&views, opts, panel, gpu, model, wiener).and_then(|stages| {
+                let (d, q, _) = gpu;
+                let views = views
+                    .iter()
+                    .zip(stages)
+                    .map(|(v, stage)| DeviceView {
+                        region: v.region,
+                        stage,
+                    })
+                    .collect();
+                DeviceFrames::new(d, q, (panel.width, panel.height), views, &panel.transfer)
+                    .map_err(|e| e.to_string())
+            })
+        }
+        _ => Err(planned.path_reason.clone()),
+    };
+    let n = views.len();
+    match on_device {
+        Ok(frames) => {
+            let what = format!("{n} views, {}", frames.describe());
+            let fallback = views
+                .into_iter()
+                .map(|v| {
+                    let primary = v.stage.primary;
+                    Some(Box::new(move || Ok(primary)) as FallbackFactory)
+                })
+                .collect();
+            Built {
+                engines: Engines::Device(Box::new(DeviceEngines {
+                    frames,
+                    host: (0..n).map(|_| None).collect(),
+                    fallback,
+                })),
+                what,
+                host_reason: None,
+            }
+        }
+        Err(why) => {
+            tracing::info!("the views run on the host: {why}");
+            let what = views
+                .iter()
+                .map(|v| {
+                    format!(
+                        "{} ({}×{} at {}, {}): {}",
+                        v.name,
+                        v.region.width,
+                        v.region.height,
+                        v.region.x,
+                        v.region.y,
+                        v.stage.primary.describe()
+                    )
+                })
+                .collect::<Vec<_>>()
+                .join("; ");
+            Built {
+                engines: Engines::Host(views.into_iter().map(|v| v.stage).collect()),
+                what: format!("{n} views, {what}"),
+                host_reason: Some(format!("{n} views, each its engine on the CPU: {why}")),
+            }
+        }
+    }
+}
+
 /// Each view's stage on the sink's device: its D-CNN (on the wgpu
 /// backend) behind its Wiener stage where the model has one, or its
 /// prefilter, or none; `Err` says why the views stay on the host.
-pub(super) fn device_stages(
+fn device_stages(
     views: &[View],
     opts: &RunOptions,
     panel: &PanelConfig,

@@ -244,6 +244,70 @@ pub fn planar_payload(frame: &Image) -> Vec<u8> {
     frame.data().iter().flat_map(|v| v.to_le_bytes()).collect()
 }
 
+/// A view's newest frame as it goes to its engine: as the client sent it
+/// (uploaded as it came and unpacked on the device, its quads blended
+/// there), or planes a host stage made (quads already blended).
+#[derive(Debug, Clone)]
+pub enum ViewContent {
+    Client(std::sync::Arc<SubmittedFrame>),
+    Planar(std::sync::Arc<Image>),
+}
+
+impl ViewContent {
+    /// Width and height.
+    pub fn size(&self) -> (usize, usize) {
+        match self {
+            Self::Client(f) => (f.width, f.height),
+            Self::Planar(im) => (im.width, im.height),
+        }
+    }
+}
+
+/// A view's newest content and a number that changes with it (0: the view
+/// has had no frame yet; it is black).
+#[derive(Debug, Clone)]
+pub struct ViewFrame {
+    pub generation: u64,
+    pub content: ViewContent,
+}
+
+/// The `width`×`height` part of a validated frame at (`left`, `top`), in
+/// its own format (a panel-sized frame cut into its views).
+pub fn crop(
+    frame: &SubmittedFrame,
+    (left, top): (usize, usize),
+    (width, height): (usize, usize),
+) -> SubmittedFrame {
+    debug_assert!(left + width <= frame.width && top + height <= frame.height);
+    let mut payload = Vec::with_capacity(width * height * frame.format.bytes_per_pixel());
+    match frame.format {
+        PixelFormat::Rgba8Linear | PixelFormat::Rgba8Srgb => {
+            for row in top..top + height {
+                let start = 4 * (row * frame.width + left);
+                payload.extend_from_slice(&frame.payload[start..start + 4 * width]);
+            }
+        }
+        // Three planes of little-endian f32, each cut alike.
+        PixelFormat::Rgb32fPlanar => {
+            let plane = 4 * frame.width * frame.height;
+            for c in 0..3 {
+                for row in top..top + height {
+                    let start = c * plane + 4 * (row * frame.width + left);
+                    payload.extend_from_slice(&frame.payload[start..start + 4 * width]);
+                }
+            }
+        }
+    }
+    SubmittedFrame {
+        id: frame.id,
+        capture_ns: frame.capture_ns,
+        width,
+        height,
+        format: frame.format,
+        payload,
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -306,5 +370,34 @@ mod tests {
             assert_eq!(PixelFormat::from_code(code).map(|f| f.code()), Some(code));
         }
         assert_eq!(PixelFormat::from_code(9), None);
+    }
+
+    #[test]
+    fn a_cropped_frame_decodes_to_the_crop_of_its_decode() {
+        let (w, h) = (7usize, 5usize);
+        for format in [
+            PixelFormat::Rgba8Linear,
+            PixelFormat::Rgba8Srgb,
+            PixelFormat::Rgb32fPlanar,
+        ] {
+            let payload = match format {
+                PixelFormat::Rgb32fPlanar => (0..3 * w * h)
+                    .flat_map(|i| (i as f32 / 105.0).to_le_bytes())
+                    .collect(),
+                _ => (0..4 * w * h).map(|i| (i * 37 % 256) as u8).collect(),
+            };
+            let frame = SubmittedFrame {
+                id: 3,
+                capture_ns: 9,
+                width: w,
+                height: h,
+                format,
+                payload,
+            };
+            let part = crop(&frame, (2, 1), (4, 3));
+            assert_eq!((part.width, part.height, part.id), (4, 3, 3));
+            assert!(validate(&part, 4, 3).is_ok(), "{format:?}");
+            assert_eq!(decode(&part), decode(&frame).crop(2, 1, 4, 3), "{format:?}");
+        }
     }
 }

@@ -8,12 +8,11 @@
 //! ([`stats`], [`latency`]).
 
 pub mod channel;
-pub mod device_views;
+pub mod device_frames;
 pub mod frame;
 pub mod latency;
 pub mod pacing;
 pub mod protocol;
-pub mod resident;
 pub mod service;
 pub mod source;
 pub mod stats;

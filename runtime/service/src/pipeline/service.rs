@@ -2,19 +2,23 @@
 //! channels, and the present loop on the caller's thread.
 //!
 //! ```text
-//! Compositor::submit ─► upload ─► dcnn ─► encode ─► NewestSlot ─► present loop ─► Sink
-//!   (validate)          (decode)  (D-CNN,  (clamp,   (newest      (paced on the
-//!                                 fallback) transfer) wins)        refresh)
+//! Compositor::submit ─► upload ─► preprocess ─► encode ─► NewestSlot ─► present loop ─► Sink
+//!   (validate)          (decode)  (each view,   (clamp,   (newest      (just in time
+//!                                 fallback)     transfer) wins)        for the refresh)
 //! ```
 //!
-//! On the resident path ([`Service::start_resident`]) the upload stage
-//! only runs a host stage where the system has one (a network's Wiener),
-//! the dcnn stage uploads the frame once and records unpack, network and
-//! encode on the sink's device ([`super::resident`]), the encode stage
-//! passes the device frame on, and the sink copies its codes on the
-//! device: no read-back. If the device fails, the dcnn stage switches to
-//! the host path for good (its fallback on the decoded frame, the CPU
-//! encode), as the host path switches engines.
+//! One pipeline for any number of views ([`Engines`]): on the host path
+//! the upload stage decodes each view's frame and blends its quads, the
+//! preprocess stage runs each view's engine into its region of the panel
+//! image ([`views`]) and the encode stage turns it into codes. On the
+//! device path the upload stage passes each view's frame on as the client
+//! sent it (or runs a host stage where the view has one: a network's
+//! Wiener the device cannot run), the preprocess stage uploads it once
+//! and records every view's unpack, layers, stage and encode on the sink's
+//! device in one submission ([`super::device_frames`]), and the sink
+//! copies the codes on the device: no read-back. If the device fails, the
+//! preprocess stage switches to the host for good (each view's fallback,
+//! the CPU encode), as the host path switches engines.
 //!
 //! Back-pressure: every hand-over keeps the newest frame. A stage that
 //! falls behind works on the newest frame it can get; older ones are
@@ -36,9 +40,9 @@ use std::thread::JoinHandle;
 use crossbeam_channel::Receiver;
 
 use super::channel::newest_channel;
-use super::device_views::DeviceViews;
+use super::device_frames::DeviceFrames;
+use super::frame::ViewFrame;
 use super::pacing::{Clock, DisplaySchedule, NewestSlot, Pacer};
-use super::resident::{DeviceFrames, DeviceInput};
 use super::stats::{Report, Stage, Stats};
 use crate::compose::{LayerSet, ViewGeometry, ViewRegion};
 use crate::present::transfer::Transfer;
@@ -46,10 +50,9 @@ use crate::present::{DisplayFrame, PanelFrame};
 pub use compositor::Compositor;
 use compositor::{Submission, Timed, ViewSlot};
 pub use control::Control;
-use engine::{Engine, Processed, UploadWork, decode_with_layers, host_stage};
-use stages::switch_to_fallback;
-pub use stages::{FallbackFactory, HostPrep, HostWork, PreprocessStage, ResidentStage};
-use views::{ViewEngines, ViewsUpload};
+use engine::{Engine, Processed};
+pub use stages::{DeviceEngines, Engines, FallbackFactory, HostPrep, HostWork, PreprocessStage};
+use views::{HostEngine, Intake, Uptake};
 
 /// The panel the service drives.
 #[derive(Debug, Clone)]
@@ -135,109 +138,15 @@ fn spawn_stage<I: Send + 'static, O: Send + 'static>(
 }
 
 impl Service {
-    /// Starts the stage threads; frames flow once submitted through
-    /// [`Service::compositor`], and reach a sink through
+    /// Starts the stage threads with `engines`, one per view of `panel`
+    /// (a panel without views is one view); frames flow once submitted
+    /// through [`Service::compositor`], and reach a sink through
     /// [`Service::present_loop`].
     pub fn start(
         panel: PanelConfig,
-        dcnn: PreprocessStage,
+        engines: Engines,
         clock: Arc<dyn Clock>,
     ) -> std::io::Result<Self> {
-        Self::start_with(panel, Engine::Host(dcnn, None), None, clock)
-    }
-
-    /// Starts the resident path (module docs): frames stay on the sink's
-    /// device from the upload to the panel.
-    pub fn start_resident(
-        panel: PanelConfig,
-        resident: ResidentStage,
-        clock: Arc<dyn Clock>,
-    ) -> std::io::Result<Self> {
-        let ResidentStage {
-            host,
-            frames,
-            fallback,
-        } = resident;
-        let engine = Engine::Device {
-            frames: Box::new(frames),
-            fallback,
-            layers: None,
-        };
-        Self::start_with(panel, engine, Some(host), clock)
-    }
-
-    /// Starts the host path with one engine per view of `panel.views` (two
-    /// eyes; [`views`]): each view's frames, quads and preprocessing are
-    /// its own, and the panel shows them side by side.
-    pub fn start_views(
-        panel: PanelConfig,
-        stages: Vec<PreprocessStage>,
-        clock: Arc<dyn Clock>,
-    ) -> std::io::Result<Self> {
-        if panel.views.len() != stages.len() || stages.is_empty() {
-            return Err(std::io::Error::new(
-                std::io::ErrorKind::InvalidInput,
-                format!("{} engines for {} views", stages.len(), panel.views.len()),
-            ));
-        }
-        let engines = ViewEngines::new((panel.width, panel.height), panel.views.clone(), stages);
-        Self::start_with(panel, Engine::Views(Box::new(engines)), None, clock)
-    }
-
-    /// Starts two views on the sink's device ([`DeviceViews`]): each eye's
-    /// frames decoded and blended on the host, then both eyes' stages and
-    /// encodes in one submission; `host` (one stage per view) takes over
-    /// if the device fails.
-    pub fn start_device_views(
-        panel: PanelConfig,
-        views: DeviceViews,
-        host: Vec<PreprocessStage>,
-        clock: Arc<dyn Clock>,
-    ) -> std::io::Result<Self> {
-        let host = (host.len() == panel.views.len() && !host.is_empty()).then(|| {
-            Box::new(ViewEngines::new(
-                (panel.width, panel.height),
-                panel.views.clone(),
-                host,
-            ))
-        });
-        let engine = Engine::DeviceViews {
-            views: Box::new(views),
-            host,
-        };
-        let service = Self::start_with(panel, engine, None, clock)?;
-        *service
-            .stats
-            .frame_path
-            .lock()
-            .unwrap_or_else(|p| p.into_inner()) = "device: two views, each eye's frame decoded \
-            on the host, both eyes' stages and encodes in one submission; no read-back"
-            .into();
-        Ok(service)
-    }
-
-    /// `host`: the resident path's host stage (`Some(None)`: the resident
-    /// path without one); `None`: the host path.
-    fn start_with(
-        panel: PanelConfig,
-        mut engine: Engine,
-        host: Option<Option<HostPrep>>,
-        clock: Arc<dyn Clock>,
-    ) -> std::io::Result<Self> {
-        views::check_regions(&panel.views, (panel.width, panel.height))?;
-        let stats = Arc::new(Stats::default());
-        *stats.backend.lock().unwrap_or_else(|p| p.into_inner()) = engine.describe();
-        *stats.frame_path.lock().unwrap_or_else(|p| p.into_inner()) = match &host {
-            None => {
-                "host (decode, preprocess and encode on the CPU; the sink uploads the codes)".into()
-            }
-            Some(None) => "device (the frame is uploaded as it came; no read-back)".into(),
-            Some(Some(h)) => format!(
-                "device after a host stage ({} on the CPU, its planes uploaded; no read-back)",
-                h.name
-            ),
-        };
-        let queued = stats.dropped_queued.clone();
         let regions = if panel.views.is_empty() {
             vec![ViewRegion {
                 x: 0,
@@ -248,6 +157,22 @@ impl Service {
         } else {
             panel.views.clone()
         };
+        let n = regions.len();
+        let counts_match = match &engines {
+            Engines::Host(stages) => stages.len() == n,
+            Engines::Device(d) => {
+                d.frames.views() == n && d.host.len() == n && d.fallback.len() == n
+            }
+        };
+        if !counts_match {
+            return Err(std::io::Error::new(
+                std::io::ErrorKind::InvalidInput,
+                format!("engines for {} views on a panel of {n}", engines.views()),
+            ));
+        }
+        views::check_regions(&regions, (panel.width, panel.height))?;
+        let stats = Arc::new(Stats::default());
+        let queued = stats.dropped_queued.clone();
         // A frame of each view may wait (two eyes alternating); an eye that
         // submits twice while the upload stage is busy can still evict the
         // other's one queued frame: the upload stage, a decode, is quick.
@@ -278,35 +203,86 @@ impl Service {
                 layers: Arc::new(LayerSet::default()),
             })
             .collect();
-        let layers = slots[0].layers.clone();
-        engine.attach_layers(layers.clone());
-        let mut upload: UploadWork = match host {
-            None if !panel.views.is_empty() => {
-                let mut views = ViewsUpload::new(
-                    regions.clone(),
-                    slots.iter().map(|s| s.layers.clone()).collect(),
-                );
-                Box::new(move |(view, f), stats| views.take(view, &f, stats))
+        let size = (panel.width, panel.height);
+        let layers = |v: usize| slots[v].layers.clone();
+        let (intake, mut engine, path) = match engines {
+            Engines::Host(stages) => {
+                let intake = (0..n)
+                    .map(|v| (regions[v], layers(v), Uptake::Decode))
+                    .collect();
+                let engine = stages
+                    .into_iter()
+                    .enumerate()
+                    .map(|(v, stage)| (regions[v], layers(v), stage))
+                    .collect();
+                let path = match n {
+                    1 => "host (decode, preprocess and encode on the CPU; the sink uploads the \
+                          codes)"
+                        .to_string(),
+                    _ => format!("host: {n} views, each its engine on the CPU"),
+                };
+                (intake, Engine::Host(HostEngine::new(size, engine)), path)
             }
-            None => {
-                let layers = layers.clone();
-                Box::new(move |(_, f), stats| {
-                    Some(DeviceInput::Planar(decode_with_layers(&f, &layers, stats)))
-                })
-            }
-            Some(None) => Box::new(|(_, f), _| Some(DeviceInput::Client(f))),
-            Some(Some(prep)) => {
-                let mut stage = host_stage(prep, layers.clone());
-                Box::new(move |(_, f), stats| stage(f, stats))
+            Engines::Device(d) => {
+                let DeviceEngines {
+                    mut frames,
+                    host,
+                    fallback,
+                } = *d;
+                let preps: Vec<String> = host.iter().flatten().map(|h| h.name.clone()).collect();
+                let intake = host
+                    .into_iter()
+                    .enumerate()
+                    .map(|(v, prep)| {
+                        let uptake = match prep {
+                            Some(prep) => Uptake::Prepared {
+                                prep,
+                                failed_over: false,
+                            },
+                            None => {
+                                // Blended on the device after the unpack.
+                                frames.attach_layers(v, layers(v));
+                                Uptake::AsSent
+                            }
+                        };
+                        (regions[v], layers(v), uptake)
+                    })
+                    .collect();
+                let path = match (n, preps.first()) {
+                    (1, None) => "device (the frame is uploaded as it came; no read-back)".into(),
+                    (1, Some(name)) => format!(
+                        "device after a host stage ({name} on the CPU, its planes uploaded; no \
+                         read-back)"
+                    ),
+                    (_, None) => format!(
+                        "device: {n} views, each view's frame uploaded as it came, their stages \
+                         and encodes in one submission; no read-back"
+                    ),
+                    (_, Some(_)) => format!(
+                        "device: {n} views after host stages ({}), their stages and encodes in \
+                         one submission; no read-back",
+                        preps.join("; ")
+                    ),
+                };
+                let engine = Engine::Device {
+                    frames: Box::new(frames),
+                    fallback,
+                    panel: size,
+                    views: (0..n).map(|v| (regions[v], layers(v))).collect(),
+                };
+                (intake, engine, path)
             }
         };
+        *stats.backend.lock().unwrap_or_else(|p| p.into_inner()) = engine.describe();
+        *stats.frame_path.lock().unwrap_or_else(|p| p.into_inner()) = path;
+        let mut intake = Intake::new(size, intake);
         threads.push(spawn_stage(
             "upload",
             Stage::Upload,
             ingest_rx,
             move |t| upload_tx.send(t),
             context.clone(),
-            move |_, f: Submission, stats| upload(f, stats),
+            move |_, (view, f): Submission, stats| intake.take(view, f, stats),
         )?);
         threads.push(spawn_stage(
             "preprocess",
@@ -314,7 +290,7 @@ impl Service {
             upload_rx,
             move |t| dcnn_tx.send(t),
             context.clone(),
-            move |id, f: DeviceInput, stats| engine.run(id, f, stats),
+            move |id, f: Vec<ViewFrame>, stats| engine.run(id, f, stats),
         )?);
         let transfer = panel.transfer.clone();
         let slot_in = slot.clone();

@@ -43,11 +43,13 @@ impl Sink for Collect {
     fn describe(&self) -> String {
         "collect".into()
     }
+    /// Codes on a device are read back (GPU tests only).
     fn present(&mut self, frame: PanelCodes<'_>) -> Result<Presented, PresentError> {
-        let PanelCodes::Host(frame) = frame else {
-            return Err(PresentError::frame("collect", "codes on a device"));
+        let frame = match frame {
+            PanelCodes::Host(frame) => frame.clone(),
+            PanelCodes::Device(frame) => frame.to_host()?,
         };
-        self.0.push(frame.clone());
+        self.0.push(frame);
         Ok(Presented::Shown)
     }
     /// As a GPU sink: the frame's codes go up, nothing comes back.
@@ -96,7 +98,8 @@ fn run_one_by_one_with(
     frames: &[SubmittedFrame],
     before: impl Fn(usize, &Compositor) + Send + 'static,
 ) -> (Vec<DisplayFrame>, crate::pipeline::stats::Report) {
-    let mut service = Service::start(panel(), dcnn, Arc::new(SystemClock)).expect("start");
+    let mut service =
+        Service::start(panel(), Engines::host(dcnn), Arc::new(SystemClock)).expect("start");
     let compositor = service.compositor().expect("open");
     service.close_ingest();
     let feeder = {
@@ -250,7 +253,8 @@ fn frames_inside_the_stages_at_a_stop_are_counted_in_flight_not_lost() {
         }),
         fallback: None,
     };
-    let mut service = Service::start(panel(), dcnn, Arc::new(SystemClock)).expect("start");
+    let mut service =
+        Service::start(panel(), Engines::host(dcnn), Arc::new(SystemClock)).expect("start");
     let compositor = service.compositor().expect("open");
     service.close_ingest();
     // One frame held inside the D-CNN, the next ones queued behind it (a
@@ -395,23 +399,15 @@ fn quad_layers_are_blended_over_every_frame_until_their_owner_removes_them() {
     assert_eq!(report.frames_with_layers, 2);
 }
 
-#[test]
-fn two_views_each_get_their_frames_layers_and_engine_on_one_panel() {
+/// Two views side by side on the 4×2 panel through `engines`: a frame for
+/// the left eye, one for the right under a quad of its own, two refused
+/// submissions, and a panel-sized frame for both. The frames shown and the
+/// report.
+fn two_views_scenario(engines: Engines) -> (Vec<DisplayFrame>, crate::pipeline::stats::Report) {
     use crate::compose::{Placement, QuadLayer, ViewRegion};
     let mut config = panel();
     config.views = ViewRegion::side_by_side(4, 2).to_vec();
-    // View 0 shows its frames as they are; view 1 inverts (another design).
-    let stages = vec![
-        PreprocessStage {
-            primary: Box::new(Identity),
-            fallback: None,
-        },
-        PreprocessStage {
-            primary: Box::new(Failing { ok: usize::MAX }),
-            fallback: None,
-        },
-    ];
-    let mut service = Service::start_views(config, stages, Arc::new(SystemClock)).expect("start");
+    let mut service = Service::start(config, engines, Arc::new(SystemClock)).expect("start");
     let compositor = service.compositor().expect("open");
     service.close_ingest();
     let stats = service.stats().clone();
@@ -465,6 +461,23 @@ fn two_views_each_get_their_frames_layers_and_engine_on_one_panel() {
     let report = within(THREAD, "the service to shut down", move || {
         service.shutdown()
     });
+    (sink.0, report)
+}
+
+#[test]
+fn two_views_each_get_their_frames_layers_and_engine_on_one_panel() {
+    // View 0 shows its frames as they are; view 1 inverts (another design).
+    let stages = vec![
+        PreprocessStage {
+            primary: Box::new(Identity),
+            fallback: None,
+        },
+        PreprocessStage {
+            primary: Box::new(Failing { ok: usize::MAX }),
+            fallback: None,
+        },
+    ];
+    let (shown, report) = two_views_scenario(Engines::Host(stages));
     assert_eq!(report.presented, 3);
     assert_eq!(report.rejected_total(), 2);
     let rows = |f: &DisplayFrame| -> Vec<Vec<u8>> {
@@ -472,7 +485,7 @@ fn two_views_each_get_their_frames_layers_and_engine_on_one_panel() {
             .map(|y| (0..4).map(|x| f.rgba8[4 * (4 * y + x)]).collect())
             .collect()
     };
-    let shown: Vec<_> = sink.0.iter().map(rows).collect();
+    let shown: Vec<_> = shown.iter().map(rows).collect();
     // Frame 1: the left eye's 0.2; no frame for the right yet: black (its
     // engine is not run on nothing).
     assert_eq!(shown[0], vec![vec![51, 51, 0, 0], vec![51, 51, 0, 0]]);
@@ -509,7 +522,8 @@ fn one_view_smaller_than_the_panel_takes_frames_of_its_own_size() {
         primary: Box::new(Identity),
         fallback: None,
     }];
-    let service = Service::start_views(config, stages, Arc::new(SystemClock)).expect("start");
+    let service =
+        Service::start(config, Engines::Host(stages), Arc::new(SystemClock)).expect("start");
     let compositor = service.compositor().expect("open");
     let view_frame = SubmittedFrame {
         id: 1,
@@ -540,5 +554,135 @@ fn one_view_smaller_than_the_panel_takes_frames_of_its_own_size() {
         primary: Box::new(Identity),
         fallback: None,
     }];
-    assert!(Service::start_views(bad, stages, Arc::new(SystemClock)).is_err());
+    assert!(Service::start(bad, Engines::Host(stages), Arc::new(SystemClock)).is_err());
+}
+
+mod needs_gpu {
+    use super::*;
+    use crate::compose::ViewRegion;
+    use crate::pipeline::device_frames::{DeviceFrames, DeviceView};
+    use crate::pipeline::test_stage::Stretch;
+
+    /// The host twin of [`Stretch`]: 1.4 · in − 0.2, clamped.
+    #[derive(Debug)]
+    struct StretchOnHost;
+
+    impl Preprocess for StretchOnHost {
+        fn describe(&self) -> String {
+            "stretch on the host".into()
+        }
+        fn run(&mut self, frame: &Image) -> Result<Image, PreprocessError> {
+            let mut out = frame.clone();
+            out.data_mut()
+                .iter_mut()
+                .for_each(|v| *v = (1.4 * *v - 0.2).clamp(0.0, 1.0));
+            Ok(out)
+        }
+    }
+
+    fn on_host(p: impl Preprocess + 'static) -> PreprocessStage {
+        PreprocessStage {
+            primary: Box::new(p),
+            fallback: None,
+        }
+    }
+
+    /// The left eye as it comes, the right stretched, on the device; each
+    /// view's host twin its fallback. `poison`: the right eye's stage
+    /// overflows (a network gone bad), so the device path fails there.
+    fn on_device(device: &wgpu::Device, queue: &wgpu::Queue, poison: bool) -> Engines {
+        let [left, right] = ViewRegion::side_by_side(4, 2);
+        let views = vec![
+            DeviceView {
+                region: left,
+                stage: None,
+            },
+            DeviceView {
+                region: right,
+                stage: Some(Box::new(Stretch::with_poison(device, poison))),
+            },
+        ];
+        let frames =
+            DeviceFrames::new(device, queue, (4, 2), views, &panel().transfer).expect("frames");
+        let identity: FallbackFactory = Box::new(|| Ok(Box::new(Identity)));
+        let stretch: FallbackFactory = Box::new(|| Ok(Box::new(StretchOnHost)));
+        Engines::Device(Box::new(DeviceEngines {
+            frames,
+            host: vec![None, None],
+            fallback: vec![Some(identity), Some(stretch)],
+        }))
+    }
+
+    fn worst(a: &[DisplayFrame], b: &[DisplayFrame]) -> u8 {
+        assert_eq!(a.len(), b.len());
+        a.iter()
+            .zip(b)
+            .flat_map(|(x, y)| x.rgba8.iter().zip(&y.rgba8))
+            .map(|(x, y)| x.abs_diff(*y))
+            .max()
+            .unwrap_or(0)
+    }
+
+    #[test]
+    #[ignore = "needs a GPU adapter (run: scripts/test.sh, or cargo test -- --include-ignored)"]
+    fn the_device_engine_shows_two_views_as_the_host_engine_does() {
+        let (device, queue) = nedrt_gpu::test_device(false);
+        let host = Engines::Host(vec![on_host(Identity), on_host(StretchOnHost)]);
+        let (want, host_report) = two_views_scenario(host);
+        let (got, report) = two_views_scenario(on_device(&device, &queue, false));
+        assert_eq!((report.presented, report.rejected_total()), (3, 2));
+        assert!(
+            worst(&got, &want) <= 1,
+            "codes differ by {}: {:?} vs {:?}",
+            worst(&got, &want),
+            got.iter().map(|f| &f.rgba8).collect::<Vec<_>>(),
+            want.iter().map(|f| &f.rgba8).collect::<Vec<_>>()
+        );
+        assert!(
+            report.frame_path.starts_with("device: 2 views"),
+            "{}",
+            report.frame_path
+        );
+        assert_eq!(report.dcnn_failures, 0);
+        // The right eye's quad was blended on the device, on its one frame
+        // under it; the left eye was shown from its last frame once.
+        assert_eq!(report.frames_with_layers, host_report.frames_with_layers);
+        assert_eq!(report.view_frames_reused, host_report.view_frames_reused);
+        // Each eye's frame went up as the client sent it (RGBA8): 16 bytes
+        // a view, and nothing came back but counts and timestamps.
+        let up = report
+            .traffic
+            .iter()
+            .find(|t| t.stage == "preprocess")
+            .expect("preprocess traffic");
+        assert_eq!(up.total.read_backs, 0);
+        assert!(up.total.to_device_bytes >= 4 * 16, "{up:?}");
+    }
+
+    #[test]
+    #[ignore = "needs a GPU adapter (run: scripts/test.sh, or cargo test -- --include-ignored)"]
+    fn two_views_whose_device_fails_go_on_with_each_views_fallback_without_losing_a_frame() {
+        let (device, queue) = nedrt_gpu::test_device(false);
+        let host = Engines::Host(vec![on_host(Identity), on_host(StretchOnHost)]);
+        let (want, _) = two_views_scenario(host);
+        let (got, report) = two_views_scenario(on_device(&device, &queue, true));
+        // The right eye's first frame fails on the device; it and every
+        // later frame are shown by the views' host engines.
+        assert_eq!((report.presented, report.rejected_total()), (3, 2));
+        assert_eq!(report.dcnn_failures, 1);
+        assert!(
+            report
+                .frame_path
+                .starts_with("host (after the device path failed)"),
+            "{}",
+            report.frame_path
+        );
+        assert!(
+            worst(&got, &want) <= 1,
+            "codes differ by {}: {:?} vs {:?}",
+            worst(&got, &want),
+            got.iter().map(|f| &f.rgba8).collect::<Vec<_>>(),
+            want.iter().map(|f| &f.rgba8).collect::<Vec<_>>()
+        );
+    }
 }

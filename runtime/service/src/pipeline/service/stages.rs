@@ -1,6 +1,6 @@
-//! What the dcnn stage runs: the D-CNN stage with its fallback, a host
-//! stage before the device, the resident path's engines, and the switch to
-//! the fallback when an engine fails.
+//! What the preprocess stage runs: a view's preprocessing with its
+//! fallback, a host stage before the device, the device path's engines,
+//! and the switch to the fallback when an engine fails.
 
 use super::{DeviceFrames, Stage, Stats};
 use nedrt_core::Image;
@@ -63,9 +63,22 @@ impl PreprocessStage {
     }
 }
 
+/// The fallback's preprocessor: the factory's, else [`Identity`] (also
+/// when the factory cannot start it, which is logged).
+pub(super) fn fallback_preprocessor(fallback: Option<FallbackFactory>) -> Box<dyn Preprocess> {
+    match fallback.map(|factory| factory()) {
+        Some(Ok(p)) => p,
+        Some(Err(fe)) => {
+            tracing::error!("fallback backend cannot start: {fe}");
+            Box::new(Identity)
+        }
+        None => Box::new(Identity),
+    }
+}
+
 /// After a failure of the engine `failed` (`reason`): counts it and
-/// returns the fallback's preprocessor (the factory's, else [`Identity`]),
-/// logged and named in the report's backend.
+/// returns the fallback's preprocessor, logged and named in the report's
+/// backend.
 pub(super) fn switch_to_fallback(
     fallback: Option<FallbackFactory>,
     failed: &str,
@@ -75,14 +88,7 @@ pub(super) fn switch_to_fallback(
     stats
         .dcnn_failures
         .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-    let next: Box<dyn Preprocess> = match fallback.map(|factory| factory()) {
-        Some(Ok(p)) => p,
-        Some(Err(fe)) => {
-            tracing::error!("fallback backend cannot start: {fe}");
-            Box::new(Identity)
-        }
-        None => Box::new(Identity),
-    };
+    let next = fallback_preprocessor(fallback);
     tracing::error!(
         "{failed} failed: {reason}; falling back to {}",
         next.describe()
@@ -108,21 +114,68 @@ impl std::fmt::Debug for HostPrep {
     }
 }
 
-/// The resident path's engines: an optional host stage, the device side,
-/// and the host preprocessing to switch to if the device fails (it gets
-/// the host stage's output; none: [`Identity`]).
-pub struct ResidentStage {
-    pub host: Option<HostPrep>,
+/// The device path's engines: the device side of every view, and for
+/// each view its host stage before the upload (none: the frame goes up as
+/// the client sent it) and the host preprocessing to switch to if the
+/// device fails (it gets what the device got: the frame, or the host
+/// stage's output; none: [`Identity`]).
+pub struct DeviceEngines {
     pub frames: DeviceFrames,
-    pub fallback: Option<FallbackFactory>,
+    pub host: Vec<Option<HostPrep>>,
+    pub fallback: Vec<Option<FallbackFactory>>,
 }
 
-impl std::fmt::Debug for ResidentStage {
+impl DeviceEngines {
+    /// One view's engines (the whole panel, or a view of it).
+    pub fn single(
+        frames: DeviceFrames,
+        host: Option<HostPrep>,
+        fallback: Option<FallbackFactory>,
+    ) -> Self {
+        Self {
+            frames,
+            host: vec![host],
+            fallback: vec![fallback],
+        }
+    }
+}
+
+impl std::fmt::Debug for DeviceEngines {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("ResidentStage")
+        f.debug_struct("DeviceEngines")
             .field("host", &self.host)
             .field("frames", &self.frames)
-            .field("fallback", &self.fallback.is_some())
+            .field(
+                "fallback",
+                &self
+                    .fallback
+                    .iter()
+                    .map(Option::is_some)
+                    .collect::<Vec<_>>(),
+            )
             .finish()
+    }
+}
+
+/// The preprocessing of a service: every view's on the host, or every
+/// view's on the sink's device. A panel without views is one view.
+#[derive(Debug)]
+pub enum Engines {
+    Host(Vec<PreprocessStage>),
+    Device(Box<DeviceEngines>),
+}
+
+impl Engines {
+    /// One view on the host.
+    pub fn host(stage: PreprocessStage) -> Self {
+        Self::Host(vec![stage])
+    }
+
+    /// The number of views the engines are for.
+    pub fn views(&self) -> usize {
+        match self {
+            Self::Host(stages) => stages.len(),
+            Self::Device(d) => d.frames.views(),
+        }
     }
 }
