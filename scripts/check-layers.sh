@@ -17,12 +17,13 @@ declare -A allowed=(
     [nedrt-optics]="nedrt-core"
     [nedrt-infer]="nedrt-core nedrt-gpu"
     [nedrt-service]="nedrt-core nedrt-gpu"
-    [nedrt-app]="nedrt-core nedrt-gpu nedrt-optics nedrt-infer nedrt-service"
-    [nedrt-studies]="nedrt-core nedrt-gpu nedrt-optics nedrt-infer nedrt-service nedrt-app"
+    [nedrt-engines]="nedrt-core nedrt-gpu nedrt-optics nedrt-infer"
+    [nedrt-app]="nedrt-core nedrt-gpu nedrt-optics nedrt-infer nedrt-service nedrt-engines"
+    [nedrt-studies]="nedrt-core nedrt-gpu nedrt-optics nedrt-infer nedrt-service nedrt-engines nedrt-app"
 )
 declare -A dir=(
     [nedrt-core]=core [nedrt-gpu]=gpu [nedrt-optics]=optics
-    [nedrt-infer]=infer [nedrt-service]=service [nedrt-app]=app
+    [nedrt-infer]=infer [nedrt-service]=service [nedrt-engines]=engines [nedrt-app]=app
     [nedrt-studies]=studies
 )
 status=0

@@ -11,10 +11,8 @@
 
 pub mod charts;
 pub mod design;
-pub mod device_prefilter;
 pub mod images;
 pub mod prefilter_batch;
-pub mod preprocess;
 pub mod run;
 pub mod sim;
 pub mod tune;
@@ -280,6 +278,40 @@ pub enum AppError {
     /// invariant broken); reported rather than panicking.
     #[error("{0}")]
     Internal(String),
+}
+
+/// An engine's error as the command's: the same variants, so that every
+/// message and hint stays as it was when the engines lived here.
+impl From<nedrt_engines::EngineError> for AppError {
+    fn from(e: nedrt_engines::EngineError) -> Self {
+        use nedrt_engines::EngineError as E;
+        match e {
+            E::Unavailable(what) => AppError::Unavailable(what),
+            E::Input { path, reason } => AppError::Input { path, reason },
+            E::Optics(e) => e.into(),
+            E::Sim(e) => e.into(),
+            E::Fft(e) => e.into(),
+            E::Gpu(e) => e.into(),
+            E::Inference(e) => e.into(),
+        }
+    }
+}
+
+/// The GPU of `--backend wgpu` for `methods` with `prefilters`, where one
+/// of them has work for a device ([`nedrt_engines::device_prefilter::wants_gpu`]);
+/// `None` on the other backends (the prefilters then run on the CPU, as
+/// the network does).
+pub fn gpu_for(
+    common: &CommonOptions,
+    methods: &[nedrt_optics::sim::Method],
+    prefilters: &[nedrt_engines::preprocess::Prefilter],
+) -> Result<Option<nedrt_engines::device_prefilter::Gpu>, AppError> {
+    let wanted = nedrt_engines::device_prefilter::wants_gpu(methods, prefilters);
+    if common.dcnn.backend != BackendKind::Wgpu || !wanted {
+        return Ok(None);
+    }
+    let (_, device, queue) = nedrt_gpu::open_device(&common.dcnn.backend_options.gpu, false)?;
+    Ok(Some((device, queue)))
 }
 
 impl AppError {

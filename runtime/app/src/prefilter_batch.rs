@@ -15,8 +15,8 @@ use safetensors::tensor::TensorView;
 
 use super::images::{list_images, load_all};
 use super::{AppError, CommonOptions, create_dir, write_text};
-use crate::preprocess::{Prefilter, for_system};
 use nedrt_core::image_io;
+use nedrt_engines::preprocess::{Prefilter, for_system};
 use nedrt_optics::sim::{Method, Objective, Simulator};
 
 /// Options of `nedrt prefilter`.

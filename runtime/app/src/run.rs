@@ -3,8 +3,7 @@
 //! D-CNN with its fallback, the pipeline and the source, presents until the
 //! source ends or a signal stops it, then reports the counts and latencies.
 
-mod engines;
-mod faults;
+mod build;
 mod options;
 mod plan;
 mod serve;
@@ -13,10 +12,10 @@ mod views;
 use std::sync::Arc;
 
 use super::{AppError, CommonOptions};
-use crate::preprocess::DcnnInput;
-use engines::{behind, device_engines, fallback_factory, linear_preprocessor};
-use faults::LosesDeviceAfter;
+use build::{behind, device_engines, fallback_factory, linear_preprocessor};
 use nedrt_core::preprocess::Preprocess;
+use nedrt_engines::FailsAfter;
+use nedrt_engines::preprocess::DcnnInput;
 use nedrt_infer::gpu::open_device;
 use nedrt_infer::{BackendKind, Dcnn, ModelFile};
 use nedrt_optics::sim::wiener::WienerFilter;
@@ -260,10 +259,7 @@ fn one_view(
         }
     };
     let primary = match opts.inject_device_loss_after {
-        Some(frames_left) => Box::new(LosesDeviceAfter {
-            inner: primary,
-            frames_left,
-        }),
+        Some(frames_left) => Box::new(FailsAfter::new(primary, frames_left)),
         None => primary,
     };
     Ok(host(primary, fallback))
@@ -320,7 +316,7 @@ fn network_of(
         Method::LensDcnn => &dcnn.lens_path,
         _ => &dcnn.path,
     })?;
-    let input = crate::preprocess::dcnn_input(&model.path)?;
+    let input = nedrt_engines::preprocess::dcnn_input(&model.path)?;
     Ok(Some((model, input)))
 }
 
@@ -403,8 +399,8 @@ mod tests {
         use nedrt_service::present::transfer::Transfer;
         use nedrt_service::present::{PanelCodes, Sink};
 
-        use crate::device_prefilter::{refine_stage, wiener_stage};
-        use crate::preprocess::BehindWiener;
+        use nedrt_engines::Chain;
+        use nedrt_engines::device_prefilter::{refine_stage, wiener_stage};
         use nedrt_optics::sim::Method;
 
         /// Mirror-symmetric Gaussian PSFs with a veil, one width per
@@ -583,7 +579,7 @@ mod tests {
             // The host system: the Wiener, then the network on the CPU.
             let cpu = Dcnn::from_model(model.clone(), BackendKind::Cpu, &BackendOptions::default())
                 .expect("cpu");
-            let mut host = BehindWiener::new(Method::Proposed, filter.clone(), Box::new(cpu));
+            let mut host = Chain::behind_wiener(Method::Proposed, filter.clone(), Box::new(cpu));
             let host = host.run(&input).expect("host");
             let net = DeviceDcnn::on_device(
                 model,

@@ -6,8 +6,8 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use super::{AppError, CommonOptions, check_accommodation};
-use crate::preprocess::Prefilter;
 use nedrt_core::image_io::{self, DEFAULT_INPUT_NAME, DEFAULT_INPUT_PNG, LoadedImage};
+use nedrt_engines::preprocess::Prefilter;
 use nedrt_optics::sim::metrics::{psnr, ssim};
 use nedrt_optics::sim::{Image, Method, Optics, Simulator, ZoneRequest};
 
@@ -276,7 +276,7 @@ fn simulate(
             d.model.hash,
             d.network.macs_per_pixel,
             d.describe(),
-            crate::preprocess::stage_note(&d.model.path)
+            nedrt_engines::preprocess::stage_note(&d.model.path)
         )
     });
     if let Some(d) = dcnns.get(&method) {
@@ -297,7 +297,7 @@ fn simulate(
         common.doe_path_for(&[method]).as_deref(),
         common.cache(),
     )?
-    .with_wiener_stages(crate::preprocess::wiener_stages(&dcnns)?);
+    .with_wiener_stages(nedrt_engines::preprocess::wiener_stages(&dcnns)?);
     let mut depths = opts.prefilter.depths_d(&sim.calib);
     depths.push(opts.accommodation_d);
     let prepared = sim.prepare(&[method], &depths, common.progress())?;
@@ -306,8 +306,8 @@ fn simulate(
         Some(d) => d.clone(),
         None => {
             // With --backend wgpu the prefilter runs on the device too.
-            let gpu = crate::device_prefilter::gpu_for(common, &[method], &[opts.prefilter])?;
-            let e = engine.insert(crate::device_prefilter::for_system_on(
+            let gpu = crate::gpu_for(common, &[method], &[opts.prefilter])?;
+            let e = engine.insert(nedrt_engines::device_prefilter::for_system_on(
                 gpu.as_ref(),
                 method,
                 opts.prefilter,

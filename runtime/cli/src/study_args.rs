@@ -72,7 +72,7 @@ pub struct TradeoffArgs {
         default_value = "lsq,refine:1,refine:3,refine:10,optimal",
         value_name = "PREFILTER"
     )]
-    pub prefilter: Vec<nedrt_app::preprocess::Prefilter>,
+    pub prefilter: Vec<nedrt_engines::preprocess::Prefilter>,
 }
 
 #[derive(Args, Debug)]
@@ -144,7 +144,7 @@ pub struct EvalArgs {
         default_value = "native",
         value_name = "PREFILTER"
     )]
-    pub prefilter: Vec<nedrt_app::preprocess::Prefilter>,
+    pub prefilter: Vec<nedrt_engines::preprocess::Prefilter>,
     /// Repeat the evaluation for each eye (docs/model.md §4a): `paper`, a
     /// pupil `3mm`, with a field angle `4mm@20`, with eye LCA `4mm+lca`;
     /// one folder each under --out-dir, tables and a chart over them (eyes.md).

@@ -138,7 +138,7 @@ pub struct RunOptions {
     /// prefilter, or none).
     pub preprocess: Method,
     /// Or a least-squares prefilter on that method's optics (not `native`).
-    pub prefilter: crate::preprocess::Prefilter,
+    pub prefilter: nedrt_engines::preprocess::Prefilter,
     pub source: SourceKind,
     pub input: Option<PathBuf>,
     pub socket: PathBuf,

@@ -4,7 +4,7 @@ use std::path::PathBuf;
 fn opts() -> RunOptions {
     RunOptions {
         preprocess: Method::Proposed,
-        prefilter: crate::preprocess::Prefilter::Native,
+        prefilter: nedrt_engines::preprocess::Prefilter::Native,
         source: SourceKind::Pattern,
         input: None,
         socket: PathBuf::from("/tmp/nedrt.sock"),

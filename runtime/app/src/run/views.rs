@@ -7,14 +7,14 @@
 
 use std::sync::Arc;
 
-use super::engines::{behind, linear_on_device, linear_preprocessor};
+use super::build::{behind, linear_on_device, linear_preprocessor};
 use super::plan::ViewFacts;
 use super::serve::Built;
 use super::{AppError, CommonOptions, RunOptions};
 use crate::design::Design;
-use crate::device_prefilter::wiener_stage;
 use nedrt_core::calib::Calibration;
 use nedrt_core::preprocess::Preprocess;
+use nedrt_engines::device_prefilter::wiener_stage;
 use nedrt_infer::gpu::DeviceDcnn;
 use nedrt_infer::{BackendKind, Dcnn, ModelFile};
 use nedrt_optics::sim::Method;

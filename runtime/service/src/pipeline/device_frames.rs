@@ -16,15 +16,15 @@
 
 use std::sync::Arc;
 
-use super::frame::{PixelFormat, ViewContent, ViewFrame, code_lut};
-use crate::compose::gpu::LayerBlender;
+use super::frame::{ViewContent, ViewFrame, code_lut};
 use crate::compose::{LayerSet, ViewRegion};
-use crate::present::encode_gpu::{CodesTarget, PanelEncoder, row_texels, workgroups};
+use crate::present::encode_gpu::row_texels;
 use crate::present::transfer::Transfer;
 use crate::present::{DeviceDisplayFrame, PresentError};
 use nedrt_core::Image;
 use nedrt_core::preprocess::HostTraffic;
 use nedrt_gpu::{DeviceStage, PassTimer};
+use view::ViewOnDevice;
 use wgpu::util::DeviceExt;
 
 const UNPACK: &str = include_str!("../../../../shaders/frame_unpack.wgsl");
@@ -46,47 +46,6 @@ fn err(reason: impl std::fmt::Display) -> PresentError {
 pub struct DeviceView {
     pub region: ViewRegion,
     pub stage: Option<Box<dyn DeviceStage>>,
-}
-
-/// One view's buffers and work on the device.
-#[derive(Debug)]
-struct ViewOnDevice {
-    region: ViewRegion,
-    /// The client's RGBA8 frame as it came.
-    rgba: wgpu::Buffer,
-    /// Three f32 planes: the frame, and the stage's output.
-    frame: wgpu::Buffer,
-    display: wgpu::Buffer,
-    /// The unpack's bind groups for code/255 and the sRGB decode.
-    unpack_linear: wgpu::BindGroup,
-    unpack_srgb: wgpu::BindGroup,
-    stage: Option<Box<dyn DeviceStage>>,
-    /// Writes the view's codes into its region of the panel's.
-    encoder: PanelEncoder,
-    /// The view's quad layers, blended after the unpack of a frame that
-    /// came up as it was sent (planes from the host had them blended there).
-    layers: Option<Arc<LayerSet>>,
-    blender: LayerBlender,
-    /// The frame generation whose display planes are on the device (0: none).
-    generation: u64,
-}
-
-impl ViewOnDevice {
-    fn describe(&self) -> String {
-        match &self.stage {
-            Some(s) => s.describe(),
-            None => "none (the frame as it comes, clamped to [0, 1])".into(),
-        }
-    }
-
-    /// What the encoder reads: the stage's output, or the frame itself.
-    fn shown(&self) -> &wgpu::Buffer {
-        if self.stage.is_some() {
-            &self.display
-        } else {
-            &self.frame
-        }
-    }
 }
 
 /// The device side of the frame path for one panel and its views.
@@ -146,8 +105,8 @@ impl DeviceFrames {
         if views.is_empty() {
             return Err(err("a panel with no views"));
         }
-        let (w32, h32) = match (u32::try_from(width), u32::try_from(height)) {
-            (Ok(w), Ok(h)) if w > 0 && h > 0 => (w, h),
+        let w32 = match (u32::try_from(width), u32::try_from(height)) {
+            (Ok(w), Ok(h)) if w > 0 && h > 0 => w,
             _ => return Err(err(format!("a {width}×{height} panel"))),
         };
         let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
@@ -172,98 +131,18 @@ impl DeviceFrames {
         };
         let luts = [lut(false), lut(true)];
         let row = row_texels(w32);
-        let binding = device.limits().max_storage_buffer_binding_size;
         let mut prepared = Vec::new();
-        for (v, DeviceView { region, stage }) in views.into_iter().enumerate() {
-            let pixels = region.width * region.height;
-            let p32 = match u32::try_from(3 * pixels) {
-                Ok(_) if pixels > 0 && region.fits((width, height)) => pixels as u32,
-                _ => {
-                    return Err(err(format!(
-                        "view {v}: a {}×{} view at ({}, {}) on a {width}×{height} panel",
-                        region.width, region.height, region.x, region.y
-                    )));
-                }
-            };
-            let plane_bytes = 3 * 4 * pixels as u64;
-            if plane_bytes > binding {
-                return Err(err(format!(
-                    "view {v}: a {}×{} frame's planes need {:.0} MiB in one binding; the \
-                     adapter binds at most {:.0} MiB",
-                    region.width,
-                    region.height,
-                    plane_bytes as f64 / 1048576.0,
-                    binding as f64 / 1048576.0
-                )));
-            }
-            let storage = |label, size: u64| {
-                device.create_buffer(&wgpu::BufferDescriptor {
-                    label: Some(label),
-                    size,
-                    usage: wgpu::BufferUsages::STORAGE
-                        | wgpu::BufferUsages::COPY_DST
-                        | wgpu::BufferUsages::COPY_SRC,
-                    mapped_at_creation: false,
-                })
-            };
-            let rgba = storage("client frame", 4 * pixels as u64);
-            let frame = storage("frame planes", plane_bytes);
-            let display = storage("display planes", plane_bytes);
-            let uniform = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-                label: Some("frame_unpack"),
-                contents: bytemuck::cast_slice(&[p32, 0, 0, 0]),
-                usage: wgpu::BufferUsages::UNIFORM,
-            });
-            let group = |lut: &wgpu::Buffer| {
-                device.create_bind_group(&wgpu::BindGroupDescriptor {
-                    label: Some("frame_unpack"),
-                    layout: &unpack.get_bind_group_layout(0),
-                    entries: &[
-                        wgpu::BindGroupEntry {
-                            binding: 0,
-                            resource: uniform.as_entire_binding(),
-                        },
-                        wgpu::BindGroupEntry {
-                            binding: 1,
-                            resource: rgba.as_entire_binding(),
-                        },
-                        wgpu::BindGroupEntry {
-                            binding: 2,
-                            resource: lut.as_entire_binding(),
-                        },
-                        wgpu::BindGroupEntry {
-                            binding: 3,
-                            resource: frame.as_entire_binding(),
-                        },
-                    ],
-                })
-            };
-            let target = CodesTarget {
-                row_texels: row,
-                base_texel: (region.y as u32) * row + region.x as u32,
-                rows: h32,
-            };
-            let encoder = PanelEncoder::new_into(
-                device,
-                queue,
-                (region.width as u32, region.height as u32),
-                p32,
-                transfer,
-                target,
-            )?;
-            prepared.push(ViewOnDevice {
-                region,
-                unpack_linear: group(&luts[0]),
-                unpack_srgb: group(&luts[1]),
-                rgba,
-                frame,
-                display,
-                stage,
-                encoder,
-                layers: None,
-                blender: LayerBlender::new(device, queue).map_err(PresentError::gpu(STAGE))?,
-                generation: 0,
-            });
+        let shared = view::Shared {
+            device,
+            queue,
+            unpack: &unpack,
+            luts: &luts,
+            panel: (width, height),
+            row_texels: row,
+            transfer,
+        };
+        for (v, view) in views.into_iter().enumerate() {
+            prepared.push(ViewOnDevice::new(&shared, v, view)?);
         }
         if let Some(e) = pollster::block_on(scope.pop()) {
             return Err(PresentError::Gpu {
@@ -417,66 +296,6 @@ impl DeviceFrames {
         ))
     }
 
-    /// Uploads `content` to `view` and records its unpack (a frame as it
-    /// came) and quad layers; the bytes sent, and the layers' traffic.
-    fn upload(
-        queue: &wgpu::Queue,
-        unpack: &wgpu::ComputePipeline,
-        encoder: &mut wgpu::CommandEncoder,
-        view: &mut ViewOnDevice,
-        content: &ViewContent,
-    ) -> (usize, HostTraffic, bool) {
-        let f = match content {
-            ViewContent::Planar(im) => {
-                queue.write_buffer(&view.frame, 0, bytemuck::cast_slice(im.data()));
-                return (
-                    std::mem::size_of_val(im.data()),
-                    HostTraffic::default(),
-                    false,
-                );
-            }
-            ViewContent::Client(f) => f,
-        };
-        match f.format {
-            PixelFormat::Rgba8Linear | PixelFormat::Rgba8Srgb => {
-                queue.write_buffer(&view.rgba, 0, &f.payload);
-                let group = if f.format == PixelFormat::Rgba8Srgb {
-                    &view.unpack_srgb
-                } else {
-                    &view.unpack_linear
-                };
-                let [x, y] = workgroups((f.width * f.height) as u32);
-                let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                    label: Some("frame_unpack"),
-                    timestamp_writes: None,
-                });
-                pass.set_pipeline(unpack);
-                pass.set_bind_group(0, group, &[]);
-                pass.dispatch_workgroups(x, y, 1);
-            }
-            // Planar little-endian f32 is the planes' own layout.
-            PixelFormat::Rgb32fPlanar => queue.write_buffer(&view.frame, 0, &f.payload),
-        }
-        let Some(layers) = &view.layers else {
-            return (f.payload.len(), HostTraffic::default(), false);
-        };
-        let snap = layers.snapshot();
-        let r = view.region;
-        let dims = (r.width as u32, r.height as u32, (r.width * r.height) as u32);
-        // Layers the device cannot hold are left out of the frame (and
-        // said so), not a failure of the device path.
-        match view
-            .blender
-            .record(encoder, &view.frame, dims, &snap.quads, snap.generation)
-        {
-            Ok(t) => (f.payload.len(), t, !snap.quads.is_empty()),
-            Err(e) => {
-                tracing::warn!("a frame's quad layers are left out: {e}");
-                (f.payload.len(), HostTraffic::default(), false)
-            }
-        }
-    }
-
     /// Uploads, records, submits and waits; the codes and the traffic.
     fn record(
         &mut self,
@@ -508,7 +327,7 @@ impl DeviceFrames {
             }
             if f.generation != view.generation {
                 let (bytes, layers, blended) =
-                    Self::upload(&self.queue, &self.unpack, &mut encoder, view, &f.content);
+                    view.upload(&self.queue, &self.unpack, &mut encoder, &f.content);
                 traffic.to_device_bytes += bytes as u64;
                 traffic.uploads += 1;
                 traffic.add(layers);
@@ -606,6 +425,8 @@ impl DeviceFrames {
         Ok(Image::rgb(w, h, data))
     }
 }
+
+mod view;
 
 #[cfg(test)]
 #[path = "device_frames_tests.rs"]

@@ -1,7 +1,7 @@
 //! The device engine against its host twins: one view and two.
 
 use super::*;
-use crate::pipeline::frame::{SubmittedFrame, decode, planar_payload};
+use crate::pipeline::frame::{PixelFormat, SubmittedFrame, decode, planar_payload};
 use crate::pipeline::test_stage::Stretch;
 use crate::present::headless::HeadlessSink;
 use crate::present::{PanelCodes, Presented, Sink};

@@ -268,7 +268,7 @@ pub fn evaluate(
     if !design_prepared.is_empty() {
         all_methods.push(Method::DoeWiener);
     }
-    let gpu = crate::device_prefilter::gpu_for(common, &all_methods, &prefilters)?;
+    let gpu = crate::gpu_for(common, &all_methods, &prefilters)?;
     let mut row_specs: Vec<Row> = Vec::with_capacity(rows);
     for &m in &methods {
         for &p in &prefilters {

@@ -10,7 +10,7 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use nedrt_core::calib::Calibration;
-use nedrt_core::preprocess::{PreprocessError, check_frame};
+use nedrt_core::preprocess::PreprocessError;
 use nedrt_core::{Image, Preprocess};
 use nedrt_infer::Dcnn;
 use nedrt_optics::sim::wiener::WienerFilter;
@@ -18,20 +18,20 @@ use nedrt_optics::sim::{
     Method, Objective, Prepared, SolveMode, SolvedPrefilter, objective_depths_d,
 };
 
-use crate::AppError;
+use crate::EngineError;
 
 /// The preprocessing of `method`: none (conventional, DOE only), its
 /// Wiener prefilter from `prepared` (AI, DOE + Wiener), or its D-CNN, taken
-/// from `dcnns` (loaded by [`crate::DcnnOptions::load_for`]).
+/// from `dcnns` (nedrt-app's `DcnnOptions::load_for` loads them).
 pub fn for_method(
     method: Method,
     prepared: &Prepared,
     dcnns: &mut HashMap<Method, Dcnn>,
-) -> Result<Box<dyn Preprocess>, AppError> {
+) -> Result<Box<dyn Preprocess>, EngineError> {
     if method.uses_dcnn() {
         return match dcnns.remove(&method) {
             Some(d) => dcnn_system(method, d, prepared),
-            None => Err(AppError::Unavailable(format!(
+            None => Err(EngineError::Unavailable(format!(
                 "no D-CNN loaded for {method}"
             ))),
         };
@@ -60,12 +60,12 @@ pub fn card_path(model: &Path) -> PathBuf {
 }
 
 /// The input the model at `model` was trained on, from its card.
-pub fn dcnn_input(model: &Path) -> Result<DcnnInput, AppError> {
+pub fn dcnn_input(model: &Path) -> Result<DcnnInput, EngineError> {
     let path = card_path(model);
     if !path.is_file() {
         return Ok(DcnnInput::Frame);
     }
-    let bad = |reason: String| AppError::input(path.display(), reason);
+    let bad = |reason: String| EngineError::input(path.display(), reason);
     let bytes = nedrt_core::util::read_capped(&path, MAX_CARD_BYTES)
         .map_err(|e| bad(format!("cannot read the model card: {e}")))?;
     let card: serde_json::Value =
@@ -87,7 +87,7 @@ pub fn dcnn_input(model: &Path) -> Result<DcnnInput, AppError> {
 
 /// The methods among `dcnns` whose network runs behind its optics' Wiener
 /// (for [`nedrt_optics::sim::Simulator::with_wiener_stages`]).
-pub fn wiener_stages(dcnns: &HashMap<Method, Dcnn>) -> Result<Vec<Method>, AppError> {
+pub fn wiener_stages(dcnns: &HashMap<Method, Dcnn>) -> Result<Vec<Method>, EngineError> {
     let mut out = Vec::new();
     for (m, d) in dcnns {
         if let DcnnInput::WienerRaw { .. } = dcnn_input(&d.model.path)? {
@@ -115,10 +115,10 @@ pub fn dcnn_system(
     method: Method,
     dcnn: Dcnn,
     prepared: &Prepared,
-) -> Result<Box<dyn Preprocess>, AppError> {
+) -> Result<Box<dyn Preprocess>, EngineError> {
     Ok(match dcnn_input(&dcnn.model.path)? {
         DcnnInput::Frame => Box::new(dcnn),
-        DcnnInput::WienerRaw { k_reg } => Box::new(BehindWiener::new(
+        DcnnInput::WienerRaw { k_reg } => Box::new(Chain::behind_wiener(
             method,
             Arc::new(prepared.wiener_filter(method, k_reg)?),
             Box::new(dcnn),
@@ -126,48 +126,50 @@ pub fn dcnn_system(
     })
 }
 
-/// A network that corrects its optics' Wiener prefilter: it sees the
-/// Wiener's output before the panel's clamp and returns the display image
-/// (clamped, as every [`Preprocess`]).
+/// Two preprocessors one after the other: a network behind its optics'
+/// Wiener prefilter (on the host, [`crate::device_prefilter::RawWiener`],
+/// or on the device, [`crate::device_prefilter::OnDevice`]), which sees the
+/// Wiener's output before the panel's clamp and returns the display image.
+/// The host twin of [`nedrt_gpu::Chain`]; its GPU time and traffic are the
+/// second's (the network's).
 #[derive(Debug)]
-pub struct BehindWiener {
-    method: Method,
-    filter: Arc<WienerFilter>,
-    network: Box<dyn Preprocess>,
+pub struct Chain {
+    first: Box<dyn Preprocess>,
+    second: Box<dyn Preprocess>,
 }
 
-impl BehindWiener {
-    pub fn new(method: Method, filter: Arc<WienerFilter>, network: Box<dyn Preprocess>) -> Self {
-        Self {
-            method,
-            filter,
-            network,
-        }
+impl Chain {
+    pub fn new(first: Box<dyn Preprocess>, second: Box<dyn Preprocess>) -> Self {
+        Self { first, second }
+    }
+
+    /// `network` behind `method`'s Wiener `filter` on the host.
+    pub fn behind_wiener(
+        method: Method,
+        filter: Arc<WienerFilter>,
+        network: Box<dyn Preprocess>,
+    ) -> Self {
+        let wiener = crate::device_prefilter::RawWiener { method, filter };
+        Self::new(Box::new(wiener), network)
     }
 }
 
-impl Preprocess for BehindWiener {
+impl Preprocess for Chain {
     fn describe(&self) -> String {
-        format!(
-            "Wiener prefilter of {} (K = {:e}) before the clamp, then {}",
-            self.method,
-            self.filter.k_reg,
-            self.network.describe()
-        )
+        format!("{}, then {}", self.first.describe(), self.second.describe())
     }
 
     fn run(&mut self, input: &Image) -> Result<Image, PreprocessError> {
-        check_frame(input, self.filter.channels())?;
-        let raw = self.filter.apply_unclamped(input);
-        self.network.run(&raw)
+        let middle = self.first.run(input)?;
+        self.second.run(&middle)
     }
 
     fn last_gpu_ns(&self) -> Option<u64> {
-        self.network.last_gpu_ns()
+        self.second.last_gpu_ns()
     }
 
     fn last_traffic(&self) -> nedrt_core::preprocess::HostTraffic {
-        self.network.last_traffic()
+        self.second.last_traffic()
     }
 }
 
@@ -308,7 +310,7 @@ pub fn for_system(
     prefilter: Prefilter,
     prepared: &Prepared,
     dcnns: &mut HashMap<Method, Dcnn>,
-) -> Result<Box<dyn Preprocess>, AppError> {
+) -> Result<Box<dyn Preprocess>, EngineError> {
     let (mode, objective) = match prefilter {
         Prefilter::Native => return for_method(method, prepared, dcnns),
         Prefilter::Lsq(o) => (SolveMode::Linear, o),

@@ -5,11 +5,10 @@
 
 use std::sync::Arc;
 
-use super::faults::DeviceLostAfter;
 use super::{AppError, CommonOptions, FallbackKind, RunOptions};
-use crate::device_prefilter::{RawWiener, prefilter_stage, wiener_stage};
-use crate::preprocess::BehindWiener;
 use nedrt_core::preprocess::{Identity, Preprocess};
+use nedrt_engines::device_prefilter::{RawWiener, prefilter_stage, wiener_stage};
+use nedrt_engines::{Chain, FailsAfter};
 use nedrt_infer::gpu::DeviceDcnn;
 use nedrt_infer::{BackendKind, Dcnn, ModelFile};
 use nedrt_optics::sim::wiener::WienerFilter;
@@ -23,7 +22,7 @@ pub(super) fn behind(
     network: Box<dyn Preprocess>,
 ) -> Box<dyn Preprocess> {
     match stage {
-        Some((method, filter)) => Box::new(BehindWiener::new(*method, filter.clone(), network)),
+        Some((method, filter)) => Box::new(Chain::behind_wiener(*method, filter.clone(), network)),
         None => network,
     }
 }
@@ -59,14 +58,16 @@ pub(super) fn fallback_factory(
 pub(super) fn linear_preprocessor(
     common: &CommonOptions,
     method: Method,
-    prefilter: crate::preprocess::Prefilter,
+    prefilter: nedrt_engines::preprocess::Prefilter,
 ) -> Result<Box<dyn Preprocess>, AppError> {
     if !method.uses_wiener() && prefilter.is_native() {
         return Ok(Box::new(Identity));
     }
     let prepared = prepared_for(common, method, prefilter)?;
     let mut dcnns = std::collections::HashMap::new();
-    crate::preprocess::for_system(method, prefilter, &prepared, &mut dcnns)
+    Ok(nedrt_engines::preprocess::for_system(
+        method, prefilter, &prepared, &mut dcnns,
+    )?)
 }
 
 /// `method`'s optics prepared for `prefilter` (its Wiener; the headline
@@ -74,7 +75,7 @@ pub(super) fn linear_preprocessor(
 pub(super) fn prepared_for(
     common: &CommonOptions,
     method: Method,
-    prefilter: crate::preprocess::Prefilter,
+    prefilter: nedrt_engines::preprocess::Prefilter,
 ) -> Result<nedrt_optics::sim::Prepared, AppError> {
     let sim = Simulator::new(
         common.calibration()?,
@@ -133,7 +134,10 @@ pub(super) fn device_engines(
                         }
                         Err(e) => {
                             tracing::warn!("{what} stays on the host: {e}");
-                            let mut raw = RawWiener(filter.clone());
+                            let mut raw = RawWiener {
+                                method: *method,
+                                filter: filter.clone(),
+                            };
                             host = Some(HostPrep {
                                 name: what,
                                 run: Box::new(move |frame| raw.run(frame)),
@@ -145,10 +149,7 @@ pub(super) fn device_engines(
                 None => net,
             };
             let net = match opts.inject_device_loss_after {
-                Some(frames_left) => Box::new(DeviceLostAfter {
-                    inner: net,
-                    frames_left,
-                }),
+                Some(frames_left) => Box::new(FailsAfter::new(net, frames_left)),
                 None => net,
             };
             // The fallback gets what the device got: the frame (the Wiener
@@ -186,7 +187,7 @@ pub(super) fn device_engines(
 pub(super) type DeviceAndHost = (Option<Box<dyn nedrt_gpu::DeviceStage>>, Box<dyn Preprocess>);
 
 /// The method's prefilter on the host, and as a device stage where the
-/// device runs it ([`crate::device_prefilter::prefilter_stage`]; a size the
+/// device runs it ([`nedrt_engines::device_prefilter::prefilter_stage`]; a size the
 /// device FFT lacks stays on the host, with a warning). The host one is the
 /// device stage's fallback, or the host stage.
 pub(super) fn linear_on_device(
@@ -197,7 +198,7 @@ pub(super) fn linear_on_device(
 ) -> Result<DeviceAndHost, AppError> {
     let method = opts.preprocess;
     let prepared = prepared_for(common, method, opts.prefilter)?;
-    let host = crate::preprocess::for_system(
+    let host = nedrt_engines::preprocess::for_system(
         method,
         opts.prefilter,
         &prepared,
@@ -214,10 +215,10 @@ pub(super) fn linear_on_device(
         size,
     ) {
         Ok(stage) => Ok((stage, host)),
-        Err(AppError::Fft(e)) => {
+        Err(nedrt_engines::EngineError::Fft(e)) => {
             tracing::warn!("{what} stays on the host: {e}");
             Ok((None, host))
         }
-        Err(e) => Err(e),
+        Err(e) => Err(e.into()),
     }
 }

@@ -17,7 +17,7 @@ use nedrt_infer::Dcnn;
 use nedrt_optics::sim::wiener::WienerFilter;
 use nedrt_optics::sim::{DisplayProblem, Method, Prepared};
 
-use crate::AppError;
+use crate::EngineError;
 use crate::preprocess::{DcnnInput, Prefilter};
 
 /// A linear prefilter's gains as a device stage, prepared for a
@@ -99,7 +99,7 @@ pub fn runs_on_device(method: Method, prefilter: Prefilter) -> bool {
 
 /// `method`'s `prefilter` as a device stage named `what`, prepared for
 /// `size` where given; `None` where the device does not run it
-/// ([`runs_on_device`]). A size the device FFT lacks is `AppError::Fft`.
+/// ([`runs_on_device`]). A size the device FFT lacks is `EngineError::Fft`.
 pub fn prefilter_stage(
     device: &wgpu::Device,
     method: Method,
@@ -107,7 +107,7 @@ pub fn prefilter_stage(
     prepared: &Prepared,
     what: String,
     size: Option<(usize, usize)>,
-) -> Result<Option<Box<dyn DeviceStage>>, AppError> {
+) -> Result<Option<Box<dyn DeviceStage>>, EngineError> {
     if !runs_on_device(method, prefilter) {
         return Ok(None);
     }
@@ -264,22 +264,12 @@ impl Preprocess for OnDevice {
 /// The GPU a command's prefilters run on (`--backend wgpu`).
 pub type Gpu = (wgpu::Device, wgpu::Queue);
 
-/// The GPU of `--backend wgpu` for `methods` with `prefilters`, where one
-/// of them has a prefilter the device runs; `None` on the other backends
-/// (the prefilters then run on the CPU, as the network does).
-pub fn gpu_for(
-    common: &crate::CommonOptions,
-    methods: &[Method],
-    prefilters: &[Prefilter],
-) -> Result<Option<Gpu>, AppError> {
-    let wanted = methods
+/// Whether any of `methods` with any of `prefilters` has work for a
+/// device (a network, or a prefilter the device runs).
+pub fn wants_gpu(methods: &[Method], prefilters: &[Prefilter]) -> bool {
+    methods
         .iter()
-        .any(|&m| m.uses_dcnn() || prefilters.iter().any(|&p| runs_on_device(m, p)));
-    if common.dcnn.backend != nedrt_infer::BackendKind::Wgpu || !wanted {
-        return Ok(None);
-    }
-    let (_, device, queue) = nedrt_gpu::open_device(&common.dcnn.backend_options.gpu, false)?;
-    Ok(Some((device, queue)))
+        .any(|&m| m.uses_dcnn() || prefilters.iter().any(|&p| runs_on_device(m, p)))
 }
 
 /// [`crate::preprocess::for_system`] with the prefilter on `gpu` where the
@@ -292,13 +282,13 @@ pub fn for_system_on(
     prefilter: Prefilter,
     prepared: &Prepared,
     dcnns: &mut HashMap<Method, Dcnn>,
-) -> Result<Box<dyn Preprocess>, AppError> {
+) -> Result<Box<dyn Preprocess>, EngineError> {
     let Some((device, queue)) = gpu else {
         return crate::preprocess::for_system(method, prefilter, prepared, dcnns);
     };
     if method.uses_dcnn() && prefilter.is_native() {
         let Some(dcnn) = dcnns.remove(&method) else {
-            return Err(AppError::Unavailable(format!(
+            return Err(EngineError::Unavailable(format!(
                 "no D-CNN loaded for {method}"
             )));
         };
@@ -308,12 +298,15 @@ pub fn for_system_on(
                 let filter = Arc::new(prepared.wiener_filter(method, k_reg)?);
                 let what =
                     format!("the Wiener prefilter of {method} (K = {k_reg:e}) before the clamp");
-                let raw = Box::new(RawWiener(filter.clone()));
+                let raw = Box::new(RawWiener {
+                    method,
+                    filter: filter.clone(),
+                });
                 let stage = wiener_stage(device, what, filter, None)?;
-                Box::new(BehindDevice {
-                    wiener: Box::new(OnDevice::new(device, queue, stage, true, raw)),
-                    network: Box::new(dcnn),
-                })
+                Box::new(crate::Chain::new(
+                    Box::new(OnDevice::new(device, queue, stage, true, raw)),
+                    Box::new(dcnn),
+                ))
             }
         });
     }
@@ -327,53 +320,25 @@ pub fn for_system_on(
     )
 }
 
-/// A network behind its Wiener, the Wiener on the device: as the host's
-/// [`crate::preprocess::BehindWiener`], the network sees the unclamped Wiener.
-struct BehindDevice {
-    wiener: Box<dyn Preprocess>,
-    network: Box<dyn Preprocess>,
-}
-
-impl std::fmt::Debug for BehindDevice {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(&self.describe())
-    }
-}
-
-impl Preprocess for BehindDevice {
-    fn describe(&self) -> String {
-        format!(
-            "{}, then {}",
-            self.wiener.describe(),
-            self.network.describe()
-        )
-    }
-
-    fn run(&mut self, input: &Image) -> Result<Image, PreprocessError> {
-        let raw = self.wiener.run(input)?;
-        self.network.run(&raw)
-    }
-
-    fn last_gpu_ns(&self) -> Option<u64> {
-        self.network.last_gpu_ns()
-    }
-}
-
-/// The Wiener before the clamp, on the host: the network's input where
-/// the device FFT lacks the frame's size, and the service's host stage.
+/// `method`'s Wiener prefilter before the clamp, on the host: a
+/// network's input (in front of it in a [`crate::Chain`]; where the device
+/// FFT lacks the frame's size), and the service's host stage.
 #[derive(Debug)]
-pub struct RawWiener(pub Arc<WienerFilter>);
+pub struct RawWiener {
+    pub method: Method,
+    pub filter: Arc<WienerFilter>,
+}
 
 impl Preprocess for RawWiener {
     fn describe(&self) -> String {
         format!(
-            "Wiener prefilter (K = {:e}) before the clamp, on the CPU",
-            self.0.k_reg
+            "Wiener prefilter of {} (K = {:e}) before the clamp",
+            self.method, self.filter.k_reg
         )
     }
 
     fn run(&mut self, input: &Image) -> Result<Image, PreprocessError> {
-        check_frame(input, self.0.channels())?;
-        Ok(self.0.apply_unclamped(input))
+        check_frame(input, self.filter.channels())?;
+        Ok(self.filter.apply_unclamped(input))
     }
 }
