@@ -198,7 +198,11 @@ fn one_view(
                 Ok(engines) => {
                     let what = match &engines.host[0] {
                         Some(h) => {
-                            format!("{}, then on the GPU: {}", h.name, engines.frames.describe())
+                            format!(
+                                "{}, then on the GPU: {}",
+                                h.name(),
+                                engines.frames.describe()
+                            )
                         }
                         None => format!("on the GPU: {}", engines.frames.describe()),
                     };

@@ -134,14 +134,10 @@ pub(super) fn device_engines(
                         }
                         Err(e) => {
                             tracing::warn!("{what} stays on the host: {e}");
-                            let mut raw = RawWiener {
+                            host = Some(HostPrep(Box::new(RawWiener {
                                 method: *method,
                                 filter: filter.clone(),
-                            };
-                            host = Some(HostPrep {
-                                name: what,
-                                run: Box::new(move |frame| raw.run(frame)),
-                            });
+                            })));
                             net
                         }
                     }
@@ -164,13 +160,7 @@ pub(super) fn device_engines(
                 Some(stage),
                 Some(Box::new(move || Ok(linear)) as FallbackFactory),
             ),
-            (None, mut linear) => {
-                let host = HostPrep {
-                    name: linear.describe(),
-                    run: Box::new(move |frame| linear.run(frame)),
-                };
-                (Some(host), None, None)
-            }
+            (None, linear) => (Some(HostPrep(linear)), None, None),
         },
     };
     let frames = DeviceFrames::single(

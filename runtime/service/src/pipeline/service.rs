@@ -51,7 +51,7 @@ pub use compositor::Compositor;
 use compositor::{Submission, Timed, ViewSlot};
 pub use control::Control;
 use engine::{Engine, Processed};
-pub use stages::{DeviceEngines, Engines, FallbackFactory, HostPrep, HostWork, PreprocessStage};
+pub use stages::{DeviceEngines, Engines, FallbackFactory, HostPrep, PreprocessStage};
 use views::{HostEngine, Intake, Uptake};
 
 /// The panel the service drives.
@@ -229,7 +229,7 @@ impl Service {
                     host,
                     fallback,
                 } = *d;
-                let preps: Vec<String> = host.iter().flatten().map(|h| h.name.clone()).collect();
+                let preps: Vec<String> = host.iter().flatten().map(HostPrep::name).collect();
                 let intake = host
                     .into_iter()
                     .enumerate()

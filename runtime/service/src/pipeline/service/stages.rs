@@ -98,19 +98,16 @@ pub(super) fn switch_to_fallback(
     next
 }
 
-/// The work of a [`HostPrep`]: a decoded frame to the planes to upload.
-pub type HostWork = Box<dyn FnMut(&Image) -> Result<Image, PreprocessError> + Send>;
-
 /// Host work on a decoded frame before it goes to the device: a
-/// network's Wiener stage, or a linear prefilter with no device stage.
-pub struct HostPrep {
-    pub name: String,
-    pub run: HostWork,
-}
+/// network's Wiener stage where the device FFT lacks the panel's size, or
+/// a linear prefilter with no device stage. Its output is uploaded as the
+/// frame's planes.
+#[derive(Debug)]
+pub struct HostPrep(pub Box<dyn Preprocess>);
 
-impl std::fmt::Debug for HostPrep {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(&self.name)
+impl HostPrep {
+    pub fn name(&self) -> String {
+        self.0.describe()
     }
 }
 

@@ -139,23 +139,21 @@ impl Intake {
                     let out = if *failed_over {
                         im
                     } else {
-                        match (prep.run)(&im) {
+                        match prep.0.run(&im) {
                             Ok(out) => out,
                             Err(PreprocessError::Frame(e)) => {
-                                tracing::error!("{} refused frame {id}: {e}", prep.name);
+                                tracing::error!("{} refused frame {id}: {e}", prep.name());
                                 stats.failed.fetch_add(1, Relaxed);
                                 return None;
                             }
                             Err(e) => {
+                                let name = prep.name();
                                 tracing::error!(
-                                    "{} failed: {e}; frames now go to the device without it",
-                                    prep.name
+                                    "{name} failed: {e}; frames now go to the device without it"
                                 );
                                 stats.dcnn_failures.fetch_add(1, Relaxed);
-                                *stats.frame_path.lock().unwrap_or_else(|p| p.into_inner()) = format!(
-                                    "device, without its host stage ({} failed)",
-                                    prep.name
-                                );
+                                *stats.frame_path.lock().unwrap_or_else(|p| p.into_inner()) =
+                                    format!("device, without its host stage ({name} failed)");
                                 *failed_over = true;
                                 im
                             }
