@@ -9,7 +9,9 @@ use std::sync::Mutex;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Duration;
 
+mod gate;
 mod jit;
+pub use gate::{PresentGate, Slot};
 pub use jit::{Estimate, Finished, PresentPacer, Wake};
 
 /// Monotonic time in nanoseconds since an arbitrary origin.

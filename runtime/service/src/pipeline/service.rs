@@ -42,7 +42,7 @@ use crossbeam_channel::Receiver;
 use super::channel::newest_channel;
 use super::device_frames::DeviceFrames;
 use super::frame::ViewFrame;
-use super::pacing::{Clock, DisplaySchedule, NewestSlot, Pacer};
+use super::pacing::{Clock, DisplaySchedule, Estimate, NewestSlot, Pacer, PresentGate};
 use super::stats::{Report, Stage, Stats};
 use crate::compose::{LayerSet, ViewGeometry, ViewRegion};
 use crate::present::transfer::Transfer;
@@ -50,7 +50,7 @@ use crate::present::{DisplayFrame, PanelFrame};
 pub use compositor::Compositor;
 use compositor::{Submission, Timed, ViewSlot};
 pub use control::Control;
-use engine::{Engine, Processed};
+use engine::{DeviceGate, Engine, Processed};
 pub use stages::{DeviceEngines, Engines, FallbackFactory, HostPrep, PreprocessStage};
 use views::{HostEngine, Intake, Uptake};
 
@@ -78,6 +78,8 @@ pub struct Service {
     stats: Arc<Stats>,
     clock: Arc<dyn Clock>,
     schedule: Arc<DisplaySchedule>,
+    /// The present loop's announcements for the device's submissions.
+    gate: Arc<PresentGate>,
     /// Set when the last stage has finished (every sender dropped).
     drained: Arc<AtomicBool>,
     /// Set when the present loop has ended: stages then pass frames on
@@ -205,6 +207,7 @@ impl Service {
             .collect();
         let size = (panel.width, panel.height);
         let layers = |v: usize| slots[v].layers.clone();
+        let gate = Arc::new(PresentGate::new(Pacer::period_ns_of(panel.refresh_hz)));
         let (intake, mut engine, path) = match engines {
             Engines::Host(stages) => {
                 let intake = (0..n)
@@ -269,6 +272,11 @@ impl Service {
                     fallback,
                     panel: size,
                     views: (0..n).map(|v| (regions[v], layers(v))).collect(),
+                    gate: DeviceGate {
+                        gate: gate.clone(),
+                        clock: clock.clone(),
+                        work: Estimate::default(),
+                    },
                 };
                 (intake, engine, path)
             }
@@ -348,6 +356,7 @@ impl Service {
             stats,
             clock,
             schedule,
+            gate,
             drained,
             stopping,
             threads,
@@ -373,6 +382,8 @@ impl Service {
     /// from here on the stages count frames as in flight at stop.
     fn stop_stages(&self) {
         self.stopping.store(true, Ordering::SeqCst);
+        // No present is coming: device work waits for none.
+        self.gate.done(PresentGate::CLOSED);
         self.stats
             .dropped_at_present
             .store(self.slot.dropped(), Ordering::Relaxed);

@@ -23,6 +23,10 @@ pub enum Stage {
     /// The preprocessing's own GPU time (timestamp queries; part of
     /// `Preprocess`).
     PreprocessGpu,
+    /// Device work held back until a present was submitted, so that the
+    /// present does not queue behind it (`pacing::PresentGate`; part of
+    /// `Preprocess`).
+    YieldToPresent,
     /// Clamp and the panel's transfer curve.
     Encode,
     /// Drawing onto the sink (for a window: until the swapchain takes it).
@@ -34,10 +38,11 @@ pub enum Stage {
 }
 
 impl Stage {
-    pub const ALL: [Stage; 7] = [
+    pub const ALL: [Stage; 8] = [
         Stage::Upload,
         Stage::Preprocess,
         Stage::PreprocessGpu,
+        Stage::YieldToPresent,
         Stage::Encode,
         Stage::Present,
         Stage::Queued,
@@ -53,6 +58,7 @@ impl Stage {
             Stage::Upload => "upload",
             Stage::Preprocess => "preprocess",
             Stage::PreprocessGpu => "preprocess-gpu",
+            Stage::YieldToPresent => "yield-to-present",
             Stage::Encode => "encode",
             Stage::Present => "present",
             Stage::Queued => "queued",
@@ -108,7 +114,7 @@ pub struct Stats {
     pub dcnn_traffic: TrafficCounter,
     /// Host↔device traffic of the sink's presented frames.
     pub present_traffic: TrafficCounter,
-    histograms: [Mutex<Histogram>; 7],
+    histograms: [Mutex<Histogram>; 8],
     /// Frames shown after the refresh predicted at their submission: by
     /// how much (a whole number of periods).
     late: Mutex<Histogram>,

@@ -12,6 +12,7 @@ use super::{PreprocessStage, Stage, Stats};
 use crate::compose::{LayerSet, ViewRegion};
 use crate::pipeline::device_frames::DeviceFrames;
 use crate::pipeline::frame::ViewFrame;
+use crate::pipeline::pacing::{Clock, Estimate, PresentGate, Slot};
 use crate::present::DeviceDisplayFrame;
 use nedrt_core::Image;
 
@@ -27,7 +28,36 @@ pub(super) enum Engine {
         /// view's region and layers.
         panel: (usize, usize),
         views: Vec<(ViewRegion, Arc<LayerSet>)>,
+        /// Keeps this work from queueing in front of a present.
+        gate: DeviceGate,
     },
+}
+
+/// The device's submissions and the present loop's: the gate they share,
+/// the clock, and how long a frame's device work takes (its submission to
+/// its fence, learnt).
+pub(super) struct DeviceGate {
+    pub(super) gate: Arc<PresentGate>,
+    pub(super) clock: Arc<dyn Clock>,
+    pub(super) work: Estimate,
+}
+
+impl DeviceGate {
+    /// Waits, where the gate says so, until the next present is
+    /// submitted (at most two periods: a loop that has ended or stalled
+    /// never holds the work up for long).
+    fn yield_to_present(&self, period_ns: u64, stats: &Stats) {
+        let t0 = self.clock.now_ns();
+        if let Slot::AfterPresent(vsync) = self.gate.slot(t0, self.work.bound_ns()) {
+            let _span = tracing::info_span!("yield to present").entered();
+            self.gate
+                .wait(vsync, std::time::Duration::from_nanos(2 * period_ns));
+            stats.record(
+                Stage::YieldToPresent,
+                self.clock.now_ns().saturating_sub(t0),
+            );
+        }
+    }
 }
 
 /// What the preprocess stage hands the encode stage.
@@ -55,9 +85,14 @@ impl Engine {
             fallback,
             panel,
             views,
+            gate,
         } = self
         {
-            match frames.run(id, &frames_in) {
+            gate.yield_to_present(gate.gate.period_ns(), stats);
+            let t0 = gate.clock.now_ns();
+            let ran = frames.run(id, &frames_in);
+            gate.work.observe(gate.clock.now_ns().saturating_sub(t0));
+            match ran {
                 Ok((frame, traffic)) => {
                     if frames.last_blended() {
                         stats.frames_with_layers.fetch_add(1, Relaxed);

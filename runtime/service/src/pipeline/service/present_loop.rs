@@ -50,6 +50,11 @@ impl Service {
                 pacer.next(self.clock.now_ns())
             };
             self.schedule.observe_refresh(wake.vsync_ns);
+            // The device's work yields to this present (pacing::gate); a
+            // display-paced present waits in the sink and is not announced.
+            if !display_paced {
+                self.gate.announce(wake.wake_ns, wake.vsync_ns);
+            }
             self.schedule.set_latch_ns(if display_paced {
                 pacer.period_ns()
             } else {
@@ -74,6 +79,7 @@ impl Service {
                                 sink.present(frame.codes())?;
                             } else {
                                 // Nothing to show at this refresh: let it pass.
+                                self.gate.done(wake.vsync_ns);
                                 self.clock.sleep_until_ns(wake.vsync_ns);
                             }
                             None
@@ -88,7 +94,9 @@ impl Service {
             let shown = {
                 let _span =
                     tracing::info_span!("stage", stage = %"present", frame = t.id).entered();
-                match sink.present(t.item.codes()) {
+                let presented = sink.present(t.item.codes());
+                self.gate.done(wake.vsync_ns);
+                match presented {
                     Ok(shown) => shown,
                     Err(e) => {
                         self.stats.failed.fetch_add(1, Relaxed);
