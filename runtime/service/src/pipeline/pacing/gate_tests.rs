@@ -94,6 +94,13 @@ fn mean_lead(o: &Outcome) -> f64 {
 #[test]
 fn ungated_device_work_makes_the_present_loop_wake_early_to_wait_behind_it() {
     let o = run(400, jittering, PERIOD / 20, false);
+    // docs/service.md quotes these (cargo test gate -- --nocapture).
+    eprintln!(
+        "ungated: lead {:.2} periods, {} late, {} frames",
+        mean_lead(&o),
+        late_after_warm_up(&o),
+        o.frames
+    );
     // The test can fail: without the gate, a present queues behind the
     // work, and the loop learns to wake that much earlier (every frame
     // then waits that long for its refresh) or is late.
@@ -108,6 +115,12 @@ fn ungated_device_work_makes_the_present_loop_wake_early_to_wait_behind_it() {
 #[test]
 fn gated_device_work_never_delays_a_present_and_keeps_up_with_the_refresh() {
     let o = run(400, jittering, PERIOD / 20, true);
+    eprintln!(
+        "gated: lead {:.2} periods, {} late, {} frames",
+        mean_lead(&o),
+        late_after_warm_up(&o),
+        o.frames
+    );
     // The loop wakes just before the refresh: its own work and margin.
     assert!(mean_lead(&o) < 0.15, "lead {:.2} periods", mean_lead(&o));
     assert_eq!(late_after_warm_up(&o), 0, "{:?}", &o.late_ns[WARM_UP..]);
