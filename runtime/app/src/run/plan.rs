@@ -10,6 +10,7 @@ use std::fmt;
 
 use super::{FallbackKind, FramePath, RunOptions, SinkKind, SourceKind};
 use nedrt_core::Named;
+use nedrt_engines::device_prefilter::runs_on_device;
 use nedrt_infer::{BackendKind, Precision};
 use nedrt_optics::sim::Method;
 use nedrt_service::compose::ViewRegion;
@@ -122,6 +123,13 @@ pub fn plan(inputs: &PlanInputs<'_>) -> RunPlan {
         Some("the adapter has no f16 shaders for the f16 network".to_string())
     } else if !two && inputs.network.is_none() && opts.inject_device_loss_after.is_some() {
         Some("the injected device loss needs a network".to_string())
+    } else if two {
+        // Every view's stage on the device, or every view on the host.
+        inputs.views.iter().find_map(|v| {
+            prefilter_on_device(inputs, v)
+                .err()
+                .map(|why| format!("view {:?}: its prefilter stays on the host: {why}", v.name))
+        })
     } else {
         None
     };
@@ -132,7 +140,7 @@ pub fn plan(inputs: &PlanInputs<'_>) -> RunPlan {
     };
     let path_reason = host_reason.unwrap_or_else(|| {
         if two {
-            "each view's frame decoded and blended on the host, both views' stages and encodes \
+            "each view's frame uploaded as sent, every view's unpack, layers, stages and encode \
              in one submission on the sink's GPU; no read-back"
                 .into()
         } else {
@@ -235,22 +243,50 @@ pub fn plan(inputs: &PlanInputs<'_>) -> RunPlan {
     }
 }
 
+/// Whether view `v`'s prefilter (its method's Wiener, `lsq` or `refine:K`,
+/// or its network's Wiener stage) has a stage on the device, or why not
+/// (`optimal` has none; the device FFT takes sides whose prime factors are
+/// at most 13). The same tests the build's device stages make.
+fn prefilter_on_device(inputs: &PlanInputs<'_>, v: &ViewFacts) -> Result<(), String> {
+    let opts = inputs.opts;
+    match &inputs.network {
+        Some(n) if n.behind_wiener_k.is_none() => return Ok(()),
+        Some(_) => {}
+        None if !opts.preprocess.uses_wiener() && opts.prefilter.is_native() => return Ok(()),
+        None if !runs_on_device(opts.preprocess, opts.prefilter) => {
+            return Err(format!("{} has no device stage", opts.prefilter));
+        }
+        None => {}
+    }
+    let (w, h) = (v.region.width, v.region.height);
+    for side in [w, h] {
+        nedrt_gpu::fft::radices(side)
+            .map_err(|e| format!("the device FFT takes no {w}×{h} frame: {e}"))?;
+    }
+    Ok(())
+}
+
 /// The stages a frame of view `v` goes through.
 fn stages(inputs: &PlanInputs<'_>, v: &ViewFacts, on_device: bool) -> Vec<String> {
     let opts = inputs.opts;
-    let two = inputs.views.len() > 1;
     let here = if on_device {
         "on the GPU"
     } else {
         "on the host"
     };
+    // A prefilter the device lacks runs on the host before the upload.
+    let host_first = on_device && prefilter_on_device(inputs, v).is_err();
+    let prefilter_here = if host_first { "on the host" } else { here };
     let mut s = Vec::new();
-    s.push(if on_device && !two {
+    s.push(if on_device && !host_first {
         "upload as sent, unpack on the GPU".to_string()
     } else {
         "decode on the host".to_string()
     });
-    s.push("quad layers blended".into());
+    s.push(format!(
+        "quad layers blended {}",
+        if host_first { "on the host" } else { here }
+    ));
     let design = v
         .design
         .as_deref()
@@ -260,25 +296,31 @@ fn stages(inputs: &PlanInputs<'_>, v: &ViewFacts, on_device: bool) -> Vec<String
         Some(n) => {
             if let Some(k) = n.behind_wiener_k {
                 s.push(format!(
-                    "Wiener prefilter of {} (K = {k:.3e}) {here}",
+                    "Wiener prefilter of {} (K = {k:.3e}) {prefilter_here}",
                     opts.preprocess
                 ));
+                if host_first {
+                    s.push("its planes uploaded".into());
+                }
             }
             s.push(format!("D-CNN {here}"));
         }
         None if !opts.prefilter.is_native() => {
             s.push(format!(
-                "{} prefilter of {}{design} {here}",
+                "{} prefilter of {}{design} {prefilter_here}",
                 opts.prefilter, opts.preprocess
             ));
         }
         None if opts.preprocess.uses_wiener() => {
             s.push(format!(
-                "Wiener prefilter of {}{design} {here}",
+                "Wiener prefilter of {}{design} {prefilter_here}",
                 opts.preprocess
             ));
         }
         None => {}
+    }
+    if host_first && inputs.network.is_none() {
+        s.push("its planes uploaded".into());
     }
     s.push(format!(
         "clamp to [0, 1] and the panel's transfer curve {here}"

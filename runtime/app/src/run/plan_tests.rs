@@ -72,7 +72,7 @@ fn the_default_run_keeps_frames_on_the_sinks_gpu() {
         p.views[0].stages,
         [
             "upload as sent, unpack on the GPU",
-            "quad layers blended",
+            "quad layers blended on the GPU",
             "Wiener prefilter of proposed (K = 1.000e-2) on the GPU",
             "D-CNN on the GPU",
             "clamp to [0, 1] and the panel's transfer curve on the GPU",
@@ -163,12 +163,13 @@ fn two_views_each_get_their_stage_chain() {
     let p = plan(&i);
     assert_eq!(p.path, PlannedPath::Device);
     assert!(
-        p.path_reason.contains("both views' stages"),
+        p.path_reason
+            .contains("every view's unpack, layers, stages and encode"),
         "{}",
         p.path_reason
     );
     assert_eq!(p.views[0].name, "left");
-    assert_eq!(p.views[0].stages[0], "decode on the host");
+    assert_eq!(p.views[0].stages[0], "upload as sent, unpack on the GPU");
     assert_eq!(
         p.views[0].stages[2],
         "Wiener prefilter of doe+wiener (design designs/a) on the GPU"
@@ -181,7 +182,7 @@ fn two_views_each_get_their_stage_chain() {
     assert_eq!(p.network, "none (--preprocess doe+wiener has no network)");
     let text = p.to_string();
     assert!(
-        text.contains("view \"right\" 960×1080 at (960, 0): decode on the host"),
+        text.contains("view \"right\" 960×1080 at (960, 0): upload as sent, unpack on the GPU"),
         "{text}"
     );
 }
@@ -200,4 +201,77 @@ fn a_conventional_run_has_no_network_and_no_prefilter_stage() {
     assert_eq!(p.fallback, "none needed (no network)");
     assert_eq!(p.source, "the test pattern at 60 Hz on its own timer");
     assert!(p.pacing.starts_with("just in time"), "{}", p.pacing);
+}
+
+#[test]
+fn a_prefilter_the_device_lacks_runs_on_the_host_before_the_upload() {
+    // `optimal` has no device stage: one view keeps the device path, with
+    // the prefilter on the host first.
+    let mut o = opts();
+    o.preprocess = Method::DoeWiener;
+    o.prefilter = "optimal".parse().expect("prefilter");
+    let mut i = inputs(&o, whole(64, 48), gpu());
+    i.network = None;
+    let p = plan(&i);
+    assert_eq!(p.path, PlannedPath::Device);
+    assert_eq!(
+        p.views[0].stages,
+        [
+            "decode on the host",
+            "quad layers blended on the host",
+            "optimal@target prefilter of doe+wiener on the host",
+            "its planes uploaded",
+            "clamp to [0, 1] and the panel's transfer curve on the GPU",
+            "the sink copies the codes on the GPU",
+        ]
+    );
+    // A network's Wiener on a side of prime 17: the Wiener on the host,
+    // the network on the GPU.
+    let o = opts();
+    let p = plan(&inputs(&o, whole(68, 48), gpu()));
+    assert_eq!(p.path, PlannedPath::Device);
+    assert_eq!(p.views[0].stages[0], "decode on the host");
+    assert!(
+        p.views[0].stages[2].ends_with("on the host"),
+        "{:?}",
+        p.views[0].stages
+    );
+    assert_eq!(p.views[0].stages[3], "its planes uploaded");
+    assert_eq!(p.views[0].stages[4], "D-CNN on the GPU");
+    // Two views, one of them 34 wide: every view goes to the host, and why.
+    let views = vec![
+        ViewFacts {
+            name: "left".into(),
+            region: ViewRegion {
+                x: 0,
+                y: 0,
+                width: 34,
+                height: 48,
+            },
+            design: None,
+        },
+        ViewFacts {
+            name: "right".into(),
+            region: ViewRegion {
+                x: 34,
+                y: 0,
+                width: 30,
+                height: 48,
+            },
+            design: None,
+        },
+    ];
+    let mut o = opts();
+    o.preprocess = Method::DoeWiener;
+    let mut i = inputs(&o, views, gpu());
+    i.network = None;
+    let p = plan(&i);
+    assert_eq!(p.path, PlannedPath::Host);
+    assert!(
+        p.path_reason.starts_with(
+            "view \"left\": its prefilter stays on the host: the device FFT takes no 34×48"
+        ),
+        "{}",
+        p.path_reason
+    );
 }
