@@ -93,7 +93,7 @@ class Runner:
         self.step: Step | None = None
         # What one step leaves for the next: the teacher, the images, the run.
         self.teacher = self.images = self.run_dir = None
-        self.teacher_set = "train-ceiling"
+        self.teacher_set = "train"
         # The commit the run is of (the session's note in the carried checkpoint).
         self.commit = "unknown"
         self.adapter = None

@@ -16,13 +16,13 @@ def sizes(smoke: bool) -> dict:
     if smoke:
         return {"frame": "64x64", "layer_frame": "32x32", "panel": "128x72", "frames": 5, "repeat": 1,
                 "torch_repeat": 2, "pipeline_s": 20, "train_images": 2, "val_images": 1, "crop": 64, "val_crop": 48,
-                "patch": 32, "width": 4, "levels": 2, "ceiling_iterations": 3, "ceiling_shards": 2,
+                "patch": 32, "width": 4, "levels": 2, "teacher_steps": 5,
                 "steps": 4, "seed_steps": 2, "validate_every": 2, "max_batch": 2, "budget_s": 60, "copy_mb": 16,
                 "gemm": 256,
                 "tradeoff_size": "64x64", "tradeoff_prefilters": "lsq,refine:1", "tradeoff_designs": "multifocal"}
     return {"frame": "1920x1080", "layer_frame": "1920x1080", "panel": "1920x1080", "frames": 200, "repeat": 10,
             "torch_repeat": 20, "pipeline_s": 8, "train_images": None, "val_images": None, "crop": None,
-            "val_crop": None, "patch": 128, "width": 32, "levels": 4, "ceiling_iterations": 200, "ceiling_shards": 16,
+            "val_crop": None, "patch": 128, "width": 32, "levels": 4, "teacher_steps": 1000,
             "steps": 1_000_000, "seed_steps": None, "validate_every": 500, "max_batch": 64, "budget_s": TRAIN_BUDGET_S,
             "copy_mb": 2048, "gemm": 8192, "tradeoff_size": "1920x1080",
             "tradeoff_prefilters": "lsq,refine:1,refine:3,refine:10", "tradeoff_designs": None}
@@ -45,7 +45,9 @@ STEPS = [
     ("pipeline", "nedrt bench pipeline at 1920×1080 and the panel's refresh on the device path: none, the "
                  "Wiener, refine:10 (its GPU time per frame), half, full, the shipped model; then two views "
                  "(--stereo): none and the shipped model", 90, 1),
-    ("teacher", "the D-CNN's teacher: nedrt prefilter on the CPU, the training ceiling on CUDA", 105, 1),
+    ("teacher", "the D-CNN's teacher: the training photographs' optimum with nedrt's solver on the device "
+                "(refine:1000@target, wgpu), the kernels and the validation sets with nedrt prefilter on the CPU",
+     105, 1),
     ("train", "the full-width D-CNN on CUDA (bf16 autocast, the largest batch that fits)", TRAIN_BUDGET_S, 1),
     ("export", "the network as the runtime's ONNX with its card", 20, 1),
     ("tradeoff", "the speed-against-accuracy chart with the GPU's rows: nedrt tradeoff with the wgpu "

@@ -16,7 +16,8 @@ use safetensors::tensor::TensorView;
 use super::images::{list_images, load_all};
 use super::{AppError, CommonOptions, create_dir, write_text};
 use nedrt_core::image_io;
-use nedrt_engines::preprocess::{Prefilter, for_system};
+use nedrt_engines::device_prefilter::for_system_on;
+use nedrt_engines::preprocess::Prefilter;
 use nedrt_optics::sim::{Method, Objective, Simulator};
 
 /// Options of `nedrt prefilter`.
@@ -90,7 +91,16 @@ pub fn run(common: &CommonOptions, o: &PrefilterOptions) -> Result<String, AppEr
         write_kernels(&path, &kernels, &sim, o, &problem.depths_d, problem.k_reg)?;
         operators.push(path);
     }
-    let mut engine = for_system(o.method, o.prefilter, &prepared, &mut Default::default())?;
+    // On the device where `--backend wgpu` asks and the device runs the
+    // prefilter (the device check's teacher: refine:K on the GPU).
+    let gpu = crate::gpu_for(common, &[o.method], &[o.prefilter])?;
+    let mut engine = for_system_on(
+        gpu.as_ref(),
+        o.method,
+        o.prefilter,
+        &prepared,
+        &mut Default::default(),
+    )?;
     let wiener = if o.unclamped {
         let filter = prepared.wiener(o.method).ok_or_else(|| {
             AppError::Unavailable(format!(
