@@ -75,7 +75,9 @@ def step_setup(r: Runner, s: Step, z: dict):
         binary = Path(named) if named else REPO / "target" / "release" / "nedrt"
         if named and not binary.is_file():
             raise Failed(f"{binary}: NEDRT names no file")
-        if not binary.is_file():
+        if not named:
+            # Always: a binary left from an older tree would be smoked instead
+            # (cargo makes no change when it is current).
             r.sh(["cargo", "build", "--release", "-p", "nedrt"], 1800, parse_json=False)
         r.nedrt = binary
     else:
