@@ -17,7 +17,7 @@
 #      card.json and its tensors file; docs/training.md says how to commit it)
 #      and dcnn-full.{onnx,card.json}; the second tradeoff.{md,json,svg,png}
 #   3. give_back; report.md's tables go into docs/benchmarks.md; the network
-#      is scored here with nedrt eval (docs/benchmarks.md says how).
+#      is scored, logged and shipped if it passes with `nedrt-train judge` (docs/training.md).
 #
 #   bash scripts/device-check.sh --plan     what travels (≤ 60 MiB), each call's steps and caps
 #   OUT=$(mktemp -d) bash scripts/device-check.sh --smoke

@@ -5,6 +5,7 @@
     nedrt-train export --run models/runs/half --name half         # python -m nedrt_train.export
     nedrt-train dcnn --teacher out/teacher --out models/runs/dcnn # python -m nedrt_train.distill
     nedrt-train ceiling --teacher out/teacher                     # python -m nedrt_train.ceiling
+    nedrt-train judge --candidate out/devcheck/dcnn-full.onnx     # python -m nedrt_train.judge
 
 Each subcommand takes exactly the arguments of its module (`nedrt-train
 train --help`); `python -m nedrt_train.X` and `python -m nedrt_train X` run
@@ -21,6 +22,7 @@ COMMANDS = {
     "export": ("nedrt_train.export", "a training run as ONNX, DOE files and a model card"),
     "dcnn": ("nedrt_train.distill", "the D-CNN for a frozen DOE, on nedrt's exact objective and optimum"),
     "ceiling": ("nedrt_train.ceiling", "the per-frame optimum of the evaluation's mean PSNR: what no preprocessor beats"),
+    "judge": ("nedrt_train.judge", "the shipping rule: a returned network against its Wiener and the shipped one"),
 }
 
 
