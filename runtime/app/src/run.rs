@@ -519,15 +519,9 @@ mod tests {
                 .collect()
         }
 
-        #[test]
-        #[ignore = "needs a GPU adapter (run: scripts/test.sh, or cargo test -- --include-ignored)"]
-        fn refine_on_the_device_shows_the_codes_of_the_host_refine() {
-            use nedrt_optics::sim::{DisplayProblem, Objective, SolveMode, SolvedPrefilter};
-            let (device, queue) = nedrt_gpu::test_device(false);
-            let transfer = Transfer::from_gamma([2.2, 2.2, 2.2]);
-            // Three depths, the middle one's target blurred (the multifocal
-            // objective's shape), PSFs wider per channel and depth.
-            let depths = vec![0.0, 1.0, 2.0];
+        /// Three depths, the middle one's target blurred (the multifocal
+        /// objective's shape), PSFs wider per channel and depth.
+        fn three_depths() -> Arc<nedrt_optics::sim::DisplayProblem> {
             let per_depth: Vec<Vec<Psf>> = [1.2, 3.0, 1.8]
                 .iter()
                 .map(|s| gaussians(*s, 0.02))
@@ -535,17 +529,26 @@ mod tests {
             let psfs: Vec<Vec<Psf>> = (0..3)
                 .map(|c| per_depth.iter().map(|d| d[c].clone()).collect())
                 .collect();
-            let problem = Arc::new(
-                DisplayProblem::new(
-                    Objective::Target,
-                    depths,
+            Arc::new(
+                nedrt_optics::sim::DisplayProblem::new(
+                    nedrt_optics::sim::Objective::Target,
+                    vec![0.0, 1.0, 2.0],
                     psfs,
                     vec![false, true, false],
                     Some(gaussians(2.0, 0.0)),
                     0.03,
                 )
                 .expect("problem"),
-            );
+            )
+        }
+
+        #[test]
+        #[ignore = "needs a GPU adapter (run: scripts/test.sh, or cargo test -- --include-ignored)"]
+        fn refine_on_the_device_shows_the_codes_of_the_host_refine() {
+            use nedrt_optics::sim::{SolveMode, SolvedPrefilter};
+            let (device, queue) = nedrt_gpu::test_device(false);
+            let transfer = Transfer::from_gamma([2.2, 2.2, 2.2]);
+            let problem = three_depths();
             for (w, h, steps) in [(150, 98, 10), (64, 40, 0), (64, 40, 3)] {
                 let input = frame(w, h);
                 let mut cpu =
@@ -577,27 +580,9 @@ mod tests {
         fn the_device_teacher_reaches_the_cpu_optimum_within_1e4_relative() {
             use nedrt_engines::device_prefilter::OnDevice;
             use nedrt_engines::preprocess::MAX_REFINE_STEPS;
-            use nedrt_optics::sim::{DisplayProblem, Objective, SolveMode, SolvedPrefilter};
+            use nedrt_optics::sim::{SolveMode, SolvedPrefilter};
             let (device, queue) = nedrt_gpu::test_device(false);
-            let depths = vec![0.0, 1.0, 2.0];
-            let per_depth: Vec<Vec<Psf>> = [1.2, 3.0, 1.8]
-                .iter()
-                .map(|s| gaussians(*s, 0.02))
-                .collect();
-            let psfs: Vec<Vec<Psf>> = (0..3)
-                .map(|c| per_depth.iter().map(|d| d[c].clone()).collect())
-                .collect();
-            let problem = Arc::new(
-                DisplayProblem::new(
-                    Objective::Target,
-                    depths,
-                    psfs,
-                    vec![false, true, false],
-                    Some(gaussians(2.0, 0.0)),
-                    0.03,
-                )
-                .expect("problem"),
-            );
+            let problem = three_depths();
             let (w, h) = (48, 40);
             let input = frame(w, h);
             // The CPU solver with the device's budget, and with its own
