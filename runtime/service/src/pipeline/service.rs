@@ -107,7 +107,8 @@ fn spawn_stage<I: Send + 'static, O: Send + 'static>(
         clock,
         stopping,
     }: StageContext,
-    mut work: impl FnMut(u64, I, &Stats) -> Option<O> + Send + 'static,
+    // The frame's id and predicted refresh, the item, the counters.
+    mut work: impl FnMut(u64, u64, I, &Stats) -> Option<O> + Send + 'static,
 ) -> std::io::Result<JoinHandle<()>> {
     std::thread::Builder::new()
         .name(name.into())
@@ -119,7 +120,7 @@ fn spawn_stage<I: Send + 'static, O: Send + 'static>(
                 }
                 let span = tracing::info_span!("stage", stage = %name, frame = t.id).entered();
                 let t0 = clock.now_ns();
-                let result = work(t.id, t.item, &stats);
+                let result = work(t.id, t.predicted_ns, t.item, &stats);
                 let ns = clock.now_ns().saturating_sub(t0);
                 drop(span);
                 stats.record(stage, ns);
@@ -290,7 +291,7 @@ impl Service {
             ingest_rx,
             move |t| upload_tx.send(t),
             context.clone(),
-            move |_, (view, f): Submission, stats| intake.take(view, f, stats),
+            move |_, _, (view, f): Submission, stats| intake.take(view, f, stats),
         )?);
         threads.push(spawn_stage(
             "preprocess",
@@ -298,7 +299,9 @@ impl Service {
             upload_rx,
             move |t| dcnn_tx.send(t),
             context.clone(),
-            move |id, f: Vec<ViewFrame>, stats| engine.run(id, f, stats),
+            move |id, predicted_ns, f: Vec<ViewFrame>, stats| {
+                engine.run(id, predicted_ns, f, stats)
+            },
         )?);
         let transfer = panel.transfer.clone();
         let slot_in = slot.clone();
@@ -308,7 +311,7 @@ impl Service {
             dcnn_rx,
             move |t| slot_in.put(t),
             context,
-            move |id, f: Processed, _| {
+            move |id, _, f: Processed, _| {
                 Some(match f {
                     Processed::Host(f) => {
                         let mut rgba8 = Vec::new();

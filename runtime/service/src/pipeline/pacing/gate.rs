@@ -4,9 +4,10 @@
 //! present loop announces each present (its wake and its refresh) and says
 //! when it is done with it; the device's preprocessing asks [`PresentGate::slot`]
 //! before it submits work of a predicted duration: now, if the work ends
-//! before the next wake; else after that present, if the work is shorter
-//! than a period; else now (work of a period or more delays a present
-//! whenever it runs, and waiting would only add latency).
+//! before the next wake, or if its frame is predicted for that present's
+//! refresh (the present waits for it); else after that present, if the
+//! work is shorter than a period; else now (work of a period or more
+//! delays a present whenever it runs, and waiting would only add latency).
 
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Condvar, Mutex};
@@ -66,8 +67,11 @@ impl PresentGate {
     }
 
     /// When work predicted to take `work_ns` on the device may be
-    /// submitted at `now_ns` (module docs).
-    pub fn slot(&self, now_ns: u64, work_ns: u64) -> Slot {
+    /// submitted at `now_ns` (module docs), for a frame predicted to be on
+    /// the panel at `frame_refresh_ns` (0: no prediction). A frame
+    /// predicted for the refresh of the present in question is the one
+    /// that present waits for: holding it back would only make it late.
+    pub fn slot(&self, now_ns: u64, work_ns: u64, frame_refresh_ns: u64) -> Slot {
         let (mut wake, mut vsync) = (
             self.wake_ns.load(Ordering::SeqCst),
             self.vsync_ns.load(Ordering::SeqCst),
@@ -81,7 +85,9 @@ impl PresentGate {
             wake += self.period_ns;
             vsync += self.period_ns;
         }
-        if now_ns.saturating_add(work_ns) <= wake {
+        if now_ns.saturating_add(work_ns) <= wake
+            || (frame_refresh_ns != 0 && frame_refresh_ns <= vsync)
+        {
             return Slot::Now;
         }
         // Not the present's lead: that grows with the very queueing this

@@ -39,8 +39,12 @@ fn run(refreshes: u64, work_ns: impl Fn(u64) -> u64, present_ns: u64, gated: boo
         let wake = pacer.next(clock.now_ns());
         gate.announce(wake.wake_ns, wake.vsync_ns);
         while waiting.is_none() && ready < wake.wake_ns {
+            // Predicted as the service predicts: the first refresh whose
+            // present comes after the work's end.
+            let lead = wake.vsync_ns - wake.wake_ns;
+            let predicted = (ready + estimate.bound_ns() + lead).div_ceil(PERIOD) * PERIOD;
             let slot = if gated {
-                gate.slot(ready, estimate.bound_ns())
+                gate.slot(ready, estimate.bound_ns(), predicted)
             } else {
                 Slot::Now
             };
@@ -142,21 +146,31 @@ fn work_longer_than_the_time_between_presents_is_not_held_back() {
 #[test]
 fn a_slot_is_now_before_any_present_after_the_loop_ends_and_for_work_that_ends_before_the_wake() {
     let gate = PresentGate::new(PERIOD);
-    assert_eq!(gate.slot(5, PERIOD), Slot::Now);
+    assert_eq!(gate.slot(5, PERIOD, 0), Slot::Now);
     gate.announce(10 * PERIOD - 1_000_000, 10 * PERIOD);
     // Ends before the wake: now.
-    assert_eq!(gate.slot(9 * PERIOD, PERIOD / 2), Slot::Now);
+    assert_eq!(gate.slot(9 * PERIOD, PERIOD / 2, 0), Slot::Now);
     // Would run into the present: after it.
     assert_eq!(
-        gate.slot(9 * PERIOD + PERIOD / 2, PERIOD / 2),
+        gate.slot(9 * PERIOD + PERIOD / 2, PERIOD / 2, 0),
         Slot::AfterPresent(10 * PERIOD)
+    );
+    // A frame predicted for a later refresh is held the same way; one
+    // predicted for that present's refresh is what it waits for: never held.
+    assert_eq!(
+        gate.slot(9 * PERIOD + PERIOD / 2, PERIOD / 2, 11 * PERIOD),
+        Slot::AfterPresent(10 * PERIOD)
+    );
+    assert_eq!(
+        gate.slot(9 * PERIOD + PERIOD / 2, PERIOD / 2, 10 * PERIOD),
+        Slot::Now
     );
     // That present done: the next one is a period on.
     gate.done(10 * PERIOD);
-    assert_eq!(gate.slot(10 * PERIOD, PERIOD / 2), Slot::Now);
+    assert_eq!(gate.slot(10 * PERIOD, PERIOD / 2, 0), Slot::Now);
     assert!(gate.wait(10 * PERIOD, Duration::ZERO));
     assert!(!gate.wait(11 * PERIOD, Duration::from_millis(1)));
     gate.done(PresentGate::CLOSED);
-    assert_eq!(gate.slot(11 * PERIOD - 100, PERIOD / 2), Slot::Now);
+    assert_eq!(gate.slot(11 * PERIOD - 100, PERIOD / 2, 0), Slot::Now);
     assert!(gate.wait(20 * PERIOD, Duration::ZERO));
 }
