@@ -163,188 +163,197 @@ mod needs_gpu {
     }
 }
 
-#[test]
-#[ignore = "needs a GPU adapter (run: scripts/test.sh, or cargo test -- --include-ignored)"]
-fn quad_layers_are_blended_on_the_device_as_on_the_host_and_uploaded_once() {
-    use crate::compose::{Placement, QuadLayer, ViewGeometry, blend};
-    let (device, queue) = test_device(false);
-    let (w, h) = (37usize, 21usize);
-    let transfer = Transfer::from_gamma([2.2, 2.0, 2.4]);
-    let view = ViewGeometry {
-        width: w,
-        height: h,
-        pixels_per_tan: 1000.0,
-    };
-    let layers = Arc::new(LayerSet::default());
-    for (layer, z, x, y, qw, qh, a) in [(1, 0, 3, 2, 20, 10, 0.6f32), (2, 1, 15, 8, 22, 13, 1.0)] {
-        let rgba = (0..qw * qh)
-            .flat_map(|t| {
-                let c = |k: usize| a * (((t * 17 + k * 29 + layer) % 97) as f32 / 96.0);
-                [c(0), c(1), c(2), a]
-            })
-            .collect();
-        let quad = QuadLayer {
-            layer: layer as u32,
-            z,
-            placement: Placement::Pixels { x, y },
-            width: qw,
-            height: qh,
-            rgba,
-        };
-        layers
-            .set(9, quad.place(&view).expect("placed"), usize::MAX)
-            .expect("set");
-    }
-    let mut frames =
-        DeviceFrames::single(&device, &queue, (w, h), &transfer, None).expect("frames");
-    frames.attach_layers(0, layers.clone());
-    let sent = SubmittedFrame {
-        id: 0,
-        capture_ns: 0,
-        width: w,
-        height: h,
-        format: PixelFormat::Rgba8Srgb,
-        payload: (0..4 * w * h).map(|i| (i * 7 % 256) as u8).collect(),
-    };
-    let (frame, first) = frames.run(0, &[client(1, sent.clone())]).expect("runs");
-    assert!(frames.last_blended());
-    let on_device = frame.to_host().expect("codes").rgba8;
-    let mut im = decode(&sent);
-    blend(&mut im, &layers.snapshot().quads).expect("blends");
-    let mut on_host = Vec::new();
-    transfer.encode_rgba8(&im, &mut on_host);
-    let worst = on_device
-        .iter()
-        .zip(&on_host)
-        .map(|(a, b)| a.abs_diff(*b))
-        .max()
-        .unwrap_or(0);
-    assert!(worst <= 1, "codes differ by {worst}");
-    // The same layers on the next frame: their texels stay on the device.
-    let (_, second) = frames.run(1, &[client(2, sent)]).expect("runs");
-    assert!(second.to_device_bytes < first.to_device_bytes);
-    assert_eq!(second.read_backs, 0);
-}
+/// Layers and views on the device (a module named for what it needs, so
+/// that `scripts/test.sh` runs it with the hardware tests).
+mod needs_gpu_layers_and_views {
+    use super::*;
 
-#[test]
-#[ignore = "needs a GPU adapter (run: scripts/test.sh, or cargo test -- --include-ignored)"]
-fn both_eyes_in_one_submission_equal_their_host_twins_in_their_regions() {
-    let (device, queue) = nedrt_gpu::test_device(false);
-    // 75×21: odd halves (37 and 38 wide), rows padded to 256 bytes.
-    let (w, h) = (75usize, 21usize);
-    let regions = [
-        ViewRegion {
-            x: 0,
-            y: 0,
-            width: 37,
+    #[test]
+    #[ignore = "needs a GPU adapter (run: scripts/test.sh, or cargo test -- --include-ignored)"]
+    fn quad_layers_are_blended_on_the_device_as_on_the_host_and_uploaded_once() {
+        use crate::compose::{Placement, QuadLayer, ViewGeometry, blend};
+        let (device, queue) = test_device(false);
+        let (w, h) = (37usize, 21usize);
+        let transfer = Transfer::from_gamma([2.2, 2.0, 2.4]);
+        let view = ViewGeometry {
+            width: w,
             height: h,
-        },
-        ViewRegion {
-            x: 37,
-            y: 0,
+            pixels_per_tan: 1000.0,
+        };
+        let layers = Arc::new(LayerSet::default());
+        for (layer, z, x, y, qw, qh, a) in
+            [(1, 0, 3, 2, 20, 10, 0.6f32), (2, 1, 15, 8, 22, 13, 1.0)]
+        {
+            let rgba = (0..qw * qh)
+                .flat_map(|t| {
+                    let c = |k: usize| a * (((t * 17 + k * 29 + layer) % 97) as f32 / 96.0);
+                    [c(0), c(1), c(2), a]
+                })
+                .collect();
+            let quad = QuadLayer {
+                layer: layer as u32,
+                z,
+                placement: Placement::Pixels { x, y },
+                width: qw,
+                height: qh,
+                rgba,
+            };
+            layers
+                .set(9, quad.place(&view).expect("placed"), usize::MAX)
+                .expect("set");
+        }
+        let mut frames =
+            DeviceFrames::single(&device, &queue, (w, h), &transfer, None).expect("frames");
+        frames.attach_layers(0, layers.clone());
+        let sent = SubmittedFrame {
+            id: 0,
+            capture_ns: 0,
+            width: w,
+            height: h,
+            format: PixelFormat::Rgba8Srgb,
+            payload: (0..4 * w * h).map(|i| (i * 7 % 256) as u8).collect(),
+        };
+        let (frame, first) = frames.run(0, &[client(1, sent.clone())]).expect("runs");
+        assert!(frames.last_blended());
+        let on_device = frame.to_host().expect("codes").rgba8;
+        let mut im = decode(&sent);
+        blend(&mut im, &layers.snapshot().quads).expect("blends");
+        let mut on_host = Vec::new();
+        transfer.encode_rgba8(&im, &mut on_host);
+        let worst = on_device
+            .iter()
+            .zip(&on_host)
+            .map(|(a, b)| a.abs_diff(*b))
+            .max()
+            .unwrap_or(0);
+        assert!(worst <= 1, "codes differ by {worst}");
+        // The same layers on the next frame: their texels stay on the device.
+        let (_, second) = frames.run(1, &[client(2, sent)]).expect("runs");
+        assert!(second.to_device_bytes < first.to_device_bytes);
+        assert_eq!(second.read_backs, 0);
+    }
+
+    #[test]
+    #[ignore = "needs a GPU adapter (run: scripts/test.sh, or cargo test -- --include-ignored)"]
+    fn both_eyes_in_one_submission_equal_their_host_twins_in_their_regions() {
+        let (device, queue) = nedrt_gpu::test_device(false);
+        // 75×21: odd halves (37 and 38 wide), rows padded to 256 bytes.
+        let (w, h) = (75usize, 21usize);
+        let regions = [
+            ViewRegion {
+                x: 0,
+                y: 0,
+                width: 37,
+                height: h,
+            },
+            ViewRegion {
+                x: 37,
+                y: 0,
+                width: 38,
+                height: h,
+            },
+        ];
+        let transfer = Transfer::from_gamma([2.2, 2.0, 2.4]);
+        let views = vec![
+            DeviceView {
+                region: regions[0],
+                stage: None,
+            },
+            DeviceView {
+                region: regions[1],
+                stage: Some(Box::new(Stretch::new(&device))),
+            },
+        ];
+        let mut views =
+            DeviceFrames::new(&device, &queue, (w, h), views, &transfer).expect("views");
+        // The host twin: view 0 as it is, view 1 stretched, each encoded.
+        let host = |left: &Image, right: Option<&Image>| -> Vec<u8> {
+            // Opaque black outside the views and in a view with no frame yet.
+            let mut panel = [0u8, 0, 0, 255].repeat(w * h);
+            let mut put = |im: &Image, r: ViewRegion| {
+                let mut codes = Vec::new();
+                transfer.encode_rgba8(im, &mut codes);
+                for y in 0..r.height {
+                    for x in 0..r.width {
+                        let d = 4 * ((r.y + y) * w + r.x + x);
+                        panel[d..d + 4].copy_from_slice(&codes[4 * (y * r.width + x)..][..4]);
+                    }
+                }
+            };
+            put(left, regions[0]);
+            if let Some(right) = right {
+                let mut s = right.clone();
+                s.data_mut().iter_mut().for_each(|v| *v = 1.4 * *v - 0.2);
+                put(&s, regions[1]);
+            }
+            panel
+        };
+        let worst = |a: &[u8], b: &[u8]| {
+            a.iter()
+                .zip(b)
+                .map(|(x, y)| x.abs_diff(*y))
+                .max()
+                .unwrap_or(0)
+        };
+        // The left eye sends sRGB bytes (unpacked on the device), the right
+        // planes. The right eye has had no frame yet: black there.
+        let sent = client_frame(1, 37, h, PixelFormat::Rgba8Srgb);
+        let l = decode(&sent);
+        let r = noise(38, h, 2);
+        let (frame, first) = views
+            .run(1, &[client(1, sent.clone()), planar(0, noise(38, h, 0))])
+            .expect("runs");
+        assert_eq!(frame.width, w);
+        let got = frame.to_host().expect("codes").rgba8;
+        // The left eye as its host twin; the right black.
+        assert!(
+            worst(&got, &host(&l, None)) <= 1,
+            "codes differ by {}",
+            worst(&got, &host(&l, None))
+        );
+        assert_eq!(views.last_ran(), &[true, false]);
+        assert_eq!(first.to_device_bytes, sent.payload.len() as u64);
+        // Both eyes, in one submission.
+        let (frame, _) = views
+            .run(2, &[client(1, sent.clone()), planar(2, r.clone())])
+            .expect("runs");
+        let got = frame.to_host().expect("codes").rgba8;
+        assert!(
+            worst(&got, &host(&l, Some(&r))) <= 1,
+            "codes differ by {}",
+            worst(&got, &host(&l, Some(&r)))
+        );
+        assert_eq!(views.last_ran(), &[false, true]);
+        // Unchanged frames: nothing goes up, the same panel comes out.
+        let (frame, again) = views
+            .run(3, &[client(1, sent.clone()), planar(2, r.clone())])
+            .expect("runs");
+        assert_eq!(again.uploads, 0);
+        assert_eq!(again.read_backs, 0);
+        assert!(worst(&frame.to_host().expect("codes").rgba8, &host(&l, Some(&r))) <= 1);
+        // The right eye as float planes from the client: the same panel.
+        let floats = SubmittedFrame {
+            id: 4,
+            capture_ns: 0,
             width: 38,
             height: h,
-        },
-    ];
-    let transfer = Transfer::from_gamma([2.2, 2.0, 2.4]);
-    let views = vec![
-        DeviceView {
-            region: regions[0],
-            stage: None,
-        },
-        DeviceView {
-            region: regions[1],
-            stage: Some(Box::new(Stretch::new(&device))),
-        },
-    ];
-    let mut views = DeviceFrames::new(&device, &queue, (w, h), views, &transfer).expect("views");
-    // The host twin: view 0 as it is, view 1 stretched, each encoded.
-    let host = |left: &Image, right: Option<&Image>| -> Vec<u8> {
-        // Opaque black outside the views and in a view with no frame yet.
-        let mut panel = [0u8, 0, 0, 255].repeat(w * h);
-        let mut put = |im: &Image, r: ViewRegion| {
-            let mut codes = Vec::new();
-            transfer.encode_rgba8(im, &mut codes);
-            for y in 0..r.height {
-                for x in 0..r.width {
-                    let d = 4 * ((r.y + y) * w + r.x + x);
-                    panel[d..d + 4].copy_from_slice(&codes[4 * (y * r.width + x)..][..4]);
-                }
-            }
+            format: PixelFormat::Rgb32fPlanar,
+            payload: planar_payload(&r),
         };
-        put(left, regions[0]);
-        if let Some(right) = right {
-            let mut s = right.clone();
-            s.data_mut().iter_mut().for_each(|v| *v = 1.4 * *v - 0.2);
-            put(&s, regions[1]);
-        }
-        panel
-    };
-    let worst = |a: &[u8], b: &[u8]| {
-        a.iter()
-            .zip(b)
-            .map(|(x, y)| x.abs_diff(*y))
-            .max()
-            .unwrap_or(0)
-    };
-    // The left eye sends sRGB bytes (unpacked on the device), the right
-    // planes. The right eye has had no frame yet: black there.
-    let sent = client_frame(1, 37, h, PixelFormat::Rgba8Srgb);
-    let l = decode(&sent);
-    let r = noise(38, h, 2);
-    let (frame, first) = views
-        .run(1, &[client(1, sent.clone()), planar(0, noise(38, h, 0))])
-        .expect("runs");
-    assert_eq!(frame.width, w);
-    let got = frame.to_host().expect("codes").rgba8;
-    // The left eye as its host twin; the right black.
-    assert!(
-        worst(&got, &host(&l, None)) <= 1,
-        "codes differ by {}",
-        worst(&got, &host(&l, None))
-    );
-    assert_eq!(views.last_ran(), &[true, false]);
-    assert_eq!(first.to_device_bytes, sent.payload.len() as u64);
-    // Both eyes, in one submission.
-    let (frame, _) = views
-        .run(2, &[client(1, sent.clone()), planar(2, r.clone())])
-        .expect("runs");
-    let got = frame.to_host().expect("codes").rgba8;
-    assert!(
-        worst(&got, &host(&l, Some(&r))) <= 1,
-        "codes differ by {}",
-        worst(&got, &host(&l, Some(&r)))
-    );
-    assert_eq!(views.last_ran(), &[false, true]);
-    // Unchanged frames: nothing goes up, the same panel comes out.
-    let (frame, again) = views
-        .run(3, &[client(1, sent.clone()), planar(2, r.clone())])
-        .expect("runs");
-    assert_eq!(again.uploads, 0);
-    assert_eq!(again.read_backs, 0);
-    assert!(worst(&frame.to_host().expect("codes").rgba8, &host(&l, Some(&r))) <= 1);
-    // The right eye as float planes from the client: the same panel.
-    let floats = SubmittedFrame {
-        id: 4,
-        capture_ns: 0,
-        width: 38,
-        height: h,
-        format: PixelFormat::Rgb32fPlanar,
-        payload: planar_payload(&r),
-    };
-    let (frame, _) = views
-        .run(4, &[client(1, sent), client(3, floats)])
-        .expect("runs");
-    assert!(worst(&frame.to_host().expect("codes").rgba8, &host(&l, Some(&r))) <= 1);
-    // A frame of the wrong size is refused.
-    let e = views
-        .run(5, &[planar(5, noise(10, h, 0)), planar(2, r)])
-        .expect_err("size")
-        .to_string();
-    assert!(
-        e.contains("a 10×21 frame of 3 planes for view 0 of 37×21"),
-        "{e}"
-    );
+        let (frame, _) = views
+            .run(4, &[client(1, sent), client(3, floats)])
+            .expect("runs");
+        assert!(worst(&frame.to_host().expect("codes").rgba8, &host(&l, Some(&r))) <= 1);
+        // A frame of the wrong size is refused.
+        let e = views
+            .run(5, &[planar(5, noise(10, h, 0)), planar(2, r)])
+            .expect_err("size")
+            .to_string();
+        assert!(
+            e.contains("a 10×21 frame of 3 planes for view 0 of 37×21"),
+            "{e}"
+        );
+    }
 }
 
 fn noise(w: usize, h: usize, seed: usize) -> Image {
