@@ -9,10 +9,10 @@
 use std::path::{Path, PathBuf};
 
 use nedrt_core::Image;
-use nedrt_service::compose::Placement;
+use nedrt_protocol::Placement;
+use nedrt_protocol::v2::{HEADER_V2_LEN, HeaderV2, QuadFormat, VERSION_2};
+use nedrt_protocol::{FrameHeader, Hello};
 use nedrt_service::pipeline::frame::{PixelFormat, planar_payload};
-use nedrt_service::pipeline::protocol::v2::{HEADER_V2_LEN, HeaderV2, QuadFormat, VERSION_2};
-use nedrt_service::pipeline::protocol::{FrameHeader, Hello};
 
 fn write(dir: &Path, name: &str, bytes: &[u8]) -> anyhow::Result<()> {
     std::fs::create_dir_all(dir)?;
@@ -89,7 +89,7 @@ fn main() -> anyhow::Result<()> {
             PixelFormat::Rgb32fPlanar => planar_payload(&pattern(w, h)),
             _ => (0..w * h * 4).map(|i| (i * 7 % 256) as u8).collect(),
         };
-        let headers_len = 2 * nedrt_service::pipeline::protocol::HEADER_LEN;
+        let headers_len = 2 * nedrt_protocol::HEADER_LEN;
         let mut bytes = Hello {
             name_len: name.len(),
             shm_size: (headers_len + payload.len()) as u64,

@@ -22,8 +22,8 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
 use nedrt_app::charts::{LinePanel, Panel, Series, series_color, write_figure};
-use nedrt_service::pipeline::frame::PixelFormat;
-use nedrt_service::pipeline::protocol::{Client, FrameHeader, STATUS_OK};
+use nedrt_protocol::PixelFormat;
+use nedrt_protocol::{Client, FrameHeader, STATUS_OK};
 
 const W: usize = 64;
 const H: usize = 48;

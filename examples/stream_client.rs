@@ -21,11 +21,11 @@
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
-use nedrt_service::compose::Placement;
-use nedrt_service::pipeline::frame::PixelFormat;
+use nedrt_protocol::PixelFormat;
+use nedrt_protocol::Placement;
+use nedrt_protocol::v2::{HeaderV2, QuadFormat};
+use nedrt_protocol::{Client, DEFAULT_SHM_DIR, FrameHeader, STATUS_OK};
 use nedrt_service::pipeline::pacing::monotonic_ns;
-use nedrt_service::pipeline::protocol::v2::{HeaderV2, QuadFormat};
-use nedrt_service::pipeline::protocol::{Client, DEFAULT_SHM_DIR, FrameHeader, STATUS_OK};
 use nedrt_service::pipeline::source::pattern::{
     pattern_rgba8, pattern_rgba8_shifted, stereo_disparity_px,
 };

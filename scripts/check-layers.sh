@@ -14,15 +14,16 @@ cd "$(dirname "$0")/.."
 declare -A allowed=(
     [nedrt-core]=""
     [nedrt-gpu]=""
+    [nedrt-protocol]=""
     [nedrt-optics]="nedrt-core"
     [nedrt-infer]="nedrt-core nedrt-gpu"
-    [nedrt-service]="nedrt-core nedrt-gpu"
+    [nedrt-service]="nedrt-core nedrt-gpu nedrt-protocol"
     [nedrt-engines]="nedrt-core nedrt-gpu nedrt-optics nedrt-infer"
-    [nedrt-app]="nedrt-core nedrt-gpu nedrt-optics nedrt-infer nedrt-service nedrt-engines"
-    [nedrt-studies]="nedrt-core nedrt-gpu nedrt-optics nedrt-infer nedrt-service nedrt-engines nedrt-app"
+    [nedrt-app]="nedrt-core nedrt-gpu nedrt-protocol nedrt-optics nedrt-infer nedrt-service nedrt-engines"
+    [nedrt-studies]="nedrt-core nedrt-gpu nedrt-protocol nedrt-optics nedrt-infer nedrt-service nedrt-engines nedrt-app"
 )
 declare -A dir=(
-    [nedrt-core]=core [nedrt-gpu]=gpu [nedrt-optics]=optics
+    [nedrt-core]=core [nedrt-gpu]=gpu [nedrt-protocol]=protocol [nedrt-optics]=optics
     [nedrt-infer]=infer [nedrt-service]=service [nedrt-engines]=engines [nedrt-app]=app
     [nedrt-studies]=studies
 )

@@ -10,8 +10,8 @@
 use libfuzzer_sys::fuzz_target;
 use nedrt_service::compose::{ViewGeometry, blend};
 use nedrt_service::pipeline::frame::{self, SubmittedFrame};
-use nedrt_service::pipeline::protocol::v2::{HEADER_V2_LEN, VERSION_2};
-use nedrt_service::pipeline::protocol::{HEADER_LEN, HELLO_LEN, Hello, valid_shm_name};
+use nedrt_protocol::v2::{HEADER_V2_LEN, VERSION_2};
+use nedrt_protocol::{HEADER_LEN, HELLO_LEN, Hello, valid_shm_name};
 use nedrt_service::pipeline::source::socket::admit;
 use nedrt_service::pipeline::source::socket::v2::{self, AdmittedV2};
 

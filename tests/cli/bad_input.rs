@@ -10,8 +10,8 @@ use super::*;
 
 use std::time::Duration;
 
-use nedrt_service::pipeline::frame::PixelFormat;
-use nedrt_service::pipeline::protocol::{FrameHeader, HELLO_LEN, Hello, valid_shm_name};
+use nedrt_protocol::PixelFormat;
+use nedrt_protocol::{FrameHeader, HELLO_LEN, Hello, valid_shm_name};
 use nedrt_service::pipeline::source::socket::admit;
 use nedrt_service::pipeline::source::socket::v2;
 
@@ -1227,8 +1227,8 @@ fn every_bad_protocol_message_is_refused_with_its_reason() {
 /// Protocol version 2 rows: a submission header the service's version 2
 /// check refuses, or a quad the compositor refuses.
 fn version_2_rows(panel: (usize, usize), shm: u64) -> Vec<(&'static str, String, &'static str)> {
+    use nedrt_protocol::v2::{HeaderV2, QuadFormat};
     use nedrt_service::compose::{Placement, QuadLayer, ViewGeometry};
-    use nedrt_service::pipeline::protocol::v2::{HeaderV2, QuadFormat};
     let quad = HeaderV2::quad(
         0,
         4,

@@ -5,8 +5,8 @@
 //! prediction; version 1 clients are served beside version 2 ones.
 
 use super::*;
+use nedrt_protocol::v2::{HeaderV2, QuadFormat, STATUS_BAD_LAYER};
 use nedrt_service::compose::{Placement, QuadLayer, ViewGeometry, blend};
-use nedrt_service::pipeline::protocol::v2::{HeaderV2, QuadFormat, STATUS_BAD_LAYER};
 
 /// A uniform premultiplied RGBA8 quad: colour `c` (per channel) at alpha `a`.
 fn quad_texels(w: usize, h: usize, c: [u8; 3], a: u8) -> Vec<u8> {

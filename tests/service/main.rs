@@ -25,8 +25,8 @@ use deadline::{CommandWithin, Watched};
 use nedrt_core::Image;
 use nedrt_core::calib::Calibration;
 use nedrt_infer::{BackendKind, BackendOptions, Dcnn};
+use nedrt_protocol::{Client, FrameHeader, HEADER_LEN, STATUS_OK};
 use nedrt_service::pipeline::frame::{PixelFormat, RejectReason, planar_payload};
-use nedrt_service::pipeline::protocol::{Client, FrameHeader, HEADER_LEN, STATUS_OK};
 use nedrt_service::present::recorder::frame_path;
 use nedrt_service::present::transfer::Transfer;
 

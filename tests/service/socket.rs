@@ -227,7 +227,7 @@ fn every_kind_of_bad_frame_is_rejected_and_good_frames_still_arrive() {
 /// the client's thread, and shutdown, forever).
 #[test]
 fn shared_memory_that_is_a_link_or_a_fifo_is_refused_at_once() {
-    use nedrt_service::pipeline::protocol::{HELLO_MAGIC, Reply, STATUS_BAD_HELLO, VERSION};
+    use nedrt_protocol::{HELLO_MAGIC, Reply, STATUS_BAD_HELLO, VERSION};
     use std::io::Write;
     let service = Service::socket_recorder();
     let shm = service.dir.path().join("shm");

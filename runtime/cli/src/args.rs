@@ -235,7 +235,7 @@ pub struct RunArgs {
     #[arg(long, value_name = "PATH", default_value = "/tmp/nedrt.sock")]
     pub socket: PathBuf,
     /// --source socket: folder of the clients' shared-memory objects.
-    #[arg(long, value_name = "DIR", default_value = nedrt_service::pipeline::protocol::DEFAULT_SHM_DIR)]
+    #[arg(long, value_name = "DIR", default_value = nedrt_protocol::DEFAULT_SHM_DIR)]
     pub shm_dir: PathBuf,
     /// Frames the pattern or folder source submits (default: pattern until
     /// stopped, a folder once through).

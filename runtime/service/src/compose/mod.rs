@@ -29,15 +29,7 @@ pub const MAX_QUADS: usize = 16;
 /// slot.
 pub const MAX_QUADS_PER_OWNER: usize = 8;
 
-/// Where a quad sits on its view.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub enum Placement {
-    /// Its top-left texel on the view's pixel (`x`, `y`), panel pixels.
-    Pixels { x: i64, y: i64 },
-    /// Its centre at a direction from the view's centre, degrees (x to the
-    /// right, y up), through the view's [`ViewGeometry::pixels_per_tan`].
-    Degrees { x_deg: f64, y_deg: f64 },
-}
+pub use nedrt_protocol::Placement;
 
 /// Where a view (an eye) lies on the panel, in panel pixels: side by side
 /// on one panel, or each on its own panel of a pair driven as one frame.

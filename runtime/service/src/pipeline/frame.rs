@@ -7,45 +7,7 @@
 
 use nedrt_core::Image;
 
-/// Pixel layouts the service takes. Values are display intensities, linear
-/// unless the format says otherwise (docs/model.md §1: the D-CNN works on
-/// linear intensity).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
-pub enum PixelFormat {
-    /// 8-bit RGBA, interleaved, value/255 is linear intensity; alpha ignored.
-    Rgba8Linear,
-    /// 8-bit RGBA, interleaved, sRGB-encoded (a typical render target); alpha ignored.
-    Rgba8Srgb,
-    /// 32-bit float, planar R, G, B planes, little-endian, linear.
-    Rgb32fPlanar,
-}
-
-impl PixelFormat {
-    /// Wire codes of the socket protocol (docs/protocol.md).
-    pub fn from_code(code: u16) -> Option<Self> {
-        match code {
-            1 => Some(Self::Rgba8Linear),
-            2 => Some(Self::Rgba8Srgb),
-            3 => Some(Self::Rgb32fPlanar),
-            _ => None,
-        }
-    }
-
-    pub fn code(self) -> u16 {
-        match self {
-            Self::Rgba8Linear => 1,
-            Self::Rgba8Srgb => 2,
-            Self::Rgb32fPlanar => 3,
-        }
-    }
-
-    pub fn bytes_per_pixel(self) -> usize {
-        match self {
-            Self::Rgba8Linear | Self::Rgba8Srgb => 4,
-            Self::Rgb32fPlanar => 12,
-        }
-    }
-}
+pub use nedrt_protocol::PixelFormat;
 
 /// One frame from an application.
 #[derive(Debug, Clone, PartialEq)]

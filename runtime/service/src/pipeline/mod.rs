@@ -12,7 +12,8 @@ pub mod device_frames;
 pub mod frame;
 pub mod latency;
 pub mod pacing;
-pub mod protocol;
+/// The wire format, from nedrt-protocol (the path the service's users know).
+pub use nedrt_protocol as protocol;
 pub mod service;
 pub mod source;
 pub mod stats;

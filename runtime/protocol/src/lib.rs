@@ -5,16 +5,69 @@
 //! payload once, replies, and the client may then reuse the memory.
 //!
 //! [`Client`] is the client side, used by `examples/stream_client.rs` and
-//! the tests; the service side is `source::socket`.
+//! the tests; the service side is nedrt-service's `source::socket`.
+//!
+//! nedrt-protocol, layer 0 of nedrt: the wire format alone, with no GPU or
+//! window dependency, so that a client (an OpenXR runtime library, the
+//! examples, the fuzz target) links nothing of the service.
 
 use std::io::{Read, Write};
 use std::os::unix::fs::{FileExt, OpenOptionsExt};
 use std::os::unix::net::UnixStream;
 use std::path::{Path, PathBuf};
 
-use super::frame::PixelFormat;
-
 pub mod v2;
+
+/// Pixel layouts the service takes. Values are display intensities, linear
+/// unless the format says otherwise (docs/model.md §1: the D-CNN works on
+/// linear intensity).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum PixelFormat {
+    /// 8-bit RGBA, interleaved, value/255 is linear intensity; alpha ignored.
+    Rgba8Linear,
+    /// 8-bit RGBA, interleaved, sRGB-encoded (a typical render target); alpha ignored.
+    Rgba8Srgb,
+    /// 32-bit float, planar R, G, B planes, little-endian, linear.
+    Rgb32fPlanar,
+}
+
+impl PixelFormat {
+    /// Wire codes of the socket protocol (docs/protocol.md).
+    pub fn from_code(code: u16) -> Option<Self> {
+        match code {
+            1 => Some(Self::Rgba8Linear),
+            2 => Some(Self::Rgba8Srgb),
+            3 => Some(Self::Rgb32fPlanar),
+            _ => None,
+        }
+    }
+
+    pub fn code(self) -> u16 {
+        match self {
+            Self::Rgba8Linear => 1,
+            Self::Rgba8Srgb => 2,
+            Self::Rgb32fPlanar => 3,
+        }
+    }
+
+    pub fn bytes_per_pixel(self) -> usize {
+        match self {
+            Self::Rgba8Linear | Self::Rgba8Srgb => 4,
+            Self::Rgb32fPlanar => 12,
+        }
+    }
+}
+
+/// Where a quad sits on its view.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Placement {
+    /// Its top-left texel on the view's pixel (`x`, `y`), panel pixels.
+    Pixels { x: i64, y: i64 },
+    /// Its centre at a direction from the view's centre, degrees (x to the
+    /// right, y up), through the view's pixels per unit of tan(angle) (nedrt-service's
+    /// `ViewGeometry::pixels_per_tan`).
+    Degrees { x_deg: f64, y_deg: f64 },
+}
 
 pub const VERSION: u16 = 1;
 pub const HELLO_MAGIC: [u8; 4] = *b"NEDH";
@@ -206,7 +259,7 @@ impl Reply {
 
     /// The fixed part, magic to message length (version 2 puts its timing
     /// between it and the message).
-    pub(super) fn head(&self) -> [u8; REPLY_LEN] {
+    pub(crate) fn head(&self) -> [u8; REPLY_LEN] {
         let mut b = [0u8; REPLY_LEN];
         b[0..4].copy_from_slice(&REPLY_MAGIC);
         b[4..8].copy_from_slice(&self.status.to_le_bytes());
@@ -219,7 +272,7 @@ impl Reply {
 
     /// Parses the fixed part: the reply without its message, and the
     /// message's length (at most 64 KiB).
-    pub(super) fn parse_head(b: &[u8; REPLY_LEN]) -> std::io::Result<(Self, usize)> {
+    pub(crate) fn parse_head(b: &[u8; REPLY_LEN]) -> std::io::Result<(Self, usize)> {
         let bad = |m: &str| std::io::Error::new(std::io::ErrorKind::InvalidData, m.to_string());
         if b[0..4] != REPLY_MAGIC {
             return Err(bad("reply with a bad magic"));
@@ -242,7 +295,7 @@ impl Reply {
     }
 
     /// Reads the `len`-byte message that ends a reply.
-    pub(super) fn read_message(&mut self, r: &mut impl Read, len: usize) -> std::io::Result<()> {
+    pub(crate) fn read_message(&mut self, r: &mut impl Read, len: usize) -> std::io::Result<()> {
         let mut msg = vec![0u8; len];
         r.read_exact(&mut msg)?;
         self.message = String::from_utf8_lossy(&msg).into_owned();

@@ -9,8 +9,7 @@
 use std::io::Read;
 
 use super::{FRAME_MAGIC, Malformed, REPLY_LEN, Reply};
-use crate::compose::Placement;
-use crate::pipeline::frame::PixelFormat;
+use super::{PixelFormat, Placement};
 
 pub const VERSION_2: u16 = 2;
 /// Submission header: version 1's 48 bytes, then kind u8, view u8,
