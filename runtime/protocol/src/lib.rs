@@ -16,7 +16,10 @@ use std::os::unix::fs::{FileExt, OpenOptionsExt};
 use std::os::unix::net::UnixStream;
 use std::path::{Path, PathBuf};
 
+mod codec;
 pub mod v2;
+
+use codec::{FrameFields, Le, LeMut};
 
 /// Pixel layouts the service takes. Values are display intensities, linear
 /// unless the format says otherwise (docs/model.md §1: the D-CNN works on
@@ -111,16 +114,17 @@ impl Hello {
     /// The hello of a connection that speaks `version` (1 or 2).
     pub fn to_bytes_version(&self, version: u16) -> [u8; HELLO_LEN] {
         let mut b = [0u8; HELLO_LEN];
-        b[0..4].copy_from_slice(&HELLO_MAGIC);
-        b[4..6].copy_from_slice(&version.to_le_bytes());
-        b[6..8].copy_from_slice(&(self.name_len.min(u16::MAX as usize) as u16).to_le_bytes());
-        b[8..16].copy_from_slice(&self.shm_size.to_le_bytes());
+        let mut w = LeMut(&mut b);
+        w.bytes(0, &HELLO_MAGIC);
+        w.u16(4, version);
+        w.u16(6, self.name_len.min(u16::MAX as usize) as u16);
+        w.u64(8, self.shm_size);
         b
     }
 
     /// The version a hello asks for (checked by [`Hello::parse`]).
     pub fn version_of(b: &[u8; HELLO_LEN]) -> u16 {
-        u16::from_le_bytes([b[4], b[5]])
+        Le(b).u16(4)
     }
 
     /// Parses a hello of version 1 or 2; `Err` is the reason the service
@@ -134,17 +138,15 @@ impl Hello {
                 v2::VERSION_2
             )));
         }
-        let name_len = u16::from_le_bytes([b[6], b[7]]) as usize;
+        let name_len = usize::from(Le(b).u16(6));
         if name_len == 0 || name_len > MAX_NAME {
             return Err(Malformed(format!(
                 "shared-memory name of {name_len} bytes (1 to {MAX_NAME})"
             )));
         }
-        let mut size = [0u8; 8];
-        size.copy_from_slice(&b[8..16]);
         Ok(Self {
             name_len,
-            shm_size: u64::from_le_bytes(size),
+            shm_size: Le(b).u64(8),
         })
     }
 }
@@ -185,58 +187,42 @@ impl FrameHeader {
 
     pub fn to_bytes(&self) -> [u8; HEADER_LEN] {
         let mut b = [0u8; HEADER_LEN];
-        b[0..4].copy_from_slice(&FRAME_MAGIC);
-        b[4..6].copy_from_slice(&self.version.to_le_bytes());
-        b[6..8].copy_from_slice(&self.format.to_le_bytes());
-        b[8..12].copy_from_slice(&self.width.to_le_bytes());
-        b[12..16].copy_from_slice(&self.height.to_le_bytes());
-        b[16..24].copy_from_slice(&self.frame_id.to_le_bytes());
-        b[24..32].copy_from_slice(&self.capture_ns.to_le_bytes());
-        b[32..40].copy_from_slice(&self.offset.to_le_bytes());
-        b[40..48].copy_from_slice(&self.length.to_le_bytes());
+        self.fields().write(&mut b);
         b
+    }
+
+    fn fields(&self) -> FrameFields {
+        FrameFields {
+            version: self.version,
+            format: self.format,
+            width: self.width,
+            height: self.height,
+            frame_id: self.frame_id,
+            capture_ns: self.capture_ns,
+            offset: self.offset,
+            length: self.length,
+        }
     }
 
     /// Parses a header; `Err` names what is wrong (the frame id, if
     /// readable, is in the header's usual place).
     pub fn parse(b: &[u8; HEADER_LEN]) -> Result<Self, Malformed> {
-        let u16_at = |i: usize| u16::from_le_bytes([b[i], b[i + 1]]);
-        let u32_at = |i: usize| u32::from_le_bytes([b[i], b[i + 1], b[i + 2], b[i + 3]]);
-        let u64_at = |i: usize| {
-            let mut a = [0u8; 8];
-            a.copy_from_slice(&b[i..i + 8]);
-            u64::from_le_bytes(a)
-        };
-        if b[0..4] != FRAME_MAGIC {
-            return Err(Malformed(format!(
-                "bad magic {:?} (expected \"NEDF\")",
-                &b[0..4]
-            )));
-        }
-        let h = Self {
-            version: u16_at(4),
-            format: u16_at(6),
-            width: u32_at(8),
-            height: u32_at(12),
-            frame_id: u64_at(16),
-            capture_ns: u64_at(24),
-            offset: u64_at(32),
-            length: u64_at(40),
-        };
-        if h.version != VERSION {
-            return Err(Malformed(format!(
-                "protocol version {} on a version {VERSION} connection",
-                h.version
-            )));
-        }
-        Ok(h)
+        let f = FrameFields::read(b, VERSION)?;
+        Ok(Self {
+            version: f.version,
+            format: f.format,
+            width: f.width,
+            height: f.height,
+            frame_id: f.frame_id,
+            capture_ns: f.capture_ns,
+            offset: f.offset,
+            length: f.length,
+        })
     }
 
     /// The id field, readable even from a malformed header.
     pub fn id_of(b: &[u8; HEADER_LEN]) -> u64 {
-        let mut a = [0u8; 8];
-        a.copy_from_slice(&b[16..24]);
-        u64::from_le_bytes(a)
+        Le(b).u64(16)
     }
 }
 
@@ -261,12 +247,13 @@ impl Reply {
     /// between it and the message).
     pub(crate) fn head(&self) -> [u8; REPLY_LEN] {
         let mut b = [0u8; REPLY_LEN];
-        b[0..4].copy_from_slice(&REPLY_MAGIC);
-        b[4..8].copy_from_slice(&self.status.to_le_bytes());
-        b[8..16].copy_from_slice(&self.frame_id.to_le_bytes());
-        b[16..20].copy_from_slice(&self.panel_width.to_le_bytes());
-        b[20..24].copy_from_slice(&self.panel_height.to_le_bytes());
-        b[24..28].copy_from_slice(&(self.message.len() as u32).to_le_bytes());
+        let mut w = LeMut(&mut b);
+        w.bytes(0, &REPLY_MAGIC);
+        w.u32(4, self.status);
+        w.u64(8, self.frame_id);
+        w.u32(16, self.panel_width);
+        w.u32(20, self.panel_height);
+        w.u32(24, self.message.len() as u32);
         b
     }
 
@@ -277,18 +264,16 @@ impl Reply {
         if b[0..4] != REPLY_MAGIC {
             return Err(bad("reply with a bad magic"));
         }
-        let u32_at = |i: usize| u32::from_le_bytes([b[i], b[i + 1], b[i + 2], b[i + 3]]);
-        let mut id = [0u8; 8];
-        id.copy_from_slice(&b[8..16]);
-        let len = u32_at(24) as usize;
+        let r = Le(b);
+        let len = r.u32(24) as usize;
         if len > 64 * 1024 {
             return Err(bad("reply message over 64 KiB"));
         }
         let reply = Self {
-            status: u32_at(4),
-            frame_id: u64::from_le_bytes(id),
-            panel_width: u32_at(16),
-            panel_height: u32_at(20),
+            status: r.u32(4),
+            frame_id: r.u64(8),
+            panel_width: r.u32(16),
+            panel_height: r.u32(20),
             message: String::new(),
         };
         Ok((reply, len))

@@ -8,7 +8,8 @@
 
 use std::io::Read;
 
-use super::{FRAME_MAGIC, Malformed, REPLY_LEN, Reply};
+use super::codec::{FrameFields, Le, LeMut};
+use super::{Malformed, REPLY_LEN, Reply};
 use super::{PixelFormat, Placement};
 
 pub const VERSION_2: u16 = 2;
@@ -166,78 +167,56 @@ impl HeaderV2 {
 
     pub fn to_bytes(&self) -> [u8; HEADER_V2_LEN] {
         let mut b = [0u8; HEADER_V2_LEN];
-        b[0..4].copy_from_slice(&FRAME_MAGIC);
-        b[4..6].copy_from_slice(&VERSION_2.to_le_bytes());
-        b[6..8].copy_from_slice(&self.format.to_le_bytes());
-        b[8..12].copy_from_slice(&self.width.to_le_bytes());
-        b[12..16].copy_from_slice(&self.height.to_le_bytes());
-        b[16..24].copy_from_slice(&self.frame_id.to_le_bytes());
-        b[24..32].copy_from_slice(&self.capture_ns.to_le_bytes());
-        b[32..40].copy_from_slice(&self.offset.to_le_bytes());
-        b[40..48].copy_from_slice(&self.length.to_le_bytes());
-        b[49] = self.view;
-        let (kind, placement, layer, z, x, y) = match self.layer {
-            Layer::Projection => (0u8, 0u8, 0u32, 0i32, [0u8; 4], [0u8; 4]),
+        FrameFields {
+            version: VERSION_2,
+            format: self.format,
+            width: self.width,
+            height: self.height,
+            frame_id: self.frame_id,
+            capture_ns: self.capture_ns,
+            offset: self.offset,
+            length: self.length,
+        }
+        .write(&mut b);
+        let mut w = LeMut(&mut b);
+        w.bytes(49, &[self.view]);
+        let (kind, placement, layer, z) = match self.layer {
+            Layer::Projection => (0u8, 0u8, 0u32, 0i32),
             Layer::Quad {
                 layer,
                 z,
                 placement,
             } => match placement {
-                Placement::Pixels { x, y } => (
-                    1,
-                    0,
-                    layer,
-                    z,
-                    (x.clamp(i32::MIN.into(), i32::MAX.into()) as i32).to_le_bytes(),
-                    (y.clamp(i32::MIN.into(), i32::MAX.into()) as i32).to_le_bytes(),
-                ),
-                Placement::Degrees { x_deg, y_deg } => (
-                    1,
-                    1,
-                    layer,
-                    z,
-                    (x_deg as f32).to_le_bytes(),
-                    (y_deg as f32).to_le_bytes(),
-                ),
+                Placement::Pixels { x, y } => {
+                    w.i32(60, x.clamp(i32::MIN.into(), i32::MAX.into()) as i32);
+                    w.i32(64, y.clamp(i32::MIN.into(), i32::MAX.into()) as i32);
+                    (1, 0, layer, z)
+                }
+                Placement::Degrees { x_deg, y_deg } => {
+                    w.f32(60, x_deg as f32);
+                    w.f32(64, y_deg as f32);
+                    (1, 1, layer, z)
+                }
             },
-            Layer::Remove { layer } => (2, 0, layer, 0, [0; 4], [0; 4]),
+            Layer::Remove { layer } => (2, 0, layer, 0),
         };
-        b[48] = kind;
-        b[50] = placement;
-        b[52..56].copy_from_slice(&layer.to_le_bytes());
-        b[56..60].copy_from_slice(&z.to_le_bytes());
-        b[60..64].copy_from_slice(&x);
-        b[64..68].copy_from_slice(&y);
+        w.bytes(48, &[kind]);
+        w.bytes(50, &[placement]);
+        w.u32(52, layer);
+        w.i32(56, z);
         b
     }
 
     /// Parses a header; `Err` names what is wrong.
     pub fn parse(b: &[u8; HEADER_V2_LEN]) -> Result<Self, Malformed> {
-        let u16_at = |i: usize| u16::from_le_bytes([b[i], b[i + 1]]);
-        let u32_at = |i: usize| u32::from_le_bytes([b[i], b[i + 1], b[i + 2], b[i + 3]]);
-        let u64_at = |i: usize| {
-            let mut a = [0u8; 8];
-            a.copy_from_slice(&b[i..i + 8]);
-            u64::from_le_bytes(a)
-        };
-        if b[0..4] != FRAME_MAGIC {
-            return Err(Malformed(format!(
-                "bad magic {:?} (expected \"NEDF\")",
-                &b[0..4]
-            )));
-        }
-        if u16_at(4) != VERSION_2 {
-            return Err(Malformed(format!(
-                "protocol version {} on a version {VERSION_2} connection",
-                u16_at(4)
-            )));
-        }
-        if b[51] != 0 || u32_at(68) != 0 {
+        let f = FrameFields::read(b, VERSION_2)?;
+        let r = Le(b);
+        if b[51] != 0 || r.u32(68) != 0 {
             return Err(Malformed("reserved bytes 51 and 68–71 must be 0".into()));
         }
-        let (layer, z) = (u32_at(52), u32_at(56) as i32);
+        let (layer, z) = (r.u32(52), r.i32(56));
         let layer = match (b[48], b[50]) {
-            (0, 0) if layer == 0 && z == 0 && u64_at(60) == 0 => Layer::Projection,
+            (0, 0) if layer == 0 && z == 0 && r.u64(60) == 0 => Layer::Projection,
             (0, _) => {
                 return Err(Malformed(
                     "a projection layer has no placement, layer id or z (bytes 50, 52–67 must be 0)"
@@ -248,12 +227,12 @@ impl HeaderV2 {
                 layer,
                 z,
                 placement: Placement::Pixels {
-                    x: i64::from(u32_at(60) as i32),
-                    y: i64::from(u32_at(64) as i32),
+                    x: i64::from(r.i32(60)),
+                    y: i64::from(r.i32(64)),
                 },
             },
             (1, 1) => {
-                let (x_deg, y_deg) = (f32::from_bits(u32_at(60)), f32::from_bits(u32_at(64)));
+                let (x_deg, y_deg) = (r.f32(60), r.f32(64));
                 if !(x_deg.is_finite() && y_deg.is_finite()) {
                     return Err(Malformed(format!(
                         "placement ({x_deg}°, {y_deg}°) is not finite"
@@ -275,11 +254,11 @@ impl HeaderV2 {
             }
             (2, 0)
                 if z == 0
-                    && u64_at(60) == 0
-                    && u16_at(6) == 0
-                    && u64_at(8) == 0
-                    && u64_at(32) == 0
-                    && u64_at(40) == 0 =>
+                    && r.u64(60) == 0
+                    && f.format == 0
+                    && r.u64(8) == 0
+                    && f.offset == 0
+                    && f.length == 0 =>
             {
                 Layer::Remove { layer }
             }
@@ -296,13 +275,13 @@ impl HeaderV2 {
             }
         };
         Ok(Self {
-            format: u16_at(6),
-            width: u32_at(8),
-            height: u32_at(12),
-            frame_id: u64_at(16),
-            capture_ns: u64_at(24),
-            offset: u64_at(32),
-            length: u64_at(40),
+            format: f.format,
+            width: f.width,
+            height: f.height,
+            frame_id: f.frame_id,
+            capture_ns: f.capture_ns,
+            offset: f.offset,
+            length: f.length,
             view: b[49],
             layer,
         })
@@ -358,10 +337,12 @@ impl ReplyV2 {
         let msg = self.reply.message.as_bytes();
         let mut b = Vec::with_capacity(REPLY_V2_LEN + msg.len());
         b.extend_from_slice(&self.reply.head());
-        b.extend_from_slice(&self.predicted_display_ns.to_le_bytes());
-        b.extend_from_slice(&self.refresh_period_ns.to_le_bytes());
-        b.extend_from_slice(&self.views.to_le_bytes());
-        b.extend_from_slice(&[0, 0]);
+        let mut timing = [0u8; REPLY_V2_LEN - REPLY_LEN];
+        let mut w = LeMut(&mut timing);
+        w.u64(0, self.predicted_display_ns);
+        w.u64(8, self.refresh_period_ns);
+        w.u16(16, self.views);
+        b.extend_from_slice(&timing);
         b.extend_from_slice(msg);
         b
     }
@@ -383,17 +364,13 @@ impl ReplyV2 {
     ) -> std::io::Result<Self> {
         let mut t = [0u8; REPLY_V2_LEN - REPLY_LEN];
         r.read_exact(&mut t)?;
-        let u64_at = |i: usize| {
-            let mut a = [0u8; 8];
-            a.copy_from_slice(&t[i..i + 8]);
-            u64::from_le_bytes(a)
-        };
         reply.read_message(r, len)?;
+        let t = Le(&t);
         Ok(Self {
             reply,
-            predicted_display_ns: u64_at(0),
-            refresh_period_ns: u64_at(8),
-            views: u16::from_le_bytes([t[16], t[17]]),
+            predicted_display_ns: t.u64(0),
+            refresh_period_ns: t.u64(8),
+            views: t.u16(16),
         })
     }
 }
