@@ -121,7 +121,7 @@ impl Service {
     fn client(&self, shm_bytes: usize) -> Client {
         let (socket, shm) = (Self::socket(self.dir.path()), self.dir.path().join("shm"));
         bounded_client("the service's welcome (version 1)", move || {
-            Client::connect(&socket, &shm, shm_bytes as u64)
+            refused_at_first(|| Client::connect(&socket, &shm, shm_bytes as u64))
         })
     }
 
@@ -129,7 +129,7 @@ impl Service {
     fn client_v2(&self, shm_bytes: usize) -> Client {
         let (socket, shm) = (Self::socket(self.dir.path()), self.dir.path().join("shm"));
         bounded_client("the service's welcome (version 2)", move || {
-            Client::connect_v2(&socket, &shm, shm_bytes as u64)
+            refused_at_first(|| Client::connect_v2(&socket, &shm, shm_bytes as u64))
         })
     }
 
@@ -169,6 +169,24 @@ fn bounded_client(
         .set_write_timeout(Some(REPLY_WITHIN))
         .expect("a write timeout");
     client
+}
+
+/// `connect`, tried again while the service refuses it for up to a
+/// second: the socket's file appears when it is bound, a moment before the
+/// service listens on it, and a loaded machine once put a test's first
+/// connection in that moment (ECONNREFUSED).
+fn refused_at_first(
+    mut connect: impl FnMut() -> std::io::Result<Client>,
+) -> std::io::Result<Client> {
+    for _ in 0..100 {
+        match connect() {
+            Err(e) if e.kind() == std::io::ErrorKind::ConnectionRefused => {
+                std::thread::sleep(Duration::from_millis(10));
+            }
+            other => return other,
+        }
+    }
+    connect()
 }
 
 fn wait_until(what: &str, ok: impl FnMut() -> bool) {
