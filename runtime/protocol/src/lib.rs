@@ -19,7 +19,7 @@ use std::path::{Path, PathBuf};
 mod codec;
 pub mod v2;
 
-use codec::{FrameFields, Le, LeMut};
+use codec::{Le, LeMut};
 
 /// Pixel layouts the service takes. Values are display intensities, linear
 /// unless the format says otherwise (docs/model.md §1: the D-CNN works on
@@ -187,36 +187,58 @@ impl FrameHeader {
 
     pub fn to_bytes(&self) -> [u8; HEADER_LEN] {
         let mut b = [0u8; HEADER_LEN];
-        self.fields().write(&mut b);
+        self.write(&mut b);
         b
-    }
-
-    fn fields(&self) -> FrameFields {
-        FrameFields {
-            version: self.version,
-            format: self.format,
-            width: self.width,
-            height: self.height,
-            frame_id: self.frame_id,
-            capture_ns: self.capture_ns,
-            offset: self.offset,
-            length: self.length,
-        }
     }
 
     /// Parses a header; `Err` names what is wrong (the frame id, if
     /// readable, is in the header's usual place).
     pub fn parse(b: &[u8; HEADER_LEN]) -> Result<Self, Malformed> {
-        let f = FrameFields::read(b, VERSION)?;
+        Self::read(b, VERSION)
+    }
+
+    /// Writes the header into bytes 0–47 of `b`: the magic, the version,
+    /// the payload's format and size, the frame's id and capture time, and
+    /// where the payload lies in the shared memory (a version 2 header
+    /// begins with the same fields).
+    pub(crate) fn write(&self, b: &mut [u8]) {
+        let mut w = LeMut(b);
+        w.bytes(0, &FRAME_MAGIC);
+        w.u16(4, self.version);
+        w.u16(6, self.format);
+        w.u32(8, self.width);
+        w.u32(12, self.height);
+        w.u64(16, self.frame_id);
+        w.u64(24, self.capture_ns);
+        w.u64(32, self.offset);
+        w.u64(40, self.length);
+    }
+
+    /// The header in bytes 0–47 of `b`, which must carry the frame magic
+    /// and `version`.
+    pub(crate) fn read(b: &[u8], version: u16) -> Result<Self, Malformed> {
+        if b[0..4] != FRAME_MAGIC {
+            return Err(Malformed(format!(
+                "bad magic {:?} (expected \"NEDF\")",
+                &b[0..4]
+            )));
+        }
+        let r = Le(b);
+        if r.u16(4) != version {
+            return Err(Malformed(format!(
+                "protocol version {} on a version {version} connection",
+                r.u16(4)
+            )));
+        }
         Ok(Self {
-            version: f.version,
-            format: f.format,
-            width: f.width,
-            height: f.height,
-            frame_id: f.frame_id,
-            capture_ns: f.capture_ns,
-            offset: f.offset,
-            length: f.length,
+            version,
+            format: r.u16(6),
+            width: r.u32(8),
+            height: r.u32(12),
+            frame_id: r.u64(16),
+            capture_ns: r.u64(24),
+            offset: r.u64(32),
+            length: r.u64(40),
         })
     }
 

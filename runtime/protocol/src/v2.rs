@@ -8,8 +8,8 @@
 
 use std::io::Read;
 
-use super::codec::{FrameFields, Le, LeMut};
-use super::{Malformed, REPLY_LEN, Reply};
+use super::codec::{Le, LeMut};
+use super::{FrameHeader, Malformed, REPLY_LEN, Reply};
 use super::{PixelFormat, Placement};
 
 pub const VERSION_2: u16 = 2;
@@ -167,7 +167,7 @@ impl HeaderV2 {
 
     pub fn to_bytes(&self) -> [u8; HEADER_V2_LEN] {
         let mut b = [0u8; HEADER_V2_LEN];
-        FrameFields {
+        FrameHeader {
             version: VERSION_2,
             format: self.format,
             width: self.width,
@@ -209,7 +209,7 @@ impl HeaderV2 {
 
     /// Parses a header; `Err` names what is wrong.
     pub fn parse(b: &[u8; HEADER_V2_LEN]) -> Result<Self, Malformed> {
-        let f = FrameFields::read(b, VERSION_2)?;
+        let f = FrameHeader::read(b, VERSION_2)?;
         let r = Le(b);
         if b[51] != 0 || r.u32(68) != 0 {
             return Err(Malformed("reserved bytes 51 and 68–71 must be 0".into()));
