@@ -208,7 +208,8 @@ impl Service {
             .collect();
         let size = (panel.width, panel.height);
         let layers = |v: usize| slots[v].layers.clone();
-        let gate = Arc::new(PresentGate::new(Pacer::period_ns_of(panel.refresh_hz)));
+        let period_ns = Pacer::period_ns_of(panel.refresh_hz);
+        let gate = Arc::new(PresentGate::new(period_ns));
         let (intake, mut engine, path) = match engines {
             Engines::Host(stages) => {
                 let intake = (0..n)
@@ -239,10 +240,7 @@ impl Service {
                     .enumerate()
                     .map(|(v, prep)| {
                         let uptake = match prep {
-                            Some(prep) => Uptake::Prepared {
-                                prep,
-                                failed_over: false,
-                            },
+                            Some(prep) => Uptake::Prepared(prep),
                             None => {
                                 // Blended on the device after the unpack.
                                 frames.attach_layers(v, layers(v));
@@ -338,10 +336,7 @@ impl Service {
                     drained_flag.store(true, Ordering::SeqCst);
                 })?,
         );
-        let schedule = Arc::new(DisplaySchedule::new(
-            Pacer::period_ns_of(panel.refresh_hz),
-            clock.now_ns(),
-        ));
+        let schedule = Arc::new(DisplaySchedule::new(period_ns, clock.now_ns()));
         let compositor = Compositor {
             schedule: schedule.clone(),
             tx: ingest_tx,

@@ -98,8 +98,16 @@ fn run_one_by_one_with(
     frames: &[SubmittedFrame],
     before: impl Fn(usize, &Compositor) + Send + 'static,
 ) -> (Vec<DisplayFrame>, crate::pipeline::stats::Report) {
-    let mut service =
-        Service::start(panel(), Engines::host(dcnn), Arc::new(SystemClock)).expect("start");
+    run_engines_one_by_one(Engines::host(dcnn), frames, before)
+}
+
+/// As [`run_one_by_one_with`], on any engines.
+fn run_engines_one_by_one(
+    engines: Engines,
+    frames: &[SubmittedFrame],
+    before: impl Fn(usize, &Compositor) + Send + 'static,
+) -> (Vec<DisplayFrame>, crate::pipeline::stats::Report) {
+    let mut service = Service::start(panel(), engines, Arc::new(SystemClock)).expect("start");
     let compositor = service.compositor().expect("open");
     service.close_ingest();
     let feeder = {
@@ -657,6 +665,33 @@ mod needs_gpu {
             .expect("preprocess traffic");
         assert_eq!(up.total.read_backs, 0);
         assert!(up.total.to_device_bytes >= 4 * 16, "{up:?}");
+    }
+
+    #[test]
+    #[ignore = "needs a GPU adapter (run: scripts/test.sh, or cargo test -- --include-ignored)"]
+    fn a_host_stage_that_fails_is_switched_off_and_frames_go_up_decoded() {
+        let (device, queue) = nedrt_gpu::test_device(false);
+        let frames =
+            DeviceFrames::single(&device, &queue, (4, 2), &panel().transfer, None).expect("frames");
+        // Inverts one frame, then fails as an engine.
+        let prep = HostPrep(Box::new(Failing { ok: 1 }));
+        let engines = Engines::Device(Box::new(DeviceEngines::single(frames, Some(prep), None)));
+        let (shown, report) = run_engines_one_by_one(
+            engines,
+            &[grey(1, 51), grey(2, 102), grey(3, 153)],
+            |_, _| {},
+        );
+        let codes: Vec<u8> = shown.iter().map(|f| f.rgba8[0]).collect();
+        // The first through the host stage (inverted), the rest as decoded.
+        assert_eq!(codes, [204, 102, 153]);
+        assert_eq!((report.presented, report.dcnn_failures), (3, 1));
+        assert!(
+            report
+                .frame_path
+                .starts_with("device, without its host stage (failing test backend failed)"),
+            "{}",
+            report.frame_path
+        );
     }
 
     #[test]

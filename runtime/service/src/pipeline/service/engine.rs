@@ -48,12 +48,14 @@ impl DeviceGate {
     /// never holds the work up for long).
     /// A frame predicted for the refresh that present is for is what the
     /// present waits for: it is never held.
-    fn yield_to_present(&self, predicted_ns: u64, period_ns: u64, stats: &Stats) {
+    fn yield_to_present(&self, predicted_ns: u64, stats: &Stats) {
         let t0 = self.clock.now_ns();
         if let Slot::AfterPresent(vsync) = self.gate.slot(t0, self.work.bound_ns(), predicted_ns) {
             let _span = tracing::info_span!("yield to present").entered();
-            self.gate
-                .wait(vsync, std::time::Duration::from_nanos(2 * period_ns));
+            self.gate.wait(
+                vsync,
+                std::time::Duration::from_nanos(2 * self.gate.period_ns()),
+            );
             stats.record(
                 Stage::YieldToPresent,
                 self.clock.now_ns().saturating_sub(t0),
@@ -91,7 +93,7 @@ impl Engine {
             gate,
         } = self
         {
-            gate.yield_to_present(predicted_ns, gate.gate.period_ns(), stats);
+            gate.yield_to_present(predicted_ns, stats);
             let t0 = gate.clock.now_ns();
             let ran = frames.run(id, &frames_in);
             gate.work.observe(gate.clock.now_ns().saturating_sub(t0));

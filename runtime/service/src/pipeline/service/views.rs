@@ -47,8 +47,8 @@ pub(super) enum Uptake {
     /// As the client sent it (the device unpacks and blends).
     AsSent,
     /// Decoded, blended and through host work before the device; if that
-    /// work fails, decoded only from then on.
-    Prepared { prep: HostPrep, failed_over: bool },
+    /// work fails, [`Uptake::Decode`] from then on.
+    Prepared(HostPrep),
 }
 
 #[derive(Debug)]
@@ -126,20 +126,13 @@ impl Intake {
                 stats.failed.fetch_add(1, Relaxed);
                 return None;
             };
-            let content = match &mut intake.uptake {
+            let content = match intake.uptake {
                 Uptake::AsSent => ViewContent::Client(Arc::new(part)),
-                Uptake::Decode => {
+                Uptake::Decode | Uptake::Prepared(_) => {
                     let (im, b) = decoded_with_layers(&part, &intake.layers, v);
                     blended |= b;
-                    ViewContent::Planar(Arc::new(im))
-                }
-                Uptake::Prepared { prep, failed_over } => {
-                    let (im, b) = decoded_with_layers(&part, &intake.layers, v);
-                    blended |= b;
-                    let out = if *failed_over {
-                        im
-                    } else {
-                        match prep.0.run(&im) {
+                    let out = match &mut intake.uptake {
+                        Uptake::Prepared(prep) => match prep.0.run(&im) {
                             Ok(out) => out,
                             Err(PreprocessError::Frame(e)) => {
                                 tracing::error!("{} refused frame {id}: {e}", prep.name());
@@ -154,10 +147,11 @@ impl Intake {
                                 stats.dcnn_failures.fetch_add(1, Relaxed);
                                 *stats.frame_path.lock().unwrap_or_else(|p| p.into_inner()) =
                                     format!("device, without its host stage ({name} failed)");
-                                *failed_over = true;
+                                intake.uptake = Uptake::Decode;
                                 im
                             }
-                        }
+                        },
+                        _ => im,
                     };
                     ViewContent::Planar(Arc::new(out))
                 }
