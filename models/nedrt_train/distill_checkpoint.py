@@ -27,7 +27,6 @@ the new card does not name are removed after it.
 import dataclasses
 import hashlib
 import json
-import os
 import random
 import time
 from dataclasses import dataclass
@@ -35,6 +34,7 @@ from pathlib import Path
 
 import torch
 
+from .atomic import atomic_write
 from .distill_config import DistillConfig
 from .distill_step import STEP_VERSION
 
@@ -271,15 +271,6 @@ def write(folder: Path, net, opt, moments: str, card: dict) -> dict:
         if old.name != name:
             old.unlink()
     return card
-
-
-def atomic_write(path: Path, data: bytes):
-    tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "wb") as f:
-        f.write(data)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
 
 
 def restore(start: Start, net, opt, data) -> str:

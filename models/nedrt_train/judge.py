@@ -28,6 +28,8 @@ import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
+from .atomic import atomic_write, write_beside
+
 #: The headline numbers the rule looks at, as (eval.json key, row name).
 HEADLINES = (("headline_vs_target", "mean", "mean vs target"), ("headline_vs_target", "worst", "worst vs target"),
              ("headline_vs_sharp", "mean", "mean vs sharp"), ("headline_vs_sharp", "worst", "worst vs sharp"))
@@ -119,19 +121,6 @@ def append_log(log: Path, text: str):
     atomic_write(log, (old.rstrip("\n") + "\n\n" + text).encode())
 
 
-def atomic_write(path: Path, data: bytes):
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
 def card_of(model: Path) -> dict:
     """The model's card (`NAME.card.json` beside `NAME.onnx`)."""
     path = model.with_suffix(".card.json")
@@ -175,12 +164,7 @@ def ship(candidate: Path, card: dict, repo: Path, models: Path):
     staged = []
     try:
         for name, data in files.items():
-            fd, tmp = tempfile.mkstemp(dir=models, prefix=f".{name}.")
-            with os.fdopen(fd, "wb") as f:
-                f.write(data)
-                f.flush()
-                os.fsync(f.fileno())
-            staged.append((Path(tmp), models / name))
+            staged.append((write_beside(models / name, data), models / name))
     except BaseException:
         for tmp, _ in staged:
             tmp.unlink(missing_ok=True)
