@@ -61,7 +61,7 @@ def bodies(r: Runner, z: dict, steps: dict, device: str) -> dict:
         "torch": (lambda s: step_torch(r, s, z), []),
         "fft": (lambda s: step_fft(r, s, z, ceilings), setup),
         "pipeline": (lambda s: step_pipeline(r, s, z), setup),
-        "teacher": (lambda s: step_teacher(r, s, z, device), setup),
+        "teacher": (lambda s: step_teacher(r, s, z), setup),
         "train": (lambda s: step_train(r, s, z, device), [steps.get("teacher") or Step("teacher", "", 0)]),
         "export": (lambda s: step_export(r, s, z), [steps.get("train") or Step("train", "", 0)]),
         "tradeoff": (lambda s: step_tradeoff(r, s, z), setup),

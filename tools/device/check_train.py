@@ -18,7 +18,7 @@ CHECKPOINT = REPO / "models" / "checkpoints" / "dcnn-full"
 RETURNED = "checkpoint"
 
 
-def step_teacher(r: Runner, s: Step, z: dict, device: str):
+def step_teacher(r: Runner, s: Step, z: dict):
     """The teacher folders of docs/training.md (the v10 recipe) under the
     work folder; in smoke, of a tiny image set cut from the training photos.
     The training photographs' optimum, the set the training distils, is
