@@ -349,6 +349,9 @@ pub struct Client {
     /// Version 2: where each view lies on the panel (x, y, width, height),
     /// from the welcome.
     pub views: Vec<[usize; 4]>,
+    /// Version 2: the eyepiece's pixels per unit of tan(angle), from the
+    /// welcome (`None` from a service that does not say).
+    pub pixels_per_tan: Option<f64>,
 }
 
 impl Client {
@@ -423,6 +426,7 @@ impl Client {
             shm_size,
             panel: (welcome.panel_width as usize, welcome.panel_height as usize),
             views: v2::view_regions(&welcome.message),
+            pixels_per_tan: v2::pixels_per_tan(&welcome.message),
             version,
             timing,
         })

@@ -288,15 +288,31 @@ impl HeaderV2 {
     }
 }
 
-/// The welcome's message: the panel and where each view lies on it,
-/// `panel 64×48; view 0 at 0,0 32×48; view 1 at 32,0 32×48` (read back by
-/// [`view_regions`]).
-pub fn welcome_message((w, h): (usize, usize), regions: &[[usize; 4]]) -> String {
+/// The welcome's message: the panel, where each view lies on it, and the
+/// eyepiece's pixels per unit of tan(angle) (a pixel subtends pitch over
+/// the lens distance, so an OpenXR runtime can give each view its field of
+/// view), `panel 64×48; view 0 at 0,0 32×48; view 1 at 32,0 32×48; pixels
+/// per tan 3283.908` (read back by [`view_regions`] and [`pixels_per_tan`]).
+pub fn welcome_message(
+    (w, h): (usize, usize),
+    regions: &[[usize; 4]],
+    pixels_per_tan: f64,
+) -> String {
     let mut s = format!("panel {w}×{h}");
     for (v, [x, y, vw, vh]) in regions.iter().enumerate() {
         s += &format!("; view {v} at {x},{y} {vw}×{vh}");
     }
-    s
+    s + &format!("; pixels per tan {pixels_per_tan:.3}")
+}
+
+/// The eyepiece's pixels per unit of tan(angle) of a welcome's message
+/// ([`welcome_message`]); `None` from a service that does not say (older,
+/// or a positive finite number is not there).
+pub fn pixels_per_tan(message: &str) -> Option<f64> {
+    message
+        .split("; ")
+        .find_map(|part| part.strip_prefix("pixels per tan ")?.parse::<f64>().ok())
+        .filter(|p| p.is_finite() && *p > 0.0)
 }
 
 /// The views of a welcome's message ([`welcome_message`]): x, y, width,
@@ -443,10 +459,18 @@ mod tests {
     #[test]
     fn the_welcome_names_each_view_and_reads_back() {
         let regions = [[0, 0, 32, 48], [32, 0, 32, 48]];
-        let m = welcome_message((64, 48), &regions);
-        assert_eq!(m, "panel 64×48; view 0 at 0,0 32×48; view 1 at 32,0 32×48");
+        let m = welcome_message((64, 48), &regions, 3283.9080459);
+        assert_eq!(
+            m,
+            "panel 64×48; view 0 at 0,0 32×48; view 1 at 32,0 32×48; pixels per tan 3283.908"
+        );
         assert_eq!(view_regions(&m), regions.to_vec());
+        assert_eq!(pixels_per_tan(&m), Some(3283.908));
         assert!(view_regions("panel 64×48").is_empty());
+        // An older service's welcome, or a value that is no geometry.
+        assert_eq!(pixels_per_tan("panel 64×48; view 0 at 0,0 64×48"), None);
+        assert_eq!(pixels_per_tan("panel 1×1; pixels per tan -2"), None);
+        assert_eq!(pixels_per_tan("panel 1×1; pixels per tan NaN"), None);
     }
 
     #[test]

@@ -288,7 +288,12 @@ pub(super) fn serve(
     let regions: Vec<[usize; 4]> = (0..views)
         .map(|v| compositor.view_region(v as u8).unwrap_or([0, 0, w, h]))
         .collect();
-    reply(stream, STATUS_OK, 0, welcome_message((w, h), &regions))?;
+    reply(
+        stream,
+        STATUS_OK,
+        0,
+        welcome_message((w, h), &regions, compositor.view().pixels_per_tan),
+    )?;
     loop {
         let mut header = [0u8; HEADER_V2_LEN];
         match read_full(stream, &mut header, stop)? {

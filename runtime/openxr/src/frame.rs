@@ -1,0 +1,392 @@
+//! The frame loop (§10.4): `xrWaitFrame` paces the application on the
+//! service's refresh, `xrEndFrame` sends its layers to the service.
+
+use nedrt_protocol::{PixelFormat, Placement};
+use openxr_sys as xr;
+
+use crate::ffi::{XrResult, expect_type, guard, non_null, non_null_mut, now_ns};
+use crate::link::{LinkError, SystemInfo, Timing};
+use crate::pixels::{self, QuadAlpha};
+use crate::session::{SessionInner, session_and_instance};
+use crate::space::Pose;
+use crate::state::{lock, registry};
+use crate::swapchain::{check_sub_image, read_released};
+
+/// The most layers a frame may have (XrSystemGraphicsProperties).
+pub const MAX_LAYERS: u32 = 16;
+
+/// The refresh a frame started now is shown at, and when to start it.
+///
+/// The service's last reply predicted `timing.predicted_display_ns` for a
+/// frame submitted when the reply was received (`received_ns`): the
+/// application is given the next refresh on the service's grid that it
+/// can still make with the same lead, and never the same refresh twice.
+/// It starts its frame that lead before the refresh.
+pub fn next_frame(timing: Timing, received_ns: i64, now: i64, last_predicted: i64) -> (i64, i64) {
+    let period = timing.period_ns.max(1);
+    let lead = (timing.predicted_display_ns - received_ns).max(0);
+    // The first refresh on the grid at or after `now + lead`.
+    let earliest = now + lead;
+    let behind = (earliest - timing.predicted_display_ns).max(0);
+    let steps = (behind + period - 1) / period;
+    let mut predicted = timing.predicted_display_ns + steps * period;
+    if predicted <= last_predicted {
+        let behind = (last_predicted - predicted) / period + 1;
+        predicted += behind * period;
+    }
+    (predicted, predicted - lead)
+}
+
+fn sleep_until(t: i64) {
+    let now = now_ns();
+    if t > now {
+        std::thread::sleep(std::time::Duration::from_nanos((t - now) as u64));
+    }
+}
+
+pub unsafe extern "system" fn wait_frame(
+    session: xr::Session,
+    info: *const xr::FrameWaitInfo,
+    state: *mut xr::FrameState,
+) -> xr::Result {
+    guard("xrWaitFrame", || {
+        let state = non_null_mut(state)?;
+        if !info.is_null() {
+            // SAFETY: non-null, from the application.
+            expect_type(unsafe { (*info).ty }, xr::StructureType::FRAME_WAIT_INFO)?;
+        }
+        // SAFETY: non-null; the application initialised its type.
+        let state = unsafe { &mut *state };
+        expect_type(state.ty, xr::StructureType::FRAME_STATE)?;
+        let (s, inst) = session_and_instance(session)?;
+        // One waiter at a time; the session itself stays unlocked while
+        // this one sleeps, so other threads' calls go on.
+        let _one = lock(&s.wait_lock);
+        let (predicted, wake, period) = {
+            let mut inner = lock(&s.inner);
+            inner.check_running()?;
+            if let Some(link) = inner.link.as_mut()
+                && let Err(e) = link.alive()
+            {
+                inner.lose(&inst, s.handle, &e);
+                return Err(xr::Result::ERROR_SESSION_LOST);
+            }
+            let (timing, received) = inner
+                .link
+                .as_ref()
+                .and_then(|l| l.timing().map(|t| (t, l.received_ns())))
+                .ok_or(xr::Result::ERROR_SESSION_LOST)?;
+            let (p, w) = next_frame(timing, received, now_ns(), inner.frame.last_predicted);
+            inner.frame.last_predicted = p;
+            (p, w, timing.period_ns)
+        };
+        sleep_until(wake);
+        let mut inner = lock(&s.inner);
+        inner.check_running()?;
+        inner.frame.waited += 1;
+        inner.advance(&inst, s.handle);
+        state.predicted_display_time = xr::Time::from_nanos(predicted);
+        state.predicted_display_period = xr::Duration::from_nanos(period);
+        state.should_render = matches!(
+            inner.state,
+            xr::SessionState::VISIBLE | xr::SessionState::FOCUSED
+        )
+        .into();
+        Ok(xr::Result::SUCCESS)
+    })
+}
+
+pub unsafe extern "system" fn begin_frame(
+    session: xr::Session,
+    info: *const xr::FrameBeginInfo,
+) -> xr::Result {
+    guard("xrBeginFrame", || {
+        if !info.is_null() {
+            // SAFETY: non-null, from the application.
+            expect_type(unsafe { (*info).ty }, xr::StructureType::FRAME_BEGIN_INFO)?;
+        }
+        let (s, _) = session_and_instance(session)?;
+        let mut inner = lock(&s.inner);
+        inner.check_running()?;
+        if inner.frame.waited == 0 {
+            return Err(xr::Result::ERROR_CALL_ORDER_INVALID);
+        }
+        inner.frame.waited -= 1;
+        inner.frame.begun_ns = now_ns();
+        if inner.frame.begun {
+            // The previous frame began and never ended: it is discarded.
+            return Ok(xr::Result::FRAME_DISCARDED);
+        }
+        inner.frame.begun = true;
+        Ok(xr::Result::SUCCESS)
+    })
+}
+
+/// A layer of the frame, checked and read.
+enum Submitted {
+    Projection(Vec<(xr::SwapchainSubImage, std::sync::Arc<crate::state::Swapchain>)>),
+    Quad {
+        layer: xr::CompositionLayerQuad,
+        sc: std::sync::Arc<crate::state::Swapchain>,
+    },
+}
+
+/// §10.5's checks of one layer.
+///
+/// # Safety
+/// `layer` must point at a layer structure of the type it names.
+unsafe fn check_layer(layer: *const xr::CompositionLayerBaseHeader, views: usize) -> XrResult<Submitted> {
+    let layer = non_null(layer).map_err(|_| xr::Result::ERROR_LAYER_INVALID)?;
+    // SAFETY: non-null, from the application.
+    let base = unsafe { &*layer };
+    registry().space(base.space)?;
+    match base.ty {
+        xr::StructureType::COMPOSITION_LAYER_PROJECTION => {
+            // SAFETY: the type names the structure.
+            let p = unsafe { &*layer.cast::<xr::CompositionLayerProjection>() };
+            if p.view_count as usize != views || p.views.is_null() {
+                return Err(xr::Result::ERROR_VALIDATION_FAILURE);
+            }
+            let mut out = Vec::new();
+            for v in 0..views {
+                // SAFETY: view_count elements (checked above).
+                let pv = unsafe { &*p.views.add(v) };
+                expect_type(pv.ty, xr::StructureType::COMPOSITION_LAYER_PROJECTION_VIEW)?;
+                out.push((pv.sub_image, check_sub_image(&pv.sub_image)?));
+            }
+            Ok(Submitted::Projection(out))
+        }
+        xr::StructureType::COMPOSITION_LAYER_QUAD => {
+            // SAFETY: the type names the structure.
+            let q = unsafe { *layer.cast::<xr::CompositionLayerQuad>() };
+            Pose::from_xr(&q.pose)?;
+            if !(q.size.width > 0.0 && q.size.height > 0.0) {
+                return Err(xr::Result::ERROR_VALIDATION_FAILURE);
+            }
+            let sc = check_sub_image(&q.sub_image)?;
+            Ok(Submitted::Quad { layer: q, sc })
+        }
+        _ => Err(xr::Result::ERROR_LAYER_INVALID),
+    }
+}
+
+pub unsafe extern "system" fn end_frame(
+    session: xr::Session,
+    info: *const xr::FrameEndInfo,
+) -> xr::Result {
+    guard("xrEndFrame", || {
+        let info = non_null(info)?;
+        // SAFETY: non-null, from the application.
+        let info = unsafe { &*info };
+        expect_type(info.ty, xr::StructureType::FRAME_END_INFO)?;
+        let (s, inst) = session_and_instance(session)?;
+        let views = {
+            let inner = lock(&s.inner);
+            inner.check_running()?;
+            if !inner.frame.begun {
+                return Err(xr::Result::ERROR_CALL_ORDER_INVALID);
+            }
+            inner.info.views.len()
+        };
+        if info.display_time.as_nanos() <= 0 {
+            return Err(xr::Result::ERROR_TIME_INVALID);
+        }
+        if info.environment_blend_mode != xr::EnvironmentBlendMode::OPAQUE {
+            return Err(xr::Result::ERROR_ENVIRONMENT_BLEND_MODE_UNSUPPORTED);
+        }
+        if info.layer_count > MAX_LAYERS {
+            return Err(xr::Result::ERROR_LAYER_LIMIT_EXCEEDED);
+        }
+        if info.layer_count > 0 && info.layers.is_null() {
+            return Err(xr::Result::ERROR_LAYER_INVALID);
+        }
+        let mut layers = Vec::new();
+        for i in 0..info.layer_count as usize {
+            // SAFETY: layer_count pointers (checked non-null above).
+            let l = unsafe { *info.layers.add(i) };
+            // SAFETY: the application's layer, of the type it names.
+            layers.push(unsafe { check_layer(l, views) }?);
+        }
+        let mut inner = lock(&s.inner);
+        inner.frame.begun = false;
+        inner.frame.frames_ended += 1;
+        let time = info.display_time.as_nanos();
+        if let Err(e) = compose(&mut inner, &layers, time) {
+            match e {
+                Failure::Xr(r) => return Err(r),
+                Failure::Link(e) => {
+                    inner.lose(&inst, s.handle, &e);
+                    return Err(xr::Result::ERROR_SESSION_LOST);
+                }
+            }
+        }
+        inner.advance(&inst, s.handle);
+        Ok(xr::Result::SUCCESS)
+    })
+}
+
+enum Failure {
+    Xr(xr::Result),
+    Link(LinkError),
+}
+
+impl From<xr::Result> for Failure {
+    fn from(r: xr::Result) -> Self {
+        Self::Xr(r)
+    }
+}
+
+impl From<LinkError> for Failure {
+    fn from(e: LinkError) -> Self {
+        Self::Link(e)
+    }
+}
+
+/// Reads each layer's released image and sends it to the service: each
+/// view's projection, and the quads over the views they are visible to
+/// (the layer's index is its id and its height).
+fn compose(
+    inner: &mut SessionInner,
+    layers: &[Submitted],
+    time: i64,
+) -> Result<(), Failure> {
+    let capture = u64::try_from(inner.frame.begun_ns).unwrap_or(0);
+    let info = inner.info.clone();
+    let mut quads_now = vec![std::collections::BTreeSet::new(); info.views.len()];
+    for (index, layer) in layers.iter().enumerate() {
+        match layer {
+            Submitted::Projection(views) => {
+                for (v, (sub, sc)) in views.iter().enumerate() {
+                    let (texels, size, srgb) =
+                        read_released(sc, sub.image_rect, sub.image_array_index)?;
+                    let target = info.view_size(v);
+                    let rgba = pixels::projection_rgba8(&texels, size, target);
+                    let format = if srgb {
+                        PixelFormat::Rgba8Srgb
+                    } else {
+                        PixelFormat::Rgba8Linear
+                    };
+                    let link = inner.link.as_mut().ok_or(xr::Result::ERROR_SESSION_LOST)?;
+                    link.projection(v as u8, format, target, &rgba, capture)?;
+                }
+            }
+            Submitted::Quad { layer, sc } => {
+                let id = index as u32;
+                let (texels, size, srgb) =
+                    read_released(sc, layer.sub_image.image_rect, layer.sub_image.image_array_index)?;
+                let alpha = QuadAlpha {
+                    blend: layer
+                        .layer_flags
+                        .contains(xr::CompositionLayerFlags::BLEND_TEXTURE_SOURCE_ALPHA),
+                    unpremultiplied: layer
+                        .layer_flags
+                        .contains(xr::CompositionLayerFlags::UNPREMULTIPLIED_ALPHA),
+                };
+                for v in visible_views(layer.eye_visibility, info.views.len()) {
+                    let Some((placement, px)) = place_quad(inner, &info, layer, v, time)
+                    else {
+                        log_warn!("quad layer {id} is behind the eye of view {v}: not shown there");
+                        continue;
+                    };
+                    let rgba = pixels::quad_rgba(&texels, srgb, alpha, size, px);
+                    let link = inner.link.as_mut().ok_or(xr::Result::ERROR_SESSION_LOST)?;
+                    link.quad(v as u8, id, id as i32, placement, px, &rgba)?;
+                    quads_now[v].insert(id);
+                }
+            }
+        }
+    }
+    for v in 0..info.views.len() {
+        let gone: Vec<u32> = inner.quads[v].difference(&quads_now[v]).copied().collect();
+        for id in gone {
+            let link = inner.link.as_mut().ok_or(xr::Result::ERROR_SESSION_LOST)?;
+            link.remove_quad(v as u8, id)?;
+        }
+    }
+    inner.quads = quads_now;
+    Ok(())
+}
+
+fn visible_views(eye: xr::EyeVisibility, views: usize) -> Vec<usize> {
+    match eye {
+        xr::EyeVisibility::LEFT => vec![0],
+        xr::EyeVisibility::RIGHT if views == 2 => vec![1],
+        xr::EyeVisibility::RIGHT => vec![],
+        _ => (0..views).collect(),
+    }
+}
+
+/// Where a quad lands on view `v`: the centre of its projected corners as
+/// a direction from the view's centre, and the panel pixels its bounding
+/// box covers. The service draws a quad upright, texel rows along the
+/// panel's rows: a quad turned away from the eye is drawn at its bounding
+/// box (docs/openxr.md).
+fn place_quad(
+    inner: &SessionInner,
+    info: &SystemInfo,
+    q: &xr::CompositionLayerQuad,
+    v: usize,
+    time: i64,
+) -> Option<(Placement, (usize, usize))> {
+    let space = registry().space(q.space).ok()?;
+    // The session's lock is held by the caller: locate with its poses.
+    let base = crate::space::in_local(inner.poses.as_ref(), space.kind, space.pose_in_parent, time)?;
+    let eye = inner.poses.head(time).then(if info.views.len() == 2 {
+        inner.poses.eyes()[v]
+    } else {
+        Pose::IDENTITY
+    });
+    let quad = base.then(Pose::from_xr(&q.pose).ok()?);
+    let to_eye = eye.inverse().then(quad);
+    let (hw, hh) = (q.size.width / 2.0, q.size.height / 2.0);
+    let ppt = info.pixels_per_tan as f32;
+    let mut xs = Vec::new();
+    let mut ys = Vec::new();
+    for (cx, cy) in [(-hw, -hh), (hw, -hh), (hw, hh), (-hw, hh)] {
+        let p = to_eye.apply(glam::Vec3::new(cx, cy, 0.0));
+        if p.z >= -1e-4 {
+            return None;
+        }
+        // Tangents times pixels per tangent: panel pixels from the
+        // view's centre, y up.
+        xs.push(p.x / -p.z * ppt);
+        ys.push(p.y / -p.z * ppt);
+    }
+    let (min_x, max_x) = xs.iter().fold((f32::MAX, f32::MIN), |(a, b), &x| (a.min(x), b.max(x)));
+    let (min_y, max_y) = ys.iter().fold((f32::MAX, f32::MIN), |(a, b), &y| (a.min(y), b.max(y)));
+    let w = (max_x - min_x).round().max(1.0) as usize;
+    let h = (max_y - min_y).round().max(1.0) as usize;
+    let cx = (min_x + max_x) / 2.0 / ppt;
+    let cy = (min_y + max_y) / 2.0 / ppt;
+    let placement = Placement::Degrees {
+        x_deg: f64::from(cx.atan().to_degrees()),
+        y_deg: f64::from(cy.atan().to_degrees()),
+    };
+    Some((placement, (w, h)))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const P: i64 = 11_111_111;
+
+    #[test]
+    fn a_frame_is_predicted_on_the_service_grid_with_the_service_lead() {
+        let t = Timing {
+            predicted_display_ns: 100 * P,
+            period_ns: P,
+        };
+        // Received half a period before the prediction: the lead is half
+        // a period. Asked at once: the service's own prediction.
+        let received = 100 * P - P / 2;
+        assert_eq!(next_frame(t, received, received, 0), (100 * P, 100 * P - P / 2));
+        // Asked a period and a bit later: the next refresh it can make.
+        let (p, wake) = next_frame(t, received, received + P + 1, 0);
+        assert_eq!(p, 102 * P);
+        assert_eq!(wake, p - P / 2);
+        // Never the same refresh twice.
+        assert_eq!(next_frame(t, received, received, 100 * P).0, 101 * P);
+        assert_eq!(next_frame(t, received, received, 103 * P).0, 104 * P);
+    }
+}

@@ -1,0 +1,517 @@
+//! Sessions, their state machine (§9.3), spaces and views.
+
+use std::collections::BTreeSet;
+use std::sync::{Arc, Mutex};
+
+use ash::vk;
+use ash::vk::Handle;
+use openxr_sys as xr;
+use openxr_sys::Handle as _;
+
+use crate::ffi::{XrResult, expect_type, guard, non_null, non_null_mut, now_ns, two_call, two_call_with};
+use crate::link::{Link, LinkError, SystemInfo};
+use crate::space::{FixedHead, Pose, PoseSource, REFERENCE_SPACES, SpaceKind, in_local};
+use crate::state::{Event, Instance, SYSTEM_ID, Session, Space, lock, registry};
+use crate::vulkan::{Binding, Context, Entry};
+
+#[derive(Debug)]
+pub struct SessionInner {
+    pub state: xr::SessionState,
+    pub running: bool,
+    pub exit_requested: bool,
+    /// The service went away: every frame call answers SESSION_LOST.
+    pub lost: bool,
+    pub vk: Arc<Context>,
+    pub link: Option<Link>,
+    pub info: SystemInfo,
+    pub poses: Arc<dyn PoseSource>,
+    pub frame: FrameLoop,
+    /// The quad layer ids set on each view by the last frame, removed when
+    /// a frame no longer submits them.
+    pub quads: Vec<BTreeSet<u32>>,
+}
+
+/// Where the frame loop is (§10.4).
+#[derive(Debug, Default)]
+pub struct FrameLoop {
+    /// xrWaitFrame calls not yet followed by xrBeginFrame.
+    pub waited: u32,
+    pub begun: bool,
+    /// When the frame in flight began: its capture time for the service.
+    pub begun_ns: i64,
+    /// The last predicted display time handed out.
+    pub last_predicted: i64,
+    pub frames_ended: u64,
+}
+
+impl SessionInner {
+    fn set_state(&mut self, instance: &Instance, session: u64, state: xr::SessionState) {
+        self.state = state;
+        instance.push_event(Event::SessionState {
+            session,
+            state,
+            time: now_ns(),
+        });
+    }
+
+    /// The service is gone: the application hears LOSS_PENDING once.
+    pub fn lose(&mut self, instance: &Instance, session: u64, why: &LinkError) {
+        if !self.lost {
+            log_error!("{why}; the session is lost");
+            self.lost = true;
+            self.link = None;
+            self.set_state(instance, session, xr::SessionState::LOSS_PENDING);
+        }
+    }
+
+    pub fn check_running(&self) -> XrResult {
+        if self.lost {
+            Err(xr::Result::ERROR_SESSION_LOST)
+        } else if !self.running {
+            Err(xr::Result::ERROR_SESSION_NOT_RUNNING)
+        } else {
+            Ok(())
+        }
+    }
+
+    /// Moves on after the application's frame (SYNCHRONIZED after the
+    /// first wait, VISIBLE and FOCUSED after the first frame ends).
+    pub fn advance(&mut self, instance: &Instance, session: u64) {
+        match self.state {
+            xr::SessionState::READY if self.running && self.frame.waited > 0 => {
+                self.set_state(instance, session, xr::SessionState::SYNCHRONIZED);
+            }
+            xr::SessionState::SYNCHRONIZED if self.frame.frames_ended > 0 => {
+                self.set_state(instance, session, xr::SessionState::VISIBLE);
+                self.set_state(instance, session, xr::SessionState::FOCUSED);
+            }
+            _ => {}
+        }
+    }
+}
+
+/// The graphics binding in a create info's `next` chain.
+///
+/// # Safety
+/// `next` must be null or a valid chain of OpenXR structures.
+unsafe fn vulkan_binding(mut next: *const xr::BaseInStructure) -> Option<Binding> {
+    while !next.is_null() {
+        // SAFETY: a valid chain (caller).
+        let base = unsafe { &*next };
+        if base.ty == xr::StructureType::GRAPHICS_BINDING_VULKAN_KHR {
+            // SAFETY: the type says which structure this is.
+            let b = unsafe { &*next.cast::<xr::GraphicsBindingVulkanKHR>() };
+            return Some(Binding {
+                instance: vk::Instance::from_raw(b.instance as u64),
+                physical_device: vk::PhysicalDevice::from_raw(b.physical_device as u64),
+                device: vk::Device::from_raw(b.device as u64),
+                queue_family: b.queue_family_index,
+                queue_index: b.queue_index,
+            });
+        }
+        next = base.next;
+    }
+    None
+}
+
+pub unsafe extern "system" fn create_session(
+    instance: xr::Instance,
+    info: *const xr::SessionCreateInfo,
+    out: *mut xr::Session,
+) -> xr::Result {
+    guard("xrCreateSession", || {
+        let info = non_null(info)?;
+        let out = non_null_mut(out)?;
+        // SAFETY: non-null, from the application.
+        let info = unsafe { &*info };
+        expect_type(info.ty, xr::StructureType::SESSION_CREATE_INFO)?;
+        let inst = registry().instance(instance)?;
+        if info.system_id.into_raw() != SYSTEM_ID {
+            return Err(xr::Result::ERROR_SYSTEM_INVALID);
+        }
+        // SAFETY: the application's chain.
+        let binding = unsafe { vulkan_binding(info.next.cast()) }
+            .filter(|b| b.device != vk::Device::null() && b.instance != vk::Instance::null())
+            .ok_or(xr::Result::ERROR_GRAPHICS_DEVICE_INVALID)?;
+        if registry().sessions.values().any(|s| s.instance == inst.handle) {
+            return Err(xr::Result::ERROR_LIMIT_REACHED);
+        }
+        let (system, probe, gipa) = {
+            let mut i = lock(&inst.inner);
+            if !i.graphics_requirements_queried {
+                return Err(xr::Result::ERROR_GRAPHICS_REQUIREMENTS_CALL_MISSING);
+            }
+            let system = i.system.clone().ok_or(xr::Result::ERROR_SYSTEM_INVALID)?;
+            (system, i.link.take(), i.vk_get_instance_proc_addr)
+        };
+        let link = match probe {
+            Some(l) => l,
+            None => Link::connect(&system.socket).map_err(|e| {
+                log_error!("{e}");
+                xr::Result::ERROR_RUNTIME_FAILURE
+            })?,
+        };
+        let entry = match gipa {
+            Some(g) => Entry::of_app(g),
+            None => Entry::load().map_err(|e| {
+                log_error!("the Vulkan loader could not be loaded: {e}");
+                xr::Result::ERROR_RUNTIME_FAILURE
+            })?,
+        };
+        // SAFETY: the application's live Vulkan objects (§12.20).
+        let vk_ctx = unsafe { Context::new(entry, binding) }.map_err(crate::swapchain::vk_error)?;
+        let views = system.views.len();
+        let inner = SessionInner {
+            state: xr::SessionState::UNKNOWN,
+            running: false,
+            exit_requested: false,
+            lost: false,
+            vk: Arc::new(vk_ctx),
+            link: Some(link),
+            info: system,
+            poses: Arc::new(FixedHead::default()),
+            frame: FrameLoop::default(),
+            quads: vec![BTreeSet::new(); views],
+        };
+        let mut reg = registry();
+        let h = reg.new_handle();
+        let session = Arc::new(Session {
+            handle: h,
+            instance: inst.handle,
+            inner: Mutex::new(inner),
+            wait_lock: Mutex::new(()),
+        });
+        {
+            let mut s = lock(&session.inner);
+            s.set_state(&inst, h, xr::SessionState::IDLE);
+            s.set_state(&inst, h, xr::SessionState::READY);
+        }
+        reg.sessions.insert(h, session);
+        // SAFETY: non-null output.
+        unsafe { out.write(xr::Session::from_raw(h)) };
+        Ok(xr::Result::SUCCESS)
+    })
+}
+
+pub unsafe extern "system" fn destroy_session(session: xr::Session) -> xr::Result {
+    guard("xrDestroySession", || {
+        registry()
+            .remove_session(session.into_raw())
+            .ok_or(xr::Result::ERROR_HANDLE_INVALID)?;
+        Ok(xr::Result::SUCCESS)
+    })
+}
+
+/// The session and its instance.
+pub fn session_and_instance(h: xr::Session) -> XrResult<(Arc<Session>, Arc<Instance>)> {
+    let reg = registry();
+    let s = reg.session(h)?;
+    let i = reg
+        .instances
+        .get(&s.instance)
+        .cloned()
+        .ok_or(xr::Result::ERROR_HANDLE_INVALID)?;
+    Ok((s, i))
+}
+
+pub unsafe extern "system" fn begin_session(
+    session: xr::Session,
+    info: *const xr::SessionBeginInfo,
+) -> xr::Result {
+    guard("xrBeginSession", || {
+        let info = non_null(info)?;
+        // SAFETY: non-null, from the application.
+        let info = unsafe { &*info };
+        expect_type(info.ty, xr::StructureType::SESSION_BEGIN_INFO)?;
+        let (s, _) = session_and_instance(session)?;
+        let mut inner = lock(&s.inner);
+        if inner.lost {
+            return Err(xr::Result::ERROR_SESSION_LOST);
+        }
+        if info.primary_view_configuration_type != view_configuration(&inner.info) {
+            return Err(xr::Result::ERROR_VIEW_CONFIGURATION_TYPE_UNSUPPORTED);
+        }
+        if inner.running {
+            return Err(xr::Result::ERROR_SESSION_RUNNING);
+        }
+        if inner.state != xr::SessionState::READY {
+            return Err(xr::Result::ERROR_SESSION_NOT_READY);
+        }
+        inner.running = true;
+        Ok(xr::Result::SUCCESS)
+    })
+}
+
+pub unsafe extern "system" fn end_session(session: xr::Session) -> xr::Result {
+    guard("xrEndSession", || {
+        let (s, inst) = session_and_instance(session)?;
+        let mut inner = lock(&s.inner);
+        if !inner.running {
+            return Err(xr::Result::ERROR_SESSION_NOT_RUNNING);
+        }
+        if inner.state != xr::SessionState::STOPPING {
+            return Err(xr::Result::ERROR_SESSION_NOT_STOPPING);
+        }
+        inner.running = false;
+        inner.frame = FrameLoop::default();
+        inner.set_state(&inst, s.handle, xr::SessionState::IDLE);
+        if inner.exit_requested {
+            inner.set_state(&inst, s.handle, xr::SessionState::EXITING);
+        }
+        Ok(xr::Result::SUCCESS)
+    })
+}
+
+pub unsafe extern "system" fn request_exit_session(session: xr::Session) -> xr::Result {
+    guard("xrRequestExitSession", || {
+        let (s, inst) = session_and_instance(session)?;
+        let mut inner = lock(&s.inner);
+        inner.check_running()?;
+        inner.exit_requested = true;
+        inner.set_state(&inst, s.handle, xr::SessionState::STOPPING);
+        Ok(xr::Result::SUCCESS)
+    })
+}
+
+/// The view configuration of the service's views.
+pub fn view_configuration(info: &SystemInfo) -> xr::ViewConfigurationType {
+    if info.views.len() == 2 {
+        xr::ViewConfigurationType::PRIMARY_STEREO
+    } else {
+        xr::ViewConfigurationType::PRIMARY_MONO
+    }
+}
+
+pub unsafe extern "system" fn enumerate_reference_spaces(
+    session: xr::Session,
+    capacity: u32,
+    count: *mut u32,
+    spaces: *mut xr::ReferenceSpaceType,
+) -> xr::Result {
+    guard("xrEnumerateReferenceSpaces", || {
+        registry().session(session)?;
+        // SAFETY: the application's arrays.
+        unsafe { two_call(capacity, count, spaces, &REFERENCE_SPACES) }
+    })
+}
+
+fn add_space(session: &Session, kind: SpaceKind, pose: Pose, out: *mut xr::Space) -> XrResult<xr::Result> {
+    let out = non_null_mut(out)?;
+    let mut reg = registry();
+    let h = reg.new_handle();
+    reg.spaces.insert(
+        h,
+        Arc::new(Space {
+            session: session.handle,
+            kind,
+            pose_in_parent: pose,
+        }),
+    );
+    // SAFETY: non-null output.
+    unsafe { out.write(xr::Space::from_raw(h)) };
+    Ok(xr::Result::SUCCESS)
+}
+
+pub unsafe extern "system" fn create_reference_space(
+    session: xr::Session,
+    info: *const xr::ReferenceSpaceCreateInfo,
+    out: *mut xr::Space,
+) -> xr::Result {
+    guard("xrCreateReferenceSpace", || {
+        let info = non_null(info)?;
+        // SAFETY: non-null, from the application.
+        let info = unsafe { &*info };
+        expect_type(info.ty, xr::StructureType::REFERENCE_SPACE_CREATE_INFO)?;
+        let s = registry().session(session)?;
+        if !REFERENCE_SPACES.contains(&info.reference_space_type) {
+            return Err(xr::Result::ERROR_REFERENCE_SPACE_UNSUPPORTED);
+        }
+        let pose = Pose::from_xr(&info.pose_in_reference_space)?;
+        add_space(&s, SpaceKind::Reference(info.reference_space_type), pose, out)
+    })
+}
+
+pub unsafe extern "system" fn create_action_space(
+    session: xr::Session,
+    info: *const xr::ActionSpaceCreateInfo,
+    out: *mut xr::Space,
+) -> xr::Result {
+    guard("xrCreateActionSpace", || {
+        let info = non_null(info)?;
+        // SAFETY: non-null, from the application.
+        let info = unsafe { &*info };
+        expect_type(info.ty, xr::StructureType::ACTION_SPACE_CREATE_INFO)?;
+        let (s, action) = {
+            let reg = registry();
+            (reg.session(session)?, reg.action(info.action)?)
+        };
+        if action.action_type != xr::ActionType::POSE_INPUT {
+            return Err(xr::Result::ERROR_ACTION_TYPE_MISMATCH);
+        }
+        let sub = info.subaction_path.into_raw();
+        if sub != 0 && !action.subaction_paths.contains(&sub) {
+            return Err(xr::Result::ERROR_PATH_UNSUPPORTED);
+        }
+        let pose = Pose::from_xr(&info.pose_in_action_space)?;
+        let kind = SpaceKind::Action {
+            action: info.action.into_raw(),
+            subaction: sub,
+        };
+        add_space(&s, kind, pose, out)
+    })
+}
+
+pub unsafe extern "system" fn destroy_space(space: xr::Space) -> xr::Result {
+    guard("xrDestroySpace", || {
+        registry()
+            .spaces
+            .remove(&space.into_raw())
+            .ok_or(xr::Result::ERROR_HANDLE_INVALID)?;
+        Ok(xr::Result::SUCCESS)
+    })
+}
+
+/// A space's origin in LOCAL, if it can be located.
+pub fn locate_in_local(session: &Session, space: &Space, time: i64) -> Option<Pose> {
+    let poses = lock(&session.inner).poses.clone();
+    in_local(poses.as_ref(), space.kind, space.pose_in_parent, time)
+}
+
+pub unsafe extern "system" fn locate_space(
+    space: xr::Space,
+    base: xr::Space,
+    time: xr::Time,
+    location: *mut xr::SpaceLocation,
+) -> xr::Result {
+    guard("xrLocateSpace", || {
+        let location = non_null_mut(location)?;
+        let (sp, bs, s) = {
+            let reg = registry();
+            let sp = reg.space(space)?;
+            let bs = reg.space(base)?;
+            let s = reg
+                .sessions
+                .get(&sp.session)
+                .cloned()
+                .ok_or(xr::Result::ERROR_HANDLE_INVALID)?;
+            (sp, bs, s)
+        };
+        if time.as_nanos() <= 0 {
+            return Err(xr::Result::ERROR_TIME_INVALID);
+        }
+        // SAFETY: non-null; the application initialised its type.
+        let location = unsafe { &mut *location };
+        expect_type(location.ty, xr::StructureType::SPACE_LOCATION)?;
+        let t = time.as_nanos();
+        match (locate_in_local(&s, &sp, t), locate_in_local(&s, &bs, t)) {
+            (Some(p), Some(b)) => {
+                location.pose = b.inverse().then(p).to_xr();
+                // Valid, not tracked: no tracker measures the head.
+                location.location_flags = xr::SpaceLocationFlags::ORIENTATION_VALID
+                    | xr::SpaceLocationFlags::POSITION_VALID;
+            }
+            _ => {
+                location.pose = Pose::IDENTITY.to_xr();
+                location.location_flags = xr::SpaceLocationFlags::EMPTY;
+            }
+        }
+        Ok(xr::Result::SUCCESS)
+    })
+}
+
+pub unsafe extern "system" fn get_reference_space_bounds_rect(
+    session: xr::Session,
+    kind: xr::ReferenceSpaceType,
+    bounds: *mut xr::Extent2Df,
+) -> xr::Result {
+    guard("xrGetReferenceSpaceBoundsRect", || {
+        let bounds = non_null_mut(bounds)?;
+        registry().session(session)?;
+        if !REFERENCE_SPACES.contains(&kind) {
+            return Err(xr::Result::ERROR_REFERENCE_SPACE_UNSUPPORTED);
+        }
+        // SAFETY: non-null output.
+        unsafe {
+            bounds.write(xr::Extent2Df {
+                width: 0.0,
+                height: 0.0,
+            })
+        };
+        Ok(xr::Result::SPACE_BOUNDS_UNAVAILABLE)
+    })
+}
+
+pub unsafe extern "system" fn locate_views(
+    session: xr::Session,
+    info: *const xr::ViewLocateInfo,
+    state: *mut xr::ViewState,
+    capacity: u32,
+    count: *mut u32,
+    views: *mut xr::View,
+) -> xr::Result {
+    guard("xrLocateViews", || {
+        let info = non_null(info)?;
+        let state = non_null_mut(state)?;
+        // SAFETY: non-null, from the application.
+        let info = unsafe { &*info };
+        expect_type(info.ty, xr::StructureType::VIEW_LOCATE_INFO)?;
+        // SAFETY: non-null; the application initialised its type.
+        let state = unsafe { &mut *state };
+        expect_type(state.ty, xr::StructureType::VIEW_STATE)?;
+        let (s, space) = {
+            let reg = registry();
+            (reg.session(session)?, reg.space(info.space)?)
+        };
+        if info.display_time.as_nanos() <= 0 {
+            return Err(xr::Result::ERROR_TIME_INVALID);
+        }
+        let (system, poses) = {
+            let inner = lock(&s.inner);
+            (inner.info.clone(), inner.poses.clone())
+        };
+        if info.view_configuration_type != view_configuration(&system) {
+            return Err(xr::Result::ERROR_VIEW_CONFIGURATION_TYPE_UNSUPPORTED);
+        }
+        let t = info.display_time.as_nanos();
+        let base = locate_in_local(&s, &space, t);
+        let head = poses.head(t);
+        let eyes = poses.eyes();
+        let n = system.views.len();
+        state.view_state_flags = if base.is_some() {
+            xr::ViewStateFlags::ORIENTATION_VALID | xr::ViewStateFlags::POSITION_VALID
+        } else {
+            xr::ViewStateFlags::EMPTY
+        };
+        // SAFETY: the application's array, as the two-call idiom defines.
+        unsafe {
+            two_call_with(capacity, count, views, n, |view, v| {
+                expect_type(view.ty, xr::StructureType::VIEW)?;
+                let eye = if n == 2 { eyes[v] } else { Pose::IDENTITY };
+                view.pose = base
+                    .map_or(Pose::IDENTITY, |b| b.inverse().then(head.then(eye)))
+                    .to_xr();
+                let [l, r, u, d] = system.fov(v);
+                view.fov = xr::Fovf {
+                    angle_left: l,
+                    angle_right: r,
+                    angle_up: u,
+                    angle_down: d,
+                };
+                Ok(())
+            })
+        }
+    })
+}
+
+/// The instance a system query is for, with its system.
+pub fn system_of(instance: xr::Instance, system: xr::SystemId) -> XrResult<(Arc<Instance>, SystemInfo)> {
+    let inst = registry().instance(instance)?;
+    if system.into_raw() != SYSTEM_ID {
+        return Err(xr::Result::ERROR_SYSTEM_INVALID);
+    }
+    let info = lock(&inst.inner)
+        .system
+        .clone()
+        .ok_or(xr::Result::ERROR_SYSTEM_INVALID)?;
+    Ok((inst, info))
+}

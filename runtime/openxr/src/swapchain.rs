@@ -1,0 +1,353 @@
+//! Swapchains: images on the application's Vulkan device, handed out in
+//! turn. A released image is copied out by `xrEndFrame` before it
+//! returns, so an image is free again as soon as it is acquired, and
+//! `xrWaitSwapchainImage` never waits.
+
+use std::collections::VecDeque;
+use std::sync::{Arc, Mutex};
+
+use ash::vk;
+use ash::vk::Handle;
+use openxr_sys as xr;
+use openxr_sys::Handle as _;
+
+use crate::ffi::{XrResult, expect_type, guard, non_null, non_null_mut, two_call, two_call_with};
+use crate::state::{Swapchain, lock, registry};
+use crate::vulkan::{self, Context};
+
+/// Images a swapchain has: one being shown, one being rendered, one spare.
+const IMAGES: u32 = 3;
+
+#[derive(Debug)]
+pub struct SwapchainInner {
+    pub vk: Arc<Context>,
+    pub images: Vec<(vk::Image, vk::DeviceMemory)>,
+    pub format: vk::Format,
+    pub size: (u32, u32),
+    pub layers: u32,
+    /// Acquired and not yet released, oldest first.
+    acquired: VecDeque<u32>,
+    /// The oldest acquired image was waited for.
+    waited: bool,
+    next: u32,
+    /// The image `xrEndFrame` shows: the last one released.
+    pub last_released: Option<u32>,
+    /// A static swapchain hands its one image out once (§10.1).
+    static_image: bool,
+    acquired_ever: bool,
+}
+
+impl Drop for SwapchainInner {
+    fn drop(&mut self) {
+        for &(image, memory) in &self.images {
+            self.vk.destroy_image(image, memory);
+        }
+    }
+}
+
+fn usage_of(flags: xr::SwapchainUsageFlags) -> vk::ImageUsageFlags {
+    let map = [
+        (
+            xr::SwapchainUsageFlags::COLOR_ATTACHMENT,
+            vk::ImageUsageFlags::COLOR_ATTACHMENT,
+        ),
+        (
+            xr::SwapchainUsageFlags::UNORDERED_ACCESS,
+            vk::ImageUsageFlags::STORAGE,
+        ),
+        (
+            xr::SwapchainUsageFlags::TRANSFER_SRC,
+            vk::ImageUsageFlags::TRANSFER_SRC,
+        ),
+        (
+            xr::SwapchainUsageFlags::TRANSFER_DST,
+            vk::ImageUsageFlags::TRANSFER_DST,
+        ),
+        (xr::SwapchainUsageFlags::SAMPLED, vk::ImageUsageFlags::SAMPLED),
+        (
+            xr::SwapchainUsageFlags::INPUT_ATTACHMENT,
+            vk::ImageUsageFlags::INPUT_ATTACHMENT,
+        ),
+    ];
+    // The copy-out reads every image: TRANSFER_SRC always.
+    map.iter()
+        .filter(|(x, _)| flags.contains(*x))
+        .fold(vk::ImageUsageFlags::TRANSFER_SRC, |acc, (_, v)| acc | *v)
+}
+
+pub unsafe extern "system" fn enumerate_swapchain_formats(
+    session: xr::Session,
+    capacity: u32,
+    count: *mut u32,
+    formats: *mut i64,
+) -> xr::Result {
+    guard("xrEnumerateSwapchainFormats", || {
+        registry().session(session)?;
+        let list: Vec<i64> = vulkan::FORMATS.iter().map(|f| i64::from(f.as_raw())).collect();
+        // SAFETY: the application's arrays, as the two-call idiom defines.
+        unsafe { two_call(capacity, count, formats, &list) }
+    })
+}
+
+pub unsafe extern "system" fn create_swapchain(
+    session: xr::Session,
+    info: *const xr::SwapchainCreateInfo,
+    out: *mut xr::Swapchain,
+) -> xr::Result {
+    guard("xrCreateSwapchain", || {
+        let info = non_null(info)?;
+        let out = non_null_mut(out)?;
+        // SAFETY: non-null, and the application passes a valid structure.
+        let info = unsafe { &*info };
+        expect_type(info.ty, xr::StructureType::SWAPCHAIN_CREATE_INFO)?;
+        let s = registry().session(session)?;
+        let vk_ctx = {
+            let inner = lock(&s.inner);
+            if inner.lost {
+                return Err(xr::Result::ERROR_SESSION_LOST);
+            }
+            inner.vk.clone()
+        };
+        let format = i32::try_from(info.format)
+            .map(vk::Format::from_raw)
+            .ok()
+            .filter(|f| vulkan::FORMATS.contains(f))
+            .ok_or(xr::Result::ERROR_SWAPCHAIN_FORMAT_UNSUPPORTED)?;
+        if info.width == 0 || info.height == 0 || info.array_size == 0 || info.mip_count == 0 {
+            return Err(xr::Result::ERROR_VALIDATION_FAILURE);
+        }
+        if info.face_count != 1 || info.sample_count != 1 {
+            // Cube maps and multisampled images: nothing here shows them.
+            return Err(xr::Result::ERROR_FEATURE_UNSUPPORTED);
+        }
+        if info
+            .usage_flags
+            .contains(xr::SwapchainUsageFlags::DEPTH_STENCIL_ATTACHMENT)
+        {
+            return Err(xr::Result::ERROR_FEATURE_UNSUPPORTED);
+        }
+        let static_image = info
+            .create_flags
+            .contains(xr::SwapchainCreateFlags::STATIC_IMAGE);
+        let count = if static_image { 1 } else { IMAGES };
+        let flags = if info
+            .usage_flags
+            .contains(xr::SwapchainUsageFlags::MUTABLE_FORMAT)
+        {
+            vk::ImageCreateFlags::MUTABLE_FORMAT
+        } else {
+            vk::ImageCreateFlags::empty()
+        };
+        let mut images = Vec::new();
+        let mut inner = SwapchainInner {
+            vk: vk_ctx.clone(),
+            images: Vec::new(),
+            format,
+            size: (info.width, info.height),
+            layers: info.array_size,
+            acquired: VecDeque::new(),
+            waited: false,
+            next: 0,
+            last_released: None,
+            static_image,
+            acquired_ever: false,
+        };
+        for _ in 0..count {
+            let made = vk_ctx
+                .create_image(
+                    format,
+                    (info.width, info.height),
+                    info.array_size,
+                    info.mip_count,
+                    usage_of(info.usage_flags),
+                    flags,
+                )
+                .map_err(vk_error)?;
+            // Pushed at once: a later failure drops `inner`, which frees it.
+            inner.images.push(made);
+            images.push(made.0);
+        }
+        vk_ctx
+            .initial_layout(
+                &images,
+                info.array_size,
+                vk::ImageLayout::COLOR_ATTACHMENT_OPTIMAL,
+            )
+            .map_err(vk_error)?;
+        let mut reg = registry();
+        let h = reg.new_handle();
+        reg.swapchains.insert(
+            h,
+            Arc::new(Swapchain {
+                session: s.handle,
+                inner: Mutex::new(inner),
+            }),
+        );
+        // SAFETY: non-null output the application provided.
+        unsafe { out.write(xr::Swapchain::from_raw(h)) };
+        Ok(xr::Result::SUCCESS)
+    })
+}
+
+pub fn vk_error(e: vk::Result) -> xr::Result {
+    log_error!("Vulkan: {e}");
+    match e {
+        vk::Result::ERROR_OUT_OF_HOST_MEMORY | vk::Result::ERROR_OUT_OF_DEVICE_MEMORY => {
+            xr::Result::ERROR_OUT_OF_MEMORY
+        }
+        _ => xr::Result::ERROR_RUNTIME_FAILURE,
+    }
+}
+
+pub unsafe extern "system" fn destroy_swapchain(swapchain: xr::Swapchain) -> xr::Result {
+    guard("xrDestroySwapchain", || {
+        registry()
+            .swapchains
+            .remove(&swapchain.into_raw())
+            .ok_or(xr::Result::ERROR_HANDLE_INVALID)?;
+        Ok(xr::Result::SUCCESS)
+    })
+}
+
+pub unsafe extern "system" fn enumerate_swapchain_images(
+    swapchain: xr::Swapchain,
+    capacity: u32,
+    count: *mut u32,
+    images: *mut xr::SwapchainImageBaseHeader,
+) -> xr::Result {
+    guard("xrEnumerateSwapchainImages", || {
+        let sc = registry().swapchain(swapchain)?;
+        let inner = lock(&sc.inner);
+        let handles: Vec<u64> = inner.images.iter().map(|(i, _)| i.as_raw()).collect();
+        let out = images.cast::<xr::SwapchainImageVulkanKHR>();
+        // SAFETY: a Vulkan session's images are XrSwapchainImageVulkanKHR
+        // (§12.20); each element's type is checked before it is written.
+        unsafe {
+            two_call_with(capacity, count, out, handles.len(), |img, i| {
+                expect_type(img.ty, xr::StructureType::SWAPCHAIN_IMAGE_VULKAN_KHR)?;
+                img.image = handles[i];
+                Ok(())
+            })
+        }
+    })
+}
+
+pub unsafe extern "system" fn acquire_swapchain_image(
+    swapchain: xr::Swapchain,
+    info: *const xr::SwapchainImageAcquireInfo,
+    index: *mut u32,
+) -> xr::Result {
+    guard("xrAcquireSwapchainImage", || {
+        let index = non_null_mut(index)?;
+        if !info.is_null() {
+            // SAFETY: non-null, from the application.
+            expect_type(
+                unsafe { (*info).ty },
+                xr::StructureType::SWAPCHAIN_IMAGE_ACQUIRE_INFO,
+            )?;
+        }
+        let sc = registry().swapchain(swapchain)?;
+        let mut inner = lock(&sc.inner);
+        let n = inner.images.len() as u32;
+        if inner.acquired.len() as u32 >= n || (inner.static_image && inner.acquired_ever) {
+            return Err(xr::Result::ERROR_CALL_ORDER_INVALID);
+        }
+        let i = inner.next;
+        inner.next = (i + 1) % n;
+        inner.acquired.push_back(i);
+        inner.acquired_ever = true;
+        // SAFETY: non-null output.
+        unsafe { index.write(i) };
+        Ok(xr::Result::SUCCESS)
+    })
+}
+
+pub unsafe extern "system" fn wait_swapchain_image(
+    swapchain: xr::Swapchain,
+    info: *const xr::SwapchainImageWaitInfo,
+) -> xr::Result {
+    guard("xrWaitSwapchainImage", || {
+        let info = non_null(info)?;
+        // SAFETY: non-null, from the application.
+        expect_type(
+            unsafe { (*info).ty },
+            xr::StructureType::SWAPCHAIN_IMAGE_WAIT_INFO,
+        )?;
+        let sc = registry().swapchain(swapchain)?;
+        let mut inner = lock(&sc.inner);
+        if inner.acquired.is_empty() || inner.waited {
+            return Err(xr::Result::ERROR_CALL_ORDER_INVALID);
+        }
+        inner.waited = true;
+        Ok(xr::Result::SUCCESS)
+    })
+}
+
+pub unsafe extern "system" fn release_swapchain_image(
+    swapchain: xr::Swapchain,
+    info: *const xr::SwapchainImageReleaseInfo,
+) -> xr::Result {
+    guard("xrReleaseSwapchainImage", || {
+        if !info.is_null() {
+            // SAFETY: non-null, from the application.
+            expect_type(
+                unsafe { (*info).ty },
+                xr::StructureType::SWAPCHAIN_IMAGE_RELEASE_INFO,
+            )?;
+        }
+        let sc = registry().swapchain(swapchain)?;
+        let mut inner = lock(&sc.inner);
+        if !inner.waited {
+            return Err(xr::Result::ERROR_CALL_ORDER_INVALID);
+        }
+        inner.last_released = inner.acquired.pop_front();
+        inner.waited = false;
+        Ok(xr::Result::SUCCESS)
+    })
+}
+
+/// A released image's texels: the rect of one array layer, as RGBA8 in
+/// the image's encoding, and whether that encoding is sRGB.
+pub fn read_released(
+    sc: &Swapchain,
+    rect: xr::Rect2Di,
+    layer: u32,
+) -> XrResult<(Vec<u8>, (usize, usize), bool)> {
+    let inner = lock(&sc.inner);
+    let index = inner.last_released.ok_or(xr::Result::ERROR_LAYER_INVALID)?;
+    let (w, h) = inner.size;
+    let (x, y) = (rect.offset.x, rect.offset.y);
+    let (rw, rh) = (rect.extent.width, rect.extent.height);
+    let inside = x >= 0
+        && y >= 0
+        && rw > 0
+        && rh > 0
+        && (x as i64 + rw as i64) <= i64::from(w)
+        && (y as i64 + rh as i64) <= i64::from(h);
+    if !inside {
+        return Err(xr::Result::ERROR_SWAPCHAIN_RECT_INVALID);
+    }
+    if layer >= inner.layers {
+        return Err(xr::Result::ERROR_VALIDATION_FAILURE);
+    }
+    let (srgb, bgra) =
+        vulkan::format_layout(inner.format).ok_or(xr::Result::ERROR_RUNTIME_FAILURE)?;
+    let image = inner.images[index as usize].0;
+    let mut texels = inner
+        .vk
+        .read_rect(image, layer, [x as u32, y as u32, rw as u32, rh as u32], 4)
+        .map_err(vk_error)?;
+    if bgra {
+        texels.chunks_exact_mut(4).for_each(|p| p.swap(0, 2));
+    }
+    Ok((texels, (rw as usize, rh as usize), srgb))
+}
+
+/// Checks a layer's sub-image without reading it (§10.5's validation).
+pub fn check_sub_image(sub: &xr::SwapchainSubImage) -> XrResult<Arc<Swapchain>> {
+    let sc = registry().swapchain(sub.swapchain)?;
+    if lock(&sc.inner).last_released.is_none() {
+        return Err(xr::Result::ERROR_LAYER_INVALID);
+    }
+    Ok(sc)
+}
