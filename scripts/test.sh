@@ -21,7 +21,8 @@ export PIP_NO_CACHE_DIR=1
 # Tests that need a part the machine may lack (a GPU adapter, ONNX Runtime,
 # an X display) are #[ignore = "needs ..."]: a plain `cargo test` lists them
 # as ignored, never as passed. They live in modules named after what they
-# need (needs_gpu, needs_ort, needs_window, needs_root, needs_gpu_and_ort, ...), and this
+# need (needs_gpu, needs_ort, needs_window, needs_root, needs_gpu_and_ort,
+# needs_gpu_and_openxr, ...), and this
 # script runs them (`-- --ignored needs_`) for each part the machine has,
 # skipping by name those that need a missing one (`--skip needs_P --skip
 # _and_P`). The name filter also leaves out the slow ignored test
@@ -96,6 +97,14 @@ hw_part ort "$ort_lib" "${NEDRT_REQUIRE_ORT:-}" \
     "ONNX Runtime: ORT_DYLIB_PATH names no file and .venv has no onnxruntime wheel"
 hw_part window "$x_display" "${NEDRT_REQUIRE_WINDOW:-}" \
     "an X display with xwd and xdotool: DISPLAY is not set (Xvfb is not installed) or a tool is missing; apt-get install xvfb x11-apps xdotool"
+# The OpenXR runtime's tests run Khronos' hello_xr through the OpenXR loader
+# (Debian's libopenxr-utils and libopenxr-loader1).
+openxr=0
+if command -v hello_xr >/dev/null 2>&1 && ls /usr/lib/*/libopenxr_loader.so.1 >/dev/null 2>&1; then
+    openxr=1
+fi
+hw_part openxr "$openxr" "${NEDRT_REQUIRE_OPENXR:-}" \
+    "the OpenXR loader and hello_xr: apt-get install libopenxr-loader1 libopenxr-utils"
 # Mounting a tmpfs (the full-disk test) takes root's CAP_SYS_ADMIN.
 is_root=0
 if [ "$(id -u)" = 0 ]; then is_root=1; fi
@@ -106,6 +115,8 @@ if [ "${#hw_run[@]}" -gt 0 ]; then
     # One at a time: a software adapter (lavapipe) spreads each test over every
     # core, and the window and soak tests then miss their deadlines when two
     # run at once (seen on the 2-core machine; each passes alone).
+    # The OpenXR tests load the runtime library from the target folder.
+    cargo build --release -p nedrt-openxr
     cargo test --release --workspace --tests -- --ignored --test-threads=1 "${hw_filter[@]}"
 fi
 echo "== pytest tests/python models/tests"

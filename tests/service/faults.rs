@@ -15,7 +15,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 const STOP_WITHIN: Duration = Duration::from_secs(2);
 
 /// Every submitted frame is in exactly one bucket of `r`.
-fn assert_accounted(r: &serde_json::Value) {
+pub(super) fn assert_accounted(r: &serde_json::Value) {
     let n = |k: &str| {
         r[k].as_u64()
             .unwrap_or_else(|| panic!("the report has no {k}: {r}"))

@@ -12,6 +12,7 @@ mod deadline;
 mod faults;
 mod hardware;
 mod layers;
+mod openxr;
 mod socket;
 #[path = "../common/xwd.rs"]
 mod xwd;

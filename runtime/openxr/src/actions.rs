@@ -7,7 +7,9 @@ use std::sync::{Arc, Mutex};
 use openxr_sys as xr;
 use openxr_sys::Handle as _;
 
-use crate::ffi::{XrResult, expect_type, guard, non_null, non_null_mut, read_fixed, two_call, two_call_str};
+use crate::ffi::{
+    XrResult, expect_type, guard, non_null, non_null_mut, read_fixed, two_call, two_call_str,
+};
 use crate::instance::{path_string, valid_path};
 use crate::state::{Action, ActionSet, lock, registry};
 
@@ -111,7 +113,11 @@ pub unsafe extern "system" fn create_action(
         }
         let mut reg = registry();
         let h_set = set.into_raw();
-        if reg.actions.values().any(|a| a.set == h_set && a.name == name) {
+        if reg
+            .actions
+            .values()
+            .any(|a| a.set == h_set && a.name == name)
+        {
             return Err(xr::Result::ERROR_NAME_DUPLICATED);
         }
         let h = reg.new_handle();
@@ -230,7 +236,11 @@ pub unsafe extern "system" fn get_current_interaction_profile(
 }
 
 /// The action of a state query, checked against the type asked for.
-fn action_for(session: xr::Session, info: *const xr::ActionStateGetInfo, types: &[xr::ActionType]) -> XrResult<()> {
+fn action_for(
+    session: xr::Session,
+    info: *const xr::ActionStateGetInfo,
+    types: &[xr::ActionType],
+) -> XrResult<()> {
     let info = non_null(info)?;
     // SAFETY: non-null, from the application.
     let info = unsafe { &*info };

@@ -169,7 +169,9 @@ pub unsafe fn read_cstr<'a>(p: *const c_char) -> XrResult<&'a str> {
 /// and so the `XrTime` of this runtime.
 pub fn now_ns() -> i64 {
     let t = rustix::time::clock_gettime(rustix::time::ClockId::Monotonic);
-    t.tv_sec.saturating_mul(1_000_000_000).saturating_add(t.tv_nsec)
+    t.tv_sec
+        .saturating_mul(1_000_000_000)
+        .saturating_add(t.tv_nsec)
 }
 
 #[cfg(test)]

@@ -53,7 +53,8 @@ pub unsafe extern "system" fn wait_frame(
         let state = non_null_mut(state)?;
         if !info.is_null() {
             // SAFETY: non-null, from the application.
-            expect_type(unsafe { (*info).ty }, xr::StructureType::FRAME_WAIT_INFO)?;
+            let ty = unsafe { (*info).ty };
+            expect_type(ty, xr::StructureType::FRAME_WAIT_INFO)?;
         }
         // SAFETY: non-null; the application initialised its type.
         let state = unsafe { &mut *state };
@@ -64,13 +65,26 @@ pub unsafe extern "system" fn wait_frame(
         let _one = lock(&s.wait_lock);
         let (predicted, wake, period) = {
             let mut inner = lock(&s.inner);
-            inner.check_running()?;
             if let Some(link) = inner.link.as_mut()
                 && let Err(e) = link.alive()
             {
                 inner.lose(&inst, s.handle, &e);
-                return Err(xr::Result::ERROR_SESSION_LOST);
             }
+            if inner.lost {
+                // The service is gone: the application is told the session
+                // is ending (a success code, §9.3) and paced on the last
+                // known refresh until it destroys the session.
+                let period = inner.info.refresh_period_ns.max(1) as i64;
+                let predicted = inner.frame.last_predicted.max(now_ns()) + period;
+                inner.frame.last_predicted = predicted;
+                drop(inner);
+                sleep_until(predicted - period);
+                state.predicted_display_time = xr::Time::from_nanos(predicted);
+                state.predicted_display_period = xr::Duration::from_nanos(period);
+                state.should_render = xr::FALSE;
+                return Ok(xr::Result::SESSION_LOSS_PENDING);
+            }
+            inner.check_running()?;
             let (timing, received) = inner
                 .link
                 .as_ref()
@@ -103,10 +117,14 @@ pub unsafe extern "system" fn begin_frame(
     guard("xrBeginFrame", || {
         if !info.is_null() {
             // SAFETY: non-null, from the application.
-            expect_type(unsafe { (*info).ty }, xr::StructureType::FRAME_BEGIN_INFO)?;
+            let ty = unsafe { (*info).ty };
+            expect_type(ty, xr::StructureType::FRAME_BEGIN_INFO)?;
         }
         let (s, _) = session_and_instance(session)?;
         let mut inner = lock(&s.inner);
+        if inner.lost {
+            return Ok(xr::Result::SESSION_LOSS_PENDING);
+        }
         inner.check_running()?;
         if inner.frame.waited == 0 {
             return Err(xr::Result::ERROR_CALL_ORDER_INVALID);
@@ -124,7 +142,12 @@ pub unsafe extern "system" fn begin_frame(
 
 /// A layer of the frame, checked and read.
 enum Submitted {
-    Projection(Vec<(xr::SwapchainSubImage, std::sync::Arc<crate::state::Swapchain>)>),
+    Projection(
+        Vec<(
+            xr::SwapchainSubImage,
+            std::sync::Arc<crate::state::Swapchain>,
+        )>,
+    ),
     Quad {
         layer: xr::CompositionLayerQuad,
         sc: std::sync::Arc<crate::state::Swapchain>,
@@ -135,7 +158,10 @@ enum Submitted {
 ///
 /// # Safety
 /// `layer` must point at a layer structure of the type it names.
-unsafe fn check_layer(layer: *const xr::CompositionLayerBaseHeader, views: usize) -> XrResult<Submitted> {
+unsafe fn check_layer(
+    layer: *const xr::CompositionLayerBaseHeader,
+    views: usize,
+) -> XrResult<Submitted> {
     let layer = non_null(layer).map_err(|_| xr::Result::ERROR_LAYER_INVALID)?;
     // SAFETY: non-null, from the application.
     let base = unsafe { &*layer };
@@ -182,6 +208,9 @@ pub unsafe extern "system" fn end_frame(
         let (s, inst) = session_and_instance(session)?;
         let views = {
             let inner = lock(&s.inner);
+            if inner.lost {
+                return Ok(xr::Result::SESSION_LOSS_PENDING);
+            }
             inner.check_running()?;
             if !inner.frame.begun {
                 return Err(xr::Result::ERROR_CALL_ORDER_INVALID);
@@ -216,7 +245,7 @@ pub unsafe extern "system" fn end_frame(
                 Failure::Xr(r) => return Err(r),
                 Failure::Link(e) => {
                     inner.lose(&inst, s.handle, &e);
-                    return Err(xr::Result::ERROR_SESSION_LOST);
+                    return Ok(xr::Result::SESSION_LOSS_PENDING);
                 }
             }
         }
@@ -245,11 +274,7 @@ impl From<LinkError> for Failure {
 /// Reads each layer's released image and sends it to the service: each
 /// view's projection, and the quads over the views they are visible to
 /// (the layer's index is its id and its height).
-fn compose(
-    inner: &mut SessionInner,
-    layers: &[Submitted],
-    time: i64,
-) -> Result<(), Failure> {
+fn compose(inner: &mut SessionInner, layers: &[Submitted], time: i64) -> Result<(), Failure> {
     let capture = u64::try_from(inner.frame.begun_ns).unwrap_or(0);
     let info = inner.info.clone();
     let mut quads_now = vec![std::collections::BTreeSet::new(); info.views.len()];
@@ -272,8 +297,11 @@ fn compose(
             }
             Submitted::Quad { layer, sc } => {
                 let id = index as u32;
-                let (texels, size, srgb) =
-                    read_released(sc, layer.sub_image.image_rect, layer.sub_image.image_array_index)?;
+                let (texels, size, srgb) = read_released(
+                    sc,
+                    layer.sub_image.image_rect,
+                    layer.sub_image.image_array_index,
+                )?;
                 let alpha = QuadAlpha {
                     blend: layer
                         .layer_flags
@@ -283,8 +311,7 @@ fn compose(
                         .contains(xr::CompositionLayerFlags::UNPREMULTIPLIED_ALPHA),
                 };
                 for v in visible_views(layer.eye_visibility, info.views.len()) {
-                    let Some((placement, px)) = place_quad(inner, &info, layer, v, time)
-                    else {
+                    let Some((placement, px)) = place_quad(inner, &info, layer, v, time) else {
                         log_warn!("quad layer {id} is behind the eye of view {v}: not shown there");
                         continue;
                     };
@@ -296,9 +323,9 @@ fn compose(
             }
         }
     }
-    for v in 0..info.views.len() {
-        let gone: Vec<u32> = inner.quads[v].difference(&quads_now[v]).copied().collect();
-        for id in gone {
+    let before = std::mem::take(&mut inner.quads);
+    for (v, (was, now)) in before.iter().zip(&quads_now).enumerate() {
+        for &id in was.difference(now) {
             let link = inner.link.as_mut().ok_or(xr::Result::ERROR_SESSION_LOST)?;
             link.remove_quad(v as u8, id)?;
         }
@@ -330,7 +357,8 @@ fn place_quad(
 ) -> Option<(Placement, (usize, usize))> {
     let space = registry().space(q.space).ok()?;
     // The session's lock is held by the caller: locate with its poses.
-    let base = crate::space::in_local(inner.poses.as_ref(), space.kind, space.pose_in_parent, time)?;
+    let base =
+        crate::space::in_local(inner.poses.as_ref(), space.kind, space.pose_in_parent, time)?;
     let eye = inner.poses.head(time).then(if info.views.len() == 2 {
         inner.poses.eyes()[v]
     } else {
@@ -352,8 +380,12 @@ fn place_quad(
         xs.push(p.x / -p.z * ppt);
         ys.push(p.y / -p.z * ppt);
     }
-    let (min_x, max_x) = xs.iter().fold((f32::MAX, f32::MIN), |(a, b), &x| (a.min(x), b.max(x)));
-    let (min_y, max_y) = ys.iter().fold((f32::MAX, f32::MIN), |(a, b), &y| (a.min(y), b.max(y)));
+    let (min_x, max_x) = xs
+        .iter()
+        .fold((f32::MAX, f32::MIN), |(a, b), &x| (a.min(x), b.max(x)));
+    let (min_y, max_y) = ys
+        .iter()
+        .fold((f32::MAX, f32::MIN), |(a, b), &y| (a.min(y), b.max(y)));
     let w = (max_x - min_x).round().max(1.0) as usize;
     let h = (max_y - min_y).round().max(1.0) as usize;
     let cx = (min_x + max_x) / 2.0 / ppt;
@@ -380,7 +412,10 @@ mod tests {
         // Received half a period before the prediction: the lead is half
         // a period. Asked at once: the service's own prediction.
         let received = 100 * P - P / 2;
-        assert_eq!(next_frame(t, received, received, 0), (100 * P, 100 * P - P / 2));
+        assert_eq!(
+            next_frame(t, received, received, 0),
+            (100 * P, 100 * P - P / 2)
+        );
         // Asked a period and a bit later: the next refresh it can make.
         let (p, wake) = next_frame(t, received, received + P + 1, 0);
         assert_eq!(p, 102 * P);

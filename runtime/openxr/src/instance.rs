@@ -4,20 +4,17 @@
 use std::ffi::c_char;
 use std::sync::{Arc, Mutex};
 
-use ash::vk;
-use ash::vk::Handle;
 use openxr_sys as xr;
 use openxr_sys::Handle as _;
 
 use crate::ffi::{
-    XrResult, expect_type, guard, non_null, non_null_mut, read_cstr, read_fixed, two_call,
+    expect_type, guard, non_null, non_null_mut, read_cstr, read_fixed, two_call,
     two_call_str, two_call_with, write_fixed,
 };
 use crate::frame::MAX_LAYERS;
 use crate::link::{Link, socket_path};
 use crate::session::{system_of, view_configuration};
 use crate::state::{Event, Instance, InstanceInner, SYSTEM_ID, lock, registry};
-use crate::vulkan::{Entry, pick_physical_device};
 
 pub const VULKAN_ENABLE: &str = "XR_KHR_vulkan_enable";
 pub const VULKAN_ENABLE2: &str = "XR_KHR_vulkan_enable2";
@@ -181,7 +178,9 @@ pub unsafe extern "system" fn poll_event(
 /// `XR_<NAME>` of an enumerant's Debug name, or the specification's
 /// fallback for values this runtime does not know.
 fn enum_name(debug: String, fallback: String) -> String {
-    if debug.contains('(') || debug.chars().any(|c| c.is_ascii_digit()) && debug.parse::<i64>().is_ok() {
+    if debug.contains('(')
+        || debug.chars().any(|c| c.is_ascii_digit()) && debug.parse::<i64>().is_ok()
+    {
         fallback
     } else {
         format!("XR_{debug}")
@@ -236,8 +235,7 @@ pub fn valid_path(s: &str) -> bool {
         && s[1..].split('/').all(|c| {
             !c.is_empty()
                 && !c.chars().all(|ch| ch == '.')
-                && c
-                    .chars()
+                && c.chars()
                     .all(|ch| ch.is_ascii_lowercase() || ch.is_ascii_digit() || "-_.".contains(ch))
         })
 }
@@ -306,7 +304,9 @@ pub unsafe extern "system" fn get_system(
         let inst = registry().instance(instance)?;
         match info.form_factor {
             xr::FormFactor::HEAD_MOUNTED_DISPLAY => {}
-            xr::FormFactor::HANDHELD_DISPLAY => return Err(xr::Result::ERROR_FORM_FACTOR_UNSUPPORTED),
+            xr::FormFactor::HANDHELD_DISPLAY => {
+                return Err(xr::Result::ERROR_FORM_FACTOR_UNSUPPORTED);
+            }
             _ => return Err(xr::Result::ERROR_VALIDATION_FAILURE),
         }
         let mut inner = lock(&inst.inner);
@@ -349,7 +349,10 @@ pub unsafe extern "system" fn get_system_properties(
         let (w, h) = info.panel;
         write_fixed(
             &mut props.system_name,
-            &format!("nedrt multifocal display, panel {w}×{h}, {} view(s)", info.views.len()),
+            &format!(
+                "nedrt multifocal display, panel {w}×{h}, {} view(s)",
+                info.views.len()
+            ),
         );
         props.graphics_properties = xr::SystemGraphicsProperties {
             max_swapchain_image_width: 8192,
@@ -445,240 +448,5 @@ pub unsafe extern "system" fn enumerate_environment_blend_modes(
         }
         // SAFETY: the application's arrays.
         unsafe { two_call(capacity, count, modes, &[xr::EnvironmentBlendMode::OPAQUE]) }
-    })
-}
-
-/// An instance with one of the Vulkan extensions enabled.
-fn vulkan_instance(instance: xr::Instance, system: xr::SystemId, ext: &str) -> XrResult<Arc<Instance>> {
-    let (inst, _) = system_of(instance, system)?;
-    if !inst.has_extension(ext) {
-        return Err(xr::Result::ERROR_FUNCTION_UNSUPPORTED);
-    }
-    Ok(inst)
-}
-
-fn requirements(
-    instance: xr::Instance,
-    system: xr::SystemId,
-    req: *mut xr::GraphicsRequirementsVulkanKHR,
-    ext: &str,
-) -> XrResult<xr::Result> {
-    let req = non_null_mut(req)?;
-    let inst = vulkan_instance(instance, system, ext)?;
-    // SAFETY: non-null; the application initialised its type.
-    let req = unsafe { &mut *req };
-    expect_type(req.ty, xr::StructureType::GRAPHICS_REQUIREMENTS_VULKAN_KHR)?;
-    // Vulkan 1.0 copies are all the runtime asks of the device.
-    req.min_api_version_supported = xr::Version::new(1, 0, 0);
-    req.max_api_version_supported = xr::Version::new(1, 3, 0);
-    lock(&inst.inner).graphics_requirements_queried = true;
-    Ok(xr::Result::SUCCESS)
-}
-
-pub unsafe extern "system" fn get_vulkan_graphics_requirements_khr(
-    instance: xr::Instance,
-    system: xr::SystemId,
-    req: *mut xr::GraphicsRequirementsVulkanKHR,
-) -> xr::Result {
-    guard("xrGetVulkanGraphicsRequirementsKHR", || {
-        requirements(instance, system, req, VULKAN_ENABLE)
-    })
-}
-
-pub unsafe extern "system" fn get_vulkan_graphics_requirements2_khr(
-    instance: xr::Instance,
-    system: xr::SystemId,
-    req: *mut xr::GraphicsRequirementsVulkanKHR,
-) -> xr::Result {
-    guard("xrGetVulkanGraphicsRequirements2KHR", || {
-        requirements(instance, system, req, VULKAN_ENABLE2)
-    })
-}
-
-/// The Vulkan extensions the runtime needs enabled: none (the copy-out is
-/// Vulkan 1.0), as the empty string.
-pub unsafe extern "system" fn get_vulkan_extensions_khr(
-    instance: xr::Instance,
-    system: xr::SystemId,
-    capacity: u32,
-    count: *mut u32,
-    buffer: *mut c_char,
-) -> xr::Result {
-    guard("xrGetVulkanInstanceExtensionsKHR", || {
-        vulkan_instance(instance, system, VULKAN_ENABLE)?;
-        // SAFETY: the application's buffer.
-        unsafe { two_call_str(capacity, count, buffer, "") }
-    })
-}
-
-fn physical_device(entry: &Entry, vk_instance: *const std::ffi::c_void) -> XrResult<*const std::ffi::c_void> {
-    if vk_instance.is_null() {
-        return Err(xr::Result::ERROR_VALIDATION_FAILURE);
-    }
-    // SAFETY: the application's live VkInstance (§12.20).
-    let pd = unsafe { pick_physical_device(entry, vk::Instance::from_raw(vk_instance as u64)) }
-        .map_err(crate::swapchain::vk_error)?;
-    Ok(pd.as_raw() as *const std::ffi::c_void)
-}
-
-pub unsafe extern "system" fn get_vulkan_graphics_device_khr(
-    instance: xr::Instance,
-    system: xr::SystemId,
-    vk_instance: xr::platform::VkInstance,
-    out: *mut xr::platform::VkPhysicalDevice,
-) -> xr::Result {
-    guard("xrGetVulkanGraphicsDeviceKHR", || {
-        let out = non_null_mut(out)?;
-        vulkan_instance(instance, system, VULKAN_ENABLE)?;
-        let entry = Entry::load().map_err(|e| {
-            log_error!("the Vulkan loader could not be loaded: {e}");
-            xr::Result::ERROR_RUNTIME_FAILURE
-        })?;
-        let pd = physical_device(&entry, vk_instance)?;
-        // SAFETY: non-null output.
-        unsafe { out.write(pd) };
-        Ok(xr::Result::SUCCESS)
-    })
-}
-
-/// The application's vkGetInstanceProcAddr as ash's type.
-fn app_gipa(p: Option<xr::platform::VkGetInstanceProcAddr>) -> XrResult<vk::PFN_vkGetInstanceProcAddr> {
-    let p = p.ok_or(xr::Result::ERROR_VALIDATION_FAILURE)?;
-    // SAFETY: both are `vkGetInstanceProcAddr(instance, name)` with the
-    // system calling convention; they differ only in how the handle and
-    // the returned pointer are spelt.
-    Ok(unsafe {
-        std::mem::transmute::<xr::platform::VkGetInstanceProcAddr, vk::PFN_vkGetInstanceProcAddr>(p)
-    })
-}
-
-pub unsafe extern "system" fn create_vulkan_instance_khr(
-    instance: xr::Instance,
-    info: *const xr::VulkanInstanceCreateInfoKHR,
-    out: *mut xr::platform::VkInstance,
-    vk_result: *mut xr::platform::VkResult,
-) -> xr::Result {
-    guard("xrCreateVulkanInstanceKHR", || {
-        let info = non_null(info)?;
-        let out = non_null_mut(out)?;
-        let vk_result = non_null_mut(vk_result)?;
-        // SAFETY: non-null, from the application.
-        let info = unsafe { &*info };
-        expect_type(info.ty, xr::StructureType::VULKAN_INSTANCE_CREATE_INFO_KHR)?;
-        let inst = vulkan_instance(instance, info.system_id, VULKAN_ENABLE2)?;
-        let create = non_null(info.vulkan_create_info)?;
-        let gipa = app_gipa(info.pfn_get_instance_proc_addr)?;
-        let entry = Entry::of_app(gipa);
-        // The application's own create info: the runtime needs no
-        // instance extension of its own.
-        // SAFETY: the application's valid VkInstanceCreateInfo and
-        // allocator (§12.21).
-        let made = unsafe {
-            entry.ash().create_instance(
-                &*create.cast::<vk::InstanceCreateInfo>(),
-                info.vulkan_allocator.cast::<vk::AllocationCallbacks>().as_ref(),
-            )
-        };
-        match made {
-            Ok(i) => {
-                lock(&inst.inner).vk_get_instance_proc_addr = Some(gipa);
-                // SAFETY: non-null outputs.
-                unsafe {
-                    out.write(i.handle().as_raw() as *const std::ffi::c_void);
-                    vk_result.write(0);
-                }
-            }
-            Err(e) => {
-                // SAFETY: non-null output.
-                unsafe { vk_result.write(e.as_raw()) };
-            }
-        }
-        Ok(xr::Result::SUCCESS)
-    })
-}
-
-pub unsafe extern "system" fn create_vulkan_device_khr(
-    instance: xr::Instance,
-    info: *const xr::VulkanDeviceCreateInfoKHR,
-    out: *mut xr::platform::VkDevice,
-    vk_result: *mut xr::platform::VkResult,
-) -> xr::Result {
-    guard("xrCreateVulkanDeviceKHR", || {
-        let info = non_null(info)?;
-        let out = non_null_mut(out)?;
-        let vk_result = non_null_mut(vk_result)?;
-        // SAFETY: non-null, from the application.
-        let info = unsafe { &*info };
-        expect_type(info.ty, xr::StructureType::VULKAN_DEVICE_CREATE_INFO_KHR)?;
-        vulkan_instance(instance, info.system_id, VULKAN_ENABLE2)?;
-        let create = non_null(info.vulkan_create_info)?;
-        let gipa = app_gipa(info.pfn_get_instance_proc_addr)?;
-        if info.vulkan_physical_device.is_null() {
-            return Err(xr::Result::ERROR_VALIDATION_FAILURE);
-        }
-        let entry = Entry::of_app(gipa);
-        // SAFETY: the physical device came from xrGetVulkanGraphicsDevice2KHR
-        // on an instance of this vkGetInstanceProcAddr; vkCreateDevice is
-        // an instance-level function of it.
-        let made = unsafe {
-            let vk_inst = find_instance_of(&entry, info.vulkan_physical_device)?;
-            vk_inst.create_device(
-                vk::PhysicalDevice::from_raw(info.vulkan_physical_device as u64),
-                &*create.cast::<vk::DeviceCreateInfo>(),
-                info.vulkan_allocator.cast::<vk::AllocationCallbacks>().as_ref(),
-            )
-        };
-        match made {
-            Ok(d) => {
-                // SAFETY: non-null outputs.
-                unsafe {
-                    out.write(d.handle().as_raw() as *const std::ffi::c_void);
-                    vk_result.write(0);
-                }
-            }
-            // SAFETY: non-null output.
-            Err(e) => unsafe { vk_result.write(e.as_raw()) },
-        }
-        Ok(xr::Result::SUCCESS)
-    })
-}
-
-/// The VkInstance a physical device handed out by this runtime belongs to
-/// (remembered by `xrGetVulkanGraphicsDevice2KHR`), with its functions.
-fn find_instance_of(entry: &Entry, pd: *const std::ffi::c_void) -> XrResult<ash::Instance> {
-    let known = lock(&PHYSICAL_DEVICES);
-    let &(_, vk_instance) = known
-        .iter()
-        .find(|(p, _)| *p == pd as u64)
-        .ok_or(xr::Result::ERROR_VALIDATION_FAILURE)?;
-    // SAFETY: an instance the application created through this runtime
-    // and queried with xrGetVulkanGraphicsDevice2KHR.
-    Ok(unsafe { ash::Instance::load(entry.ash().static_fn(), vk::Instance::from_raw(vk_instance)) })
-}
-
-/// Physical devices handed out, with their instance.
-static PHYSICAL_DEVICES: Mutex<Vec<(u64, u64)>> = Mutex::new(Vec::new());
-
-pub unsafe extern "system" fn get_vulkan_graphics_device2_khr(
-    instance: xr::Instance,
-    info: *const xr::VulkanGraphicsDeviceGetInfoKHR,
-    out: *mut xr::platform::VkPhysicalDevice,
-) -> xr::Result {
-    guard("xrGetVulkanGraphicsDevice2KHR", || {
-        let info = non_null(info)?;
-        let out = non_null_mut(out)?;
-        // SAFETY: non-null, from the application.
-        let info = unsafe { &*info };
-        expect_type(info.ty, xr::StructureType::VULKAN_GRAPHICS_DEVICE_GET_INFO_KHR)?;
-        let inst = vulkan_instance(instance, info.system_id, VULKAN_ENABLE2)?;
-        let gipa = lock(&inst.inner)
-            .vk_get_instance_proc_addr
-            .ok_or(xr::Result::ERROR_VALIDATION_FAILURE)?;
-        let entry = Entry::of_app(gipa);
-        let pd = physical_device(&entry, info.vulkan_instance)?;
-        lock(&PHYSICAL_DEVICES).push((pd as u64, info.vulkan_instance as u64));
-        // SAFETY: non-null output.
-        unsafe { out.write(pd) };
-        Ok(xr::Result::SUCCESS)
     })
 }

@@ -18,6 +18,7 @@ mod log;
 mod actions;
 mod ffi;
 mod frame;
+mod graphics;
 mod instance;
 mod link;
 mod pixels;
@@ -81,7 +82,11 @@ macro_rules! f {
 }
 
 /// The function a name stands for; `None` if this runtime lacks it.
-fn lookup(name: &str, has_instance: bool, has: impl Fn(&str) -> bool) -> Option<xr::pfn::VoidFunction> {
+fn lookup(
+    name: &str,
+    has_instance: bool,
+    has: impl Fn(&str) -> bool,
+) -> Option<xr::pfn::VoidFunction> {
     // Before an instance exists only these three may be asked for (§3.4).
     let pre = match name {
         "xrEnumerateInstanceExtensionProperties" => {
@@ -151,18 +156,18 @@ fn lookup(name: &str, has_instance: bool, has: impl Fn(&str) -> bool) -> Option<
         "xrStopHapticFeedback" => f!(actions::stop_haptic_feedback),
         // XR_KHR_vulkan_enable, only where the instance enabled it.
         "xrGetVulkanInstanceExtensionsKHR" | "xrGetVulkanDeviceExtensionsKHR" if has(v1) => {
-            f!(instance::get_vulkan_extensions_khr)
+            f!(graphics::get_vulkan_extensions_khr)
         }
-        "xrGetVulkanGraphicsDeviceKHR" if has(v1) => f!(instance::get_vulkan_graphics_device_khr),
+        "xrGetVulkanGraphicsDeviceKHR" if has(v1) => f!(graphics::get_vulkan_graphics_device_khr),
         "xrGetVulkanGraphicsRequirementsKHR" if has(v1) => {
-            f!(instance::get_vulkan_graphics_requirements_khr)
+            f!(graphics::get_vulkan_graphics_requirements_khr)
         }
         // XR_KHR_vulkan_enable2.
-        "xrCreateVulkanInstanceKHR" if has(v2) => f!(instance::create_vulkan_instance_khr),
-        "xrCreateVulkanDeviceKHR" if has(v2) => f!(instance::create_vulkan_device_khr),
-        "xrGetVulkanGraphicsDevice2KHR" if has(v2) => f!(instance::get_vulkan_graphics_device2_khr),
+        "xrCreateVulkanInstanceKHR" if has(v2) => f!(graphics::create_vulkan_instance_khr),
+        "xrCreateVulkanDeviceKHR" if has(v2) => f!(graphics::create_vulkan_device_khr),
+        "xrGetVulkanGraphicsDevice2KHR" if has(v2) => f!(graphics::get_vulkan_graphics_device2_khr),
         "xrGetVulkanGraphicsRequirements2KHR" if has(v2) => {
-            f!(instance::get_vulkan_graphics_requirements2_khr)
+            f!(graphics::get_vulkan_graphics_requirements2_khr)
         }
         _ => None,
     }

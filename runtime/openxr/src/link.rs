@@ -18,12 +18,16 @@ const SHM_SIZE: u64 = 256 << 20;
 
 #[derive(Debug, thiserror::Error)]
 pub enum LinkError {
-    #[error("no nedrt service at {socket}: {source} (start `nedrt run --source socket`, or set NEDRT_SOCKET)")]
+    #[error(
+        "no nedrt service at {socket}: {source} (start `nedrt run --source socket`, or set NEDRT_SOCKET)"
+    )]
     Connect {
         socket: PathBuf,
         source: std::io::Error,
     },
-    #[error("the service at {socket} does not give its eyepiece's geometry (pixels per tan in its welcome): it is older than this runtime")]
+    #[error(
+        "the service at {socket} does not give its eyepiece's geometry (pixels per tan in its welcome): it is older than this runtime"
+    )]
     NoGeometry { socket: PathBuf },
     #[error("the connection to the service was lost: {0}")]
     Lost(std::io::Error),
@@ -154,7 +158,10 @@ impl Link {
     }
 
     fn send(&mut self, header: &HeaderV2, payload: &[u8]) -> Result<(), LinkError> {
-        let reply = self.client.send_v2(header, payload).map_err(LinkError::Lost)?;
+        let reply = self
+            .client
+            .send_v2(header, payload)
+            .map_err(LinkError::Lost)?;
         self.received_ns = crate::ffi::now_ns();
         if reply.reply.status != STATUS_OK {
             // A refused submission is the application's content (a quad

@@ -13,13 +13,12 @@ pub enum Level {
     Debug,
 }
 
-static MAX: LazyLock<Level> = LazyLock::new(|| {
-    match std::env::var("NEDRT_OPENXR_LOG").as_deref() {
+static MAX: LazyLock<Level> =
+    LazyLock::new(|| match std::env::var("NEDRT_OPENXR_LOG").as_deref() {
         Ok("debug") => Level::Debug,
         Ok("quiet") => Level::Error,
         _ => Level::Info,
-    }
-});
+    });
 
 pub fn emit(level: Level, message: &str) {
     if level <= *MAX {

@@ -14,7 +14,12 @@ pub fn srgb_to_linear(c: f32) -> f32 {
 /// Bilinear resampling of `channels`-channel texels from `from` to `to`
 /// (width, height), sampling at texel centres with edges clamped. The
 /// identity when the sizes agree.
-pub fn resample(src: &[f32], from: (usize, usize), to: (usize, usize), channels: usize) -> Vec<f32> {
+pub fn resample(
+    src: &[f32],
+    from: (usize, usize),
+    to: (usize, usize),
+    channels: usize,
+) -> Vec<f32> {
     if from == to {
         return src.to_vec();
     }

@@ -8,7 +8,9 @@ use ash::vk::Handle;
 use openxr_sys as xr;
 use openxr_sys::Handle as _;
 
-use crate::ffi::{XrResult, expect_type, guard, non_null, non_null_mut, now_ns, two_call, two_call_with};
+use crate::ffi::{
+    XrResult, expect_type, guard, non_null, non_null_mut, now_ns, two_call, two_call_with,
+};
 use crate::link::{Link, LinkError, SystemInfo};
 use crate::space::{FixedHead, Pose, PoseSource, REFERENCE_SPACES, SpaceKind, in_local};
 use crate::state::{Event, Instance, SYSTEM_ID, Session, Space, lock, registry};
@@ -19,7 +21,8 @@ pub struct SessionInner {
     pub state: xr::SessionState,
     pub running: bool,
     pub exit_requested: bool,
-    /// The service went away: every frame call answers SESSION_LOST.
+    /// The service went away: the frame functions answer
+    /// SESSION_LOSS_PENDING, the others ERROR_SESSION_LOST.
     pub lost: bool,
     pub vk: Arc<Context>,
     pub link: Option<Link>,
@@ -133,7 +136,11 @@ pub unsafe extern "system" fn create_session(
         let binding = unsafe { vulkan_binding(info.next.cast()) }
             .filter(|b| b.device != vk::Device::null() && b.instance != vk::Instance::null())
             .ok_or(xr::Result::ERROR_GRAPHICS_DEVICE_INVALID)?;
-        if registry().sessions.values().any(|s| s.instance == inst.handle) {
+        if registry()
+            .sessions
+            .values()
+            .any(|s| s.instance == inst.handle)
+        {
             return Err(xr::Result::ERROR_LIMIT_REACHED);
         }
         let (system, probe, gipa) = {
@@ -295,7 +302,12 @@ pub unsafe extern "system" fn enumerate_reference_spaces(
     })
 }
 
-fn add_space(session: &Session, kind: SpaceKind, pose: Pose, out: *mut xr::Space) -> XrResult<xr::Result> {
+fn add_space(
+    session: &Session,
+    kind: SpaceKind,
+    pose: Pose,
+    out: *mut xr::Space,
+) -> XrResult<xr::Result> {
     let out = non_null_mut(out)?;
     let mut reg = registry();
     let h = reg.new_handle();
@@ -327,7 +339,12 @@ pub unsafe extern "system" fn create_reference_space(
             return Err(xr::Result::ERROR_REFERENCE_SPACE_UNSUPPORTED);
         }
         let pose = Pose::from_xr(&info.pose_in_reference_space)?;
-        add_space(&s, SpaceKind::Reference(info.reference_space_type), pose, out)
+        add_space(
+            &s,
+            SpaceKind::Reference(info.reference_space_type),
+            pose,
+            out,
+        )
     })
 }
 
@@ -504,7 +521,10 @@ pub unsafe extern "system" fn locate_views(
 }
 
 /// The instance a system query is for, with its system.
-pub fn system_of(instance: xr::Instance, system: xr::SystemId) -> XrResult<(Arc<Instance>, SystemInfo)> {
+pub fn system_of(
+    instance: xr::Instance,
+    system: xr::SystemId,
+) -> XrResult<(Arc<Instance>, SystemInfo)> {
     let inst = registry().instance(instance)?;
     if system.into_raw() != SYSTEM_ID {
         return Err(xr::Result::ERROR_SYSTEM_INVALID);

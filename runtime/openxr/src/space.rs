@@ -122,7 +122,10 @@ impl PoseSource for FixedHead {
 
     fn eyes(&self) -> [Pose; 2] {
         let h = self.ipd_m / 2.0;
-        [Pose::at(Vec3::new(-h, 0.0, 0.0)), Pose::at(Vec3::new(h, 0.0, 0.0))]
+        [
+            Pose::at(Vec3::new(-h, 0.0, 0.0)),
+            Pose::at(Vec3::new(h, 0.0, 0.0)),
+        ]
     }
 
     fn stage(&self) -> Pose {
@@ -135,7 +138,10 @@ impl PoseSource for FixedHead {
 pub enum SpaceKind {
     Reference(xr::ReferenceSpaceType),
     /// An action's pose: with no controllers, never located.
-    Action { action: u64, subaction: u64 },
+    Action {
+        action: u64,
+        subaction: u64,
+    },
 }
 
 /// The reference spaces this runtime offers.

@@ -63,7 +63,10 @@ fn usage_of(flags: xr::SwapchainUsageFlags) -> vk::ImageUsageFlags {
             xr::SwapchainUsageFlags::TRANSFER_DST,
             vk::ImageUsageFlags::TRANSFER_DST,
         ),
-        (xr::SwapchainUsageFlags::SAMPLED, vk::ImageUsageFlags::SAMPLED),
+        (
+            xr::SwapchainUsageFlags::SAMPLED,
+            vk::ImageUsageFlags::SAMPLED,
+        ),
         (
             xr::SwapchainUsageFlags::INPUT_ATTACHMENT,
             vk::ImageUsageFlags::INPUT_ATTACHMENT,
@@ -83,7 +86,10 @@ pub unsafe extern "system" fn enumerate_swapchain_formats(
 ) -> xr::Result {
     guard("xrEnumerateSwapchainFormats", || {
         registry().session(session)?;
-        let list: Vec<i64> = vulkan::FORMATS.iter().map(|f| i64::from(f.as_raw())).collect();
+        let list: Vec<i64> = vulkan::FORMATS
+            .iter()
+            .map(|f| i64::from(f.as_raw()))
+            .collect();
         // SAFETY: the application's arrays, as the two-call idiom defines.
         unsafe { two_call(capacity, count, formats, &list) }
     })
@@ -241,10 +247,8 @@ pub unsafe extern "system" fn acquire_swapchain_image(
         let index = non_null_mut(index)?;
         if !info.is_null() {
             // SAFETY: non-null, from the application.
-            expect_type(
-                unsafe { (*info).ty },
-                xr::StructureType::SWAPCHAIN_IMAGE_ACQUIRE_INFO,
-            )?;
+            let ty = unsafe { (*info).ty };
+            expect_type(ty, xr::StructureType::SWAPCHAIN_IMAGE_ACQUIRE_INFO)?;
         }
         let sc = registry().swapchain(swapchain)?;
         let mut inner = lock(&sc.inner);
@@ -269,10 +273,8 @@ pub unsafe extern "system" fn wait_swapchain_image(
     guard("xrWaitSwapchainImage", || {
         let info = non_null(info)?;
         // SAFETY: non-null, from the application.
-        expect_type(
-            unsafe { (*info).ty },
-            xr::StructureType::SWAPCHAIN_IMAGE_WAIT_INFO,
-        )?;
+        let ty = unsafe { (*info).ty };
+        expect_type(ty, xr::StructureType::SWAPCHAIN_IMAGE_WAIT_INFO)?;
         let sc = registry().swapchain(swapchain)?;
         let mut inner = lock(&sc.inner);
         if inner.acquired.is_empty() || inner.waited {
@@ -290,10 +292,8 @@ pub unsafe extern "system" fn release_swapchain_image(
     guard("xrReleaseSwapchainImage", || {
         if !info.is_null() {
             // SAFETY: non-null, from the application.
-            expect_type(
-                unsafe { (*info).ty },
-                xr::StructureType::SWAPCHAIN_IMAGE_RELEASE_INFO,
-            )?;
+            let ty = unsafe { (*info).ty };
+            expect_type(ty, xr::StructureType::SWAPCHAIN_IMAGE_RELEASE_INFO)?;
         }
         let sc = registry().swapchain(swapchain)?;
         let mut inner = lock(&sc.inner);

@@ -46,12 +46,10 @@ impl Entry {
 
     /// The system's Vulkan loader (libvulkan.so.1), for applications of
     /// XR_KHR_vulkan_enable, which never name theirs.
-    pub fn load() -> Result<Self, String> {
+    pub fn load() -> Result<Self, ash::LoadingError> {
         // SAFETY: loading libvulkan runs its initialisers; it is the same
         // library the application's own Vulkan calls go through.
-        unsafe { ash::Entry::load() }
-            .map(Self::Loaded)
-            .map_err(|e| e.to_string())
+        unsafe { ash::Entry::load() }.map(Self::Loaded)
     }
 
     pub fn ash(&self) -> &ash::Entry {
@@ -344,8 +342,7 @@ impl Context {
         let req = unsafe { self.device.get_buffer_memory_requirements(buffer) };
         let host = vk::MemoryPropertyFlags::HOST_VISIBLE;
         let coherent_flags = host | vk::MemoryPropertyFlags::HOST_COHERENT;
-        let (type_index, coherent) = match self.memory_type(req.memory_type_bits, coherent_flags)
-        {
+        let (type_index, coherent) = match self.memory_type(req.memory_type_bits, coherent_flags) {
             Some(i) => (i, true),
             None => match self.memory_type(req.memory_type_bits, host) {
                 Some(i) => (i, false),
@@ -414,7 +411,8 @@ impl Context {
                 .new_layout(vk::ImageLayout::COLOR_ATTACHMENT_OPTIMAL)
                 .src_access_mask(vk::AccessFlags::TRANSFER_READ)
                 .dst_access_mask(
-                    vk::AccessFlags::COLOR_ATTACHMENT_WRITE | vk::AccessFlags::COLOR_ATTACHMENT_READ,
+                    vk::AccessFlags::COLOR_ATTACHMENT_WRITE
+                        | vk::AccessFlags::COLOR_ATTACHMENT_READ,
                 );
             let region = vk::BufferImageCopy::default()
                 .image_subresource(
@@ -477,9 +475,9 @@ impl Context {
         // SAFETY: host-visible memory of at least `size` bytes; the copy's
         // fence was waited for, so the device wrote it all.
         unsafe {
-            let p = self
-                .device
-                .map_memory(memory, 0, vk::WHOLE_SIZE, vk::MemoryMapFlags::empty())?;
+            let p =
+                self.device
+                    .map_memory(memory, 0, vk::WHOLE_SIZE, vk::MemoryMapFlags::empty())?;
             if !coherent {
                 let range = vk::MappedMemoryRange::default()
                     .memory(memory)
@@ -491,7 +489,6 @@ impl Context {
             Ok(out)
         }
     }
-
 }
 
 impl Drop for Context {

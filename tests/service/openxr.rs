@@ -1,0 +1,236 @@
+//! Khronos' `hello_xr` (Debian's libopenxr-utils, OpenXR SDK 1.0.20)
+//! against nedrt's OpenXR runtime (`libnedrt_openxr.so`) on lavapipe: an
+//! application nedrt never saw reaches the panel through the OpenXR loader.
+//! Needs the loader, `hello_xr` and a Vulkan adapter: `needs_gpu_and_openxr`,
+//! run by scripts/test.sh where the machine has them (CI installs them).
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+use std::time::Duration;
+
+use super::deadline::{CommandWithin, Watched};
+use super::{EXIT_WITHIN, repo, report, signal, wait_until};
+
+/// The runtime library the tests load: built beside the test binary
+/// (target/<profile>/), as `cargo build -p nedrt-openxr` leaves it.
+fn runtime_library() -> PathBuf {
+    let exe = std::env::current_exe().expect("test binary path");
+    // target/<profile>/deps/service-… → target/<profile>/
+    let dir = exe.parent().and_then(Path::parent).expect("target folder");
+    let lib = dir.join("libnedrt_openxr.so");
+    assert!(
+        lib.exists(),
+        "{} is missing: build it with `cargo build --release -p nedrt-openxr` (scripts/test.sh does)",
+        lib.display()
+    );
+    lib
+}
+
+/// A runtime manifest (the loader's JSON) naming the library, in `dir`.
+fn manifest(dir: &Path) -> PathBuf {
+    let path = dir.join("nedrt_openxr.json");
+    let json = format!(
+        r#"{{"file_format_version": "1.0.0", "runtime": {{"name": "nedrt", "library_path": "{}"}}}}"#,
+        runtime_library().display()
+    );
+    std::fs::write(&path, json).expect("write the manifest");
+    path
+}
+
+/// `nedrt run --stereo --source socket --sink record` on the shipped
+/// calibration (1920×1080, two 960×1080 views), conventional: the panel
+/// shows what the application rendered.
+fn stereo_service(dir: &Path) -> Watched {
+    Command::new(env!("CARGO_BIN_EXE_nedrt"))
+        .current_dir(repo())
+        .env("NEDRT_LOG", "nedrt=info")
+        .args([
+            "run",
+            "--stereo",
+            "--backend",
+            "cpu",
+            "--preprocess",
+            "conventional",
+        ])
+        .args(["--source", "socket", "--socket"])
+        .arg(dir.join("nedrt.sock"))
+        .args(["--sink", "record", "--record-dir"])
+        .arg(dir.join("rec"))
+        .arg("--report-json")
+        .arg(dir.join("report.json"))
+        .spawn_watched("the service (nedrt run --stereo)")
+}
+
+/// `hello_xr -g <plugin>` through the loader to the runtime; its standard
+/// input stays open until `stop` exists (hello_xr quits at end of input).
+fn hello_xr(dir: &Path, plugin: &str, socket: &Path, stop: &Path) -> Watched {
+    let script = format!(
+        "while [ ! -e '{stop}' ]; do sleep 0.1; done | \
+         {{ hello_xr -g {plugin}; rc=$?; touch '{stop}'; exit $rc; }}",
+        stop = stop.display()
+    );
+    Command::new("sh")
+        .args(["-c", &script])
+        .env("XR_RUNTIME_JSON", manifest(dir))
+        .env("NEDRT_SOCKET", socket)
+        .env(
+            "XDG_RUNTIME_DIR",
+            std::env::var("XDG_RUNTIME_DIR").unwrap_or("/tmp".into()),
+        )
+        .spawn_watched(&format!("hello_xr -g {plugin}"))
+}
+
+fn frames(rec: &Path) -> Vec<PathBuf> {
+    let mut v: Vec<PathBuf> = std::fs::read_dir(rec)
+        .map(|d| d.flatten().map(|e| e.path()).collect())
+        .unwrap_or_default();
+    v.retain(|p| p.extension().is_some_and(|e| e == "png"));
+    v.sort();
+    v
+}
+
+/// The centroid's column of the pixels unlike the view's corner (the
+/// background), in a view's own columns; and how many there are.
+fn content_centroid(img: &image::RgbImage, x0: u32, width: u32) -> (f64, usize) {
+    let bg = *img.get_pixel(x0, 0);
+    let (mut sum, mut n) = (0.0, 0usize);
+    for y in 0..img.height() {
+        for x in x0..x0 + width {
+            let p = img.get_pixel(x, y);
+            let d: i32 = (0..3)
+                .map(|c| (i32::from(p[c]) - i32::from(bg[c])).abs())
+                .sum();
+            if d > 24 {
+                sum += f64::from(x - x0);
+                n += 1;
+            }
+        }
+    }
+    (if n > 0 { sum / n as f64 } else { f64::NAN }, n)
+}
+
+fn text(o: &Output) -> String {
+    format!(
+        "stdout:\n{}\nstderr:\n{}",
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr)
+    )
+}
+
+mod needs_gpu_and_openxr {
+    use super::*;
+
+    /// hello_xr draws a cube 2 m in front of the head (its "ViewFront"
+    /// space). Each eye sees it where its own position puts it: the left
+    /// eye (31.5 mm left of the head's centre) right of its view's centre,
+    /// the right eye left of it, its near face by 0.0315 / 1.875 m in tan on
+    /// the panel, at pixels per tan = lens distance / pitch = 28.57 mm /
+    /// 8.7 µm (its side faces pull the centroid by under a pixel).
+    fn stereo_pair_from(plugin: &str) {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let socket = dir.path().join("nedrt.sock");
+        let mut service = stereo_service(dir.path());
+        wait_until("the socket to appear", || socket.exists());
+        let stop = dir.path().join("stop");
+        let mut app = hello_xr(dir.path(), plugin, &socket, &stop);
+        let rec = dir.path().join("rec");
+        wait_until("30 frames from hello_xr", || frames(&rec).len() >= 30);
+        std::fs::write(&stop, b"").expect("stop file");
+        let status = app.exit_within(Duration::from_secs(60), "hello_xr's exit at end of input");
+        let out = app.output();
+        assert!(
+            status.success(),
+            "hello_xr -g {plugin} failed: {}",
+            text(&out)
+        );
+        let log = String::from_utf8_lossy(&out.stdout);
+        assert!(log.contains("XR_SESSION_STATE_FOCUSED"), "{}", text(&out));
+
+        signal(&service, "-TERM");
+        service.exit_within(EXIT_WITHIN, "the service's exit after SIGTERM");
+        let r = report(dir.path());
+        super::super::faults::assert_accounted(&r);
+
+        let last = frames(&rec).pop().expect("a recorded frame");
+        let img = image::open(&last).expect("a whole PNG").to_rgb8();
+        assert_eq!((img.width(), img.height()), (1920, 1080));
+        let (left, n_left) = content_centroid(&img, 0, 960);
+        let (right, n_right) = content_centroid(&img, 960, 960);
+        assert!(
+            n_left > 1000 && n_right > 1000,
+            "no cube: {n_left}, {n_right} pixels"
+        );
+        let pixels_per_tan = 28.57e-3 / 8.7e-6;
+        // The cube's near face (the one seen) is 0.125 m nearer than its
+        // centre: 1.875 m away.
+        let expected = 0.0315 / 1.875 * pixels_per_tan;
+        let (dl, dr) = (left - 480.0, right - 480.0);
+        assert!(
+            (dl - expected).abs() < 2.0 && (dr + expected).abs() < 2.0,
+            "the cube is {dl:+.1} px from the left view's centre and {dr:+.1} from the right's; \
+             a stereo pair puts it at ±{expected:.1}"
+        );
+    }
+
+    #[test]
+    #[ignore = "needs a Vulkan adapter, the OpenXR loader and hello_xr (apt-get install libopenxr-loader1 libopenxr-utils)"]
+    fn hello_xr_vulkan2_draws_a_stereo_pair_on_the_panel() {
+        stereo_pair_from("Vulkan2");
+    }
+
+    #[test]
+    #[ignore = "needs a Vulkan adapter, the OpenXR loader and hello_xr (apt-get install libopenxr-loader1 libopenxr-utils)"]
+    fn hello_xr_vulkan_draws_a_stereo_pair_on_the_panel() {
+        stereo_pair_from("Vulkan");
+    }
+
+    /// Without a service the system is unavailable, and the runtime says
+    /// which socket it tried.
+    #[test]
+    #[ignore = "needs a Vulkan adapter, the OpenXR loader and hello_xr (apt-get install libopenxr-loader1 libopenxr-utils)"]
+    fn without_a_service_the_system_is_unavailable_and_the_socket_named() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let socket = dir.path().join("no-such.sock");
+        let stop = dir.path().join("stop");
+        std::fs::write(&stop, b"").expect("stop file");
+        let out = hello_xr(dir.path(), "Vulkan2", &socket, &stop)
+            .wait_within(Duration::from_secs(60), "hello_xr without a service");
+        assert!(!out.status.success(), "{}", text(&out));
+        let all = text(&out);
+        assert!(all.contains("XR_ERROR_FORM_FACTOR_UNAVAILABLE"), "{all}");
+        assert!(
+            all.contains(&format!("no nedrt service at {}", socket.display())),
+            "{all}"
+        );
+    }
+
+    /// The service stopping mid-session: the application hears
+    /// LOSS_PENDING. hello_xr then restarts from a new instance, finds no
+    /// system (the service is gone) and exits with its error status.
+    #[test]
+    #[ignore = "needs a Vulkan adapter, the OpenXR loader and hello_xr (apt-get install libopenxr-loader1 libopenxr-utils)"]
+    fn a_service_that_stops_mid_session_is_a_lost_session() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let socket = dir.path().join("nedrt.sock");
+        let mut service = stereo_service(dir.path());
+        wait_until("the socket to appear", || socket.exists());
+        let stop = dir.path().join("stop");
+        let app = hello_xr(dir.path(), "Vulkan2", &socket, &stop);
+        let rec = dir.path().join("rec");
+        wait_until("a frame from hello_xr", || !frames(&rec).is_empty());
+        signal(&service, "-TERM");
+        service.exit_within(EXIT_WITHIN, "the service's exit after SIGTERM");
+        let out = app.wait_within(Duration::from_secs(60), "hello_xr after the service left");
+        let log = String::from_utf8_lossy(&out.stdout);
+        assert!(
+            log.contains("XR_SESSION_STATE_LOSS_PENDING"),
+            "{}",
+            text(&out)
+        );
+        assert!(
+            String::from_utf8_lossy(&out.stderr).contains("the session is lost"),
+            "{}",
+            text(&out)
+        );
+    }
+}
