@@ -282,8 +282,12 @@ fn compose(inner: &mut SessionInner, layers: &[Submitted], time: i64) -> Result<
         match layer {
             Submitted::Projection(views) => {
                 for (v, (sub, sc)) in views.iter().enumerate() {
+                    let started = now_ns();
                     let (texels, size, srgb) =
                         read_released(sc, sub.image_rect, sub.image_array_index)?;
+                    inner.stats.copies += 1;
+                    inner.stats.copy_ns += (now_ns() - started).max(0) as u64;
+                    inner.stats.texels += (size.0 * size.1) as u64;
                     let target = info.view_size(v);
                     let rgba = pixels::projection_rgba8(&texels, size, target);
                     let format = if srgb {
@@ -293,6 +297,18 @@ fn compose(inner: &mut SessionInner, layers: &[Submitted], time: i64) -> Result<
                     };
                     let link = inner.link.as_mut().ok_or(xr::Result::ERROR_SESSION_LOST)?;
                     link.projection(v as u8, format, target, &rgba, capture)?;
+                    if v == 0 {
+                        // The reply's prediction is the service's for a
+                        // frame taken now: this one.
+                        let said = link.timing().map_or(time, |t| t.predicted_display_ns);
+                        let st = &mut inner.stats;
+                        st.frames += 1;
+                        match said.cmp(&time) {
+                            std::cmp::Ordering::Equal => st.same += 1,
+                            std::cmp::Ordering::Greater => st.later += 1,
+                            std::cmp::Ordering::Less => st.earlier += 1,
+                        }
+                    }
                 }
             }
             Submitted::Quad { layer, sc } => {

@@ -8,8 +8,8 @@ use openxr_sys as xr;
 use openxr_sys::Handle as _;
 
 use crate::ffi::{
-    expect_type, guard, non_null, non_null_mut, read_cstr, read_fixed, two_call,
-    two_call_str, two_call_with, write_fixed,
+    expect_type, guard, non_null, non_null_mut, read_cstr, read_fixed, two_call, two_call_str,
+    two_call_with, write_fixed,
 };
 use crate::frame::MAX_LAYERS;
 use crate::link::{Link, socket_path};

@@ -32,6 +32,45 @@ pub struct SessionInner {
     /// The quad layer ids set on each view by the last frame, removed when
     /// a frame no longer submits them.
     pub quads: Vec<BTreeSet<u32>>,
+    pub stats: FrameStats,
+}
+
+/// How the session's frames went, logged when it ends.
+#[derive(Debug, Default)]
+pub struct FrameStats {
+    /// Frames whose projection reached the service.
+    pub frames: u64,
+    /// Of those, how the service's prediction as it took the frame (its
+    /// reply's) compared with the display time the frame was rendered for
+    /// (xrWaitFrame's): equal, later (the frame is late) or earlier.
+    pub same: u64,
+    pub later: u64,
+    pub earlier: u64,
+    /// Reading released images back to the host: copies and their time.
+    pub copies: u64,
+    pub copy_ns: u64,
+    /// Texels read back.
+    pub texels: u64,
+}
+
+impl Drop for SessionInner {
+    fn drop(&mut self) {
+        let s = &self.stats;
+        if s.frames > 0 {
+            log_info!(
+                "{} frames sent; the service predicted the display time xrWaitFrame gave for {}, \
+                 a later refresh for {}, an earlier one for {}; copy-out: {} images, {:.3} ms \
+                 each on average ({:.1} Mtexel/s)",
+                s.frames,
+                s.same,
+                s.later,
+                s.earlier,
+                s.copies,
+                s.copy_ns as f64 / s.copies.max(1) as f64 / 1e6,
+                s.texels as f64 / (s.copy_ns.max(1) as f64 / 1e9) / 1e6
+            );
+        }
+    }
 }
 
 /// Where the frame loop is (§10.4).
@@ -179,6 +218,7 @@ pub unsafe extern "system" fn create_session(
             poses: Arc::new(FixedHead::default()),
             frame: FrameLoop::default(),
             quads: vec![BTreeSet::new(); views],
+            stats: FrameStats::default(),
         };
         let mut reg = registry();
         let h = reg.new_handle();

@@ -1,0 +1,555 @@
+//! An OpenXR application written with the `openxr` crate, for the runtime's
+//! tests and its copy-out benchmark: through the system's OpenXR loader
+//! (`XR_RUNTIME_JSON` names nedrt's manifest) it renders a known pattern
+//! into each eye's swapchain, adds a quad layer, and writes what it saw as
+//! JSON: every predicted display time, each view's field of view, the
+//! session states, and how long xrEndFrame took.
+//!
+//! ```sh
+//! openxr_client [--frames N] [--quad WxH@DIST] [--report FILE]
+//! ```
+//!
+//! The patterns are [`projection_texel`] and [`quad_texel`] (sRGB codes);
+//! the quad is sized to cover W×H panel pixels at DIST metres straight ahead
+//! of the head (VIEW space), seen by both eyes.
+
+use std::time::Instant;
+
+use ash::vk;
+use ash::vk::Handle;
+use openxr as xr;
+
+/// Eye `eye`'s sRGB codes at (x, y).
+fn projection_texel(eye: usize, x: usize, y: usize) -> [u8; 4] {
+    [
+        ((x * 8 + 40 * eye) % 256) as u8,
+        ((y * 5) % 256) as u8,
+        (((x + y) * 3) % 256) as u8,
+        255,
+    ]
+}
+
+/// The quad's sRGB codes at (x, y): premultiplied, alpha 200/255.
+fn quad_texel(x: usize, y: usize) -> [u8; 4] {
+    [
+        (40 + 20 * x).min(200) as u8,
+        (30 * y).min(200) as u8,
+        100,
+        200,
+    ]
+}
+
+struct Args {
+    frames: usize,
+    quad: Option<(u32, u32, f32)>,
+    report: Option<std::path::PathBuf>,
+}
+
+fn args() -> Result<Args, String> {
+    let mut a = Args {
+        frames: 30,
+        quad: None,
+        report: None,
+    };
+    let mut it = std::env::args().skip(1);
+    while let Some(k) = it.next() {
+        let mut v = || it.next().ok_or(format!("{k} needs a value"));
+        match k.as_str() {
+            "--frames" => a.frames = v()?.parse().map_err(|e| format!("--frames: {e}"))?,
+            "--quad" => {
+                let s = v()?;
+                let bad = || format!("--quad {s}: expected WxH@DIST, e.g. 8x6@20");
+                let (size, dist) = s.split_once('@').ok_or_else(bad)?;
+                let (w, h) = size.split_once('x').ok_or_else(bad)?;
+                a.quad = Some((
+                    w.parse().map_err(|_| bad())?,
+                    h.parse().map_err(|_| bad())?,
+                    dist.parse().map_err(|_| bad())?,
+                ));
+            }
+            "--report" => a.report = Some(v()?.into()),
+            other => return Err(format!("unknown argument {other}")),
+        }
+    }
+    Ok(a)
+}
+
+/// A swapchain and a host buffer holding what each of its images gets.
+struct Target {
+    swapchain: xr::Swapchain<xr::Vulkan>,
+    images: Vec<vk::Image>,
+    size: (u32, u32),
+    buffer: vk::Buffer,
+    memory: vk::DeviceMemory,
+}
+
+struct Gpu {
+    instance: ash::Instance,
+    device: ash::Device,
+    physical: vk::PhysicalDevice,
+    queue: vk::Queue,
+    pool: vk::CommandPool,
+    fence: vk::Fence,
+}
+
+impl Gpu {
+    /// A host-visible buffer holding `bytes`.
+    fn buffer(&self, bytes: &[u8]) -> Result<(vk::Buffer, vk::DeviceMemory), vk::Result> {
+        let info = vk::BufferCreateInfo::default()
+            .size(bytes.len() as u64)
+            .usage(vk::BufferUsageFlags::TRANSFER_SRC);
+        // SAFETY: valid create infos on a live device; the memory type is
+        // one the device lists as host visible and coherent, and the
+        // mapping is written within its size.
+        unsafe {
+            let buffer = self.device.create_buffer(&info, None)?;
+            let req = self.device.get_buffer_memory_requirements(buffer);
+            let props = self
+                .instance
+                .get_physical_device_memory_properties(self.physical);
+            let wanted =
+                vk::MemoryPropertyFlags::HOST_VISIBLE | vk::MemoryPropertyFlags::HOST_COHERENT;
+            let index = (0..props.memory_type_count)
+                .find(|&i| {
+                    req.memory_type_bits & (1 << i) != 0
+                        && props.memory_types[i as usize]
+                            .property_flags
+                            .contains(wanted)
+                })
+                .ok_or(vk::Result::ERROR_OUT_OF_HOST_MEMORY)?;
+            let memory = self.device.allocate_memory(
+                &vk::MemoryAllocateInfo::default()
+                    .allocation_size(req.size)
+                    .memory_type_index(index),
+                None,
+            )?;
+            self.device.bind_buffer_memory(buffer, memory, 0)?;
+            let p =
+                self.device
+                    .map_memory(memory, 0, vk::WHOLE_SIZE, vk::MemoryMapFlags::empty())?;
+            std::ptr::copy_nonoverlapping(bytes.as_ptr(), p.cast::<u8>(), bytes.len());
+            self.device.unmap_memory(memory);
+            Ok((buffer, memory))
+        }
+    }
+
+    /// Copies `buffer` into `image` (acquired, in COLOR_ATTACHMENT_OPTIMAL,
+    /// where it is left) and waits.
+    fn upload(
+        &self,
+        buffer: vk::Buffer,
+        image: vk::Image,
+        (w, h): (u32, u32),
+    ) -> Result<(), vk::Result> {
+        let range = vk::ImageSubresourceRange::default()
+            .aspect_mask(vk::ImageAspectFlags::COLOR)
+            .level_count(1)
+            .layer_count(1);
+        let to_dst = vk::ImageMemoryBarrier::default()
+            .old_layout(vk::ImageLayout::COLOR_ATTACHMENT_OPTIMAL)
+            .new_layout(vk::ImageLayout::TRANSFER_DST_OPTIMAL)
+            .dst_access_mask(vk::AccessFlags::TRANSFER_WRITE)
+            .src_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
+            .dst_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
+            .image(image)
+            .subresource_range(range);
+        let back = to_dst
+            .old_layout(vk::ImageLayout::TRANSFER_DST_OPTIMAL)
+            .new_layout(vk::ImageLayout::COLOR_ATTACHMENT_OPTIMAL)
+            .src_access_mask(vk::AccessFlags::TRANSFER_WRITE)
+            .dst_access_mask(vk::AccessFlags::COLOR_ATTACHMENT_WRITE);
+        let region = vk::BufferImageCopy::default()
+            .image_subresource(
+                vk::ImageSubresourceLayers::default()
+                    .aspect_mask(vk::ImageAspectFlags::COLOR)
+                    .layer_count(1),
+            )
+            .image_extent(vk::Extent3D {
+                width: w,
+                height: h,
+                depth: 1,
+            });
+        // SAFETY: a primary buffer from our pool, recorded and submitted on
+        // the queue the session was given, waited for before it is freed.
+        unsafe {
+            let cmd = self.device.allocate_command_buffers(
+                &vk::CommandBufferAllocateInfo::default()
+                    .command_pool(self.pool)
+                    .command_buffer_count(1),
+            )?[0];
+            self.device
+                .begin_command_buffer(cmd, &vk::CommandBufferBeginInfo::default())?;
+            self.device.cmd_pipeline_barrier(
+                cmd,
+                vk::PipelineStageFlags::TOP_OF_PIPE,
+                vk::PipelineStageFlags::TRANSFER,
+                vk::DependencyFlags::empty(),
+                &[],
+                &[],
+                &[to_dst],
+            );
+            self.device.cmd_copy_buffer_to_image(
+                cmd,
+                buffer,
+                image,
+                vk::ImageLayout::TRANSFER_DST_OPTIMAL,
+                &[region],
+            );
+            self.device.cmd_pipeline_barrier(
+                cmd,
+                vk::PipelineStageFlags::TRANSFER,
+                vk::PipelineStageFlags::COLOR_ATTACHMENT_OUTPUT,
+                vk::DependencyFlags::empty(),
+                &[],
+                &[],
+                &[back],
+            );
+            self.device.end_command_buffer(cmd)?;
+            let cmds = [cmd];
+            self.device.queue_submit(
+                self.queue,
+                &[vk::SubmitInfo::default().command_buffers(&cmds)],
+                self.fence,
+            )?;
+            self.device.wait_for_fences(&[self.fence], true, u64::MAX)?;
+            self.device.reset_fences(&[self.fence])?;
+            self.device.free_command_buffers(self.pool, &cmds);
+        }
+        Ok(())
+    }
+}
+
+fn target(
+    session: &xr::Session<xr::Vulkan>,
+    gpu: &Gpu,
+    (w, h): (u32, u32),
+    texel: impl Fn(usize, usize) -> [u8; 4],
+) -> Result<Target, Box<dyn std::error::Error>> {
+    let swapchain = session.create_swapchain(&xr::SwapchainCreateInfo {
+        create_flags: xr::SwapchainCreateFlags::EMPTY,
+        usage_flags: xr::SwapchainUsageFlags::COLOR_ATTACHMENT
+            | xr::SwapchainUsageFlags::TRANSFER_DST,
+        format: vk::Format::R8G8B8A8_SRGB.as_raw() as u32,
+        sample_count: 1,
+        width: w,
+        height: h,
+        face_count: 1,
+        array_size: 1,
+        mip_count: 1,
+    })?;
+    let images = swapchain
+        .enumerate_images()?
+        .into_iter()
+        .map(vk::Image::from_raw)
+        .collect();
+    let mut data = Vec::with_capacity((w * h * 4) as usize);
+    for y in 0..h as usize {
+        for x in 0..w as usize {
+            data.extend_from_slice(&texel(x, y));
+        }
+    }
+    let (buffer, memory) = gpu.buffer(&data)?;
+    Ok(Target {
+        swapchain,
+        images,
+        size: (w, h),
+        buffer,
+        memory,
+    })
+}
+
+fn draw(t: &mut Target, gpu: &Gpu) -> Result<(), Box<dyn std::error::Error>> {
+    let i = t.swapchain.acquire_image()?;
+    t.swapchain.wait_image(xr::Duration::INFINITE)?;
+    gpu.upload(t.buffer, t.images[i as usize], t.size)?;
+    t.swapchain.release_image()?;
+    Ok(())
+}
+
+fn rect((w, h): (u32, u32)) -> xr::Rect2Di {
+    xr::Rect2Di {
+        offset: xr::Offset2Di { x: 0, y: 0 },
+        extent: xr::Extent2Di {
+            width: w as i32,
+            height: h as i32,
+        },
+    }
+}
+
+fn main() {
+    match run() {
+        Ok(()) => {}
+        Err(e) => {
+            eprintln!("openxr_client: {e}");
+            std::process::exit(1);
+        }
+    }
+}
+
+fn run() -> Result<(), Box<dyn std::error::Error>> {
+    let args = args()?;
+    // SAFETY: the system's OpenXR loader (libopenxr_loader.so.1).
+    let entry = unsafe { xr::Entry::load(&()) }?;
+    let mut exts = xr::ExtensionSet::default();
+    exts.khr_vulkan_enable2 = true;
+    let instance = entry.create_instance(
+        &xr::ApplicationInfo {
+            application_name: "nedrt openxr_client",
+            application_version: 1,
+            engine_name: "none",
+            engine_version: 0,
+            api_version: xr::Version::new(1, 0, 0),
+        },
+        &exts,
+        &[],
+        &(),
+    )?;
+    let system = instance.system(xr::FormFactor::HEAD_MOUNTED_DISPLAY)?;
+    let stereo = xr::ViewConfigurationType::PRIMARY_STEREO;
+    let views = instance.enumerate_view_configuration_views(system, stereo)?;
+    instance.graphics_requirements::<xr::Vulkan>(system)?;
+
+    // SAFETY: the system's Vulkan loader.
+    let vk_entry = unsafe { ash::Entry::load() }?;
+    let app = vk::ApplicationInfo::default().api_version(vk::make_api_version(0, 1, 0, 0));
+    let create = vk::InstanceCreateInfo::default().application_info(&app);
+    let gipa = vk_entry.static_fn().get_instance_proc_addr;
+    // SAFETY: the loader's own vkGetInstanceProcAddr, given to the runtime
+    // as its type (the same function, spelt by another crate); the create
+    // infos outlive the calls; the handles are the ones Vulkan returned.
+    let (vk_instance, physical, device, family) = unsafe {
+        let gipa: openxr::sys::platform::VkGetInstanceProcAddr = std::mem::transmute(gipa);
+        let raw = instance
+            .create_vulkan_instance(system, gipa, (&raw const create).cast())?
+            .map_err(vk::Result::from_raw)?;
+        let vk_instance =
+            ash::Instance::load(vk_entry.static_fn(), vk::Instance::from_raw(raw as u64));
+        let physical =
+            vk::PhysicalDevice::from_raw(instance.vulkan_graphics_device(system, raw)? as u64);
+        let family = vk_instance
+            .get_physical_device_queue_family_properties(physical)
+            .iter()
+            .position(|q| q.queue_flags.contains(vk::QueueFlags::GRAPHICS))
+            .ok_or("no graphics queue")? as u32;
+        let priorities = [1.0];
+        let queues = [vk::DeviceQueueCreateInfo::default()
+            .queue_family_index(family)
+            .queue_priorities(&priorities)];
+        let dci = vk::DeviceCreateInfo::default().queue_create_infos(&queues);
+        let raw_device = instance
+            .create_vulkan_device(
+                system,
+                gipa,
+                physical.as_raw() as _,
+                (&raw const dci).cast(),
+            )?
+            .map_err(vk::Result::from_raw)?;
+        let device = ash::Device::load(
+            vk_instance.fp_v1_0(),
+            vk::Device::from_raw(raw_device as u64),
+        );
+        (vk_instance, physical, device, family)
+    };
+    // SAFETY: live device, a queue family it was created with.
+    let (queue, pool, fence) = unsafe {
+        (
+            device.get_device_queue(family, 0),
+            device.create_command_pool(
+                &vk::CommandPoolCreateInfo::default().queue_family_index(family),
+                None,
+            )?,
+            device.create_fence(&vk::FenceCreateInfo::default(), None)?,
+        )
+    };
+    let gpu = Gpu {
+        instance: vk_instance,
+        device,
+        physical,
+        queue,
+        pool,
+        fence,
+    };
+    // SAFETY: the handles are the live objects made above.
+    let (session, mut waiter, mut stream) = unsafe {
+        instance.create_session::<xr::Vulkan>(
+            system,
+            &xr::vulkan::SessionCreateInfo {
+                instance: gpu.instance.handle().as_raw() as _,
+                physical_device: gpu.physical.as_raw() as _,
+                device: gpu.device.handle().as_raw() as _,
+                queue_family_index: family,
+                queue_index: 0,
+            },
+        )
+    }?;
+    let space =
+        session.create_reference_space(xr::ReferenceSpaceType::VIEW, xr::Posef::IDENTITY)?;
+    let mut eyes = Vec::new();
+    for (e, v) in views.iter().enumerate() {
+        let size = (
+            v.recommended_image_rect_width,
+            v.recommended_image_rect_height,
+        );
+        eyes.push(target(&session, &gpu, size, |x, y| {
+            projection_texel(e, x, y)
+        })?);
+    }
+    let mut quad = match args.quad {
+        Some((w, h, _)) => Some(target(&session, &gpu, (w, h), quad_texel)?),
+        None => None,
+    };
+
+    let mut predicted = Vec::new();
+    let mut fov = Vec::new();
+    let mut states = Vec::new();
+    let mut end_ms = Vec::new();
+    let mut running = false;
+    let mut lost = false;
+    let mut frames = 0usize;
+    let mut buf = xr::EventDataBuffer::new();
+    'main: loop {
+        while let Some(event) = instance.poll_event(&mut buf)? {
+            if let xr::Event::SessionStateChanged(e) = event {
+                states.push(format!("{:?}", e.state()));
+                match e.state() {
+                    xr::SessionState::READY => {
+                        session.begin(stereo)?;
+                        running = true;
+                    }
+                    xr::SessionState::STOPPING => {
+                        session.end()?;
+                        running = false;
+                    }
+                    xr::SessionState::EXITING => break 'main,
+                    xr::SessionState::LOSS_PENDING => {
+                        lost = true;
+                        break 'main;
+                    }
+                    _ => {}
+                }
+            }
+        }
+        if !running {
+            std::thread::sleep(std::time::Duration::from_millis(5));
+            continue;
+        }
+        let state = waiter.wait()?;
+        stream.begin()?;
+        predicted.push(state.predicted_display_time.as_nanos());
+        if !state.should_render {
+            stream.end(
+                state.predicted_display_time,
+                xr::EnvironmentBlendMode::OPAQUE,
+                &[],
+            )?;
+            continue;
+        }
+        let (_, located) = session.locate_views(stereo, state.predicted_display_time, &space)?;
+        if fov.is_empty() {
+            fov = located
+                .iter()
+                .map(|v| {
+                    [
+                        v.fov.angle_left,
+                        v.fov.angle_right,
+                        v.fov.angle_up,
+                        v.fov.angle_down,
+                    ]
+                })
+                .collect();
+        }
+        for t in eyes.iter_mut() {
+            draw(t, &gpu)?;
+        }
+        if let Some(q) = quad.as_mut() {
+            draw(q, &gpu)?;
+        }
+        let proj_views: Vec<xr::CompositionLayerProjectionView<xr::Vulkan>> = eyes
+            .iter()
+            .zip(&located)
+            .map(|(t, v)| {
+                xr::CompositionLayerProjectionView::new()
+                    .pose(v.pose)
+                    .fov(v.fov)
+                    .sub_image(
+                        xr::SwapchainSubImage::new()
+                            .swapchain(&t.swapchain)
+                            .image_rect(rect(t.size)),
+                    )
+            })
+            .collect();
+        let projection = xr::CompositionLayerProjection::new()
+            .space(&space)
+            .views(&proj_views);
+        let started = Instant::now();
+        match (&quad, args.quad) {
+            (Some(q), Some((w, h, dist))) => {
+                // W×H panel pixels at DIST: the view's pixels per tan from
+                // its field of view.
+                let ppt = eyes[0].size.0 as f32 / 2.0 / fov[0][1].tan();
+                let layer = xr::CompositionLayerQuad::new()
+                    .space(&space)
+                    .layer_flags(xr::CompositionLayerFlags::BLEND_TEXTURE_SOURCE_ALPHA)
+                    .eye_visibility(xr::EyeVisibility::BOTH)
+                    .sub_image(
+                        xr::SwapchainSubImage::new()
+                            .swapchain(&q.swapchain)
+                            .image_rect(rect(q.size)),
+                    )
+                    .pose(xr::Posef {
+                        orientation: xr::Quaternionf::IDENTITY,
+                        position: xr::Vector3f {
+                            x: 0.0,
+                            y: 0.0,
+                            z: -dist,
+                        },
+                    })
+                    .size(xr::Extent2Df {
+                        width: w as f32 * dist / ppt,
+                        height: h as f32 * dist / ppt,
+                    });
+                stream.end(
+                    state.predicted_display_time,
+                    xr::EnvironmentBlendMode::OPAQUE,
+                    &[&projection, &layer],
+                )?;
+            }
+            _ => stream.end(
+                state.predicted_display_time,
+                xr::EnvironmentBlendMode::OPAQUE,
+                &[&projection],
+            )?,
+        }
+        end_ms.push(started.elapsed().as_secs_f64() * 1e3);
+        frames += 1;
+        if frames == args.frames {
+            session.request_exit()?;
+        }
+    }
+    let report = format!(
+        "{{\"frames\": {frames}, \"lost\": {lost}, \"states\": {states:?}, \"predicted_ns\": {predicted:?}, \
+         \"fov\": {fov:?}, \"view_sizes\": {sizes:?}, \"end_frame_ms\": {end_ms:?}}}",
+        sizes = eyes
+            .iter()
+            .map(|t| [t.size.0, t.size.1])
+            .collect::<Vec<_>>()
+    );
+    match &args.report {
+        Some(p) => std::fs::write(p, report)?,
+        None => println!("{report}"),
+    }
+    // SAFETY: every submission was waited for. The runtime's images go
+    // with their swapchains and session, dropped before the device.
+    unsafe {
+        for t in eyes.iter().chain(quad.iter()) {
+            gpu.device.destroy_buffer(t.buffer, None);
+            gpu.device.free_memory(t.memory, None);
+        }
+        drop((eyes, quad, space, stream, waiter, session));
+        gpu.device.destroy_fence(gpu.fence, None);
+        gpu.device.destroy_command_pool(gpu.pool, None);
+        gpu.device.destroy_device(None);
+        gpu.instance.destroy_instance(None);
+    }
+    Ok(())
+}
