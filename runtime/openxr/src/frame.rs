@@ -296,7 +296,10 @@ fn compose(inner: &mut SessionInner, layers: &[Submitted], time: i64) -> Result<
                         PixelFormat::Rgba8Linear
                     };
                     let link = inner.link.as_mut().ok_or(xr::Result::ERROR_SESSION_LOST)?;
+                    let sending = now_ns();
                     link.projection(v as u8, format, target, &rgba, capture)?;
+                    inner.stats.send_ns += (now_ns() - sending).max(0) as u64;
+                    let link = inner.link.as_mut().ok_or(xr::Result::ERROR_SESSION_LOST)?;
                     if v == 0 {
                         // The reply's prediction is the service's for a
                         // frame taken now: this one.

@@ -51,6 +51,8 @@ pub struct FrameStats {
     pub copy_ns: u64,
     /// Texels read back.
     pub texels: u64,
+    /// Sending projections to the service and waiting for its replies.
+    pub send_ns: u64,
 }
 
 impl Drop for SessionInner {
@@ -60,14 +62,15 @@ impl Drop for SessionInner {
             log_info!(
                 "{} frames sent; the service predicted the display time xrWaitFrame gave for {}, \
                  a later refresh for {}, an earlier one for {}; copy-out: {} images, {:.3} ms \
-                 each on average ({:.1} Mtexel/s)",
+                 each on average ({:.1} Mtexel/s); sending a view to the service: {:.3} ms",
                 s.frames,
                 s.same,
                 s.later,
                 s.earlier,
                 s.copies,
                 s.copy_ns as f64 / s.copies.max(1) as f64 / 1e6,
-                s.texels as f64 / (s.copy_ns.max(1) as f64 / 1e9) / 1e6
+                s.texels as f64 / (s.copy_ns.max(1) as f64 / 1e9) / 1e6,
+                s.send_ns as f64 / s.copies.max(1) as f64 / 1e6
             );
         }
     }
