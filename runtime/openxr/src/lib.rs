@@ -24,6 +24,7 @@ mod link;
 mod pixels;
 mod session;
 mod space;
+mod spaces;
 mod state;
 mod swapchain;
 mod vulkan;
@@ -121,12 +122,12 @@ fn lookup(
         "xrBeginSession" => f!(session::begin_session),
         "xrEndSession" => f!(session::end_session),
         "xrRequestExitSession" => f!(session::request_exit_session),
-        "xrEnumerateReferenceSpaces" => f!(session::enumerate_reference_spaces),
-        "xrCreateReferenceSpace" => f!(session::create_reference_space),
-        "xrGetReferenceSpaceBoundsRect" => f!(session::get_reference_space_bounds_rect),
-        "xrCreateActionSpace" => f!(session::create_action_space),
-        "xrLocateSpace" => f!(session::locate_space),
-        "xrDestroySpace" => f!(session::destroy_space),
+        "xrEnumerateReferenceSpaces" => f!(spaces::enumerate_reference_spaces),
+        "xrCreateReferenceSpace" => f!(spaces::create_reference_space),
+        "xrGetReferenceSpaceBoundsRect" => f!(spaces::get_reference_space_bounds_rect),
+        "xrCreateActionSpace" => f!(spaces::create_action_space),
+        "xrLocateSpace" => f!(spaces::locate_space),
+        "xrDestroySpace" => f!(spaces::destroy_space),
         "xrLocateViews" => f!(session::locate_views),
         "xrEnumerateSwapchainFormats" => f!(swapchain::enumerate_swapchain_formats),
         "xrCreateSwapchain" => f!(swapchain::create_swapchain),

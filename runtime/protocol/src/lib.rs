@@ -4,8 +4,9 @@
 //! that the client creates and names in its hello. The service reads each
 //! payload once, replies, and the client may then reuse the memory.
 //!
-//! [`Client`] is the client side, used by `examples/stream_client.rs` and
-//! the tests; the service side is nedrt-service's `source::socket`.
+//! [`Client`] is the client side, used by `examples/stream_client.rs`
+//! (this crate's), the OpenXR runtime and the tests; the service side is
+//! nedrt-service's `source::socket`.
 //!
 //! nedrt-protocol, layer 0 of nedrt: the wire format alone, with no GPU or
 //! window dependency, so that a client (an OpenXR runtime library, the
@@ -17,7 +18,15 @@ use std::os::unix::net::UnixStream;
 use std::path::{Path, PathBuf};
 
 mod codec;
+pub mod test_pattern;
 pub mod v2;
+
+/// CLOCK_MONOTONIC in nanoseconds: the protocol's clock (capture and
+/// display times).
+pub fn monotonic_ns() -> u64 {
+    let t = rustix::time::clock_gettime(rustix::time::ClockId::Monotonic);
+    t.tv_sec as u64 * 1_000_000_000 + t.tv_nsec as u64
+}
 
 use codec::{Le, LeMut};
 

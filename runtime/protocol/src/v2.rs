@@ -13,6 +13,9 @@ use super::{FrameHeader, Malformed, REPLY_LEN, Reply};
 use super::{PixelFormat, Placement};
 
 pub const VERSION_2: u16 = 2;
+
+/// The view byte of a panel-sized projection frame for every view.
+pub const ALL_VIEWS: u8 = 255;
 /// Submission header: version 1's 48 bytes, then kind u8, view u8,
 /// placement u8, reserved u8, layer u32, z i32, x, y (i32 pixels or f32
 /// degrees), reserved u32.

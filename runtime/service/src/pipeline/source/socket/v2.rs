@@ -22,8 +22,7 @@ use crate::pipeline::protocol::v2::{
 use crate::pipeline::protocol::{Reply, STATUS_OK};
 use crate::pipeline::service::Compositor;
 
-/// The view byte of a panel-sized projection frame for every view.
-pub const ALL_VIEWS: u8 = 255;
+pub use nedrt_protocol::v2::ALL_VIEWS;
 
 /// A version 2 submission the service accepted.
 #[derive(Debug, Clone, Copy, PartialEq)]

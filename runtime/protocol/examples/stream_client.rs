@@ -23,13 +23,11 @@ use std::time::{Duration, Instant};
 
 use nedrt_protocol::PixelFormat;
 use nedrt_protocol::Placement;
+use nedrt_protocol::monotonic_ns;
+use nedrt_protocol::test_pattern::{pattern_rgba8, pattern_rgba8_shifted, stereo_disparity_px};
+use nedrt_protocol::v2::ALL_VIEWS;
 use nedrt_protocol::v2::{HeaderV2, QuadFormat};
 use nedrt_protocol::{Client, DEFAULT_SHM_DIR, FrameHeader, STATUS_OK};
-use nedrt_service::pipeline::pacing::monotonic_ns;
-use nedrt_service::pipeline::source::pattern::{
-    pattern_rgba8, pattern_rgba8_shifted, stereo_disparity_px,
-};
-use nedrt_service::pipeline::source::socket::v2::ALL_VIEWS;
 
 /// The HUD bar: a dark translucent band with a bright bar growing with
 /// `second`, premultiplied.
