@@ -12,7 +12,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 frames="${1:-200}"
 shift || true
-cargo build --release -q -p nedrt -p nedrt-openxr --examples
+cargo build --release -q -p nedrt -p nedrt-openxr --bins --lib --examples
 dir="$(mktemp -d)"
 trap 'kill "$service" 2>/dev/null || true; rm -rf "$dir"' EXIT
 export XDG_RUNTIME_DIR="${XDG_RUNTIME_DIR:-/tmp}"
@@ -25,7 +25,7 @@ printf '{"file_format_version": "1.0.0", "runtime": {"name": "nedrt", "library_p
     "$PWD/target/release/libnedrt_openxr.so" >"$dir/manifest.json"
 XR_RUNTIME_JSON="$dir/manifest.json" NEDRT_SOCKET="$dir/nedrt.sock" \
     target/release/examples/openxr_client --frames "$frames" --report "$dir/client.json" \
-    2> >(grep nedrt-openxr >&2)
+    2> >(grep nedrt-openxr >&2 || true)
 python3 - "$dir/client.json" <<'PY'
 import json, statistics, sys
 c = json.load(open(sys.argv[1]))

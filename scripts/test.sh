@@ -116,7 +116,7 @@ if [ "${#hw_run[@]}" -gt 0 ]; then
     # core, and the window and soak tests then miss their deadlines when two
     # run at once (seen on the 2-core machine; each passes alone).
     # The OpenXR tests load the runtime library from the target folder.
-    cargo build --release -p nedrt-openxr --examples
+    cargo build --release -p nedrt-openxr --lib --examples
     cargo test --release --workspace --tests -- --ignored --test-threads=1 "${hw_filter[@]}"
 fi
 echo "== pytest tests/python models/tests"

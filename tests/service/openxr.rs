@@ -246,7 +246,7 @@ fn openxr_client() -> PathBuf {
         .join("examples/openxr_client");
     assert!(
         path.exists(),
-        "{} is missing: build it with `cargo build --release -p nedrt-openxr --examples` (scripts/test.sh does)",
+        "{} is missing: build it with `cargo build --release -p nedrt-openxr --lib --examples` (scripts/test.sh does)",
         path.display()
     );
     path

@@ -18,23 +18,57 @@ pub const MAX_LAYERS: u32 = 16;
 /// The refresh a frame started now is shown at, and when to start it.
 ///
 /// The service's last reply predicted `timing.predicted_display_ns` for a
-/// frame submitted when the reply was received (`received_ns`): the
-/// application is given the next refresh on the service's grid that it
-/// can still make with the same lead, and never the same refresh twice.
-/// It starts its frame that lead before the refresh.
-pub fn next_frame(timing: Timing, received_ns: i64, now: i64, last_predicted: i64) -> (i64, i64) {
+/// frame submitted when the reply was received (`received_ns`): that is
+/// the service's lead from a submission to its refresh. A frame started
+/// now is submitted `make_ns` later (the application's rendering and the
+/// copy-out, as learnt), so it is given the first refresh on the service's
+/// grid at or after now + `make_ns` + the lead, and never the same refresh
+/// twice; it should start the lead and `make_ns` before that refresh.
+pub fn next_frame(
+    timing: Timing,
+    received_ns: i64,
+    now: i64,
+    last_predicted: i64,
+    make_ns: i64,
+) -> (i64, i64) {
     let period = timing.period_ns.max(1);
     let lead = (timing.predicted_display_ns - received_ns).max(0);
-    // The first refresh on the grid at or after `now + lead`.
-    let earliest = now + lead;
-    let behind = (earliest - timing.predicted_display_ns).max(0);
+    let ahead = lead + make_ns.max(0);
+    let behind = (now + ahead - timing.predicted_display_ns).max(0);
     let steps = (behind + period - 1) / period;
     let mut predicted = timing.predicted_display_ns + steps * period;
     if predicted <= last_predicted {
         let behind = (last_predicted - predicted) / period + 1;
         predicted += behind * period;
     }
-    (predicted, predicted - lead)
+    (predicted, predicted - ahead)
+}
+
+/// A running estimate of how long a frame takes from xrWaitFrame's return
+/// to its submission to the service: a mean and a mean deviation over
+/// about 8 frames, bounded at mean + 2 deviations.
+#[derive(Debug, Default, Clone, Copy)]
+pub struct MakeTime {
+    mean: f64,
+    dev: f64,
+    seen: bool,
+}
+
+impl MakeTime {
+    pub fn record(&mut self, ns: i64) {
+        let x = ns.max(0) as f64;
+        if self.seen {
+            let d = x - self.mean;
+            self.mean += d / 8.0;
+            self.dev += (d.abs() - self.dev) / 8.0;
+        } else {
+            (self.mean, self.seen) = (x, true);
+        }
+    }
+
+    pub fn bound_ns(&self) -> i64 {
+        (self.mean + 2.0 * self.dev) as i64
+    }
 }
 
 fn sleep_until(t: i64) {
@@ -90,7 +124,13 @@ pub unsafe extern "system" fn wait_frame(
                 .as_ref()
                 .and_then(|l| l.timing().map(|t| (t, l.received_ns())))
                 .ok_or(xr::Result::ERROR_SESSION_LOST)?;
-            let (p, w) = next_frame(timing, received, now_ns(), inner.frame.last_predicted);
+            let (p, w) = next_frame(
+                timing,
+                received,
+                now_ns(),
+                inner.frame.last_predicted,
+                inner.frame.make.bound_ns(),
+            );
             inner.frame.last_predicted = p;
             (p, w, timing.period_ns)
         };
@@ -98,6 +138,7 @@ pub unsafe extern "system" fn wait_frame(
         let mut inner = lock(&s.inner);
         inner.check_running()?;
         inner.frame.waited += 1;
+        inner.frame.woke_ns = now_ns();
         inner.advance(&inst, s.handle);
         state.predicted_display_time = xr::Time::from_nanos(predicted);
         state.predicted_display_period = xr::Duration::from_nanos(period);
@@ -295,8 +336,8 @@ fn compose(inner: &mut SessionInner, layers: &[Submitted], time: i64) -> Result<
                     } else {
                         PixelFormat::Rgba8Linear
                     };
-                    let link = inner.link.as_mut().ok_or(xr::Result::ERROR_SESSION_LOST)?;
                     let sending = now_ns();
+                    let link = inner.link.as_mut().ok_or(xr::Result::ERROR_SESSION_LOST)?;
                     link.projection(v as u8, format, target, &rgba, capture)?;
                     inner.stats.send_ns += (now_ns() - sending).max(0) as u64;
                     let link = inner.link.as_mut().ok_or(xr::Result::ERROR_SESSION_LOST)?;
@@ -304,6 +345,16 @@ fn compose(inner: &mut SessionInner, layers: &[Submitted], time: i64) -> Result<
                         // The reply's prediction is the service's for a
                         // frame taken now: this one.
                         let said = link.timing().map_or(time, |t| t.predicted_display_ns);
+                        // The service predicts as it replies: a frame is
+                        // made by then (rendered, copied out, sent, taken).
+                        let woke = inner.frame.woke_ns;
+                        log_debug!(
+                            "frame for {time}: made in {:.2} ms (bound {:.2}); the service says {:+.2} periods",
+                            (now_ns() - woke) as f64 / 1e6,
+                            inner.frame.make.bound_ns() as f64 / 1e6,
+                            (said - time) as f64 / info.refresh_period_ns.max(1) as f64
+                        );
+                        inner.frame.make.record(now_ns() - woke);
                         let st = &mut inner.stats;
                         st.frames += 1;
                         match said.cmp(&time) {
@@ -429,18 +480,40 @@ mod tests {
             period_ns: P,
         };
         // Received half a period before the prediction: the lead is half
-        // a period. Asked at once: the service's own prediction.
+        // a period. Asked at once, made in no time: the service's own
+        // prediction.
         let received = 100 * P - P / 2;
         assert_eq!(
-            next_frame(t, received, received, 0),
+            next_frame(t, received, received, 0, 0),
             (100 * P, 100 * P - P / 2)
         );
         // Asked a period and a bit later: the next refresh it can make.
-        let (p, wake) = next_frame(t, received, received + P + 1, 0);
+        let (p, wake) = next_frame(t, received, received + P + 1, 0, 0);
         assert_eq!(p, 102 * P);
         assert_eq!(wake, p - P / 2);
         // Never the same refresh twice.
-        assert_eq!(next_frame(t, received, received, 100 * P).0, 101 * P);
-        assert_eq!(next_frame(t, received, received, 103 * P).0, 104 * P);
+        assert_eq!(next_frame(t, received, received, 100 * P, 0).0, 101 * P);
+        assert_eq!(next_frame(t, received, received, 103 * P, 0).0, 104 * P);
+        // A frame that takes 0.7 of a period to make misses the refresh
+        // the service predicts for a submission now: it is given the next,
+        // and starts early enough for it.
+        let (p, wake) = next_frame(t, received, received, 0, 7 * P / 10);
+        assert_eq!(p, 101 * P);
+        assert_eq!(wake, p - P / 2 - 7 * P / 10);
+    }
+
+    #[test]
+    fn the_make_time_bound_follows_the_frames() {
+        let mut m = MakeTime::default();
+        assert_eq!(m.bound_ns(), 0);
+        for _ in 0..64 {
+            m.record(1_000_000);
+        }
+        assert_eq!(m.bound_ns(), 1_000_000);
+        for i in 0..64 {
+            m.record(if i % 2 == 0 { 1_000_000 } else { 3_000_000 });
+        }
+        let b = m.bound_ns();
+        assert!(b > 3_000_000 && b < 5_000_000, "{b}");
     }
 }

@@ -208,3 +208,6 @@ pub unsafe extern "system" fn get_instance_proc_addr(
         }
     })
 }
+
+#[cfg(test)]
+mod tests;

@@ -85,6 +85,10 @@ pub struct FrameLoop {
     pub begun_ns: i64,
     /// The last predicted display time handed out.
     pub last_predicted: i64,
+    /// When xrWaitFrame last returned.
+    pub woke_ns: i64,
+    /// How long a frame takes from then to its submission.
+    pub make: crate::frame::MakeTime,
     pub frames_ended: u64,
 }
 
