@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Runs the fuzz targets (fuzz/fuzz_targets, docs/reliability.md) with
+# Runs the fuzz targets (fuzz/fuzz_targets and fuzz/wire, docs/reliability.md) with
 # cargo fuzz (libFuzzer, nightly toolchain), each for SECONDS, seeded from
 # the repo's own files (fuzz/seeds/<target>). Findings land in
 # fuzz/artifacts/<target>; the grown corpus in fuzz/corpus/<target> (not
@@ -24,23 +24,49 @@ fi
 if ! cargo fuzz --version >/dev/null 2>&1; then
     cargo install cargo-fuzz --locked
 fi
+# Two fuzz crates: fuzz/ (the parsers as the service and the commands run
+# them, linking the service) and fuzz/wire (the wire format alone, linking
+# nedrt-protocol only). Each target runs from the crate that has it.
+fuzz_dirs=(fuzz fuzz/wire)
+declare -A dir_of=()
+all=()
+for d in "${fuzz_dirs[@]}"; do
+    while read -r t; do
+        dir_of[$t]="$d"
+        all+=("$t")
+    done < <(cargo +nightly fuzz list --fuzz-dir "$d")
+done
 targets=("$@")
 if [ ${#targets[@]} -eq 0 ]; then
-    mapfile -t targets < <(cargo +nightly fuzz list)
+    targets=("${all[@]}")
 fi
+for t in "${targets[@]}"; do
+    if [ -z "${dir_of[$t]:-}" ]; then
+        echo "no fuzz target $t (there are: ${all[*]})" >&2
+        exit 2
+    fi
+done
 # Rust code without unsafe blocks of its own: no sanitizer (-s none), so
 # panics, overflows (debug assertions stay on), hangs and over-large
 # allocations are what it finds, at several times the speed.
 profile=(-O)
 if [ "${NEDRT_FUZZ_BUILD:-release}" = dev ]; then profile=(--dev); fi
-cargo +nightly fuzz build "${profile[@]}" -s none >&2
+# Only the crates whose targets run are built.
+for d in "${fuzz_dirs[@]}"; do
+    for t in "${targets[@]}"; do
+        if [ "${dir_of[$t]}" = "$d" ]; then
+            cargo +nightly fuzz build --fuzz-dir "$d" "${profile[@]}" -s none >&2
+            break
+        fi
+    done
+done
 status=0
 for t in "${targets[@]}"; do
-    mkdir -p "fuzz/corpus/$t" "fuzz/artifacts/$t"
+    mkdir -p "fuzz/corpus/$t" "fuzz/artifacts/$t" "fuzz/seeds/$t"
     log="fuzz/artifacts/$t/last-run.log"
     # -rss_limit_mb: the loaders' own caps keep a run far below this;
     # -timeout: one input taking seconds is a hang worth a look.
-    if ! cargo +nightly fuzz run "${profile[@]}" -s none "$t" "fuzz/corpus/$t" "fuzz/seeds/$t" -- \
+    if ! cargo +nightly fuzz run --fuzz-dir "${dir_of[$t]}" "${profile[@]}" -s none "$t" "fuzz/corpus/$t" "fuzz/seeds/$t" -- \
         -max_total_time="$seconds" -rss_limit_mb=3072 -timeout=10 -max_len=65536 \
         -print_final_stats=1 >"$log" 2>&1; then
         status=1
