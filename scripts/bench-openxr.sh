@@ -26,9 +26,17 @@ printf '{"file_format_version": "1.0.0", "runtime": {"name": "nedrt", "library_p
 XR_RUNTIME_JSON="$dir/manifest.json" NEDRT_SOCKET="$dir/nedrt.sock" \
     target/release/examples/openxr_client --frames "$frames" --report "$dir/client.json" \
     2> >(grep nedrt-openxr >&2 || true)
-python3 - "$dir/client.json" <<'PY'
+# The service's report: the client's frames shown at, after or before the
+# display time each was rendered for.
+kill -TERM "$service"
+wait "$service" || true
+python3 - "$dir/client.json" "$dir/report.json" <<'PY'
 import json, statistics, sys
 c = json.load(open(sys.argv[1]))
+for cl in json.load(open(sys.argv[2])).get("clients", []):
+    if cl["client"] > 0:
+        print(f"service: client {cl['client']}: {cl['shown']} shown, {cl['on_time']} at their display time, "
+              f"{cl['late']} late, {cl['early']} early; submitted {cl['mean_lead_ms']:.2f} ms ahead on average")
 t = sorted(c["end_frame_ms"])
 print(f"client: {c['frames']} frames, views {c['view_sizes']}; xrEndFrame median {statistics.median(t):.2f} ms, "
       f"p10 {t[len(t)//10]:.2f}, p90 {t[9*len(t)//10]:.2f} ms")

@@ -90,7 +90,7 @@ fn version_2(shm: &[u8], shm_size: u64) {
                 .and_then(|o| shm.get(o..o.checked_add(length)?))
         };
         match admitted {
-            AdmittedV2::Projection { view, frame: req } => {
+            AdmittedV2::Projection { view, frame: req, .. } => {
                 let size = view.map_or(PANEL, |v| views[usize::from(v)]);
                 if let Some(payload) = slice(req.offset, req.length) {
                     check_frame(payload, req.format, req.capture_ns, size);

@@ -404,6 +404,19 @@ mod needs_gpu_and_openxr_client {
             .and_then(|s| s.trim().parse().ok())
             .unwrap_or_else(|| panic!("no frame summary: {err}"));
         assert!(same * 2 >= 40, "{err}");
+        // Each frame carries its display time (protocol version 2's
+        // projection header), which is its prediction in the service: the
+        // report says whether it was shown then.
+        let clients = r["clients"].as_array().expect("clients");
+        let me = clients
+            .iter()
+            .find(|c| c["client"].as_u64() == Some(1))
+            .unwrap_or_else(|| panic!("no client 1: {r}"));
+        let (shown, on_time) = (
+            me["shown"].as_u64().expect("shown"),
+            me["on_time"].as_u64().expect("on_time"),
+        );
+        assert!(shown > 0 && on_time * 2 >= shown, "{me}");
 
         // The composition, made here: each eye's pattern and the quad over it.
         let ppt = LENS_M / PITCH_M;

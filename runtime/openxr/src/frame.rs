@@ -338,7 +338,8 @@ fn compose(inner: &mut SessionInner, layers: &[Submitted], time: i64) -> Result<
                     };
                     let sending = now_ns();
                     let link = inner.link.as_mut().ok_or(xr::Result::ERROR_SESSION_LOST)?;
-                    link.projection(v as u8, format, target, &rgba, capture)?;
+                    let display = u64::try_from(time).unwrap_or(0);
+                    link.projection(v as u8, format, target, &rgba, (capture, display))?;
                     inner.stats.send_ns += (now_ns() - sending).max(0) as u64;
                     let link = inner.link.as_mut().ok_or(xr::Result::ERROR_SESSION_LOST)?;
                     if v == 0 {

@@ -181,17 +181,19 @@ impl Link {
         self.next_id - 1
     }
 
-    /// View `view`'s projection layer, `rgba` of the view's size.
+    /// View `view`'s projection layer, `rgba` of the view's size, rendered
+    /// for the refresh at `display_ns` (the frame's prediction).
     pub fn projection(
         &mut self,
         view: u8,
         format: PixelFormat,
         size: (usize, usize),
         rgba: &[u8],
-        capture_ns: u64,
+        (capture_ns, display_ns): (u64, u64),
     ) -> Result<(), LinkError> {
         let id = self.id();
-        let header = HeaderV2::projection(view, format, size, id, capture_ns);
+        let header =
+            HeaderV2::projection(view, format, size, id, capture_ns).for_display(display_ns);
         self.send(&header, rgba)
     }
 

@@ -100,9 +100,19 @@ pub struct HeaderV2 {
     pub length: u64,
     pub view: u8,
     pub layer: Layer,
+    /// A projection layer's display time: the refresh it was rendered for
+    /// (an OpenXR frame's `displayTime`), CLOCK_MONOTONIC ns; 0 for none
+    /// (the service predicts as it takes the frame). Bytes 60–67 of a
+    /// projection; quads and removals have none.
+    pub display_ns: u64,
 }
 
 impl HeaderV2 {
+    /// This projection frame, rendered for the refresh at `display_ns`.
+    pub fn for_display(self, display_ns: u64) -> Self {
+        Self { display_ns, ..self }
+    }
+
     /// A projection frame for `view`, its payload at offset 0.
     pub fn projection(
         view: u8,
@@ -121,6 +131,7 @@ impl HeaderV2 {
             length: (width * height * format.bytes_per_pixel()) as u64,
             view,
             layer: Layer::Projection,
+            display_ns: 0,
         }
     }
 
@@ -150,6 +161,7 @@ impl HeaderV2 {
                 z,
                 placement,
             },
+            display_ns: 0,
         }
     }
 
@@ -165,6 +177,7 @@ impl HeaderV2 {
             length: 0,
             view,
             layer: Layer::Remove { layer },
+            display_ns: 0,
         }
     }
 
@@ -184,7 +197,10 @@ impl HeaderV2 {
         let mut w = LeMut(&mut b);
         w.bytes(49, &[self.view]);
         let (kind, placement, layer, z) = match self.layer {
-            Layer::Projection => (0u8, 0u8, 0u32, 0i32),
+            Layer::Projection => {
+                w.u64(60, self.display_ns);
+                (0u8, 0u8, 0u32, 0i32)
+            }
             Layer::Quad {
                 layer,
                 z,
@@ -219,10 +235,10 @@ impl HeaderV2 {
         }
         let (layer, z) = (r.u32(52), r.i32(56));
         let layer = match (b[48], b[50]) {
-            (0, 0) if layer == 0 && z == 0 && r.u64(60) == 0 => Layer::Projection,
+            (0, 0) if layer == 0 && z == 0 => Layer::Projection,
             (0, _) => {
                 return Err(Malformed(
-                    "a projection layer has no placement, layer id or z (bytes 50, 52–67 must be 0)"
+                    "a projection layer has no placement, layer id or z (bytes 50, 52–59 must be 0)"
                         .into(),
                 ));
             }
@@ -286,6 +302,11 @@ impl HeaderV2 {
             offset: f.offset,
             length: f.length,
             view: b[49],
+            display_ns: if layer == Layer::Projection {
+                r.u64(60)
+            } else {
+                0
+            },
             layer,
         })
     }
@@ -434,8 +455,11 @@ mod tests {
             let header = match layer {
                 // A removal carries only its layer id.
                 Layer::Remove { layer } => HeaderV2::remove(view, layer, id),
+                Layer::Projection => HeaderV2 { format, width: w, height: h, frame_id: id,
+                                capture_ns: t, offset: off, length: len, view, layer,
+                                display_ns: t.rotate_left(7) },
                 _ => HeaderV2 { format, width: w, height: h, frame_id: id, capture_ns: t,
-                                offset: off, length: len, view, layer },
+                                offset: off, length: len, view, layer, display_ns: 0 },
             };
             prop_assert_eq!(HeaderV2::parse(&header.to_bytes()), Ok(header));
         }

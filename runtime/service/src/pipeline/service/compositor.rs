@@ -146,7 +146,11 @@ impl Compositor {
             work_ns: 0,
             owner: self.owner,
             submit_ns: now,
-            predicted_ns: refresh_ns.unwrap_or_else(|| self.schedule.predicted_display_ns(now)),
+            // A client's display time more than a second from now is no
+            // prediction (a hostile or broken clock): the service's own.
+            predicted_ns: refresh_ns
+                .filter(|r| r.abs_diff(now) < 1_000_000_000)
+                .unwrap_or_else(|| self.schedule.predicted_display_ns(now)),
             ready_ns: now,
         });
         Ok(())

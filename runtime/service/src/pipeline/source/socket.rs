@@ -416,6 +416,7 @@ fn submit_frame(
     id: u64,
     view: Option<u8>,
     req: &Admitted,
+    display_ns: Option<u64>,
 ) -> (u32, String) {
     let (w, h) = match view {
         Some(v) => compositor.view_size(v).unwrap_or((0, 0)),
@@ -438,8 +439,8 @@ fn submit_frame(
                 payload,
             };
             let submitted = match view {
-                Some(v) => compositor.submit_view(v, frame),
-                None => compositor.submit(frame),
+                Some(v) => compositor.submit_view_for(v, frame, display_ns),
+                None => compositor.submit_for(frame, display_ns),
             };
             match submitted {
                 Ok(()) => (STATUS_OK, String::new()),
@@ -531,7 +532,7 @@ fn serve(
                 compositor.reject_before_submit(e.reason, id, &e.detail);
                 (e.reason.code(), e.detail)
             }
-            Ok(req) => submit_frame(compositor, &shm, id, None, &req),
+            Ok(req) => submit_frame(compositor, &shm, id, None, &req, None),
         };
         if let Err(e) = reply(&mut stream, status, id, message) {
             if matches!(e.kind(), ErrorKind::BrokenPipe | ErrorKind::ConnectionReset) {

@@ -32,6 +32,9 @@ pub enum AdmittedV2 {
     Projection {
         view: Option<u8>,
         frame: Admitted,
+        /// The refresh the client rendered it for (its OpenXR display
+        /// time): the frame's prediction; `None`: predicted as it is taken.
+        display_ns: Option<u64>,
     },
     Quad(AdmittedQuad),
     Remove {
@@ -166,6 +169,7 @@ pub fn admit(
                     (!(all || the_panel)).then_some(hd.view)
                 },
                 frame: admitted,
+                display_ns: (hd.display_ns > 0).then_some(hd.display_ns),
             })
         }
         Layer::Quad {
@@ -226,7 +230,11 @@ fn handle(
     admitted: AdmittedV2,
 ) -> (u32, String) {
     match admitted {
-        AdmittedV2::Projection { view, frame } => submit_frame(compositor, shm, id, view, &frame),
+        AdmittedV2::Projection {
+            view,
+            frame,
+            display_ns,
+        } => submit_frame(compositor, shm, id, view, &frame, display_ns),
         AdmittedV2::Quad(q) => {
             let mut payload = vec![0u8; q.length];
             if let Err(e) = shm.read_exact_at(&mut payload, q.offset) {
