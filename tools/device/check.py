@@ -10,13 +10,15 @@ Modes:
              a 9-minute envelope (each step has a cap; the D-CNN training
              takes what the steps before it left, at most its budget);
   --call 2   on the accelerator machine, right after call 1: the steps call 1
-             leaves no room for (the speed-against-accuracy chart with the
-             GPU's rows), within a 4-minute envelope;
+             leaves no room for (the OpenXR runtime's copy-out, the
+             speed-against-accuracy chart with the GPU's rows), within a
+             4-minute envelope;
   --smoke    every call's steps at tiny sizes on this machine's CPU
              (lavapipe, torch on the CPU, a few training steps): CI runs it;
              it needs the trainer's .venv, which `bash scripts/test.sh` makes;
   --prepare  here, before a call: builds what travels into .devcheck/ (the
              release binary, stripped and xz-compressed; the Vulkan loader
+             packages; the OpenXR runtime, its client and the OpenXR loader
              packages; a manifest naming the commit);
   --plan     what would travel (the tracked tree, untracked files, .devcheck/)
              against the 64 MiB limit, and each call's steps and caps.
@@ -45,6 +47,7 @@ from check_runner import (CARRY, ENVELOPE2_S, ENVELOPE_S, REPO, Runner, Step, gi
                           missing_modules, no_venv_message)
 from check_steps import (STEPS, calls, sizes, step_ceilings, step_fft, step_per_layer, step_pipeline,  # noqa: E402
                          step_setup, step_torch, step_tradeoff, step_wgsl)
+from check_openxr import step_openxr  # noqa: E402
 from check_train import step_export, step_teacher, step_train  # noqa: E402
 from check_travel import plan, prepare  # noqa: E402
 
@@ -64,6 +67,7 @@ def bodies(r: Runner, z: dict, steps: dict, device: str) -> dict:
         "teacher": (lambda s: step_teacher(r, s, z), setup),
         "train": (lambda s: step_train(r, s, z, device), [steps.get("teacher") or Step("teacher", "", 0)]),
         "export": (lambda s: step_export(r, s, z), [steps.get("train") or Step("train", "", 0)]),
+        "openxr": (lambda s: step_openxr(r, s, z), setup),
         "tradeoff": (lambda s: step_tradeoff(r, s, z), setup),
     }
 

@@ -47,6 +47,10 @@ def report(steps: dict, meta: dict) -> str:
                f"{ms(refine.get('e2e_p50_ms'))} ms; {refine['presented']} shown, {refine['dropped']} dropped."]
     if text("pipeline"):
         md += ["", f"## The pipeline end to end ({head})", "", text("pipeline")]
+    if text("openxr"):
+        md += ["", f"## The OpenXR runtime ({head})", "", "The openxr crate's client through libnedrt_openxr.so "
+               "into nedrt run --stereo --sink headless (docs/openxr.md): the copy-out of each view on the "
+               "application's queue, its send to the service, and how the display times held.", "", text("openxr")]
     if text("tradeoff"):
         md += ["", f"## Speed against accuracy with the GPU's rows ({head})", "",
                "tradeoff.md, .json, .svg and .png beside this report; the table:", "", text("tradeoff")]

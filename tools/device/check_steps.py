@@ -50,8 +50,11 @@ STEPS = [
      105, 1),
     ("train", "the full-width D-CNN on CUDA (bf16 autocast, the largest batch that fits)", TRAIN_BUDGET_S, 1),
     ("export", "the network as the runtime's ONNX with its card", 20, 1),
+    ("openxr", "the OpenXR runtime (docs/openxr.md): the openxr crate's client through libnedrt_openxr.so into "
+               "nedrt run --stereo --sink headless at 1920×1080: the copy-out per view on the GPU, the send, "
+               "xrEndFrame, the frames shown at their display time", 20, 2),
     ("tradeoff", "the speed-against-accuracy chart with the GPU's rows: nedrt tradeoff with the wgpu "
-                 "configurations at 1920×1080", ENVELOPE2_S - 20 - 20, 2),
+                 "configurations at 1920×1080", ENVELOPE2_S - 20 - 20 - 20, 2),
 ]
 
 

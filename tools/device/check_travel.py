@@ -13,6 +13,7 @@ from pathlib import Path
 
 from check_runner import (CARRY, DEVICE_TIME_S, ENVELOPE2_S, ENVELOPE_S, GL_PACKAGES, MIB, REPO, START_S,
                           TRAIN_BUDGET_S, TRAVEL_LIMIT, git_commit, git_dirty)
+from check_openxr import prepare_openxr
 from check_steps import calls, caps
 
 def prepare() -> int:
@@ -41,7 +42,7 @@ def prepare() -> int:
         subprocess.run(["apt-get", *opts, "download", *GL_PACKAGES], cwd=gl, check=True)
     manifest = {"commit": git_commit(), "dirty": git_dirty(), "binary_sha256": digest, "binary_mib": sizes_mib,
                 "built": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
-                "gl": sorted(p.name for p in gl.glob("*.deb"))}
+                "gl": sorted(p.name for p in gl.glob("*.deb")), **prepare_openxr()}
     (CARRY / "manifest.json").write_text(json.dumps(manifest, indent=1))
     print(json.dumps(manifest, indent=1))
     return plan()
