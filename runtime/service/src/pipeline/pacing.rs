@@ -234,32 +234,81 @@ pub struct SubmitPlan {
     pub start_ns: u64,
 }
 
-/// Newest-wins hand-over of one item between two threads.
+/// Newest-wins hand-over between two threads, with room for frames that
+/// wait for a later refresh: an item put replaces every item waiting
+/// unless the putter keeps it ([`NewestSlot::put_keeping`]), and a take
+/// takes the newest item due, dropping the older ones.
 #[derive(Debug, Default)]
 pub struct NewestSlot<T> {
-    slot: Mutex<Option<T>>,
+    slot: Mutex<std::collections::VecDeque<T>>,
     dropped: AtomicU64,
 }
+
+/// Items waiting for their refresh at most (a client as far ahead as a
+/// slow pipeline's lead, several refreshes); past it, the newest but one
+/// is dropped: the next due and the newest stay, so the panel keeps
+/// moving and ends on the newest.
+const WAITING: usize = 8;
 
 impl<T> NewestSlot<T> {
     pub fn new() -> Self {
         Self {
-            slot: Mutex::new(None),
+            slot: Mutex::new(std::collections::VecDeque::new()),
             dropped: AtomicU64::new(0),
         }
     }
 
-    /// Puts `item`, replacing (and counting as dropped) one not yet taken.
-    pub fn put(&self, item: T) {
-        let mut slot = self.slot.lock().unwrap_or_else(|p| p.into_inner());
-        if slot.replace(item).is_some() {
-            self.dropped.fetch_add(1, Ordering::Relaxed);
-        }
+    fn lock(&self) -> std::sync::MutexGuard<'_, std::collections::VecDeque<T>> {
+        self.slot.lock().unwrap_or_else(|p| p.into_inner())
     }
 
-    /// Takes the newest item, if any; never waits for one.
+    /// Puts `item`, replacing (and counting as dropped) any not yet taken.
+    pub fn put(&self, item: T) {
+        self.put_keeping(item, |_| false);
+    }
+
+    /// Puts `item`, replacing the items not yet taken except those `keep`
+    /// holds on to (frames for a later refresh than a newer one may be
+    /// for); at most [`WAITING`] wait.
+    pub fn put_keeping(&self, item: T, keep: impl Fn(&T) -> bool) {
+        let mut slot = self.lock();
+        let before = slot.len();
+        slot.retain(|t| keep(t));
+        let mut dropped = before - slot.len();
+        if slot.len() >= WAITING {
+            slot.pop_back();
+            dropped += 1;
+        }
+        slot.push_back(item);
+        self.dropped.fetch_add(dropped as u64, Ordering::Relaxed);
+    }
+
+    /// Takes the newest item, if any, dropping older ones; never waits.
     pub fn take(&self) -> Option<T> {
-        self.slot.lock().unwrap_or_else(|p| p.into_inner()).take()
+        self.take_due(|_| true)
+    }
+
+    /// Takes the newest item that `due` says is due, dropping the older
+    /// ones; the items after it (not due yet) stay.
+    pub fn take_due(&self, due: impl Fn(&T) -> bool) -> Option<T> {
+        let mut slot = self.lock();
+        let i = slot.iter().rposition(due)?;
+        self.dropped.fetch_add(i as u64, Ordering::Relaxed);
+        slot.drain(..i);
+        slot.pop_front()
+    }
+
+    /// Whether an item waits.
+    pub fn is_empty(&self) -> bool {
+        self.lock().is_empty()
+    }
+
+    /// Empties the slot; how many items were there.
+    pub fn drain(&self) -> u64 {
+        let mut slot = self.lock();
+        let n = slot.len() as u64;
+        slot.clear();
+        n
     }
 
     /// Items replaced before anyone took them.
@@ -271,6 +320,36 @@ impl<T> NewestSlot<T> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_slot_keeps_frames_for_later_refreshes_and_shows_the_newest_due() {
+        // Items are (display time, held).
+        let slot = NewestSlot::<(u64, bool)>::new();
+        slot.put((1, false));
+        slot.put((2, false));
+        assert_eq!((slot.take(), slot.dropped()), (Some((2, false)), 1));
+        // Held frames for refreshes 10, 11, 12 wait together.
+        for t in 10..13 {
+            slot.put_keeping((t, true), |old| old.1);
+        }
+        let due = |now: u64| move |x: &(u64, bool)| !x.1 || x.0 <= now;
+        assert_eq!(slot.take_due(due(9)), None);
+        assert_eq!(slot.take_due(due(11)), Some((11, true)));
+        // 10 was due and older: dropped; 12 waits.
+        assert_eq!((slot.dropped(), slot.is_empty()), (2, false));
+        assert_eq!(slot.take_due(due(12)), Some((12, true)));
+        // Past WAITING, the newest but one goes: the next due and the
+        // newest stay.
+        for t in 20..20 + WAITING as u64 + 3 {
+            slot.put_keeping((t, true), |old| old.1);
+        }
+        assert_eq!(slot.drain(), WAITING as u64);
+        assert_eq!(slot.dropped(), 2 + 3);
+        slot.put_keeping((30, true), |old| old.1);
+        slot.put_keeping((31, false), |old| old.1);
+        // An unheld frame is always due, and newer: the held one goes.
+        assert_eq!(slot.take_due(due(0)), Some((31, false)));
+    }
 
     #[test]
     fn ticks_follow_the_refresh_and_count_missed_ones() {

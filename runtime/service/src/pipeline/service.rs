@@ -133,6 +133,7 @@ fn spawn_stage<I: Send + 'static, O: Send + 'static>(
                         owner: t.owner,
                         submit_ns: t.submit_ns,
                         predicted_ns: t.predicted_ns,
+                        hold: t.hold,
                         ready_ns: t0 + ns,
                     });
                 }
@@ -307,7 +308,9 @@ impl Service {
             "encode",
             Stage::Encode,
             dcnn_rx,
-            move |t| slot_in.put(t),
+            // A frame held for its display time is kept when a newer one
+            // comes (it may be for a later refresh still).
+            move |t| slot_in.put_keeping(t, |old| old.hold),
             context,
             move |id, _, f: Processed, _| {
                 Some(match f {
@@ -397,9 +400,9 @@ impl Service {
         for t in self.threads.drain(..) {
             let _ = t.join();
         }
-        // A frame the encode stage finished as the loop ended is still in
+        // Frames the encode stage finished as the loop ended are still in
         // the slot (or replaced one there): in flight, never shown.
-        let late = self.slot.dropped() - counted_at_present + u64::from(self.slot.take().is_some());
+        let late = self.slot.dropped() - counted_at_present + self.slot.drain();
         self.stats
             .in_flight_at_stop
             .fetch_add(late, Ordering::Relaxed);

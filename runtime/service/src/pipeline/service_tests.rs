@@ -721,3 +721,42 @@ mod needs_gpu {
         );
     }
 }
+
+/// One frame submitted 60 ms ahead of the display time it names: with the
+/// display time a client gives (`submit_at`), it waits for that refresh;
+/// made for a refresh in process (`submit_for`), it is shown as soon as it
+/// is ready, early. 60 refreshes at 1 kHz: a frame shown at once is many
+/// refreshes early on any machine, and one held is never early.
+#[test]
+fn a_frame_with_its_display_time_is_not_shown_before_it() {
+    for hold in [true, false] {
+        let stage = PreprocessStage {
+            primary: Box::new(Identity),
+            fallback: None,
+        };
+        let mut service =
+            Service::start(panel(), Engines::host(stage), Arc::new(SystemClock)).expect("start");
+        let compositor = service.compositor().expect("open");
+        service.close_ingest();
+        let display_ns = crate::pipeline::pacing::monotonic_ns() + 60_000_000;
+        let submitted = if hold {
+            compositor.submit_at(None, grey(0, 10), Some(display_ns))
+        } else {
+            compositor.submit_for(grey(0, 10), Some(display_ns))
+        };
+        submitted.expect("submit");
+        drop(compositor);
+        let (report, sink, _service) = present_until_drained(service, Control::default());
+        assert_eq!((report.presented, sink.0.len()), (1, 1), "hold {hold}");
+        let c = report
+            .clients
+            .iter()
+            .find(|c| c.client == 0)
+            .unwrap_or_else(|| panic!("no in-process client: {:?}", report.clients));
+        if hold {
+            assert_eq!(c.early, 0, "{c:?}");
+        } else {
+            assert_eq!(c.early, 1, "{c:?}");
+        }
+    }
+}

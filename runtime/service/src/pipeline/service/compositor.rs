@@ -24,6 +24,9 @@ pub(super) struct Timed<T> {
     /// When it was submitted, and the refresh predicted for it then.
     pub(super) submit_ns: u64,
     pub(super) predicted_ns: u64,
+    /// The client gave the refresh it rendered the frame for (an OpenXR
+    /// frame's display time): it is not shown before it.
+    pub(super) hold: bool,
     /// When the last stage so far finished it (after the encode: ready
     /// for the panel).
     pub(super) ready_ns: u64,
@@ -63,7 +66,7 @@ impl Compositor {
     /// here, on the caller's thread, so the caller learns why at once.
     /// Never blocks on the pipeline: a full queue drops its oldest frame.
     pub fn submit(&self, frame: SubmittedFrame) -> Result<(), FrameError> {
-        self.submit_to(None, frame, None)
+        self.submit_to(None, frame, None, false)
     }
 
     /// As [`Compositor::submit`], for a frame made for the refresh at
@@ -73,7 +76,7 @@ impl Compositor {
         frame: SubmittedFrame,
         refresh_ns: Option<u64>,
     ) -> Result<(), FrameError> {
-        self.submit_to(None, frame, refresh_ns)
+        self.submit_to(None, frame, refresh_ns, false)
     }
 
     /// As [`Compositor::submit`], a frame of view `view`'s size for that
@@ -92,13 +95,40 @@ impl Compositor {
         frame: SubmittedFrame,
         refresh_ns: Option<u64>,
     ) -> Result<(), FrameError> {
+        self.submit_view_timed(view, frame, refresh_ns, false)
+    }
+
+    /// As [`Compositor::submit_view_for`], for a client's frame with the
+    /// display time it was rendered for (`None`: none given): that time is
+    /// its prediction, and the frame is not shown before it (an OpenXR
+    /// frame belongs to its display time: shown early, it would show the
+    /// scene of a later moment). `view` `None`: a panel-sized frame.
+    pub fn submit_at(
+        &self,
+        view: Option<u8>,
+        frame: SubmittedFrame,
+        display_ns: Option<u64>,
+    ) -> Result<(), FrameError> {
+        match view {
+            Some(v) => self.submit_view_timed(v, frame, display_ns, display_ns.is_some()),
+            None => self.submit_to(None, frame, display_ns, display_ns.is_some()),
+        }
+    }
+
+    fn submit_view_timed(
+        &self,
+        view: u8,
+        frame: SubmittedFrame,
+        refresh_ns: Option<u64>,
+        hold: bool,
+    ) -> Result<(), FrameError> {
         let whole = self.views.len() == 1
             && (self.views[0].region.width, self.views[0].region.height)
                 == (self.width, self.height);
         if whole && view == 0 {
-            return self.submit_to(None, frame, refresh_ns);
+            return self.submit_to(None, frame, refresh_ns, hold);
         }
-        self.submit_to(Some(view), frame, refresh_ns)
+        self.submit_to(Some(view), frame, refresh_ns, hold)
     }
 
     fn submit_to(
@@ -106,6 +136,7 @@ impl Compositor {
         view: Option<u8>,
         frame: SubmittedFrame,
         refresh_ns: Option<u64>,
+        hold: bool,
     ) -> Result<(), FrameError> {
         use std::sync::atomic::Ordering::Relaxed;
         self.stats.submitted.fetch_add(1, Relaxed);
@@ -134,6 +165,7 @@ impl Compositor {
             return Err(e);
         }
         let now = self.clock.now_ns();
+        let given = refresh_ns.filter(|r| r.abs_diff(now) < 1_000_000_000);
         let start_ns = if frame.capture_ns > 0 && frame.capture_ns <= now {
             frame.capture_ns
         } else {
@@ -148,9 +180,8 @@ impl Compositor {
             submit_ns: now,
             // A client's display time more than a second from now is no
             // prediction (a hostile or broken clock): the service's own.
-            predicted_ns: refresh_ns
-                .filter(|r| r.abs_diff(now) < 1_000_000_000)
-                .unwrap_or_else(|| self.schedule.predicted_display_ns(now)),
+            predicted_ns: given.unwrap_or_else(|| self.schedule.predicted_display_ns(now)),
+            hold: hold && given.is_some(),
             ready_ns: now,
         });
         Ok(())

@@ -64,15 +64,21 @@ impl Service {
             if !display_paced {
                 self.clock.sleep_until_ns(wake.wake_ns);
             }
-            let t = match self.slot.take() {
+            // A frame a client rendered for a later refresh (its display
+            // time) waits for it in the slot: the newest frame due is shown.
+            let half = pacer.period_ns() / 2;
+            let due = |t: &super::compositor::Timed<PanelFrame>| {
+                !t.hold || t.predicted_ns <= wake.vsync_ns + half
+            };
+            let t = match self.slot.take_due(due) {
                 Some(t) => Some(t),
                 None => {
                     // Read before the second look: once drained, no frame can
                     // arrive after it.
                     let drained = self.drained.load(Ordering::SeqCst);
-                    match self.slot.take() {
+                    match self.slot.take_due(due) {
                         Some(t) => Some(t),
-                        None if drained && !control.keep_open => break,
+                        None if drained && !control.keep_open && self.slot.is_empty() => break,
                         None => {
                             if drained && let Some(frame) = &last {
                                 // Keep the window's content (uncounted re-present).

@@ -438,9 +438,10 @@ fn submit_frame(
                 format: req.format,
                 payload,
             };
-            let submitted = match view {
-                Some(v) => compositor.submit_view_for(v, frame, display_ns),
-                None => compositor.submit_for(frame, display_ns),
+            let submitted = match (view, display_ns) {
+                (view, Some(_)) => compositor.submit_at(view, frame, display_ns),
+                (Some(v), None) => compositor.submit_view(v, frame),
+                (None, None) => compositor.submit(frame),
             };
             match submitted {
                 Ok(()) => (STATUS_OK, String::new()),
