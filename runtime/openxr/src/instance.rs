@@ -18,9 +18,18 @@ use crate::state::{Event, Instance, InstanceInner, SYSTEM_ID, lock, registry};
 
 pub const VULKAN_ENABLE: &str = "XR_KHR_vulkan_enable";
 pub const VULKAN_ENABLE2: &str = "XR_KHR_vulkan_enable2";
+pub const CONVERT_TIMESPEC_TIME: &str = "XR_KHR_convert_timespec_time";
+/// Accepted: a projection view's depth (XrCompositionLayerDepthInfoKHR in
+/// its chain) is a hint a compositor may use; this one does not.
+pub const COMPOSITION_LAYER_DEPTH: &str = "XR_KHR_composition_layer_depth";
 
 /// The extensions this runtime offers, with their versions.
-pub const EXTENSIONS: [(&str, u32); 2] = [(VULKAN_ENABLE, 8), (VULKAN_ENABLE2, 2)];
+pub const EXTENSIONS: [(&str, u32); 4] = [
+    (VULKAN_ENABLE, 8),
+    (VULKAN_ENABLE2, 2),
+    (CONVERT_TIMESPEC_TIME, 1),
+    (COMPOSITION_LAYER_DEPTH, 6),
+];
 
 /// The runtime's version (its crate's).
 fn runtime_version() -> xr::Version {

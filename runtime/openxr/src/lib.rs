@@ -27,6 +27,7 @@ mod space;
 mod spaces;
 mod state;
 mod swapchain;
+mod time;
 mod vulkan;
 
 use std::ffi::c_char;
@@ -162,6 +163,13 @@ fn lookup(
         "xrGetVulkanGraphicsDeviceKHR" if has(v1) => f!(graphics::get_vulkan_graphics_device_khr),
         "xrGetVulkanGraphicsRequirementsKHR" if has(v1) => {
             f!(graphics::get_vulkan_graphics_requirements_khr)
+        }
+        // XR_KHR_convert_timespec_time.
+        "xrConvertTimespecTimeToTimeKHR" if has(instance::CONVERT_TIMESPEC_TIME) => {
+            f!(time::convert_timespec_time_to_time_khr)
+        }
+        "xrConvertTimeToTimespecTimeKHR" if has(instance::CONVERT_TIMESPEC_TIME) => {
+            f!(time::convert_time_to_timespec_time_khr)
         }
         // XR_KHR_vulkan_enable2.
         "xrCreateVulkanInstanceKHR" if has(v2) => f!(graphics::create_vulkan_instance_khr),

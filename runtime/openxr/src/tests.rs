@@ -8,7 +8,7 @@ use openxr_sys as xr;
 use openxr_sys::Handle as _;
 use proptest::prelude::*;
 
-use crate::{actions, frame, get_instance_proc_addr, instance, session, spaces, swapchain};
+use crate::{actions, frame, get_instance_proc_addr, instance, session, spaces, swapchain, time};
 
 fn app_info() -> xr::ApplicationInfo {
     let mut info = xr::ApplicationInfo {
@@ -218,5 +218,45 @@ proptest! {
                 invalid
             );
         }
+    }
+}
+
+#[test]
+fn timespec_conversion_is_offered_only_where_enabled_and_is_exact() {
+    let plain = create(&[], xr::Version::new(1, 0, 0)).expect("instance");
+    assert_eq!(
+        proc_addr(plain, "xrConvertTimespecTimeToTimeKHR"),
+        xr::Result::ERROR_FUNCTION_UNSUPPORTED
+    );
+    let i = create(
+        &[instance::CONVERT_TIMESPEC_TIME],
+        xr::Version::new(1, 0, 0),
+    )
+    .expect("instance");
+    assert_eq!(
+        proc_addr(i, "xrConvertTimespecTimeToTimeKHR"),
+        xr::Result::SUCCESS
+    );
+    let ts = time::Timespec {
+        tv_sec: 12,
+        tv_nsec: 345,
+    };
+    let mut t = xr::Time::from_nanos(0);
+    // SAFETY: valid pointers.
+    let r = unsafe { time::convert_timespec_time_to_time_khr(i, &ts, &mut t) };
+    assert_eq!((r, t.as_nanos()), (xr::Result::SUCCESS, 12_000_000_345));
+    let mut back = time::Timespec {
+        tv_sec: 0,
+        tv_nsec: 0,
+    };
+    // SAFETY: valid pointers.
+    let r = unsafe { time::convert_time_to_timespec_time_khr(i, t, &mut back) };
+    assert_eq!((r, back), (xr::Result::SUCCESS, ts));
+    // SAFETY: valid pointers; the extension is not enabled on `plain`.
+    let r = unsafe { time::convert_time_to_timespec_time_khr(plain, t, &mut back) };
+    assert_eq!(r, xr::Result::ERROR_FUNCTION_UNSUPPORTED);
+    for h in [i, plain] {
+        // SAFETY: live instances.
+        unsafe { instance::destroy_instance(h) };
     }
 }
