@@ -341,8 +341,11 @@ mod needs_gpu_and_openxr_client {
         wait_until("the socket to appear", || {
             dir.path().join("nedrt.sock").exists()
         });
-        let out = client(dir.path(), &["--frames", "40", "--quad", "8x6@20"])
-            .wait_within(Duration::from_secs(120), "openxr_client's 40 frames");
+        let out = client(
+            dir.path(),
+            &["--frames", "40", "--quad", "8x6@20", "--depth"],
+        )
+        .wait_within(Duration::from_secs(120), "openxr_client's 40 frames");
         assert!(out.status.success(), "{}", text(&out));
         signal(&service, "-TERM");
         service.exit_within(EXIT_WITHIN, "the service's exit after SIGTERM");

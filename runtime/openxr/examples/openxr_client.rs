@@ -6,7 +6,7 @@
 //! session states, and how long xrEndFrame took.
 //!
 //! ```sh
-//! openxr_client [--frames N] [--quad WxH@DIST] [--report FILE]
+//! openxr_client [--frames N] [--quad WxH@DIST] [--depth] [--report FILE]
 //! ```
 //!
 //! The patterns are [`projection_texel`] and [`quad_texel`] (sRGB codes);
@@ -43,6 +43,9 @@ struct Args {
     frames: usize,
     quad: Option<(u32, u32, f32)>,
     report: Option<std::path::PathBuf>,
+    /// Also a depth swapchain per eye (XR_KHR_composition_layer_depth),
+    /// acquired and released every frame as a renderer's depth buffer is.
+    depth: bool,
 }
 
 fn args() -> Result<Args, String> {
@@ -50,6 +53,7 @@ fn args() -> Result<Args, String> {
         frames: 30,
         quad: None,
         report: None,
+        depth: false,
     };
     let mut it = std::env::args().skip(1);
     while let Some(k) = it.next() {
@@ -68,6 +72,7 @@ fn args() -> Result<Args, String> {
                 ));
             }
             "--report" => a.report = Some(v()?.into()),
+            "--depth" => a.depth = true,
             other => return Err(format!("unknown argument {other}")),
         }
     }
@@ -292,6 +297,7 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
     let entry = unsafe { xr::Entry::load(&()) }?;
     let mut exts = xr::ExtensionSet::default();
     exts.khr_vulkan_enable2 = true;
+    exts.khr_composition_layer_depth = args.depth;
     let instance = entry.create_instance(
         &xr::ApplicationInfo {
             application_name: "nedrt openxr_client",
@@ -394,6 +400,26 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
             projection_texel(e, x, y)
         })?);
     }
+    let mut depths = Vec::new();
+    if args.depth {
+        for v in &views {
+            let swapchain = session.create_swapchain(&xr::SwapchainCreateInfo {
+                create_flags: xr::SwapchainCreateFlags::EMPTY,
+                usage_flags: xr::SwapchainUsageFlags::DEPTH_STENCIL_ATTACHMENT,
+                format: vk::Format::D32_SFLOAT.as_raw() as u32,
+                sample_count: 1,
+                width: v.recommended_image_rect_width,
+                height: v.recommended_image_rect_height,
+                face_count: 1,
+                array_size: 1,
+                mip_count: 1,
+            })?;
+            if swapchain.enumerate_images()?.is_empty() {
+                return Err("a depth swapchain without images".into());
+            }
+            depths.push(swapchain);
+        }
+    }
     let mut quad = match args.quad {
         Some((w, h, _)) => Some(target(&session, &gpu, (w, h), quad_texel)?),
         None => None,
@@ -463,6 +489,11 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
         }
         if let Some(q) = quad.as_mut() {
             draw(q, &gpu)?;
+        }
+        for d in depths.iter_mut() {
+            d.acquire_image()?;
+            d.wait_image(xr::Duration::INFINITE)?;
+            d.release_image()?;
         }
         let proj_views: Vec<xr::CompositionLayerProjectionView<xr::Vulkan>> = eyes
             .iter()
@@ -545,7 +576,7 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
             gpu.device.destroy_buffer(t.buffer, None);
             gpu.device.free_memory(t.memory, None);
         }
-        drop((eyes, quad, space, stream, waiter, session));
+        drop((eyes, quad, depths, space, stream, waiter, session));
         gpu.device.destroy_fence(gpu.fence, None);
         gpu.device.destroy_command_pool(gpu.pool, None);
         gpu.device.destroy_device(None);

@@ -68,6 +68,10 @@ fn usage_of(flags: xr::SwapchainUsageFlags) -> vk::ImageUsageFlags {
             vk::ImageUsageFlags::SAMPLED,
         ),
         (
+            xr::SwapchainUsageFlags::DEPTH_STENCIL_ATTACHMENT,
+            vk::ImageUsageFlags::DEPTH_STENCIL_ATTACHMENT,
+        ),
+        (
             xr::SwapchainUsageFlags::INPUT_ATTACHMENT,
             vk::ImageUsageFlags::INPUT_ATTACHMENT,
         ),
@@ -126,11 +130,16 @@ pub unsafe extern "system" fn create_swapchain(
             // Cube maps and multisampled images: nothing here shows them.
             return Err(xr::Result::ERROR_FEATURE_UNSUPPORTED);
         }
-        if info
+        // Depth formats are for depth attachments, colour ones for colour.
+        let depth = vulkan::depth_aspect(format).is_some();
+        let depth_usage = info
             .usage_flags
-            .contains(xr::SwapchainUsageFlags::DEPTH_STENCIL_ATTACHMENT)
-        {
-            return Err(xr::Result::ERROR_FEATURE_UNSUPPORTED);
+            .contains(xr::SwapchainUsageFlags::DEPTH_STENCIL_ATTACHMENT);
+        let color_usage = info
+            .usage_flags
+            .contains(xr::SwapchainUsageFlags::COLOR_ATTACHMENT);
+        if (depth && color_usage) || (!depth && depth_usage) {
+            return Err(xr::Result::ERROR_SWAPCHAIN_FORMAT_UNSUPPORTED);
         }
         let static_image = info
             .create_flags
@@ -174,11 +183,7 @@ pub unsafe extern "system" fn create_swapchain(
             images.push(made.0);
         }
         vk_ctx
-            .initial_layout(
-                &images,
-                info.array_size,
-                vk::ImageLayout::COLOR_ATTACHMENT_OPTIMAL,
-            )
+            .initial_layout(&images, info.array_size, format)
             .map_err(vk_error)?;
         let mut reg = registry();
         let h = reg.new_handle();
@@ -330,8 +335,9 @@ pub fn read_released(
     if layer >= inner.layers {
         return Err(xr::Result::ERROR_VALIDATION_FAILURE);
     }
+    // A depth swapchain is no colour layer.
     let (srgb, bgra) =
-        vulkan::format_layout(inner.format).ok_or(xr::Result::ERROR_RUNTIME_FAILURE)?;
+        vulkan::format_layout(inner.format).ok_or(xr::Result::ERROR_LAYER_INVALID)?;
     let image = inner.images[index as usize].0;
     let mut texels = inner
         .vk
@@ -346,8 +352,12 @@ pub fn read_released(
 /// Checks a layer's sub-image without reading it (§10.5's validation).
 pub fn check_sub_image(sub: &xr::SwapchainSubImage) -> XrResult<Arc<Swapchain>> {
     let sc = registry().swapchain(sub.swapchain)?;
-    if lock(&sc.inner).last_released.is_none() {
-        return Err(xr::Result::ERROR_LAYER_INVALID);
+    {
+        let inner = lock(&sc.inner);
+        // Released at least once, and colour: a layer shows colour.
+        if inner.last_released.is_none() || vulkan::format_layout(inner.format).is_none() {
+            return Err(xr::Result::ERROR_LAYER_INVALID);
+        }
     }
     Ok(sc)
 }

@@ -289,8 +289,20 @@ impl Context {
         &self,
         images: &[vk::Image],
         layers: u32,
-        layout: vk::ImageLayout,
+        format: vk::Format,
     ) -> VkResult<()> {
+        let (layout, aspect, access) = match depth_aspect(format) {
+            Some(aspect) => (
+                vk::ImageLayout::DEPTH_STENCIL_ATTACHMENT_OPTIMAL,
+                aspect,
+                vk::AccessFlags::DEPTH_STENCIL_ATTACHMENT_WRITE,
+            ),
+            None => (
+                vk::ImageLayout::COLOR_ATTACHMENT_OPTIMAL,
+                vk::ImageAspectFlags::COLOR,
+                vk::AccessFlags::COLOR_ATTACHMENT_WRITE,
+            ),
+        };
         self.submit(|d, cmd| {
             let barriers: Vec<vk::ImageMemoryBarrier> = images
                 .iter()
@@ -301,8 +313,8 @@ impl Context {
                         .src_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
                         .dst_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
                         .image(image)
-                        .subresource_range(color_range(0, layers))
-                        .dst_access_mask(vk::AccessFlags::COLOR_ATTACHMENT_WRITE)
+                        .subresource_range(color_range(0, layers).aspect_mask(aspect))
+                        .dst_access_mask(access)
                 })
                 .collect();
             // SAFETY: recording into our buffer between begin and end.
@@ -515,14 +527,29 @@ fn color_range(layer: u32, count: u32) -> vk::ImageSubresourceRange {
         .layer_count(count)
 }
 
-/// The colour formats a swapchain may have, most preferred first (sRGB:
-/// 8 bits hold the panel's codes best, §10.1's advice).
-pub const FORMATS: [vk::Format; 4] = [
+/// The formats a swapchain may have, most preferred first: colour (sRGB
+/// first: 8 bits hold the panel's codes best, §10.1's advice), then depth
+/// (for XR_KHR_composition_layer_depth; never read back).
+pub const FORMATS: [vk::Format; 7] = [
     vk::Format::R8G8B8A8_SRGB,
     vk::Format::B8G8R8A8_SRGB,
     vk::Format::R8G8B8A8_UNORM,
     vk::Format::B8G8R8A8_UNORM,
+    vk::Format::D32_SFLOAT,
+    vk::Format::D24_UNORM_S8_UINT,
+    vk::Format::D16_UNORM,
 ];
+
+/// A depth format's aspects; `None` for a colour format.
+pub fn depth_aspect(f: vk::Format) -> Option<vk::ImageAspectFlags> {
+    match f {
+        vk::Format::D32_SFLOAT | vk::Format::D16_UNORM => Some(vk::ImageAspectFlags::DEPTH),
+        vk::Format::D24_UNORM_S8_UINT => {
+            Some(vk::ImageAspectFlags::DEPTH | vk::ImageAspectFlags::STENCIL)
+        }
+        _ => None,
+    }
+}
 
 /// Whether a format's bytes are sRGB-encoded, and whether red and blue
 /// are swapped (BGRA); `None` for a format this runtime does not offer.
