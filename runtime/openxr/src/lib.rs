@@ -17,6 +17,7 @@ mod log;
 
 mod actions;
 mod ffi;
+mod formats;
 mod frame;
 mod graphics;
 mod instance;

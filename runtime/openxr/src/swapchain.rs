@@ -12,8 +12,9 @@ use openxr_sys as xr;
 use openxr_sys::Handle as _;
 
 use crate::ffi::{XrResult, expect_type, guard, non_null, non_null_mut, two_call, two_call_with};
+use crate::formats;
 use crate::state::{Swapchain, lock, registry};
-use crate::vulkan::{self, Context};
+use crate::vulkan::Context;
 
 /// Images a swapchain has: one being shown, one being rendered, one spare.
 const IMAGES: u32 = 3;
@@ -90,7 +91,7 @@ pub unsafe extern "system" fn enumerate_swapchain_formats(
 ) -> xr::Result {
     guard("xrEnumerateSwapchainFormats", || {
         registry().session(session)?;
-        let list: Vec<i64> = vulkan::FORMATS
+        let list: Vec<i64> = formats::FORMATS
             .iter()
             .map(|f| i64::from(f.as_raw()))
             .collect();
@@ -121,7 +122,7 @@ pub unsafe extern "system" fn create_swapchain(
         let format = i32::try_from(info.format)
             .map(vk::Format::from_raw)
             .ok()
-            .filter(|f| vulkan::FORMATS.contains(f))
+            .filter(|f| formats::FORMATS.contains(f))
             .ok_or(xr::Result::ERROR_SWAPCHAIN_FORMAT_UNSUPPORTED)?;
         if info.width == 0 || info.height == 0 || info.array_size == 0 || info.mip_count == 0 {
             return Err(xr::Result::ERROR_VALIDATION_FAILURE);
@@ -131,7 +132,7 @@ pub unsafe extern "system" fn create_swapchain(
             return Err(xr::Result::ERROR_FEATURE_UNSUPPORTED);
         }
         // Depth formats are for depth attachments, colour ones for colour.
-        let depth = vulkan::depth_aspect(format).is_some();
+        let depth = formats::depth_aspect(format).is_some();
         let depth_usage = info
             .usage_flags
             .contains(xr::SwapchainUsageFlags::DEPTH_STENCIL_ATTACHMENT);
@@ -337,7 +338,7 @@ pub fn read_released(
     }
     // A depth swapchain is no colour layer.
     let (srgb, bgra) =
-        vulkan::format_layout(inner.format).ok_or(xr::Result::ERROR_LAYER_INVALID)?;
+        formats::format_layout(inner.format).ok_or(xr::Result::ERROR_LAYER_INVALID)?;
     let image = inner.images[index as usize].0;
     let mut texels = inner
         .vk
@@ -355,7 +356,7 @@ pub fn check_sub_image(sub: &xr::SwapchainSubImage) -> XrResult<Arc<Swapchain>> 
     {
         let inner = lock(&sc.inner);
         // Released at least once, and colour: a layer shows colour.
-        if inner.last_released.is_none() || vulkan::format_layout(inner.format).is_none() {
+        if inner.last_released.is_none() || formats::format_layout(inner.format).is_none() {
             return Err(xr::Result::ERROR_LAYER_INVALID);
         }
     }
