@@ -11,19 +11,20 @@ use std::time::Duration;
 use super::deadline::{CommandWithin, Watched};
 use super::{EXIT_WITHIN, repo, report, signal, wait_until};
 
-/// The runtime library the tests load: built beside the test binary
-/// (target/<profile>/), as `cargo build -p nedrt-openxr` leaves it.
-fn runtime_library() -> PathBuf {
+/// A file the OpenXR tests need, built beside the test binary
+/// (target/<profile>/), as `cargo build --release -p nedrt-openxr --lib
+/// --examples` leaves it (scripts/test.sh does).
+fn built(name: &str) -> PathBuf {
     let exe = std::env::current_exe().expect("test binary path");
     // target/<profile>/deps/service-… → target/<profile>/
     let dir = exe.parent().and_then(Path::parent).expect("target folder");
-    let lib = dir.join("libnedrt_openxr.so");
+    let path = dir.join(name);
     assert!(
-        lib.exists(),
-        "{} is missing: build it with `cargo build --release -p nedrt-openxr` (scripts/test.sh does)",
-        lib.display()
+        path.exists(),
+        "{} is missing: build it with `cargo build --release -p nedrt-openxr --lib --examples` (scripts/test.sh does)",
+        path.display()
     );
-    lib
+    path
 }
 
 /// A runtime manifest (the loader's JSON) naming the library, in `dir`.
@@ -31,34 +32,36 @@ fn manifest(dir: &Path) -> PathBuf {
     let path = dir.join("nedrt_openxr.json");
     let json = format!(
         r#"{{"file_format_version": "1.0.0", "runtime": {{"name": "nedrt", "library_path": "{}"}}}}"#,
-        runtime_library().display()
+        built("libnedrt_openxr.so").display()
     );
     std::fs::write(&path, json).expect("write the manifest");
     path
 }
 
-/// `nedrt run --stereo --source socket --sink record` on the shipped
-/// calibration (1920×1080, two 960×1080 views), conventional: the panel
-/// shows what the application rendered.
-fn stereo_service(dir: &Path) -> Watched {
-    Command::new(env!("CARGO_BIN_EXE_nedrt"))
-        .current_dir(repo())
-        .env("NEDRT_LOG", "nedrt=info")
-        .args([
-            "run",
-            "--stereo",
-            "--backend",
-            "cpu",
-            "--preprocess",
-            "conventional",
-        ])
-        .args(["--source", "socket", "--socket"])
-        .arg(dir.join("nedrt.sock"))
-        .args(["--sink", "record", "--record-dir"])
-        .arg(dir.join("rec"))
-        .arg("--report-json")
-        .arg(dir.join("report.json"))
-        .spawn_watched("the service (nedrt run --stereo)")
+/// `nedrt run --stereo --source socket --sink record`, conventional (the
+/// panel shows what the application rendered), on the shipped calibration
+/// (1920×1080, two 960×1080 views) or on `calib`.
+fn stereo_service(dir: &Path, calib: Option<&Path>) -> Watched {
+    let mut c = Command::new(env!("CARGO_BIN_EXE_nedrt"));
+    c.current_dir(repo()).env("NEDRT_LOG", "nedrt=info");
+    if let Some(calib) = calib {
+        c.arg("--calib").arg(calib);
+    }
+    c.args([
+        "run",
+        "--stereo",
+        "--backend",
+        "cpu",
+        "--preprocess",
+        "conventional",
+    ])
+    .args(["--source", "socket", "--socket"])
+    .arg(dir.join("nedrt.sock"))
+    .args(["--sink", "record", "--record-dir"])
+    .arg(dir.join("rec"))
+    .arg("--report-json")
+    .arg(dir.join("report.json"))
+    .spawn_watched("the service (nedrt run --stereo)")
 }
 
 /// `hello_xr -g <plugin>` through the loader to the runtime; its standard
@@ -129,7 +132,7 @@ mod needs_gpu_and_openxr {
     fn stereo_pair_from(plugin: &str) {
         let dir = tempfile::tempdir().expect("tempdir");
         let socket = dir.path().join("nedrt.sock");
-        let mut service = stereo_service(dir.path());
+        let mut service = stereo_service(dir.path(), None);
         wait_until("the socket to appear", || socket.exists());
         let stop = dir.path().join("stop");
         let mut app = hello_xr(dir.path(), plugin, &socket, &stop);
@@ -212,7 +215,7 @@ mod needs_gpu_and_openxr {
     fn a_service_that_stops_mid_session_is_a_lost_session() {
         let dir = tempfile::tempdir().expect("tempdir");
         let socket = dir.path().join("nedrt.sock");
-        let mut service = stereo_service(dir.path());
+        let mut service = stereo_service(dir.path(), None);
         wait_until("the socket to appear", || socket.exists());
         let stop = dir.path().join("stop");
         let app = hello_xr(dir.path(), "Vulkan2", &socket, &stop);
@@ -235,50 +238,8 @@ mod needs_gpu_and_openxr {
     }
 }
 
-/// The `openxr` crate's client (runtime/openxr/examples/openxr_client.rs),
-/// built beside the test binary.
-fn openxr_client() -> PathBuf {
-    let exe = std::env::current_exe().expect("test binary path");
-    let path = exe
-        .parent()
-        .and_then(Path::parent)
-        .expect("target folder")
-        .join("examples/openxr_client");
-    assert!(
-        path.exists(),
-        "{} is missing: build it with `cargo build --release -p nedrt-openxr --lib --examples` (scripts/test.sh does)",
-        path.display()
-    );
-    path
-}
-
-/// `nedrt run --stereo` on the small panel (64×48, two 32×48 views, 240
-/// Hz), recording.
-fn small_stereo_service(dir: &Path) -> Watched {
-    Command::new(env!("CARGO_BIN_EXE_nedrt"))
-        .current_dir(repo())
-        .env("NEDRT_LOG", "nedrt=info")
-        .arg("--calib")
-        .arg(super::small_panel())
-        .args([
-            "run",
-            "--stereo",
-            "--backend",
-            "cpu",
-            "--preprocess",
-            "conventional",
-        ])
-        .args(["--source", "socket", "--socket"])
-        .arg(dir.join("nedrt.sock"))
-        .args(["--sink", "record", "--record-dir"])
-        .arg(dir.join("rec"))
-        .arg("--report-json")
-        .arg(dir.join("report.json"))
-        .spawn_watched("the service (nedrt run --stereo, small panel)")
-}
-
 fn client(dir: &Path, args: &[&str]) -> Watched {
-    Command::new(openxr_client())
+    Command::new(built("examples/openxr_client"))
         .args(args)
         .arg("--report")
         .arg(dir.join("client.json"))
@@ -337,7 +298,7 @@ mod needs_gpu_and_openxr_client {
     #[ignore = "needs a Vulkan adapter, the OpenXR loader and hello_xr (apt-get install libopenxr-loader1 libopenxr-utils)"]
     fn projection_and_quad_layers_reach_the_panel_as_composed() {
         let dir = tempfile::tempdir().expect("tempdir");
-        let mut service = small_stereo_service(dir.path());
+        let mut service = stereo_service(dir.path(), Some(&super::super::small_panel()));
         wait_until("the socket to appear", || {
             dir.path().join("nedrt.sock").exists()
         });
@@ -509,7 +470,7 @@ mod needs_gpu_and_openxr_client {
     #[ignore = "needs a Vulkan adapter, the OpenXR loader and hello_xr (apt-get install libopenxr-loader1 libopenxr-utils)"]
     fn a_client_sees_loss_pending_and_exits_cleanly_when_the_service_stops() {
         let dir = tempfile::tempdir().expect("tempdir");
-        let mut service = small_stereo_service(dir.path());
+        let mut service = stereo_service(dir.path(), Some(&super::super::small_panel()));
         wait_until("the socket to appear", || {
             dir.path().join("nedrt.sock").exists()
         });

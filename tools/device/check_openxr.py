@@ -13,11 +13,9 @@ import shutil
 import signal
 import statistics
 import subprocess
-import tempfile
 import time
-from pathlib import Path
 
-from check_runner import CARRY, REPO, Failed, Runner, Step
+from check_runner import CARRY, REPO, Failed, Runner, Step, apt_download, strip_and_pack
 
 #: Debian's OpenXR loader and what it links beyond the C and C++ runtimes.
 XR_PACKAGES = ["libopenxr-loader1", "libjsoncpp25"]
@@ -34,19 +32,8 @@ def prepare_openxr() -> dict:
     subprocess.run(["cargo", "build", "--release", "-p", "nedrt-openxr", "--lib", "--examples"], cwd=REPO,
                    check=True)
     for built, name in XR_FILES:
-        stripped = dest / (name + ".tmp")
-        shutil.copyfile(REPO / built, stripped)
-        subprocess.run(["strip", stripped], check=True)
-        with open(stripped, "rb") as src, lzma.open(dest / (name + ".part"), "wb", preset=9) as dst:
-            shutil.copyfileobj(src, dst)
-        stripped.unlink()
-        (dest / (name + ".part")).replace(dest / name)
-    if not list(dest.glob("*.deb")):
-        lists = Path(tempfile.mkdtemp(prefix="apt-amd64-"))
-        (lists / "partial").mkdir()
-        opts = ["-oAPT::Architecture=amd64", "-oAPT::Architectures=amd64", f"-oDir::State::Lists={lists}"]
-        subprocess.run(["apt-get", *opts, "update"], check=True, stdout=subprocess.DEVNULL)
-        subprocess.run(["apt-get", *opts, "download", *XR_PACKAGES], cwd=dest, check=True)
+        strip_and_pack(REPO / built, dest / name).unlink()
+    apt_download(dest, XR_PACKAGES)
     return {"openxr": sorted(p.name for p in dest.iterdir())}
 
 

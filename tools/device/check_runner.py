@@ -3,7 +3,9 @@ the limits it keeps, a step and its outcome, and the runner that runs each
 step's commands under its cap and the envelope of one device-tool call,
 logging their output and collecting their JSON lines."""
 import json
+import lzma
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -291,3 +293,30 @@ def no_venv_message(python: str, missing: list) -> str:
             "from the trainer's virtual environment .venv, which `bash scripts/test.sh` makes (it installs "
             "tests/python/requirements.txt and models/requirements.txt, then the trainer with "
             "`.venv/bin/pip install --no-build-isolation -e models`); make it, then run the smoke again")
+
+
+def strip_and_pack(built: Path, packed: Path) -> Path:
+    """Strips a copy of `built` beside `packed` and xz-compresses it to
+    `packed` (written whole or not at all); the stripped copy is returned
+    for the caller to measure, then to delete."""
+    stripped = packed.with_name(packed.name + ".stripped")
+    shutil.copyfile(built, stripped)
+    subprocess.run(["strip", stripped], check=True)
+    part = packed.with_name(packed.name + ".part")
+    with open(stripped, "rb") as src, lzma.open(part, "wb", preset=9) as dst:
+        shutil.copyfileobj(src, dst)
+    part.replace(packed)
+    return stripped
+
+
+def apt_download(dest: Path, packages: list):
+    """Debian's amd64 `packages` as .deb files into `dest`, unless some are
+    there already (apt's own lists kept apart, in a temporary folder)."""
+    dest.mkdir(parents=True, exist_ok=True)
+    if list(dest.glob("*.deb")):
+        return
+    lists = Path(tempfile.mkdtemp(prefix="apt-amd64-"))
+    (lists / "partial").mkdir()
+    opts = ["-oAPT::Architecture=amd64", "-oAPT::Architectures=amd64", f"-oDir::State::Lists={lists}"]
+    subprocess.run(["apt-get", *opts, "update"], check=True, stdout=subprocess.DEVNULL)
+    subprocess.run(["apt-get", *opts, "download", *packages], cwd=dest, check=True)

@@ -3,16 +3,12 @@
 device time a task is lent."""
 import hashlib
 import json
-import lzma
-import shutil
 import subprocess
 import sys
-import tempfile
 import time
-from pathlib import Path
 
 from check_runner import (CARRY, DEVICE_TIME_S, ENVELOPE2_S, ENVELOPE_S, GL_PACKAGES, MIB, REPO, START_S,
-                          TRAIN_BUDGET_S, TRAVEL_LIMIT, git_commit, git_dirty)
+                          TRAIN_BUDGET_S, TRAVEL_LIMIT, apt_download, git_commit, git_dirty, strip_and_pack)
 from check_openxr import prepare_openxr
 from check_steps import calls, caps
 
@@ -22,24 +18,13 @@ def prepare() -> int:
     CARRY.mkdir(exist_ok=True)
     subprocess.run(["cargo", "build", "--release", "-p", "nedrt"], cwd=REPO, check=True)
     built = REPO / "target" / "release" / "nedrt"
-    stripped = CARRY / "nedrt.stripped"
-    shutil.copyfile(built, stripped)
-    subprocess.run(["strip", stripped], check=True)
-    with open(stripped, "rb") as src, lzma.open(CARRY / "nedrt.xz.tmp", "wb", preset=9) as dst:
-        shutil.copyfileobj(src, dst)
-    (CARRY / "nedrt.xz.tmp").replace(CARRY / "nedrt.xz")
+    stripped = strip_and_pack(built, CARRY / "nedrt.xz")
     digest = hashlib.sha256(stripped.read_bytes()).hexdigest()
     sizes_mib = {"built": round(built.stat().st_size / MIB, 2), "stripped": round(stripped.stat().st_size / MIB, 2),
                  "xz": round((CARRY / "nedrt.xz").stat().st_size / MIB, 2)}
     stripped.unlink()
     gl = CARRY / "gl"
-    gl.mkdir(exist_ok=True)
-    if not list(gl.glob("*.deb")):
-        lists = Path(tempfile.mkdtemp(prefix="apt-amd64-"))
-        (lists / "partial").mkdir()
-        opts = ["-oAPT::Architecture=amd64", "-oAPT::Architectures=amd64", f"-oDir::State::Lists={lists}"]
-        subprocess.run(["apt-get", *opts, "update"], check=True, stdout=subprocess.DEVNULL)
-        subprocess.run(["apt-get", *opts, "download", *GL_PACKAGES], cwd=gl, check=True)
+    apt_download(gl, GL_PACKAGES)
     manifest = {"commit": git_commit(), "dirty": git_dirty(), "binary_sha256": digest, "binary_mib": sizes_mib,
                 "built": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
                 "gl": sorted(p.name for p in gl.glob("*.deb")), **prepare_openxr()}

@@ -165,13 +165,10 @@ pub unsafe fn read_cstr<'a>(p: *const c_char) -> XrResult<&'a str> {
         .map_err(|_| xr::Result::ERROR_VALIDATION_FAILURE)
 }
 
-/// CLOCK_MONOTONIC in nanoseconds: the service's clock (docs/protocol.md),
-/// and so the `XrTime` of this runtime.
+/// CLOCK_MONOTONIC in nanoseconds: the protocol's clock, and so the
+/// `XrTime` of this runtime.
 pub fn now_ns() -> i64 {
-    let t = rustix::time::clock_gettime(rustix::time::ClockId::Monotonic);
-    t.tv_sec
-        .saturating_mul(1_000_000_000)
-        .saturating_add(t.tv_nsec)
+    i64::try_from(nedrt_protocol::monotonic_ns()).unwrap_or(i64::MAX)
 }
 
 #[cfg(test)]

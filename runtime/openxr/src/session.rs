@@ -10,8 +10,7 @@ use openxr_sys::Handle as _;
 
 use crate::ffi::{XrResult, expect_type, guard, non_null, non_null_mut, now_ns, two_call_with};
 use crate::link::{Link, LinkError, SystemInfo};
-use crate::space::{FixedHead, Pose, PoseSource};
-use crate::spaces::locate_in_local;
+use crate::space::{FixedHead, Pose, PoseSource, in_local};
 use crate::state::{Event, Instance, SYSTEM_ID, Session, lock, registry};
 use crate::vulkan::{Binding, Context, Entry};
 
@@ -367,7 +366,7 @@ pub unsafe extern "system" fn locate_views(
             return Err(xr::Result::ERROR_VIEW_CONFIGURATION_TYPE_UNSUPPORTED);
         }
         let t = info.display_time.as_nanos();
-        let base = locate_in_local(&s, &space, t);
+        let base = in_local(poses.as_ref(), space.kind, space.pose_in_parent, t);
         let head = poses.head(t);
         let eyes = poses.eyes();
         let n = system.views.len();

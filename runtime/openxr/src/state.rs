@@ -42,6 +42,14 @@ pub fn registry() -> MutexGuard<'static, Registry> {
     lock(&REGISTRY)
 }
 
+/// The object behind a handle of one type, or `XR_ERROR_HANDLE_INVALID`.
+fn live<T>(objects: &HashMap<u64, Arc<T>>, h: u64) -> XrResult<Arc<T>> {
+    objects
+        .get(&h)
+        .cloned()
+        .ok_or(xr::Result::ERROR_HANDLE_INVALID)
+}
+
 impl Registry {
     /// A handle never given out before (0 is `XR_NULL_HANDLE`).
     pub fn new_handle(&mut self) -> u64 {
@@ -52,45 +60,27 @@ impl Registry {
     }
 
     pub fn instance(&self, h: xr::Instance) -> XrResult<Arc<Instance>> {
-        self.instances
-            .get(&h.into_raw())
-            .cloned()
-            .ok_or(xr::Result::ERROR_HANDLE_INVALID)
+        live(&self.instances, h.into_raw())
     }
 
     pub fn session(&self, h: xr::Session) -> XrResult<Arc<Session>> {
-        self.sessions
-            .get(&h.into_raw())
-            .cloned()
-            .ok_or(xr::Result::ERROR_HANDLE_INVALID)
+        live(&self.sessions, h.into_raw())
     }
 
     pub fn space(&self, h: xr::Space) -> XrResult<Arc<Space>> {
-        self.spaces
-            .get(&h.into_raw())
-            .cloned()
-            .ok_or(xr::Result::ERROR_HANDLE_INVALID)
+        live(&self.spaces, h.into_raw())
     }
 
     pub fn swapchain(&self, h: xr::Swapchain) -> XrResult<Arc<Swapchain>> {
-        self.swapchains
-            .get(&h.into_raw())
-            .cloned()
-            .ok_or(xr::Result::ERROR_HANDLE_INVALID)
+        live(&self.swapchains, h.into_raw())
     }
 
     pub fn action_set(&self, h: xr::ActionSet) -> XrResult<Arc<ActionSet>> {
-        self.action_sets
-            .get(&h.into_raw())
-            .cloned()
-            .ok_or(xr::Result::ERROR_HANDLE_INVALID)
+        live(&self.action_sets, h.into_raw())
     }
 
     pub fn action(&self, h: xr::Action) -> XrResult<Arc<Action>> {
-        self.actions
-            .get(&h.into_raw())
-            .cloned()
-            .ok_or(xr::Result::ERROR_HANDLE_INVALID)
+        live(&self.actions, h.into_raw())
     }
 
     /// Removes a session and every object made from it (the specification

@@ -438,11 +438,7 @@ fn submit_frame(
                 format: req.format,
                 payload,
             };
-            let submitted = match (view, display_ns) {
-                (view, Some(_)) => compositor.submit_at(view, frame, display_ns),
-                (Some(v), None) => compositor.submit_view(v, frame),
-                (None, None) => compositor.submit(frame),
-            };
+            let submitted = compositor.submit_at(view, frame, display_ns);
             match submitted {
                 Ok(()) => (STATUS_OK, String::new()),
                 Err(e) => (e.reason.code(), e.detail),
