@@ -58,6 +58,9 @@ fn tradeoff_writes_the_chart_and_the_picker_reads_it() {
             "--no-fidelity",
             "--models",
             path(&model),
+            // A budget never reached drops nothing (the names below).
+            "--time-budget",
+            "1e6",
         ],
     ]
     .concat());
@@ -160,6 +163,44 @@ fn tradeoff_writes_the_chart_and_the_picker_reads_it() {
     ]
     .concat());
     assert_clean_error(&o, "no DOE beside this D-CNN");
+    // A budget spent before the first configuration: a clean error, no table.
+    let spent = dir.path().join("spent");
+    let tradeoff_with_budget = |budget: &str| {
+        run(&[
+            &base[..],
+            &[
+                "tradeoff",
+                "--designs",
+                &designs,
+                "--images",
+                path(&imgs),
+                "--out-dir",
+                path(&spent),
+                "--size",
+                "32x24",
+                "--backends",
+                "cpu",
+                "--no-fidelity",
+                "--models",
+                path(&model),
+                "--time-budget",
+                budget,
+            ],
+        ]
+        .concat())
+    };
+    let o = tradeoff_with_budget("0");
+    assert_clean_error(&o, "--time-budget");
+    assert!(
+        stderr(&o).contains("before the first configuration ran"),
+        "{}",
+        stderr(&o)
+    );
+    assert!(!spent.join("tradeoff.json").exists());
+    assert_clean_error(
+        &tradeoff_with_budget("nan"),
+        "--time-budget NaN: not a number of seconds",
+    );
 }
 
 mod needs_gpu {

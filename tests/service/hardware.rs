@@ -371,6 +371,20 @@ mod needs_gpu_bench {
         for r in &records {
             assert!(r["presented"].as_u64().expect("presented") >= 1, "{r}");
             assert!(r["e2e_p99_ms"].as_f64().expect("p99") > 0.0, "{r}");
+            // Where the time goes, for a device run to read back: every
+            // stage's percentiles, the late frames, the source's lead.
+            assert!(r["late"].as_u64().is_some(), "{r}");
+            assert!(r["ahead_ms"].as_f64().expect("ahead_ms") > 0.0, "{r}");
+            let stages: Vec<&str> = r["stages"]
+                .as_array()
+                .expect("stages")
+                .iter()
+                .map(|s| s["stage"].as_str().expect("stage"))
+                .collect();
+            assert!(
+                stages.contains(&"end-to-end") && stages.contains(&"queued"),
+                "{r}"
+            );
             let reads = r["read_backs"].as_f64().expect("read_backs");
             // Per presented frame: frames dropped on the way add their
             // traffic to the ones shown, so at least one frame's worth.

@@ -271,6 +271,12 @@ pub fn run(cli: Cli) -> Result<()> {
                 fidelity: !a.no_fidelity,
                 designs: app::design::Design::resolve_list(a.designs.as_deref())?,
                 prefilters: dedup(a.prefilter),
+                time_budget_s: match a.time_budget {
+                    Some(s) if !(s.is_finite() && s >= 0.0) => {
+                        bail!("--time-budget {s}: not a number of seconds ≥ 0")
+                    }
+                    b => b,
+                },
             };
             print!("{}", studies::tradeoff::run(&common, &opts)?);
         }

@@ -56,6 +56,10 @@ pub struct TradeoffArgs {
     /// Skip the simulator-fidelity study (minutes of PSFs at the 3 µm pitch).
     #[arg(long)]
     pub no_fidelity: bool,
+    /// Start no configuration after this many seconds: the rest are listed
+    /// as not run and the table of those done is written.
+    #[arg(long, value_name = "SECONDS")]
+    pub time_budget: Option<f64>,
     /// Measure nothing: rewrite the tables and charts from the JSON in --out-dir.
     #[arg(long)]
     pub replot: bool,

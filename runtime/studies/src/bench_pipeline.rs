@@ -127,11 +127,14 @@ pub fn run(
     let mut table = format!(
         "`nedrt bench pipeline`: test pattern at {} Hz, {w}×{h}, {views}wgpu backend, headless sink; \
          at most {} frames or {} s per case from its first frame \
-         (prepare s: the PSFs and filters for the panel, before it; GPU p50: the engine's own \
-         time on the device per frame, from timestamp queries)\n\n\
-         | network | frame path | prepare s | shown | dropped | e2e p50 ms | e2e p99 ms | e2e max ms | \
-         GPU p50 ms | MB up / frame | uploads / frame | MB back / frame | read-backs / frame |{}\n\
-         | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |{}\n",
+         (prepare s: the PSFs and filters for the panel, before it; dropped: the source's frames \
+         never shown; late: shown after the refresh predicted at submission; submitted ahead: \
+         the mean time from a frame's submission to the refresh predicted for it, the pipeline's \
+         bound plus the present loop's lead; GPU p50: the engine's own time on the device per \
+         frame, from timestamp queries)\n\n\
+         | network | frame path | prepare s | shown | dropped | late | submitted ahead ms | e2e p50 ms | e2e p99 ms | \
+         e2e max ms | GPU p50 ms | MB up / frame | uploads / frame | MB back / frame | read-backs / frame |{}\n\
+         | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |{}\n",
         calib.panel.refresh_hz, b.frames, b.max_seconds, eye_columns.0, eye_columns.1
     );
     for &network in &b.networks {
@@ -188,7 +191,21 @@ pub fn run(
             // The engine's own time on the device (timestamps), per frame.
             let gpu = stage("preprocess-gpu");
             let t = report.traffic_per_frame();
-            let dropped = report.dropped_queued + report.dropped_at_present;
+            // Source frames not shown. Two views submit a frame per eye and
+            // each refresh composes one of each, so the slot's count of
+            // replaced composites is not a count of frames lost: those are
+            // the source's frames (its submissions over the views) that
+            // never reached the panel.
+            let views = if b.stereo { 2 } else { 1 };
+            let dropped = if views > 1 {
+                (report.submitted / views)
+                    .saturating_sub(report.presented + report.in_flight_at_stop)
+            } else {
+                report.dropped_queued + report.dropped_at_present
+            };
+            // How far ahead of its predicted refresh the source submitted
+            // (its plan: the pipeline's bound and the loop's latch).
+            let ahead_ms = report.clients.first().map(|c| c.mean_lead_ms);
             let record = json!({
                 "kind": "pipeline",
                 "network": network.name(),
@@ -209,6 +226,17 @@ pub fn run(
                 "uploads": t.uploads,
                 "to_host_mb": t.to_host_bytes / 1e6,
                 "read_backs": t.read_backs,
+                "late": report.late.count,
+                "late_p50_ms": report.late.p50_ms,
+                "missed_refreshes": report.missed_refreshes,
+                "ahead_ms": ahead_ms,
+                "shown_vs_predicted": report.shown_vs_predicted,
+                "stages": report.stages.iter().map(|s| json!({
+                    "stage": s.stage,
+                    "count": s.count,
+                    "p50_ms": s.p50_ms,
+                    "p99_ms": s.p99_ms,
+                })).collect::<Vec<_>>(),
                 "eyes": report.view_stages.iter().map(|s| json!({
                     "stage": s.stage,
                     "count": s.count,
@@ -234,12 +262,14 @@ pub fn run(
             };
             let _ = writeln!(
                 table,
-                "| {} | {} | {prepare_s:.1} | {} | {dropped} | {} | {} | {} | {} | {:.2} | {:.2} | {:.2} | {:.2} |{eyes}",
+                "| {} | {} | {prepare_s:.1} | {} | {dropped} | {} | {} | {} | {} | {} | {} | {:.2} | {:.2} | {:.2} | {:.2} |{eyes}",
                 network.name(),
                 // "device" or "host" as it ran (a device case the engine
                 // could not run on the device says "host").
                 report.frame_path.split([' ', ':']).next().unwrap_or("?"),
                 report.presented,
+                report.late.count,
+                ms(ahead_ms),
                 ms(e2e.as_ref().map(|s| s.p50_ms)),
                 ms(e2e.as_ref().map(|s| s.p99_ms)),
                 ms(e2e.as_ref().map(|s| s.max_ms)),

@@ -8,6 +8,7 @@
 
 pub mod chart;
 pub mod fidelity;
+mod measure;
 pub mod pareto;
 pub mod quality;
 mod report;
@@ -18,10 +19,11 @@ use std::time::Instant;
 
 use serde::{Deserialize, Serialize};
 
+use measure::time_median;
+pub use measure::{host_description, latency_frame};
 pub use quality::{Quality, Scorer};
 pub use report::{markdown, write_table};
 
-use super::bench::median;
 use super::eval::{list_images, load_all};
 use super::{AppError, CommonOptions, create_dir};
 use crate::preprocess::{Prefilter, dcnn_system};
@@ -54,6 +56,24 @@ pub struct TradeoffOptions {
     /// The least-squares prefilters priced for each design's optics (with
     /// the objective the design was made for, whatever the spec says).
     pub prefilters: Vec<Prefilter>,
+    /// Seconds after which no further configuration is started: the ones
+    /// left are listed as not run and the table of those done is written
+    /// (a lent GPU's step has a cap; a partial chart beats none).
+    pub time_budget_s: Option<f64>,
+}
+
+/// Whether `--time-budget` is spent; if so, `name` goes to the skipped
+/// list with the reason.
+fn out_of_time(o: &TradeoffOptions, start: Instant, name: &str, skipped: &mut Vec<String>) -> bool {
+    match o.time_budget_s {
+        Some(budget) if start.elapsed().as_secs_f64() >= budget => {
+            skipped.push(format!(
+                "{name}: not run, the --time-budget of {budget} s was spent"
+            ));
+            true
+        }
+        _ => false,
+    }
 }
 
 /// Rewrites the Markdown and the charts from the JSON already in
@@ -118,50 +138,6 @@ impl Table {
             )
         })
     }
-}
-
-/// This machine's CPU and core count, for the chart and the table.
-pub fn host_description() -> String {
-    let cpu = std::fs::read_to_string("/proc/cpuinfo")
-        .ok()
-        .and_then(|s| {
-            s.lines()
-                .find(|l| l.starts_with("model name"))
-                .and_then(|l| l.split(':').nth(1))
-                .map(|m| m.trim().to_string())
-        })
-        .unwrap_or_else(|| std::env::consts::ARCH.to_string());
-    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
-    format!("{cpu}, {cores} cores")
-}
-
-/// A deterministic frame of `size` with edges and gradients (latency does
-/// not depend on content; the values only keep every path busy).
-pub fn latency_frame(size: (usize, usize)) -> Image {
-    let (w, h) = size;
-    let planes = (0..3)
-        .map(|c| {
-            (0..w * h)
-                .map(|i| {
-                    let (x, y) = (i % w, i / w);
-                    (((x * (c + 3) + y * 7) % 97) as f32 / 96.0) * 0.8 + 0.1
-                })
-                .collect()
-        })
-        .collect();
-    Image::from_planes(w, h, planes)
-}
-
-/// Median seconds of `repeat` timed calls after one warm-up.
-fn time_median<E>(repeat: usize, mut f: impl FnMut() -> Result<(), E>) -> Result<f64, E> {
-    f()?;
-    let mut times = Vec::new();
-    for _ in 0..repeat.max(1) {
-        let t = Instant::now();
-        f()?;
-        times.push(t.elapsed().as_secs_f64());
-    }
-    Ok(median(times))
 }
 
 /// The D-CNN file's companion DOE, which `proposed` must be simulated with.
@@ -260,6 +236,10 @@ pub fn run(common: &CommonOptions, o: &TradeoffOptions) -> Result<String, AppErr
         },
     };
     for m in baselines {
+        if out_of_time(o, start, m.name(), &mut skipped) {
+            bar.inc(1);
+            continue;
+        }
         records.extend(linear_records(
             &run,
             &scorer,
@@ -274,6 +254,10 @@ pub fn run(common: &CommonOptions, o: &TradeoffOptions) -> Result<String, AppErr
         let hash = &sim.doe_hash;
         for m in design_methods {
             let name = format!("{} {}", m.name(), design.name);
+            if out_of_time(o, start, &name, &mut skipped) {
+                bar.inc(1);
+                continue;
+            }
             records.extend(linear_records(
                 &run,
                 scorer,
@@ -287,6 +271,10 @@ pub fn run(common: &CommonOptions, o: &TradeoffOptions) -> Result<String, AppErr
         for p in &prefilters {
             let p = p.with_objective(design.objective());
             let name = p.label(&format!("{} {}", Method::DoeWiener.name(), design.name));
+            if out_of_time(o, start, &name, &mut skipped) {
+                bar.inc(1);
+                continue;
+            }
             records.extend(linear_records(
                 &run,
                 scorer,
@@ -301,6 +289,15 @@ pub fn run(common: &CommonOptions, o: &TradeoffOptions) -> Result<String, AppErr
 
     for model in &o.models {
         let doe = companion_doe(model)?;
+        let stem = model
+            .file_stem()
+            .map_or_else(|| "dcnn".into(), |s| s.to_string_lossy().into_owned());
+        // The network's scorer is minutes of PSFs on a small machine: not
+        // started once the budget is spent.
+        if out_of_time(o, start, &format!("proposed {stem}"), &mut skipped) {
+            bar.inc(o.backends.len() as u64 + 1);
+            continue;
+        }
         let staged = crate::preprocess::dcnn_input(model)? != crate::preprocess::DcnnInput::Frame;
         let sim = Simulator::new(calib.clone(), Some(&doe), common.cache())?.with_wiener_stages(
             if staged {
@@ -315,9 +312,6 @@ pub fn run(common: &CommonOptions, o: &TradeoffOptions) -> Result<String, AppErr
             &inputs,
             &nedrt_core::progress::Silent,
         )?;
-        let stem = model
-            .file_stem()
-            .map_or_else(|| "dcnn".into(), |s| s.to_string_lossy().into_owned());
         for &kind in &o.backends {
             for &precision in kind.precisions() {
                 let options = BackendOptions {
@@ -327,6 +321,9 @@ pub fn run(common: &CommonOptions, o: &TradeoffOptions) -> Result<String, AppErr
                 };
                 let prec = format!("{precision:?}").to_lowercase();
                 let name = format!("proposed {stem} {} {prec}", kind.name());
+                if out_of_time(o, start, &name, &mut skipped) {
+                    continue;
+                }
                 let dcnn = match Dcnn::load(model, kind, &options) {
                     Ok(d) => d,
                     Err(e) => {
@@ -382,6 +379,17 @@ pub fn run(common: &CommonOptions, o: &TradeoffOptions) -> Result<String, AppErr
         bar.inc(1);
     }
     bar.finish_and_clear();
+    if records.is_empty()
+        && let Some(budget) = o.time_budget_s
+    {
+        return Err(AppError::option(
+            "--time-budget",
+            format!(
+                "{budget} s was spent before the first configuration ran ({} not run); nothing written",
+                skipped.len()
+            ),
+        ));
+    }
     let points: Vec<Point> = records.iter().map(|r| r.point.clone()).collect();
     for (r, on) in records.iter_mut().zip(pareto_front(&points)) {
         r.on_front = on;
