@@ -132,19 +132,20 @@ impl ComplexFft2d {
         let mut made = Vec::new();
         for entry_point in ["fft_forward", "fft_inverse"] {
             let mut ops = Vec::new();
-            for (q, n, tables, src, dst, axis) in [
-                (&row_q, cols, &row_tables, a, b, "rows"),
-                (&col_q, rows, &col_tables, b, a, "columns"),
+            for (q, n, tables, src, dst, axis, strided) in [
+                (&row_q, cols, &row_tables, a, b, "rows", false),
+                (&col_q, rows, &col_tables, b, a, "columns", true),
             ] {
                 let params = init_buffer(&device, "fft_fused axis", bytemuck::bytes_of(q));
+                let seqs = fused::seqs_for(&device, n, q.count, strided);
                 ops.push(Op {
-                    pipeline: kernels.fused_pipeline(n, entry_point)?,
+                    pipeline: kernels.fused_pipeline(n, seqs, entry_point)?,
                     bind: fused::bind(
                         &device,
                         &kernels.fused_layout,
                         [&params, src, dst, &tables.twiddle, &tables.quarter, &dummy],
                     ),
-                    groups: fused::groups(q.count),
+                    groups: fused::groups(q.count.div_ceil(seqs)),
                     what: format!("{axis}: {entry_point} (workgroup memory)"),
                     bytes,
                 });

@@ -17,37 +17,53 @@ pub fn fits_workgroup(device: &wgpu::Device, n: usize) -> bool {
         && limits.max_compute_workgroup_size_x >= 64
 }
 
+/// Sequences (or pairs) of length `n` a workgroup holds on `device`, for
+/// `count` of them, `strided` where they are columns
+/// ([`wgsl::seqs_per_workgroup`]).
+pub(super) fn seqs_for(device: &wgpu::Device, n: usize, count: u32, strided: bool) -> u32 {
+    wgsl::seqs_per_workgroup(
+        n,
+        count,
+        strided,
+        device.limits().max_compute_workgroup_storage_size,
+    )
+}
+
 impl FftKernels {
-    /// The generated pipeline of length `n`'s `entry_point`, compiled on
-    /// first use; the caller checked [`fits_workgroup`].
+    /// The generated pipeline of length `n`, `seqs` sequences a workgroup
+    /// ([`seqs_for`]), `entry_point`, compiled on first use; the caller
+    /// checked [`fits_workgroup`].
     pub(super) fn fused_pipeline(
         &mut self,
         n: usize,
+        seqs: u32,
         entry_point: &'static str,
     ) -> Result<wgpu::ComputePipeline, FftError> {
-        if let Some(p) = self.fused.get(&(n, entry_point)) {
+        if let Some(p) = self.fused.get(&(n, seqs, entry_point)) {
             return Ok(p.clone());
         }
         let device = self.device.clone();
-        if !self.fused_modules.contains_key(&n) {
+        if !self.fused_modules.contains_key(&(n, seqs)) {
             let limits = device.limits();
             let threads = wgsl::workgroup_threads(
-                n,
+                n * seqs as usize,
                 limits
                     .max_compute_invocations_per_workgroup
                     .min(limits.max_compute_workgroup_size_x)
                     .min(self.max_threads),
             );
-            let source = wgsl::module_source(n, &wgsl::fused_radices(n)?, threads);
+            // The kernels take a thread's sequence as lid % P: a multiple of P.
+            let threads = (threads - threads % seqs).max(seqs);
+            let source = wgsl::module_source(n, &wgsl::fused_radices(n)?, threads, seqs);
             let module = checked(&device, || {
                 device.create_shader_module(wgpu::ShaderModuleDescriptor {
                     label: Some("fft_fused"),
                     source: wgpu::ShaderSource::Wgsl(source.into()),
                 })
             })?;
-            self.fused_modules.insert(n, module);
+            self.fused_modules.insert((n, seqs), module);
         }
-        let module = &self.fused_modules[&n];
+        let module = &self.fused_modules[&(n, seqs)];
         let p = checked(&device, || {
             device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
                 label: Some(entry_point),
@@ -58,7 +74,7 @@ impl FftKernels {
                 cache: None,
             })
         })?;
-        self.fused.insert((n, entry_point), p.clone());
+        self.fused.insert((n, seqs, entry_point), p.clone());
         Ok(p)
     }
 }
@@ -116,23 +132,39 @@ impl FusedFilter {
         let rows_q = axis(width, height, channels, false, false);
         // The column kernel applies the gain itself, before its DCT-III (no use_gain).
         let cols_q = axis(width, height, channels, true, false);
-        let kernel = |kernels: &mut FftKernels, n, entry_point, q: &SeqParams, bytes| {
+        let kernel = |kernels: &mut FftKernels, n, strided, entry_point, q: &SeqParams, bytes| {
+            let seqs = seqs_for(&device, n, q.pairs, strided);
             Ok::<_, FftError>(Kernel {
-                pipeline: kernels.fused_pipeline(n, entry_point)?,
+                pipeline: kernels.fused_pipeline(n, seqs, entry_point)?,
                 params: init_buffer(&device, "fft_fused axis", bytemuck::bytes_of(q)),
-                groups: groups(q.pairs),
+                groups: groups(q.pairs.div_ceil(seqs)),
                 bytes,
             })
         };
-        let rows_fwd = kernel(kernels, width, "dct2", &rows_q, io_real(&rows_q, false))?;
+        let rows_fwd = kernel(
+            kernels,
+            width,
+            false,
+            "dct2",
+            &rows_q,
+            io_real(&rows_q, false),
+        )?;
         let cols = kernel(
             kernels,
             height,
+            true,
             "dct_filter",
             &cols_q,
             io_real(&cols_q, true),
         )?;
-        let rows_inv = kernel(kernels, width, "dct3", &rows_q, io_real(&rows_q, false))?;
+        let rows_inv = kernel(
+            kernels,
+            width,
+            false,
+            "dct3",
+            &rows_q,
+            io_real(&rows_q, false),
+        )?;
         let plane = |label| {
             device.create_buffer(&wgpu::BufferDescriptor {
                 label: Some(label),

@@ -73,8 +73,9 @@ pub struct FftKernels {
     /// its pipelines per entry point, made on first use.
     pub(super) fused_layout: wgpu::BindGroupLayout,
     pub(super) fused_pipeline_layout: wgpu::PipelineLayout,
-    pub(super) fused_modules: HashMap<usize, wgpu::ShaderModule>,
-    pub(super) fused: HashMap<(usize, &'static str), wgpu::ComputePipeline>,
+    /// By (length, sequences a workgroup).
+    pub(super) fused_modules: HashMap<(usize, u32), wgpu::ShaderModule>,
+    pub(super) fused: HashMap<(usize, u32, &'static str), wgpu::ComputePipeline>,
     pub(super) path: FftPath,
     /// Threads a workgroup of the generated kernels at most.
     pub(super) max_threads: u32,

@@ -36,7 +36,13 @@ impl ConvSupport {
     }
 
     /// The cooperative path for a layer of `cin` → `cout` channels, or why not.
-    fn coop_for(&self, cin: usize, cout: usize, weights: Dtype) -> Result<u32, coop::NoCoop> {
+    fn coop_for(
+        &self,
+        cin: usize,
+        cout: usize,
+        weights: Dtype,
+        transposed: bool,
+    ) -> Result<u32, coop::NoCoop> {
         if self.path == ConvPath::Tiled {
             return Err(self
                 .coop
@@ -46,7 +52,7 @@ impl ConvSupport {
                 .unwrap_or(coop::NoCoop::TiledAsked));
         }
         let adapter = self.coop.as_ref().map_err(Clone::clone)?;
-        coop::layer_fits(cin, cout, weights)?;
+        coop::layer_fits(cin, cout, weights, transposed)?;
         Ok(adapter.subgroup_size)
     }
 }
@@ -94,7 +100,7 @@ pub(super) fn layer_kernel(
             let (relu, residual, clamp) =
                 (c.relu, c.residual.is_some(), c.output == network.output);
             let what = format!("conv {0}×{0} {1}→{2}", c.kernel, c.cin, c.cout);
-            let (kind, packed, path) = match support.coop_for(c.cin, c.cout, weights) {
+            let (kind, packed, path) = match support.coop_for(c.cin, c.cout, weights, false) {
                 Ok(subgroup_size) => (
                     KernelKind::CoopConv {
                         kernel: c.kernel,
@@ -130,7 +136,7 @@ pub(super) fn layer_kernel(
         }
         Layer::ConvTranspose(c) => {
             let what = format!("transposed conv 2×2 {}→{}", c.cin, c.cout);
-            let (kind, packed, path) = match support.coop_for(c.cin, c.cout, weights) {
+            let (kind, packed, path) = match support.coop_for(c.cin, c.cout, weights, true) {
                 Ok(subgroup_size) => (
                     KernelKind::CoopConv {
                         kernel: 1,

@@ -35,9 +35,22 @@ pub enum NoCoop {
     NeedsF16,
     #[error("{0} input channels, under one 16-channel matrix")]
     FewInputs(usize),
-    #[error("{0} output channels, under a quarter of a matrix")]
-    FewOutputs(usize),
+    #[error(
+        "{cout} output channels, under {min}: the tiled kernel is faster there \
+         (the H200, docs/benchmarks.md)"
+    )]
+    FewOutputs { cout: usize, min: usize },
 }
+
+/// Output channels under which a 3×3 convolution stays on the tiled
+/// kernels: on the H200 (2026-11-27) the 16-channel layers at full
+/// resolution took 1.17–1.22× the tiled f16 kernel's time on cooperative
+/// matrices (each tile's staging feeds one 16-wide matrix column), the
+/// 32-channel ones 0.60–0.65×.
+pub const MIN_OUTPUTS: usize = 32;
+/// The same for the 2×2 transposed convolutions: 32→16 took 1.35× the
+/// tiled kernel's time there, 64→32 0.96–1.12×, 128→64 0.76–0.95×, 256→128 0.66×.
+pub const MIN_OUTPUTS_TRANSPOSED: usize = 64;
 
 /// The cooperative-matrix path on a device, or why not: its features
 /// (`nedrt_gpu::open_device` enables cooperative matrices only where the
@@ -65,15 +78,20 @@ pub fn device_support(
 
 /// Whether a layer of `cin` → `cout` channels in `weights` storage can take
 /// the cooperative-matrix path on a capable device, or why not.
-pub fn layer_fits(cin: usize, cout: usize, weights: Dtype) -> Result<(), NoCoop> {
+pub fn layer_fits(cin: usize, cout: usize, weights: Dtype, transposed: bool) -> Result<(), NoCoop> {
     if weights != Dtype::F16 {
         return Err(NoCoop::NeedsF16);
     }
     if cin < SIZE as usize {
         return Err(NoCoop::FewInputs(cin));
     }
-    if cout < 4 {
-        return Err(NoCoop::FewOutputs(cout));
+    let min = if transposed {
+        MIN_OUTPUTS_TRANSPOSED
+    } else {
+        MIN_OUTPUTS
+    };
+    if cout < min {
+        return Err(NoCoop::FewOutputs { cout, min });
     }
     Ok(())
 }
@@ -131,9 +149,21 @@ mod tests {
         let e = device_support(all, (32, 64)).expect_err("varies");
         assert!(e.to_string().contains("32–64"), "{e}");
 
-        assert_eq!(layer_fits(16, 16, Dtype::F16), Ok(()));
-        assert_eq!(layer_fits(32, 32, Dtype::F32), Err(NoCoop::NeedsF16));
-        assert_eq!(layer_fits(3, 32, Dtype::F16), Err(NoCoop::FewInputs(3)));
-        assert_eq!(layer_fits(32, 3, Dtype::F16), Err(NoCoop::FewOutputs(3)));
+        assert_eq!(layer_fits(16, 32, Dtype::F16, false), Ok(()));
+        assert_eq!(layer_fits(32, 32, Dtype::F32, false), Err(NoCoop::NeedsF16));
+        assert_eq!(
+            layer_fits(3, 32, Dtype::F16, false),
+            Err(NoCoop::FewInputs(3))
+        );
+        // The narrow layers, where the H200 ran the tiled kernels faster.
+        assert_eq!(
+            layer_fits(32, 16, Dtype::F16, false),
+            Err(NoCoop::FewOutputs { cout: 16, min: 32 })
+        );
+        assert_eq!(layer_fits(128, 64, Dtype::F16, true), Ok(()));
+        assert_eq!(
+            layer_fits(64, 32, Dtype::F16, true),
+            Err(NoCoop::FewOutputs { cout: 32, min: 64 })
+        );
     }
 }
