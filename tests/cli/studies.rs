@@ -278,6 +278,45 @@ mod needs_gpu {
         ] {
             assert!(out.contains(says), "{says}: {out}");
         }
+        // f16 storage summed in f32 (and f16 FMAs forced, on any adapter):
+        // each layer says how it sums, the records name the choice.
+        for (math, says) in [
+            ("f32", "f32 arithmetic on f16 storage"),
+            ("f16", "f16 arithmetic"),
+        ] {
+            let o = run(&[
+                "--precision",
+                "f16",
+                "--f16-math",
+                math,
+                "bench",
+                "inference",
+                "--backends",
+                "wgpu",
+                "--sizes",
+                "16x16",
+                "--repeat",
+                "1",
+            ]);
+            if stderr(&o).contains("shader-f16") {
+                continue; // an adapter without f16 shaders: nothing to sum in f16
+            }
+            assert!(o.status.success(), "{}", stderr(&o));
+            let out = stdout(&o);
+            let case = out
+                .lines()
+                .filter(|l| l.starts_with('{'))
+                .map(|l| serde_json::from_str::<serde_json::Value>(l).expect("json"))
+                .find(|r| r["kind"] == "dcnn_latency")
+                .expect("a case");
+            assert_eq!(case["conv_path"], format!("auto, {math} math"), "{case}");
+            assert!(
+                case["device"].as_str().unwrap_or_default().contains(says)
+                    || out.contains(says)
+                    || stderr(&o).contains(says),
+                "{says}: {out}"
+            );
+        }
     }
 
     /// `--backends …,wgpu` adds each prefilter the device runs as a row

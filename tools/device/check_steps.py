@@ -41,9 +41,10 @@ STEPS = [
      20, 0),
     ("ceilings", "the GPU's copy bandwidth and GEMM rates through PyTorch (the floors' peaks)", 20, 1),
     ("wgsl", "the D-CNN at 1920×1080 through nedrt's WGSL, wall and GPU time: full and half, f32, f16 with "
-             "--conv-path tiled and f16 with --conv-path auto (cooperative matrices where listed)", 30, 1),
-    ("per-layer", "each layer's GPU time against its CUDA-core and tensor-core floors, --conv-path tiled and "
-                  "auto", 30, 1),
+             "--conv-path tiled, f16 with --conv-path auto (cooperative matrices where listed), and auto with "
+             "--f16-math f32", 30, 1),
+    ("per-layer", "each layer's GPU time against its CUDA-core and tensor-core floors, --conv-path tiled, "
+                  "auto, and auto with --f16-math f32", 30, 1),
     ("torch", "the same networks in PyTorch: f32 (TF32 off), TF32, f16 channels-last; cuDNN benchmark", 40, 1),
     ("fft", "the prefilters' DCT filter at 1920×1080: nedrt's on the device, the CPU's, torch.fft (cuFFT)", 30, 1),
     ("pipeline", "nedrt bench pipeline at 1920×1080 and the panel's refresh on the device path: none, the "
@@ -158,13 +159,16 @@ def flags(pairs: dict) -> list:
 
 #: The convolution kernels each wgpu step runs: the register-tiled ones
 #: alone, then cooperative matrices where the adapter lists their shape.
-CONV_PATHS = ("tiled", "auto")
+#: The kernel choices measured: the tiled kernels, the cooperative
+#: matrices where listed, and those with the tiled layers summing in f32 on
+#: f16 storage (the H200's tiled f16 FMAs were slower than f32, 2026-11-27).
+CONV_PATHS = (("tiled",), ("auto",), ("auto", "--f16-math", "f32"))
 
 
 def step_wgsl(r: Runner, s: Step, z: dict):
     r.need_gpu_adapter()
     for path in CONV_PATHS:
-        r.sh([r.nedrt, "--conv-path", path, "bench", "inference", "--backends", "wgpu", "--sizes", z["frame"],
+        r.sh([r.nedrt, "--conv-path", *path, "bench", "inference", "--backends", "wgpu", "--sizes", z["frame"],
               "--repeat", z["repeat"], "--max-seconds", 60], s.cap_s)
 
 
@@ -172,9 +176,9 @@ def step_per_layer(r: Runner, s: Step, z: dict, ceilings: Step):
     r.need_gpu_adapter()
     texts = []
     for path in CONV_PATHS:
-        out = r.sh([r.nedrt, "--conv-path", path, "bench", "inference", "--per-layer", "--sizes", z["layer_frame"],
+        out = r.sh([r.nedrt, "--conv-path", *path, "bench", "inference", "--per-layer", "--sizes", z["layer_frame"],
                     "--repeat", z["repeat"], *flags(peaks(ceilings))], s.cap_s, parse_json=False)
-        texts.append(f"\n**--conv-path {path}**\n\n{out.strip()}\n")
+        texts.append(f"\n**--conv-path {' '.join(path)}**\n\n{out.strip()}\n")
     s.text = "".join(texts)
 
 

@@ -242,8 +242,7 @@ fn one_view(
             if precision == nedrt_infer::Precision::F32
                 || d.features().contains(wgpu::Features::SHADER_F16) =>
         {
-            let path = dcnn.backend_options.conv_path;
-            Dcnn::on_device(model.clone(), d, q, name.clone(), precision, path)
+            Dcnn::on_device(model.clone(), d, q, name.clone(), &dcnn.backend_options)
                 .map(|x| Box::new(x) as Box<dyn Preprocess>)
         }
         (kind, _) => Dcnn::from_model(model.clone(), kind, &dcnn.backend_options)
@@ -394,7 +393,7 @@ mod tests {
         use nedrt_core::Image;
         use nedrt_core::preprocess::Preprocess;
         use nedrt_infer::gpu::DeviceDcnn;
-        use nedrt_infer::{BackendKind, BackendOptions, Dcnn, ModelFile, Precision, synth};
+        use nedrt_infer::{BackendKind, BackendOptions, Dcnn, ModelFile, synth};
         use nedrt_optics::Psf;
         use nedrt_optics::sim::wiener::WienerFilter;
         use nedrt_service::pipeline::device_frames::DeviceFrames;
@@ -653,8 +652,7 @@ mod tests {
                 &device,
                 &queue,
                 "test".into(),
-                Precision::F32,
-                nedrt_infer::ConvPath::Auto,
+                &BackendOptions::default(),
             )
             .expect("net");
             let wiener =

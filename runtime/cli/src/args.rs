@@ -8,7 +8,7 @@ use clap::builder::{PossibleValue, PossibleValuesParser, TypedValueParser};
 use clap::{Args, Parser, Subcommand, ValueEnum};
 use nedrt_app::run::{FallbackKind, FramePath, SinkKind, SourceKind};
 use nedrt_core::Named;
-use nedrt_infer::{BackendKind, ConvPath, OrtProvider, Precision};
+use nedrt_infer::{BackendKind, ConvPath, F16Math, OrtProvider, Precision};
 use nedrt_optics::sim::{Method, Optics};
 use nedrt_studies::bench_pipeline::PipelineNetwork;
 
@@ -104,6 +104,10 @@ pub struct GlobalArgs {
     /// tiled (the register-tiled kernels only).
     #[arg(long, global = true, value_parser = named::<ConvPath>(), default_value = "auto")]
     pub conv_path: ConvPath,
+    /// How the tiled kernels sum at --precision f16: auto (f16 on a GPU,
+    /// f32 on a CPU adapter), f16 or f32 (on f16 storage).
+    #[arg(long, global = true, value_parser = named::<F16Math>(), default_value = "auto")]
+    pub f16_math: F16Math,
     /// Execution provider of the ort backend.
     #[arg(long, global = true, value_parser = named::<OrtProvider>(), default_value = "cpu")]
     pub ort_provider: OrtProvider,

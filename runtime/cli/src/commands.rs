@@ -54,6 +54,7 @@ pub fn run(cli: Cli) -> Result<()> {
                 threads: g.threads,
                 precision: g.precision,
                 conv_path: g.conv_path,
+                f16_math: g.f16_math,
                 ort_provider: g.ort_provider,
                 gpu: env.gpu.clone(),
                 ort_library: if may_use_ort {

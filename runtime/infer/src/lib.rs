@@ -270,6 +270,40 @@ impl Named for ConvPath {
     }
 }
 
+/// How the wgpu backend's register-tiled kernels sum at `--precision f16`
+/// (docs/inference.md): the storage is f16 either way.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum F16Math {
+    /// f16 FMAs on a GPU, f32 on a CPU adapter (lavapipe converts every
+    /// f16 operation).
+    #[default]
+    Auto,
+    /// f16 FMAs (into f32 accumulators) on every adapter.
+    F16,
+    /// f32 FMAs on f16 storage on every adapter: on the H200 (2026-11-27)
+    /// the f16 FMAs ran the tiled kernels 1.2–1.3× slower than f32 storage
+    /// did, so this is measured against them there.
+    F32,
+}
+
+impl Named for F16Math {
+    const ALL: &'static [Self] = &[F16Math::Auto, F16Math::F16, F16Math::F32];
+    fn name(self) -> &'static str {
+        match self {
+            F16Math::Auto => "auto",
+            F16Math::F16 => "f16",
+            F16Math::F32 => "f32",
+        }
+    }
+    fn help(self) -> &'static str {
+        match self {
+            F16Math::Auto => "f16 arithmetic on a GPU, f32 on a CPU adapter",
+            F16Math::F16 => "f16 arithmetic (f32 accumulators) on every adapter",
+            F16Math::F32 => "f32 arithmetic on f16 storage on every adapter",
+        }
+    }
+}
+
 /// Options for building a backend.
 #[derive(Debug, Clone, Default)]
 pub struct BackendOptions {
@@ -282,6 +316,8 @@ pub struct BackendOptions {
     pub gpu: nedrt_gpu::GpuSettings,
     /// Which convolution kernels the wgpu backend may use.
     pub conv_path: ConvPath,
+    /// How its tiled kernels sum at f16.
+    pub f16_math: F16Math,
 }
 
 /// The D-CNN ready to preprocess frames of any size.
@@ -354,8 +390,7 @@ impl Dcnn {
         device: &wgpu::Device,
         queue: &wgpu::Queue,
         adapter_name: String,
-        precision: Precision,
-        conv_path: ConvPath,
+        options: &BackendOptions,
     ) -> Result<Self, InferenceError> {
         let network = model.lower()?;
         let backend = Box::new(gpu::GpuBackend::new_with(
@@ -363,8 +398,8 @@ impl Dcnn {
             queue,
             adapter_name,
             &network,
-            precision,
-            gpu::ConvSupport::of_device(device, conv_path),
+            options.precision,
+            gpu::ConvSupport::of_options(device, options),
         )?);
         Ok(Self {
             model,

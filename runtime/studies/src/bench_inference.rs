@@ -279,8 +279,13 @@ pub fn run(
                         "backend": kind.name(),
                         "device": dcnn.describe(),
                         "precision": format!("{precision:?}").to_lowercase(),
-                        "conv_path": (kind == BackendKind::Wgpu)
-                            .then(|| options.conv_path.name()),
+                        // With the f16 arithmetic where it is not the default.
+                        "conv_path": (kind == BackendKind::Wgpu).then(|| {
+                            match options.f16_math {
+                                nedrt_infer::F16Math::Auto => options.conv_path.name().to_string(),
+                                m => format!("{}, {} math", options.conv_path.name(), m.name()),
+                            }
+                        }),
                         "width": w,
                         "height": h,
                         "first_run_s": first,

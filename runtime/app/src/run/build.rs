@@ -104,14 +104,12 @@ pub(super) fn device_engines(
 ) -> Result<DeviceEngines, AppError> {
     let (host, network, fallback) = match model {
         Some(model) => {
-            let precision = common.dcnn.backend_options.precision;
             let net: Box<dyn nedrt_gpu::DeviceStage> = Box::new(DeviceDcnn::on_device(
                 model.clone(),
                 device,
                 queue,
                 name.clone(),
-                precision,
-                common.dcnn.backend_options.conv_path,
+                &common.dcnn.backend_options,
             )?);
             let mut host = None;
             let mut on_device_stage = None;

@@ -132,9 +132,8 @@ fn device_stages(
         }
         for v in views {
             let options = &v.common.dcnn.backend_options;
-            let (precision, path) = (options.precision, options.conv_path);
             let net: Box<dyn nedrt_gpu::DeviceStage> = Box::new(
-                DeviceDcnn::on_device(model.clone(), device, queue, name.clone(), precision, path)
+                DeviceDcnn::on_device(model.clone(), device, queue, name.clone(), options)
                     .map_err(|e| format!("view {:?}: {e}", v.name))?,
             );
             let stage = match wiener {

@@ -35,6 +35,24 @@ impl ConvSupport {
         }
     }
 
+    /// What `device` offers under `options`' conv path and f16 math.
+    pub fn of_options(device: &wgpu::Device, options: &crate::BackendOptions) -> Self {
+        Self::of_device(device, options.conv_path).with_f16_math(options.f16_math)
+    }
+
+    /// `math` over the device's default (`F16Math::Auto` keeps it).
+    pub fn with_f16_math(self, math: crate::F16Math) -> Self {
+        let f16_arithmetic = match math {
+            crate::F16Math::Auto => self.f16_arithmetic,
+            crate::F16Math::F16 => true,
+            crate::F16Math::F32 => false,
+        };
+        Self {
+            f16_arithmetic,
+            ..self
+        }
+    }
+
     /// The cooperative path for a layer of `cin` → `cout` channels, or why not.
     fn coop_for(
         &self,
@@ -82,9 +100,7 @@ pub(super) fn layer_kernel(
     let arith = match (weights, support.f16_arithmetic) {
         (Dtype::F32, _) => "",
         (Dtype::F16, true) => ", f16 arithmetic",
-        (Dtype::F16, false) => {
-            ", f32 arithmetic on f16 storage (a CPU adapter converts every f16 operation)"
-        }
+        (Dtype::F16, false) => ", f32 arithmetic on f16 storage",
     };
     Ok(Some(match layer {
         Layer::Conv(c) => {
@@ -217,4 +233,24 @@ pub fn cooperative_against_tiled(
                 |m, d| if d.is_nan() { f32::INFINITY } else { m.max(d) },
             ),
     ))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_f16_math_overrides_the_adapters_default_only_when_named() {
+        for default in [false, true] {
+            let support = ConvSupport {
+                path: ConvPath::Auto,
+                coop: Err(coop::NoCoop::NotOnDevice),
+                f16_arithmetic: default,
+            };
+            let math = |m| support.clone().with_f16_math(m).f16_arithmetic;
+            assert_eq!(math(crate::F16Math::Auto), default);
+            assert!(math(crate::F16Math::F16));
+            assert!(!math(crate::F16Math::F32));
+        }
+    }
 }

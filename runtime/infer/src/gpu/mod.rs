@@ -134,7 +134,7 @@ impl GpuBackend {
         let (adapter, device, queue) = open_device(&options.gpu, options.precision)?;
         let info = adapter.get_info();
         let name = format!("{} ({:?}, {:?})", info.name, info.backend, info.device_type);
-        let support = ConvSupport::of_device(&device, options.conv_path);
+        let support = ConvSupport::of_options(&device, options);
         Self::new_with(&device, &queue, name, network, options.precision, support)
     }
 

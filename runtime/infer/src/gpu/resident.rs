@@ -10,7 +10,7 @@
 use wgpu::util::DeviceExt;
 
 use super::{GpuBackend, err};
-use crate::{InferenceError, ModelFile, Precision};
+use crate::{InferenceError, ModelFile};
 
 const SHADER: &str = include_str!("../../../../shaders/frame_window.wgsl");
 /// `frame_window.wgsl`'s workgroup: 16 × 16 pixels of one channel.
@@ -351,13 +351,18 @@ impl DeviceDcnn {
         device: &wgpu::Device,
         queue: &wgpu::Queue,
         adapter_name: String,
-        precision: Precision,
-        conv_path: crate::ConvPath,
+        options: &crate::BackendOptions,
     ) -> Result<Self, InferenceError> {
         let network = model.lower()?;
-        let support = super::ConvSupport::of_device(device, conv_path);
-        let backend =
-            GpuBackend::new_with(device, queue, adapter_name, &network, precision, support)?;
+        let support = super::ConvSupport::of_options(device, options);
+        let backend = GpuBackend::new_with(
+            device,
+            queue,
+            adapter_name,
+            &network,
+            options.precision,
+            support,
+        )?;
         Ok(Self { model, backend })
     }
 
