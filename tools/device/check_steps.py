@@ -39,17 +39,18 @@ TRADEOFF_MARGIN_S = 45
 STEPS = [
     ("setup", "the binary unpacked, the Vulkan loader, the adapter named with its cooperative-matrix shapes",
      20, 0),
-    ("ceilings", "the GPU's copy bandwidth and GEMM rates through PyTorch (the floors' peaks)", 20, 1),
+    ("ceilings", "the GPU's copy bandwidth and GEMM rates through PyTorch (the floors' peaks)", 15, 1),
     ("wgsl", "the D-CNN at 1920×1080 through nedrt's WGSL, wall and GPU time: full and half, f32, f16 with "
              "--conv-path tiled, f16 with --conv-path auto (cooperative matrices where listed), and auto with "
              "--f16-math f32", 30, 1),
     ("per-layer", "each layer's GPU time against its CUDA-core and tensor-core floors, --conv-path tiled, "
                   "auto, and auto with --f16-math f32", 30, 1),
-    ("torch", "the same networks in PyTorch: f32 (TF32 off), TF32, f16 channels-last; cuDNN benchmark", 40, 1),
-    ("fft", "the prefilters' DCT filter at 1920×1080: nedrt's on the device, the CPU's, torch.fft (cuFFT)", 30, 1),
+    ("torch", "the same networks in PyTorch: f32 (TF32 off), TF32, f16 channels-last; cuDNN benchmark", 35, 1),
+    ("fft", "the prefilters' DCT filter at 1920×1080: nedrt's on the device, the CPU's, torch.fft (cuFFT)", 25, 1),
     ("pipeline", "nedrt bench pipeline at 1920×1080 and the panel's refresh on the device path: none, the "
                  "Wiener, refine:10 (its GPU time per frame), half, full, the shipped model; then two views "
-                 "(--stereo): none and the shipped model", 90, 1),
+                 "(--stereo): none and the shipped model; the shipped model and the full network at "
+                 "--precision f16", 110, 1),
     ("teacher", "the D-CNN's teacher: the training photographs' optimum with nedrt's solver on the device "
                 "(refine:1000@target, wgpu), the kernels and the validation sets with nedrt prefilter on the CPU",
      105, 1),
@@ -206,7 +207,12 @@ def step_pipeline(r: Runner, s: Step, z: dict):
     # One view and two (issue 39): the no-network and the shipped-model cases.
     stereo = r.sh([r.nedrt, "--design", "multifocal", "bench", "pipeline", "--stereo", "--networks",
                    "none,model", *common], s.cap_s)
-    s.text = "\n".join(line for line in (out + "\n" + stereo).splitlines() if not line.startswith("{"))
+    # The networks at f16 (the tensor cores where the adapter lists their
+    # shape): whether f16 should be the runtime's default on such GPUs.
+    half = r.sh([r.nedrt, "--precision", "f16", "--design", "multifocal", "bench", "pipeline", "--networks",
+                 "model,full", *common], s.cap_s)
+    text = out + "\n" + stereo + "\n\nAt `--precision f16` (`--conv-path auto`):\n\n" + half
+    s.text = "\n".join(line for line in text.splitlines() if not line.startswith("{"))
 
 
 def step_tradeoff(r: Runner, s: Step, z: dict):
