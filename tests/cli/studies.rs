@@ -39,31 +39,35 @@ fn tradeoff_writes_the_chart_and_the_picker_reads_it() {
         repo().join("designs/allsharp.toml").display()
     );
     let base = ["--calib", path(&calib)];
-    let o = run(&[
-        &base[..],
-        &[
-            "tradeoff",
-            "--designs",
-            &designs,
-            "--images",
-            path(&imgs),
-            "--out-dir",
-            path(&out),
-            "--size",
-            "32x24",
-            "--backends",
-            "cpu",
-            "--repeat",
-            "1",
-            "--no-fidelity",
-            "--models",
-            path(&model),
-            // A budget never reached drops nothing (the names below).
-            "--time-budget",
-            "1e6",
-        ],
-    ]
-    .concat());
+    // The study on two designs, into `out`, starting nothing after `budget` s.
+    let tradeoff = |out: &std::path::Path, budget: &str| {
+        run(&[
+            &base[..],
+            &[
+                "tradeoff",
+                "--designs",
+                &designs,
+                "--images",
+                path(&imgs),
+                "--out-dir",
+                path(out),
+                "--size",
+                "32x24",
+                "--backends",
+                "cpu",
+                "--repeat",
+                "1",
+                "--no-fidelity",
+                "--models",
+                path(&model),
+                "--time-budget",
+                budget,
+            ],
+        ]
+        .concat())
+    };
+    // A budget never reached drops nothing (the names below).
+    let o = tradeoff(&out, "1e6");
     assert!(o.status.success(), "{}", stderr(&o));
     for f in [
         "tradeoff.md",
@@ -165,31 +169,7 @@ fn tradeoff_writes_the_chart_and_the_picker_reads_it() {
     assert_clean_error(&o, "no DOE beside this D-CNN");
     // A budget spent before the first configuration: a clean error, no table.
     let spent = dir.path().join("spent");
-    let tradeoff_with_budget = |budget: &str| {
-        run(&[
-            &base[..],
-            &[
-                "tradeoff",
-                "--designs",
-                &designs,
-                "--images",
-                path(&imgs),
-                "--out-dir",
-                path(&spent),
-                "--size",
-                "32x24",
-                "--backends",
-                "cpu",
-                "--no-fidelity",
-                "--models",
-                path(&model),
-                "--time-budget",
-                budget,
-            ],
-        ]
-        .concat())
-    };
-    let o = tradeoff_with_budget("0");
+    let o = tradeoff(&spent, "0");
     assert_clean_error(&o, "--time-budget");
     assert!(
         stderr(&o).contains("before the first configuration ran"),
@@ -198,7 +178,7 @@ fn tradeoff_writes_the_chart_and_the_picker_reads_it() {
     );
     assert!(!spent.join("tradeoff.json").exists());
     assert_clean_error(
-        &tradeoff_with_budget("nan"),
+        &tradeoff(&spent, "nan"),
         "--time-budget NaN: not a number of seconds",
     );
 }

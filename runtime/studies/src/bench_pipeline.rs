@@ -231,18 +231,8 @@ pub fn run(
                 "missed_refreshes": report.missed_refreshes,
                 "ahead_ms": ahead_ms,
                 "shown_vs_predicted": report.shown_vs_predicted,
-                "stages": report.stages.iter().map(|s| json!({
-                    "stage": s.stage,
-                    "count": s.count,
-                    "p50_ms": s.p50_ms,
-                    "p99_ms": s.p99_ms,
-                })).collect::<Vec<_>>(),
-                "eyes": report.view_stages.iter().map(|s| json!({
-                    "stage": s.stage,
-                    "count": s.count,
-                    "p50_ms": s.p50_ms,
-                    "p99_ms": s.p99_ms,
-                })).collect::<Vec<_>>(),
+                "stages": stages_json(&report.stages),
+                "eyes": stages_json(&report.view_stages),
             });
             on_record(&record);
             let ms = |v: Option<f64>| v.map_or("–".to_string(), |v| format!("{v:.1}"));
@@ -282,6 +272,21 @@ pub fn run(
         }
     }
     Ok(table)
+}
+
+/// Each stage's count and percentiles, for a record.
+fn stages_json(stages: &[nedrt_service::pipeline::stats::StageReport]) -> Vec<serde_json::Value> {
+    stages
+        .iter()
+        .map(|s| {
+            json!({
+                "stage": s.stage,
+                "count": s.count,
+                "p50_ms": s.p50_ms,
+                "p99_ms": s.p99_ms,
+            })
+        })
+        .collect()
 }
 
 /// One case, stopped `max_seconds` after it takes its first frame (the
