@@ -146,7 +146,10 @@ impl ComplexFft2d {
                         [&params, src, dst, &tables.twiddle, &tables.quarter, &dummy],
                     ),
                     groups: fused::groups(q.count.div_ceil(seqs)),
-                    what: format!("{axis}: {entry_point} (workgroup memory)"),
+                    what: format!(
+                        "{axis}: {entry_point} ({})",
+                        fused::per_workgroup(seqs, "sequences")
+                    ),
                     bytes,
                 });
             }

@@ -96,6 +96,17 @@ struct Kernel {
     params: wgpu::Buffer,
     groups: [u32; 2],
     bytes: u64,
+    /// Sequences (pairs) a workgroup holds ([`seqs_for`]).
+    seqs: u32,
+}
+
+/// How a dispatch's workgroups are filled, for its label.
+pub(super) fn per_workgroup(seqs: u32, what: &str) -> String {
+    if seqs == 1 {
+        "workgroup memory".into()
+    } else {
+        format!("workgroup memory, {seqs} {what} a workgroup")
+    }
 }
 
 /// The three-dispatch filter (see the module).
@@ -139,6 +150,7 @@ impl FusedFilter {
                 params: init_buffer(&device, "fft_fused axis", bytemuck::bytes_of(q)),
                 groups: groups(q.pairs.div_ceil(seqs)),
                 bytes,
+                seqs,
             })
         };
         let rows_fwd = kernel(
@@ -221,15 +233,24 @@ impl FusedFilter {
     pub(super) fn passes(&self) -> Vec<(String, u64)> {
         vec![
             (
-                "rows: DCT-II (workgroup memory)".into(),
+                format!(
+                    "rows: DCT-II ({})",
+                    per_workgroup(self.rows_fwd.seqs, "row pairs")
+                ),
                 self.rows_fwd.bytes,
             ),
             (
-                "columns: DCT-II × gain, DCT-III (workgroup memory)".into(),
+                format!(
+                    "columns: DCT-II × gain, DCT-III ({})",
+                    per_workgroup(self.cols.seqs, "column pairs")
+                ),
                 self.cols.bytes,
             ),
             (
-                "rows: DCT-III (workgroup memory)".into(),
+                format!(
+                    "rows: DCT-III ({})",
+                    per_workgroup(self.rows_inv.seqs, "row pairs")
+                ),
                 self.rows_inv.bytes,
             ),
         ]
