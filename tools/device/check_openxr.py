@@ -7,15 +7,13 @@ at their display time. On the smoke (CI, lavapipe) the same on the small
 panel. `--prepare` carries the runtime, the client and the Debian loader
 (libopenxr-loader1 and its libjsoncpp25) in .devcheck/openxr/."""
 import json
-import lzma
 import re
-import shutil
 import signal
 import statistics
 import subprocess
 import time
 
-from check_runner import CARRY, REPO, Failed, Runner, Step, apt_download, strip_and_pack
+from check_runner import CARRY, REPO, Failed, Runner, Step, apt_download, strip_and_pack, unpack
 
 #: Debian's OpenXR loader and what it links beyond the C and C++ runtimes.
 XR_PACKAGES = ["libopenxr-loader1", "libjsoncpp25"]
@@ -48,18 +46,8 @@ def unpack(r: Runner) -> tuple:
         lib = REPO / "target/release/libnedrt_openxr.so"
         client = REPO / "target/release/examples/openxr_client"
     else:
-        src = CARRY / "openxr"
-        paths = []
-        for _, name in XR_FILES:
-            packed = src / name
-            if not packed.is_file():
-                raise Failed(f"{packed}: not here; run `bash scripts/device-check.sh --prepare` and carry .devcheck")
-            target = r.work / name.removesuffix(".xz")
-            with lzma.open(packed) as f, open(target, "wb") as dst:
-                shutil.copyfileobj(f, dst)
-            target.chmod(0o755)
-            paths.append(target)
-        lib, client = paths
+        lib, client = [unpack(CARRY / "openxr" / name, r.work / name.removesuffix(".xz"))
+                       for _, name in XR_FILES]
     libs = subprocess.run(["ldconfig", "-p"], capture_output=True, text=True).stdout
     if "libopenxr_loader.so.1" not in libs:
         debs = sorted((CARRY / "openxr").glob("*.deb"))

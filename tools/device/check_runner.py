@@ -309,6 +309,17 @@ def strip_and_pack(built: Path, packed: Path) -> Path:
     return stripped
 
 
+def unpack(packed: Path, target: Path) -> Path:
+    """The executable `strip_and_pack` made, decompressed to `target` (on
+    the device machine), or Failed if it was not carried."""
+    if not packed.is_file():
+        raise Failed(f"{packed}: not here; run `bash scripts/device-check.sh --prepare` here and carry .devcheck")
+    with lzma.open(packed) as src, open(target, "wb") as dst:
+        shutil.copyfileobj(src, dst)
+    target.chmod(0o755)
+    return target
+
+
 def apt_download(dest: Path, packages: list):
     """Debian's amd64 `packages` as .deb files into `dest`, unless some are
     there already (apt's own lists kept apart, in a temporary folder)."""

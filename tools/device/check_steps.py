@@ -3,13 +3,12 @@ order; check_train.py holds the training's): their sizes, their caps and
 calls, and each step's commands. Every step writes its figures as records
 (the commands' JSON lines) and, where it prints a table, as text."""
 import json
-import lzma
 import shutil
 import subprocess
 from pathlib import Path
 
 from check_runner import (CARRY, ENVELOPE2_S, NVIDIA_EGL, NVIDIA_ICD, REPO, TRAIN_BUDGET_S, Failed, Runner, Step,
-                          git_commit)
+                          git_commit, unpack)
 
 def sizes(smoke: bool) -> dict:
     """Every size the steps use, full or smoke."""
@@ -90,14 +89,7 @@ def step_setup(r: Runner, s: Step, z: dict):
             r.sh(["cargo", "build", "--release", "-p", "nedrt"], 1800, parse_json=False)
         r.nedrt = binary
     else:
-        packed = CARRY / "nedrt.xz"
-        if not packed.is_file():
-            raise Failed(f"{packed}: not here; run `bash scripts/device-check.sh --prepare` here and carry .devcheck")
-        binary = r.work / "nedrt"
-        with lzma.open(packed) as src, open(binary, "wb") as dst:
-            shutil.copyfileobj(src, dst)
-        binary.chmod(0o755)
-        r.nedrt = binary
+        r.nedrt = unpack(CARRY / "nedrt.xz", r.work / "nedrt")
         libs = subprocess.run(["ldconfig", "-p"], capture_output=True, text=True).stdout
         if "libvulkan.so.1" not in libs:
             debs = sorted((CARRY / "gl").glob("*.deb"))
@@ -158,9 +150,7 @@ def flags(pairs: dict) -> list:
     return [v for kv in pairs.items() for v in kv]
 
 
-#: The convolution kernels each wgpu step runs: the register-tiled ones
-#: alone, then cooperative matrices where the adapter lists their shape.
-#: The kernel choices measured: the tiled kernels, the cooperative
+#: The kernel choices each wgpu step measures: the tiled kernels, the cooperative
 #: matrices where listed, and those with the tiled layers summing in f32 on
 #: f16 storage (the H200's tiled f16 FMAs were slower than f32, 2026-11-27).
 CONV_PATHS = (("tiled",), ("auto",), ("auto", "--f16-math", "f32"))

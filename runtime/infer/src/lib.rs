@@ -393,13 +393,12 @@ impl Dcnn {
         options: &BackendOptions,
     ) -> Result<Self, InferenceError> {
         let network = model.lower()?;
-        let backend = Box::new(gpu::GpuBackend::new_with(
+        let backend = Box::new(gpu::GpuBackend::with_options(
             device,
             queue,
             adapter_name,
             &network,
-            options.precision,
-            gpu::ConvSupport::of_options(device, options),
+            options,
         )?);
         Ok(Self {
             model,

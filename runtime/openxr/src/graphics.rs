@@ -22,9 +22,7 @@ fn vulkan_instance(
     ext: &str,
 ) -> XrResult<Arc<Instance>> {
     let (inst, _) = system_of(instance, system)?;
-    if !inst.has_extension(ext) {
-        return Err(xr::Result::ERROR_FUNCTION_UNSUPPORTED);
-    }
+    inst.require_extension(ext)?;
     Ok(inst)
 }
 

@@ -148,6 +148,16 @@ impl Instance {
         self.extensions.iter().any(|e| e == name)
     }
 
+    /// An extension's function called on an instance that did not enable
+    /// it: `XR_ERROR_FUNCTION_UNSUPPORTED`.
+    pub fn require_extension(&self, name: &str) -> XrResult<()> {
+        if self.has_extension(name) {
+            Ok(())
+        } else {
+            Err(xr::Result::ERROR_FUNCTION_UNSUPPORTED)
+        }
+    }
+
     pub fn push_event(&self, e: Event) {
         lock(&self.inner).events.push_back(e);
     }

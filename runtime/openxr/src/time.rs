@@ -41,17 +41,6 @@ pub fn to_timespec(time: i64) -> Result<Timespec, xr::Result> {
     })
 }
 
-fn enabled(instance: xr::Instance) -> Result<(), xr::Result> {
-    if registry()
-        .instance(instance)?
-        .has_extension(CONVERT_TIMESPEC_TIME)
-    {
-        Ok(())
-    } else {
-        Err(xr::Result::ERROR_FUNCTION_UNSUPPORTED)
-    }
-}
-
 pub unsafe extern "system" fn convert_timespec_time_to_time_khr(
     instance: xr::Instance,
     timespec: *const Timespec,
@@ -60,7 +49,9 @@ pub unsafe extern "system" fn convert_timespec_time_to_time_khr(
     guard("xrConvertTimespecTimeToTimeKHR", || {
         let timespec = non_null(timespec)?;
         let time = non_null_mut(time)?;
-        enabled(instance)?;
+        registry()
+            .instance(instance)?
+            .require_extension(CONVERT_TIMESPEC_TIME)?;
         // SAFETY: non-null, the application's timespec.
         let t = to_time(unsafe { *timespec })?;
         // SAFETY: non-null output.
@@ -76,7 +67,9 @@ pub unsafe extern "system" fn convert_time_to_timespec_time_khr(
 ) -> xr::Result {
     guard("xrConvertTimeToTimespecTimeKHR", || {
         let timespec = non_null_mut(timespec)?;
-        enabled(instance)?;
+        registry()
+            .instance(instance)?
+            .require_extension(CONVERT_TIMESPEC_TIME)?;
         let t = to_timespec(time.as_nanos())?;
         // SAFETY: non-null output.
         unsafe { timespec.write(t) };

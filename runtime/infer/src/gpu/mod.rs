@@ -134,8 +134,27 @@ impl GpuBackend {
         let (adapter, device, queue) = open_device(&options.gpu, options.precision)?;
         let info = adapter.get_info();
         let name = format!("{} ({:?}, {:?})", info.name, info.backend, info.device_type);
-        let support = ConvSupport::of_options(&device, options);
-        Self::new_with(&device, &queue, name, network, options.precision, support)
+        Self::with_options(&device, &queue, name, network, options)
+    }
+
+    /// Prepares `network` on a given device at `options`' precision, conv
+    /// path and f16 math.
+    pub fn with_options(
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        adapter_name: String,
+        network: &Network,
+        options: &BackendOptions,
+    ) -> Result<Self, InferenceError> {
+        let support = ConvSupport::of_options(device, options);
+        Self::new_with(
+            device,
+            queue,
+            adapter_name,
+            network,
+            options.precision,
+            support,
+        )
     }
 
     /// Prepares `network` on a given device, each convolution on the

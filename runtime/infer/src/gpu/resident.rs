@@ -354,15 +354,7 @@ impl DeviceDcnn {
         options: &crate::BackendOptions,
     ) -> Result<Self, InferenceError> {
         let network = model.lower()?;
-        let support = super::ConvSupport::of_options(device, options);
-        let backend = GpuBackend::new_with(
-            device,
-            queue,
-            adapter_name,
-            &network,
-            options.precision,
-            support,
-        )?;
+        let backend = GpuBackend::with_options(device, queue, adapter_name, &network, options)?;
         Ok(Self { model, backend })
     }
 
