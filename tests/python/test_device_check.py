@@ -9,7 +9,9 @@ frame, the tradeoff); a bad --only or --call is refused; the smoke without
 the trainer's .venv says how to make it; side-by-side commands run no more
 at once than memory holds and a killed one is named; what a call brings
 back fits the tool's 8 files; the continued checkpoint that comes back is
-checked against its card, and the report says where the training started."""
+checked against its card, and the report says where the training started;
+the OpenXR step's runtime and client are unpacked from what travels (the
+2026-11-27 device run failed there: a local helper hid `unpack`)."""
 import importlib.util
 import json
 import subprocess
@@ -26,6 +28,7 @@ spec.loader.exec_module(check)
 import check_report  # noqa: E402
 import check_runner  # noqa: E402
 import check_steps  # noqa: E402
+import check_openxr  # noqa: E402
 import check_train  # noqa: E402
 import check_travel  # noqa: E402
 
@@ -221,3 +224,24 @@ def test_the_report_says_where_the_training_started_and_what_came_back():
     record["started"] = {"fresh": "checkpoint models/checkpoints/dcnn-full: network.width 32 ≠ this run's 16"}
     md = check_report.report(steps, meta)
     assert "Started fresh (checkpoint models/checkpoints/dcnn-full: network.width 32" in md
+
+
+def test_the_openxr_runtime_and_client_are_unpacked_from_what_travels(tmp_path, monkeypatch):
+    carry = tmp_path / "carry"
+    (carry / "openxr").mkdir(parents=True)
+    for _, name in check_openxr.XR_FILES:
+        check_runner.strip_and_pack(Path("/bin/true"), carry / "openxr" / name).unlink()
+    monkeypatch.setattr(check_openxr, "CARRY", carry)
+    # The loader: found by ldconfig here, or extracted from the carried .deb (none here, so named).
+    monkeypatch.setattr(check_openxr.subprocess, "run", lambda *a, **k: subprocess.CompletedProcess(
+        a, 0, stdout="libopenxr_loader.so.1 (libc6,x86-64) => /lib/libopenxr_loader.so.1", stderr=""))
+
+    class Device:
+        smoke = False
+        work = tmp_path / "work"
+        env = {}
+
+    Device.work.mkdir()
+    lib, client, env = check_openxr.runtime_files(Device())
+    assert (lib.name, client.name) == ("libnedrt_openxr.so", "openxr_client")
+    assert lib.read_bytes()[:4] == b"\x7fELF" and client.stat().st_mode & 0o111 and env == {}

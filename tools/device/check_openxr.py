@@ -35,19 +35,21 @@ def prepare_openxr() -> dict:
     return {"openxr": sorted(p.name for p in dest.iterdir())}
 
 
-def unpack(r: Runner) -> tuple:
+def runtime_files(r: Runner) -> tuple:
     """The runtime library, the client and the environment that finds the
-    loader: built here on the smoke, unpacked from .devcheck/openxr/ on
-    the device (the loader extracted beside them when the machine lacks
-    it)."""
+    loader, unpacked from what travels: .devcheck/openxr/ on the device;
+    on the smoke, built and packed here first, so that the smoke unpacks
+    them as the device does (the loader extracted beside them when the
+    machine lacks it)."""
     env = {}
+    packed = CARRY / "openxr"
     if r.smoke:
         r.sh(["cargo", "build", "--release", "-p", "nedrt-openxr", "--lib", "--examples"], 1800, parse_json=False)
-        lib = REPO / "target/release/libnedrt_openxr.so"
-        client = REPO / "target/release/examples/openxr_client"
-    else:
-        lib, client = [unpack(CARRY / "openxr" / name, r.work / name.removesuffix(".xz"))
-                       for _, name in XR_FILES]
+        packed = r.work / "openxr-packed"
+        packed.mkdir(exist_ok=True)
+        for built, name in XR_FILES:
+            strip_and_pack(REPO / built, packed / name).unlink()
+    lib, client = [unpack(packed / name, r.work / name.removesuffix(".xz")) for _, name in XR_FILES]
     libs = subprocess.run(["ldconfig", "-p"], capture_output=True, text=True).stdout
     if "libopenxr_loader.so.1" not in libs:
         debs = sorted((CARRY / "openxr").glob("*.deb"))
@@ -70,7 +72,7 @@ SUMMARY = re.compile(r"(\d+) frames sent; the service predicted the display time
 
 def step_openxr(r: Runner, s: Step, z: dict):
     r.need_gpu_adapter()
-    lib, client, env = unpack(r)
+    lib, client, env = runtime_files(r)
     work = r.work / "openxr"
     work.mkdir(exist_ok=True)
     manifest = work / "nedrt_openxr.json"

@@ -24,7 +24,7 @@ def sizes(smoke: bool) -> dict:
             "val_crop": None, "patch": 128, "width": 32, "levels": 4, "teacher_steps": 1000,
             "steps": 1_000_000, "seed_steps": None, "validate_every": 500, "max_batch": 64, "budget_s": TRAIN_BUDGET_S,
             "copy_mb": 2048, "gemm": 8192, "tradeoff_size": "1920x1080",
-            "tradeoff_prefilters": "lsq,refine:1,refine:3,refine:10", "tradeoff_designs": "multifocal"}
+            "tradeoff_prefilters": "refine:10,lsq,refine:3,refine:1", "tradeoff_designs": "multifocal"}
 
 
 #: Seconds of the tradeoff step's cap kept after its --time-budget: the
