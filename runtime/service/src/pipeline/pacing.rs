@@ -318,6 +318,10 @@ impl<T> NewestSlot<T> {
 }
 
 #[cfg(test)]
+#[path = "pacing/plan_tests.rs"]
+mod plan_tests;
+
+#[cfg(test)]
 mod tests {
     use super::*;
 

@@ -107,8 +107,9 @@ fn spawn_stage<I: Send + 'static, O: Send + 'static>(
         clock,
         stopping,
     }: StageContext,
-    // The frame's id and predicted refresh, the item, the counters.
-    mut work: impl FnMut(u64, u64, I, &Stats) -> Option<O> + Send + 'static,
+    // The frame's id and predicted refresh, the item, the counters, and
+    // the time the stage held the frame back for other work (added to).
+    mut work: impl FnMut(u64, u64, I, &Stats, &mut u64) -> Option<O> + Send + 'static,
 ) -> std::io::Result<JoinHandle<()>> {
     std::thread::Builder::new()
         .name(name.into())
@@ -120,7 +121,8 @@ fn spawn_stage<I: Send + 'static, O: Send + 'static>(
                 }
                 let span = tracing::info_span!("stage", stage = %name, frame = t.id).entered();
                 let t0 = clock.now_ns();
-                let result = work(t.id, t.predicted_ns, t.item, &stats);
+                let mut waited_ns = 0;
+                let result = work(t.id, t.predicted_ns, t.item, &stats, &mut waited_ns);
                 let ns = clock.now_ns().saturating_sub(t0);
                 drop(span);
                 stats.record(stage, ns);
@@ -130,6 +132,7 @@ fn spawn_stage<I: Send + 'static, O: Send + 'static>(
                         id: t.id,
                         start_ns: t.start_ns,
                         work_ns: t.work_ns + ns,
+                        waited_ns: t.waited_ns + waited_ns.min(ns),
                         owner: t.owner,
                         submit_ns: t.submit_ns,
                         predicted_ns: t.predicted_ns,
@@ -290,7 +293,7 @@ impl Service {
             ingest_rx,
             move |t| upload_tx.send(t),
             context.clone(),
-            move |_, _, (view, f): Submission, stats| intake.take(view, f, stats),
+            move |_, _, (view, f): Submission, stats, _| intake.take(view, f, stats),
         )?);
         threads.push(spawn_stage(
             "preprocess",
@@ -298,8 +301,8 @@ impl Service {
             upload_rx,
             move |t| dcnn_tx.send(t),
             context.clone(),
-            move |id, predicted_ns, f: Vec<ViewFrame>, stats| {
-                engine.run(id, predicted_ns, f, stats)
+            move |id, predicted_ns, f: Vec<ViewFrame>, stats, waited_ns| {
+                engine.run(id, predicted_ns, f, stats, waited_ns)
             },
         )?);
         let transfer = panel.transfer.clone();
@@ -312,7 +315,7 @@ impl Service {
             // comes (it may be for a later refresh still).
             move |t| slot_in.put_keeping(t, |old| old.hold),
             context,
-            move |id, _, f: Processed, _| {
+            move |id, _, f: Processed, _, _| {
                 Some(match f {
                     Processed::Host(f) => {
                         let mut rgba8 = Vec::new();

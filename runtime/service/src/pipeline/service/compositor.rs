@@ -19,6 +19,10 @@ pub(super) struct Timed<T> {
     pub(super) start_ns: u64,
     /// Time spent in the stages' own work so far.
     pub(super) work_ns: u64,
+    /// Of that, time a stage held the frame back for other work (the
+    /// device's yield to a present, pacing::gate): a wait the pacing
+    /// chose, which the pipeline's estimate leaves out.
+    pub(super) waited_ns: u64,
     /// Who submitted it (a socket client's number; 0 in process).
     pub(super) owner: u64,
     /// When it was submitted, and the refresh predicted for it then.
@@ -176,6 +180,7 @@ impl Compositor {
             item: (view, frame),
             start_ns,
             work_ns: 0,
+            waited_ns: 0,
             owner: self.owner,
             submit_ns: now,
             // A client's display time more than a second from now is no

@@ -48,19 +48,21 @@ impl DeviceGate {
     /// never holds the work up for long).
     /// A frame predicted for the refresh that present is for is what the
     /// present waits for: it is never held.
-    fn yield_to_present(&self, predicted_ns: u64, stats: &Stats) {
+    /// Returns how long it waited.
+    fn yield_to_present(&self, predicted_ns: u64, stats: &Stats) -> u64 {
         let t0 = self.clock.now_ns();
-        if let Slot::AfterPresent(vsync) = self.gate.slot(t0, self.work.bound_ns(), predicted_ns) {
-            let _span = tracing::info_span!("yield to present").entered();
-            self.gate.wait(
-                vsync,
-                std::time::Duration::from_nanos(2 * self.gate.period_ns()),
-            );
-            stats.record(
-                Stage::YieldToPresent,
-                self.clock.now_ns().saturating_sub(t0),
-            );
-        }
+        let Slot::AfterPresent(vsync) = self.gate.slot(t0, self.work.bound_ns(), predicted_ns)
+        else {
+            return 0;
+        };
+        let _span = tracing::info_span!("yield to present").entered();
+        self.gate.wait(
+            vsync,
+            std::time::Duration::from_nanos(2 * self.gate.period_ns()),
+        );
+        let waited = self.clock.now_ns().saturating_sub(t0);
+        stats.record(Stage::YieldToPresent, waited);
+        waited
     }
 }
 
@@ -84,6 +86,7 @@ impl Engine {
         predicted_ns: u64,
         frames_in: Vec<ViewFrame>,
         stats: &Stats,
+        waited_ns: &mut u64,
     ) -> Option<Processed> {
         if let Engine::Device {
             frames,
@@ -93,7 +96,7 @@ impl Engine {
             gate,
         } = self
         {
-            gate.yield_to_present(predicted_ns, stats);
+            *waited_ns += gate.yield_to_present(predicted_ns, stats);
             let t0 = gate.clock.now_ns();
             let ran = frames.run(id, &frames_in);
             gate.work.observe(gate.clock.now_ns().saturating_sub(t0));

@@ -22,8 +22,9 @@ impl Service {
         use std::sync::atomic::Ordering::Relaxed;
         let mut pacer = PresentPacer::new(self.panel.refresh_hz, self.clock.now_ns());
         let display_paced = sink.paced_by_display();
-        // Submission to ready, learnt from the frames shown; published for
-        // the predictions and the sources' plans.
+        // Submission to ready, learnt from the frames shown, less the time
+        // a stage held a frame back for a present (Timed::waited_ns);
+        // published for the predictions and the sources' plans.
         let mut pipeline = Estimate::default();
         let mut last: Option<PanelFrame> = None;
         let progress = &control.progress;
@@ -120,7 +121,15 @@ impl Service {
             match shown {
                 Presented::Shown => {
                     self.stats.present_traffic.record(sink.last_traffic());
-                    pipeline.observe(t.ready_ns.saturating_sub(t.submit_ns));
+                    // Less the waits the pacing chose: a frame held back
+                    // for a present because it was early must not make the
+                    // next ones planned earlier still (the H200, 2026-11-27:
+                    // planned three refreshes ahead, shown one early).
+                    pipeline.observe(
+                        t.ready_ns
+                            .saturating_sub(t.submit_ns)
+                            .saturating_sub(t.waited_ns),
+                    );
                     self.schedule.publish_pipeline(&pipeline);
                     self.stats.record_vs_prediction(ShownFrame {
                         owner: t.owner,
