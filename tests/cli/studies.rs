@@ -100,6 +100,15 @@ fn tradeoff_writes_the_chart_and_the_picker_reads_it() {
     ] {
         assert!(names.contains(&want), "{want} missing: {names:?}");
     }
+    // The rows a lent GPU is asked for run first (what a --time-budget
+    // keeps): the designs' prefilters, then the networks, the rest last.
+    let at = |n: &str| names.iter().position(|x| *x == n).expect(n);
+    assert!(
+        names[0].starts_with("doe+wiener multifocal ") && names[0].contains('@'),
+        "{names:?}"
+    );
+    assert!(at("doe+wiener allsharp optimal@sharp") < at("proposed dcnn cpu f32"));
+    assert!(at("proposed dcnn cpu f32") < at("conventional"));
     assert!(records.iter().any(|r| r["on_front"] == true));
     let md = std::fs::read_to_string(out.join("tradeoff.md")).expect("md");
     assert!(

@@ -274,15 +274,15 @@ impl Named for ConvPath {
 /// (docs/inference.md): the storage is f16 either way.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum F16Math {
-    /// f16 FMAs on a GPU, f32 on a CPU adapter (lavapipe converts every
-    /// f16 operation).
+    /// f16 FMAs on a GPU other than NVIDIA's, f32 on NVIDIA's (faster on
+    /// the H200) and on a CPU adapter (lavapipe converts every f16
+    /// operation): `gpu::f16_arithmetic_by_default`.
     #[default]
     Auto,
     /// f16 FMAs (into f32 accumulators) on every adapter.
     F16,
-    /// f32 FMAs on f16 storage on every adapter: on the H200 (2026-11-27)
-    /// the f16 FMAs ran the tiled kernels 1.2–1.3× slower than f32 storage
-    /// did, so this is measured against them there.
+    /// f32 FMAs on f16 storage on every adapter (on the H200, 2026-11-27,
+    /// the f16 FMAs ran the tiled kernels 1.2–1.3× slower than this).
     F32,
 }
 
@@ -297,7 +297,9 @@ impl Named for F16Math {
     }
     fn help(self) -> &'static str {
         match self {
-            F16Math::Auto => "f16 arithmetic on a GPU, f32 on a CPU adapter",
+            F16Math::Auto => {
+                "f16 arithmetic on a GPU other than NVIDIA's, f32 on NVIDIA's and on a CPU adapter"
+            }
             F16Math::F16 => "f16 arithmetic (f32 accumulators) on every adapter",
             F16Math::F32 => "f32 arithmetic on f16 storage on every adapter",
         }

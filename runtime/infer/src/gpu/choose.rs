@@ -14,10 +14,8 @@ pub struct ConvSupport {
     pub path: ConvPath,
     /// The adapter's cooperative-matrix support, or why there is none.
     pub coop: Result<coop::CoopAdapter, coop::NoCoop>,
-    /// Whether the tiled kernels sum in f16 at `--precision f16`: on GPUs,
-    /// where f16 runs at twice the f32 rate or more; not on a CPU adapter
-    /// (lavapipe), where LLVM converts every f16 operation to f32 and back,
-    /// so f16 stays a storage type there (docs/inference.md).
+    /// Whether the tiled kernels sum in f16 at `--precision f16`
+    /// ([`f16_arithmetic_by_default`] unless `--f16-math` says).
     pub f16_arithmetic: bool,
 }
 
@@ -31,7 +29,7 @@ impl ConvSupport {
                 device.features(),
                 (info.subgroup_min_size, info.subgroup_max_size),
             ),
-            f16_arithmetic: info.device_type != wgpu::DeviceType::Cpu,
+            f16_arithmetic: f16_arithmetic_by_default(info.device_type, info.vendor),
         }
     }
 
@@ -73,6 +71,20 @@ impl ConvSupport {
         coop::layer_fits(cin, cout, weights, transposed)?;
         Ok(adapter.subgroup_size)
     }
+}
+
+/// PCI vendor id of NVIDIA.
+const NVIDIA: u32 = 0x10de;
+
+/// `--f16-math auto`: whether the tiled kernels sum in f16 on an adapter.
+/// Not on a CPU adapter (lavapipe), where LLVM converts every f16
+/// operation to f32 and back; not on NVIDIA's, where the H200 ran both
+/// networks faster summing in f32 on f16 storage (half width 5.13 against
+/// 5.56 ms, full 12.53 against 12.71, 2026-11-27 evening,
+/// docs/benchmarks.md); on other GPUs (the mobile ones of headsets among
+/// them), whose f16 runs at twice the f32 rate, yes.
+pub fn f16_arithmetic_by_default(device_type: wgpu::DeviceType, vendor: u32) -> bool {
+    device_type != wgpu::DeviceType::Cpu && vendor != NVIDIA
 }
 
 /// One layer's kernel: what it runs, reads, and its packed weights.
@@ -238,6 +250,21 @@ pub fn cooperative_against_tiled(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn f16_sums_by_default_only_on_gpus_other_than_nvidias() {
+        use wgpu::DeviceType::{Cpu, DiscreteGpu, IntegratedGpu};
+        assert!(!f16_arithmetic_by_default(Cpu, 0x10005));
+        assert!(!f16_arithmetic_by_default(DiscreteGpu, NVIDIA));
+        assert!(!f16_arithmetic_by_default(IntegratedGpu, NVIDIA));
+        // AMD, Intel, Qualcomm (a headset's Adreno), ARM (Mali).
+        for vendor in [0x1002, 0x8086, 0x5143, 0x13b5] {
+            assert!(
+                f16_arithmetic_by_default(IntegratedGpu, vendor),
+                "{vendor:#x}"
+            );
+        }
+    }
 
     #[test]
     fn the_f16_math_overrides_the_adapters_default_only_when_named() {

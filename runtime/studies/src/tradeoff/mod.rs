@@ -235,39 +235,11 @@ pub fn run(common: &CommonOptions, o: &TradeoffOptions) -> Result<String, AppErr
             None
         },
     };
-    for m in baselines {
-        if out_of_time(o, start, m.name(), &mut skipped) {
-            bar.inc(1);
-            continue;
-        }
-        records.extend(linear_records(
-            &run,
-            &scorer,
-            &sim.doe_hash,
-            m,
-            Prefilter::Native,
-            m.name(),
-        )?);
-        bar.inc(1);
-    }
+    // The rows a lent GPU is asked for first (under --time-budget the
+    // rest may not run): each design's least-squares prefilters, then the
+    // networks; the baselines and the designs' plain systems last.
     for ((design, sim), scorer) in o.designs.iter().zip(&design_sims).zip(&design_scorers) {
         let hash = &sim.doe_hash;
-        for m in design_methods {
-            let name = format!("{} {}", m.name(), design.name);
-            if out_of_time(o, start, &name, &mut skipped) {
-                bar.inc(1);
-                continue;
-            }
-            records.extend(linear_records(
-                &run,
-                scorer,
-                hash,
-                m,
-                Prefilter::Native,
-                &name,
-            )?);
-            bar.inc(1);
-        }
         for p in &prefilters {
             let p = p.with_objective(design.objective());
             let name = p.label(&format!("{} {}", Method::DoeWiener.name(), design.name));
@@ -377,6 +349,40 @@ pub fn run(common: &CommonOptions, o: &TradeoffOptions) -> Result<String, AppErr
             bar.inc(1);
         }
         bar.inc(1);
+    }
+    for m in baselines {
+        if out_of_time(o, start, m.name(), &mut skipped) {
+            bar.inc(1);
+            continue;
+        }
+        records.extend(linear_records(
+            &run,
+            &scorer,
+            &sim.doe_hash,
+            m,
+            Prefilter::Native,
+            m.name(),
+        )?);
+        bar.inc(1);
+    }
+    for ((design, sim), scorer) in o.designs.iter().zip(&design_sims).zip(&design_scorers) {
+        let hash = &sim.doe_hash;
+        for m in design_methods {
+            let name = format!("{} {}", m.name(), design.name);
+            if out_of_time(o, start, &name, &mut skipped) {
+                bar.inc(1);
+                continue;
+            }
+            records.extend(linear_records(
+                &run,
+                scorer,
+                hash,
+                m,
+                Prefilter::Native,
+                &name,
+            )?);
+            bar.inc(1);
+        }
     }
     bar.finish_and_clear();
     if records.is_empty()
