@@ -238,26 +238,27 @@ pub fn run(common: &CommonOptions, o: &TradeoffOptions) -> Result<String, AppErr
     // The rows a lent GPU is asked for first (under --time-budget the
     // rest may not run): each design's least-squares prefilters, then the
     // networks; the baselines and the designs' plain systems last.
-    for ((design, sim), scorer) in o.designs.iter().zip(&design_sims).zip(&design_scorers) {
-        let hash = &sim.doe_hash;
-        for p in &prefilters {
-            let p = p.with_objective(design.objective());
-            let name = p.label(&format!("{} {}", Method::DoeWiener.name(), design.name));
-            if out_of_time(o, start, &name, &mut skipped) {
-                bar.inc(1);
-                continue;
-            }
-            records.extend(linear_records(
-                &run,
-                scorer,
-                hash,
-                Method::DoeWiener,
-                p,
-                &name,
-            )?);
-            bar.inc(1);
-        }
-    }
+    let mut priced = Priced {
+        o,
+        start,
+        run: &run,
+        records: &mut records,
+        skipped: &mut skipped,
+        bar: &bar,
+    };
+    priced.linear(
+        o.designs
+            .iter()
+            .zip(&design_sims)
+            .zip(&design_scorers)
+            .flat_map(|((design, sim), scorer)| {
+                prefilters.iter().map(move |p| {
+                    let p = p.with_objective(design.objective());
+                    let name = p.label(&format!("{} {}", Method::DoeWiener.name(), design.name));
+                    (scorer, sim.doe_hash.as_str(), Method::DoeWiener, p, name)
+                })
+            }),
+    )?;
 
     for model in &o.models {
         let doe = companion_doe(model)?;
@@ -350,40 +351,39 @@ pub fn run(common: &CommonOptions, o: &TradeoffOptions) -> Result<String, AppErr
         }
         bar.inc(1);
     }
-    for m in baselines {
-        if out_of_time(o, start, m.name(), &mut skipped) {
-            bar.inc(1);
-            continue;
-        }
-        records.extend(linear_records(
-            &run,
-            &scorer,
-            &sim.doe_hash,
-            m,
-            Prefilter::Native,
-            m.name(),
-        )?);
-        bar.inc(1);
+    Priced {
+        o,
+        start,
+        run: &run,
+        records: &mut records,
+        skipped: &mut skipped,
+        bar: &bar,
     }
-    for ((design, sim), scorer) in o.designs.iter().zip(&design_sims).zip(&design_scorers) {
-        let hash = &sim.doe_hash;
-        for m in design_methods {
-            let name = format!("{} {}", m.name(), design.name);
-            if out_of_time(o, start, &name, &mut skipped) {
-                bar.inc(1);
-                continue;
-            }
-            records.extend(linear_records(
-                &run,
-                scorer,
-                hash,
-                m,
-                Prefilter::Native,
-                &name,
-            )?);
-            bar.inc(1);
-        }
-    }
+    .linear(
+        baselines
+            .iter()
+            .map(|&m| {
+                (
+                    &scorer,
+                    sim.doe_hash.as_str(),
+                    m,
+                    Prefilter::Native,
+                    m.name().to_string(),
+                )
+            })
+            .chain(
+                o.designs
+                    .iter()
+                    .zip(&design_sims)
+                    .zip(&design_scorers)
+                    .flat_map(|((design, sim), scorer)| {
+                        design_methods.iter().map(move |&m| {
+                            let name = format!("{} {}", m.name(), design.name);
+                            (scorer, sim.doe_hash.as_str(), m, Prefilter::Native, name)
+                        })
+                    }),
+            ),
+    )?;
     bar.finish_and_clear();
     if records.is_empty()
         && let Some(budget) = o.time_budget_s
@@ -416,6 +416,34 @@ pub fn run(common: &CommonOptions, o: &TradeoffOptions) -> Result<String, AppErr
     }
     let _ = writeln!(text, "\nWall time {:.1} s.", start.elapsed().as_secs_f64());
     Ok(text)
+}
+
+/// Where the linear configurations' records go, under the time budget.
+struct Priced<'a, 'r> {
+    o: &'a TradeoffOptions,
+    start: Instant,
+    run: &'a LinearRun<'r>,
+    records: &'a mut Vec<Record>,
+    skipped: &'a mut Vec<String>,
+    bar: &'a nedrt_app::Phase<'r>,
+}
+
+impl Priced<'_, '_> {
+    /// Prices each (scorer, DOE hash, method, prefilter, name) in order;
+    /// those past the budget are listed as not run.
+    fn linear<'s>(
+        &mut self,
+        configs: impl Iterator<Item = (&'s Scorer, &'s str, Method, Prefilter, String)>,
+    ) -> Result<(), AppError> {
+        for (scorer, hash, m, p, name) in configs {
+            if !out_of_time(self.o, self.start, &name, self.skipped) {
+                self.records
+                    .extend(linear_records(self.run, scorer, hash, m, p, &name)?);
+            }
+            self.bar.inc(1);
+        }
+        Ok(())
+    }
 }
 
 /// The same configuration's records on the CPU and, where `run` has a
