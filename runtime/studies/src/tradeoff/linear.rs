@@ -4,33 +4,43 @@
 
 use std::time::Instant;
 
-use super::measure::time_median;
+use super::measure::{Measured, displays_and_latency};
 use super::quality::Scorer;
 use super::{AppError, Record, TradeoffOptions, out_of_time};
 use crate::preprocess::Prefilter;
 use nedrt_optics::sim::{Image, Method};
 
-/// Where the linear configurations' records go, under the time budget.
+/// One configuration: the scorer of its optics, its DOE's hash, the
+/// method and its prefilter, and its name in the table.
+pub(super) struct Config<'s> {
+    pub(super) scorer: &'s Scorer,
+    pub(super) doe_hash: &'s str,
+    pub(super) method: Method,
+    pub(super) prefilter: Prefilter,
+    pub(super) name: String,
+}
+
+/// What the linear configurations are priced under: the budget, what
+/// they are measured on, the progress bar.
 pub(super) struct Priced<'a, 'r> {
     pub(super) o: &'a TradeoffOptions,
     pub(super) start: Instant,
     pub(super) run: &'a LinearRun<'r>,
-    pub(super) records: &'a mut Vec<Record>,
-    pub(super) skipped: &'a mut Vec<String>,
     pub(super) bar: &'a nedrt_app::Phase<'r>,
 }
 
 impl Priced<'_, '_> {
-    /// Prices each (scorer, DOE hash, method, prefilter, name) in order;
-    /// those past the budget are listed as not run.
+    /// Prices each configuration in order into `records`; those past the
+    /// budget go to `skipped` as not run.
     pub(super) fn linear<'s>(
-        &mut self,
-        configs: impl Iterator<Item = (&'s Scorer, &'s str, Method, Prefilter, String)>,
+        &self,
+        configs: impl Iterator<Item = Config<'s>>,
+        records: &mut Vec<Record>,
+        skipped: &mut Vec<String>,
     ) -> Result<(), AppError> {
-        for (scorer, hash, m, p, name) in configs {
-            if !out_of_time(self.o, self.start, &name, self.skipped) {
-                self.records
-                    .extend(linear_records(self.run, scorer, hash, m, p, &name)?);
+        for c in configs {
+            if !out_of_time(self.o, self.start, &c.name, skipped) {
+                records.extend(linear_records(self.run, &c)?);
             }
             self.bar.inc(1);
         }
@@ -41,88 +51,57 @@ impl Priced<'_, '_> {
 /// The same configuration's records on the CPU and, where `run` has a
 /// GPU and the device runs the prefilter (the Wiener, `lsq`, `refine:K`),
 /// on the device too ("… wgpu": the frame up, the display image back).
-fn linear_records(
-    run: &LinearRun,
-    scorer: &Scorer,
-    doe_hash: &str,
-    m: Method,
-    prefilter: Prefilter,
-    name: &str,
-) -> Result<Vec<Record>, AppError> {
-    let mut out = vec![linear_record_on(
-        None, run, scorer, doe_hash, m, prefilter, name,
-    )?];
+fn linear_records(run: &LinearRun, c: &Config) -> Result<Vec<Record>, AppError> {
+    let mut out = vec![linear_record_on(None, run, c, &c.name)?];
     if let (Some(gpu), true) = (
         &run.gpu,
-        crate::device_prefilter::runs_on_device(m, prefilter),
+        crate::device_prefilter::runs_on_device(c.method, c.prefilter),
     ) {
         out.push(linear_record_on(
             Some(gpu),
             run,
-            scorer,
-            doe_hash,
-            m,
-            prefilter,
-            &format!("{name} wgpu"),
+            c,
+            &format!("{} wgpu", c.name),
         )?);
     }
     Ok(out)
 }
 
-/// The record, on the CPU or `gpu`, of a method the simulator itself runs
-/// (no D-CNN), with `prefilter`: its quality on the images and its latency
-/// on the frame (estimated from the images' time per pixel, and marked so, when
-/// measuring would take longer than `max_seconds`).
-#[allow(clippy::too_many_arguments)]
+/// The record `name`, on the CPU or `gpu`, of configuration `c`: its
+/// quality on the images and its latency on the frame
+/// ([`displays_and_latency`]).
 fn linear_record_on(
     gpu: Option<&(crate::device_prefilter::Gpu, String)>,
     run: &LinearRun,
-    scorer: &Scorer,
-    doe_hash: &str,
-    m: Method,
-    prefilter: Prefilter,
+    c: &Config,
     name: &str,
 ) -> Result<Record, AppError> {
     let mut engine = crate::device_prefilter::for_system_on(
         gpu.map(|(g, _)| g),
-        m,
-        prefilter,
-        &scorer.prepared,
+        c.method,
+        c.prefilter,
+        &c.scorer.prepared,
         &mut Default::default(),
     )?;
-    let mut seconds_per_pixel = 0.0;
-    let displays: Vec<Image> = run
-        .inputs
-        .iter()
-        .map(|i| {
-            let t = Instant::now();
-            let d = engine.run(i);
-            seconds_per_pixel = t.elapsed().as_secs_f64() / (i.width * i.height) as f64;
-            d
-        })
-        .collect::<Result<_, _>>()?;
-    let q = scorer.quality(m, &displays)?;
-    let estimate = seconds_per_pixel * (run.frame_size.0 * run.frame_size.1) as f64;
-    let (latency_ms, estimated_ms) = if estimate * (run.repeat + 1) as f64 > run.max_seconds {
-        tracing::warn!(
-            "{name}: latency at {}×{} not measured (≈ {estimate:.1} s per frame, over --max-seconds)",
-            run.frame_size.0,
-            run.frame_size.1
-        );
-        (None, Some(estimate * 1e3))
-    } else {
-        let seconds = time_median(run.repeat, || {
-            std::hint::black_box(engine.run(run.frame)?);
-            Ok::<_, AppError>(())
-        })?;
-        (Some(seconds * 1e3), None)
-    };
-    Ok(q.record(
-        name,
-        m,
+    let Measured {
+        displays,
         latency_ms,
         estimated_ms,
-        (m.optics() == nedrt_optics::sim::Optics::Doe).then(|| doe_hash.to_string()),
+    } = displays_and_latency(
+        name,
+        run.inputs,
+        run.frame,
+        run.repeat,
+        run.max_seconds,
+        |i| engine.run(i),
+    )?;
+    let q = c.scorer.quality(c.method, &displays)?;
+    Ok(q.record(
+        name,
+        c.method,
+        latency_ms,
+        estimated_ms,
+        (c.method.optics() == nedrt_optics::sim::Optics::Doe).then(|| c.doe_hash.to_string()),
         match gpu {
             Some((_, adapter)) => ("wgpu", "f32", format!("{adapter} (frame up, display back)")),
             None => ("cpu", "f32", run.device.clone()),
@@ -135,7 +114,6 @@ pub(super) struct LinearRun<'a> {
     pub(super) inputs: &'a [Image],
     /// The latency frame.
     pub(super) frame: &'a Image,
-    pub(super) frame_size: (usize, usize),
     pub(super) repeat: usize,
     pub(super) max_seconds: f64,
     pub(super) device: String,

@@ -52,3 +52,54 @@ pub(super) fn time_median<E>(
     }
     Ok(median(times))
 }
+
+/// A configuration's displays of the images and its latency on the frame.
+pub(super) struct Measured {
+    pub(super) displays: Vec<Image>,
+    /// Measured, or (when measuring would take too long) estimated.
+    pub(super) latency_ms: Option<f64>,
+    pub(super) estimated_ms: Option<f64>,
+}
+
+/// `run` on each of `inputs` (their displays, for the quality), then its
+/// latency on `frame`: the median of `repeat` timed runs, or, where that
+/// would take longer than `max_seconds` in all (judged from the last,
+/// warm input's time per pixel), an estimate, warned for `name`.
+pub(super) fn displays_and_latency<E>(
+    name: &str,
+    inputs: &[Image],
+    frame: &Image,
+    repeat: usize,
+    max_seconds: f64,
+    mut run: impl FnMut(&Image) -> Result<Image, E>,
+) -> Result<Measured, E> {
+    let mut seconds_per_pixel = 0.0;
+    let mut displays = Vec::with_capacity(inputs.len());
+    for input in inputs {
+        let t = Instant::now();
+        displays.push(run(input)?);
+        seconds_per_pixel = t.elapsed().as_secs_f64() / (input.width * input.height) as f64;
+    }
+    let estimate = seconds_per_pixel * (frame.width * frame.height) as f64;
+    if estimate * (repeat + 1) as f64 > max_seconds {
+        tracing::warn!(
+            "{name}: latency at {}×{} not measured (≈ {estimate:.1} s per frame, over --max-seconds)",
+            frame.width,
+            frame.height
+        );
+        return Ok(Measured {
+            displays,
+            latency_ms: None,
+            estimated_ms: Some(estimate * 1e3),
+        });
+    }
+    let seconds = time_median(repeat, || {
+        std::hint::black_box(run(frame)?);
+        Ok(())
+    })?;
+    Ok(Measured {
+        displays,
+        latency_ms: Some(seconds * 1e3),
+        estimated_ms: None,
+    })
+}

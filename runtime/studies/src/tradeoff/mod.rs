@@ -20,7 +20,7 @@ use std::time::Instant;
 
 use serde::{Deserialize, Serialize};
 
-use measure::time_median;
+use measure::{Measured, displays_and_latency};
 pub use measure::{host_description, latency_frame};
 pub use quality::{Quality, Scorer};
 pub use report::{markdown, write_table};
@@ -28,7 +28,7 @@ pub use report::{markdown, write_table};
 use super::eval::{list_images, load_all};
 use super::{AppError, CommonOptions, create_dir};
 use crate::preprocess::{Prefilter, dcnn_system};
-use linear::{LinearRun, Priced};
+use linear::{Config, LinearRun, Priced};
 use nedrt_infer::{BackendKind, BackendOptions, Dcnn};
 use nedrt_optics::sim::{Method, Simulator};
 use pareto::{Point, pareto_front};
@@ -220,7 +220,6 @@ pub fn run(common: &CommonOptions, o: &TradeoffOptions) -> Result<String, AppErr
     let run = LinearRun {
         inputs: &inputs,
         frame: &frame,
-        frame_size: o.size,
         repeat: o.repeat,
         max_seconds: o.max_seconds,
         device: format!("{host} (rayon, {} threads)", rayon::current_num_threads()),
@@ -240,12 +239,10 @@ pub fn run(common: &CommonOptions, o: &TradeoffOptions) -> Result<String, AppErr
     // The rows a lent GPU is asked for first (under --time-budget the
     // rest may not run): each design's least-squares prefilters, then the
     // networks; the baselines and the designs' plain systems last.
-    let mut priced = Priced {
+    let priced = Priced {
         o,
         start,
         run: &run,
-        records: &mut records,
-        skipped: &mut skipped,
         bar: &bar,
     };
     priced.linear(
@@ -255,11 +252,22 @@ pub fn run(common: &CommonOptions, o: &TradeoffOptions) -> Result<String, AppErr
             .zip(&design_scorers)
             .flat_map(|((design, sim), scorer)| {
                 prefilters.iter().map(move |p| {
-                    let p = p.with_objective(design.objective());
-                    let name = p.label(&format!("{} {}", Method::DoeWiener.name(), design.name));
-                    (scorer, sim.doe_hash.as_str(), Method::DoeWiener, p, name)
+                    let prefilter = p.with_objective(design.objective());
+                    Config {
+                        scorer,
+                        doe_hash: &sim.doe_hash,
+                        method: Method::DoeWiener,
+                        prefilter,
+                        name: prefilter.label(&format!(
+                            "{} {}",
+                            Method::DoeWiener.name(),
+                            design.name
+                        )),
+                    }
                 })
             }),
+        &mut records,
+        &mut skipped,
     )?;
 
     for model in &o.models {
@@ -312,31 +320,14 @@ pub fn run(common: &CommonOptions, o: &TradeoffOptions) -> Result<String, AppErr
                 // (the Wiener, for a network trained on its output): timed
                 // and scored as the runtime runs it.
                 let mut dcnn = dcnn_system(Method::Proposed, dcnn, &scorer.prepared)?;
-                // The image runs give the quality and, from the last one
-                // (warm), the time per pixel that decides whether the
-                // frame-size latency is measured or only estimated.
-                let mut displays = Vec::new();
-                let mut seconds_per_pixel = 0.0;
-                for input in &inputs {
-                    let t = Instant::now();
-                    displays.push(dcnn.run(input)?);
-                    seconds_per_pixel =
-                        t.elapsed().as_secs_f64() / (input.width * input.height) as f64;
-                }
+                let Measured {
+                    displays,
+                    latency_ms,
+                    estimated_ms,
+                } = displays_and_latency(&name, &inputs, &frame, o.repeat, o.max_seconds, |i| {
+                    dcnn.run(i)
+                })?;
                 let q = scorer.quality(Method::Proposed, &displays)?;
-                let estimate = seconds_per_pixel * (o.size.0 * o.size.1) as f64;
-                let (latency_ms, estimated_ms) = if estimate * (o.repeat + 1) as f64 > o.max_seconds
-                {
-                    tracing::warn!(
-                        "{name}: latency at {}×{} not measured (≈ {estimate:.1} s per frame, over --max-seconds)",
-                        o.size.0,
-                        o.size.1
-                    );
-                    (None, Some(estimate * 1e3))
-                } else {
-                    let s = time_median(o.repeat, || dcnn.run(&frame).map(|_| ()))?;
-                    (Some(s * 1e3), None)
-                };
                 let mut r = q.record(
                     &name,
                     Method::Proposed,
@@ -353,25 +344,15 @@ pub fn run(common: &CommonOptions, o: &TradeoffOptions) -> Result<String, AppErr
         }
         bar.inc(1);
     }
-    Priced {
-        o,
-        start,
-        run: &run,
-        records: &mut records,
-        skipped: &mut skipped,
-        bar: &bar,
-    }
-    .linear(
+    priced.linear(
         baselines
             .iter()
-            .map(|&m| {
-                (
-                    &scorer,
-                    sim.doe_hash.as_str(),
-                    m,
-                    Prefilter::Native,
-                    m.name().to_string(),
-                )
+            .map(|&method| Config {
+                scorer: &scorer,
+                doe_hash: &sim.doe_hash,
+                method,
+                prefilter: Prefilter::Native,
+                name: method.name().to_string(),
             })
             .chain(
                 o.designs
@@ -379,12 +360,17 @@ pub fn run(common: &CommonOptions, o: &TradeoffOptions) -> Result<String, AppErr
                     .zip(&design_sims)
                     .zip(&design_scorers)
                     .flat_map(|((design, sim), scorer)| {
-                        design_methods.iter().map(move |&m| {
-                            let name = format!("{} {}", m.name(), design.name);
-                            (scorer, sim.doe_hash.as_str(), m, Prefilter::Native, name)
+                        design_methods.iter().map(move |&method| Config {
+                            scorer,
+                            doe_hash: &sim.doe_hash,
+                            method,
+                            prefilter: Prefilter::Native,
+                            name: format!("{} {}", method.name(), design.name),
                         })
                     }),
             ),
+        &mut records,
+        &mut skipped,
     )?;
     bar.finish_and_clear();
     if records.is_empty()
