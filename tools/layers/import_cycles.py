@@ -3,7 +3,7 @@
 neither the Rust library crates nor the trainer package import in a circle,
 1 naming every cycle, its modules and one import line (file:line) per edge.
 
-Rust, each library crate runtime/{core,gpu,optics,infer,service,app,studies}/src
+Rust, each library crate of layer_check.RUST_CRATES (under runtime/)
 (not the binary, runtime/cli): a module is a file, `foo.rs` (or
 `foo/mod.rs`) the parent of the files in `foo/`. A file references the
 modules named by the paths of its `use` statements and of its code:

@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """No string errors in a library's interface (issue 32; scripts/check-layers.sh
-runs it): exit 0 when no Rust library crate runtime/{core,gpu,optics,infer,
-service,app}/src has a `pub fn` (not `pub(crate)`, `pub(super)`, …) whose
+runs it): exit 0 when no Rust library crate (layer_check.RUST_CRATES, under
+runtime/) has a `pub fn` (not `pub(crate)`, `pub(super)`, …) whose
 return type is `Result<…, String>`, nor a trait whose method returns one;
 1 naming each (file:line, the function and its return type).
 

@@ -6,10 +6,10 @@ use std::path::PathBuf;
 
 use clap::builder::{PossibleValue, PossibleValuesParser, TypedValueParser};
 use clap::{Args, Parser, Subcommand, ValueEnum};
-use nedrt_app::run::{FallbackKind, FramePath, SinkKind, SourceKind};
 use nedrt_core::Named;
 use nedrt_infer::{BackendKind, ConvPath, F16Math, OrtProvider, Precision};
 use nedrt_optics::sim::{Method, Optics};
+use nedrt_run::{FallbackKind, FramePath, SinkKind, SourceKind};
 use nedrt_studies::bench_pipeline::PipelineNetwork;
 
 pub use crate::study_args::{EvalArgs, PickArgs, StabilityArgs, TradeoffArgs, TuneArgs};

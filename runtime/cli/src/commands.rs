@@ -153,7 +153,7 @@ pub fn run(cli: Cli) -> Result<()> {
                 ..Default::default()
             };
             install_signals(&control)?;
-            let opts = app::run::RunOptions {
+            let opts = nedrt_run::RunOptions {
                 preprocess: a.preprocess,
                 prefilter: a.prefilter,
                 source: a.source,
@@ -184,10 +184,10 @@ pub fn run(cli: Cli) -> Result<()> {
                 stereo: a.stereo,
             };
             if a.plan {
-                print!("{}", app::run::plan_run(&common, &opts)?);
+                print!("{}", nedrt_run::plan_run(&common, &opts)?);
                 return Ok(());
             }
-            let report = app::run::run(&common, &opts, &control)?;
+            let report = nedrt_run::run(&common, &opts, &control)?;
             print!("{}", report.table());
         }
         Some(Command::Calib) => print!("{}", studies::plots::calib_summary(&common)?),

@@ -18,7 +18,7 @@ use nedrt_optics::sim::wiener::WienerFilter;
 use nedrt_optics::sim::{DisplayProblem, Method, Prepared};
 
 use crate::EngineError;
-use crate::preprocess::{DcnnInput, Prefilter};
+use crate::preprocess::{DcnnInput, Prefilter, RawWiener};
 
 /// A linear prefilter's gains as a device stage, prepared for a
 /// `width`×`height` frame now where given (gains computed and uploaded:
@@ -318,27 +318,4 @@ pub fn for_system_on(
             None => host,
         },
     )
-}
-
-/// `method`'s Wiener prefilter before the clamp, on the host: a
-/// network's input (in front of it in a [`crate::Chain`]; where the device
-/// FFT lacks the frame's size), and the service's host stage.
-#[derive(Debug)]
-pub struct RawWiener {
-    pub method: Method,
-    pub filter: Arc<WienerFilter>,
-}
-
-impl Preprocess for RawWiener {
-    fn describe(&self) -> String {
-        format!(
-            "Wiener prefilter of {} (K = {:e}) before the clamp",
-            self.method, self.filter.k_reg
-        )
-    }
-
-    fn run(&mut self, input: &Image) -> Result<Image, PreprocessError> {
-        check_frame(input, self.filter.channels())?;
-        Ok(self.filter.apply_unclamped(input))
-    }
 }

@@ -10,7 +10,7 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use nedrt_core::calib::Calibration;
-use nedrt_core::preprocess::PreprocessError;
+use nedrt_core::preprocess::{PreprocessError, check_frame};
 use nedrt_core::{Image, Preprocess};
 use nedrt_infer::Dcnn;
 use nedrt_optics::sim::wiener::WienerFilter;
@@ -126,8 +126,31 @@ pub fn dcnn_system(
     })
 }
 
+/// `method`'s Wiener prefilter before the clamp, on the host: a
+/// network's input (in front of it in a [`Chain`]; where the device FFT
+/// lacks the frame's size), and the service's host stage.
+#[derive(Debug)]
+pub struct RawWiener {
+    pub method: Method,
+    pub filter: Arc<WienerFilter>,
+}
+
+impl Preprocess for RawWiener {
+    fn describe(&self) -> String {
+        format!(
+            "Wiener prefilter of {} (K = {:e}) before the clamp",
+            self.method, self.filter.k_reg
+        )
+    }
+
+    fn run(&mut self, input: &Image) -> Result<Image, PreprocessError> {
+        check_frame(input, self.filter.channels())?;
+        Ok(self.filter.apply_unclamped(input))
+    }
+}
+
 /// Two preprocessors one after the other: a network behind its optics'
-/// Wiener prefilter (on the host, [`crate::device_prefilter::RawWiener`],
+/// Wiener prefilter (on the host, [`RawWiener`],
 /// or on the device, [`crate::device_prefilter::OnDevice`]), which sees the
 /// Wiener's output before the panel's clamp and returns the display image.
 /// The host twin of [`nedrt_gpu::Chain`]; its GPU time and traffic are the
@@ -149,7 +172,7 @@ impl Chain {
         filter: Arc<WienerFilter>,
         network: Box<dyn Preprocess>,
     ) -> Self {
-        let wiener = crate::device_prefilter::RawWiener { method, filter };
+        let wiener = RawWiener { method, filter };
         Self::new(Box::new(wiener), network)
     }
 }

@@ -22,7 +22,8 @@ pub mod tradeoff;
 
 // The wiring the studies are built on, under the names they use.
 pub(crate) use nedrt_app::{
-    AppError, CommonOptions, charts, check_output_folder, create_dir, design, gpu_for, run, sim,
-    viewer, write_text,
+    AppError, CommonOptions, charts, check_output_folder, create_dir, design, gpu_for, sim, viewer,
+    write_text,
 };
 pub(crate) use nedrt_engines::{device_prefilter, preprocess};
+pub(crate) use nedrt_run as run;

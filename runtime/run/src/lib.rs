@@ -1,7 +1,15 @@
-//! `nedrt run`: the real-time service. Builds the sink (first: a window
-//! must live on this thread, and its GPU is offered to the D-CNN), the
-//! D-CNN with its fallback, the pipeline and the source, presents until the
-//! source ends or a signal stops it, then reports the counts and latencies.
+//! nedrt-run, layer 4 of nedrt: `nedrt run`, the real-time service, from
+//! its options to its report. [`plan_run`] decides what the run builds and
+//! why ([`RunPlan`], `nedrt run --plan`); [`run`] builds the sink (first: a
+//! window must live on this thread, and its GPU is offered to the D-CNN),
+//! the D-CNN with its fallback, the engines of its views on the sink's
+//! device or the host, and the source, presents until the source ends or a
+//! signal stops it, then reports the counts and latencies.
+//!
+//! It takes the commands' shared options from nedrt-command and nothing
+//! from nedrt-app: a run's options enter this crate once and go down from
+//! here. Rule: no clap, no indicatif, no environment; the per-frame work is
+//! nedrt-engines' and nedrt-service's, this crate only wires it.
 
 mod build;
 mod options;
@@ -11,8 +19,8 @@ mod views;
 
 use std::sync::Arc;
 
-use super::{AppError, CommonOptions};
 use build::{behind, device_engines, fallback_factory, linear_preprocessor};
+use nedrt_command::{AppError, CommonOptions};
 use nedrt_core::preprocess::Preprocess;
 use nedrt_engines::FailsAfter;
 use nedrt_engines::preprocess::DcnnInput;

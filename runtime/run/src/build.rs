@@ -7,7 +7,8 @@ use std::sync::Arc;
 
 use super::{AppError, CommonOptions, FallbackKind, RunOptions};
 use nedrt_core::preprocess::{Identity, Preprocess};
-use nedrt_engines::device_prefilter::{RawWiener, prefilter_stage, wiener_stage};
+use nedrt_engines::device_prefilter::{prefilter_stage, wiener_stage};
+use nedrt_engines::preprocess::RawWiener;
 use nedrt_engines::{Chain, FailsAfter};
 use nedrt_infer::gpu::DeviceDcnn;
 use nedrt_infer::{BackendKind, Dcnn, ModelFile};

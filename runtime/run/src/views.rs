@@ -11,7 +11,7 @@ use super::build::{behind, linear_on_device, linear_preprocessor};
 use super::plan::ViewFacts;
 use super::serve::Built;
 use super::{AppError, CommonOptions, RunOptions};
-use crate::design::Design;
+use nedrt_command::design::Design;
 use nedrt_core::calib::Calibration;
 use nedrt_core::preprocess::Preprocess;
 use nedrt_engines::device_prefilter::wiener_stage;
