@@ -130,6 +130,33 @@ def test_the_report_shows_wall_and_gpu_time_refine_and_the_tradeoff():
     assert "device-check.sh --call 2`" in md
 
 
+def test_the_report_says_case_by_case_whether_the_pacing_target_is_met():
+    steps = steps_of_a_run()
+    base = {"kind": "pipeline", "frame_path": "device", "width": 1920, "height": 1080, "refresh_hz": 90.0}
+    steps["pipeline"].records += [
+        {**base, "network": "none", "views": 1, "gpu_p50_ms": 0.0, "e2e_p50_ms": 5.0, "dropped": 0},
+        {**base, "network": "wiener", "views": 1, "gpu_p50_ms": 1.4, "e2e_p50_ms": 9.4, "dropped": 1},
+        {**base, "network": "model", "views": 1, "precision": "f16", "gpu_p50_ms": 6.0, "e2e_p50_ms": 11.5,
+         "dropped": 0},
+        # Two eyes of 7.1 ms each: 14.2 ms, over an 11.1 ms refresh.
+        {**base, "network": "model", "views": 2, "width": 3840, "gpu_p50_ms": 0.0, "e2e_p50_ms": 39.3,
+         "dropped": 4, "eyes": [{"stage": "preprocess view 0", "p50_ms": 7.1},
+                                {"stage": "preprocess view 1", "p50_ms": 7.1}]},
+        # Not a case of the target, and a row from a binary without the rate.
+        {**base, "network": "half", "views": 1, "gpu_p50_ms": 6.8, "e2e_p50_ms": 19.0, "dropped": 10},
+        {"kind": "pipeline", "network": "none", "frame_path": "device", "width": 8, "height": 8,
+         "e2e_p50_ms": 1.0, "dropped": 0},
+    ]
+    steps["pipeline"].text = "| network |"
+    md = check_report.report(steps, {"mode": "device", "date": "today", "commit": "abc", "device": "GPU"})
+    assert "| none | 1 | f32 | 1920×1080 | 11.11 | 0.00 | 5.00 | 0 | yes |" in md
+    assert "| wiener | 1 | f32 | 1920×1080 | 11.11 | 1.40 | 9.40 | 1 | no |" in md
+    assert "| model | 1 | f16 | 1920×1080 | 11.11 | 6.00 | 11.50 | 0 | no |" in md
+    assert "| model | 2 | f32 | 3840×1080 | 11.11 | 14.20 | 39.30 | 4 | – (GPU time over a refresh) |" in md
+    assert "| half |" not in md.split("Issue 39's target")[1]
+    assert "| none | 1 | f32 | 8×8 |" not in md
+
+
 def test_a_bad_only_or_call_is_refused(capsys):
     assert check.main(["--only", "setup,warp"]) == 2
     assert "no step warp" in capsys.readouterr().err

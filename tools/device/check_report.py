@@ -47,6 +47,7 @@ def report(steps: dict, meta: dict) -> str:
                f"{ms(refine.get('e2e_p50_ms'))} ms; {refine['presented']} shown, {refine['dropped']} dropped."]
     if text("pipeline"):
         md += ["", f"## The pipeline end to end ({head})", "", text("pipeline")]
+        md += pacing_target(records("pipeline", "pipeline"), head)
     if text("openxr"):
         md += ["", f"## The OpenXR runtime ({head})", "", "The openxr crate's client through libnedrt_openxr.so "
                "into nedrt run --stereo --sink headless (docs/openxr.md): the copy-out of each view on the "
@@ -56,6 +57,37 @@ def report(steps: dict, meta: dict) -> str:
                "tradeoff.md, .json, .svg and .png beside this report; the table:", "", text("tradeoff")]
     md += training(records("train", "train"), head)
     return "\n".join(md) + "\n"
+
+
+# The cases issue 39's device line names: no network and the shipped model.
+TARGET_CASES = ("none", "wiener", "model")
+
+
+def pacing_target(rows: list, head: str) -> list:
+    """Issue 39's device line, case by case: end to end p50 within one
+    refresh and no frame dropped, for every case whose GPU time fits a
+    refresh (two views: both eyes' stages, which share one submission).
+    Rows without the refresh rate (older binaries) are left out."""
+    out = []
+    for x in rows:
+        hz, p50 = x.get("refresh_hz"), x.get("e2e_p50_ms")
+        if x.get("network") not in TARGET_CASES or not hz or p50 is None:
+            continue
+        period = 1e3 / hz
+        views = x.get("views", 1)
+        eyes = [e["p50_ms"] for e in x.get("eyes", []) if str(e.get("stage", "")).startswith("preprocess view")]
+        gpu = sum(eyes) if views > 1 and eyes else (x.get("gpu_p50_ms") or 0.0)
+        fits = gpu < period
+        met = "– (GPU time over a refresh)" if not fits else (
+            "yes" if p50 <= period and x.get("dropped", 0) == 0 else "no")
+        out.append(f"| {x['network']} | {views} | {x.get('precision', 'f32')} | {x['width']}×{x['height']} | "
+                   f"{period:.2f} | {gpu:.2f} | {p50:.2f} | {x.get('dropped', 0)} | {met} |")
+    if not out:
+        return []
+    return ["", f"Issue 39's target ({head}): end to end p50 within one refresh and 0 dropped, for every case "
+            "whose GPU time fits a refresh.", "",
+            "| case | views | precision | panel | refresh ms | GPU p50 ms | e2e p50 ms | dropped | met |",
+            "| --- | --- | --- | --- | --- | --- | --- | --- | --- |", *out]
 
 
 def dcnn_table(wgsl: list, torch_rows: list, head: str) -> list:
