@@ -8,10 +8,10 @@ use openxr_sys as xr;
 use openxr_sys::Handle as _;
 
 use crate::ffi::{
-    XrResult, expect_type, guard, non_null, non_null_mut, read_fixed, two_call, two_call_str,
+    XrResult, expect_type, guard, lock, non_null, non_null_mut, read_fixed, two_call, two_call_str,
 };
 use crate::instance::{path_string, valid_path};
-use crate::state::{Action, ActionSet, lock, registry};
+use crate::state::{Action, ActionSet, registry};
 
 fn valid_name(name: &str) -> bool {
     !name.is_empty()

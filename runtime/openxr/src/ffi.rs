@@ -2,11 +2,19 @@
 //! the two-call idiom, fixed-size C strings and structure checks.
 
 use std::ffi::{CStr, c_char};
+use std::sync::{Mutex, MutexGuard};
 
 use openxr_sys as xr;
 
 /// An entry point's outcome before it crosses the C boundary.
 pub type XrResult<T = ()> = Result<T, xr::Result>;
+
+/// Locks a mutex, recovering it if a panicking entry point poisoned it:
+/// every entry point leaves its object consistent between statements, and
+/// one failed call must not fail every later one.
+pub fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(|p| p.into_inner())
+}
 
 /// Runs an entry point's body, turning a panic into
 /// `XR_ERROR_RUNTIME_FAILURE`: unwinding into the application's C frames

@@ -4,12 +4,12 @@
 use nedrt_protocol::{PixelFormat, Placement};
 use openxr_sys as xr;
 
-use crate::ffi::{XrResult, expect_type, guard, non_null, non_null_mut, now_ns};
+use crate::ffi::{XrResult, expect_type, guard, lock, non_null, non_null_mut, now_ns};
 use crate::link::{LinkError, SystemInfo, Timing};
 use crate::pixels::{self, QuadAlpha};
-use crate::session::{SessionInner, session_and_instance};
+use crate::session::session_and_instance;
 use crate::space::Pose;
-use crate::state::{lock, registry};
+use crate::state::{SessionInner, registry};
 use crate::swapchain::{check_sub_image, read_released};
 
 /// The most layers a frame may have (XrSystemGraphicsProperties).
@@ -42,33 +42,6 @@ pub fn next_frame(
         predicted += behind * period;
     }
     (predicted, predicted - ahead)
-}
-
-/// A running estimate of how long a frame takes from xrWaitFrame's return
-/// to its submission to the service: a mean and a mean deviation over
-/// about 8 frames, bounded at mean + 2 deviations.
-#[derive(Debug, Default, Clone, Copy)]
-pub struct MakeTime {
-    mean: f64,
-    dev: f64,
-    seen: bool,
-}
-
-impl MakeTime {
-    pub fn record(&mut self, ns: i64) {
-        let x = ns.max(0) as f64;
-        if self.seen {
-            let d = x - self.mean;
-            self.mean += d / 8.0;
-            self.dev += (d.abs() - self.dev) / 8.0;
-        } else {
-            (self.mean, self.seen) = (x, true);
-        }
-    }
-
-    pub fn bound_ns(&self) -> i64 {
-        (self.mean + 2.0 * self.dev) as i64
-    }
 }
 
 fn sleep_until(t: i64) {
@@ -501,20 +474,5 @@ mod tests {
         let (p, wake) = next_frame(t, received, received, 0, 7 * P / 10);
         assert_eq!(p, 101 * P);
         assert_eq!(wake, p - P / 2 - 7 * P / 10);
-    }
-
-    #[test]
-    fn the_make_time_bound_follows_the_frames() {
-        let mut m = MakeTime::default();
-        assert_eq!(m.bound_ns(), 0);
-        for _ in 0..64 {
-            m.record(1_000_000);
-        }
-        assert_eq!(m.bound_ns(), 1_000_000);
-        for i in 0..64 {
-            m.record(if i % 2 == 0 { 1_000_000 } else { 3_000_000 });
-        }
-        let b = m.bound_ns();
-        assert!(b > 3_000_000 && b < 5_000_000, "{b}");
     }
 }

@@ -9,10 +9,10 @@ use ash::vk;
 use ash::vk::Handle;
 use openxr_sys as xr;
 
-use crate::ffi::{XrResult, expect_type, guard, non_null, non_null_mut, two_call_str};
+use crate::ffi::{XrResult, expect_type, guard, lock, non_null, non_null_mut, two_call_str};
 use crate::instance::{VULKAN_ENABLE, VULKAN_ENABLE2};
 use crate::session::system_of;
-use crate::state::{Instance, lock};
+use crate::state::Instance;
 use crate::vulkan::{Entry, pick_physical_device};
 
 /// An instance with one of the Vulkan extensions enabled.
@@ -89,7 +89,7 @@ fn physical_device(
     }
     // SAFETY: the application's live VkInstance (§12.20).
     let pd = unsafe { pick_physical_device(entry, vk::Instance::from_raw(vk_instance as u64)) }
-        .map_err(crate::swapchain::vk_error)?;
+        .map_err(crate::vulkan::vk_error)?;
     Ok(pd.as_raw() as *const std::ffi::c_void)
 }
 

@@ -8,13 +8,13 @@ use openxr_sys as xr;
 use openxr_sys::Handle as _;
 
 use crate::ffi::{
-    expect_type, guard, non_null, non_null_mut, read_cstr, read_fixed, two_call, two_call_str,
-    two_call_with, write_fixed,
+    expect_type, guard, lock, non_null, non_null_mut, read_cstr, read_fixed, two_call,
+    two_call_str, two_call_with, write_fixed,
 };
 use crate::frame::MAX_LAYERS;
 use crate::link::{Link, socket_path};
 use crate::session::{system_of, view_configuration};
-use crate::state::{Event, Instance, InstanceInner, SYSTEM_ID, lock, registry};
+use crate::state::{Event, Instance, InstanceInner, SYSTEM_ID, registry};
 
 pub const VULKAN_ENABLE: &str = "XR_KHR_vulkan_enable";
 pub const VULKAN_ENABLE2: &str = "XR_KHR_vulkan_enable2";

@@ -8,134 +8,11 @@ use ash::vk::Handle;
 use openxr_sys as xr;
 use openxr_sys::Handle as _;
 
-use crate::ffi::{XrResult, expect_type, guard, non_null, non_null_mut, now_ns, two_call_with};
-use crate::link::{Link, LinkError, SystemInfo};
-use crate::space::{FixedHead, Pose, PoseSource, in_local};
-use crate::state::{Event, Instance, SYSTEM_ID, Session, lock, registry};
+use crate::ffi::{XrResult, expect_type, guard, lock, non_null, non_null_mut, two_call_with};
+use crate::link::{Link, SystemInfo};
+use crate::space::{FixedHead, Pose, in_local};
+use crate::state::{FrameLoop, FrameStats, Instance, SYSTEM_ID, Session, SessionInner, registry};
 use crate::vulkan::{Binding, Context, Entry};
-
-#[derive(Debug)]
-pub struct SessionInner {
-    pub state: xr::SessionState,
-    pub running: bool,
-    pub exit_requested: bool,
-    /// The service went away: the frame functions answer
-    /// SESSION_LOSS_PENDING, the others ERROR_SESSION_LOST.
-    pub lost: bool,
-    pub vk: Arc<Context>,
-    pub link: Option<Link>,
-    pub info: SystemInfo,
-    pub poses: Arc<dyn PoseSource>,
-    pub frame: FrameLoop,
-    /// The quad layer ids set on each view by the last frame, removed when
-    /// a frame no longer submits them.
-    pub quads: Vec<BTreeSet<u32>>,
-    pub stats: FrameStats,
-}
-
-/// How the session's frames went, logged when it ends.
-#[derive(Debug, Default)]
-pub struct FrameStats {
-    /// Frames whose projection reached the service.
-    pub frames: u64,
-    /// Of those, how the service's prediction as it took the frame (its
-    /// reply's) compared with the display time the frame was rendered for
-    /// (xrWaitFrame's): equal, later (the frame is late) or earlier.
-    pub same: u64,
-    pub later: u64,
-    pub earlier: u64,
-    /// Reading released images back to the host: copies and their time.
-    pub copies: u64,
-    pub copy_ns: u64,
-    /// Texels read back.
-    pub texels: u64,
-    /// Sending projections to the service and waiting for its replies.
-    pub send_ns: u64,
-}
-
-impl Drop for SessionInner {
-    fn drop(&mut self) {
-        let s = &self.stats;
-        if s.frames > 0 {
-            log_info!(
-                "{} frames sent; the service predicted the display time xrWaitFrame gave for {}, \
-                 a later refresh for {}, an earlier one for {}; copy-out: {} images, {:.3} ms \
-                 each on average ({:.1} Mtexel/s); sending a view to the service: {:.3} ms",
-                s.frames,
-                s.same,
-                s.later,
-                s.earlier,
-                s.copies,
-                s.copy_ns as f64 / s.copies.max(1) as f64 / 1e6,
-                s.texels as f64 / (s.copy_ns.max(1) as f64 / 1e9) / 1e6,
-                s.send_ns as f64 / s.copies.max(1) as f64 / 1e6
-            );
-        }
-    }
-}
-
-/// Where the frame loop is (§10.4).
-#[derive(Debug, Default)]
-pub struct FrameLoop {
-    /// xrWaitFrame calls not yet followed by xrBeginFrame.
-    pub waited: u32,
-    pub begun: bool,
-    /// When the frame in flight began: its capture time for the service.
-    pub begun_ns: i64,
-    /// The last predicted display time handed out.
-    pub last_predicted: i64,
-    /// When xrWaitFrame last returned.
-    pub woke_ns: i64,
-    /// How long a frame takes from then to its submission.
-    pub make: crate::frame::MakeTime,
-    pub frames_ended: u64,
-}
-
-impl SessionInner {
-    fn set_state(&mut self, instance: &Instance, session: u64, state: xr::SessionState) {
-        self.state = state;
-        instance.push_event(Event::SessionState {
-            session,
-            state,
-            time: now_ns(),
-        });
-    }
-
-    /// The service is gone: the application hears LOSS_PENDING once.
-    pub fn lose(&mut self, instance: &Instance, session: u64, why: &LinkError) {
-        if !self.lost {
-            log_error!("{why}; the session is lost");
-            self.lost = true;
-            self.link = None;
-            self.set_state(instance, session, xr::SessionState::LOSS_PENDING);
-        }
-    }
-
-    pub fn check_running(&self) -> XrResult {
-        if self.lost {
-            Err(xr::Result::ERROR_SESSION_LOST)
-        } else if !self.running {
-            Err(xr::Result::ERROR_SESSION_NOT_RUNNING)
-        } else {
-            Ok(())
-        }
-    }
-
-    /// Moves on after the application's frame (SYNCHRONIZED after the
-    /// first wait, VISIBLE and FOCUSED after the first frame ends).
-    pub fn advance(&mut self, instance: &Instance, session: u64) {
-        match self.state {
-            xr::SessionState::READY if self.running && self.frame.waited > 0 => {
-                self.set_state(instance, session, xr::SessionState::SYNCHRONIZED);
-            }
-            xr::SessionState::SYNCHRONIZED if self.frame.frames_ended > 0 => {
-                self.set_state(instance, session, xr::SessionState::VISIBLE);
-                self.set_state(instance, session, xr::SessionState::FOCUSED);
-            }
-            _ => {}
-        }
-    }
-}
 
 /// The graphics binding in a create info's `next` chain.
 ///
@@ -210,7 +87,7 @@ pub unsafe extern "system" fn create_session(
             })?,
         };
         // SAFETY: the application's live Vulkan objects (§12.20).
-        let vk_ctx = unsafe { Context::new(entry, binding) }.map_err(crate::swapchain::vk_error)?;
+        let vk_ctx = unsafe { Context::new(entry, binding) }.map_err(crate::vulkan::vk_error)?;
         let views = system.views.len();
         let inner = SessionInner {
             state: xr::SessionState::UNKNOWN,

@@ -6,9 +6,9 @@ use std::sync::Arc;
 use openxr_sys as xr;
 use openxr_sys::Handle as _;
 
-use crate::ffi::{XrResult, expect_type, guard, non_null, non_null_mut, two_call};
+use crate::ffi::{XrResult, expect_type, guard, lock, non_null, non_null_mut, two_call};
 use crate::space::{Pose, REFERENCE_SPACES, SpaceKind, in_local};
-use crate::state::{Session, Space, lock, registry};
+use crate::state::{Session, Space, registry};
 
 pub unsafe extern "system" fn enumerate_reference_spaces(
     session: xr::Session,

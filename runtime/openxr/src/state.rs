@@ -5,25 +5,23 @@
 //! dereference. Objects are `Arc`s so that an entry point can release the
 //! registry's lock before it blocks (`xrWaitFrame`) or talks to the
 //! service (`xrEndFrame`).
+//!
+//! The objects' inner state lives here too (a session's state machine and
+//! frame loop, a swapchain's images): the entry points (session.rs,
+//! swapchain.rs, frame.rs) act on them through the registry, and nothing
+//! here calls an entry point.
 
-use std::collections::{HashMap, VecDeque};
+use std::collections::{BTreeSet, HashMap, VecDeque};
 use std::sync::{Arc, LazyLock, Mutex, MutexGuard};
 
+use ash::vk;
 use openxr_sys as xr;
 use openxr_sys::Handle as _;
 
-use crate::ffi::XrResult;
-use crate::link::SystemInfo;
-use crate::session::SessionInner;
-use crate::space::SpaceKind;
-use crate::swapchain::SwapchainInner;
-
-/// Locks a mutex, recovering it if a panicking entry point poisoned it:
-/// every entry point leaves its object consistent between statements, and
-/// one failed call must not fail every later one.
-pub fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
-    m.lock().unwrap_or_else(|p| p.into_inner())
-}
+use crate::ffi::{XrResult, lock, now_ns};
+use crate::link::{Link, LinkError, SystemInfo};
+use crate::space::{PoseSource, SpaceKind};
+use crate::vulkan::Context;
 
 #[derive(Debug, Default)]
 pub struct Registry {
@@ -204,4 +202,202 @@ pub struct Action {
     pub name: String,
     pub action_type: xr::ActionType,
     pub subaction_paths: Vec<u64>,
+}
+
+#[derive(Debug)]
+pub struct SessionInner {
+    pub state: xr::SessionState,
+    pub running: bool,
+    pub exit_requested: bool,
+    /// The service went away: the frame functions answer
+    /// SESSION_LOSS_PENDING, the others ERROR_SESSION_LOST.
+    pub lost: bool,
+    pub vk: Arc<Context>,
+    pub link: Option<Link>,
+    pub info: SystemInfo,
+    pub poses: Arc<dyn PoseSource>,
+    pub frame: FrameLoop,
+    /// The quad layer ids set on each view by the last frame, removed when
+    /// a frame no longer submits them.
+    pub quads: Vec<BTreeSet<u32>>,
+    pub stats: FrameStats,
+}
+
+/// How the session's frames went, logged when it ends.
+#[derive(Debug, Default)]
+pub struct FrameStats {
+    /// Frames whose projection reached the service.
+    pub frames: u64,
+    /// Of those, how the service's prediction as it took the frame (its
+    /// reply's) compared with the display time the frame was rendered for
+    /// (xrWaitFrame's): equal, later (the frame is late) or earlier.
+    pub same: u64,
+    pub later: u64,
+    pub earlier: u64,
+    /// Reading released images back to the host: copies and their time.
+    pub copies: u64,
+    pub copy_ns: u64,
+    /// Texels read back.
+    pub texels: u64,
+    /// Sending projections to the service and waiting for its replies.
+    pub send_ns: u64,
+}
+
+impl Drop for SessionInner {
+    fn drop(&mut self) {
+        let s = &self.stats;
+        if s.frames > 0 {
+            log_info!(
+                "{} frames sent; the service predicted the display time xrWaitFrame gave for {}, \
+                 a later refresh for {}, an earlier one for {}; copy-out: {} images, {:.3} ms \
+                 each on average ({:.1} Mtexel/s); sending a view to the service: {:.3} ms",
+                s.frames,
+                s.same,
+                s.later,
+                s.earlier,
+                s.copies,
+                s.copy_ns as f64 / s.copies.max(1) as f64 / 1e6,
+                s.texels as f64 / (s.copy_ns.max(1) as f64 / 1e9) / 1e6,
+                s.send_ns as f64 / s.copies.max(1) as f64 / 1e6
+            );
+        }
+    }
+}
+
+/// Where the frame loop is (§10.4).
+#[derive(Debug, Default)]
+pub struct FrameLoop {
+    /// xrWaitFrame calls not yet followed by xrBeginFrame.
+    pub waited: u32,
+    pub begun: bool,
+    /// When the frame in flight began: its capture time for the service.
+    pub begun_ns: i64,
+    /// The last predicted display time handed out.
+    pub last_predicted: i64,
+    /// When xrWaitFrame last returned.
+    pub woke_ns: i64,
+    /// How long a frame takes from then to its submission.
+    pub make: MakeTime,
+    pub frames_ended: u64,
+}
+
+impl SessionInner {
+    /// Enters `state` and queues its event for `xrPollEvent`.
+    pub fn set_state(&mut self, instance: &Instance, session: u64, state: xr::SessionState) {
+        self.state = state;
+        instance.push_event(Event::SessionState {
+            session,
+            state,
+            time: now_ns(),
+        });
+    }
+
+    /// The service is gone: the application hears LOSS_PENDING once.
+    pub fn lose(&mut self, instance: &Instance, session: u64, why: &LinkError) {
+        if !self.lost {
+            log_error!("{why}; the session is lost");
+            self.lost = true;
+            self.link = None;
+            self.set_state(instance, session, xr::SessionState::LOSS_PENDING);
+        }
+    }
+
+    pub fn check_running(&self) -> XrResult {
+        if self.lost {
+            Err(xr::Result::ERROR_SESSION_LOST)
+        } else if !self.running {
+            Err(xr::Result::ERROR_SESSION_NOT_RUNNING)
+        } else {
+            Ok(())
+        }
+    }
+
+    /// Moves on after the application's frame (SYNCHRONIZED after the
+    /// first wait, VISIBLE and FOCUSED after the first frame ends).
+    pub fn advance(&mut self, instance: &Instance, session: u64) {
+        match self.state {
+            xr::SessionState::READY if self.running && self.frame.waited > 0 => {
+                self.set_state(instance, session, xr::SessionState::SYNCHRONIZED);
+            }
+            xr::SessionState::SYNCHRONIZED if self.frame.frames_ended > 0 => {
+                self.set_state(instance, session, xr::SessionState::VISIBLE);
+                self.set_state(instance, session, xr::SessionState::FOCUSED);
+            }
+            _ => {}
+        }
+    }
+}
+
+/// A running estimate of how long a frame takes from xrWaitFrame's return
+/// to its submission to the service: a mean and a mean deviation over
+/// about 8 frames, bounded at mean + 2 deviations.
+#[derive(Debug, Default, Clone, Copy)]
+pub struct MakeTime {
+    mean: f64,
+    dev: f64,
+    seen: bool,
+}
+
+impl MakeTime {
+    pub fn record(&mut self, ns: i64) {
+        let x = ns.max(0) as f64;
+        if self.seen {
+            let d = x - self.mean;
+            self.mean += d / 8.0;
+            self.dev += (d.abs() - self.dev) / 8.0;
+        } else {
+            (self.mean, self.seen) = (x, true);
+        }
+    }
+
+    pub fn bound_ns(&self) -> i64 {
+        (self.mean + 2.0 * self.dev) as i64
+    }
+}
+
+#[derive(Debug)]
+pub struct SwapchainInner {
+    pub vk: Arc<Context>,
+    pub images: Vec<(vk::Image, vk::DeviceMemory)>,
+    pub format: vk::Format,
+    pub size: (u32, u32),
+    pub layers: u32,
+    /// Acquired and not yet released, oldest first.
+    pub acquired: VecDeque<u32>,
+    /// The oldest acquired image was waited for.
+    pub waited: bool,
+    pub next: u32,
+    /// The image `xrEndFrame` shows: the last one released.
+    pub last_released: Option<u32>,
+    /// A static swapchain hands its one image out once (§10.1).
+    pub static_image: bool,
+    pub acquired_ever: bool,
+}
+
+impl Drop for SwapchainInner {
+    fn drop(&mut self) {
+        for &(image, memory) in &self.images {
+            self.vk.destroy_image(image, memory);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_make_time_bound_follows_the_frames() {
+        let mut m = MakeTime::default();
+        assert_eq!(m.bound_ns(), 0);
+        for _ in 0..64 {
+            m.record(1_000_000);
+        }
+        assert_eq!(m.bound_ns(), 1_000_000);
+        for i in 0..64 {
+            m.record(if i % 2 == 0 { 1_000_000 } else { 3_000_000 });
+        }
+        let b = m.bound_ns();
+        assert!(b > 3_000_000 && b < 5_000_000, "{b}");
+    }
 }

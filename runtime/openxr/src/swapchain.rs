@@ -11,40 +11,15 @@ use ash::vk::Handle;
 use openxr_sys as xr;
 use openxr_sys::Handle as _;
 
-use crate::ffi::{XrResult, expect_type, guard, non_null, non_null_mut, two_call, two_call_with};
+use crate::ffi::{
+    XrResult, expect_type, guard, lock, non_null, non_null_mut, two_call, two_call_with,
+};
 use crate::formats;
-use crate::state::{Swapchain, lock, registry};
-use crate::vulkan::Context;
+use crate::state::{Swapchain, SwapchainInner, registry};
+use crate::vulkan::vk_error;
 
 /// Images a swapchain has: one being shown, one being rendered, one spare.
 const IMAGES: u32 = 3;
-
-#[derive(Debug)]
-pub struct SwapchainInner {
-    pub vk: Arc<Context>,
-    pub images: Vec<(vk::Image, vk::DeviceMemory)>,
-    pub format: vk::Format,
-    pub size: (u32, u32),
-    pub layers: u32,
-    /// Acquired and not yet released, oldest first.
-    acquired: VecDeque<u32>,
-    /// The oldest acquired image was waited for.
-    waited: bool,
-    next: u32,
-    /// The image `xrEndFrame` shows: the last one released.
-    pub last_released: Option<u32>,
-    /// A static swapchain hands its one image out once (§10.1).
-    static_image: bool,
-    acquired_ever: bool,
-}
-
-impl Drop for SwapchainInner {
-    fn drop(&mut self) {
-        for &(image, memory) in &self.images {
-            self.vk.destroy_image(image, memory);
-        }
-    }
-}
 
 fn usage_of(flags: xr::SwapchainUsageFlags) -> vk::ImageUsageFlags {
     let map = [
@@ -199,16 +174,6 @@ pub unsafe extern "system" fn create_swapchain(
         unsafe { out.write(xr::Swapchain::from_raw(h)) };
         Ok(xr::Result::SUCCESS)
     })
-}
-
-pub fn vk_error(e: vk::Result) -> xr::Result {
-    log_error!("Vulkan: {e}");
-    match e {
-        vk::Result::ERROR_OUT_OF_HOST_MEMORY | vk::Result::ERROR_OUT_OF_DEVICE_MEMORY => {
-            xr::Result::ERROR_OUT_OF_MEMORY
-        }
-        _ => xr::Result::ERROR_RUNTIME_FAILURE,
-    }
 }
 
 pub unsafe extern "system" fn destroy_swapchain(swapchain: xr::Swapchain) -> xr::Result {

@@ -9,10 +9,24 @@ use std::sync::Mutex;
 
 use ash::vk;
 
-use crate::state::lock;
+use openxr_sys as xr;
+
+use crate::ffi::lock;
 
 /// Vulkan's own answer, for the entry point to map.
 pub type VkResult<T> = Result<T, vk::Result>;
+
+/// Vulkan's answer as the entry point's: out of memory, or a runtime
+/// failure (logged).
+pub fn vk_error(e: vk::Result) -> xr::Result {
+    log_error!("Vulkan: {e}");
+    match e {
+        vk::Result::ERROR_OUT_OF_HOST_MEMORY | vk::Result::ERROR_OUT_OF_DEVICE_MEMORY => {
+            xr::Result::ERROR_OUT_OF_MEMORY
+        }
+        _ => xr::Result::ERROR_RUNTIME_FAILURE,
+    }
+}
 
 /// How long a copy may take before the runtime calls the device lost.
 const COPY_TIMEOUT_NS: u64 = 5_000_000_000;
