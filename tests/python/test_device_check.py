@@ -132,7 +132,8 @@ def test_the_report_shows_wall_and_gpu_time_refine_and_the_tradeoff():
 
 def test_the_report_says_case_by_case_whether_the_pacing_target_is_met():
     steps = steps_of_a_run()
-    base = {"kind": "pipeline", "frame_path": "device", "width": 1920, "height": 1080, "refresh_hz": 90.0}
+    base = {"kind": "pipeline", "frame_path": "device", "path_detail": "device (no read-back)", "width": 1920,
+            "height": 1080, "refresh_hz": 90.0, "presented": 200, "dcnn_failures": 0}
     steps["pipeline"].records += [
         {**base, "network": "none", "views": 1, "gpu_p50_ms": 0.0, "e2e_p50_ms": 5.0, "dropped": 0},
         {**base, "network": "wiener", "views": 1, "gpu_p50_ms": 1.4, "e2e_p50_ms": 9.4, "dropped": 1},
@@ -142,9 +143,16 @@ def test_the_report_says_case_by_case_whether_the_pacing_target_is_met():
         {**base, "network": "model", "views": 2, "width": 3840, "gpu_p50_ms": 0.0, "e2e_p50_ms": 39.3,
          "dropped": 4, "eyes": [{"stage": "preprocess view 0", "p50_ms": 7.1},
                                 {"stage": "preprocess view 1", "p50_ms": 7.1}]},
-        # Not a case of the target, and a row from a binary without the rate.
-        {**base, "network": "half", "views": 1, "gpu_p50_ms": 6.8, "e2e_p50_ms": 19.0, "dropped": 10},
-        {"kind": "pipeline", "network": "none", "frame_path": "device", "width": 8, "height": 8,
+        # The network fell back to the frame itself: fast, and not met.
+        {**base, "network": "half", "views": 1, "gpu_p50_ms": 0.0, "e2e_p50_ms": 4.0, "dropped": 0,
+         "dcnn_failures": 200},
+        # Nothing shown: no percentile to meet.
+        {**base, "network": "full", "views": 1, "gpu_p50_ms": 0.0, "e2e_p50_ms": 0.0, "dropped": 0,
+         "presented": 0},
+        # The host path, and a row from a binary without the rate, are left out.
+        {**base, "network": "none", "frame_path": "host", "views": 1, "width": 8, "e2e_p50_ms": 1.0,
+         "dropped": 0},
+        {"kind": "pipeline", "network": "none", "frame_path": "device", "width": 16, "height": 8,
          "e2e_p50_ms": 1.0, "dropped": 0},
     ]
     steps["pipeline"].text = "| network |"
@@ -153,8 +161,9 @@ def test_the_report_says_case_by_case_whether_the_pacing_target_is_met():
     assert "| wiener | 1 | f32 | 1920×1080 | 11.11 | 1.40 | 9.40 | 1 | no |" in md
     assert "| model | 1 | f16 | 1920×1080 | 11.11 | 6.00 | 11.50 | 0 | no |" in md
     assert "| model | 2 | f32 | 3840×1080 | 11.11 | 14.20 | 39.30 | 4 | – (GPU time over a refresh) |" in md
-    assert "| half |" not in md.split("Issue 39's target")[1]
-    assert "| none | 1 | f32 | 8×8 |" not in md
+    assert "| half | 1 | f32 | 1920×1080 | 11.11 | 0.00 | 4.00 | 0 | no (fell back" in md
+    assert "| full | 1 | f32 | 1920×1080 | 11.11 | 0.00 | 0.00 | 0 | no (nothing shown) |" in md
+    assert "| 8×1080 |" not in md and "| 16×8 |" not in md
 
 
 def test_a_bad_only_or_call_is_refused(capsys):

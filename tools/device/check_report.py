@@ -59,34 +59,40 @@ def report(steps: dict, meta: dict) -> str:
     return "\n".join(md) + "\n"
 
 
-# The cases issue 39's device line names: no network and the shipped model.
-TARGET_CASES = ("none", "wiener", "model")
-
-
 def pacing_target(rows: list, head: str) -> list:
-    """Issue 39's device line, case by case: end to end p50 within one
-    refresh and no frame dropped, for every case whose GPU time fits a
-    refresh (two views: both eyes' stages, which share one submission).
+    """Issue 39's device line, case by case, for every case of the step on
+    the device path (the line names no network and the shipped model, one
+    view and two; the others stand beside them): end to end p50 within one
+    refresh and no frame dropped, where the GPU time fits a refresh (two
+    views: the eyes' p50s summed, their stages sharing one submission). A
+    case that showed nothing, or whose network fell back (the bench's
+    fallback is the frame itself: fast, and not the network), is not met.
     Rows without the refresh rate (older binaries) are left out."""
     out = []
     for x in rows:
         hz, p50 = x.get("refresh_hz"), x.get("e2e_p50_ms")
-        if x.get("network") not in TARGET_CASES or not hz or p50 is None:
+        if x.get("frame_path") != "device" or not hz or p50 is None:
             continue
         period = 1e3 / hz
         views = x.get("views", 1)
         eyes = [e["p50_ms"] for e in x.get("eyes", []) if str(e.get("stage", "")).startswith("preprocess view")]
         gpu = sum(eyes) if views > 1 and eyes else (x.get("gpu_p50_ms") or 0.0)
-        fits = gpu < period
-        met = "– (GPU time over a refresh)" if not fits else (
-            "yes" if p50 <= period and x.get("dropped", 0) == 0 else "no")
+        if not x.get("presented"):
+            met = "no (nothing shown)"
+        elif x.get("dcnn_failures", 0) > 0 or not str(x.get("path_detail", "device")).startswith("device"):
+            met = "no (fell back to the host or the fallback)"
+        elif gpu >= period:
+            met = "– (GPU time over a refresh)"
+        else:
+            met = "yes" if p50 <= period and x.get("dropped", 0) == 0 else "no"
         out.append(f"| {x['network']} | {views} | {x.get('precision', 'f32')} | {x['width']}×{x['height']} | "
                    f"{period:.2f} | {gpu:.2f} | {p50:.2f} | {x.get('dropped', 0)} | {met} |")
     if not out:
         return []
     return ["", f"Issue 39's target ({head}): end to end p50 within one refresh and 0 dropped, for every case "
-            "whose GPU time fits a refresh.", "",
-            "| case | views | precision | panel | refresh ms | GPU p50 ms | e2e p50 ms | dropped | met |",
+            "whose GPU time fits a refresh (the line names none and model, one view and two).", "",
+            "| case | views | precision | panel | refresh ms | GPU p50 ms (two views: the eyes' summed) | "
+            "e2e p50 ms | dropped | met |",
             "| --- | --- | --- | --- | --- | --- | --- | --- | --- |", *out]
 
 

@@ -1,4 +1,5 @@
-//! Each command: its arguments turned into nedrt-app's typed options, run,
+//! Each command: its arguments turned into typed options (nedrt-run's for
+//! `nedrt run`, nedrt-app's and nedrt-studies' for the others), run,
 //! and its report printed.
 
 use std::sync::Arc;

@@ -268,7 +268,7 @@ pub enum AppError {
 }
 
 /// An engine's error as the command's: the same variants, so that every
-/// message and hint stays as it was when the engines lived here.
+/// message and hint stays as it was when the engines lived in nedrt-app.
 impl From<nedrt_engines::EngineError> for AppError {
     fn from(e: nedrt_engines::EngineError) -> Self {
         use nedrt_engines::EngineError as E;

@@ -22,7 +22,7 @@ use crate::EngineError;
 
 /// The preprocessing of `method`: none (conventional, DOE only), its
 /// Wiener prefilter from `prepared` (AI, DOE + Wiener), or its D-CNN, taken
-/// from `dcnns` (nedrt-app's `DcnnOptions::load_for` loads them).
+/// from `dcnns` (nedrt-command's `DcnnOptions::load_for` loads them).
 pub fn for_method(
     method: Method,
     prepared: &Prepared,

@@ -1,12 +1,13 @@
-//! nedrt-studies, layer 4 of nedrt: the studies and their reports — the
+//! nedrt-studies, layer 5 of nedrt: the studies and their reports — the
 //! evaluation (`eval`, with the eyes and the focus cues), speed against
 //! accuracy (`tradeoff`, with the simulator's fidelity), where each method
 //! breaks (`stability`), the paper's figures (`plots`) and the benchmarks —
 //! each a library function with typed options and a printable report,
-//! built on the commands' wiring in nedrt-app (its options, errors,
-//! preprocessing registry and service).
+//! built on the commands: `nedrt run` (nedrt-run) and the others
+//! (nedrt-app), with the options and error every command shares
+//! (nedrt-command) and the engines' preprocessing registry.
 //!
-//! Rule: above nedrt-app, below the binary; no clap, no indicatif, no
+//! Rule: above nedrt-run and nedrt-app, below the binary; no clap, no indicatif, no
 //! environment, as every library crate.
 
 pub mod bench;
