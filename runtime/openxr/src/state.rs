@@ -362,16 +362,70 @@ pub struct SwapchainInner {
     pub format: vk::Format,
     pub size: (u32, u32),
     pub layers: u32,
-    /// Acquired and not yet released, oldest first.
-    pub acquired: VecDeque<u32>,
-    /// The oldest acquired image was waited for.
-    pub waited: bool,
-    pub next: u32,
+    /// Which images the application holds.
+    pub cycle: ImageCycle,
     /// The image `xrEndFrame` shows: the last one released.
     pub last_released: Option<u32>,
-    /// A static swapchain hands its one image out once (§10.1).
-    pub static_image: bool,
-    pub acquired_ever: bool,
+}
+
+/// The order a swapchain's images go through (§10.1): acquired one after
+/// another, the oldest acquired waited for, then released; at most every
+/// image acquired at once, and a static swapchain's one image once.
+#[derive(Debug)]
+pub struct ImageCycle {
+    count: u32,
+    /// Acquired and not yet released, oldest first.
+    acquired: VecDeque<u32>,
+    /// The oldest acquired image was waited for.
+    waited: bool,
+    next: u32,
+    static_image: bool,
+    acquired_ever: bool,
+}
+
+impl ImageCycle {
+    pub fn new(count: u32, static_image: bool) -> Self {
+        Self {
+            count,
+            acquired: VecDeque::new(),
+            waited: false,
+            next: 0,
+            static_image,
+            acquired_ever: false,
+        }
+    }
+
+    /// `xrAcquireSwapchainImage`: the next image's index.
+    pub fn acquire(&mut self) -> XrResult<u32> {
+        if self.acquired.len() as u32 >= self.count || (self.static_image && self.acquired_ever) {
+            return Err(xr::Result::ERROR_CALL_ORDER_INVALID);
+        }
+        let i = self.next;
+        self.next = (i + 1) % self.count;
+        self.acquired.push_back(i);
+        self.acquired_ever = true;
+        Ok(i)
+    }
+
+    /// `xrWaitSwapchainImage`: the oldest acquired image, once.
+    pub fn wait(&mut self) -> XrResult {
+        if self.acquired.is_empty() || self.waited {
+            return Err(xr::Result::ERROR_CALL_ORDER_INVALID);
+        }
+        self.waited = true;
+        Ok(())
+    }
+
+    /// `xrReleaseSwapchainImage`: the image waited for, now released.
+    pub fn release(&mut self) -> XrResult<u32> {
+        if !self.waited {
+            return Err(xr::Result::ERROR_CALL_ORDER_INVALID);
+        }
+        self.waited = false;
+        self.acquired
+            .pop_front()
+            .ok_or(xr::Result::ERROR_CALL_ORDER_INVALID)
+    }
 }
 
 impl Drop for SwapchainInner {
@@ -385,6 +439,36 @@ impl Drop for SwapchainInner {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn images_are_acquired_waited_and_released_in_order() {
+        let mut c = ImageCycle::new(3, false);
+        // Nothing acquired: nothing to wait for or release.
+        assert_eq!(c.wait(), Err(xr::Result::ERROR_CALL_ORDER_INVALID));
+        assert_eq!(c.release(), Err(xr::Result::ERROR_CALL_ORDER_INVALID));
+        assert_eq!(
+            (c.acquire(), c.acquire(), c.acquire()),
+            (Ok(0), Ok(1), Ok(2))
+        );
+        // Every image held: a fourth is refused.
+        assert_eq!(c.acquire(), Err(xr::Result::ERROR_CALL_ORDER_INVALID));
+        // Released only after a wait, oldest first; one wait per image.
+        assert_eq!(c.release(), Err(xr::Result::ERROR_CALL_ORDER_INVALID));
+        assert_eq!(c.wait(), Ok(()));
+        assert_eq!(c.wait(), Err(xr::Result::ERROR_CALL_ORDER_INVALID));
+        assert_eq!(c.release(), Ok(0));
+        // The freed image comes round again after the others.
+        assert_eq!(c.acquire(), Ok(0));
+        assert_eq!((c.wait(), c.release()), (Ok(()), Ok(1)));
+    }
+
+    #[test]
+    fn a_static_swapchain_hands_its_image_out_once() {
+        let mut c = ImageCycle::new(1, true);
+        assert_eq!(c.acquire(), Ok(0));
+        assert_eq!((c.wait(), c.release()), (Ok(()), Ok(0)));
+        assert_eq!(c.acquire(), Err(xr::Result::ERROR_CALL_ORDER_INVALID));
+    }
 
     #[test]
     fn the_make_time_bound_follows_the_frames() {

@@ -3,7 +3,6 @@
 //! returns, so an image is free again as soon as it is acquired, and
 //! `xrWaitSwapchainImage` never waits.
 
-use std::collections::VecDeque;
 use std::sync::{Arc, Mutex};
 
 use ash::vk;
@@ -15,7 +14,7 @@ use crate::ffi::{
     XrResult, expect_type, guard, lock, non_null, non_null_mut, two_call, two_call_with,
 };
 use crate::formats;
-use crate::state::{Swapchain, SwapchainInner, registry};
+use crate::state::{ImageCycle, Swapchain, SwapchainInner, registry};
 use crate::vulkan::vk_error;
 
 /// Images a swapchain has: one being shown, one being rendered, one spare.
@@ -136,12 +135,8 @@ pub unsafe extern "system" fn create_swapchain(
             format,
             size: (info.width, info.height),
             layers: info.array_size,
-            acquired: VecDeque::new(),
-            waited: false,
-            next: 0,
+            cycle: ImageCycle::new(count, static_image),
             last_released: None,
-            static_image,
-            acquired_ever: false,
         };
         for _ in 0..count {
             let made = vk_ctx
@@ -223,14 +218,7 @@ pub unsafe extern "system" fn acquire_swapchain_image(
         }
         let sc = registry().swapchain(swapchain)?;
         let mut inner = lock(&sc.inner);
-        let n = inner.images.len() as u32;
-        if inner.acquired.len() as u32 >= n || (inner.static_image && inner.acquired_ever) {
-            return Err(xr::Result::ERROR_CALL_ORDER_INVALID);
-        }
-        let i = inner.next;
-        inner.next = (i + 1) % n;
-        inner.acquired.push_back(i);
-        inner.acquired_ever = true;
+        let i = inner.cycle.acquire()?;
         // SAFETY: non-null output.
         unsafe { index.write(i) };
         Ok(xr::Result::SUCCESS)
@@ -248,10 +236,7 @@ pub unsafe extern "system" fn wait_swapchain_image(
         expect_type(ty, xr::StructureType::SWAPCHAIN_IMAGE_WAIT_INFO)?;
         let sc = registry().swapchain(swapchain)?;
         let mut inner = lock(&sc.inner);
-        if inner.acquired.is_empty() || inner.waited {
-            return Err(xr::Result::ERROR_CALL_ORDER_INVALID);
-        }
-        inner.waited = true;
+        inner.cycle.wait()?;
         Ok(xr::Result::SUCCESS)
     })
 }
@@ -268,11 +253,7 @@ pub unsafe extern "system" fn release_swapchain_image(
         }
         let sc = registry().swapchain(swapchain)?;
         let mut inner = lock(&sc.inner);
-        if !inner.waited {
-            return Err(xr::Result::ERROR_CALL_ORDER_INVALID);
-        }
-        inner.last_released = inner.acquired.pop_front();
-        inner.waited = false;
+        inner.last_released = Some(inner.cycle.release()?);
         Ok(xr::Result::SUCCESS)
     })
 }
