@@ -1,8 +1,7 @@
 //! `nedrt`: the binary. Parses the command line ([`args`]), reads the
 //! environment once ([`settings`]), supplies the terminal's progress
 //! ([`console`]) and hands typed options to nedrt-run and nedrt-app
-//! ([`commands`]); errors
-//! are printed on one line with a non-zero exit.
+//! ([`commands`]); errors are printed on one line with a non-zero exit.
 
 mod args;
 mod commands;

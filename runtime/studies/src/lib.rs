@@ -7,8 +7,8 @@
 //! (nedrt-app), with the options and error every command shares
 //! (nedrt-command) and the engines' preprocessing registry.
 //!
-//! Rule: above nedrt-run and nedrt-app, below the binary; no clap, no indicatif, no
-//! environment, as every library crate.
+//! Rule: above nedrt-run and nedrt-app, below the binary; no clap, no
+//! indicatif, no environment, as every library crate.
 
 pub mod bench;
 pub mod bench_fft;
