@@ -11,7 +11,8 @@ at once than memory holds and a killed one is named; what a call brings
 back fits the tool's 8 files; the continued checkpoint that comes back is
 checked against its card, and the report says where the training started;
 the OpenXR step's runtime and client are unpacked from what travels (the
-2026-11-27 device run failed there: a local helper hid `unpack`)."""
+2026-11-27 device run failed there: a local helper hid `unpack`); a case's
+frame timelines come back as one record, column by column."""
 import importlib.util
 import json
 import subprocess
@@ -281,3 +282,23 @@ def test_the_openxr_runtime_and_client_are_unpacked_from_what_travels(tmp_path, 
     lib, client, env = check_openxr.runtime_files(Device())
     assert (lib.name, client.name) == ("libnedrt_openxr.so", "openxr_client")
     assert lib.read_bytes()[:4] == b"\x7fELF" and client.stat().st_mode & 0o111 and env == {}
+
+
+def test_a_cases_frame_timelines_become_one_record_column_by_column(tmp_path):
+    """`bench pipeline --frame-log` writes a file a case; the step brings each
+    back in summary.json (the call's eight files are taken), each key once."""
+    frames = [{"id": i, "outcome": "shown", "submitted_ms": 1.0 * i, "stages_ms": [[0.0, 1.0]] * 3} for i in range(3)]
+    refreshes = [{"refresh_ms": 11.1, "wake_ms": 9.9, "frame": 0}]
+    log = {"network": "model", "frame_path": "device", "views": 2, "refresh_hz": 90.0, "precision": "f16",
+           "frames": frames, "refreshes": refreshes}
+    path = tmp_path / "frames-model-device-stereo-f16.json"
+    path.write_text(json.dumps(log))
+    got = check_steps.frame_log(path)
+    assert got["kind"] == "frame_log" and got["file"] == path.name
+    assert (got["network"], got["views"], got["precision"]) == ("model", 2, "f16")
+    assert got["frames"]["id"] == [0, 1, 2] and got["frames"]["submitted_ms"] == [0.0, 1.0, 2.0]
+    assert got["frames"]["stages_ms"][1] == [[0.0, 1.0]] * 3
+    assert got["refreshes"] == {"refresh_ms": [11.1], "wake_ms": [9.9], "frame": [0]}
+    # A case that showed nothing has empty columns, not an error.
+    path.write_text(json.dumps({**log, "frames": [], "refreshes": []}))
+    assert check_steps.frame_log(path)["frames"] == {}

@@ -351,6 +351,8 @@ mod needs_gpu_bench {
             .args(["--panel", "32x32", "--frames", "2", "--max-seconds", "100"])
             .arg("--dump")
             .arg(dir.path())
+            .arg("--frame-log")
+            .arg(dir.path().join("frames"))
             .output_within(deadline::COMMAND, "nedrt bench pipeline");
         let stdout = String::from_utf8_lossy(&out.stdout);
         assert!(
@@ -404,6 +406,35 @@ mod needs_gpu_bench {
             }
         }
         assert!(stdout.contains("| half | device |"), "{stdout}");
+        // Each case's timelines: a frame for each shown or replaced at the
+        // panel, a refresh for each the present loop worked for; the table
+        // of where their time went.
+        assert!(stdout.contains("Where the frames' time went"), "{stdout}");
+        for r in &records {
+            let name = format!(
+                "frames-{}-{}-f32.json",
+                r["network"].as_str().expect("network"),
+                r["frame_path"].as_str().expect("path")
+            );
+            let path = dir.path().join("frames").join(&name);
+            let log: serde_json::Value =
+                serde_json::from_slice(&std::fs::read(&path).expect(&name)).expect("json");
+            let frames = log["frames"].as_array().expect("frames");
+            let shown = frames.iter().filter(|f| f["outcome"] == "shown").count() as u64;
+            let replaced = frames.iter().filter(|f| f["outcome"] == "replaced").count() as u64;
+            assert_eq!(shown, r["presented"].as_u64().expect("presented"), "{name}");
+            assert_eq!(
+                replaced,
+                r["dropped_at_present"].as_u64().expect("slot"),
+                "{name}"
+            );
+            let refreshes = log["refreshes"].as_array().expect("refreshes");
+            let with_frame = refreshes.iter().filter(|x| !x["frame"].is_null()).count() as u64;
+            assert_eq!(with_frame, shown, "{name}");
+            let rows = r["timeline"].as_array().expect("timeline");
+            let counted: u64 = rows.iter().map(|x| x["count"].as_u64().unwrap_or(0)).sum();
+            assert_eq!(counted, shown + replaced, "{r}");
+        }
     }
 }
 

@@ -191,8 +191,12 @@ def step_fft(r: Runner, s: Step, z: dict, ceilings: Step):
 
 def step_pipeline(r: Runner, s: Step, z: dict):
     r.need_gpu_adapter()
+    # Each case's frame timelines (issue 39: why a frame was dropped or
+    # late, frame by frame) come back in summary.json: the call's eight
+    # files are taken.
+    log = r.work / "frames"
     common = ["--frame-paths", "device", "--panel", z["panel"], "--frames", z["frames"], "--max-seconds",
-              z["pipeline_s"]]
+              z["pipeline_s"], "--frame-log", log]
     out = r.sh([r.nedrt, "--design", "multifocal", "bench", "pipeline", "--networks",
                 "none,wiener,refine10,half,full,model", *common], s.cap_s)
     # One view and two (issue 39): the no-network and the shipped-model cases.
@@ -204,6 +208,17 @@ def step_pipeline(r: Runner, s: Step, z: dict):
                  "model,full", *common], s.cap_s)
     text = out + "\n" + stereo + "\n\nAt `--precision f16` (`--conv-path auto`):\n\n" + half
     s.text = "\n".join(line for line in text.splitlines() if not line.startswith("{"))
+    s.records += [frame_log(p) for p in sorted(log.glob("frames-*.json"))]
+
+
+def frame_log(path: Path) -> dict:
+    """A case's frame timelines (`bench pipeline --frame-log`) as a record,
+    column by column (a key once, not once a frame)."""
+    log = json.loads(path.read_text())
+    columns = lambda rows: {k: [row[k] for row in rows] for k in (rows[0] if rows else {})}
+    return {"kind": "frame_log", "file": path.name,
+            **{k: log[k] for k in ("network", "frame_path", "views", "refresh_hz", "precision")},
+            "frames": columns(log["frames"]), "refreshes": columns(log["refreshes"])}
 
 
 def step_tradeoff(r: Runner, s: Step, z: dict):

@@ -377,6 +377,11 @@ pub struct BenchArgs {
     /// (or the calibration's): a panel twice as wide; each eye's engine time.
     #[arg(long)]
     pub stereo: bool,
+    /// pipeline: write each case's frame timelines (JSON, one file a case:
+    /// when each frame was submitted, went through each stage, and was
+    /// shown or replaced) into DIR.
+    #[arg(long, value_name = "DIR")]
+    pub frame_log: Option<PathBuf>,
     /// Folder for the exact inputs, for the numpy side.
     #[arg(long, default_value = "out/bench", value_name = "DIR")]
     pub dump: PathBuf,

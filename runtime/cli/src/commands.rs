@@ -230,6 +230,7 @@ pub fn run(cli: Cli) -> Result<()> {
                     panel_size: a.panel,
                     dump: a.dump,
                     stereo: a.stereo,
+                    frame_log: a.frame_log,
                 };
                 let table =
                     studies::bench_pipeline::run(&bench, &common, &mut |r| println!("{r}"))?;

@@ -29,7 +29,7 @@ use nedrt_core::Named;
 use nedrt_infer::{BackendKind, synth};
 use nedrt_optics::sim::Method;
 use nedrt_service::pipeline::service::Control;
-use nedrt_service::pipeline::stats::Report;
+use nedrt_service::pipeline::stats::{Report, summarize};
 
 /// A network the pipeline runs.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -91,6 +91,8 @@ pub struct PipelineBench {
     /// Two views side by side, each of the panel's size (a panel twice as
     /// wide), each eye its engine; the table adds each eye's engine time.
     pub stereo: bool,
+    /// Where each case's frame timelines go (none: not written).
+    pub frame_log: Option<PathBuf>,
 }
 
 /// Runs every case, handing each result to `on_record` (JSON) as it is
@@ -114,6 +116,25 @@ pub fn run(
         .unwrap_or((calib.panel.width_px, calib.panel.height_px));
     let w = if b.stereo { 2 * eye_w } else { eye_w };
     std::fs::create_dir_all(&b.dump).map_err(|e| AppError::output(&b.dump, e))?;
+    if let Some(dir) = &b.frame_log {
+        std::fs::create_dir_all(dir).map_err(|e| AppError::output(dir, e))?;
+    }
+    let period_ms = 1e3 / calib.panel.refresh_hz;
+    let ms2 = |v: Option<f64>| v.map_or("–".to_string(), |v| format!("{v:.2}"));
+    // Where the time of each case's frames went, by what became of them.
+    let mut why = String::from(
+        "\nWhere the frames' time went (the timelines' medians by what became of each frame: \
+         shown on its predicted refresh, before or after it, or replaced in the present slot by a \
+         newer frame; frames evicted from a queue before it have no timeline; to preprocess: \
+         submission to the preprocess stage; held: waiting for a present; preprocess: its own \
+         time less the hold; to ready: its end to the present slot; ready before take: the \
+         present loop's wake for the frame's predicted refresh less its ready time, negative \
+         when it missed it; present: the take to the present's end, of the frames shown; \
+         first/last s: when the first and last of them were submitted)\n\n\
+         | network | frame path | frames | count | to preprocess ms | held ms | preprocess ms | \
+         to ready ms | ready before take ms | present ms | first s | last s |\n\
+         | --- | --- | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |\n",
+    );
     let views = if b.stereo {
         format!("two views of {eye_w}×{h} (each eye its frames and engine), ")
     } else {
@@ -206,6 +227,47 @@ pub fn run(
             // How far ahead of its predicted refresh the source submitted
             // (its plan: the pipeline's bound and the loop's latch).
             let ahead_ms = report.clients.first().map(|c| c.mean_lead_ms);
+            let timeline = summarize(&report.frames, &report.refreshes, period_ms);
+            for r in &timeline {
+                let _ = writeln!(
+                    why,
+                    "| {} | {} | {} | {} | {:.2} | {:.2} | {:.2} | {:.2} | {} | {} | {:.2} | {:.2} |",
+                    network.name(),
+                    path.name(),
+                    r.frames,
+                    r.count,
+                    r.to_preprocess_ms,
+                    r.held_ms,
+                    r.preprocess_ms,
+                    r.to_ready_ms,
+                    ms2(r.ready_before_take_ms),
+                    ms2(r.present_ms),
+                    r.first_s,
+                    r.last_s
+                );
+            }
+            let precision = case.dcnn.backend_options.precision.name();
+            if let Some(dir) = &b.frame_log {
+                let stereo = if b.stereo { "-stereo" } else { "" };
+                let file = dir.join(format!(
+                    "frames-{}-{}{stereo}-{precision}.json",
+                    network.name(),
+                    path.name()
+                ));
+                let log = json!({
+                    "network": network.name(),
+                    "frame_path": path.name(),
+                    "views": if b.stereo { 2 } else { 1 },
+                    "refresh_hz": calib.panel.refresh_hz,
+                    "precision": precision,
+                    "frames": report.frames,
+                    "refreshes": report.refreshes,
+                });
+                let bytes = serde_json::to_vec(&log)
+                    .map_err(|e| AppError::output(&file, std::io::Error::other(e)))?;
+                nedrt_core::util::write_atomic(&file, &bytes)
+                    .map_err(|e| AppError::output(&file, e))?;
+            }
             let record = json!({
                 "kind": "pipeline",
                 "network": network.name(),
@@ -216,10 +278,13 @@ pub fn run(
                 "height": h,
                 "views": views,
                 "refresh_hz": calib.panel.refresh_hz,
-                "precision": case.dcnn.backend_options.precision.name(),
+                "precision": precision,
                 "prepare_s": prepare_s,
                 "presented": report.presented,
                 "dropped": dropped,
+                "dropped_queued": report.dropped_queued,
+                "dropped_at_present": report.dropped_at_present,
+                "timeline": timeline,
                 "dcnn_failures": report.dcnn_failures,
                 "e2e_p50_ms": e2e.as_ref().map(|s| s.p50_ms),
                 "e2e_p99_ms": e2e.as_ref().map(|s| s.p99_ms),
@@ -274,6 +339,7 @@ pub fn run(
             );
         }
     }
+    table.push_str(&why);
     Ok(table)
 }
 

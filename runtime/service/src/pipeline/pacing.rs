@@ -271,16 +271,28 @@ impl<T> NewestSlot<T> {
     /// holds on to (frames for a later refresh than a newer one may be
     /// for); at most [`WAITING`] wait.
     pub fn put_keeping(&self, item: T, keep: impl Fn(&T) -> bool) {
+        drop(self.put_keeping_dropping(item, keep));
+    }
+
+    /// As [`NewestSlot::put_keeping`], returning the items it replaced
+    /// (oldest first), for the caller to account for outside the lock.
+    pub fn put_keeping_dropping(&self, item: T, keep: impl Fn(&T) -> bool) -> Vec<T> {
         let mut slot = self.lock();
-        let before = slot.len();
-        slot.retain(|t| keep(t));
-        let mut dropped = before - slot.len();
+        let mut dropped = Vec::new();
+        for t in std::mem::take(&mut *slot) {
+            if keep(&t) {
+                slot.push_back(t);
+            } else {
+                dropped.push(t);
+            }
+        }
         if slot.len() >= WAITING {
-            slot.pop_back();
-            dropped += 1;
+            dropped.extend(slot.pop_back());
         }
         slot.push_back(item);
-        self.dropped.fetch_add(dropped as u64, Ordering::Relaxed);
+        self.dropped
+            .fetch_add(dropped.len() as u64, Ordering::Relaxed);
+        dropped
     }
 
     /// Takes the newest item, if any, dropping older ones; never waits.
@@ -291,11 +303,18 @@ impl<T> NewestSlot<T> {
     /// Takes the newest item that `due` says is due, dropping the older
     /// ones; the items after it (not due yet) stay.
     pub fn take_due(&self, due: impl Fn(&T) -> bool) -> Option<T> {
+        self.take_due_dropping(due).0
+    }
+
+    /// As [`NewestSlot::take_due`], with the items it dropped (oldest first).
+    pub fn take_due_dropping(&self, due: impl Fn(&T) -> bool) -> (Option<T>, Vec<T>) {
         let mut slot = self.lock();
-        let i = slot.iter().rposition(due)?;
+        let Some(i) = slot.iter().rposition(due) else {
+            return (None, Vec::new());
+        };
         self.dropped.fetch_add(i as u64, Ordering::Relaxed);
-        slot.drain(..i);
-        slot.pop_front()
+        let dropped: Vec<T> = slot.drain(..i).collect();
+        (slot.pop_front(), dropped)
     }
 
     /// Whether an item waits.
@@ -402,6 +421,21 @@ mod tests {
         slot.put(4);
         assert_eq!(slot.take(), Some(4));
         assert_eq!(slot.dropped(), 2);
+    }
+
+    #[test]
+    fn the_replaced_items_come_back_to_the_caller_oldest_first() {
+        let slot = NewestSlot::new();
+        assert!(slot.put_keeping_dropping(1, |_| false).is_empty());
+        assert_eq!(slot.put_keeping_dropping(2, |_| false), [1]);
+        // 3 is kept (a frame held for a later refresh), 4 replaces 2.
+        assert!(slot.put_keeping_dropping(3, |_| false).len() == 1);
+        assert!(slot.put_keeping_dropping(4, |&x| x == 3).is_empty());
+        assert_eq!(slot.put_keeping_dropping(5, |&x| x == 3), [4]);
+        assert_eq!(slot.take_due_dropping(|&x| x > 3), (Some(5), vec![3]));
+        assert_eq!(slot.take_due_dropping(|_| true), (None, vec![]));
+        // Every item handed back was counted, and only those.
+        assert_eq!(slot.dropped(), 4);
     }
 
     #[test]

@@ -43,7 +43,7 @@ use super::channel::newest_channel;
 use super::device_frames::DeviceFrames;
 use super::frame::ViewFrame;
 use super::pacing::{Clock, DisplaySchedule, Estimate, NewestSlot, Pacer, PresentGate};
-use super::stats::{Report, Stage, Stats};
+use super::stats::{MARKED_STAGES, Outcome, Report, Stage, Stats};
 use crate::compose::{LayerSet, ViewGeometry, ViewRegion};
 use crate::present::transfer::Transfer;
 use crate::present::{DisplayFrame, PanelFrame};
@@ -127,6 +127,10 @@ fn spawn_stage<I: Send + 'static, O: Send + 'static>(
                 drop(span);
                 stats.record(stage, ns);
                 if let Some(item) = result {
+                    let mut stages_ns = t.stages_ns;
+                    if let Some(m) = MARKED_STAGES.iter().position(|&s| s == stage.name()) {
+                        stages_ns[m] = [t0, t0 + ns];
+                    }
                     out(Timed {
                         item,
                         id: t.id,
@@ -138,6 +142,7 @@ fn spawn_stage<I: Send + 'static, O: Send + 'static>(
                         predicted_ns: t.predicted_ns,
                         hold: t.hold,
                         ready_ns: t0 + ns,
+                        stages_ns,
                     });
                 }
             }
@@ -179,6 +184,7 @@ impl Service {
         }
         views::check_regions(&regions, (panel.width, panel.height))?;
         let stats = Arc::new(Stats::default());
+        stats.set_timeline_origin(clock.now_ns());
         let queued = stats.dropped_queued.clone();
         // A frame of each view may wait (two eyes alternating); an eye that
         // submits twice while the upload stage is busy can still evict the
@@ -307,13 +313,29 @@ impl Service {
         )?);
         let transfer = panel.transfer.clone();
         let slot_in = slot.clone();
+        let (stats_in, stopping_in) = (stats.clone(), stopping.clone());
         let encode = spawn_stage(
             "encode",
             Stage::Encode,
             dcnn_rx,
             // A frame held for its display time is kept when a newer one
             // comes (it may be for a later refresh still).
-            move |t| slot_in.put_keeping(t, |old| old.hold),
+            move |t| {
+                let (by, at_ns) = (t.id, t.ready_ns);
+                for old in slot_in.put_keeping_dropping(t, |old| old.hold) {
+                    // Once the loop has ended these count as in flight at
+                    // the stop (shutdown), not as replaced.
+                    if !stopping_in.load(Ordering::SeqCst) {
+                        stats_in.record_timeline(
+                            &old.marks(),
+                            Outcome::Replaced,
+                            at_ns,
+                            None,
+                            Some(by),
+                        );
+                    }
+                }
+            },
             context,
             move |id, _, f: Processed, _, _| {
                 Some(match f {

@@ -760,3 +760,73 @@ fn a_frame_with_its_display_time_is_not_shown_before_it() {
         }
     }
 }
+
+/// Every frame that reaches the panel's slot leaves its timeline: shown,
+/// or replaced by the newer frame that took its refresh; each with its
+/// stages in order on the service's clock. Two frames for one display time
+/// 300 ms on: the first waits for it in the slot, and the second, ready
+/// before it too, is the one shown.
+#[test]
+fn each_frame_at_the_panel_leaves_its_timeline_shown_or_replaced() {
+    use crate::pipeline::stats::Outcome;
+    let stage = PreprocessStage {
+        primary: Box::new(Identity),
+        fallback: None,
+    };
+    let mut service =
+        Service::start(panel(), Engines::host(stage), Arc::new(SystemClock)).expect("start");
+    let compositor = service.compositor().expect("open");
+    service.close_ingest();
+    let stats = service.stats().clone();
+    let display_ns = crate::pipeline::pacing::monotonic_ns() + 300_000_000;
+    let feeder = std::thread::spawn(move || {
+        for (i, v) in [10, 20].into_iter().enumerate() {
+            compositor
+                .submit_at(None, grey(i as u64, v), Some(display_ns))
+                .expect("submit");
+            // In the slot before the next comes (the ingest queue holds one).
+            wait_until_within(THREAD, &format!("frame {i} to be encoded"), || {
+                stats.histogram(Stage::Encode).count() > i as u64
+            });
+        }
+    });
+    let (report, sink, service) = present_until_drained(service, Control::default());
+    join_within(feeder, THREAD, "the feeder to submit both frames");
+    drop(service);
+    assert_eq!(sink.0.len(), 1);
+    assert_eq!((report.presented, report.dropped_at_present), (1, 1));
+    let f = &report.frames;
+    let outcomes: Vec<(u64, Outcome, Option<u64>)> =
+        f.iter().map(|t| (t.id, t.outcome, t.replaced_by)).collect();
+    assert_eq!(
+        outcomes,
+        [(0, Outcome::Replaced, Some(1)), (1, Outcome::Shown, None)]
+    );
+    for t in f {
+        let [upload, preprocess, encode] = t.stages_ms;
+        let order = [
+            t.submitted_ms,
+            upload[0],
+            upload[1],
+            preprocess[0],
+            preprocess[1],
+            encode[0],
+            encode[1],
+        ];
+        assert!(order.windows(2).all(|w| w[0] <= w[1]), "{t:?}");
+        assert_eq!(t.ready_ms, encode[1], "{t:?}");
+        let after = t.replaced_ms.or(t.taken_ms).expect("taken or replaced");
+        assert!(after >= t.ready_ms, "{t:?}");
+        // The display time the client gave, for both.
+        assert_eq!(t.predicted_ms, f[0].predicted_ms, "{t:?}");
+        assert!(t.predicted_ms > t.submitted_ms + 200.0, "{t:?}");
+    }
+    let shown = &f[1];
+    let (taken, on) = (shown.taken_ms.unwrap(), shown.shown_ms.expect("shown"));
+    // Held for its display time: taken at most a refresh (1 ms) and a
+    // half before it, on the panel at or after it.
+    assert!(
+        taken >= shown.predicted_ms - 1.5 && on >= shown.predicted_ms - 0.5,
+        "{shown:?}"
+    );
+}

@@ -11,7 +11,12 @@ use super::latency::Histogram;
 use nedrt_core::preprocess::HostTraffic;
 
 mod report;
+mod timeline;
 pub use report::{ClientReport, HostTrafficMean, Report, StageReport, TrafficReport};
+pub use timeline::{
+    FrameMarks, FrameTiming, MARKED_STAGES, Outcome, RefreshMarks, RefreshTiming, TIMELINE_FRAMES,
+    TimelineRow, summarize,
+};
 
 /// The pipeline's stages, in order, for latency accounting.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -123,6 +128,8 @@ pub struct Stats {
     view_dcnn: [Mutex<Histogram>; 2],
     /// Resident set size samples (KiB) taken every `RSS_EVERY` presents.
     rss_kib: Mutex<Vec<u64>>,
+    /// The newest frames' timelines (shown or replaced at the panel).
+    timeline: Mutex<timeline::Timeline>,
     pub backend: Mutex<String>,
     /// Where frames go between the client and the panel.
     pub frame_path: Mutex<String>,
@@ -255,6 +262,39 @@ impl Stats {
             .clone()
     }
 
+    /// Timelines are in ms from `origin_ns` (the service's start).
+    pub fn set_timeline_origin(&self, origin_ns: u64) {
+        self.timeline
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .set_origin(origin_ns);
+    }
+
+    /// A frame left the pipeline at the panel: `outcome` at `at_ns` (taken
+    /// by the present loop, or replaced by frame `by`), shown on the
+    /// refresh `shown_ns`.
+    pub fn record_timeline(
+        &self,
+        marks: &FrameMarks,
+        outcome: Outcome,
+        at_ns: u64,
+        shown_ns: Option<u64>,
+        by: Option<u64>,
+    ) {
+        self.timeline
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .record(marks, outcome, at_ns, shown_ns, by);
+    }
+
+    /// The present loop's work for a refresh (stats::timeline).
+    pub fn record_refresh(&self, marks: &RefreshMarks) {
+        self.timeline
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .record_refresh(marks);
+    }
+
     pub fn sample_rss(&self) {
         if let Some(kib) = resident_kib() {
             self.rss_kib
@@ -267,6 +307,12 @@ impl Stats {
     /// A snapshot for reports.
     pub fn snapshot(&self) -> Report {
         let load = |a: &AtomicU64| a.load(Ordering::Relaxed);
+        // One lock for both (a guard in the literal below would live to
+        // its end).
+        let (frames, refreshes) = {
+            let t = self.timeline.lock().unwrap_or_else(|p| p.into_inner());
+            (t.frames(), t.refreshes())
+        };
         Report {
             backend: self
                 .backend
@@ -350,6 +396,8 @@ impl Stats {
                 .lock()
                 .unwrap_or_else(|p| p.into_inner())
                 .clone(),
+            frames,
+            refreshes,
         }
     }
 }

@@ -8,7 +8,7 @@ use crate::compose::{LayerError, LayerSet, QuadLayer, ViewGeometry, ViewRegion};
 use crate::pipeline::channel::NewestSender;
 use crate::pipeline::frame::{FrameError, SubmittedFrame, validate};
 use crate::pipeline::pacing::{Clock, DisplaySchedule, SubmitPlan};
-use crate::pipeline::stats::Stats;
+use crate::pipeline::stats::{FrameMarks, Stats};
 
 /// A frame in flight with its timing.
 #[derive(Debug)]
@@ -34,6 +34,23 @@ pub(super) struct Timed<T> {
     /// When the last stage so far finished it (after the encode: ready
     /// for the panel).
     pub(super) ready_ns: u64,
+    /// When each stage took it and finished it (stats::MARKED_STAGES).
+    pub(super) stages_ns: [[u64; 2]; 3],
+}
+
+impl<T> Timed<T> {
+    /// Its times, for its timeline (stats::timeline).
+    pub(super) fn marks(&self) -> FrameMarks {
+        FrameMarks {
+            id: self.id,
+            owner: self.owner,
+            submit_ns: self.submit_ns,
+            predicted_ns: self.predicted_ns,
+            stages_ns: self.stages_ns,
+            held_ns: self.waited_ns,
+            ready_ns: self.ready_ns,
+        }
+    }
 }
 
 /// A submission: a frame for one view, or (`None`) a panel-sized frame.
@@ -188,6 +205,7 @@ impl Compositor {
             predicted_ns: given.unwrap_or_else(|| self.schedule.predicted_display_ns(now)),
             hold: hold && given.is_some(),
             ready_ns: now,
+            stages_ns: [[0; 2]; 3],
         });
         Ok(())
     }

@@ -5,9 +5,10 @@
 use std::sync::atomic::Ordering;
 
 use super::Service;
+use super::compositor::Timed;
 use super::control::Control;
 use crate::pipeline::pacing::{Estimate, PresentPacer};
-use crate::pipeline::stats::{RSS_EVERY, Report, ShownFrame, Stage};
+use crate::pipeline::stats::{Outcome, RSS_EVERY, RefreshMarks, Report, ShownFrame, Stage};
 use crate::present::{PanelFrame, PresentError, Presented, Sink};
 
 impl Service {
@@ -68,16 +69,14 @@ impl Service {
             // A frame a client rendered for a later refresh (its display
             // time) waits for it in the slot: the newest frame due is shown.
             let half = pacer.period_ns() / 2;
-            let due = |t: &super::compositor::Timed<PanelFrame>| {
-                !t.hold || t.predicted_ns <= wake.vsync_ns + half
-            };
-            let t = match self.slot.take_due(due) {
+            let due = |t: &Timed<PanelFrame>| !t.hold || t.predicted_ns <= wake.vsync_ns + half;
+            let t = match self.take_due(due) {
                 Some(t) => Some(t),
                 None => {
                     // Read before the second look: once drained, no frame can
                     // arrive after it.
                     let drained = self.drained.load(Ordering::SeqCst);
-                    match self.slot.take_due(due) {
+                    match self.take_due(due) {
                         Some(t) => Some(t),
                         None if drained && !control.keep_open && self.slot.is_empty() => break,
                         None => {
@@ -94,7 +93,15 @@ impl Service {
                     }
                 }
             };
+            let refresh = RefreshMarks {
+                refresh_ns: wake.vsync_ns,
+                wake_ns: wake.wake_ns,
+                missed: wake.missed,
+                bound_ns: self.schedule.pipeline_bound_ns(),
+                ..RefreshMarks::default()
+            };
             let Some(t) = t else {
+                self.stats.record_refresh(&refresh);
                 continue;
             };
             let t0 = self.clock.now_ns();
@@ -118,6 +125,18 @@ impl Service {
             } else {
                 pacer.finished(&wake, now).shown_ns
             };
+            let (outcome, shown_ns) = match shown {
+                Presented::Shown => (Outcome::Shown, Some(on_panel)),
+                Presented::Skipped => (Outcome::Skipped, None),
+            };
+            self.stats
+                .record_timeline(&t.marks(), outcome, t0, shown_ns, None);
+            self.stats.record_refresh(&RefreshMarks {
+                taken_ns: Some(t0),
+                presented_ns: Some(now),
+                frame: Some(t.id),
+                ..refresh
+            });
             match shown {
                 Presented::Shown => {
                     self.stats.present_traffic.record(sink.last_traffic());
@@ -154,12 +173,11 @@ impl Service {
                         self.stats.sample_rss();
                     }
                     if n.is_multiple_of(10) {
-                        let s = self.stats.snapshot();
+                        // Not a snapshot: that copies the timelines too.
                         progress.status(&format!(
-                            "{} presented, {} dropped, {} rejected, e2e p50 {:.1} ms",
-                            s.presented,
-                            s.dropped_queued + s.dropped_at_present,
-                            s.rejected_total(),
+                            "{n} presented, {} dropped, {} rejected, e2e p50 {:.1} ms",
+                            self.stats.dropped_queued.load(Relaxed) + self.slot.dropped(),
+                            self.stats.rejected_total(),
                             self.stats.histogram(Stage::EndToEnd).quantile_ns(0.5) as f64 / 1e6
                         ));
                     }
@@ -173,5 +191,19 @@ impl Service {
         progress.finish();
         self.stop_stages();
         Ok(self.stats.snapshot())
+    }
+
+    /// The newest frame due in the slot; the older ones it replaces go
+    /// into the timelines as replaced by it.
+    fn take_due(&self, due: impl Fn(&Timed<PanelFrame>) -> bool) -> Option<Timed<PanelFrame>> {
+        let (taken, dropped) = self.slot.take_due_dropping(due);
+        if let Some(t) = &taken {
+            let now = self.clock.now_ns();
+            for old in dropped {
+                self.stats
+                    .record_timeline(&old.marks(), Outcome::Replaced, now, None, Some(t.id));
+            }
+        }
+        taken
     }
 }

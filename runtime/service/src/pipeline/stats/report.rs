@@ -106,6 +106,11 @@ pub struct Report {
     /// stages run on the host and move nothing).
     pub traffic: Vec<TrafficReport>,
     pub rss_kib: Vec<u64>,
+    /// The newest frames' timelines (stats::timeline), by submission.
+    pub frames: Vec<super::FrameTiming>,
+    /// The present loop's newest refreshes: its wake, its take, its
+    /// present's end and the frame shown.
+    pub refreshes: Vec<super::RefreshTiming>,
 }
 
 /// One submitter's frames against the display-time predictions (client
