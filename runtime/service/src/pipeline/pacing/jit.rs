@@ -116,6 +116,14 @@ impl PresentPacer {
         (self.work.mean_ns() + self.margin_ns()).min(self.period_ns())
     }
 
+    /// How long before a refresh a frame may still be taken for it when
+    /// none was there at the wake: the work's mean and two deviations
+    /// (the wake keeps the whole margin; a frame that comes after it would
+    /// otherwise miss this refresh and be replaced at the next).
+    pub fn latest_take_ns(&self) -> u64 {
+        (self.work.mean_ns() + 2 * self.work.dev_ns()).min(self.lead_ns())
+    }
+
     /// The next refresh whose wake-up is not past at `now_ns`.
     pub fn next(&mut self, now_ns: u64) -> Wake {
         let lead = self.lead_ns();

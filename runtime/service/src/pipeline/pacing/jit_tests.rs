@@ -256,3 +256,24 @@ fn estimates_follow_the_mean_and_the_deviation() {
     assert!(e.mean_ns().abs_diff(2000) < 200, "{e:?}");
     assert!(e.bound_ns() >= 3000, "{e:?}");
 }
+
+/// When nothing is due at the wake, a frame may still be taken until the
+/// work's mean and two deviations before the refresh: inside the wake's
+/// lead (which keeps four deviations and the floor), never past it.
+#[test]
+fn the_latest_take_lies_between_the_work_and_the_wake() {
+    let mut pacer = PresentPacer::new(90.0, 0);
+    let period = pacer.period_ns();
+    for i in 0..64u64 {
+        let wake = pacer.next(i * period);
+        // Work of 1 ms ± 0.2 ms.
+        let work = 1_000_000 + (i % 3) * 200_000;
+        pacer.finished(&wake, wake.wake_ns + work);
+    }
+    let (latest, lead) = (pacer.latest_take_ns(), pacer.lead_ns());
+    assert!(latest >= 1_000_000 && latest < lead, "{latest} {lead}");
+    assert_eq!(latest, pacer.work.mean_ns() + 2 * pacer.work.dev_ns());
+    // Before any work is known, the latest take is the wake itself at most.
+    let fresh = PresentPacer::new(90.0, 0);
+    assert!(fresh.latest_take_ns() <= fresh.lead_ns());
+}

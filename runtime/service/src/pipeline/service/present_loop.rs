@@ -7,9 +7,12 @@ use std::sync::atomic::Ordering;
 use super::Service;
 use super::compositor::Timed;
 use super::control::Control;
-use crate::pipeline::pacing::{Estimate, PresentPacer};
+use crate::pipeline::pacing::{Estimate, PresentPacer, Wake};
 use crate::pipeline::stats::{Outcome, RSS_EVERY, RefreshMarks, Report, ShownFrame, Stage};
 use crate::present::{PanelFrame, PresentError, Presented, Sink};
+
+/// How often the loop looks into the slot while it waits for a late frame.
+const LATE_LATCH_POLL_NS: u64 = 100_000;
 
 impl Service {
     /// Presents at the panel's refresh until the pipeline has drained (all
@@ -70,6 +73,8 @@ impl Service {
             // time) waits for it in the slot: the newest frame due is shown.
             let half = pacer.period_ns() / 2;
             let due = |t: &Timed<PanelFrame>| !t.hold || t.predicted_ns <= wake.vsync_ns + half;
+            // Time spent waiting for a frame that came after the wake.
+            let mut latched_ns = 0;
             let t = match self.take_due(due) {
                 Some(t) => Some(t),
                 None => {
@@ -83,12 +88,22 @@ impl Service {
                             if drained && let Some(frame) = &last {
                                 // Keep the window's content (uncounted re-present).
                                 sink.present(frame.codes())?;
+                                None
+                            } else if let Some((t, waited)) = (!drained && !display_paced)
+                                .then(|| {
+                                    let latest = pacer.latest_take_ns();
+                                    self.late_latch(wake.vsync_ns.saturating_sub(latest), &due)
+                                })
+                                .flatten()
+                            {
+                                latched_ns = waited;
+                                Some(t)
                             } else {
                                 // Nothing to show at this refresh: let it pass.
                                 self.gate.done(wake.vsync_ns);
                                 self.clock.sleep_until_ns(wake.vsync_ns);
+                                None
                             }
-                            None
                         }
                     }
                 }
@@ -123,7 +138,13 @@ impl Service {
             let on_panel = if display_paced {
                 wake.vsync_ns.max(now)
             } else {
-                pacer.finished(&wake, now).shown_ns
+                // The wait for a late frame is not the loop's work: counted
+                // as such, it would wake the loop earlier for good.
+                let worked = Wake {
+                    wake_ns: wake.wake_ns + latched_ns,
+                    ..wake
+                };
+                pacer.finished(&worked, now).shown_ns
             };
             let (outcome, shown_ns) = match shown {
                 Presented::Shown => (Outcome::Shown, Some(on_panel)),
@@ -191,6 +212,31 @@ impl Service {
         progress.finish();
         self.stop_stages();
         Ok(self.stats.snapshot())
+    }
+
+    /// Nothing was due at the wake: waits until `deadline_ns` (the latest
+    /// take that can still make the refresh, [`PresentPacer::latest_take_ns`])
+    /// for a frame that is ready just after it, which would otherwise miss
+    /// this refresh and be replaced at the next (the timelines of lavapipe
+    /// runs showed such frames ready 0.4–0.6 ms after the wake, 2 ms before
+    /// the refresh). The frame and how long it was waited for.
+    fn late_latch(
+        &self,
+        deadline_ns: u64,
+        due: &impl Fn(&Timed<PanelFrame>) -> bool,
+    ) -> Option<(Timed<PanelFrame>, u64)> {
+        let t0 = self.clock.now_ns();
+        loop {
+            let now = self.clock.now_ns();
+            if now >= deadline_ns {
+                return None;
+            }
+            self.clock
+                .sleep_until_ns((now + LATE_LATCH_POLL_NS).min(deadline_ns));
+            if let Some(t) = self.take_due(due) {
+                return Some((t, self.clock.now_ns().saturating_sub(t0)));
+            }
+        }
     }
 
     /// The newest frame due in the slot; the older ones it replaces go
