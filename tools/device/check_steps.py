@@ -49,7 +49,7 @@ STEPS = [
     ("pipeline", "nedrt bench pipeline at 1920×1080 and the panel's refresh on the device path: none, the "
                  "Wiener, refine:10 (its GPU time per frame), half, full, the shipped model; then two views "
                  "(--stereo): none and the shipped model; the shipped model and the full network at "
-                 "--precision f16", 110, 1),
+                 "--precision f16; every case's frame timelines (why a frame was dropped or late)", 110, 1),
     ("teacher", "the D-CNN's teacher: the training photographs' optimum with nedrt's solver on the device "
                 "(refine:1000@target, wgpu), the kernels and the validation sets with nedrt prefilter on the CPU",
      105, 1),
