@@ -722,6 +722,20 @@ mod needs_gpu {
     }
 }
 
+/// A service on the host with no preprocessing, and the one handle that
+/// submits to it (the pipeline drains once it is dropped).
+fn identity_service() -> (Service, Compositor) {
+    let stage = PreprocessStage {
+        primary: Box::new(Identity),
+        fallback: None,
+    };
+    let mut service =
+        Service::start(panel(), Engines::host(stage), Arc::new(SystemClock)).expect("start");
+    let compositor = service.compositor().expect("open");
+    service.close_ingest();
+    (service, compositor)
+}
+
 /// One frame submitted 60 ms ahead of the refresh it names: with the
 /// display time a client gives (`submit_at`) or made for that refresh in
 /// process (`submit_for`, the pattern and folder sources), it waits for
@@ -731,14 +745,7 @@ mod needs_gpu {
 #[test]
 fn a_frame_made_for_a_refresh_is_not_shown_before_it() {
     for how in ["submit_at", "submit_for", "submit"] {
-        let stage = PreprocessStage {
-            primary: Box::new(Identity),
-            fallback: None,
-        };
-        let mut service =
-            Service::start(panel(), Engines::host(stage), Arc::new(SystemClock)).expect("start");
-        let compositor = service.compositor().expect("open");
-        service.close_ingest();
+        let (service, compositor) = identity_service();
         let display_ns = crate::pipeline::pacing::monotonic_ns() + 60_000_000;
         let submitted = match how {
             "submit_at" => compositor.submit_at(None, grey(0, 10), Some(display_ns)),
@@ -778,14 +785,7 @@ fn a_frame_made_for_a_refresh_is_not_shown_before_it() {
 #[test]
 fn each_frame_at_the_panel_leaves_its_timeline_shown_or_replaced() {
     use crate::pipeline::stats::Outcome;
-    let stage = PreprocessStage {
-        primary: Box::new(Identity),
-        fallback: None,
-    };
-    let mut service =
-        Service::start(panel(), Engines::host(stage), Arc::new(SystemClock)).expect("start");
-    let compositor = service.compositor().expect("open");
-    service.close_ingest();
+    let (service, compositor) = identity_service();
     let stats = service.stats().clone();
     let display_ns = crate::pipeline::pacing::monotonic_ns() + 300_000_000;
     let feeder = std::thread::spawn(move || {
