@@ -128,7 +128,7 @@ fn spawn_stage<I: Send + 'static, O: Send + 'static>(
                 stats.record(stage, ns);
                 if let Some(item) = result {
                     let mut stages_ns = t.stages_ns;
-                    if let Some(m) = MARKED_STAGES.iter().position(|&s| s == stage.name()) {
+                    if let Some(m) = MARKED_STAGES.iter().position(|&s| s == stage) {
                         stages_ns[m] = [t0, t0 + ns];
                     }
                     out(Timed {

@@ -17,7 +17,11 @@ use serde::Serialize;
 pub const TIMELINE_FRAMES: usize = 4096;
 
 /// The stages a timeline marks, in order.
-pub const MARKED_STAGES: [&str; 3] = ["upload", "preprocess", "encode"];
+pub const MARKED_STAGES: [super::Stage; 3] = [
+    super::Stage::Upload,
+    super::Stage::Preprocess,
+    super::Stage::Encode,
+];
 
 /// What became of a frame at the panel.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
