@@ -91,13 +91,13 @@ impl Compositor {
     }
 
     /// As [`Compositor::submit`], for a frame made for the refresh at
-    /// `refresh_ns` ([`Compositor::submit_view_for`]): held for it.
+    /// `refresh_ns` ([`Compositor::submit_view_for`]).
     pub fn submit_for(
         &self,
         frame: SubmittedFrame,
         refresh_ns: Option<u64>,
     ) -> Result<(), FrameError> {
-        self.submit_to(None, frame, refresh_ns, true)
+        self.submit_to(None, frame, refresh_ns, false)
     }
 
     /// As [`Compositor::submit`], a frame of view `view`'s size for that
@@ -108,17 +108,17 @@ impl Compositor {
 
     /// As [`Compositor::submit_view`], for a frame made for the refresh at
     /// `refresh_ns` (from [`Compositor::plan_submission`]): that refresh is
-    /// its prediction, and it is not shown before it, as an OpenXR frame
-    /// is held for its display time (`None`: predicted at submission,
-    /// shown when ready). Shown early, frames made for successive
-    /// refreshes could come ready at one take, and the older be replaced.
+    /// its prediction (`None`: predicted at submission). It is shown when
+    /// ready, early if so: held, frames planned seconds ahead by an
+    /// estimate a slow first frame inflated waited for those refreshes
+    /// (the H200, 2026-11-28: 30 of 200 shown; docs/benchmarks.md).
     pub fn submit_view_for(
         &self,
         view: u8,
         frame: SubmittedFrame,
         refresh_ns: Option<u64>,
     ) -> Result<(), FrameError> {
-        self.submit_view_timed(view, frame, refresh_ns, true)
+        self.submit_view_timed(view, frame, refresh_ns, false)
     }
 
     /// As [`Compositor::submit_view_for`], for a client's frame with the
