@@ -137,7 +137,10 @@ def test_the_report_says_case_by_case_whether_the_pacing_target_is_met():
             "height": 1080, "refresh_hz": 90.0, "presented": 200, "dcnn_failures": 0}
     steps["pipeline"].records += [
         {**base, "network": "none", "views": 1, "gpu_p50_ms": 0.0, "e2e_p50_ms": 5.0, "dropped": 0},
-        {**base, "network": "wiener", "views": 1, "gpu_p50_ms": 1.4, "e2e_p50_ms": 9.4, "dropped": 1},
+        {**base, "network": "wiener", "views": 1, "gpu_p50_ms": 1.4, "e2e_p50_ms": 9.4, "dropped": 1,
+         "stages": [{"stage": "preprocess", "count": 200, "p50_ms": 2.95},
+                    {"stage": "preprocess-record", "count": 200, "p50_ms": 0.61},
+                    {"stage": "encode", "count": 0, "p50_ms": 0.0}]},
         {**base, "network": "model", "views": 1, "precision": "f16", "gpu_p50_ms": 6.0, "e2e_p50_ms": 11.5,
          "dropped": 0},
         # Two eyes of 7.1 ms each: 14.2 ms, over an 11.1 ms refresh.
@@ -158,12 +161,12 @@ def test_the_report_says_case_by_case_whether_the_pacing_target_is_met():
     ]
     steps["pipeline"].text = "| network |"
     md = check_report.report(steps, {"mode": "device", "date": "today", "commit": "abc", "device": "GPU"})
-    assert "| none | 1 | f32 | 1920×1080 | 11.11 | 0.00 | 5.00 | 0 | yes |" in md
-    assert "| wiener | 1 | f32 | 1920×1080 | 11.11 | 1.40 | 9.40 | 1 | no |" in md
-    assert "| model | 1 | f16 | 1920×1080 | 11.11 | 6.00 | 11.50 | 0 | no |" in md
-    assert "| model | 2 | f32 | 3840×1080 | 11.11 | 14.20 | 39.30 | 4 | – (GPU time over a refresh) |" in md
-    assert "| half | 1 | f32 | 1920×1080 | 11.11 | 0.00 | 4.00 | 0 | no (fell back" in md
-    assert "| full | 1 | f32 | 1920×1080 | 11.11 | 0.00 | 0.00 | 0 | no (nothing shown) |" in md
+    assert "| none | 1 | f32 | 1920×1080 | 11.11 | 0.00 | – | – | 5.00 | 0 | yes |" in md
+    assert "| wiener | 1 | f32 | 1920×1080 | 11.11 | 1.40 | 2.95 | 0.61 | 9.40 | 1 | no |" in md
+    assert "| model | 1 | f16 | 1920×1080 | 11.11 | 6.00 | – | – | 11.50 | 0 | no |" in md
+    assert "| model | 2 | f32 | 3840×1080 | 11.11 | 14.20 | – | – | 39.30 | 4 | – (GPU time over a refresh) |" in md
+    assert "| half | 1 | f32 | 1920×1080 | 11.11 | 0.00 | – | – | 4.00 | 0 | no (fell back" in md
+    assert "| full | 1 | f32 | 1920×1080 | 11.11 | 0.00 | – | – | 0.00 | 0 | no (nothing shown) |" in md
     assert "| 8×1080 |" not in md and "| 16×8 |" not in md
 
 

@@ -70,6 +70,17 @@ impl DeviceStage for FailsAfter<Box<dyn DeviceStage>> {
         }
         self.inner.record(encoder, input, output, width, height)
     }
+
+    /// Not a frame: the faults count frames.
+    fn warm_up(
+        &mut self,
+        input: &wgpu::Buffer,
+        output: &wgpu::Buffer,
+        width: usize,
+        height: usize,
+    ) -> Result<(), GpuError> {
+        self.inner.warm_up(input, output, width, height)
+    }
 }
 
 #[cfg(test)]
@@ -89,6 +100,55 @@ mod tests {
                 matches!(&e, PreprocessError::Engine { reason, .. } if reason.contains("device lost")),
                 "{e}"
             );
+        }
+    }
+
+    /// A device stage that records nothing.
+    #[derive(Debug)]
+    struct Nothing;
+
+    impl DeviceStage for Nothing {
+        fn describe(&self) -> String {
+            "nothing".into()
+        }
+        fn record(
+            &mut self,
+            _: &mut wgpu::CommandEncoder,
+            _: &wgpu::Buffer,
+            _: &wgpu::Buffer,
+            _: usize,
+            _: usize,
+        ) -> Result<(), GpuError> {
+            Ok(())
+        }
+    }
+
+    /// Warming up is not a frame: the fault comes after as many frames
+    /// however often the stage was made ready.
+    #[test]
+    #[ignore = "needs a GPU adapter (run: scripts/test.sh, or cargo test -- --include-ignored)"]
+    fn a_device_stage_fails_after_its_frames_not_its_warm_ups() {
+        let (device, _queue) = nedrt_gpu::test_device(false);
+        let buffer = device.create_buffer(&wgpu::BufferDescriptor {
+            label: None,
+            size: 4 * 3 * 6,
+            usage: wgpu::BufferUsages::STORAGE,
+            mapped_at_creation: false,
+        });
+        let mut stage = FailsAfter::new(Box::new(Nothing) as Box<dyn DeviceStage>, 2);
+        for _ in 0..3 {
+            stage.warm_up(&buffer, &buffer, 3, 2).expect("warms up");
+        }
+        let mut encoder = device.create_command_encoder(&Default::default());
+        for frame in 0..4 {
+            let recorded = stage.record(&mut encoder, &buffer, &buffer, 3, 2);
+            match frame {
+                0 | 1 => recorded.expect("in time"),
+                _ => assert!(
+                    matches!(recorded, Err(GpuError::DeviceLost(_))),
+                    "{recorded:?}"
+                ),
+            }
         }
     }
 }

@@ -232,6 +232,23 @@ pub trait DeviceStage: Send + std::fmt::Debug {
         width: usize,
         height: usize,
     ) -> Result<(), GpuError>;
+
+    /// Makes what [`DeviceStage::record`] makes on its first frame of this
+    /// size between these buffers (pipelines compiled, buffers and bind
+    /// groups), recording nothing, so that the first frame a client sends
+    /// does not pay for it: a network's first frame took 1343 ms on the
+    /// H200, the next ones 9 ms, and planned the frames after it seconds
+    /// ahead (docs/service.md, "The warm-up"). Nothing, by default.
+    fn warm_up(
+        &mut self,
+        input: &wgpu::Buffer,
+        output: &wgpu::Buffer,
+        width: usize,
+        height: usize,
+    ) -> Result<(), GpuError> {
+        let _ = (input, output, width, height);
+        Ok(())
+    }
 }
 
 /// Two device stages one after the other, through a buffer of the
@@ -274,24 +291,41 @@ impl DeviceStage for Chain {
         width: usize,
         height: usize,
     ) -> Result<(), GpuError> {
-        let fits = matches!(&self.middle, Some((w, h, _)) if (*w, *h) == (width, height));
-        if !fits {
-            let bytes = 3 * (width * height) as u64 * 4;
-            let buffer = self.device.create_buffer(&wgpu::BufferDescriptor {
-                label: Some("chain middle"),
-                size: bytes,
-                usage: wgpu::BufferUsages::STORAGE,
-                mapped_at_creation: false,
-            });
-            self.middle = Some((width, height, buffer));
+        let middle = self.middle(width, height);
+        self.first.record(encoder, input, &middle, width, height)?;
+        self.second.record(encoder, &middle, output, width, height)
+    }
+
+    fn warm_up(
+        &mut self,
+        input: &wgpu::Buffer,
+        output: &wgpu::Buffer,
+        width: usize,
+        height: usize,
+    ) -> Result<(), GpuError> {
+        let middle = self.middle(width, height);
+        self.first.warm_up(input, &middle, width, height)?;
+        self.second.warm_up(&middle, output, width, height)
+    }
+}
+
+impl Chain {
+    /// The middle buffer for a `width`×`height` frame, made on the first
+    /// call for that size (a handle: the stages bind the same buffer).
+    fn middle(&mut self, width: usize, height: usize) -> wgpu::Buffer {
+        match &self.middle {
+            Some((w, h, buffer)) if (*w, *h) == (width, height) => buffer.clone(),
+            _ => {
+                let buffer = self.device.create_buffer(&wgpu::BufferDescriptor {
+                    label: Some("chain middle"),
+                    size: 3 * (width * height) as u64 * 4,
+                    usage: wgpu::BufferUsages::STORAGE,
+                    mapped_at_creation: false,
+                });
+                self.middle = Some((width, height, buffer.clone()));
+                buffer
+            }
         }
-        let Some((_, _, middle)) = &self.middle else {
-            return Err(GpuError::Buffers(
-                "the chain's middle buffer was not made".into(),
-            ));
-        };
-        self.first.record(encoder, input, middle, width, height)?;
-        self.second.record(encoder, middle, output, width, height)
     }
 }
 

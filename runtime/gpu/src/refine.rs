@@ -265,6 +265,16 @@ impl crate::DeviceStage for RefineStage {
         format!("{} on the device ({} steps)", self.name, self.steps)
     }
 
+    fn warm_up(
+        &mut self,
+        _input: &wgpu::Buffer,
+        _output: &wgpu::Buffer,
+        width: usize,
+        height: usize,
+    ) -> Result<(), GpuError> {
+        self.prepare(width, height).map_err(GpuError::from)
+    }
+
     fn record(
         &mut self,
         encoder: &mut wgpu::CommandEncoder,

@@ -318,9 +318,10 @@ mod needs_gpu {
             .crop(0, 0, w, h)
             .clamped();
             let limit = host.largest_activation_bytes(pw, rows);
-            for (label, mut gpu) in [
-                ("whole", open()),
-                ("banded", open().with_binding_limit(limit)),
+            for (label, mut gpu, warm) in [
+                ("whole", open(), false),
+                ("banded", open().with_binding_limit(limit), false),
+                ("warmed up", open().with_binding_limit(limit), true),
             ] {
                 let usage = wgpu::BufferUsages::STORAGE
                     | wgpu::BufferUsages::COPY_SRC
@@ -342,6 +343,11 @@ mod needs_gpu {
                     usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
                     mapped_at_creation: false,
                 });
+                // Warmed up, the first frame builds no pipeline of its own.
+                let built = warm.then(|| {
+                    gpu.prepare_frame(&input, &output, w, h).expect("prepares");
+                    gpu.pipelines_built()
+                });
                 // Twice: the second frame reuses the plan and its copies.
                 for _ in 0..2 {
                     let mut encoder = device.create_command_encoder(&Default::default());
@@ -360,6 +366,10 @@ mod needs_gpu {
                         max_abs_diff(want.data(), &got)
                     );
                     assert_eq!(gpu.last_traffic(), HostTraffic::default(), "{label}");
+                    if let Some(n) = built {
+                        assert!(n > 0, "{label}: nothing built");
+                        assert_eq!(gpu.pipelines_built(), n, "{label}: built by the frame");
+                    }
                 }
             }
             // A buffer smaller than the frame is an error, not a wrong image.

@@ -97,4 +97,16 @@ impl crate::DeviceStage for SpectralStage {
             .and_then(|f| f.record(encoder, input, output))
             .map_err(crate::GpuError::from)
     }
+
+    fn warm_up(
+        &mut self,
+        _input: &wgpu::Buffer,
+        _output: &wgpu::Buffer,
+        width: usize,
+        height: usize,
+    ) -> Result<(), crate::GpuError> {
+        self.filter(width, height)
+            .map(|_| ())
+            .map_err(crate::GpuError::from)
+    }
 }

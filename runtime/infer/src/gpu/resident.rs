@@ -209,18 +209,7 @@ impl GpuBackend {
                 output.size()
             )));
         }
-        let m = self.network.multiple.max(1);
-        let (pw, ph) = (width.div_ceil(m) * m, height.div_ceil(m) * m);
-        let rows = self.window_rows(pw, ph)?;
-        self.report_banding(pw, ph, rows);
-        self.ensure_plan(pw, rows)?;
-        let stale = self.resident.as_ref().is_none_or(|r| {
-            (r.width, r.height) != (width, height) || r.input != *input || r.output != *output
-        });
-        if stale {
-            self.resident = None;
-            self.resident = Some(self.prepare_resident(input, output, width, height, rows)?);
-        }
+        self.prepare_frame(input, output, width, height)?;
         let (Some(plan), Some(resident)) = (&self.plan, &self.resident) else {
             return Err(err("no plan"));
         };
@@ -251,6 +240,37 @@ impl GpuBackend {
         }
         self.last_traffic = Default::default();
         self.last_gpu_ns = None;
+        Ok(())
+    }
+
+    /// Compute pipelines built so far (each compiled once, when a frame
+    /// size's plan first needs it).
+    pub fn pipelines_built(&self) -> usize {
+        self.pipelines.len()
+    }
+
+    /// The plan (its pipelines and buffers) and the band copies for a
+    /// `width`×`height` frame between `input` and `output`, made where
+    /// they are not yet.
+    pub fn prepare_frame(
+        &mut self,
+        input: &wgpu::Buffer,
+        output: &wgpu::Buffer,
+        width: usize,
+        height: usize,
+    ) -> Result<(), InferenceError> {
+        let m = self.network.multiple.max(1);
+        let (pw, ph) = (width.div_ceil(m) * m, height.div_ceil(m) * m);
+        let rows = self.window_rows(pw, ph)?;
+        self.report_banding(pw, ph, rows);
+        self.ensure_plan(pw, rows)?;
+        let stale = self.resident.as_ref().is_none_or(|r| {
+            (r.width, r.height) != (width, height) || r.input != *input || r.output != *output
+        });
+        if stale {
+            self.resident = None;
+            self.resident = Some(self.prepare_resident(input, output, width, height, rows)?);
+        }
         Ok(())
     }
 
@@ -385,10 +405,26 @@ impl nedrt_gpu::DeviceStage for DeviceDcnn {
     ) -> Result<(), nedrt_gpu::GpuError> {
         self.backend
             .record_frame(encoder, input, output, width, height)
-            .map_err(|e| match e {
-                InferenceError::Gpu(g) => g,
-                e => nedrt_gpu::GpuError::Stage(Box::new(e)),
-            })
+            .map_err(stage_error)
+    }
+
+    fn warm_up(
+        &mut self,
+        input: &wgpu::Buffer,
+        output: &wgpu::Buffer,
+        width: usize,
+        height: usize,
+    ) -> Result<(), nedrt_gpu::GpuError> {
+        self.backend
+            .prepare_frame(input, output, width, height)
+            .map_err(stage_error)
+    }
+}
+
+fn stage_error(e: InferenceError) -> nedrt_gpu::GpuError {
+    match e {
+        InferenceError::Gpu(g) => g,
+        e => nedrt_gpu::GpuError::Stage(Box::new(e)),
     }
 }
 

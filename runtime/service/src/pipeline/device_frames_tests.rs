@@ -354,6 +354,102 @@ mod needs_gpu_layers_and_views {
             "{e}"
         );
     }
+
+    /// What a stage was asked to do: warm up or record, for which size
+    /// and between which buffers.
+    type Calls = Arc<std::sync::Mutex<Vec<(&'static str, usize, wgpu::Buffer, wgpu::Buffer)>>>;
+
+    /// [`Stretch`], noting each call.
+    #[derive(Debug)]
+    struct Noted {
+        inner: Stretch,
+        calls: Calls,
+    }
+
+    impl DeviceStage for Noted {
+        fn describe(&self) -> String {
+            "noted stretch".into()
+        }
+        fn record(
+            &mut self,
+            encoder: &mut wgpu::CommandEncoder,
+            input: &wgpu::Buffer,
+            output: &wgpu::Buffer,
+            width: usize,
+            height: usize,
+        ) -> Result<(), nedrt_gpu::GpuError> {
+            let call = (
+                "record",
+                width * 1000 + height,
+                input.clone(),
+                output.clone(),
+            );
+            self.calls.lock().expect("calls").push(call);
+            self.inner.record(encoder, input, output, width, height)
+        }
+        fn warm_up(
+            &mut self,
+            input: &wgpu::Buffer,
+            output: &wgpu::Buffer,
+            width: usize,
+            height: usize,
+        ) -> Result<(), nedrt_gpu::GpuError> {
+            let call = (
+                "warm up",
+                width * 1000 + height,
+                input.clone(),
+                output.clone(),
+            );
+            self.calls.lock().expect("calls").push(call);
+            Ok(())
+        }
+    }
+
+    /// Each view's stage is made ready for its own size and buffers when
+    /// the engine is made, before any frame, and its first frame records
+    /// between those same buffers (so what the warm-up made is used).
+    #[test]
+    #[ignore = "needs a GPU adapter (run: scripts/test.sh, or cargo test -- --include-ignored)"]
+    fn every_view_s_stage_is_made_ready_before_its_first_frame() {
+        let (device, queue) = nedrt_gpu::test_device(false);
+        let h = 21;
+        let calls: [Calls; 2] = Default::default();
+        let views = (0..2)
+            .map(|v| DeviceView {
+                region: ViewRegion {
+                    x: 37 * v,
+                    y: 0,
+                    width: 37 + v,
+                    height: h,
+                },
+                stage: Some(Box::new(Noted {
+                    inner: Stretch::new(&device),
+                    calls: calls[v].clone(),
+                }) as Box<dyn DeviceStage>),
+            })
+            .collect();
+        let transfer = Transfer::from_gamma([2.2, 2.0, 2.4]);
+        let mut frames =
+            DeviceFrames::new(&device, &queue, (75, h), views, &transfer).expect("views");
+        for (v, c) in calls.iter().enumerate() {
+            let c = c.lock().expect("calls");
+            let sizes: Vec<_> = c.iter().map(|(what, size, ..)| (*what, *size)).collect();
+            assert_eq!(sizes, [("warm up", (37 + v) * 1000 + h)], "view {v}");
+        }
+        frames
+            .run(1, &[planar(1, noise(37, h, 0)), planar(1, noise(38, h, 1))])
+            .expect("runs");
+        for (v, c) in calls.iter().enumerate() {
+            let c = c.lock().expect("calls");
+            assert_eq!(c.len(), 2, "view {v}");
+            let (warm, record) = (&c[0], &c[1]);
+            assert_eq!((record.0, record.1), ("record", warm.1), "view {v}");
+            assert!(
+                record.2 == warm.2 && record.3 == warm.3,
+                "view {v}: other buffers"
+            );
+        }
+    }
 }
 
 fn noise(w: usize, h: usize, seed: usize) -> Image {

@@ -225,6 +225,25 @@ impl DisplaySchedule {
             start_ns: refresh_ns.saturating_sub(ahead).max(now_ns),
         }
     }
+
+    /// The refresh a source's last frame (made for `planned_ns`, submitted
+    /// at `submitted_ns`) will be on, for its next plan's `after_ns`: the
+    /// planned one, unless the pipeline's estimate has shrunk since by more
+    /// than a period. Such a frame is shown when ready, refreshes before
+    /// its plan, and waiting for that plan would stall the source (the
+    /// H200, 2026-11-28: a 1343 ms first frame had frames planned 4 s
+    /// ahead, and the source made one each 200–300 ms as the estimate
+    /// shrank).
+    pub fn replan_after(&self, planned_ns: u64, submitted_ns: u64, make_ns: u64) -> u64 {
+        let period = self.period_ns();
+        let ahead = make_ns + self.pipeline_bound_ns() + self.latch_ns() + period / 32;
+        let now_planned = self.refresh_at_or_after(submitted_ns + ahead);
+        if now_planned + period < planned_ns {
+            now_planned
+        } else {
+            planned_ns
+        }
+    }
 }
 
 /// When a source is to start its next frame, and for which refresh.

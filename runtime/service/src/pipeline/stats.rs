@@ -28,6 +28,10 @@ pub enum Stage {
     /// The preprocessing's own GPU time (timestamp queries; part of
     /// `Preprocess`).
     PreprocessGpu,
+    /// The device path's host time before its submission: the upload's
+    /// copy to the device's staging memory and the recording of the
+    /// frame's passes (part of `Preprocess`).
+    PreprocessRecord,
     /// Device work held back until a present was submitted, so that the
     /// present does not queue behind it (`pacing::PresentGate`; part of
     /// `Preprocess`).
@@ -43,10 +47,11 @@ pub enum Stage {
 }
 
 impl Stage {
-    pub const ALL: [Stage; 8] = [
+    pub const ALL: [Stage; 9] = [
         Stage::Upload,
         Stage::Preprocess,
         Stage::PreprocessGpu,
+        Stage::PreprocessRecord,
         Stage::YieldToPresent,
         Stage::Encode,
         Stage::Present,
@@ -63,6 +68,7 @@ impl Stage {
             Stage::Upload => "upload",
             Stage::Preprocess => "preprocess",
             Stage::PreprocessGpu => "preprocess-gpu",
+            Stage::PreprocessRecord => "preprocess-record",
             Stage::YieldToPresent => "yield-to-present",
             Stage::Encode => "encode",
             Stage::Present => "present",
@@ -119,7 +125,7 @@ pub struct Stats {
     pub dcnn_traffic: TrafficCounter,
     /// Host↔device traffic of the sink's presented frames.
     pub present_traffic: TrafficCounter,
-    histograms: [Mutex<Histogram>; 8],
+    histograms: [Mutex<Histogram>; Stage::ALL.len()],
     /// Frames shown after the refresh predicted at their submission: by
     /// how much (a whole number of periods).
     late: Mutex<Histogram>,

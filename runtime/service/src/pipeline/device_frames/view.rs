@@ -50,6 +50,40 @@ pub(super) struct ViewOnDevice {
 }
 
 impl ViewOnDevice {
+    /// Makes the view's stage ready for its size and buffers before the
+    /// first frame ([`DeviceStage::warm_up`]). A failure is logged and
+    /// left for the first frame to meet, where the fallback takes over as
+    /// for any frame that fails; how long it took is returned.
+    pub(super) fn warm_up(&mut self, device: &wgpu::Device, v: usize) -> std::time::Duration {
+        let started = std::time::Instant::now();
+        let (w, h) = (self.region.width, self.region.height);
+        let Some(stage) = &mut self.stage else {
+            return started.elapsed();
+        };
+        let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let warmed = stage.warm_up(&self.frame, &self.display, w, h);
+        // Popped on every path: a scope left open would catch later errors.
+        let validation = pollster::block_on(scope.pop());
+        let took = started.elapsed();
+        let failed = match (warmed, validation) {
+            (Ok(()), None) => None,
+            (Err(e), _) => Some(e.to_string()),
+            (Ok(()), Some(e)) => Some(e.to_string()),
+        };
+        match failed {
+            None => tracing::info!(
+                "view {v}: {} made ready for {w}×{h} in {:.1} ms",
+                stage.describe(),
+                took.as_secs_f64() * 1e3
+            ),
+            Some(e) => tracing::warn!(
+                "view {v}: {} could not be made ready for {w}×{h} ({e}); its first frame will say",
+                stage.describe()
+            ),
+        }
+        took
+    }
+
     /// View `v` of the panel, its buffers made and its encoder aimed at
     /// its region of the panel's codes.
     pub(super) fn new(

@@ -12,27 +12,66 @@ use super::Pacer;
 /// RFC 6298: gains 1/8 and 1/4, the first sample's deviation half of it).
 /// `bound_ns()` (mean + 4 deviations) is what the pacing plans with: it
 /// holds for all but a few samples of a jittering stage.
+///
+/// The first [`Estimate::WARM_UP`] samples are summed, not averaged
+/// exponentially, and the largest of them is left out: a stage's first
+/// frame pays its one-time costs (shaders compiled, buffers allocated,
+/// clocks ramped up), up to 1343 ms where the next frames took 9–11 ms
+/// (the half network on the H200, 2026-11-28). Seeded with it, the
+/// exponential average kept the bound seconds long for tens of frames,
+/// and the pacing planned frames that far ahead (docs/service.md, "The
+/// warm-up").
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct Estimate {
     mean_ns: u64,
     dev_ns: u64,
     samples: u64,
+    /// The first samples, while warming up.
+    first: [u64; Estimate::WARM_UP],
 }
 
 impl Estimate {
     /// Deviations above the mean that [`Estimate::bound_ns`] allows.
     pub const DEVIATIONS: u64 = 4;
 
+    /// Samples taken robustly (the largest left out) before the running
+    /// average takes over.
+    pub const WARM_UP: usize = 8;
+
     pub fn observe(&mut self, ns: u64) {
-        if self.samples == 0 {
-            self.mean_ns = ns;
-            self.dev_ns = ns / 2;
-        } else {
+        let n = self.samples as usize;
+        self.samples += 1;
+        if n >= Self::WARM_UP {
             let err = ns.abs_diff(self.mean_ns);
             self.dev_ns = (3 * self.dev_ns + err) / 4;
             self.mean_ns = (7 * self.mean_ns + ns) / 8;
+            return;
         }
-        self.samples += 1;
+        self.first[n] = ns;
+        let mut kept = self.first;
+        let kept = &mut kept[..=n];
+        kept.sort_unstable();
+        // One sample alone is all there is. The deviation is the samples'
+        // mean deviation, but no less than the running average's would be
+        // for samples all alike (half the first, 3/4 of it a sample after):
+        // a few samples cannot show how a stage jitters.
+        let kept = if n == 0 { &kept[..] } else { &kept[..n] };
+        let len = kept.len() as u64;
+        self.mean_ns = kept.iter().sum::<u64>() / len;
+        let spread = kept.iter().map(|s| s.abs_diff(self.mean_ns)).sum::<u64>() / len;
+        let shrink = (len - 1) as u32;
+        let floor = self.mean_ns / 2 * 3u64.pow(shrink) / 4u64.pow(shrink);
+        self.dev_ns = spread.max(floor);
+    }
+
+    /// Samples observed.
+    pub fn samples(&self) -> u64 {
+        self.samples
+    }
+
+    /// Whether the estimate is still in its first samples.
+    pub fn warming_up(&self) -> bool {
+        self.samples < Self::WARM_UP as u64
     }
 
     pub fn mean_ns(&self) -> u64 {
@@ -74,10 +113,10 @@ pub struct Finished {
 /// the refresh minus the predicted time of the loop's own work (its
 /// [`Estimate`]'s mean) minus a margin learnt from the misses: four of the
 /// work's deviations (at least [`PresentPacer::MIN_MARGIN_DIV`]-th of a
-/// period), plus what a late present adds, decaying by 1/16 a present in
-/// time. The lead never exceeds a period: a loop whose work takes longer
-/// than that cannot be in time anyway, and waking earlier would only show
-/// older frames.
+/// period), plus what a late present adds (past the work estimate's
+/// warm-up), decaying by 1/16 a present in time. The lead never exceeds a
+/// period: a loop whose work takes longer than that cannot be in time
+/// anyway, and waking earlier would only show older frames.
 #[derive(Debug, Clone)]
 pub struct PresentPacer {
     refreshes: Pacer,
@@ -159,7 +198,12 @@ impl PresentPacer {
             };
         }
         let late_ns = done_ns - wake.vsync_ns;
-        self.learnt_ns = (self.learnt_ns + late_ns).min(period / 2);
+        // The first presents pay one-time costs (the present's pipelines,
+        // a GPU busy with the first frames' compiles): learnt, they kept
+        // the wake a period early for 700 ms after (the H200, 2026-11-28).
+        if !self.work.warming_up() {
+            self.learnt_ns = (self.learnt_ns + late_ns).min(period / 2);
+        }
         Finished {
             shown_ns: wake.vsync_ns + late_ns.div_ceil(period) * period,
             late_ns,

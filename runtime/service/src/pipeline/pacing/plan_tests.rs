@@ -191,10 +191,15 @@ fn run(
 }
 
 /// A 7.2 ms stage (the shipped network's 7.1 ms on the H200 and its
-/// fence) whose first frames take three periods, so that the estimates
-/// start far too high, as they do on a device after its first frames.
+/// fence) whose first frames take three periods, for twice the estimates'
+/// warm-up (the slowest of which they leave out), so that the estimates
+/// still start far too high, as on a device whose first frames are slow.
 fn slow_start(id: u64) -> u64 {
-    if id < 6 { 3 * PERIOD } else { 7_200_000 }
+    if id < 2 * Estimate::WARM_UP as u64 {
+        3 * PERIOD
+    } else {
+        7_200_000
+    }
 }
 
 const SETTLED: usize = 120;

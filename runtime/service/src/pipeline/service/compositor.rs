@@ -219,7 +219,6 @@ impl Compositor {
         self.schedule.predicted_display_ns(self.clock.now_ns())
     }
 
-    /// The panel's refresh period, ns.
     /// When to start making the next frame, and for which refresh: the
     /// first after `after_ns` that a frame taking `make_ns` to make can
     /// reach ([`DisplaySchedule::plan_submission`]).
@@ -228,6 +227,15 @@ impl Compositor {
             .plan_submission(self.clock.now_ns(), after_ns, make_ns)
     }
 
+    /// The refresh a frame made for `planned_ns` and submitted at
+    /// `submitted_ns` will be on, as the pipeline's estimate now sees it
+    /// ([`DisplaySchedule::replan_after`]).
+    pub fn replan_after(&self, planned_ns: u64, submitted_ns: u64, make_ns: u64) -> u64 {
+        self.schedule
+            .replan_after(planned_ns, submitted_ns, make_ns)
+    }
+
+    /// The panel's refresh period, ns.
     pub fn refresh_period_ns(&self) -> u64 {
         self.schedule.period_ns()
     }

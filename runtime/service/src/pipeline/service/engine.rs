@@ -113,6 +113,7 @@ impl Engine {
                             (None, _) => {}
                         }
                     }
+                    stats.record(Stage::PreprocessRecord, frames.last_record_ns());
                     stats.dcnn_traffic.record(traffic);
                     return Some(Processed::Device(frame));
                 }

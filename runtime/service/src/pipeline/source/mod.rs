@@ -66,8 +66,9 @@ pub(crate) struct Rate {
     /// How long making a frame takes, to start it in time.
     make: super::pacing::Estimate,
     started_ns: u64,
-    /// The refresh the last frame was made for.
+    /// The refresh the last frame was made for, and when it was made.
     last_refresh_ns: u64,
+    last_made_ns: u64,
 }
 
 impl Rate {
@@ -83,6 +84,7 @@ impl Rate {
             make: Default::default(),
             started_ns: 0,
             last_refresh_ns: 0,
+            last_made_ns: 0,
         }
     }
 
@@ -106,7 +108,9 @@ impl Rate {
             let tick = p.next(self.clock.now_ns());
             self.clock.sleep_until_ns(tick.vsync_ns);
         } else if self.rate == SourceRate::Display {
-            let plan = compositor.plan_submission(self.last_refresh_ns, self.make.bound_ns());
+            let make = self.make.bound_ns();
+            let after = compositor.replan_after(self.last_refresh_ns, self.last_made_ns, make);
+            let plan = compositor.plan_submission(after, make);
             self.last_refresh_ns = plan.refresh_ns;
             self.clock.sleep_until_ns(plan.start_ns);
             made_for = Some(plan.refresh_ns);
@@ -120,6 +124,7 @@ impl Rate {
     pub(crate) fn made(&mut self) -> u64 {
         let now = self.clock.now_ns();
         self.make.observe(now.saturating_sub(self.started_ns));
+        self.last_made_ns = now;
         now
     }
 }

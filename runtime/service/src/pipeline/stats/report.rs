@@ -279,8 +279,10 @@ impl Report {
         s += &self.traffic_line();
         s += "stage            count     p50 ms     p99 ms     max ms   share of end-to-end\n";
         for r in &self.stages {
-            // dcnn-gpu is inside dcnn; end-to-end is the whole.
-            let share = if r.stage == "end-to-end" || r.stage == "preprocess-gpu" || e2e <= 0.0 {
+            // The GPU's and the record's times are inside preprocess;
+            // end-to-end is the whole.
+            let inside = ["end-to-end", "preprocess-gpu", "preprocess-record"];
+            let share = if inside.contains(&r.stage.as_str()) || e2e <= 0.0 {
                 String::new()
             } else {
                 format!("{:>5.1} %", 100.0 * r.mean_ms / e2e)
