@@ -214,8 +214,7 @@ impl DisplaySchedule {
     /// (so that the estimate moving a little between the plan and the
     /// submission does not move the prediction to the next refresh).
     pub fn plan_submission(&self, now_ns: u64, after_ns: u64, make_ns: u64) -> SubmitPlan {
-        let period = self.period_ns();
-        let ahead = make_ns + self.pipeline_bound_ns() + self.latch_ns() + period / 32;
+        let ahead = self.ahead_ns(make_ns);
         let mut refresh_ns = self.refresh_at_or_after(now_ns + ahead);
         if refresh_ns <= after_ns {
             refresh_ns = self.refresh_at_or_after(after_ns + 1);
@@ -224,6 +223,13 @@ impl DisplaySchedule {
             refresh_ns,
             start_ns: refresh_ns.saturating_sub(ahead).max(now_ns),
         }
+    }
+
+    /// How long before its refresh a frame taking `make_ns` to make is
+    /// started: its making, the pipeline's bound, the loop's latch and a
+    /// 32nd of a period to spare.
+    fn ahead_ns(&self, make_ns: u64) -> u64 {
+        make_ns + self.pipeline_bound_ns() + self.latch_ns() + self.period_ns() / 32
     }
 
     /// The refresh a source's last frame (made for `planned_ns`, submitted
@@ -236,8 +242,7 @@ impl DisplaySchedule {
     /// shrank).
     pub fn replan_after(&self, planned_ns: u64, submitted_ns: u64, make_ns: u64) -> u64 {
         let period = self.period_ns();
-        let ahead = make_ns + self.pipeline_bound_ns() + self.latch_ns() + period / 32;
-        let now_planned = self.refresh_at_or_after(submitted_ns + ahead);
+        let now_planned = self.refresh_at_or_after(submitted_ns + self.ahead_ns(make_ns));
         if now_planned + period < planned_ns {
             now_planned
         } else {

@@ -13,7 +13,7 @@ use super::Pacer;
 /// `bound_ns()` (mean + 4 deviations) is what the pacing plans with: it
 /// holds for all but a few samples of a jittering stage.
 ///
-/// The first [`Estimate::WARM_UP`] samples are summed, not averaged
+/// The first [`Estimate::WARM_UP`] samples are averaged plainly, not
 /// exponentially, and the largest of them is left out: a stage's first
 /// frame pays its one-time costs (shaders compiled, buffers allocated,
 /// clocks ramped up), up to 1343 ms where the next frames took 9–11 ms
@@ -62,11 +62,6 @@ impl Estimate {
         let shrink = (len - 1) as u32;
         let floor = self.mean_ns / 2 * 3u64.pow(shrink) / 4u64.pow(shrink);
         self.dev_ns = spread.max(floor);
-    }
-
-    /// Samples observed.
-    pub fn samples(&self) -> u64 {
-        self.samples
     }
 
     /// Whether the estimate is still in its first samples.
