@@ -428,6 +428,13 @@ mod needs_gpu_bench {
                 r["dropped_at_present"].as_u64().expect("slot"),
                 "{name}"
             );
+            // The device path notes each frame's host time before its
+            // submission; the host path has none to note.
+            let device = r["frame_path"] == "device";
+            assert!(
+                frames.iter().all(|f| f["record_ms"].is_number() == device),
+                "{name}: record_ms"
+            );
             let refreshes = log["refreshes"].as_array().expect("refreshes");
             let with_frame = refreshes.iter().filter(|x| !x["frame"].is_null()).count() as u64;
             assert_eq!(with_frame, shown, "{name}");

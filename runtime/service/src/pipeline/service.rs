@@ -97,6 +97,19 @@ struct StageContext {
     stopping: Arc<AtomicBool>,
 }
 
+/// What a stage's work says of a frame besides its output.
+#[derive(Debug, Default, Clone, Copy)]
+pub(super) struct StageNotes {
+    /// Time the stage held the frame back for other work (the device's
+    /// yield to a present, pacing::gate).
+    pub(super) waited_ns: u64,
+    /// The device's own time for the frame's stages (timestamps; every
+    /// view's summed).
+    pub(super) gpu_ns: Option<u64>,
+    /// The device path's host time up to the frame's submission.
+    pub(super) record_ns: Option<u64>,
+}
+
 fn spawn_stage<I: Send + 'static, O: Send + 'static>(
     name: &'static str,
     stage: Stage,
@@ -108,8 +121,9 @@ fn spawn_stage<I: Send + 'static, O: Send + 'static>(
         stopping,
     }: StageContext,
     // The frame's id and predicted refresh, the item, the counters, and
-    // the time the stage held the frame back for other work (added to).
-    mut work: impl FnMut(u64, u64, I, &Stats, &mut u64) -> Option<O> + Send + 'static,
+    // what the stage notes of the frame (the time it held the frame back
+    // for other work, its device times).
+    mut work: impl FnMut(u64, u64, I, &Stats, &mut StageNotes) -> Option<O> + Send + 'static,
 ) -> std::io::Result<JoinHandle<()>> {
     std::thread::Builder::new()
         .name(name.into())
@@ -121,8 +135,8 @@ fn spawn_stage<I: Send + 'static, O: Send + 'static>(
                 }
                 let span = tracing::info_span!("stage", stage = %name, frame = t.id).entered();
                 let t0 = clock.now_ns();
-                let mut waited_ns = 0;
-                let result = work(t.id, t.predicted_ns, t.item, &stats, &mut waited_ns);
+                let mut notes = StageNotes::default();
+                let result = work(t.id, t.predicted_ns, t.item, &stats, &mut notes);
                 let ns = clock.now_ns().saturating_sub(t0);
                 drop(span);
                 stats.record(stage, ns);
@@ -136,7 +150,9 @@ fn spawn_stage<I: Send + 'static, O: Send + 'static>(
                         id: t.id,
                         start_ns: t.start_ns,
                         work_ns: t.work_ns + ns,
-                        waited_ns: t.waited_ns + waited_ns.min(ns),
+                        waited_ns: t.waited_ns + notes.waited_ns.min(ns),
+                        gpu_ns: notes.gpu_ns.or(t.gpu_ns),
+                        record_ns: notes.record_ns.or(t.record_ns),
                         owner: t.owner,
                         submit_ns: t.submit_ns,
                         predicted_ns: t.predicted_ns,
@@ -307,8 +323,8 @@ impl Service {
             upload_rx,
             move |t| dcnn_tx.send(t),
             context.clone(),
-            move |id, predicted_ns, f: Vec<ViewFrame>, stats, waited_ns| {
-                engine.run(id, predicted_ns, f, stats, waited_ns)
+            move |id, predicted_ns, f: Vec<ViewFrame>, stats, notes| {
+                engine.run(id, predicted_ns, f, stats, notes)
             },
         )?);
         let transfer = panel.transfer.clone();

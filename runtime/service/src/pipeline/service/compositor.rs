@@ -23,6 +23,10 @@ pub(super) struct Timed<T> {
     /// device's yield to a present, pacing::gate): a wait the pacing
     /// chose, which the pipeline's estimate leaves out.
     pub(super) waited_ns: u64,
+    /// The device's own time for its preprocessing, and the host's before
+    /// that work's submission (the device path; StageNotes).
+    pub(super) gpu_ns: Option<u64>,
+    pub(super) record_ns: Option<u64>,
     /// Who submitted it (a socket client's number; 0 in process).
     pub(super) owner: u64,
     /// When it was submitted, and the refresh predicted for it then.
@@ -49,6 +53,8 @@ impl<T> Timed<T> {
             stages_ns: self.stages_ns,
             held_ns: self.waited_ns,
             ready_ns: self.ready_ns,
+            gpu_ns: self.gpu_ns,
+            record_ns: self.record_ns,
         }
     }
 }
@@ -200,6 +206,8 @@ impl Compositor {
             start_ns,
             work_ns: 0,
             waited_ns: 0,
+            gpu_ns: None,
+            record_ns: None,
             owner: self.owner,
             submit_ns: now,
             // A client's display time more than a second from now is no

@@ -8,7 +8,7 @@ use std::sync::atomic::Ordering::Relaxed;
 
 use super::stages::{FallbackFactory, fallback_preprocessor};
 use super::views::HostEngine;
-use super::{PreprocessStage, Stage, Stats};
+use super::{PreprocessStage, Stage, StageNotes, Stats};
 use crate::compose::{LayerSet, ViewRegion};
 use crate::pipeline::device_frames::DeviceFrames;
 use crate::pipeline::frame::ViewFrame;
@@ -86,7 +86,7 @@ impl Engine {
         predicted_ns: u64,
         frames_in: Vec<ViewFrame>,
         stats: &Stats,
-        waited_ns: &mut u64,
+        notes: &mut StageNotes,
     ) -> Option<Processed> {
         if let Engine::Device {
             frames,
@@ -96,7 +96,7 @@ impl Engine {
             gate,
         } = self
         {
-            *waited_ns += gate.yield_to_present(predicted_ns, stats);
+            notes.waited_ns += gate.yield_to_present(predicted_ns, stats);
             let t0 = gate.clock.now_ns();
             let ran = frames.run(id, &frames_in);
             gate.work.observe(gate.clock.now_ns().saturating_sub(t0));
@@ -114,6 +114,9 @@ impl Engine {
                         }
                     }
                     stats.record(Stage::PreprocessRecord, frames.last_record_ns());
+                    notes.record_ns = Some(frames.last_record_ns());
+                    let spans = frames.last_view_ns().iter().flatten();
+                    notes.gpu_ns = spans.clone().next().map(|_| spans.sum());
                     stats.dcnn_traffic.record(traffic);
                     return Some(Processed::Device(frame));
                 }

@@ -47,6 +47,11 @@ pub struct FrameMarks {
     pub stages_ns: [[u64; 2]; 3],
     pub held_ns: u64,
     pub ready_ns: u64,
+    /// The device's own time for its preprocessing (timestamps, every
+    /// view's summed) and the host's before that work's submission, where
+    /// the device path ran it.
+    pub gpu_ns: Option<u64>,
+    pub record_ns: Option<u64>,
 }
 
 /// One frame's timeline, ms from the service's start.
@@ -68,6 +73,10 @@ pub struct FrameTiming {
     pub held_ms: f64,
     /// In the present slot, ready for a refresh.
     pub ready_ms: f64,
+    /// Of the preprocess stage's time, the device's own (timestamps) and
+    /// the host's before the submission (the device path).
+    pub gpu_ms: Option<f64>,
+    pub record_ms: Option<f64>,
     /// Shown or skipped: when the present loop took it, and the refresh
     /// it was on (shown).
     pub taken_ms: Option<f64>,
@@ -150,8 +159,10 @@ impl Timeline {
             submitted_ms: self.ms(m.submit_ns),
             predicted_ms: self.ms(m.predicted_ns),
             stages_ms: m.stages_ns.map(stage),
-            held_ms: (m.held_ns as f64 / 1e3).round() / 1e3,
+            held_ms: duration_ms(m.held_ns),
             ready_ms: self.ms(m.ready_ns),
+            gpu_ms: m.gpu_ns.map(duration_ms),
+            record_ms: m.record_ns.map(duration_ms),
             taken_ms: (!replaced).then(|| self.ms(at_ns)),
             shown_ms: shown_ns.map(|ns| self.ms(ns)),
             replaced_ms: replaced.then(|| self.ms(at_ns)),
@@ -210,6 +221,10 @@ pub struct TimelineRow {
     pub held_ms: f64,
     /// The preprocess stage's own time, less the hold.
     pub preprocess_ms: f64,
+    /// Of it, the device's own time and the host's before the submission
+    /// (`None`: not measured, off the device path or without timestamps).
+    pub gpu_ms: Option<f64>,
+    pub record_ms: Option<f64>,
     /// The preprocess stage's end to ready (the queue and the encode).
     pub to_ready_ms: f64,
     /// The present loop's wake for the frame's predicted refresh less the
@@ -222,6 +237,11 @@ pub struct TimelineRow {
     /// first frame's submission.
     pub first_s: f64,
     pub last_s: f64,
+}
+
+/// A duration in ms, to the µs.
+fn duration_ms(ns: u64) -> f64 {
+    (ns as f64 / 1e3).round() / 1e3
 }
 
 /// The timelines' frames by what became of them against their predicted
@@ -283,6 +303,8 @@ pub fn summarize(
                 to_preprocess_ms: median(&|f| f.stages_ms[1][0] - f.submitted_ms),
                 held_ms: median(&|f| f.held_ms),
                 preprocess_ms: median(&|f| f.stages_ms[1][1] - f.stages_ms[1][0] - f.held_ms),
+                gpu_ms: median_of(&|f| f.gpu_ms),
+                record_ms: median_of(&|f| f.record_ms),
                 to_ready_ms: median(&|f| f.ready_ms - f.stages_ms[1][1]),
                 ready_before_take_ms: median_of(&|f| Some(wake_for(f.predicted_ms)? - f.ready_ms)),
                 present_ms: median_of(&presented),
@@ -311,6 +333,8 @@ mod tests {
             ],
             held_ns: ms,
             ready_ns: submit_ns + 7 * ms,
+            gpu_ns: Some(2 * ms + 1234),
+            record_ns: None,
         }
     }
 
@@ -325,6 +349,8 @@ mod tests {
             (f.submitted_ms, f.predicted_ms, f.stages_ms[1], f.held_ms),
             (1.0, 11.0, [3.0, 7.0], 1.0)
         );
+        // Durations to the µs; a time not measured stays unknown.
+        assert_eq!((f.gpu_ms, f.record_ms), (Some(2.001), None));
         assert_eq!(
             (f.taken_ms, f.shown_ms, f.replaced_ms),
             (Some(9.0), Some(11.0), None)
