@@ -48,6 +48,7 @@ def report(steps: dict, meta: dict) -> str:
     if text("pipeline"):
         md += ["", f"## The pipeline end to end ({head})", "", text("pipeline")]
         md += pacing_target(records("pipeline", "pipeline"), head)
+        md += warm_up(records("pipeline", "frame_log"), head)
     if text("openxr"):
         md += ["", f"## The OpenXR runtime ({head})", "", "The openxr crate's client through libnedrt_openxr.so "
                "into nedrt run --stereo --sink headless (docs/openxr.md): the copy-out of each view on the "
@@ -99,6 +100,41 @@ def pacing_target(rows: list, head: str) -> list:
             "| case | views | precision | panel | refresh ms | GPU p50 ms (two views: the eyes' summed) | "
             "stage p50 ms | of it recorded on the host ms | e2e p50 ms | dropped | met |",
             "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |", *out]
+
+
+def warm_up(logs: list, head: str) -> list:
+    """The warm-up case by case, from the frame logs (column by column): the
+    first frame's preprocess stage (less any hold) and its GPU part against
+    the medians of the frames after the tenth, and how many frames were
+    replaced in the present slot in the first second and after it. A log
+    without the GPU column (older binaries) shows "–" there."""
+    def median(v):
+        v = sorted(x for x in v if x is not None)
+        return None if not v else (v[len(v) // 2] if len(v) % 2 else (v[len(v) // 2 - 1] + v[len(v) // 2]) / 2)
+    ms = lambda v: "–" if v is None else f"{v:.2f}"
+    out = []
+    for x in logs:
+        f = x.get("frames") or {}
+        ids = f.get("id") or []
+        if not ids:
+            continue
+        n = len(ids)
+        gpu = f.get("gpu_ms") or [None] * n
+        stage = [b[1][1] - b[1][0] - held for b, held in zip(f["stages_ms"], f["held_ms"])]
+        order = sorted(range(n), key=lambda i: ids[i])
+        first, rest = order[0], order[10:]
+        t0 = min(f["submitted_ms"])
+        replaced = [f["submitted_ms"][i] - t0 for i in range(n) if f["outcome"][i] == "replaced"]
+        out.append(f"| {x['network']} | {x['views']} | {x['precision']} | {ms(stage[first])} | {ms(gpu[first])} | "
+                   f"{ms(median(stage[i] for i in rest))} | {ms(median(gpu[i] for i in rest))} | "
+                   f"{sum(t < 1e3 for t in replaced)} | {sum(t >= 1e3 for t in replaced)} |")
+    if not out:
+        return []
+    return ["", f"The warm-up ({head}): each case's first frame against the frames after its tenth "
+            "(docs/service.md, \"The warm-up\"), from the frame logs.", "",
+            "| case | views | precision | first frame: preprocess ms | of it GPU ms | after the 10th: preprocess "
+            "ms (median) | of it GPU ms | replaced in the first second | replaced after it |",
+            "| --- | --- | --- | --- | --- | --- | --- | --- | --- |", *out]
 
 
 def dcnn_table(wgsl: list, torch_rows: list, head: str) -> list:
