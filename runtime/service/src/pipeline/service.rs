@@ -128,6 +128,8 @@ fn spawn_stage<I: Send + 'static, O: Send + 'static>(
     std::thread::Builder::new()
         .name(name.into())
         .spawn(move || {
+            // How long this stage held its last frame back for other work.
+            let mut last_hold_ns = 0;
             for t in rx {
                 if stopping.load(Ordering::SeqCst) {
                     stats.in_flight_at_stop.fetch_add(1, Ordering::Relaxed);
@@ -135,9 +137,13 @@ fn spawn_stage<I: Send + 'static, O: Send + 'static>(
                 }
                 let span = tracing::info_span!("stage", stage = %name, frame = t.id).entered();
                 let t0 = clock.now_ns();
+                // Its wait in this stage's queue, as far as the last
+                // frame's hold made it longer: the hold passed on.
+                let behind_hold_ns = t0.saturating_sub(t.ready_ns).min(last_hold_ns);
                 let mut notes = StageNotes::default();
                 let result = work(t.id, t.predicted_ns, t.item, &stats, &mut notes);
                 let ns = clock.now_ns().saturating_sub(t0);
+                last_hold_ns = notes.waited_ns.min(ns);
                 drop(span);
                 stats.record(stage, ns);
                 if let Some(item) = result {
@@ -150,7 +156,8 @@ fn spawn_stage<I: Send + 'static, O: Send + 'static>(
                         id: t.id,
                         start_ns: t.start_ns,
                         work_ns: t.work_ns + ns,
-                        waited_ns: t.waited_ns + notes.waited_ns.min(ns),
+                        waited_ns: t.waited_ns + last_hold_ns,
+                        behind_hold_ns: t.behind_hold_ns + behind_hold_ns,
                         gpu_ns: notes.gpu_ns.or(t.gpu_ns),
                         record_ns: notes.record_ns.or(t.record_ns),
                         owner: t.owner,

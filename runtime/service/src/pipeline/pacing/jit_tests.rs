@@ -13,8 +13,6 @@ struct Frame {
     submit_ns: u64,
     predicted_ns: u64,
     ready_ns: u64,
-    /// Its time in the stage (what the pipeline's estimate learns).
-    work_ns: u64,
 }
 
 /// What a run showed.
@@ -73,8 +71,7 @@ fn run_with(
             let f = in_stage.take().expect("in stage");
             out.replaced.extend(slot.put_keeping_dropping(f, |_| false));
             if let Some(mut w) = waiting.take() {
-                w.work_ns = stage_ns(w.id);
-                w.ready_ns = next + w.work_ns;
+                w.ready_ns = next + stage_ns(w.id);
                 *in_stage = Some(w);
             }
             continue;
@@ -87,13 +84,11 @@ fn run_with(
             submit_ns: now,
             predicted_ns: plan.refresh_ns,
             ready_ns: 0,
-            work_ns: 0,
         };
         next_id += 1;
         if in_stage.is_none() {
             *in_stage = Some(Frame {
                 ready_ns: now + stage_ns(f.id),
-                work_ns: stage_ns(f.id),
                 ..f
             });
         } else if waiting.replace(f).is_some() {
@@ -120,8 +115,8 @@ fn run_with(
         advance(done, &mut in_stage, &mut waiting, &mut out);
         clock.sleep_until_ns(done);
         let finished = pacer.finished(&wake, done);
-        // As the present loop: the frame's own work, not the queue.
-        pipeline.observe(f.work_ns);
+        // As the present loop (no stage holds a frame back here).
+        pipeline.observe(f.ready_ns - f.submit_ns);
         schedule.publish_pipeline(&pipeline);
         stats.record_vs_prediction(ShownFrame {
             owner: 0,

@@ -23,6 +23,10 @@ pub(super) struct Timed<T> {
     /// device's yield to a present, pacing::gate): a wait the pacing
     /// chose, which the pipeline's estimate leaves out.
     pub(super) waited_ns: u64,
+    /// Time it queued behind a frame a stage held back, as far as that
+    /// hold made the wait longer: the same wait passed on, which the
+    /// estimate leaves out too.
+    pub(super) behind_hold_ns: u64,
     /// The device's own time for its preprocessing, and the host's before
     /// that work's submission (the device path; StageNotes).
     pub(super) gpu_ns: Option<u64>,
@@ -206,6 +210,7 @@ impl Compositor {
             start_ns,
             work_ns: 0,
             waited_ns: 0,
+            behind_hold_ns: 0,
             gpu_ns: None,
             record_ns: None,
             owner: self.owner,

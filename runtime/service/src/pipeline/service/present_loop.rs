@@ -26,10 +26,11 @@ impl Service {
         use std::sync::atomic::Ordering::Relaxed;
         let mut pacer = PresentPacer::new(self.panel.refresh_hz, self.clock.now_ns());
         let display_paced = sink.paced_by_display();
-        // The pipeline's own work for a frame, learnt from the frames
-        // shown: its stages' times less the time a stage held it back for
-        // a present (Timed::waited_ns), not the queues between them;
-        // published for the predictions and the sources' plans.
+        // Submission to ready, learnt from the frames shown, less the time
+        // a stage held a frame back for a present (Timed::waited_ns) and
+        // the queueing that hold passed on to the next frame
+        // (Timed::behind_hold_ns); published for the predictions and the
+        // sources' plans.
         let mut pipeline = Estimate::default();
         let mut last: Option<PanelFrame> = None;
         let progress = &control.progress;
@@ -166,11 +167,17 @@ impl Service {
                     // for a present because it was early must not make the
                     // next ones planned earlier still (the H200, 2026-11-27:
                     // planned three refreshes ahead, shown one early). Nor
-                    // the queue behind such a frame: on the H200 (2026-11-28)
-                    // the next frame's wait there put the shipped model's
-                    // bound at 14.2 ms for 8.8 ms of work, so frames were
-                    // planned two refreshes ahead and held again.
-                    pipeline.observe(t.work_ns.saturating_sub(t.waited_ns));
+                    // the next frame's wait behind it: on the H200
+                    // (2026-11-28) that put the shipped model's bound at
+                    // 14.2 ms for 8.8 ms of work, so frames were planned two
+                    // refreshes ahead and held again. A queue without a
+                    // hold in front (a busy machine) stays in.
+                    pipeline.observe(
+                        t.ready_ns
+                            .saturating_sub(t.submit_ns)
+                            .saturating_sub(t.waited_ns)
+                            .saturating_sub(t.behind_hold_ns),
+                    );
                     self.schedule.publish_pipeline(&pipeline);
                     self.stats.record_vs_prediction(ShownFrame {
                         owner: t.owner,
