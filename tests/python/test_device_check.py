@@ -170,6 +170,26 @@ def test_the_report_says_case_by_case_whether_the_pacing_target_is_met():
     assert "| 8×1080 |" not in md and "| 16×8 |" not in md
 
 
+def test_the_report_compares_each_case_s_first_frame_with_the_settled_ones():
+    steps = steps_of_a_run()
+    # Twelve frames of a case: the first 60 ms (8 of them on the GPU), the
+    # others 9 ms (7 on the GPU); two replaced, one in the first second.
+    n = 12
+    stage = [60.0] + [9.0] * (n - 1)
+    frames = {"id": list(range(n)), "outcome": ["shown"] * n, "submitted_ms": [10.0 + 100 * i for i in range(n)],
+              "held_ms": [0.0] * n, "gpu_ms": [8.0] + [7.0] * (n - 1),
+              "stages_ms": [[[0, 0], [10.0 + 100 * i, 10.0 + 100 * i + stage[i]], [0, 0]] for i in range(n)]}
+    frames["outcome"][3] = frames["outcome"][11] = "replaced"
+    log = {"kind": "frame_log", "network": "model", "views": 1, "precision": "f32", "frames": frames}
+    # An older binary's log: no GPU column.
+    old = {**log, "network": "none", "frames": {k: v for k, v in frames.items() if k != "gpu_ms"}}
+    steps["pipeline"].records += [log, old]
+    steps["pipeline"].text = "| network |"
+    md = check_report.report(steps, {"mode": "device", "date": "today", "commit": "abc", "device": "GPU"})
+    assert "| model | 1 | f32 | 60.00 | 8.00 | 9.00 | 7.00 | 1 | 1 |" in md
+    assert "| none | 1 | f32 | 60.00 | – | 9.00 | – | 1 | 1 |" in md
+
+
 def test_a_bad_only_or_call_is_refused(capsys):
     assert check.main(["--only", "setup,warp"]) == 2
     assert "no step warp" in capsys.readouterr().err
