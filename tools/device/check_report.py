@@ -3,6 +3,8 @@ summary.json): each step's status, then every table the steps brought back,
 each naming the device and the commit, in the order docs/benchmarks.md
 quotes them."""
 
+import statistics
+
 
 def report(steps: dict, meta: dict) -> str:
     head = f"{meta['device']}, commit {meta['commit']}{' (+ local changes)' if meta.get('dirty') else ''}"
@@ -109,8 +111,8 @@ def warm_up(logs: list, head: str) -> list:
     replaced in the present slot in the first second and after it. A log
     without the GPU column (older binaries) shows "–" there."""
     def median(v):
-        v = sorted(x for x in v if x is not None)
-        return None if not v else (v[len(v) // 2] if len(v) % 2 else (v[len(v) // 2 - 1] + v[len(v) // 2]) / 2)
+        v = [x for x in v if x is not None]
+        return statistics.median(v) if v else None
     ms = lambda v: "–" if v is None else f"{v:.2f}"
     out = []
     for x in logs:

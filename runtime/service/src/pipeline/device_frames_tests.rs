@@ -366,6 +366,19 @@ mod needs_gpu_layers_and_views {
         calls: Calls,
     }
 
+    impl Noted {
+        fn note(
+            &self,
+            what: &'static str,
+            input: &wgpu::Buffer,
+            output: &wgpu::Buffer,
+            size: usize,
+        ) {
+            let call = (what, size, input.clone(), output.clone());
+            self.calls.lock().expect("calls").push(call);
+        }
+    }
+
     impl DeviceStage for Noted {
         fn describe(&self) -> String {
             "noted stretch".into()
@@ -378,13 +391,7 @@ mod needs_gpu_layers_and_views {
             width: usize,
             height: usize,
         ) -> Result<(), nedrt_gpu::GpuError> {
-            let call = (
-                "record",
-                width * 1000 + height,
-                input.clone(),
-                output.clone(),
-            );
-            self.calls.lock().expect("calls").push(call);
+            self.note("record", input, output, width * 1000 + height);
             self.inner.record(encoder, input, output, width, height)
         }
         fn warm_up(
@@ -394,13 +401,7 @@ mod needs_gpu_layers_and_views {
             width: usize,
             height: usize,
         ) -> Result<(), nedrt_gpu::GpuError> {
-            let call = (
-                "warm up",
-                width * 1000 + height,
-                input.clone(),
-                output.clone(),
-            );
-            self.calls.lock().expect("calls").push(call);
+            self.note("warm up", input, output, width * 1000 + height);
             Ok(())
         }
     }

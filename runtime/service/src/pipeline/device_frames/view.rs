@@ -53,23 +53,21 @@ impl ViewOnDevice {
     /// Makes the view's stage ready for its size and buffers before the
     /// first frame ([`DeviceStage::warm_up`]). A failure is logged and
     /// left for the first frame to meet, where the fallback takes over as
-    /// for any frame that fails; how long it took is returned.
-    pub(super) fn warm_up(&mut self, device: &wgpu::Device, v: usize) -> std::time::Duration {
+    /// for any frame that fails.
+    pub(super) fn warm_up(&mut self, device: &wgpu::Device, v: usize) {
         let started = std::time::Instant::now();
         let (w, h) = (self.region.width, self.region.height);
         let Some(stage) = &mut self.stage else {
-            return started.elapsed();
+            return;
         };
         let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
         let warmed = stage.warm_up(&self.frame, &self.display, w, h);
         // Popped on every path: a scope left open would catch later errors.
         let validation = pollster::block_on(scope.pop());
         let took = started.elapsed();
-        let failed = match (warmed, validation) {
-            (Ok(()), None) => None,
-            (Err(e), _) => Some(e.to_string()),
-            (Ok(()), Some(e)) => Some(e.to_string()),
-        };
+        // The stage's own error first: it is the cause of a validation one.
+        let failed =
+            (warmed.err().map(|e| e.to_string())).or_else(|| validation.map(|e| e.to_string()));
         match failed {
             None => tracing::info!(
                 "view {v}: {} made ready for {w}×{h} in {:.1} ms",
@@ -81,7 +79,6 @@ impl ViewOnDevice {
                 stage.describe()
             ),
         }
-        took
     }
 
     /// View `v` of the panel, its buffers made and its encoder aimed at

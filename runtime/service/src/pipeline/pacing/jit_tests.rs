@@ -54,7 +54,6 @@ fn run_with(
     let mut next_id = 0;
     let mut plan = schedule.plan_submission(0, 0, 0);
     let mut last_target = 0;
-    let mut last_submit = 0;
     // Runs the source and the stage up to `t`, in time order.
     let mut advance = |t: u64,
                        in_stage: &mut Option<Frame>,
@@ -96,9 +95,8 @@ fn run_with(
         }
         out.most_waiting = out.most_waiting.max(usize::from(waiting.is_some()));
         last_target = last_target.max(plan.refresh_ns);
-        last_submit = now;
         // As the pattern source plans (`source::Rate::wait`).
-        let after = schedule.replan_after(last_target, last_submit, 0);
+        let after = schedule.replan_after(last_target, now, 0);
         plan = schedule.plan_submission(now, after, 0);
     };
     for _ in 0..refreshes {

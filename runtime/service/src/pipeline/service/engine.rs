@@ -107,16 +107,17 @@ impl Engine {
                     }
                     let single = frames.views() == 1;
                     for (v, ns) in frames.last_view_ns().iter().enumerate() {
-                        match (ns, single) {
-                            (Some(ns), true) => stats.record(Stage::PreprocessGpu, *ns),
-                            (Some(ns), false) => stats.record_view(v, *ns),
-                            (None, _) => {}
+                        let Some(ns) = *ns else { continue };
+                        // The frame's device time: every view's summed.
+                        notes.gpu_ns = Some(notes.gpu_ns.unwrap_or(0) + ns);
+                        if single {
+                            stats.record(Stage::PreprocessGpu, ns);
+                        } else {
+                            stats.record_view(v, ns);
                         }
                     }
                     stats.record(Stage::PreprocessRecord, frames.last_record_ns());
                     notes.record_ns = Some(frames.last_record_ns());
-                    let spans = frames.last_view_ns().iter().flatten();
-                    notes.gpu_ns = spans.clone().next().map(|_| spans.sum());
                     stats.dcnn_traffic.record(traffic);
                     return Some(Processed::Device(frame));
                 }
