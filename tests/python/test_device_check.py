@@ -32,6 +32,7 @@ import check_steps  # noqa: E402
 import check_openxr  # noqa: E402
 import check_train  # noqa: E402
 import check_travel  # noqa: E402
+import timelines  # noqa: E402
 
 
 def test_the_plan_counts_every_tracked_file():
@@ -188,6 +189,45 @@ def test_the_report_compares_each_case_s_first_frame_with_the_settled_ones():
     md = check_report.report(steps, {"mode": "device", "date": "today", "commit": "abc", "device": "GPU"})
     assert "| model | 1 | f32 | 60.00 | 8.00 | 9.00 | 7.00 | 1 | 1 |" in md
     assert "| none | 1 | f32 | 60.00 | – | 9.00 | – | 1 | 1 |" in md
+
+
+def test_the_timelines_give_each_case_s_stage_holds_and_bounds(tmp_path, capsys):
+    # 30 frames submitted 11 ms apart, an upload of 1 ms and a stage of 4;
+    # from the 16th on each is held 2 ms, and the next waits that long behind it.
+    n = 30
+    held = [2.0 if i >= 15 else 0.0 for i in range(n)]
+    start = [11.0 * i + 1.0 + (2.0 if i >= 16 else 0.0) for i in range(n)]
+    frames = {"id": list(range(n)), "outcome": ["shown"] * n, "held_ms": held,
+              "submitted_ms": [11.0 * i for i in range(n)], "predicted_ms": [11.0 * i + 20 for i in range(n)],
+              "stages_ms": [[[11.0 * i, 11.0 * i + 1], [start[i], start[i] + 4 + held[i]], [0, 0]] for i in range(n)],
+              "ready_ms": [start[i] + 4 + held[i] for i in range(n)], "taken_ms": [11.0 * i + 9 for i in range(n)],
+              "shown_ms": [11.0 * i + 20 for i in range(n)], "replaced_ms": [None] * n}
+    c = timelines.case({"network": "model", "views": 1, "precision": "f32", "frames": frames})
+    assert (c["own_p50"], c["held"], c["of"], c["held_p50"], c["held_max"]) == (4.0, 10, 10, 2.0, 2.0)
+    assert c["gap_p50"] == pytest.approx(11.0) and c["ahead_p50"] == 20.0
+    # Own work 5 ms (the upload's 1 ms in); submission to ready less the
+    # hold 5 ms, or 7 ms behind a hold unless that wait is left out too.
+    assert c["bound_own_work"] == pytest.approx(5.0, abs=0.05)
+    assert c["bound_less_hold_and_behind"] == pytest.approx(5.0, abs=0.05)
+    assert c["bound_less_hold"] > 6.0
+    summary = tmp_path / "summary.json"
+    log = {"kind": "frame_log", "network": "model", "views": 1, "precision": "f32", "frames": frames,
+           "refreshes": {"refresh_ms": [20.0], "wake_ms": [9.0], "frame": [0], "presented_ms": [10.0],
+                         "taken_ms": [9.0]}}
+    summary.write_text(json.dumps({"steps": [{"name": "pipeline", "records": [log]}]}))
+    assert timelines.main(["timelines.py", str(summary)]) == 0
+    assert "| model 1 f32 | 4.00 | 4.00 | 6.00 | 10 of 10 | 2.00 / 2.00 | 20.00 |" in capsys.readouterr().out
+    assert timelines.main(["timelines.py", str(summary), "--frames", "model 1 f32", "0", "1"]) == 0
+    out = capsys.readouterr().out
+    assert "| 0 | shown | 0.00 | 20.00 | 4.00 | 0.00 | 5.00 | 20.00 | 1.00 |" in out
+    assert "| 20.00 | 9.00 | 11.00 | 0 | 10.00 |" in out
+    # Bad input: a named reason and a non-zero exit.
+    assert timelines.main(["timelines.py", str(summary), "--frames", "half 1 f32"]) == 1
+    assert "no case 'half 1 f32'; there are: model 1 f32" in capsys.readouterr().err
+    (tmp_path / "bad.json").write_text("[1]")
+    assert timelines.main(["timelines.py", str(tmp_path / "bad.json")]) == 1
+    assert "not a device check's summary.json" in capsys.readouterr().err
+    assert timelines.main(["timelines.py"]) == 2
 
 
 def test_a_bad_only_or_call_is_refused(capsys):

@@ -237,7 +237,7 @@ pub trait DeviceStage: Send + std::fmt::Debug {
     /// size between these buffers (pipelines compiled, buffers and bind
     /// groups), recording nothing, so that the first frame a client sends
     /// does not pay for it: a network's first frame took 1343 ms on the
-    /// H200, the next ones 9 ms, and planned the frames after it seconds
+    /// H200, the next ones 8–11 ms, and planned the frames after it seconds
     /// ahead (docs/service.md, "The warm-up"). Nothing, by default.
     fn warm_up(
         &mut self,

@@ -237,9 +237,9 @@ impl DisplaySchedule {
     /// planned one, unless the pipeline's estimate has shrunk since by more
     /// than a period. Such a frame is shown when ready, refreshes before
     /// its plan, and waiting for that plan would stall the source (the
-    /// H200, 2026-11-28: a 1343 ms first frame had frames planned 4 s
-    /// ahead, and the source made one each 200–300 ms as the estimate
-    /// shrank).
+    /// H200, 2026-11-28: a 1343 ms first frame had frames planned up to
+    /// 4.7 s ahead, and the source made one each 60–335 ms as the
+    /// estimate shrank).
     pub fn replan_after(&self, planned_ns: u64, submitted_ns: u64, make_ns: u64) -> u64 {
         let period = self.period_ns();
         let now_planned = self.refresh_at_or_after(submitted_ns + self.ahead_ns(make_ns));

@@ -16,7 +16,7 @@ use super::Pacer;
 /// The first [`Estimate::WARM_UP`] samples are averaged plainly, not
 /// exponentially, and the largest of them is left out: a stage's first
 /// frame pays its one-time costs (shaders compiled, buffers allocated,
-/// clocks ramped up), up to 1343 ms where the next frames took 9–11 ms
+/// clocks ramped up), up to 1343 ms where the next frames took 8–11 ms
 /// (the half network on the H200, 2026-11-28). Seeded with it, the
 /// exponential average kept the bound seconds long for tens of frames,
 /// and the pacing planned frames that far ahead (docs/service.md, "The
@@ -195,7 +195,7 @@ impl PresentPacer {
         let late_ns = done_ns - wake.vsync_ns;
         // The first presents pay one-time costs (the present's pipelines,
         // a GPU busy with the first frames' compiles): learnt, they kept
-        // the wake a period early for 700 ms after (the H200, 2026-11-28).
+        // the wake a period early for 0.8 s after (the H200, 2026-11-28).
         if !self.work.warming_up() {
             self.learnt_ns = (self.learnt_ns + late_ns).min(period / 2);
         }

@@ -1,0 +1,188 @@
+"""What a device check's frame timelines say, case by case (docs/benchmarks.md,
+"What the H200's timelines say about the steady state"): the figures quoted
+there are this script's output on docs/devcheck/2026-11-28-h200-2/summary.json.
+
+    python3 tools/device/timelines.py SUMMARY.json [--frames CASE [FIRST [COUNT]]]
+
+With --frames, one case's frames instead ("model 1 f32": network, views,
+precision), from the FIRST-th (0) on, COUNT of them (40), each with its
+submission, predicted refresh, preprocess span and hold, ready, shown or
+replaced, and its present (the take to the present's end), ms; then the
+present loop's refreshes over the same time: each refresh, its wake and
+lead (the refresh less the wake), the frame taken and the present's end.
+
+For each `frame_log` record of the pipeline step, over the frames after the
+20th (in the log's order):
+- the preprocess stage's own time (its span less the gate's hold) at p50 and
+  p90, and its wall p50 (the hold in);
+- how many frames the gate held back, and their hold's p50 and max;
+- submission to the refresh predicted for the frame (its plan's lead), p50;
+- the gaps between submissions at p10, p50 and p90;
+- the pipeline's bound (mean + 4 deviations, the service's `Estimate` with
+  its warm-up, in floating point) fed, frame by frame in the order they were
+  taken, with submission to ready less the hold (the feed before
+  2026-11-28), less also the queueing behind a held frame as far as its
+  hold made it longer (the feed since), and with the frames' own work (their
+  stages' spans less the hold); each bound's p50 after the 20th frame shown.
+Percentiles are the sorted values' element at p·(n − 1), rounded down."""
+
+import json
+import sys
+from pathlib import Path
+
+SKIP = 20
+DEVIATIONS = 4
+WARM_UP = 8
+
+
+class Estimate:
+    """The service's `pacing::Estimate` in floating point: the first
+    WARM_UP samples averaged plainly with the largest left out (the
+    deviation at least half the mean shrunk by 3/4 a sample), then
+    gains 1/8 and 1/4."""
+
+    def __init__(self):
+        self.mean, self.dev, self.first = 0.0, 0.0, []
+
+    def observe(self, x: float):
+        if len(self.first) < WARM_UP:
+            self.first.append(x)
+            kept = sorted(self.first)
+            kept = kept if len(kept) == 1 else kept[:-1]
+            self.mean = sum(kept) / len(kept)
+            spread = sum(abs(v - self.mean) for v in kept) / len(kept)
+            self.dev = max(spread, self.mean / 2 * 0.75 ** (len(kept) - 1))
+        else:
+            self.dev = (3 * self.dev + abs(x - self.mean)) / 4
+            self.mean = (7 * self.mean + x) / 8
+
+    def bound(self) -> float:
+        return self.mean + DEVIATIONS * self.dev
+
+
+def pct(values: list, p: float):
+    v = sorted(values)
+    return v[int(p * (len(v) - 1))] if v else None
+
+
+def case(record: dict) -> dict:
+    """The figures of one case's `frame_log` record (columns)."""
+    f = record["frames"]
+    n = len(f["id"])
+    span = [s[1][1] - s[1][0] for s in f["stages_ms"]]
+    held = f["held_ms"]
+    own = [span[i] - held[i] for i in range(n)]
+    later = range(SKIP, n)
+    holds = [held[i] for i in later if held[i] > 0]
+    submitted = sorted(f["submitted_ms"])
+    gaps = [b - a for a, b in zip(submitted[SKIP:], submitted[SKIP + 1:])]
+    # The queueing behind a held frame: the wait before the preprocess
+    # stage, at most the hold of the frame the stage took before it.
+    behind, last_hold = [0.0] * n, 0.0
+    for i in sorted(range(n), key=lambda i: f["stages_ms"][i][1][0]):
+        wait = f["stages_ms"][i][1][0] - f["stages_ms"][i][0][1]
+        behind[i], last_hold = max(0.0, min(wait, last_hold)), held[i]
+    feeds = {
+        "less_hold": lambda i: f["ready_ms"][i] - f["submitted_ms"][i] - held[i],
+        "less_hold_and_behind": lambda i: f["ready_ms"][i] - f["submitted_ms"][i] - held[i] - behind[i],
+        "own_work": lambda i: sum(b - a for a, b in f["stages_ms"][i]) - held[i],
+    }
+    shown = sorted((i for i in range(n) if f["outcome"][i] == "shown"), key=lambda i: f["taken_ms"][i])
+    bounds = {}
+    for name, feed in feeds.items():
+        e, b = Estimate(), []
+        for i in shown:
+            e.observe(feed(i))
+            b.append(e.bound())
+        bounds[name] = pct(b[SKIP:], 0.5)
+    return {
+        "case": f"{record['network']} {record['views']} {record['precision']}",
+        "own_p50": pct([own[i] for i in later], 0.5), "own_p90": pct([own[i] for i in later], 0.9),
+        "wall_p50": pct([span[i] for i in later], 0.5),
+        "held": len(holds), "of": len(later), "held_p50": pct(holds, 0.5), "held_max": max(holds, default=None),
+        "ahead_p50": pct([f["predicted_ms"][i] - f["submitted_ms"][i] for i in later], 0.5),
+        "gap_p10": pct(gaps, 0.1), "gap_p50": pct(gaps, 0.5), "gap_p90": pct(gaps, 0.9),
+        **{f"bound_{k}": v for k, v in bounds.items()},
+    }
+
+
+def frames(record: dict, first: int, count: int) -> list:
+    """One case's frames as table rows, from the `first`-th on."""
+    f, r = record["frames"], record.get("refreshes") or {}
+    present = {(fr, t): p - t for fr, t, p in zip(r.get("frame", []), r.get("taken_ms", []),
+                                               r.get("presented_ms", [])) if fr is not None and p is not None}
+    ms = lambda v: "–" if v is None else f"{v:.2f}"
+    rows = ["| id | outcome | submitted | predicted | preprocess | held | ready | shown or replaced | present |",
+            "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+    for i in range(first, min(first + count, len(f["id"]))):
+        span = f["stages_ms"][i][1]
+        end = f["shown_ms"][i] if f["outcome"][i] != "replaced" else f["replaced_ms"][i]
+        rows.append(f"| {f['id'][i]} | {f['outcome'][i]} | {ms(f['submitted_ms'][i])} | {ms(f['predicted_ms'][i])} | "
+                    f"{ms(span[1] - span[0])} | {ms(f['held_ms'][i])} | {ms(f['ready_ms'][i])} | {ms(end)} | "
+                    f"{ms(present.get((f['id'][i], f['taken_ms'][i])))} |")
+    shown = range(first, min(first + count, len(f["id"])))
+    if not r.get("refresh_ms") or not shown:
+        return rows
+    start = min(f["submitted_ms"][i] for i in shown)
+    end = max(v for i in shown for v in (f["shown_ms"][i], f["replaced_ms"][i], f["ready_ms"][i]) if v is not None)
+    rows += ["", "| refresh | wake | lead | frame | presented |", "| --- | --- | --- | --- | --- |"]
+    for j, t in enumerate(r["refresh_ms"]):
+        if start <= t <= end:
+            frame = r["frame"][j]
+            rows.append(f"| {ms(t)} | {ms(r['wake_ms'][j])} | {ms(t - r['wake_ms'][j])} | "
+                        f"{'–' if frame is None else frame} | {ms(r['presented_ms'][j])} |")
+    return rows
+
+
+def main(argv: list) -> int:
+    args = argv[1:]
+    pick = None
+    if len(args) >= 3 and args[1] == "--frames":
+        try:
+            extra = [int(a) for a in args[3:5]]
+        except ValueError:
+            extra = [-1]
+        if len(args) > 5 or any(a < 0 for a in extra):
+            args = []
+        else:
+            pick = (args[2], *extra, *(0, 40)[len(extra):])
+            args = args[:1]
+    if len(args) != 1:
+        print("usage: timelines.py SUMMARY.json [--frames CASE [FIRST [COUNT]]]", file=sys.stderr)
+        return 2
+    path = Path(args[0])
+    try:
+        summary = json.loads(path.read_text())
+        steps = summary["steps"]
+    except (OSError, ValueError, KeyError, TypeError) as e:
+        print(f"timelines.py: {path}: not a device check's summary.json ({e})", file=sys.stderr)
+        return 1
+    logs = [r for s in steps if s.get("name") == "pipeline" for r in s.get("records", [])
+            if r.get("kind") == "frame_log" and r.get("frames", {}).get("id")]
+    if not logs:
+        print(f"timelines.py: {path}: no frame timelines in its pipeline step", file=sys.stderr)
+        return 1
+    name = lambda r: f"{r['network']} {r['views']} {r['precision']}"
+    if pick:
+        record = next((r for r in logs if name(r) == pick[0]), None)
+        if record is None:
+            print(f"timelines.py: no case {pick[0]!r}; there are: {', '.join(name(r) for r in logs)}", file=sys.stderr)
+            return 1
+        print("\n".join(frames(record, pick[1], pick[2])))
+        return 0
+    ms = lambda v: "–" if v is None else f"{v:.2f}"
+    print("| case | own p50 ms | own p90 ms | wall p50 ms | held back | hold p50 / max ms | submitted ahead p50 ms "
+          "| submission gaps p10/p50/p90 ms | bound p50 ms: less the hold | less also the queue behind it "
+          "| own work |")
+    print("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |")
+    for r in logs:
+        c = case(r)
+        print(f"| {c['case']} | {ms(c['own_p50'])} | {ms(c['own_p90'])} | {ms(c['wall_p50'])} | "
+              f"{c['held']} of {c['of']} | {ms(c['held_p50'])} / {ms(c['held_max'])} | {ms(c['ahead_p50'])} | "
+              f"{ms(c['gap_p10'])} / {ms(c['gap_p50'])} / {ms(c['gap_p90'])} | {ms(c['bound_less_hold'])} | "
+              f"{ms(c['bound_less_hold_and_behind'])} | {ms(c['bound_own_work'])} |")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv))
