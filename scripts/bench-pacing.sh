@@ -5,7 +5,7 @@
 # adapter wgpu finds (lavapipe here). Each run prints end-to-end p50, the
 # stages' p50s summed (upload + dcnn + encode + present), the excess over
 # them and the issue's bound (a third of a refresh); at the end each
-# build's spread over its runs (min–max and mean).
+# build's spread over its runs (min–max and median).
 #
 #   scripts/bench-pacing.sh                     # target/release/nedrt, 3 runs
 #   RUNS=5 FRAMES=2000 scripts/bench-pacing.sh
@@ -52,11 +52,12 @@ python3 - "$runs" <<'PY'
 import json, sys
 rows = [json.loads(line) for line in open(sys.argv[1])]
 def spread(values, fmt):
-    values = [v for v in values if v is not None]
+    values = sorted(v for v in values if v is not None)
     if not values:
         return "n/a"
-    lo, hi = min(values), max(values)
-    return f"{lo:{fmt}}–{hi:{fmt}} (mean {sum(values) / len(values):{fmt}})"
+    n = len(values)
+    median = values[n // 2] if n % 2 else (values[n // 2 - 1] + values[n // 2]) / 2
+    return f"{values[0]:{fmt}}–{values[-1]:{fmt}} (median {median:{fmt}})"
 for b in dict.fromkeys(r["build"] for r in rows):
     mine = [r for r in rows if r["build"] == b]
     print(f"{b}, {len(mine)} runs: excess {spread([r['excess'] for r in mine], '.3f')} ms "

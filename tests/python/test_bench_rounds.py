@@ -3,7 +3,7 @@ the bench's JSON line and a frame log as `nedrt bench pipeline` does; the
 rounds run interleaved, the table spreads each build's figures over its
 rounds, replaced-early counts only replacements submitted before the cut,
 the first frame's preprocess time and the next nine's median leave out the
-gate's hold,
+gate's hold, the host's recording time is read where it is logged,
 kept runs tabulate again alike, and a failed run, a missing frame log or a
 bad argument is named, with a non-zero exit."""
 import importlib.util
@@ -22,8 +22,9 @@ rounds = importlib.util.module_from_spec(spec)
 spec.loader.exec_module(rounds)
 
 
-def frame(id_, submitted_ms, outcome, preprocess_ms=None, held_ms=0.0):
-    f = {"id": id_, "submitted_ms": submitted_ms, "outcome": outcome, "held_ms": held_ms}
+def frame(id_, submitted_ms, outcome, preprocess_ms=None, held_ms=0.0, record_ms=None):
+    f = {"id": id_, "submitted_ms": submitted_ms, "outcome": outcome, "held_ms": held_ms,
+         "record_ms": record_ms}
     if preprocess_ms is not None:
         start = submitted_ms + 0.1
         f["stages_ms"] = [[submitted_ms, start], [start, start + preprocess_ms], [0.0, 0.0]]
@@ -49,11 +50,22 @@ def test_replaced_early_counts_only_replacements_before_the_cut():
 
 
 def test_the_preprocess_time_leaves_out_the_hold():
-    log = {"frames": [frame(3, 40.0, "shown", 9.0, held_ms=4.0), frame(0, 0.0, "shown", 40.0, held_ms=30.0),
-                      frame(1, 20.0, "dropped"), frame(2, 30.0, "shown", 7.0)]}
+    log = {"frames": [frame(3, 40.0, "shown", 9.0, held_ms=4.0, record_ms=1.5),
+                      frame(0, 0.0, "shown", 40.0, held_ms=30.0, record_ms=20.0),
+                      frame(1, 20.0, "dropped"), frame(2, 30.0, "shown", 7.0, record_ms=0.5)]}
     first, nxt = rounds.preprocess_ms(log)
     assert first == pytest.approx(10.0) and nxt == pytest.approx(5.0)
+    assert rounds.recorded_ms(log) == (20.0, 0.5)
+    # An older build's log has no record_ms.
+    assert rounds.recorded_ms({"frames": [frame(0, 0.0, "shown", 4.0)]}) == (None, None)
     assert rounds.preprocess_ms({"frames": [frame(0, 0.0, "dropped")]}) == (None, None)
+
+
+def test_the_spread_is_the_range_and_the_median():
+    assert rounds.spread([5, 1, 60], True) == "1–60 (5)"
+    assert rounds.spread([3, 1, 4, 2], True) == "1–4 (2.5)"
+    assert rounds.spread([2.0, None, 1.0, 9.0], False) == "1.00–9.00 (2.00)"
+    assert rounds.spread([None], False) == "–"
 
 
 def test_kept_runs_are_spread_per_build(tmp_path):
@@ -71,12 +83,12 @@ def test_kept_runs_are_spread_per_build(tmp_path):
     text = rounds.table(runs)
     before = next(l for l in text.splitlines() if "| before |" in l)
     cells = [c.strip() for c in before.strip("|").split("|")]
-    assert cells == ["none, device, 1 view, f32", "before", "2", "190–195 (mean 192.5) of 200",
-                     "5–10 (mean 7.5)", "1–2 (mean 1.5)", "4–8 (mean 6.0)", "7.00–8.00 (7.50)",
-                     "10.00–12.00 (11.00)", "30.00–50.00 (40.00)", "6.00–8.00 (7.00)"]
+    assert cells == ["none, device, 1 view, f32", "before", "2", "190–195 (192.5) of 200",
+                     "5–10 (7.5)", "1–2 (1.5)", "4–8 (6)", "7.00–8.00 (7.50)",
+                     "10.00–12.00 (11.00)", "30.00–50.00 (40.00)", "6.00–8.00 (7.00)", "–", "–"]
     after = next(l for l in text.splitlines() if "| after |" in l)
-    assert "| 198 (mean 198.0) of 200 | 2 (mean 2.0) | 0 (mean 0.0) |" in after
-    assert after.endswith("| – | – |")
+    assert "| 198 (198) of 200 | 2 (2) | 0 (0) |" in after
+    assert after.endswith("| – | – | – | – |")
 
 
 def stand_in(tmp_path: Path, presented: int) -> Path:
@@ -112,8 +124,8 @@ def test_rounds_interleave_the_builds_and_keep_what_they_ran(tmp_path, capsys):
     calls = (tmp_path / "calls").read_text().splitlines()
     assert calls == ["190 bench pipeline --networks", "199 bench pipeline --networks"] * 2
     out = capsys.readouterr().out
-    assert "| none, device, 1 view, f32 | old | 2 | 190 (mean 190.0) of 200 | 10 (mean 10.0) |" in out
-    assert "| new | 2 | 199 (mean 199.0) of 200 | 1 (mean 1.0) | 1 (mean 1.0) |" in out
+    assert "| none, device, 1 view, f32 | old | 2 | 190 (190) of 200 | 10 (10) |" in out
+    assert "| new | 2 | 199 (199) of 200 | 1 (1) | 1 (1) |" in out
     assert sorted(p.name for p in (keep / "new").iterdir()) == ["1", "2"]
     again = rounds.table(rounds.summarise(keep, 0.35))
     assert again.strip() in out
@@ -146,6 +158,7 @@ def test_a_kept_run_without_its_frame_log_is_named(tmp_path, capsys):
     ["--build", "a=x", "--rounds", "0", "--", "bench", "pipeline"],
     ["--build", "a=x", "--", "bench", "fft"],
     ["--summarise", "somewhere", "--build", "a=x"],
+    ["--build", "a=x", "--pause-s", "-1", "--", "bench", "pipeline"],
 ])
 def test_bad_arguments_are_refused(args):
     with pytest.raises(SystemExit) as e:

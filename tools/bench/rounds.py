@@ -3,7 +3,7 @@ each build's spread over the rounds (docs/benchmarks.md quotes its tables):
 
     python3 tools/bench/rounds.py --rounds 6 \\
         --build before=/tmp/old/nedrt --build after=target/release/nedrt \\
-        [--early-s 0.35] [--keep DIR] -- \\
+        [--pause-s 15] [--early-s 0.35] [--keep DIR] -- \\
         --design multifocal bench pipeline --networks none --frame-paths device \\
         --panel 480x270 --frames 200 --max-seconds 8
     python3 tools/bench/rounds.py --summarise DIR [--early-s 0.35]
@@ -11,16 +11,17 @@ each build's spread over the rounds (docs/benchmarks.md quotes its tables):
 Each round runs every build once, in the order given, with the arguments
 after `--` and `--frame-log` added; the machine's load drifts, so builds
 compared side by side share it. Per build and case (network, frame path,
-views, precision), over the rounds, each as min–max (mean): frames shown
+views, precision), over the rounds, each as min–max (median): frames shown
 of those submitted; dropped; replaced early (replaced in the present slot
 by a newer frame, and submitted in the first --early-s seconds: the
 warm-up's share of the drops); late; e2e p50; submitted ahead (the
-bench's `ahead_ms`); and the preprocess stage's own time (its span less
-the gate's hold) of the first frame and the median (the lower middle) of
-the next nine: the warm-up's cost. `--keep DIR` keeps each run's bench
-records and frame logs (DIR/NAME/ROUND/, the builds' order in
-DIR/builds.txt); `--summarise DIR` tabulates kept runs again without
-running anything.
+bench's `ahead_ms`); the preprocess stage's own time (its span less the
+gate's hold) of the first frame and the median (the lower middle) of the
+next nine; and alike the host's time before the stage's submission
+(`record_ms`, where the build logs it): the warm-up's cost. `--keep DIR`
+keeps each run's bench records and frame logs (DIR/NAME/ROUND/, the
+builds' order in DIR/builds.txt); `--summarise DIR` tabulates kept runs
+again without running anything.
 
 A benchmark, not a test: the machine's load moves every number."""
 
@@ -31,11 +32,12 @@ import shutil
 import subprocess
 import sys
 import tempfile
+import time
 from pathlib import Path
 
 # The table's columns, each a key of a run's row.
 COLUMNS = ["shown", "dropped", "replaced early", "late", "e2e p50 ms", "submitted ahead ms",
-           "first preprocess ms", "next 9 preprocess ms"]
+           "first preprocess ms", "next 9 preprocess ms", "first recorded ms", "next 9 recorded ms"]
 INTEGER = {"shown", "dropped", "replaced early", "late"}
 
 
@@ -71,17 +73,31 @@ def replaced_early(frame_log: dict, early_s: float) -> int:
                if f.get("outcome") == "replaced" and f["submitted_ms"] < early_s * 1000.0)
 
 
-def preprocess_ms(frame_log: dict) -> tuple:
-    """The first frame's preprocess stage time (its span less the gate's
-    hold) and the median of the next nine's (by id, those that reached the
-    stage); None where there are none."""
-    own = {f["id"]: f["stages_ms"][1][1] - f["stages_ms"][1][0] - (f.get("held_ms") or 0.0)
-           for f in frame_log["frames"] if len(f.get("stages_ms") or []) > 1}
-    ids = sorted(own)
+def first_and_next(frame_log: dict, read) -> tuple:
+    """A figure of the first frame to reach the preprocess stage and the
+    median (the lower middle) of the next nine's, by id; None where there
+    are none or the log lacks it (an older build's)."""
+    values = {}
+    for f in frame_log["frames"]:
+        if len(f.get("stages_ms") or []) > 1:
+            values[f["id"]] = read(f)
+    ids = sorted(values)
     if not ids:
         return None, None
-    nxt = sorted(own[i] for i in ids[1:10])
-    return own[ids[0]], (nxt[(len(nxt) - 1) // 2] if nxt else None)
+    nxt = sorted(v for v in (values[i] for i in ids[1:10]) if v is not None)
+    return values[ids[0]], (nxt[(len(nxt) - 1) // 2] if nxt else None)
+
+
+def preprocess_ms(frame_log: dict) -> tuple:
+    """The preprocess stage's own time (its span less the gate's hold)."""
+    return first_and_next(frame_log, lambda f: f["stages_ms"][1][1] - f["stages_ms"][1][0]
+                          - (f.get("held_ms") or 0.0))
+
+
+def recorded_ms(frame_log: dict) -> tuple:
+    """The host's time before the stage's submission (`record_ms`): a
+    pipeline built or a plan made in a frame shows here."""
+    return first_and_next(frame_log, lambda f: f.get("record_ms"))
 
 
 def frame_logs(folder: Path) -> dict:
@@ -105,7 +121,9 @@ def run_rows(records: list, logs: dict, early_s: float, source: str) -> list:
             raise RoundsError(f"{source}: no frame log for the case {key}")
         try:
             first, nxt = preprocess_ms(logs[key])
-            row = {"case": key, "first preprocess ms": first, "next 9 preprocess ms": nxt, "shown": r["presented"], "dropped": r["dropped"],
+            first_rec, next_rec = recorded_ms(logs[key])
+            row = {"case": key, "first preprocess ms": first, "next 9 preprocess ms": nxt,
+                   "first recorded ms": first_rec, "next 9 recorded ms": next_rec, "shown": r["presented"], "dropped": r["dropped"],
                    "replaced early": replaced_early(logs[key], early_s), "late": r["late"],
                    "e2e p50 ms": r["e2e_p50_ms"], "submitted ahead ms": r["ahead_ms"],
                    "submitted": r["presented"] + r["dropped"]}
@@ -116,15 +134,18 @@ def run_rows(records: list, logs: dict, early_s: float, source: str) -> list:
 
 
 def spread(values: list, integer: bool) -> str:
-    values = [v for v in values if v is not None]
+    """min–max (median): a shared machine's bad round moves a mean, not a median."""
+    values = sorted(v for v in values if v is not None)
     if not values:
         return "–"
-    lo, hi, mean = min(values), max(values), sum(values) / len(values)
+    n = len(values)
+    median = values[n // 2] if n % 2 else (values[n // 2 - 1] + values[n // 2]) / 2
+    lo, hi = values[0], values[-1]
     if integer:
         span = f"{lo}" if lo == hi else f"{lo}–{hi}"
-        return f"{span} (mean {mean:.1f})"
+        return f"{span} ({median:g})"
     span = f"{lo:.2f}" if lo == hi else f"{lo:.2f}–{hi:.2f}"
-    return f"{span} ({mean:.2f})"
+    return f"{span} ({median:.2f})"
 
 
 def table(runs: dict) -> str:
@@ -220,6 +241,8 @@ def main(argv: list) -> int:
                    help="frames submitted before this are the warm-up's (replaced early)")
     p.add_argument("--keep", type=Path, help="keep each run's records in KEEP/NAME/ROUND/")
     p.add_argument("--summarise", type=Path, help="tabulate runs kept with --keep; run nothing")
+    p.add_argument("--pause-s", type=float, default=0.0,
+                   help="idle this long before each run (a shared machine's CPU slows under long load)")
     p.add_argument("--timeout-s", type=float, default=600.0, help="the longest one run may take")
     a = p.parse_args(own)
     try:
@@ -234,6 +257,8 @@ def main(argv: list) -> int:
             p.error("the `bench pipeline` arguments after `--`")
         if a.rounds < 1:
             p.error("--rounds must be at least 1")
+        if a.pause_s < 0:
+            p.error("--pause-s must not be negative")
         names = [n for n, _ in a.build]
         if len(set(names)) != len(names):
             p.error("each --build needs a name of its own")
@@ -247,6 +272,7 @@ def main(argv: list) -> int:
                     folder = root / name / str(i)
                     if folder.exists():
                         shutil.rmtree(folder)
+                    time.sleep(a.pause_s)
                     run_once(binary, bench_args, folder, a.timeout_s)
                     rows = read_run(folder, a.early_s)
                     runs[name].append(rows)
