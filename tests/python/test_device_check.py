@@ -12,7 +12,8 @@ back fits the tool's 8 files; the continued checkpoint that comes back is
 checked against its card, and the report says where the training started;
 the OpenXR step's runtime and client are unpacked from what travels (the
 2026-11-27 device run failed there: a local helper hid `unpack`); a case's
-frame timelines come back as one record, column by column."""
+frame timelines come back as one record, column by column, and the report
+shows their steady state as timelines.py does."""
 import importlib.util
 import json
 import subprocess
@@ -214,9 +215,24 @@ def test_the_timelines_give_each_case_s_stage_holds_and_bounds(tmp_path, capsys)
     log = {"kind": "frame_log", "network": "model", "views": 1, "precision": "f32", "frames": frames,
            "refreshes": {"refresh_ms": [20.0], "wake_ms": [9.0], "frame": [0], "presented_ms": [10.0],
                          "taken_ms": [9.0]}}
+    # 24 more refreshes, long after, each woken for 1.5 ms before it: the
+    # present's lead after the 20th.
+    for k in range(24):
+        for key, v in (("refresh_ms", 1000.0 + 11 * k), ("wake_ms", 998.5 + 11 * k), ("frame", None),
+                       ("presented_ms", None), ("taken_ms", None)):
+            log["refreshes"][key].append(v)
     summary.write_text(json.dumps({"steps": [{"name": "pipeline", "records": [log]}]}))
     assert timelines.main(["timelines.py", str(summary)]) == 0
-    assert "| model 1 f32 | 4.00 | 4.00 | 6.00 | 10 of 10 | 2.00 / 2.00 | 20.00 |" in capsys.readouterr().out
+    row = "| model 1 f32 | 4.00 | 4.00 | 6.00 | 10 of 10 | 2.00 / 2.00 | 20.00 | 11.00 / 11.00 / 11.00 | 1.50 |"
+    assert row in capsys.readouterr().out
+    # The device check's report shows the same table; a log without the
+    # columns it reads (an older binary's) is left out of it.
+    steps = steps_of_a_run()
+    old = {**log, "network": "none", "frames": {k: v for k, v in frames.items() if k != "ready_ms"}}
+    steps["pipeline"].records += [log, old]
+    steps["pipeline"].text = "| network |"
+    md = check_report.report(steps, {"mode": "device", "date": "today", "commit": "abc", "device": "GPU"})
+    assert "The steady state (GPU, commit abc)" in md and row in md and "| none 1 f32 |" not in md
     assert timelines.main(["timelines.py", str(summary), "--frames", "model 1 f32", "0", "1"]) == 0
     out = capsys.readouterr().out
     assert "| 0 | shown | 0.00 | 20.00 | 4.00 | 0.00 | 5.00 | 20.00 | 1.00 |" in out
@@ -228,6 +244,9 @@ def test_the_timelines_give_each_case_s_stage_holds_and_bounds(tmp_path, capsys)
     assert timelines.main(["timelines.py", str(tmp_path / "bad.json")]) == 1
     assert "not a device check's summary.json" in capsys.readouterr().err
     assert timelines.main(["timelines.py"]) == 2
+    (tmp_path / "old.json").write_text(json.dumps({"steps": [{"name": "pipeline", "records": [old]}]}))
+    assert timelines.main(["timelines.py", str(tmp_path / "old.json")]) == 1
+    assert "no case's timelines have every column" in capsys.readouterr().err
 
 
 def test_a_bad_only_or_call_is_refused(capsys):

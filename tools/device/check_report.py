@@ -5,6 +5,8 @@ quotes them."""
 
 import statistics
 
+import timelines
+
 
 def report(steps: dict, meta: dict) -> str:
     head = f"{meta['device']}, commit {meta['commit']}{' (+ local changes)' if meta.get('dirty') else ''}"
@@ -51,6 +53,10 @@ def report(steps: dict, meta: dict) -> str:
         md += ["", f"## The pipeline end to end ({head})", "", text("pipeline")]
         md += pacing_target(records("pipeline", "pipeline"), head)
         md += warm_up(records("pipeline", "frame_log"), head)
+        steady = timelines.table(records("pipeline", "frame_log"))
+        if steady:
+            md += ["", f"The steady state ({head}): each case's frames after its 20th, from the frame logs "
+                   "(tools/device/timelines.py; docs/benchmarks.md says what each column is).", "", *steady]
     if text("openxr"):
         md += ["", f"## The OpenXR runtime ({head})", "", "The openxr crate's client through libnedrt_openxr.so "
                "into nedrt run --stereo --sink headless (docs/openxr.md): the copy-out of each view on the "

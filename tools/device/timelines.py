@@ -18,6 +18,8 @@ For each `frame_log` record of the pipeline step, over the frames after the
 - how many frames the gate held back, and their hold's p50 and max;
 - submission to the refresh predicted for the frame (its plan's lead), p50;
 - the gaps between submissions at p10, p50 and p90;
+- the present loop's lead (each refresh less its planned wake) over the
+  refreshes after the 20th, p50;
 - the pipeline's bound (mean + 4 deviations, the service's `Estimate` with
   its warm-up, in floating point) fed, frame by frame in the order they were
   taken, with submission to ready less the hold (the feed before
@@ -95,8 +97,11 @@ def case(record: dict) -> dict:
             e.observe(feed(i))
             b.append(e.bound())
         bounds[name] = pct(b[SKIP:], 0.5)
+    r = record.get("refreshes") or {}
+    leads = [t - w for t, w in zip(r.get("refresh_ms", []), r.get("wake_ms", [])) if w is not None]
     return {
         "case": f"{record['network']} {record['views']} {record['precision']}",
+        "lead_p50": pct(leads[SKIP:], 0.5),
         "own_p50": pct([own[i] for i in later], 0.5), "own_p90": pct([own[i] for i in later], 0.9),
         "wall_p50": pct([span[i] for i in later], 0.5),
         "held": len(holds), "of": len(later), "held_p50": pct(holds, 0.5), "held_max": max(holds, default=None),
@@ -104,6 +109,29 @@ def case(record: dict) -> dict:
         "gap_p10": pct(gaps, 0.1), "gap_p50": pct(gaps, 0.5), "gap_p90": pct(gaps, 0.9),
         **{f"bound_{k}": v for k, v in bounds.items()},
     }
+
+
+# The columns case() reads; a log without one (an older binary's) is left out.
+NEEDS = ("id", "outcome", "held_ms", "submitted_ms", "predicted_ms", "stages_ms", "ready_ms", "taken_ms")
+
+
+def table(logs: list) -> list:
+    """The figures of every case with all the columns case() reads, as a
+    Markdown table (the device check's report shows it too)."""
+    ms = lambda v: "–" if v is None else f"{v:.2f}"
+    rows = ["| case | own p50 ms | own p90 ms | wall p50 ms | held back | hold p50 / max ms | submitted ahead p50 ms "
+            "| submission gaps p10/p50/p90 ms | present's lead p50 ms | bound p50 ms: less the hold "
+            "| less also the queue behind it | own work |",
+            "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+    for r in logs:
+        if not all(k in r.get("frames", {}) for k in NEEDS):
+            continue
+        c = case(r)
+        rows.append(f"| {c['case']} | {ms(c['own_p50'])} | {ms(c['own_p90'])} | {ms(c['wall_p50'])} | "
+                    f"{c['held']} of {c['of']} | {ms(c['held_p50'])} / {ms(c['held_max'])} | {ms(c['ahead_p50'])} | "
+                    f"{ms(c['gap_p10'])} / {ms(c['gap_p50'])} / {ms(c['gap_p90'])} | {ms(c['lead_p50'])} | "
+                    f"{ms(c['bound_less_hold'])} | {ms(c['bound_less_hold_and_behind'])} | {ms(c['bound_own_work'])} |")
+    return rows if len(rows) > 2 else []
 
 
 def frames(record: dict, first: int, count: int) -> list:
@@ -170,17 +198,11 @@ def main(argv: list) -> int:
             return 1
         print("\n".join(frames(record, pick[1], pick[2])))
         return 0
-    ms = lambda v: "–" if v is None else f"{v:.2f}"
-    print("| case | own p50 ms | own p90 ms | wall p50 ms | held back | hold p50 / max ms | submitted ahead p50 ms "
-          "| submission gaps p10/p50/p90 ms | bound p50 ms: less the hold | less also the queue behind it "
-          "| own work |")
-    print("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |")
-    for r in logs:
-        c = case(r)
-        print(f"| {c['case']} | {ms(c['own_p50'])} | {ms(c['own_p90'])} | {ms(c['wall_p50'])} | "
-              f"{c['held']} of {c['of']} | {ms(c['held_p50'])} / {ms(c['held_max'])} | {ms(c['ahead_p50'])} | "
-              f"{ms(c['gap_p10'])} / {ms(c['gap_p50'])} / {ms(c['gap_p90'])} | {ms(c['bound_less_hold'])} | "
-              f"{ms(c['bound_less_hold_and_behind'])} | {ms(c['bound_own_work'])} |")
+    rows = table(logs)
+    if not rows:
+        print(f"timelines.py: {path}: no case's timelines have every column ({', '.join(NEEDS)})", file=sys.stderr)
+        return 1
+    print("\n".join(rows))
     return 0
 
 
