@@ -147,6 +147,17 @@ def test_a_kept_run_without_its_frame_log_is_named(tmp_path, capsys):
     os.remove(tmp_path / "a" / "1" / "frames-none-device-f32.json")
     assert rounds.main(["--summarise", str(tmp_path)]) == 1
     assert "no frame log for the case ('none', 'device', 1, 'f32')" in capsys.readouterr().err
+    # A record without its case, and one without a figure.
+    (tmp_path / "a" / "1" / "bench.jsonl").write_text('{"kind": "pipeline", "presented": 1}\n')
+    assert rounds.main(["--summarise", str(tmp_path)]) == 1
+    assert "a bench record without its case ('network')" in capsys.readouterr().err
+    other = tmp_path / "other"
+    write_run(other / "b" / "1", 195, 5, 8, 8.0, 10.0, [])
+    record = json.loads((other / "b" / "1" / "bench.jsonl").read_text())
+    del record["ahead_ms"]
+    (other / "b" / "1" / "bench.jsonl").write_text(json.dumps(record) + "\n")
+    assert rounds.main(["--summarise", str(other)]) == 1
+    assert "lacks 'ahead_ms'" in capsys.readouterr().err
     assert rounds.main(["--summarise", str(tmp_path / "nothing")]) == 1
     assert "not a folder of kept runs" in capsys.readouterr().err
 

@@ -116,16 +116,21 @@ def run_rows(records: list, logs: dict, early_s: float, source: str) -> list:
     """One row per case of a run: the record's figures and its early replacements."""
     rows = []
     for r in records:
-        key = case_key(r)
+        try:
+            key = case_key(r)
+        except (KeyError, TypeError, ValueError) as e:
+            raise RoundsError(f"{source}: a bench record without its case ({e})") from None
         if key not in logs:
             raise RoundsError(f"{source}: no frame log for the case {key}")
+        log = logs[key]
         try:
-            first, nxt = preprocess_ms(logs[key])
-            first_rec, next_rec = recorded_ms(logs[key])
-            row = {"case": key, "first preprocess ms": first, "next 9 preprocess ms": nxt,
-                   "first recorded ms": first_rec, "next 9 recorded ms": next_rec, "shown": r["presented"], "dropped": r["dropped"],
-                   "replaced early": replaced_early(logs[key], early_s), "late": r["late"],
+            first, nxt = preprocess_ms(log)
+            first_rec, next_rec = recorded_ms(log)
+            row = {"case": key, "shown": r["presented"], "dropped": r["dropped"],
+                   "replaced early": replaced_early(log, early_s), "late": r["late"],
                    "e2e p50 ms": r["e2e_p50_ms"], "submitted ahead ms": r["ahead_ms"],
+                   "first preprocess ms": first, "next 9 preprocess ms": nxt,
+                   "first recorded ms": first_rec, "next 9 recorded ms": next_rec,
                    "submitted": r["presented"] + r["dropped"]}
         except (KeyError, TypeError, IndexError) as e:
             raise RoundsError(f"{source}: the record or frame log of {key} lacks {e}") from None
