@@ -49,15 +49,13 @@ PY
     done
 done
 python3 - "$runs" <<'PY'
-import json, sys
+import json, statistics, sys
 rows = [json.loads(line) for line in open(sys.argv[1])]
 def spread(values, fmt):
-    values = sorted(v for v in values if v is not None)
+    values = [v for v in values if v is not None]
     if not values:
         return "n/a"
-    n = len(values)
-    median = values[n // 2] if n % 2 else (values[n // 2 - 1] + values[n // 2]) / 2
-    return f"{values[0]:{fmt}}–{values[-1]:{fmt}} (median {median:{fmt}})"
+    return f"{min(values):{fmt}}–{max(values):{fmt}} (median {statistics.median(values):{fmt}})"
 for b in dict.fromkeys(r["build"] for r in rows):
     mine = [r for r in rows if r["build"] == b]
     print(f"{b}, {len(mine)} runs: excess {spread([r['excess'] for r in mine], '.3f')} ms "

@@ -29,6 +29,7 @@ import argparse
 import json
 import os
 import shutil
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -84,8 +85,8 @@ def first_and_next(frame_log: dict, read) -> tuple:
     ids = sorted(values)
     if not ids:
         return None, None
-    nxt = sorted(v for v in (values[i] for i in ids[1:10]) if v is not None)
-    return values[ids[0]], (nxt[(len(nxt) - 1) // 2] if nxt else None)
+    nxt = [v for v in (values[i] for i in ids[1:10]) if v is not None]
+    return values[ids[0]], (statistics.median_low(nxt) if nxt else None)
 
 
 def preprocess_ms(frame_log: dict) -> tuple:
@@ -140,12 +141,10 @@ def run_rows(records: list, logs: dict, early_s: float, source: str) -> list:
 
 def spread(values: list, integer: bool) -> str:
     """min–max (median): a shared machine's bad round moves a mean, not a median."""
-    values = sorted(v for v in values if v is not None)
+    values = [v for v in values if v is not None]
     if not values:
         return "–"
-    n = len(values)
-    median = values[n // 2] if n % 2 else (values[n // 2 - 1] + values[n // 2]) / 2
-    lo, hi = values[0], values[-1]
+    median, lo, hi = statistics.median(values), min(values), max(values)
     if integer:
         span = f"{lo}" if lo == hi else f"{lo}–{hi}"
         return f"{span} ({median:g})"
@@ -181,7 +180,8 @@ def table(runs: dict) -> str:
     return "\n".join(lines)
 
 
-def run_once(binary: str, bench_args: list, folder: Path, timeout_s: float) -> str:
+def run_once(binary: str, bench_args: list, folder: Path, timeout_s: float):
+    """One run into `folder`: its JSON lines kept as bench.jsonl beside its frame logs."""
     folder.mkdir(parents=True, exist_ok=True)
     env = dict(os.environ)
     env.setdefault("XDG_RUNTIME_DIR", "/tmp")
@@ -197,7 +197,6 @@ def run_once(binary: str, bench_args: list, folder: Path, timeout_s: float) -> s
         raise RoundsError(f"{binary}: exit status {done.returncode}\n{tail}")
     (folder / "bench.jsonl").write_text(
         "".join(line + "\n" for line in done.stdout.splitlines() if line.startswith("{")))
-    return done.stdout
 
 
 def read_run(folder: Path, early_s: float) -> list:

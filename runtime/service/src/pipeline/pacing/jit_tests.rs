@@ -318,8 +318,9 @@ fn a_plan_made_with_an_inflated_estimate_is_not_waited_for() {
 }
 
 /// Presents late in the warm-up (the H200, 2026-11-28: five of the first
-/// ten 6–17 ms behind the first frames' compiles, then 0.7–1.1 ms) leave no margin behind: the
-/// wake comes back to the work and the margin's floor.
+/// ten 6–17 ms behind the first frames' compiles, then 0.7–1.1 ms) leave
+/// no margin behind: the wake comes back to the work and the margin's
+/// floor.
 #[test]
 fn presents_late_in_the_warm_up_are_not_learnt() {
     let mut pacer = PresentPacer::new(90.0, 0);
