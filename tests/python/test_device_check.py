@@ -224,7 +224,16 @@ def test_the_timelines_give_each_case_s_stage_holds_and_bounds(tmp_path, capsys)
     summary.write_text(json.dumps({"steps": [{"name": "pipeline", "records": [log]}]}))
     assert timelines.main(["timelines.py", str(summary)]) == 0
     row = "| model 1 f32 | 4.00 | 4.00 | 6.00 | 10 of 10 | 2.00 / 2.00 | 20.00 | 11.00 / 11.00 / 11.00 | 1.50 |"
-    assert row in capsys.readouterr().out
+    out = capsys.readouterr().out
+    # No refresh rate in the log: no plan to set against it.
+    assert row in out and out.rstrip().endswith("| – |")
+    # The plan's lead: the bound (5 ms), the present's lead (1.5 ms) and a
+    # 32nd of the refresh; within 11.11 ms at 90 Hz, not within 6.25 at 160.
+    at_90 = timelines.case({**log, "refresh_hz": 90.0})
+    assert at_90["plan_ms"] == pytest.approx(5.0 + 1.5 + 1000 / 90 / 32, abs=0.05)
+    assert at_90["refresh_ms"] == pytest.approx(1000 / 90)
+    assert "(yes: 11.11) |" in timelines.table([{**log, "refresh_hz": 90.0}])[2]
+    assert "(no: 6.25) |" in timelines.table([{**log, "refresh_hz": 160.0}])[2]
     # The device check's report shows the same table; a log without the
     # columns it reads (an older binary's) is left out of it.
     steps = steps_of_a_run()

@@ -25,7 +25,14 @@ For each `frame_log` record of the pipeline step, over the frames after the
   taken, with submission to ready less the hold (the feed before
   2026-11-28), less also the queueing behind a held frame as far as its
   hold made it longer (the feed since), and with the frames' own work (their
-  stages' spans less the hold); each bound's p50 after the 20th frame shown.
+  stages' spans less the hold); each bound's p50 after the 20th frame shown;
+- the plan's lead that follows (docs/service.md, "Just in time"): a source
+  submits a frame the pipeline's bound (the feed since), the present loop's
+  lead and a 32nd of a refresh before the refresh it is made for, so its end
+  to end p50 is at least their sum (the source's own making comes on top
+  when it is quicker than its bound); set beside the refresh, this says
+  whether a case can meet issue 39's line (p50 within one refresh) once the
+  estimate has settled.
 Percentiles are the sorted values' element at p·(n − 1), rounded down."""
 
 import json
@@ -108,7 +115,17 @@ def case(record: dict) -> dict:
         "ahead_p50": pct([f["predicted_ms"][i] - f["submitted_ms"][i] for i in later], 0.5),
         "gap_p10": pct(gaps, 0.1), "gap_p50": pct(gaps, 0.5), "gap_p90": pct(gaps, 0.9),
         **{f"bound_{k}": v for k, v in bounds.items()},
+        **plan(bounds["less_hold_and_behind"], pct(leads[SKIP:], 0.5), record.get("refresh_hz")),
     }
+
+
+def plan(bound, lead, refresh_hz) -> dict:
+    """The plan's lead from submission to refresh (`DisplaySchedule::ahead_ns`
+    less the source's making) and the refresh it is set against."""
+    if bound is None or lead is None or not refresh_hz:
+        return {"plan_ms": None, "refresh_ms": None}
+    period = 1000.0 / refresh_hz
+    return {"plan_ms": bound + lead + period / 32, "refresh_ms": period}
 
 
 # The columns case() reads; a log without one (an older binary's) is left out.
@@ -121,8 +138,10 @@ def table(logs: list) -> list:
     ms = lambda v: "–" if v is None else f"{v:.2f}"
     rows = ["| case | own p50 ms | own p90 ms | wall p50 ms | held back | hold p50 / max ms | submitted ahead p50 ms "
             "| submission gaps p10/p50/p90 ms | present's lead p50 ms | bound p50 ms: less the hold "
-            "| less also the queue behind it | own work |",
-            "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+            "| less also the queue behind it | own work | plan's lead ms (within a refresh) |",
+            "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+    within = lambda c: "–" if c["plan_ms"] is None else (
+        f"{c['plan_ms']:.2f} ({'yes' if c['plan_ms'] <= c['refresh_ms'] else 'no'}: {c['refresh_ms']:.2f})")
     for r in logs:
         if not all(k in r.get("frames", {}) for k in NEEDS):
             continue
@@ -130,7 +149,8 @@ def table(logs: list) -> list:
         rows.append(f"| {c['case']} | {ms(c['own_p50'])} | {ms(c['own_p90'])} | {ms(c['wall_p50'])} | "
                     f"{c['held']} of {c['of']} | {ms(c['held_p50'])} / {ms(c['held_max'])} | {ms(c['ahead_p50'])} | "
                     f"{ms(c['gap_p10'])} / {ms(c['gap_p50'])} / {ms(c['gap_p90'])} | {ms(c['lead_p50'])} | "
-                    f"{ms(c['bound_less_hold'])} | {ms(c['bound_less_hold_and_behind'])} | {ms(c['bound_own_work'])} |")
+                    f"{ms(c['bound_less_hold'])} | {ms(c['bound_less_hold_and_behind'])} | {ms(c['bound_own_work'])} | "
+                    f"{within(c)} |")
     return rows if len(rows) > 2 else []
 
 
