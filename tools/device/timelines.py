@@ -106,16 +106,17 @@ def case(record: dict) -> dict:
         bounds[name] = pct(b[SKIP:], 0.5)
     r = record.get("refreshes") or {}
     leads = [t - w for t, w in zip(r.get("refresh_ms", []), r.get("wake_ms", [])) if w is not None]
+    lead_p50 = pct(leads[SKIP:], 0.5)
     return {
         "case": f"{record['network']} {record['views']} {record['precision']}",
-        "lead_p50": pct(leads[SKIP:], 0.5),
+        "lead_p50": lead_p50,
         "own_p50": pct([own[i] for i in later], 0.5), "own_p90": pct([own[i] for i in later], 0.9),
         "wall_p50": pct([span[i] for i in later], 0.5),
         "held": len(holds), "of": len(later), "held_p50": pct(holds, 0.5), "held_max": max(holds, default=None),
         "ahead_p50": pct([f["predicted_ms"][i] - f["submitted_ms"][i] for i in later], 0.5),
         "gap_p10": pct(gaps, 0.1), "gap_p50": pct(gaps, 0.5), "gap_p90": pct(gaps, 0.9),
         **{f"bound_{k}": v for k, v in bounds.items()},
-        **plan(bounds["less_hold_and_behind"], pct(leads[SKIP:], 0.5), record.get("refresh_hz")),
+        **plan(bounds["less_hold_and_behind"], lead_p50, record.get("refresh_hz")),
     }
 
 
