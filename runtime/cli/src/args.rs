@@ -218,13 +218,44 @@ pub enum Command {
     Stability(StabilityArgs),
 }
 
+/// `nedrt run --preprocess`: a method, or the frame budget's ladder.
+#[derive(Debug, Clone)]
+pub enum RunPreprocess {
+    Method(Method),
+    Auto(nedrt_run::LadderSpec),
+}
+
+fn parse_run_preprocess(s: &str) -> Result<RunPreprocess, String> {
+    if let Some(spec) = nedrt_run::LadderSpec::parse(s) {
+        return spec.map(RunPreprocess::Auto);
+    }
+    Method::from_name(s)
+        .map(RunPreprocess::Method)
+        .map_err(|_| {
+            let names: Vec<&str> = Method::ALL.iter().map(|m| m.name()).collect();
+            format!(
+                "{s:?} is neither a method ({}) nor auto[:LO..HI]",
+                names.join(", ")
+            )
+        })
+}
+
 #[derive(Args, Debug)]
 pub struct RunArgs {
     /// The preprocessing on the panel: a display system's (its D-CNN, its
-    /// Wiener prefilter, or none). `ai` and `doe+wiener` put the Wiener
-    /// prefilter on the panel.
-    #[arg(long, value_parser = named::<Method>(), default_value = "proposed")]
-    pub preprocess: Method,
+    /// Wiener prefilter, or none; `ai` and `doe+wiener` put the Wiener
+    /// prefilter on the panel), or `auto[:LO..HI]`: the frame budget picks
+    /// each frame's level from none < wiener < refine:1 < refine:3 <
+    /// refine:10 < the network (dcnn), LO to HI, so that every refresh is
+    /// on time (docs/service.md, "The frame budget"). Methods: conventional,
+    /// ai, doe-only, doe+wiener, proposed, lens+dcnn.
+    #[arg(long, value_parser = parse_run_preprocess, default_value = "proposed", value_name = "METHOD|auto[:LO..HI]")]
+    pub preprocess: RunPreprocess,
+    /// `--preprocess auto`: the tradeoff table (`nedrt tradeoff`'s JSON)
+    /// the levels' quality comes from [default: docs/tradeoff/tradeoff.json
+    /// where it exists; without one the levels keep their order].
+    #[arg(long, value_name = "FILE")]
+    pub ladder_quality: Option<PathBuf>,
     /// Instead, a least-squares prefilter on --preprocess's optics: lsq,
     /// refine:K or optimal (@sharp or @target; see `nedrt sim --help`).
     #[arg(long, default_value = "native", value_name = "PREFILTER")]

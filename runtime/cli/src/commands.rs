@@ -11,10 +11,11 @@ use nedrt_service::pipeline::service::Control;
 use nedrt_service::present::window::WindowOptions;
 use nedrt_studies as studies;
 
-use crate::args::{BenchKind, Cli, Command, ShownArg};
+use crate::args::{BenchKind, Cli, Command, RunPreprocess, ShownArg};
 use crate::console::Console;
 use crate::install_signals;
 use crate::settings::Environment;
+use nedrt_optics::sim::Method;
 
 /// Runs the parsed command.
 pub fn run(cli: Cli) -> Result<()> {
@@ -154,9 +155,15 @@ pub fn run(cli: Cli) -> Result<()> {
                 ..Default::default()
             };
             install_signals(&control)?;
+            let (preprocess, ladder) = match a.preprocess {
+                RunPreprocess::Method(m) => (m, None),
+                RunPreprocess::Auto(spec) => (Method::Proposed, Some(spec)),
+            };
             let opts = nedrt_run::RunOptions {
-                preprocess: a.preprocess,
+                preprocess,
                 prefilter: a.prefilter,
+                ladder,
+                ladder_quality: a.ladder_quality,
                 source: a.source,
                 input: a.input,
                 socket: a.socket,

@@ -11,7 +11,9 @@
 //! here. Rule: no clap, no indicatif, no environment; the per-frame work is
 //! nedrt-engines' and nedrt-service's, this crate only wires it.
 
+mod auto;
 mod build;
+mod ladder;
 mod options;
 mod plan;
 mod serve;
@@ -20,6 +22,7 @@ mod views;
 use std::sync::Arc;
 
 use build::{behind, device_engines, fallback_factory, linear_preprocessor};
+pub use ladder::{DEFAULT_QUALITY_TABLE, LadderSpec, PlannedLevel, QualityTable, Rung};
 use nedrt_command::{AppError, CommonOptions};
 use nedrt_core::preprocess::Preprocess;
 use nedrt_engines::FailsAfter;
@@ -43,7 +46,7 @@ pub use options::{
     FallbackKind, FramePath, MAX_SOURCE_RATE_HZ, MIN_SOURCE_RATE_HZ, RunOptions, SinkKind,
     SourceKind,
 };
-pub use plan::{PlannedPath, Probe, RunPlan};
+pub use plan::{LadderPlan, PlannedPath, Probe, RunPlan};
 use serve::{Built, serve};
 
 /// Runs the service until its source ends (and the last frame is shown)
@@ -101,6 +104,7 @@ pub fn run(
     // before the sink opens, so that a bad card leaves nothing behind.
     let network = network_of(common, opts)?;
     let model = network.as_ref().map(|(m, _)| m.clone());
+    let ladder_inputs = ladder_inputs(common, opts, network.as_ref())?;
     let stage = match network.as_ref().map(|(_, input)| input) {
         None | Some(DcnnInput::Frame) => None,
         Some(&DcnnInput::WienerRaw { k_reg }) => {
@@ -117,7 +121,7 @@ pub fn run(
     };
     // Two views: each eye's engine, built (and its design checked) before
     // the sink opens.
-    let views = if opts.stereo || !calib.views.is_empty() {
+    let views = if opts.ladder.is_none() && (opts.stereo || !calib.views.is_empty()) {
         Some(views::views(
             common,
             opts,
@@ -153,16 +157,30 @@ pub fn run(
         },
         None => Probe::NotNeeded,
     };
-    let planned = plan::plan(&plan_inputs(
+    let inputs = plan_inputs(
         common,
         opts,
         &calib,
         &panel,
         network.as_ref(),
         probe,
-    )?);
+        ladder_inputs,
+    )?;
+    let planned = plan::plan(&inputs)?;
     tracing::info!("plan:\n{planned}");
     let mut panel = panel;
+    if opts.ladder.is_some() {
+        if inputs.views.len() > 1 {
+            panel.views = inputs.views.iter().map(|v| v.region).collect();
+        }
+        let parts = auto::LadderParts {
+            views: &inputs.views,
+            model: model.as_ref(),
+            wiener: &stage,
+        };
+        let built = auto::laddered(common, opts, &panel, device.as_ref(), &planned, &parts)?;
+        return serve(opts, control, panel, clock, source, sink, built);
+    }
     let built = match views {
         Some(views) => {
             panel.views = views.iter().map(|v| v.region).collect();
@@ -218,6 +236,7 @@ fn one_view(
                         engines: Engines::Device(Box::new(engines)),
                         what,
                         host_reason: None,
+                        ladder: None,
                     });
                 }
                 Err(e) => {
@@ -237,6 +256,7 @@ fn one_view(
             engines: Engines::host(PreprocessStage { primary, fallback }),
             what,
             host_reason: Some(host_reason.clone()),
+            ladder: None,
         }
     };
     let Some(model) = model else {
@@ -323,10 +343,17 @@ fn network_of(
     if !(opts.preprocess.uses_dcnn() && opts.prefilter.is_native()) {
         return Ok(None);
     }
-    let model = ModelFile::read(match opts.preprocess {
+    let path = match opts.preprocess {
         Method::LensDcnn => &dcnn.lens_path,
         _ => &dcnn.path,
-    })?;
+    };
+    // A ladder without the network is a ladder still (a machine with no
+    // trained model): its other levels run.
+    if opts.ladder.is_some() && !path.exists() {
+        tracing::info!("{}: no network, so no network level", path.display());
+        return Ok(None);
+    }
+    let model = ModelFile::read(path)?;
     let input = nedrt_engines::preprocess::dcnn_input(&model.path)?;
     Ok(Some((model, input)))
 }
@@ -339,6 +366,7 @@ fn plan_inputs<'a>(
     panel: &PanelConfig,
     network: Option<&(ModelFile, DcnnInput)>,
     probe: Probe,
+    ladder: Option<plan::LadderInputs>,
 ) -> Result<plan::PlanInputs<'a>, AppError> {
     let views = if opts.stereo || !calib.views.is_empty() {
         views::layout(calib, (panel.width, panel.height))?
@@ -368,7 +396,35 @@ fn plan_inputs<'a>(
         backend: common.dcnn.backend,
         precision: common.dcnn.backend_options.precision,
         probe,
+        ladder,
     })
+}
+
+/// What `--preprocess auto`'s ladder is planned from: its bounds, the
+/// quality table, the DOE its levels run on and the network.
+fn ladder_inputs(
+    common: &CommonOptions,
+    opts: &RunOptions,
+    network: Option<&(ModelFile, DcnnInput)>,
+) -> Result<Option<plan::LadderInputs>, AppError> {
+    let Some(spec) = &opts.ladder else {
+        return Ok(None);
+    };
+    let table = QualityTable::load(opts.ladder_quality.as_deref())?;
+    let doe_hash = ladder::doe_hash(&ladder::ladder_common(common, opts.preprocess))?;
+    let network = network.map(|(m, _)| {
+        let name = m
+            .path
+            .file_stem()
+            .map_or("network".into(), |s| s.to_string_lossy().into_owned());
+        (name, m.hash.clone())
+    });
+    Ok(Some(plan::LadderInputs {
+        spec: spec.clone(),
+        table,
+        doe_hash,
+        network,
+    }))
 }
 
 /// `nedrt run --plan`: what the run would build and why, from the options,
@@ -389,8 +445,17 @@ pub fn plan_run(common: &CommonOptions, opts: &RunOptions) -> Result<RunPlan, Ap
             }
         }
     };
-    let inputs = plan_inputs(common, opts, &calib, &panel, network.as_ref(), probe)?;
-    Ok(plan::plan(&inputs))
+    let ladder = ladder_inputs(common, opts, network.as_ref())?;
+    let inputs = plan_inputs(
+        common,
+        opts,
+        &calib,
+        &panel,
+        network.as_ref(),
+        probe,
+        ladder,
+    )?;
+    plan::plan(&inputs)
 }
 
 #[cfg(test)]

@@ -139,6 +139,13 @@ pub struct RunOptions {
     pub preprocess: Method,
     /// Or a least-squares prefilter on that method's optics (not `native`).
     pub prefilter: nedrt_engines::preprocess::Prefilter,
+    /// `--preprocess auto[:LO..HI]`: the frame budget picks each frame's
+    /// level from the ladder (`preprocess` names the system whose network
+    /// and DOE the levels use).
+    pub ladder: Option<crate::ladder::LadderSpec>,
+    /// The tradeoff table the ladder's quality comes from (default
+    /// [`crate::ladder::DEFAULT_QUALITY_TABLE`] where it exists).
+    pub ladder_quality: Option<PathBuf>,
     pub source: SourceKind,
     pub input: Option<PathBuf>,
     pub socket: PathBuf,

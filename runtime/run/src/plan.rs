@@ -8,7 +8,8 @@
 
 use std::fmt;
 
-use super::{FallbackKind, FramePath, RunOptions, SinkKind, SourceKind};
+use super::ladder::{LadderFacts, LadderSpec, PlannedLevel, QualityTable, plan_levels};
+use super::{AppError, FallbackKind, FramePath, RunOptions, SinkKind, SourceKind};
 use nedrt_core::Named;
 use nedrt_engines::device_prefilter::runs_on_device;
 use nedrt_infer::{BackendKind, Precision};
@@ -54,6 +55,29 @@ pub struct PlanInputs<'a> {
     pub backend: BackendKind,
     pub precision: Precision,
     pub probe: Probe,
+    /// `--preprocess auto`: the ladder's bounds and what its levels'
+    /// quality is looked up by.
+    pub ladder: Option<LadderInputs>,
+}
+
+/// What a ladder is planned from besides the run's facts.
+#[derive(Debug, Clone)]
+pub struct LadderInputs {
+    pub spec: LadderSpec,
+    pub table: QualityTable,
+    /// The DOE the levels run on, by content hash.
+    pub doe_hash: String,
+    /// The network's name (file stem) and hash, where the run has one.
+    pub network: Option<(String, String)>,
+}
+
+/// The ladder of a run with `--preprocess auto`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LadderPlan {
+    pub levels: Vec<PlannedLevel>,
+    /// Where the levels' quality comes from.
+    pub table: String,
+    pub budget: String,
 }
 
 /// Where the frames go between the client and the panel.
@@ -85,11 +109,16 @@ pub struct RunPlan {
     pub fallback: String,
     pub pacing: String,
     pub views: Vec<ViewPlan>,
+    pub ladder: Option<LadderPlan>,
 }
 
-/// Decides the run's plan.
-pub fn plan(inputs: &PlanInputs<'_>) -> RunPlan {
+/// Decides the run's plan; a ladder's bounds that name no level of it
+/// are refused.
+pub fn plan(inputs: &PlanInputs<'_>) -> Result<RunPlan, AppError> {
     let opts = inputs.opts;
+    // A ladder leaves out the levels the device cannot run rather than
+    // sending every level to the host.
+    let laddered = inputs.ladder.is_some();
     let (width, height, refresh_hz) = inputs.panel;
     let two = inputs.views.len() > 1;
     let device = match &inputs.probe {
@@ -114,13 +143,12 @@ pub fn plan(inputs: &PlanInputs<'_>) -> RunPlan {
             "the {} sink takes frames in host memory",
             opts.sink.name()
         ))
+    } else if laddered {
+        None
     } else if inputs.network.is_some() && !network_on_device {
-        Some(format!(
-            "the D-CNN runs on the {} backend, on the host",
-            inputs.backend.name()
-        ))
+        Some(network_on_host(inputs.backend))
     } else if inputs.network.is_some() && f16_missing {
-        Some("the adapter has no f16 shaders for the f16 network".to_string())
+        Some(NO_F16.to_string())
     } else if !two && inputs.network.is_none() && opts.inject_device_loss_after.is_some() {
         Some("the injected device loss needs a network".to_string())
     } else if two {
@@ -148,6 +176,10 @@ pub fn plan(inputs: &PlanInputs<'_>) -> RunPlan {
         }
     });
     let on_device = path == PlannedPath::Device;
+    let ladder = match &inputs.ladder {
+        None => None,
+        Some(l) => Some(ladder_plan(inputs, l, on_device, f16_missing)?),
+    };
     let network = match &inputs.network {
         None => format!("none ({} has no network)", method_line(opts)),
         Some(n) => {
@@ -190,7 +222,10 @@ pub fn plan(inputs: &PlanInputs<'_>) -> RunPlan {
         .map(|v| ViewPlan {
             name: v.name.clone(),
             region: v.region,
-            stages: stages(inputs, v, on_device),
+            stages: match &ladder {
+                Some(l) => ladder_stages(l, on_device),
+                None => stages(inputs, v, on_device),
+            },
         })
         .collect();
     let source = match (opts.source, opts.source_rate_hz) {
@@ -225,7 +260,7 @@ pub fn plan(inputs: &PlanInputs<'_>) -> RunPlan {
         ),
         Probe::Missing(why) => format!("none: {why}"),
     };
-    RunPlan {
+    Ok(RunPlan {
         panel: format!(
             "{width}×{height} at {refresh_hz} Hz, {} view{}",
             inputs.views.len(),
@@ -240,7 +275,112 @@ pub fn plan(inputs: &PlanInputs<'_>) -> RunPlan {
         fallback,
         pacing,
         views,
-    }
+        ladder,
+    })
+}
+
+const NO_F16: &str = "the adapter has no f16 shaders for the f16 network";
+
+fn network_on_host(backend: BackendKind) -> String {
+    format!(
+        "the D-CNN runs on the {} backend, on the host",
+        backend.name()
+    )
+}
+
+/// The ladder's levels: each one the frame path can run, and why not
+/// where it cannot (a network off the device's backend, a view's own
+/// design, a size the device FFT lacks).
+fn ladder_plan(
+    inputs: &PlanInputs<'_>,
+    l: &LadderInputs,
+    on_device: bool,
+    f16_missing: bool,
+) -> Result<LadderPlan, AppError> {
+    let network_excluded = if inputs.views.iter().any(|v| v.design.is_some()) {
+        Some(
+            "a view has a design of its own: the network runs on the DOE it was trained with"
+                .into(),
+        )
+    } else if on_device && inputs.backend != BackendKind::Wgpu {
+        Some(network_on_host(inputs.backend))
+    } else if on_device && f16_missing {
+        Some(NO_F16.into())
+    } else {
+        None
+    };
+    let device_fft_refuses = on_device
+        .then(|| {
+            inputs.views.iter().find_map(|v| {
+                let (w, h) = (v.region.width, v.region.height);
+                [w, h].iter().find_map(|&side| {
+                    nedrt_gpu::fft::radices(side)
+                        .err()
+                        .map(|e| format!("the device FFT takes no {w}×{h} frame: {e}"))
+                })
+            })
+        })
+        .flatten();
+    let facts = LadderFacts {
+        network: l.network.clone(),
+        network_excluded,
+        doe_hash: l.doe_hash.clone(),
+        on_device,
+        device_fft_refuses,
+    };
+    let levels = plan_levels(&l.spec, &facts, &l.table)?;
+    let period_ms = 1e3 / inputs.panel.2;
+    Ok(LadderPlan {
+        levels,
+        table: match &l.table.source {
+            Some(p) => format!(
+                "quality: mean PSNR vs sharp over 0–2.5 D from {}",
+                p.display()
+            ),
+            None => format!(
+                "quality: not known (no {}; `nedrt tradeoff` writes it): the levels keep \
+                 their order",
+                super::ladder::DEFAULT_QUALITY_TABLE
+            ),
+        },
+        budget: format!(
+            "a frame's preprocessing gets the refresh ({period_ms:.2} ms) less the present's \
+             lead (learnt as it runs) and a 32nd ({:.2} ms); each level's time is measured at \
+             start-up and learnt per frame, and a level no better than a faster one is dropped \
+             then",
+            period_ms / 32.0
+        ),
+    })
+}
+
+/// A view's stages under a ladder.
+fn ladder_stages(l: &LadderPlan, on_device: bool) -> Vec<String> {
+    let here = if on_device {
+        "on the GPU"
+    } else {
+        "on the host"
+    };
+    let names: Vec<&str> = l
+        .levels
+        .iter()
+        .filter(|l| l.left_out.is_none())
+        .map(|l| l.name.as_str())
+        .collect();
+    vec![
+        if on_device {
+            "upload as sent, unpack on the GPU".to_string()
+        } else {
+            "decode on the host".to_string()
+        },
+        format!("quad layers blended {here}"),
+        format!("the frame budget's level ({}) {here}", names.join(" < ")),
+        format!("clamp to [0, 1] and the panel's transfer curve {here}"),
+        if on_device {
+            "the sink copies the codes on the GPU".into()
+        } else {
+            "the sink takes the codes from host memory".into()
+        },
+    ]
 }
 
 /// Whether view `v`'s prefilter (its method's Wiener, `lsq` or `refine:K`,
@@ -371,6 +511,25 @@ impl fmt::Display for RunPlan {
         writeln!(f, "network:    {}", self.network)?;
         writeln!(f, "fallback:   {}", self.fallback)?;
         writeln!(f, "pacing:     {}", self.pacing)?;
+        if let Some(l) = &self.ladder {
+            writeln!(f, "ladder:     {}", l.table)?;
+            for level in &l.levels {
+                let quality = level
+                    .quality_db
+                    .map_or("quality not known".to_string(), |q| format!("{q:.2} dB"));
+                let time = level
+                    .table_ms
+                    .as_ref()
+                    .map_or("time measured at start-up".to_string(), |(ms, at)| {
+                        format!("{ms:.2} ms in the table ({at}); measured at start-up")
+                    });
+                match &level.left_out {
+                    Some(why) => writeln!(f, "  {:<10} left out: {why}", level.name)?,
+                    None => writeln!(f, "  {:<10} {quality}, {time}", level.name)?,
+                }
+            }
+            writeln!(f, "budget:     {}", l.budget)?;
+        }
         for v in &self.views {
             let r = v.region;
             writeln!(

@@ -5,6 +5,8 @@ fn opts() -> RunOptions {
     RunOptions {
         preprocess: Method::Proposed,
         prefilter: nedrt_engines::preprocess::Prefilter::Native,
+        ladder: None,
+        ladder_quality: None,
         source: SourceKind::Pattern,
         input: None,
         socket: PathBuf::from("/tmp/nedrt.sock"),
@@ -59,13 +61,14 @@ fn inputs(opts: &RunOptions, views: Vec<ViewFacts>, probe: Probe) -> PlanInputs<
         backend: BackendKind::Wgpu,
         precision: Precision::F16,
         probe,
+        ladder: None,
     }
 }
 
 #[test]
 fn the_default_run_keeps_frames_on_the_sinks_gpu() {
     let o = opts();
-    let p = plan(&inputs(&o, whole(1920, 1080), gpu()));
+    let p = plan(&inputs(&o, whole(1920, 1080), gpu())).expect("plan");
     assert_eq!(p.path, PlannedPath::Device);
     assert_eq!(p.views.len(), 1);
     assert_eq!(
@@ -93,7 +96,7 @@ fn the_default_run_keeps_frames_on_the_sinks_gpu() {
 fn each_reason_for_the_host_is_named() {
     let mut o = opts();
     o.frame_path = FramePath::Host;
-    let p = plan(&inputs(&o, whole(64, 48), gpu()));
+    let p = plan(&inputs(&o, whole(64, 48), gpu())).expect("plan");
     assert_eq!(
         (p.path, p.path_reason.as_str()),
         (PlannedPath::Host, "--frame-path host")
@@ -105,21 +108,22 @@ fn each_reason_for_the_host_is_named() {
         &o,
         whole(64, 48),
         Probe::Missing("no Vulkan ICD".into()),
-    ));
+    ))
+    .expect("plan");
     assert_eq!(p.path, PlannedPath::Host);
     assert_eq!(p.path_reason, "no GPU adapter (no Vulkan ICD)");
     assert_eq!(p.adapter, "none: no Vulkan ICD");
 
     let mut o = opts();
     o.sink = SinkKind::Record;
-    let p = plan(&inputs(&o, whole(64, 48), Probe::NotNeeded));
+    let p = plan(&inputs(&o, whole(64, 48), Probe::NotNeeded)).expect("plan");
     assert_eq!(p.path_reason, "the record sink takes frames in host memory");
     assert!(p.pacing.starts_with("just in time"), "{}", p.pacing);
 
     let o = opts();
     let mut i = inputs(&o, whole(64, 48), gpu());
     i.backend = BackendKind::Cpu;
-    let p = plan(&i);
+    let p = plan(&i).expect("plan");
     assert_eq!(
         p.path_reason,
         "the D-CNN runs on the cpu backend, on the host"
@@ -135,9 +139,9 @@ fn each_reason_for_the_host_is_named() {
         },
     );
     i.precision = Precision::F16;
-    assert_eq!(plan(&i).path, PlannedPath::Host);
+    assert_eq!(plan(&i).expect("plan").path, PlannedPath::Host);
     i.precision = Precision::F32;
-    assert_eq!(plan(&i).path, PlannedPath::Device);
+    assert_eq!(plan(&i).expect("plan").path, PlannedPath::Device);
 }
 
 #[test]
@@ -160,7 +164,7 @@ fn two_views_each_get_their_stage_chain() {
     ];
     let mut i = inputs(&o, views, gpu());
     i.network = None;
-    let p = plan(&i);
+    let p = plan(&i).expect("plan");
     assert_eq!(p.path, PlannedPath::Device);
     assert!(
         p.path_reason
@@ -195,7 +199,7 @@ fn a_conventional_run_has_no_network_and_no_prefilter_stage() {
     o.source_rate_hz = Some(60.0);
     let mut i = inputs(&o, whole(64, 48), gpu());
     i.network = None;
-    let p = plan(&i);
+    let p = plan(&i).expect("plan");
     assert_eq!(p.path, PlannedPath::Device);
     assert_eq!(p.views[0].stages.len(), 4, "{:?}", p.views[0].stages);
     assert_eq!(p.fallback, "none needed (no network)");
@@ -212,7 +216,7 @@ fn a_prefilter_the_device_lacks_runs_on_the_host_before_the_upload() {
     o.prefilter = "optimal".parse().expect("prefilter");
     let mut i = inputs(&o, whole(64, 48), gpu());
     i.network = None;
-    let p = plan(&i);
+    let p = plan(&i).expect("plan");
     assert_eq!(p.path, PlannedPath::Device);
     assert_eq!(
         p.views[0].stages,
@@ -228,7 +232,7 @@ fn a_prefilter_the_device_lacks_runs_on_the_host_before_the_upload() {
     // A network's Wiener on a side of prime 17: the Wiener on the host,
     // the network on the GPU.
     let o = opts();
-    let p = plan(&inputs(&o, whole(68, 48), gpu()));
+    let p = plan(&inputs(&o, whole(68, 48), gpu())).expect("plan");
     assert_eq!(p.path, PlannedPath::Device);
     assert_eq!(p.views[0].stages[0], "decode on the host");
     assert!(
@@ -265,7 +269,7 @@ fn a_prefilter_the_device_lacks_runs_on_the_host_before_the_upload() {
     o.preprocess = Method::DoeWiener;
     let mut i = inputs(&o, views, gpu());
     i.network = None;
-    let p = plan(&i);
+    let p = plan(&i).expect("plan");
     assert_eq!(p.path, PlannedPath::Host);
     assert!(
         p.path_reason.starts_with(

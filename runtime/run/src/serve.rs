@@ -7,6 +7,7 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 
 use super::{AppError, RunOptions};
+use nedrt_service::pipeline::ladder::Ladder;
 use nedrt_service::pipeline::pacing::Clock;
 use nedrt_service::pipeline::service::{Control, Engines, PanelConfig, Service};
 use nedrt_service::pipeline::source::{self, Source};
@@ -19,6 +20,8 @@ pub(super) struct Built {
     pub engines: Engines,
     pub what: String,
     pub host_reason: Option<String>,
+    /// `--preprocess auto`: the ladder the engines' levels follow.
+    pub ladder: Option<Ladder>,
 }
 
 /// Starts the pipeline with its preprocessing, runs it to the end and
@@ -37,8 +40,9 @@ pub(super) fn serve(
         engines,
         what,
         host_reason,
+        ladder,
     } = built;
-    let service = Service::start(panel, engines, clock);
+    let service = Service::start(panel, engines, ladder, clock);
     if let (Ok(s), Some(reason)) = (&service, host_reason) {
         *s.stats()
             .frame_path

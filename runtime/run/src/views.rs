@@ -83,6 +83,7 @@ pub(super) fn engines(
                 })),
                 what,
                 host_reason: None,
+                ladder: None,
             }
         }
         Err(why) => {
@@ -106,6 +107,7 @@ pub(super) fn engines(
                 engines: Engines::Host(views.into_iter().map(|v| v.stage).collect()),
                 what: format!("{n} views, {what}"),
                 host_reason: Some(format!("{n} views, each its engine on the CPU: {why}")),
+                ladder: None,
             }
         }
     }

@@ -23,7 +23,7 @@ use std::time::Duration;
 use serde_json::json;
 
 use super::AppError;
-use super::run::{FallbackKind, FramePath, RunOptions, SinkKind, SourceKind};
+use super::run::{FallbackKind, FramePath, LadderSpec, RunOptions, SinkKind, SourceKind};
 use crate::CommonOptions;
 use nedrt_core::Named;
 use nedrt_infer::{BackendKind, synth};
@@ -34,6 +34,8 @@ use nedrt_service::pipeline::stats::{Report, summarize};
 /// A network the pipeline runs.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum PipelineNetwork {
+    /// The frame budget's ladder (`--preprocess auto`).
+    Auto,
     None,
     Wiener,
     Refine10,
@@ -44,6 +46,7 @@ pub enum PipelineNetwork {
 
 impl Named for PipelineNetwork {
     const ALL: &'static [Self] = &[
+        Self::Auto,
         Self::None,
         Self::Wiener,
         Self::Refine10,
@@ -53,6 +56,7 @@ impl Named for PipelineNetwork {
     ];
     fn name(self) -> &'static str {
         match self {
+            Self::Auto => "auto",
             Self::None => "none",
             Self::Wiener => "wiener",
             Self::Refine10 => "refine10",
@@ -63,6 +67,10 @@ impl Named for PipelineNetwork {
     }
     fn help(self) -> &'static str {
         match self {
+            Self::Auto => {
+                "the frame budget: each frame the best level of none < wiener < refine:K < the \
+                 --dcnn model that fits the refresh (--preprocess auto)"
+            }
             Self::None => "no network: the frame as it comes, clamped",
             Self::Wiener => "no network: the DOE's Wiener prefilter (doe+wiener, the --design's)",
             Self::Refine10 => {
@@ -164,6 +172,7 @@ pub fn run(
         let mut case = common.clone();
         case.dcnn.backend = BackendKind::Wgpu;
         let preprocess = match network {
+            PipelineNetwork::Auto => Method::Proposed,
             PipelineNetwork::None => Method::Conventional,
             PipelineNetwork::Wiener | PipelineNetwork::Refine10 => Method::DoeWiener,
             PipelineNetwork::Model => Method::Proposed,
@@ -192,6 +201,8 @@ pub fn run(
                 } else {
                     crate::preprocess::Prefilter::Native
                 },
+                ladder: (network == PipelineNetwork::Auto).then(LadderSpec::default),
+                ladder_quality: None,
                 source: SourceKind::Pattern,
                 input: None,
                 socket: PathBuf::from("unused.sock"),

@@ -10,6 +10,7 @@
 pub mod channel;
 pub mod device_frames;
 pub mod frame;
+pub mod ladder;
 pub mod latency;
 pub mod pacing;
 /// The wire format, from nedrt-protocol (the path the service's users know).

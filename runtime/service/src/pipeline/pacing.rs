@@ -9,6 +9,8 @@ use std::sync::Mutex;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Duration;
 
+#[cfg(test)]
+pub(crate) mod fake_loop;
 mod gate;
 mod jit;
 pub use gate::{PresentGate, Slot};
@@ -135,6 +137,10 @@ pub struct DisplaySchedule {
     /// ([`PresentPacer::lead_ns`]), or a period for a sink whose present
     /// waits for the refresh (the loop takes the slot a period ahead).
     latch_ns: AtomicU64,
+    /// The present loop's own lead (its work and margin) whether or not
+    /// its sink waits for the refresh: what the device's time per refresh
+    /// leaves the preprocessing ([`crate::pipeline::ladder::frame_budget_ns`]).
+    present_lead_ns: AtomicU64,
 }
 
 impl DisplaySchedule {
@@ -146,7 +152,17 @@ impl DisplaySchedule {
             pipeline_ns: AtomicU64::new(0),
             pipeline_dev_ns: AtomicU64::new(0),
             latch_ns: AtomicU64::new(0),
+            present_lead_ns: AtomicU64::new(0),
         }
+    }
+
+    /// See the field: the present loop sets it from its pacer.
+    pub fn set_present_lead_ns(&self, ns: u64) {
+        self.present_lead_ns.store(ns, Ordering::Relaxed);
+    }
+
+    pub fn present_lead_ns(&self) -> u64 {
+        self.present_lead_ns.load(Ordering::Relaxed)
     }
 
     /// See the field: the present loop sets it from its sink and pacer.

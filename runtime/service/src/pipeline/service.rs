@@ -45,12 +45,13 @@ use super::frame::ViewFrame;
 use super::pacing::{Clock, DisplaySchedule, Estimate, NewestSlot, Pacer, PresentGate};
 use super::stats::{MARKED_STAGES, Outcome, Report, Stage, Stats};
 use crate::compose::{LayerSet, ViewGeometry, ViewRegion};
+use crate::pipeline::ladder::Ladder;
 use crate::present::transfer::Transfer;
 use crate::present::{DisplayFrame, PanelFrame};
 pub use compositor::Compositor;
 use compositor::{Submission, Timed, ViewSlot};
 pub use control::Control;
-use engine::{DeviceGate, Engine, Processed};
+use engine::{Budget, DeviceGate, Engine, Processed};
 pub use stages::{DeviceEngines, Engines, FallbackFactory, HostPrep, PreprocessStage};
 use views::{HostEngine, Intake, Uptake};
 
@@ -176,10 +177,15 @@ impl Service {
     /// Starts the stage threads with `engines`, one per view of `panel`
     /// (a panel without views is one view); frames flow once submitted
     /// through [`Service::compositor`], and reach a sink through
-    /// [`Service::present_loop`].
+    /// [`Service::present_loop`]. With a `ladder` (engines whose views run
+    /// [`crate::pipeline::ladder::HostLevels`] or
+    /// [`crate::pipeline::ladder::DeviceLevels`] on its selection), each
+    /// level whose time is not known is run first, and each frame runs the
+    /// level the frame budget picks.
     pub fn start(
         panel: PanelConfig,
         engines: Engines,
+        ladder: Option<Ladder>,
         clock: Arc<dyn Clock>,
     ) -> std::io::Result<Self> {
         let regions = if panel.views.is_empty() {
@@ -313,6 +319,9 @@ impl Service {
                 (intake, engine, path)
             }
         };
+        let schedule = Arc::new(DisplaySchedule::new(period_ns, clock.now_ns()));
+        let mut budget = ladder
+            .map(|ladder| Budget::start(ladder, &mut engine, &regions, schedule.clone(), &*clock));
         *stats.backend.lock().unwrap_or_else(|p| p.into_inner()) = engine.describe();
         *stats.frame_path.lock().unwrap_or_else(|p| p.into_inner()) = path;
         let mut intake = Intake::new(size, intake);
@@ -330,8 +339,25 @@ impl Service {
             upload_rx,
             move |t| dcnn_tx.send(t),
             context.clone(),
-            move |id, predicted_ns, f: Vec<ViewFrame>, stats, notes| {
-                engine.run(id, predicted_ns, f, stats, notes)
+            {
+                let clock = clock.clone();
+                move |id, predicted_ns, f: Vec<ViewFrame>, stats, notes| {
+                    let Some(budget) = &mut budget else {
+                        return engine.run(id, predicted_ns, f, stats, notes);
+                    };
+                    budget.select();
+                    let _span = tracing::info_span!("level", name = budget.level_name()).entered();
+                    let t0 = clock.now_ns();
+                    let out = engine.run(id, predicted_ns, f, stats, notes);
+                    // Only the stage's own time: a hold for a present is
+                    // not the level's cost.
+                    let own = clock
+                        .now_ns()
+                        .saturating_sub(t0)
+                        .saturating_sub(notes.waited_ns);
+                    budget.observe(own, stats);
+                    out
+                }
             },
         )?);
         let transfer = panel.transfer.clone();
@@ -387,7 +413,6 @@ impl Service {
                     drained_flag.store(true, Ordering::SeqCst);
                 })?,
         );
-        let schedule = Arc::new(DisplaySchedule::new(period_ns, clock.now_ns()));
         let compositor = Compositor {
             schedule: schedule.clone(),
             tx: ingest_tx,

@@ -107,7 +107,7 @@ fn run_engines_one_by_one(
     frames: &[SubmittedFrame],
     before: impl Fn(usize, &Compositor) + Send + 'static,
 ) -> (Vec<DisplayFrame>, crate::pipeline::stats::Report) {
-    let mut service = Service::start(panel(), engines, Arc::new(SystemClock)).expect("start");
+    let mut service = Service::start(panel(), engines, None, Arc::new(SystemClock)).expect("start");
     let compositor = service.compositor().expect("open");
     service.close_ingest();
     let feeder = {
@@ -262,7 +262,7 @@ fn frames_inside_the_stages_at_a_stop_are_counted_in_flight_not_lost() {
         fallback: None,
     };
     let mut service =
-        Service::start(panel(), Engines::host(dcnn), Arc::new(SystemClock)).expect("start");
+        Service::start(panel(), Engines::host(dcnn), None, Arc::new(SystemClock)).expect("start");
     let compositor = service.compositor().expect("open");
     service.close_ingest();
     // One frame held inside the D-CNN, the next ones queued behind it (a
@@ -415,7 +415,7 @@ fn two_views_scenario(engines: Engines) -> (Vec<DisplayFrame>, crate::pipeline::
     use crate::compose::{Placement, QuadLayer, ViewRegion};
     let mut config = panel();
     config.views = ViewRegion::side_by_side(4, 2).to_vec();
-    let mut service = Service::start(config, engines, Arc::new(SystemClock)).expect("start");
+    let mut service = Service::start(config, engines, None, Arc::new(SystemClock)).expect("start");
     let compositor = service.compositor().expect("open");
     service.close_ingest();
     let stats = service.stats().clone();
@@ -531,7 +531,7 @@ fn one_view_smaller_than_the_panel_takes_frames_of_its_own_size() {
         fallback: None,
     }];
     let service =
-        Service::start(config, Engines::Host(stages), Arc::new(SystemClock)).expect("start");
+        Service::start(config, Engines::Host(stages), None, Arc::new(SystemClock)).expect("start");
     let compositor = service.compositor().expect("open");
     let view_frame = SubmittedFrame {
         id: 1,
@@ -562,7 +562,7 @@ fn one_view_smaller_than_the_panel_takes_frames_of_its_own_size() {
         primary: Box::new(Identity),
         fallback: None,
     }];
-    assert!(Service::start(bad, Engines::Host(stages), Arc::new(SystemClock)).is_err());
+    assert!(Service::start(bad, Engines::Host(stages), None, Arc::new(SystemClock)).is_err());
 }
 
 mod needs_gpu {
@@ -730,7 +730,7 @@ fn identity_service() -> (Service, Compositor) {
         fallback: None,
     };
     let mut service =
-        Service::start(panel(), Engines::host(stage), Arc::new(SystemClock)).expect("start");
+        Service::start(panel(), Engines::host(stage), None, Arc::new(SystemClock)).expect("start");
     let compositor = service.compositor().expect("open");
     service.close_ingest();
     (service, compositor)

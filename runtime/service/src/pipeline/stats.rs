@@ -139,6 +139,9 @@ pub struct Stats {
     pub backend: Mutex<String>,
     /// Where frames go between the client and the panel.
     pub frame_path: Mutex<String>,
+    /// The frame budget's levels and counts, where the run has a ladder
+    /// (updated after each frame).
+    pub frame_budget: Mutex<Option<crate::pipeline::ladder::BudgetReport>>,
 }
 
 /// Host↔device traffic summed over the frames one stage handled.
@@ -320,6 +323,11 @@ impl Stats {
             (t.frames(), t.refreshes())
         };
         Report {
+            frame_budget: self
+                .frame_budget
+                .lock()
+                .unwrap_or_else(|p| p.into_inner())
+                .clone(),
             backend: self
                 .backend
                 .lock()

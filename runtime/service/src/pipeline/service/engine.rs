@@ -11,8 +11,11 @@ use super::views::HostEngine;
 use super::{PreprocessStage, Stage, StageNotes, Stats};
 use crate::compose::{LayerSet, ViewRegion};
 use crate::pipeline::device_frames::DeviceFrames;
-use crate::pipeline::frame::ViewFrame;
-use crate::pipeline::pacing::{Clock, Estimate, PresentGate, Slot};
+use crate::pipeline::frame::{ViewContent, ViewFrame};
+use crate::pipeline::ladder::{
+    BudgetReport, Controller, Ladder, Selection, frame_budget_ns, pareto_front,
+};
+use crate::pipeline::pacing::{Clock, DisplaySchedule, Estimate, PresentGate, Slot};
 use crate::present::DeviceDisplayFrame;
 use nedrt_core::Image;
 
@@ -72,7 +75,139 @@ pub(super) enum Processed {
     Device(DeviceDisplayFrame),
 }
 
+/// The frame budget of a preprocess stage with a ladder: the controller,
+/// the selection the views' engines follow, and the schedule the budget
+/// comes from (pipeline::ladder).
+pub(super) struct Budget {
+    controller: Controller,
+    /// The engines' level of each of the controller's (the Pareto front's).
+    kept: Vec<usize>,
+    /// The levels dropped from the front, for the report.
+    dropped: Vec<String>,
+    selection: Selection,
+    schedule: Arc<DisplaySchedule>,
+}
+
+impl Budget {
+    /// Runs each level of `ladder` whose time is not known on `engine`
+    /// (a grey frame of each view's size: the levels' work does not
+    /// depend on the picture) and starts the controller.
+    pub(super) fn start(
+        mut ladder: Ladder,
+        engine: &mut Engine,
+        regions: &[ViewRegion],
+        schedule: Arc<DisplaySchedule>,
+        clock: &dyn Clock,
+    ) -> Self {
+        let frames = |generation: u64| -> Vec<ViewFrame> {
+            regions
+                .iter()
+                .map(|r| ViewFrame {
+                    generation,
+                    content: ViewContent::Planar(Arc::new(Image::from_planes(
+                        r.width,
+                        r.height,
+                        vec![vec![0.5; r.width * r.height]; 3],
+                    ))),
+                })
+                .collect()
+        };
+        // Generations no client frame has: the first real frame runs.
+        let mut generation = u64::MAX - 2 * ladder.levels.len() as u64;
+        let scratch = Stats::default();
+        for (j, level) in ladder.levels.iter_mut().enumerate() {
+            if level.reference_ns > 0 {
+                continue;
+            }
+            ladder.selection.set(j);
+            let mut times = Vec::new();
+            // The first run pays what is left of the level's one-time
+            // costs; the second is its time, unless the first was over a
+            // second (no budget takes it either way).
+            for _ in 0..2 {
+                generation += 1;
+                let t0 = clock.now_ns();
+                let ran = engine.run_unpaced(generation, frames(generation), &scratch);
+                let ns = clock.now_ns().saturating_sub(t0);
+                if !ran {
+                    break;
+                }
+                times.push(ns);
+                if ns > 1_000_000_000 {
+                    break;
+                }
+            }
+            // A level that failed or took no time is placed by its rank.
+            level.reference_ns = times
+                .last()
+                .copied()
+                .filter(|&ns| ns > 0)
+                .unwrap_or(1_000_000 * (j as u64 + 1));
+            tracing::info!(
+                "frame budget: level {} takes {:.3} ms at start-up",
+                level.name,
+                level.reference_ns as f64 / 1e6
+            );
+        }
+        // Measured: a level no better than a faster one is left out.
+        let kept = pareto_front(&ladder.levels);
+        let dropped: Vec<String> = (0..ladder.levels.len())
+            .filter(|j| !kept.contains(j))
+            .map(|j| ladder.levels[j].name.clone())
+            .collect();
+        if !dropped.is_empty() {
+            tracing::info!(
+                "frame budget: {} no better than a faster level, left out",
+                dropped.join(", ")
+            );
+        }
+        let levels = kept.iter().map(|&j| ladder.levels[j].clone()).collect();
+        let budget = frame_budget_ns(schedule.period_ns(), schedule.present_lead_ns());
+        let controller = Controller::new(levels, budget);
+        ladder.selection.set(kept[controller.level()]);
+        Self {
+            controller,
+            kept,
+            dropped,
+            selection: ladder.selection,
+            schedule,
+        }
+    }
+
+    /// Before a frame: the budget as the present's lead now leaves it, and
+    /// the level the frame runs.
+    pub(super) fn select(&mut self) {
+        self.controller.set_budget_ns(frame_budget_ns(
+            self.schedule.period_ns(),
+            self.schedule.present_lead_ns(),
+        ));
+        self.selection.set(self.kept[self.controller.level()]);
+    }
+
+    /// After a frame: its own time (the stage's, less any hold for a
+    /// present), learnt; the report brought up to date.
+    pub(super) fn observe(&mut self, own_ns: u64, stats: &Stats) {
+        self.controller.observe(own_ns);
+        let mut report = BudgetReport::of(&self.controller);
+        report.dropped = self.dropped.clone();
+        *stats.frame_budget.lock().unwrap_or_else(|p| p.into_inner()) = Some(report);
+    }
+
+    pub(super) fn level_name(&self) -> &str {
+        &self.controller.levels()[self.controller.level()].name
+    }
+}
+
 impl Engine {
+    /// Runs `frames` with no pacing and no counts kept (the ladder's
+    /// start-up measurement); whether it ran.
+    fn run_unpaced(&mut self, generation: u64, frames: Vec<ViewFrame>, scratch: &Stats) -> bool {
+        match self {
+            Engine::Host(host) => host.run(&frames, scratch).is_some(),
+            Engine::Device { frames: device, .. } => device.run(generation, &frames).is_ok(),
+        }
+    }
+
     pub(super) fn describe(&self) -> String {
         match self {
             Engine::Host(h) => h.describe(),

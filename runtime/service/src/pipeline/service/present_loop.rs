@@ -62,6 +62,7 @@ impl Service {
             if !display_paced {
                 self.gate.announce(wake.wake_ns, wake.vsync_ns);
             }
+            self.schedule.set_present_lead_ns(pacer.lead_ns());
             self.schedule.set_latch_ns(if display_paced {
                 pacer.period_ns()
             } else {

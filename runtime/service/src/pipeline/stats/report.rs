@@ -71,6 +71,9 @@ pub struct Report {
     /// "device: …" when frames stay on the GPU from upload to panel, else
     /// "host: …" and why.
     pub frame_path: String,
+    /// The frame budget's levels: frames, time and switches per level,
+    /// and the quality delivered (a run with a ladder).
+    pub frame_budget: Option<crate::pipeline::ladder::BudgetReport>,
     pub submitted: u64,
     pub rejected: Vec<(String, u64)>,
     pub dropped_queued: u64,
@@ -276,6 +279,9 @@ impl Report {
             .find(|r| r.stage == "end-to-end")
             .map_or(0.0, |r| r.mean_ms);
         s += &format!("frame path: {}\n", self.frame_path);
+        if let Some(b) = &self.frame_budget {
+            s += &b.table();
+        }
         s += &self.traffic_line();
         s += "stage            count     p50 ms     p99 ms     max ms   share of end-to-end\n";
         for r in &self.stages {

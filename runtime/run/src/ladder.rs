@@ -1,0 +1,569 @@
+//! `nedrt run --preprocess auto[:LO..HI]` (issue 54): the ladder of
+//! preprocessing levels this run can afford, cheapest first: none, the
+//! DOE's Wiener prefilter, refine:K for a few K, and the network where
+//! the run has one; each with its quality from the tradeoff study's table
+//! (matched by DOE and model hash) and its time measured at start-up by
+//! the service, which picks the level frame by frame
+//! (`nedrt_service::pipeline::ladder`). Every level of every view is
+//! built here, up front: a switch builds nothing.
+//!
+//! The levels run on the DOE of the run's system (the network's
+//! companion DOE for `proposed`), so that every level shows the same
+//! optics, and with the views' own designs where the calibration gives
+//! them (the network is then left out: it runs on the DOE it was trained
+//! with).
+
+use std::path::{Path, PathBuf};
+
+use super::{AppError, CommonOptions};
+use nedrt_core::preprocess::{Identity, Preprocess};
+use nedrt_engines::preprocess::Prefilter;
+use nedrt_optics::sim::{Method, Simulator};
+
+/// The refine:K levels a ladder offers.
+pub const REFINE_STEPS: [usize; 3] = [1, 3, 10];
+
+/// The table the levels' quality comes from when `--ladder-quality` is
+/// not given (relative to the working directory; `nedrt tradeoff` writes
+/// it).
+pub const DEFAULT_QUALITY_TABLE: &str = "docs/tradeoff/tradeoff.json";
+
+/// The bounds of `--preprocess auto:LO..HI`: level names, either may be
+/// left out (`auto` alone: every level).
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct LadderSpec {
+    pub lowest: Option<String>,
+    pub highest: Option<String>,
+}
+
+impl LadderSpec {
+    /// `auto`, `auto:LO..HI`, `auto:LO..` or `auto:..HI`; `None` for
+    /// anything not starting with `auto`.
+    pub fn parse(s: &str) -> Option<Result<Self, String>> {
+        let rest = s.strip_prefix("auto")?;
+        if rest.is_empty() {
+            return Some(Ok(Self::default()));
+        }
+        let Some(bounds) = rest.strip_prefix(':') else {
+            return Some(Err(format!(
+                "{s:?}: give auto, or auto:LO..HI with level names ({})",
+                level_names_help()
+            )));
+        };
+        let Some((lo, hi)) = bounds.split_once("..") else {
+            return Some(Err(format!(
+                "{s:?}: the bounds are LO..HI (e.g. auto:wiener..refine:10; either may be left \
+                 out)"
+            )));
+        };
+        let name = |n: &str| (!n.trim().is_empty()).then(|| n.trim().to_string());
+        Some(Ok(Self {
+            lowest: name(lo),
+            highest: name(hi),
+        }))
+    }
+}
+
+impl std::fmt::Display for LadderSpec {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match (&self.lowest, &self.highest) {
+            (None, None) => write!(f, "auto"),
+            (lo, hi) => write!(
+                f,
+                "auto:{}..{}",
+                lo.as_deref().unwrap_or(""),
+                hi.as_deref().unwrap_or("")
+            ),
+        }
+    }
+}
+
+fn level_names_help() -> String {
+    let mut names = vec!["none".to_string(), "wiener".to_string()];
+    names.extend(REFINE_STEPS.iter().map(|k| format!("refine:{k}")));
+    names.push("the network's file stem (dcnn)".into());
+    names.join(", ")
+}
+
+/// What a level runs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Rung {
+    None,
+    Wiener,
+    Refine(usize),
+    Network,
+}
+
+impl Rung {
+    fn prefilter(self) -> Prefilter {
+        match self {
+            Rung::Refine(k) => Prefilter::Refine(k, Prefilter::DEFAULT_OBJECTIVE),
+            _ => Prefilter::Native,
+        }
+    }
+}
+
+/// One level as planned: its name, what it runs, its quality and what
+/// the table measured of its time, or why it is left out.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PlannedLevel {
+    pub name: String,
+    pub rung: Rung,
+    pub quality_db: Option<f64>,
+    /// The table's time for it: (ms, at what size, on what device).
+    pub table_ms: Option<(f64, String)>,
+    pub left_out: Option<String>,
+}
+
+/// The facts a ladder is planned from.
+#[derive(Debug, Clone)]
+pub struct LadderFacts {
+    /// The network's name (its file stem) and content hash, if the run has one.
+    pub network: Option<(String, String)>,
+    /// Why the network cannot be a level here (another backend than the
+    /// device's on the device path, a view's design).
+    pub network_excluded: Option<String>,
+    /// The DOE the levels run on, by content hash.
+    pub doe_hash: String,
+    /// Whether the levels run on the device, and why a prefilter level
+    /// cannot where it cannot (a size the device FFT lacks).
+    pub on_device: bool,
+    pub device_fft_refuses: Option<String>,
+}
+
+/// The levels of `spec`, in order, with the ones left out and why.
+pub fn plan_levels(
+    spec: &LadderSpec,
+    facts: &LadderFacts,
+    table: &QualityTable,
+) -> Result<Vec<PlannedLevel>, AppError> {
+    let mut rungs = vec![("none".to_string(), Rung::None)];
+    rungs.push(("wiener".into(), Rung::Wiener));
+    rungs.extend(
+        REFINE_STEPS
+            .iter()
+            .map(|&k| (format!("refine:{k}"), Rung::Refine(k))),
+    );
+    if let Some((name, _)) = &facts.network {
+        rungs.push((name.clone(), Rung::Network));
+    }
+    let position = |bound: &Option<String>, default: usize| -> Result<usize, AppError> {
+        match bound {
+            None => Ok(default),
+            Some(b) => rungs.iter().position(|(n, _)| n == b).ok_or_else(|| {
+                AppError::option(
+                    format!("--preprocess {spec}"),
+                    format!(
+                        "no level {b:?} in this run's ladder ({})",
+                        rungs
+                            .iter()
+                            .map(|(n, _)| n.as_str())
+                            .collect::<Vec<_>>()
+                            .join(", ")
+                    ),
+                )
+            }),
+        }
+    };
+    let lo = position(&spec.lowest, 0)?;
+    let hi = position(&spec.highest, rungs.len() - 1)?;
+    if lo > hi {
+        return Err(AppError::option(
+            format!("--preprocess {spec}"),
+            "the lowest level is above the highest",
+        ));
+    }
+    Ok(rungs[lo..=hi]
+        .iter()
+        .map(|(name, rung)| {
+            let left_out = match rung {
+                Rung::Network => facts.network_excluded.clone(),
+                Rung::Wiener | Rung::Refine(_) if facts.on_device => {
+                    facts.device_fft_refuses.clone()
+                }
+                _ => None,
+            };
+            let found = table.find(*rung, &facts.doe_hash, facts.network.as_ref());
+            PlannedLevel {
+                name: name.clone(),
+                rung: *rung,
+                quality_db: found.map(|r| r.mean_psnr_db),
+                table_ms: found.map(|r| {
+                    (
+                        r.latency_ms,
+                        format!("{} on {}", r.size, r.device.as_deref().unwrap_or("?")),
+                    )
+                }),
+                left_out,
+            }
+        })
+        .collect())
+}
+
+/// The rows of a tradeoff table a ladder reads (the table is
+/// nedrt-studies' `Table`; only these fields are needed here).
+#[derive(Debug, Clone, Default)]
+pub struct QualityTable {
+    pub source: Option<PathBuf>,
+    rows: Vec<QualityRow>,
+}
+
+#[derive(Debug, Clone)]
+struct QualityRow {
+    name: String,
+    method: String,
+    doe_hash: Option<String>,
+    model_hash: Option<String>,
+    mean_psnr_db: f64,
+    latency_ms: f64,
+    device: Option<String>,
+    size: String,
+}
+
+impl QualityTable {
+    /// The table at `path`, or the default one where it exists (none: no
+    /// quality known, the levels kept in their order). A table given and
+    /// unreadable is an error naming it.
+    pub fn load(path: Option<&Path>) -> Result<Self, AppError> {
+        let (path, given) = match path {
+            Some(p) => (p.to_path_buf(), true),
+            None => (PathBuf::from(DEFAULT_QUALITY_TABLE), false),
+        };
+        let text = match std::fs::read_to_string(&path) {
+            Ok(t) => t,
+            Err(e) if !given && e.kind() == std::io::ErrorKind::NotFound => {
+                return Ok(Self::default());
+            }
+            Err(e) => {
+                return Err(AppError::input(path.display(), format!("cannot read: {e}")));
+            }
+        };
+        let bad = |why: String| AppError::input(path.display(), why);
+        let json: serde_json::Value = serde_json::from_str(&text)
+            .map_err(|e| bad(format!("not a table written by `nedrt tradeoff`: {e}")))?;
+        let size = format!(
+            "{}×{}",
+            json["frame_width"].as_u64().unwrap_or(0),
+            json["frame_height"].as_u64().unwrap_or(0)
+        );
+        let records = json["records"].as_array().ok_or_else(|| {
+            bad("no \"records\" list: not a table written by `nedrt tradeoff`".into())
+        })?;
+        let mut rows = Vec::new();
+        for (i, r) in records.iter().enumerate() {
+            let text = |k: &str| r[k].as_str().map(str::to_string);
+            let number = |k: &str| {
+                r[k].as_f64()
+                    .filter(|v| v.is_finite())
+                    .ok_or_else(|| bad(format!("record {i}: {k:?} is not a finite number")))
+            };
+            rows.push(QualityRow {
+                name: text("name").ok_or_else(|| bad(format!("record {i}: no \"name\"")))?,
+                method: text("method").ok_or_else(|| bad(format!("record {i}: no \"method\"")))?,
+                doe_hash: text("doe_hash"),
+                model_hash: text("model_hash"),
+                mean_psnr_db: number("mean_psnr_db")?,
+                latency_ms: number("latency_ms")?,
+                device: text("device"),
+                size: size.clone(),
+            });
+        }
+        Ok(Self {
+            source: Some(path),
+            rows,
+        })
+    }
+
+    /// The first row measuring `rung` on the DOE `doe_hash` (the network's
+    /// by its hash). A row's name is its method, its design, its
+    /// prefilter and its backend, space-separated.
+    fn find(
+        &self,
+        rung: Rung,
+        doe_hash: &str,
+        network: Option<&(String, String)>,
+    ) -> Option<&QualityRow> {
+        let prefilter_of = |row: &QualityRow| {
+            row.name
+                .split_whitespace()
+                .find(|t| t.contains(':') || *t == "lsq" || t.starts_with("lsq@"))
+                .map(str::to_string)
+        };
+        let same_doe = |row: &QualityRow| row.doe_hash.as_deref() == Some(doe_hash);
+        self.rows.iter().find(|row| match rung {
+            Rung::None => row.method == "doe-only" && same_doe(row),
+            Rung::Wiener => {
+                row.method == "doe+wiener" && same_doe(row) && prefilter_of(row).is_none()
+            }
+            Rung::Refine(k) => {
+                row.method == "doe+wiener"
+                    && same_doe(row)
+                    && prefilter_of(row).is_some_and(|p| {
+                        p == format!("refine:{k}")
+                            || p == format!("refine:{k}@{}", Prefilter::DEFAULT_OBJECTIVE.name())
+                    })
+            }
+            Rung::Network => {
+                row.method == "proposed"
+                    && network.is_some_and(|(_, hash)| row.model_hash.as_deref() == Some(hash))
+            }
+        })
+    }
+}
+
+/// The DOE the ladder's levels run on for a view with `design` (its own,
+/// else the system's: the network's companion DOE for `proposed`).
+pub(super) fn ladder_common(common: &CommonOptions, method: Method) -> CommonOptions {
+    let mut c = common.clone();
+    if c.doe.is_none() {
+        c.doe = common.doe_path_for(&[method]);
+    }
+    c
+}
+
+/// The hash of the DOE `common` runs on (for the quality table).
+pub(super) fn doe_hash(common: &CommonOptions) -> Result<String, AppError> {
+    let sim = Simulator::new(
+        common.calibration()?,
+        common.doe.as_deref(),
+        nedrt_optics::cache::PsfCache::disabled(),
+    )?;
+    Ok(sim.doe_hash)
+}
+
+/// The host preprocessors of `levels` on `common`'s optics (prepared
+/// once for every refine level); the network's, where a level is one,
+/// from `network`.
+pub(super) fn host_levels(
+    common: &CommonOptions,
+    levels: &[PlannedLevel],
+    network: &mut dyn FnMut() -> Result<Box<dyn Preprocess>, AppError>,
+) -> Result<Vec<Box<dyn Preprocess>>, AppError> {
+    let prepared = prepared_levels(common, levels)?;
+    let mut dcnns = std::collections::HashMap::new();
+    levels
+        .iter()
+        .map(|l| -> Result<Box<dyn Preprocess>, AppError> {
+            Ok(match l.rung {
+                Rung::None => Box::new(Identity),
+                Rung::Network => network()?,
+                rung => {
+                    let prepared = prepared.as_ref().ok_or_else(|| {
+                        AppError::Internal("a prefilter level without its optics".into())
+                    })?;
+                    nedrt_engines::preprocess::for_system(
+                        Method::DoeWiener,
+                        rung.prefilter(),
+                        prepared,
+                        &mut dcnns,
+                    )?
+                }
+            })
+        })
+        .collect()
+}
+
+/// `common`'s optics prepared for every prefilter level of `levels`
+/// (none where no level needs them).
+fn prepared_levels(
+    common: &CommonOptions,
+    levels: &[PlannedLevel],
+) -> Result<Option<nedrt_optics::sim::Prepared>, AppError> {
+    let prefilters: Vec<Prefilter> = levels
+        .iter()
+        .filter(|l| matches!(l.rung, Rung::Wiener | Rung::Refine(_)))
+        .map(|l| l.rung.prefilter())
+        .collect();
+    if prefilters.is_empty() {
+        return Ok(None);
+    }
+    let sim = Simulator::new(common.calibration()?, common.doe.as_deref(), common.cache())?;
+    let depths = Prefilter::all_depths_d(&prefilters, &sim.calib);
+    Ok(Some(sim.prepare(
+        &[Method::DoeWiener],
+        &depths,
+        common.progress(),
+    )?))
+}
+
+/// The device stages of `levels` on `common`'s optics for a view of
+/// `size`; the network's from `network`.
+pub(super) fn device_levels(
+    common: &CommonOptions,
+    levels: &[PlannedLevel],
+    device: &wgpu::Device,
+    size: (usize, usize),
+    network: &mut dyn FnMut() -> Result<Box<dyn nedrt_gpu::DeviceStage>, AppError>,
+) -> Result<Vec<Box<dyn nedrt_gpu::DeviceStage>>, AppError> {
+    let prepared = prepared_levels(common, levels)?;
+    levels
+        .iter()
+        .map(|l| -> Result<Box<dyn nedrt_gpu::DeviceStage>, AppError> {
+            Ok(match l.rung {
+                Rung::None => Box::new(nedrt_service::pipeline::ladder::Unprocessed),
+                Rung::Network => network()?,
+                rung => {
+                    let prepared = prepared.as_ref().ok_or_else(|| {
+                        AppError::Internal("a prefilter level without its optics".into())
+                    })?;
+                    let what = format!("{} of doe+wiener", l.name);
+                    nedrt_engines::device_prefilter::prefilter_stage(
+                        device,
+                        Method::DoeWiener,
+                        rung.prefilter(),
+                        prepared,
+                        what,
+                        Some(size),
+                    )?
+                    .ok_or_else(|| AppError::Internal(format!("{} has no device stage", l.name)))?
+                }
+            })
+        })
+        .collect()
+}
+
+/// The service's levels: each planned level kept, with its quality; its
+/// time is measured at start-up.
+pub(super) fn service_levels(
+    levels: &[PlannedLevel],
+) -> Vec<nedrt_service::pipeline::ladder::Level> {
+    levels
+        .iter()
+        .map(|l| nedrt_service::pipeline::ladder::Level {
+            name: l.name.clone(),
+            describe: l.name.clone(),
+            quality_db: l.quality_db,
+            reference_ns: 0,
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn specs_parse_with_either_bound_left_out() {
+        assert_eq!(LadderSpec::parse("proposed"), None);
+        assert_eq!(LadderSpec::parse("auto"), Some(Ok(LadderSpec::default())));
+        let spec = LadderSpec::parse("auto:wiener..refine:10")
+            .expect("auto")
+            .expect("parses");
+        assert_eq!(spec.lowest.as_deref(), Some("wiener"));
+        assert_eq!(spec.highest.as_deref(), Some("refine:10"));
+        assert_eq!(spec.to_string(), "auto:wiener..refine:10");
+        let spec = LadderSpec::parse("auto:..refine:3")
+            .expect("auto")
+            .expect("parses");
+        assert_eq!(
+            (spec.lowest, spec.highest.as_deref()),
+            (None, Some("refine:3"))
+        );
+        assert!(LadderSpec::parse("auto:wiener").expect("auto").is_err());
+        assert!(LadderSpec::parse("autox").expect("auto").is_err());
+    }
+
+    fn facts(network: bool) -> LadderFacts {
+        LadderFacts {
+            network: network.then(|| ("dcnn".to_string(), "m1".to_string())),
+            network_excluded: None,
+            doe_hash: "d1".into(),
+            on_device: true,
+            device_fft_refuses: None,
+        }
+    }
+
+    fn table() -> QualityTable {
+        let row =
+            |name: &str, method: &str, doe: Option<&str>, model: Option<&str>, q: f64| QualityRow {
+                name: name.into(),
+                method: method.into(),
+                doe_hash: doe.map(str::to_string),
+                model_hash: model.map(str::to_string),
+                mean_psnr_db: q,
+                latency_ms: 1.0,
+                device: Some("cpu".into()),
+                size: "8×8".into(),
+            };
+        QualityTable {
+            source: None,
+            rows: vec![
+                row("doe-only", "doe-only", Some("d1"), None, 20.5),
+                row("doe+wiener other", "doe+wiener", Some("d2"), None, 30.0),
+                row("doe+wiener", "doe+wiener", Some("d1"), None, 21.6),
+                row(
+                    "doe+wiener multifocal refine:10@target wgpu",
+                    "doe+wiener",
+                    Some("d1"),
+                    None,
+                    22.0,
+                ),
+                row(
+                    "doe+wiener multifocal lsq@target",
+                    "doe+wiener",
+                    Some("d1"),
+                    None,
+                    21.2,
+                ),
+                row(
+                    "proposed dcnn cpu f32",
+                    "proposed",
+                    Some("d1"),
+                    Some("m1"),
+                    21.7,
+                ),
+            ],
+        }
+    }
+
+    #[test]
+    fn levels_take_their_quality_from_the_rows_of_their_doe_and_model() {
+        let levels = plan_levels(&LadderSpec::default(), &facts(true), &table()).expect("plan");
+        let got: Vec<(&str, Option<f64>)> = levels
+            .iter()
+            .map(|l| (l.name.as_str(), l.quality_db))
+            .collect();
+        assert_eq!(
+            got,
+            [
+                ("none", Some(20.5)),
+                ("wiener", Some(21.6)),
+                ("refine:1", None),
+                ("refine:3", None),
+                ("refine:10", Some(22.0)),
+                ("dcnn", Some(21.7)),
+            ]
+        );
+    }
+
+    #[test]
+    fn bounds_cut_the_ladder_and_unknown_names_are_refused() {
+        let spec = LadderSpec::parse("auto:wiener..refine:3")
+            .expect("auto")
+            .expect("parses");
+        let levels = plan_levels(&spec, &facts(false), &table()).expect("plan");
+        let names: Vec<&str> = levels.iter().map(|l| l.name.as_str()).collect();
+        assert_eq!(names, ["wiener", "refine:1", "refine:3"]);
+        let spec = LadderSpec::parse("auto:..dcnn")
+            .expect("auto")
+            .expect("parses");
+        let e = plan_levels(&spec, &facts(false), &table()).expect_err("no network");
+        assert!(e.to_string().contains("no level \"dcnn\""), "{e}");
+        let spec = LadderSpec::parse("auto:refine:3..wiener")
+            .expect("auto")
+            .expect("parses");
+        assert!(plan_levels(&spec, &facts(false), &table()).is_err());
+    }
+
+    #[test]
+    fn a_table_that_is_not_a_tradeoff_table_is_named() {
+        let dir = tempfile::tempdir().expect("dir");
+        let path = dir.path().join("t.json");
+        std::fs::write(&path, "{\"records\": [{\"name\": \"x\"}]}").expect("write");
+        let e = QualityTable::load(Some(&path)).expect_err("bad");
+        assert!(e.to_string().contains("t.json"), "{e}");
+        assert!(e.to_string().contains("method"), "{e}");
+        let missing = dir.path().join("none.json");
+        assert!(QualityTable::load(Some(&missing)).is_err());
+    }
+}

@@ -1,0 +1,147 @@
+//! A view's levels, every one built at start-up, behind one engine: on
+//! the host a [`Preprocess`], on the device a [`DeviceStage`], each
+//! running the level its [`Selection`] names. A switch then costs no build
+//! and no stall: the next frame records another level's passes.
+
+use std::sync::Arc;
+use std::sync::atomic::{AtomicUsize, Ordering};
+
+use nedrt_core::Image;
+use nedrt_core::preprocess::{HostTraffic, Preprocess, PreprocessError};
+use nedrt_gpu::{DeviceStage, GpuError};
+
+/// The level every view's engine runs, set by the controller before each
+/// frame (shared: every view of a frame runs the same level).
+#[derive(Debug, Clone, Default)]
+pub struct Selection(Arc<AtomicUsize>);
+
+impl Selection {
+    pub fn get(&self) -> usize {
+        self.0.load(Ordering::Relaxed)
+    }
+    pub fn set(&self, level: usize) {
+        self.0.store(level, Ordering::Relaxed);
+    }
+}
+
+/// Names the levels and the one selected, for reports.
+fn describe_levels(names: impl Iterator<Item = String>, selected: usize) -> String {
+    let names: Vec<String> = names.collect();
+    format!(
+        "frame budget over {} levels ({}; now {})",
+        names.len(),
+        names.join(" < "),
+        names.get(selected).map_or("none", String::as_str)
+    )
+}
+
+/// A view's levels on the host.
+#[derive(Debug)]
+pub struct HostLevels {
+    levels: Vec<Box<dyn Preprocess>>,
+    selection: Selection,
+}
+
+impl HostLevels {
+    /// `levels` cheapest first; none is a ladder of one level of no work.
+    pub fn new(mut levels: Vec<Box<dyn Preprocess>>, selection: Selection) -> Self {
+        if levels.is_empty() {
+            levels.push(Box::new(nedrt_core::preprocess::Identity));
+        }
+        Self { levels, selection }
+    }
+
+    fn selected(&self) -> usize {
+        self.selection.get().min(self.levels.len() - 1)
+    }
+}
+
+impl Preprocess for HostLevels {
+    fn describe(&self) -> String {
+        describe_levels(self.levels.iter().map(|l| l.describe()), self.selected())
+    }
+    fn run(&mut self, input: &Image) -> Result<Image, PreprocessError> {
+        let j = self.selected();
+        self.levels[j].run(input)
+    }
+    fn last_gpu_ns(&self) -> Option<u64> {
+        self.levels[self.selected()].last_gpu_ns()
+    }
+    fn last_traffic(&self) -> HostTraffic {
+        self.levels[self.selected()].last_traffic()
+    }
+}
+
+/// No work on the device: the frame's planes copied to the display
+/// buffer (the encode clamps): the ladder's lowest level.
+#[derive(Debug, Default)]
+pub struct Unprocessed;
+
+impl DeviceStage for Unprocessed {
+    fn describe(&self) -> String {
+        "none (the frame as it comes)".into()
+    }
+    fn record(
+        &mut self,
+        encoder: &mut wgpu::CommandEncoder,
+        input: &wgpu::Buffer,
+        output: &wgpu::Buffer,
+        width: usize,
+        height: usize,
+    ) -> Result<(), GpuError> {
+        let bytes = (3 * width * height * std::mem::size_of::<f32>()) as u64;
+        encoder.copy_buffer_to_buffer(input, 0, output, 0, bytes);
+        Ok(())
+    }
+}
+
+/// A view's levels on the sink's device.
+#[derive(Debug)]
+pub struct DeviceLevels {
+    levels: Vec<Box<dyn DeviceStage>>,
+    selection: Selection,
+}
+
+impl DeviceLevels {
+    /// `levels` cheapest first; none is a ladder of [`Unprocessed`] alone.
+    pub fn new(mut levels: Vec<Box<dyn DeviceStage>>, selection: Selection) -> Self {
+        if levels.is_empty() {
+            levels.push(Box::new(Unprocessed));
+        }
+        Self { levels, selection }
+    }
+
+    fn selected(&self) -> usize {
+        self.selection.get().min(self.levels.len() - 1)
+    }
+}
+
+impl DeviceStage for DeviceLevels {
+    fn describe(&self) -> String {
+        describe_levels(self.levels.iter().map(|l| l.describe()), self.selected())
+    }
+    fn record(
+        &mut self,
+        encoder: &mut wgpu::CommandEncoder,
+        input: &wgpu::Buffer,
+        output: &wgpu::Buffer,
+        width: usize,
+        height: usize,
+    ) -> Result<(), GpuError> {
+        let j = self.selected();
+        self.levels[j].record(encoder, input, output, width, height)
+    }
+    /// Every level is made ready: a switch builds nothing.
+    fn warm_up(
+        &mut self,
+        input: &wgpu::Buffer,
+        output: &wgpu::Buffer,
+        width: usize,
+        height: usize,
+    ) -> Result<(), GpuError> {
+        for level in &mut self.levels {
+            level.warm_up(input, output, width, height)?;
+        }
+        Ok(())
+    }
+}
