@@ -140,3 +140,83 @@ mod needs_gpu {
         assert!(line(&text, "view ").contains("D-CNN on the GPU"), "{text}");
     }
 }
+
+/// `--preprocess auto` (issue 54): the ladder, each level with its
+/// quality from the tradeoff table (the repository's, matched by the
+/// network's DOE and model) or left out and why, and the budget.
+#[test]
+fn auto_prints_the_ladder_with_each_levels_quality_and_the_budget() {
+    let text = plan(&["--preprocess", "auto", "--sink", "record"], &[]);
+    assert!(
+        line(&text, "ladder:").contains("docs/tradeoff/tradeoff.json"),
+        "{text}"
+    );
+    for level in [
+        "none",
+        "wiener",
+        "refine:1",
+        "refine:3",
+        "refine:10",
+        "dcnn",
+    ] {
+        let l = line(&text, &format!("  {level} "));
+        assert!(l.contains(" dB, "), "{level}: {l}");
+        assert!(l.contains("measured at start-up"), "{level}: {l}");
+    }
+    // 240 Hz: a refresh of 4.17 ms, a 32nd of it 0.13 ms.
+    let budget = line(&text, "budget:");
+    assert!(
+        budget.contains("(4.17 ms)") && budget.contains("(0.13 ms)"),
+        "{budget}"
+    );
+    assert!(
+        line(&text, "view ").contains(
+            "the frame budget's level (none < wiener < refine:1 < refine:3 < refine:10 < dcnn) \
+             on the host"
+        ),
+        "{text}"
+    );
+}
+
+#[test]
+fn auto_with_bounds_and_two_views_runs_the_same_levels_in_each_eye() {
+    let text = plan(
+        &[
+            "--stereo",
+            "--preprocess",
+            "auto:wiener..refine:10",
+            "--sink",
+            "record",
+        ],
+        &[],
+    );
+    let views: Vec<&str> = text.lines().filter(|l| l.starts_with("view ")).collect();
+    assert_eq!(views.len(), 2, "{text}");
+    for v in views {
+        assert!(
+            v.contains("the frame budget's level (wiener < refine:1 < refine:3 < refine:10)"),
+            "{v}"
+        );
+    }
+    assert!(!text.contains("  none "), "{text}");
+    assert!(!text.contains("  dcnn "), "{text}");
+}
+
+#[test]
+fn auto_refuses_a_bound_that_names_no_level() {
+    let o = nedrt()
+        .current_dir(repo())
+        .args(["run", "--plan", "--calib", path(&small_panel())])
+        .args(["--preprocess", "auto:refine:7..", "--sink", "record"])
+        .output_within(deadline::COMMAND, "nedrt run --plan");
+    assert!(!o.status.success());
+    let e = stderr(&o);
+    assert!(e.contains("--preprocess auto:refine:7.."), "{e}");
+    assert!(e.contains("no level \"refine:7\""), "{e}");
+    assert!(e.contains("refine:10"), "{e}");
+    let o = nedrt()
+        .args(["run", "--plan", "--preprocess", "automatic"])
+        .output_within(deadline::COMMAND, "nedrt run --plan");
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("auto:LO..HI"), "{}", stderr(&o));
+}

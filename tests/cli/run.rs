@@ -132,6 +132,49 @@ fn run_records_a_folder_and_writes_a_trace_and_report() {
     assert_eq!(r["presented"].as_u64(), Some(3));
 }
 
+/// `--preprocess auto` on the host path (a recorder): every frame runs a
+/// level of the ladder, and the report says which, with the quality
+/// delivered.
+#[test]
+fn run_with_the_frame_budget_reports_its_levels() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let report = dir.path().join("report.json");
+    let o = run_on_small_panel()
+        .args(["--preprocess", "auto:none..wiener", "--frames", "12"])
+        .args(["--source-rate", "60", "--sink", "record", "--record-dir"])
+        .arg(dir.path().join("rec"))
+        .args(["--report-json", path(&report)])
+        .output_within(deadline::COMMAND, "nedrt run --preprocess auto");
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(stdout(&o).contains("frame budget: "), "{}", stdout(&o));
+    let r: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&report).expect("report")).expect("JSON");
+    let budget = &r["frame_budget"];
+    let names: Vec<&str> = budget["levels"]
+        .as_array()
+        .expect("levels")
+        .iter()
+        .filter_map(|l| l["name"].as_str())
+        .collect();
+    assert_eq!(names, ["none", "wiener"], "{budget}");
+    let frames: u64 = budget["levels"]
+        .as_array()
+        .expect("levels")
+        .iter()
+        .filter_map(|l| l["frames"].as_u64())
+        .sum();
+    assert_eq!(frames, 12, "every frame ran a level: {budget}");
+    assert!(
+        budget["budget_ms"]
+            .as_f64()
+            .is_some_and(|b| b > 0.0 && b < 4.2)
+    );
+    assert!(
+        budget["quality_delivered_db"].as_f64().is_some(),
+        "{budget}"
+    );
+}
+
 #[test]
 fn run_falls_back_to_the_cpu_when_the_chosen_backend_cannot_start() {
     let dir = tempfile::tempdir().expect("tempdir");

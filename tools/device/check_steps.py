@@ -46,9 +46,10 @@ STEPS = [
                   "auto, and auto with --f16-math f16", 30, 1),
     ("torch", "the same networks in PyTorch: f32 (TF32 off), TF32, f16 channels-last; cuDNN benchmark", 35, 1),
     ("fft", "the prefilters' DCT filter at 1920×1080: nedrt's on the device, the CPU's, torch.fft (cuFFT)", 25, 1),
-    ("pipeline", "nedrt bench pipeline at 1920×1080 and the panel's refresh on the device path: none, the "
-                 "Wiener, refine:10 (its GPU time per frame), half, full, the shipped model; then two views "
-                 "(--stereo): none and the shipped model; the shipped model and the full network at "
+    ("pipeline", "nedrt bench pipeline at 1920×1080 and the panel's refresh on the device path: the frame "
+                 "budget (auto: its levels and the quality delivered), none, the Wiener, refine:10 (its GPU time "
+                 "per frame), full, the shipped model; then two views (--stereo): auto and the shipped model; "
+                 "the shipped model and the full network at "
                  "--precision f16; every case's frame timelines (why a frame was dropped or late)", 110, 1),
     ("teacher", "the D-CNN's teacher: the training photographs' optimum with nedrt's solver on the device "
                 "(refine:1000@target, wgpu), the kernels and the validation sets with nedrt prefilter on the CPU",
@@ -197,11 +198,15 @@ def step_pipeline(r: Runner, s: Step, z: dict):
     log = r.work / "frames"
     common = ["--frame-paths", "device", "--panel", z["panel"], "--frames", z["frames"], "--max-seconds",
               z["pipeline_s"], "--frame-log", log]
+    # The frame budget (issue 54, `auto`) beside the fixed levels it picks
+    # from; the half network, the shipped model's width without its
+    # Wiener, made room for it.
     out = r.sh([r.nedrt, "--design", "multifocal", "bench", "pipeline", "--networks",
-                "none,wiener,refine10,half,full,model", *common], s.cap_s)
-    # One view and two (issue 39): the no-network and the shipped-model cases.
+                "auto,none,wiener,refine10,full,model", *common], s.cap_s)
+    # One view and two (issues 39 and 54): the frame budget and the shipped
+    # model (no network with two views met the refresh at b239a3e).
     stereo = r.sh([r.nedrt, "--design", "multifocal", "bench", "pipeline", "--stereo", "--networks",
-                   "none,model", *common], s.cap_s)
+                   "auto,model", *common], s.cap_s)
     # The networks at f16 (the tensor cores where the adapter lists their
     # shape): whether f16 should be the runtime's default on such GPUs.
     half = r.sh([r.nedrt, "--precision", "f16", "--design", "multifocal", "bench", "pipeline", "--networks",

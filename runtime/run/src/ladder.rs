@@ -115,6 +115,27 @@ pub struct PlannedLevel {
     pub left_out: Option<String>,
 }
 
+/// What a ladder is planned from besides the run's facts.
+#[derive(Debug, Clone)]
+pub struct LadderInputs {
+    pub spec: LadderSpec,
+    pub table: QualityTable,
+    /// The DOE the levels run on, by content hash, and the run's design.
+    pub doe_hash: String,
+    pub design: Option<String>,
+    /// The network's name (file stem) and hash, where the run has one.
+    pub network: Option<(String, String)>,
+}
+
+/// The ladder of a run with `--preprocess auto`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LadderPlan {
+    pub levels: Vec<PlannedLevel>,
+    /// Where the levels' quality comes from.
+    pub table: String,
+    pub budget: String,
+}
+
 /// The facts a ladder is planned from.
 #[derive(Debug, Clone)]
 pub struct LadderFacts {
@@ -123,8 +144,10 @@ pub struct LadderFacts {
     /// Why the network cannot be a level here (another backend than the
     /// device's on the device path, a view's design).
     pub network_excluded: Option<String>,
-    /// The DOE the levels run on, by content hash.
+    /// The DOE the levels run on, by content hash, and the design whose K
+    /// its Wiener takes (`--design`; none: the calibration's).
     pub doe_hash: String,
+    pub design: Option<String>,
     /// Whether the levels run on the device, and why a prefilter level
     /// cannot where it cannot (a size the device FFT lacks).
     pub on_device: bool,
@@ -183,16 +206,23 @@ pub fn plan_levels(
                 }
                 _ => None,
             };
-            let found = table.find(*rung, &facts.doe_hash, facts.network.as_ref());
+            let found = table.find(
+                *rung,
+                &facts.doe_hash,
+                facts.design.as_deref(),
+                facts.network.as_ref(),
+            );
             PlannedLevel {
                 name: name.clone(),
                 rung: *rung,
                 quality_db: found.map(|r| r.mean_psnr_db),
-                table_ms: found.map(|r| {
-                    (
-                        r.latency_ms,
-                        format!("{} on {}", r.size, r.device.as_deref().unwrap_or("?")),
-                    )
+                table_ms: found.and_then(|r| {
+                    r.latency_ms.map(|ms| {
+                        (
+                            ms,
+                            format!("{} on {}", r.size, r.device.as_deref().unwrap_or("?")),
+                        )
+                    })
                 }),
                 left_out,
             }
@@ -215,7 +245,8 @@ struct QualityRow {
     doe_hash: Option<String>,
     model_hash: Option<String>,
     mean_psnr_db: f64,
-    latency_ms: f64,
+    /// None where the table only estimated it.
+    latency_ms: Option<f64>,
     device: Option<String>,
     size: String,
 }
@@ -263,7 +294,7 @@ impl QualityTable {
                 doe_hash: text("doe_hash"),
                 model_hash: text("model_hash"),
                 mean_psnr_db: number("mean_psnr_db")?,
-                latency_ms: number("latency_ms")?,
+                latency_ms: r["latency_ms"].as_f64().filter(|v| v.is_finite()),
                 device: text("device"),
                 size: size.clone(),
             });
@@ -281,6 +312,7 @@ impl QualityTable {
         &self,
         rung: Rung,
         doe_hash: &str,
+        design: Option<&str>,
         network: Option<&(String, String)>,
     ) -> Option<&QualityRow> {
         let prefilter_of = |row: &QualityRow| {
@@ -290,7 +322,22 @@ impl QualityTable {
                 .map(str::to_string)
         };
         let same_doe = |row: &QualityRow| row.doe_hash.as_deref() == Some(doe_hash);
-        self.rows.iter().find(|row| match rung {
+        // The design a row names (its second word, where that is not a
+        // prefilter or a backend): a design's K may differ from the
+        // calibration's on the same DOE.
+        let design_of = |row: &QualityRow| {
+            row.name
+                .split_whitespace()
+                .nth(1)
+                .filter(|t| {
+                    !(t.contains(':')
+                        || t.starts_with("lsq")
+                        || t.starts_with("optimal")
+                        || ["cpu", "ort", "wgpu"].contains(t))
+                })
+                .map(str::to_string)
+        };
+        let matching = self.rows.iter().filter(|row| match rung {
             Rung::None => row.method == "doe-only" && same_doe(row),
             Rung::Wiener => {
                 row.method == "doe+wiener" && same_doe(row) && prefilter_of(row).is_none()
@@ -307,8 +354,67 @@ impl QualityTable {
                 row.method == "proposed"
                     && network.is_some_and(|(_, hash)| row.model_hash.as_deref() == Some(hash))
             }
-        })
+        });
+        let candidates: Vec<&QualityRow> = matching.collect();
+        if rung == Rung::Network {
+            return candidates.first().copied();
+        }
+        // The run's design's row first, then one of no design, then any.
+        candidates
+            .iter()
+            .find(|r| design_of(r).as_deref() == design)
+            .or_else(|| candidates.iter().find(|r| design_of(r).is_none()))
+            .or(candidates.first())
+            .copied()
     }
+}
+
+/// The quality the table gives a fixed configuration of `nedrt run`
+/// (`--preprocess METHOD [--prefilter P]`): none, the Wiener, refine:K
+/// and the network as the ladder's levels are matched, `conventional` by
+/// its own row; `None` where the table has no row for it.
+pub fn fixed_quality(
+    common: &CommonOptions,
+    method: Method,
+    prefilter: Prefilter,
+    table: &QualityTable,
+) -> Result<Option<f64>, AppError> {
+    let design = common.design.as_ref().map(|d| d.name.as_str());
+    let doe = || -> Result<String, AppError> {
+        let mut c = common.clone();
+        c.doe = common
+            .doe
+            .clone()
+            .or_else(|| common.doe_path_for(&[method]));
+        doe_hash(&c)
+    };
+    let rung = match (method, prefilter) {
+        (Method::Conventional, Prefilter::Native) => {
+            return Ok(table
+                .rows
+                .iter()
+                .find(|r| r.method == "conventional")
+                .map(|r| r.mean_psnr_db));
+        }
+        (Method::DoeOnly, Prefilter::Native) => Rung::None,
+        (Method::DoeWiener, Prefilter::Native) => Rung::Wiener,
+        (Method::DoeWiener, Prefilter::Refine(k, Prefilter::DEFAULT_OBJECTIVE)) => Rung::Refine(k),
+        (Method::Proposed, Prefilter::Native) => {
+            let path = &common.dcnn.path;
+            if !path.exists() {
+                return Ok(None);
+            }
+            let model = nedrt_infer::ModelFile::read(path)?;
+            let network = (String::new(), model.hash);
+            return Ok(table
+                .find(Rung::Network, "", None, Some(&network))
+                .map(|r| r.mean_psnr_db));
+        }
+        _ => return Ok(None),
+    };
+    Ok(table
+        .find(rung, &doe()?, design, None)
+        .map(|r| r.mean_psnr_db))
 }
 
 /// The DOE the ladder's levels run on for a view with `design` (its own,
@@ -468,6 +574,7 @@ mod tests {
             network: network.then(|| ("dcnn".to_string(), "m1".to_string())),
             network_excluded: None,
             doe_hash: "d1".into(),
+            design: None,
             on_device: true,
             device_fft_refuses: None,
         }
@@ -481,7 +588,7 @@ mod tests {
                 doe_hash: doe.map(str::to_string),
                 model_hash: model.map(str::to_string),
                 mean_psnr_db: q,
-                latency_ms: 1.0,
+                latency_ms: Some(1.0),
                 device: Some("cpu".into()),
                 size: "8×8".into(),
             };
@@ -490,6 +597,13 @@ mod tests {
             rows: vec![
                 row("doe-only", "doe-only", Some("d1"), None, 20.5),
                 row("doe+wiener other", "doe+wiener", Some("d2"), None, 30.0),
+                row(
+                    "doe+wiener multifocal",
+                    "doe+wiener",
+                    Some("d1"),
+                    None,
+                    21.5,
+                ),
                 row("doe+wiener", "doe+wiener", Some("d1"), None, 21.6),
                 row(
                     "doe+wiener multifocal refine:10@target wgpu",
@@ -534,6 +648,16 @@ mod tests {
                 ("dcnn", Some(21.7)),
             ]
         );
+    }
+
+    #[test]
+    fn a_designs_wiener_takes_its_own_row() {
+        let mut f = facts(false);
+        f.design = Some("multifocal".into());
+        let levels = plan_levels(&LadderSpec::default(), &f, &table()).expect("plan");
+        assert_eq!(levels[1].quality_db, Some(21.5));
+        // refine:10's only row names the design: it is the run's too.
+        assert_eq!(levels[4].quality_db, Some(22.0));
     }
 
     #[test]

@@ -22,7 +22,10 @@ mod views;
 use std::sync::Arc;
 
 use build::{behind, device_engines, fallback_factory, linear_preprocessor};
-pub use ladder::{DEFAULT_QUALITY_TABLE, LadderSpec, PlannedLevel, QualityTable, Rung};
+pub use ladder::LadderPlan;
+pub use ladder::{
+    DEFAULT_QUALITY_TABLE, LadderSpec, PlannedLevel, QualityTable, Rung, fixed_quality,
+};
 use nedrt_command::{AppError, CommonOptions};
 use nedrt_core::preprocess::Preprocess;
 use nedrt_engines::FailsAfter;
@@ -46,7 +49,7 @@ pub use options::{
     FallbackKind, FramePath, MAX_SOURCE_RATE_HZ, MIN_SOURCE_RATE_HZ, RunOptions, SinkKind,
     SourceKind,
 };
-pub use plan::{LadderPlan, PlannedPath, Probe, RunPlan};
+pub use plan::{PlannedPath, Probe, RunPlan};
 use serve::{Built, serve};
 
 /// Runs the service until its source ends (and the last frame is shown)
@@ -366,7 +369,7 @@ fn plan_inputs<'a>(
     panel: &PanelConfig,
     network: Option<&(ModelFile, DcnnInput)>,
     probe: Probe,
-    ladder: Option<plan::LadderInputs>,
+    ladder: Option<ladder::LadderInputs>,
 ) -> Result<plan::PlanInputs<'a>, AppError> {
     let views = if opts.stereo || !calib.views.is_empty() {
         views::layout(calib, (panel.width, panel.height))?
@@ -406,7 +409,7 @@ fn ladder_inputs(
     common: &CommonOptions,
     opts: &RunOptions,
     network: Option<&(ModelFile, DcnnInput)>,
-) -> Result<Option<plan::LadderInputs>, AppError> {
+) -> Result<Option<ladder::LadderInputs>, AppError> {
     let Some(spec) = &opts.ladder else {
         return Ok(None);
     };
@@ -419,10 +422,11 @@ fn ladder_inputs(
             .map_or("network".into(), |s| s.to_string_lossy().into_owned());
         (name, m.hash.clone())
     });
-    Ok(Some(plan::LadderInputs {
+    Ok(Some(ladder::LadderInputs {
         spec: spec.clone(),
         table,
         doe_hash,
+        design: common.design.as_ref().map(|d| d.name.clone()),
         network,
     }))
 }

@@ -8,7 +8,8 @@
 
 use std::fmt;
 
-use super::ladder::{LadderFacts, LadderSpec, PlannedLevel, QualityTable, plan_levels};
+use super::ladder::{LadderFacts, plan_levels};
+use super::ladder::{LadderInputs, LadderPlan};
 use super::{AppError, FallbackKind, FramePath, RunOptions, SinkKind, SourceKind};
 use nedrt_core::Named;
 use nedrt_engines::device_prefilter::runs_on_device;
@@ -58,26 +59,6 @@ pub struct PlanInputs<'a> {
     /// `--preprocess auto`: the ladder's bounds and what its levels'
     /// quality is looked up by.
     pub ladder: Option<LadderInputs>,
-}
-
-/// What a ladder is planned from besides the run's facts.
-#[derive(Debug, Clone)]
-pub struct LadderInputs {
-    pub spec: LadderSpec,
-    pub table: QualityTable,
-    /// The DOE the levels run on, by content hash.
-    pub doe_hash: String,
-    /// The network's name (file stem) and hash, where the run has one.
-    pub network: Option<(String, String)>,
-}
-
-/// The ladder of a run with `--preprocess auto`.
-#[derive(Debug, Clone, PartialEq)]
-pub struct LadderPlan {
-    pub levels: Vec<PlannedLevel>,
-    /// Where the levels' quality comes from.
-    pub table: String,
-    pub budget: String,
 }
 
 /// Where the frames go between the client and the panel.
@@ -325,6 +306,7 @@ fn ladder_plan(
         network: l.network.clone(),
         network_excluded,
         doe_hash: l.doe_hash.clone(),
+        design: l.design.clone(),
         on_device,
         device_fft_refuses,
     };

@@ -279,3 +279,61 @@ fn a_prefilter_the_device_lacks_runs_on_the_host_before_the_upload() {
         p.path_reason
     );
 }
+
+/// `--preprocess auto`: what the device cannot run is a level left out
+/// with its reason, not every level sent to the host.
+#[test]
+fn a_ladder_leaves_out_what_the_device_cannot_run_and_keeps_the_device_path() {
+    use crate::ladder::{LadderInputs, LadderSpec, QualityTable};
+    let o = opts();
+    let ladder = || LadderInputs {
+        spec: LadderSpec::default(),
+        table: QualityTable::default(),
+        doe_hash: "d".into(),
+        design: None,
+        network: Some(("dcnn".into(), "m".into())),
+    };
+    let mut i = inputs(&o, whole(1920, 1080), gpu());
+    i.backend = BackendKind::Cpu;
+    i.ladder = Some(ladder());
+    let p = plan(&i).expect("plan");
+    assert_eq!(p.path, PlannedPath::Device);
+    let l = p.ladder.as_ref().expect("a ladder");
+    let left_out: Vec<(&str, &str)> = l
+        .levels
+        .iter()
+        .filter_map(|l| l.left_out.as_deref().map(|why| (l.name.as_str(), why)))
+        .collect();
+    assert_eq!(
+        left_out,
+        [("dcnn", "the D-CNN runs on the cpu backend, on the host")]
+    );
+    assert!(
+        p.views[0].stages[2].starts_with(
+            "the frame budget's level (none < wiener < refine:1 < refine:3 < refine:10) on the GPU"
+        ),
+        "{:?}",
+        p.views[0].stages
+    );
+    // A side the device FFT lacks (a prime factor over 13) leaves out the
+    // prefilter levels; none stays.
+    let mut i = inputs(&o, whole(17 * 8, 48), gpu());
+    i.ladder = Some(ladder());
+    let p = plan(&i).expect("plan");
+    let kept: Vec<&str> = p
+        .ladder
+        .as_ref()
+        .expect("a ladder")
+        .levels
+        .iter()
+        .filter(|l| l.left_out.is_none())
+        .map(|l| l.name.as_str())
+        .collect();
+    assert_eq!(kept, ["none", "dcnn"]);
+    let text = p.to_string();
+    assert!(text.contains("quality: not known"), "{text}");
+    assert!(
+        text.contains("  wiener     left out: the device FFT takes no"),
+        "{text}"
+    );
+}

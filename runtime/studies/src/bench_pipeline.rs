@@ -23,7 +23,9 @@ use std::time::Duration;
 use serde_json::json;
 
 use super::AppError;
-use super::run::{FallbackKind, FramePath, LadderSpec, RunOptions, SinkKind, SourceKind};
+use super::run::{
+    FallbackKind, FramePath, LadderSpec, QualityTable, RunOptions, SinkKind, SourceKind,
+};
 use crate::CommonOptions;
 use nedrt_core::Named;
 use nedrt_infer::{BackendKind, synth};
@@ -162,12 +164,17 @@ pub fn run(
          never shown; late: shown after the refresh predicted at submission; submitted ahead: \
          the mean time from a frame's submission to the refresh predicted for it, the pipeline's \
          bound plus the present loop's lead; GPU p50: the engine's own time on the device per \
-         frame, from timestamp queries)\n\n\
+         frame, from timestamp queries; quality: the mean PSNR vs sharp over 0–2.5 D of the \
+         configuration in the tradeoff table, for `auto` of the levels run, weighted by their \
+         frames)\n\n\
          | network | frame path | prepare s | shown | dropped | late | submitted ahead ms | e2e p50 ms | e2e p99 ms | \
-         e2e max ms | GPU p50 ms | MB up / frame | uploads / frame | MB back / frame | read-backs / frame |{}\n\
-         | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |{}\n",
+         e2e max ms | GPU p50 ms | MB up / frame | uploads / frame | MB back / frame | read-backs / frame | quality dB |{}\n\
+         | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |{}\n",
         calib.panel.refresh_hz, b.frames, b.max_seconds, eye_columns.0, eye_columns.1
     );
+    let table_of_quality = QualityTable::load(None)?;
+    // Each `auto` case's levels: frames, mean time and switches per level.
+    let mut levels_lines = String::new();
     for &network in &b.networks {
         let mut case = common.clone();
         case.dcnn.backend = BackendKind::Wgpu;
@@ -220,6 +227,33 @@ pub fn run(
                 stereo: b.stereo,
             };
             let (report, prepare_s) = run_case(&case, &opts, b.max_seconds)?;
+            let quality_db = match &report.frame_budget {
+                Some(budget) => {
+                    let _ = writeln!(
+                        levels_lines,
+                        "- {} on the {} path: {}",
+                        network.name(),
+                        path.name(),
+                        budget_line(budget)
+                    );
+                    budget.quality_delivered_db
+                }
+                None if matches!(network, PipelineNetwork::Half | PipelineNetwork::Full) => None,
+                // No preprocessing on this display is the DOE alone (the
+                // case runs `conventional`'s: the same frame, clamped).
+                None if network == PipelineNetwork::None => super::run::fixed_quality(
+                    &case,
+                    Method::DoeOnly,
+                    opts.prefilter,
+                    &table_of_quality,
+                )?,
+                None => super::run::fixed_quality(
+                    &case,
+                    opts.preprocess,
+                    opts.prefilter,
+                    &table_of_quality,
+                )?,
+            };
             let stage = |name: &str| report.stages.iter().find(|s| s.stage == name).cloned();
             let e2e = stage("end-to-end");
             // The engine's own time on the device (timestamps), per frame.
@@ -316,6 +350,8 @@ pub fn run(
                 "shown_vs_predicted": report.shown_vs_predicted,
                 "stages": stages_json(&report.stages),
                 "eyes": stages_json(&report.view_stages),
+                "quality_db": quality_db,
+                "frame_budget": report.frame_budget,
             });
             on_record(&record);
             let ms = |v: Option<f64>| v.map_or("–".to_string(), |v| format!("{v:.1}"));
@@ -335,7 +371,7 @@ pub fn run(
             };
             let _ = writeln!(
                 table,
-                "| {} | {} | {prepare_s:.1} | {} | {dropped} | {} | {} | {} | {} | {} | {} | {:.2} | {:.2} | {:.2} | {:.2} |{eyes}",
+                "| {} | {} | {prepare_s:.1} | {} | {dropped} | {} | {} | {} | {} | {} | {} | {:.2} | {:.2} | {:.2} | {:.2} | {} |{eyes}",
                 network.name(),
                 // "device" or "host" as it ran (a device case the engine
                 // could not run on the device says "host").
@@ -350,12 +386,46 @@ pub fn run(
                 t.to_device_bytes / 1e6,
                 t.uploads,
                 t.to_host_bytes / 1e6,
-                t.read_backs
+                t.read_backs,
+                quality_db.map_or("–".to_string(), |q| format!("{q:.2}"))
             );
         }
     }
+    if !levels_lines.is_empty() {
+        table.push_str(
+            "\nThe frame budget's levels (frames, mean time, switches in, left late):\n\n",
+        );
+        table.push_str(&levels_lines);
+    }
     table.push_str(&why);
     Ok(table)
+}
+
+/// An `auto` case's levels in one line.
+fn budget_line(b: &nedrt_service::pipeline::ladder::BudgetReport) -> String {
+    let levels: Vec<String> = b
+        .levels
+        .iter()
+        .map(|l| {
+            format!(
+                "{} {} frames{} ({} in, {} late)",
+                l.name,
+                l.frames,
+                l.mean_ms
+                    .map_or(String::new(), |m| format!(" at {m:.2} ms")),
+                l.switches_in,
+                l.left_late
+            )
+        })
+        .collect();
+    let mut s = format!("budget {:.2} ms; {}", b.budget_ms, levels.join(", "));
+    if !b.dropped.is_empty() {
+        s += &format!(
+            "; left out (no better than a faster level): {}",
+            b.dropped.join(", ")
+        );
+    }
+    s
 }
 
 /// Each stage's count and percentiles, for a record.
