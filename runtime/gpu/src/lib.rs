@@ -249,6 +249,15 @@ pub trait DeviceStage: Send + std::fmt::Debug {
         let _ = (input, output, width, height);
         Ok(())
     }
+
+    /// Whether the next frame would leave the stage unchanged (a ladder
+    /// at its level of no work): the frame path then shows its input and
+    /// records nothing for it, not even a copy. No, by default; a stage
+    /// that wraps another answers for itself (a fault injection still
+    /// counts its frames).
+    fn passes_through(&self) -> bool {
+        false
+    }
 }
 
 /// Two device stages one after the other, through a buffer of the

@@ -350,7 +350,10 @@ impl DeviceFrames {
                 traffic.add(layers);
                 self.last_blended |= blended;
                 let (w, h) = (view.region.width, view.region.height);
-                if let Some(stage) = &mut view.stage {
+                // A stage with nothing to do this frame records nothing:
+                // its input is shown (the frame budget's lowest level).
+                view.passed = view.stage.as_ref().is_some_and(|s| s.passes_through());
+                if let Some(stage) = view.stage.as_mut().filter(|_| !view.passed) {
                     if let Some(t) = &self.timer {
                         mark(&mut encoder, t.start(v));
                     }
@@ -364,7 +367,7 @@ impl DeviceFrames {
                 view.generation = f.generation;
                 self.last_ran[v] = true;
             }
-            let shown = if view.stage.is_some() {
+            let shown = if view.stage.is_some() && !view.passed {
                 &view.display
             } else {
                 &view.frame
@@ -388,7 +391,7 @@ impl DeviceFrames {
         let spans = self.timer.as_ref().and_then(|t| t.spans_ns().ok());
         for (v, view) in self.views.iter().enumerate() {
             // Only a view that ran a stage wrote its timestamps.
-            let staged = self.last_ran[v] && view.stage.is_some();
+            let staged = self.last_ran[v] && view.stage.is_some() && !view.passed;
             self.last_view_ns[v] = spans
                 .as_ref()
                 .filter(|_| staged)

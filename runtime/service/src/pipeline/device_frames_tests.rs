@@ -127,6 +127,62 @@ mod needs_gpu {
         }
     }
 
+    /// The frame budget's levels on the device: the level of no work
+    /// records nothing and shows the frame; another level shows its
+    /// output; a frame not changed since it ran keeps the output it got.
+    #[test]
+    #[ignore = "needs a GPU adapter (run: scripts/test.sh, or cargo test -- --include-ignored)"]
+    fn a_ladder_at_its_level_of_no_work_shows_the_frame_and_records_nothing() {
+        use crate::pipeline::ladder::{DeviceLevels, Selection, Unprocessed};
+        let (device, queue) = test_device(false);
+        let (w, h) = (19usize, 11usize);
+        let transfer = Transfer::from_gamma([2.2; 3]);
+        let selection = Selection::default();
+        let levels: Vec<Box<dyn DeviceStage>> =
+            vec![Box::new(Unprocessed), Box::new(Stretch::new(&device))];
+        let stage = Box::new(DeviceLevels::new(levels, selection.clone()));
+        let mut frames =
+            DeviceFrames::single(&device, &queue, (w, h), &transfer, Some(stage)).expect("frames");
+        let mut sink =
+            HeadlessSink::new(&device, &queue, "test".into(), w as u32, h as u32).expect("sink");
+        let sent = client_frame(0, w, h, PixelFormat::Rgba8Linear);
+        let plain = decode(&sent);
+        let mut stretched = plain.clone();
+        stretched
+            .data_mut()
+            .iter_mut()
+            .for_each(|v| *v = 1.4 * *v - 0.2);
+        let codes = |im: &Image| {
+            let mut c = Vec::new();
+            transfer.encode_rgba8(im, &mut c);
+            c
+        };
+        let mut show = |generation: u64, level: usize| {
+            selection.set(level);
+            let (frame, _) = frames
+                .run(generation, &[client(generation, sent.clone())])
+                .expect("runs");
+            let timed = frames.last_view_ns()[0].is_some();
+            sink.present(PanelCodes::Device(&frame)).expect("shown");
+            (sink.read_back().expect("panel"), timed)
+        };
+        let stamps = device.features().contains(wgpu::Features::TIMESTAMP_QUERY);
+        let (shown, timed) = show(1, 0);
+        assert!(shown == codes(&plain), "level 0 shows the frame");
+        assert!(!timed, "level 0 records no stage");
+        let (shown, timed) = show(2, 1);
+        assert!(shown == codes(&stretched), "level 1 shows its output");
+        assert_eq!(timed, stamps);
+        // The same frame again at level 0: not run again, its output kept.
+        let (shown, _) = show(2, 0);
+        assert!(
+            shown == codes(&stretched),
+            "an unchanged frame keeps its output"
+        );
+        let (shown, _) = show(3, 0);
+        assert!(shown == codes(&plain), "a new frame at level 0");
+    }
+
     #[test]
     #[ignore = "needs a GPU adapter (run: scripts/test.sh, or cargo test -- --include-ignored)"]
     fn codes_buffers_are_reused_only_once_no_frame_holds_them() {

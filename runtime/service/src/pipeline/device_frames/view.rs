@@ -47,6 +47,9 @@ pub(super) struct ViewOnDevice {
     pub(super) blender: LayerBlender,
     /// The frame generation whose display planes are on the device (0: none).
     pub(super) generation: u64,
+    /// Whether that frame passed the stage unchanged
+    /// ([`DeviceStage::passes_through`]): its planes are then shown.
+    pub(super) passed: bool,
 }
 
 impl ViewOnDevice {
@@ -187,6 +190,7 @@ impl ViewOnDevice {
             layers: None,
             blender: LayerBlender::new(device, queue).map_err(PresentError::gpu(STAGE))?,
             generation: 0,
+            passed: false,
         })
     }
 

@@ -93,6 +93,9 @@ impl DeviceStage for Unprocessed {
         encoder.copy_buffer_to_buffer(input, 0, output, 0, bytes);
         Ok(())
     }
+    fn passes_through(&self) -> bool {
+        true
+    }
 }
 
 /// A view's levels on the sink's device.
@@ -130,6 +133,9 @@ impl DeviceStage for DeviceLevels {
     ) -> Result<(), GpuError> {
         let j = self.selected();
         self.levels[j].record(encoder, input, output, width, height)
+    }
+    fn passes_through(&self) -> bool {
+        self.levels[self.selected()].passes_through()
     }
     /// Every level is made ready: a switch builds nothing.
     fn warm_up(
