@@ -172,6 +172,34 @@ def test_the_report_says_case_by_case_whether_the_pacing_target_is_met():
     assert "| 8×1080 |" not in md and "| 16×8 |" not in md
 
 
+def test_the_report_puts_the_frame_budget_beside_the_fixed_cases():
+    steps = steps_of_a_run()
+    base = {"kind": "pipeline", "frame_path": "device", "width": 1920, "height": 1080, "refresh_hz": 90.0,
+            "views": 1, "presented": 200, "dropped": 0, "late": 0, "e2e_p50_ms": 8.0, "e2e_p99_ms": 9.5}
+    budget = {"budget_ms": 9.41, "levels": [
+        {"name": "none", "frames": 10, "left_late": 0},
+        {"name": "wiener", "frames": 180, "left_late": 1},
+        {"name": "refine:10", "frames": 10, "left_late": 0}], "dropped": ["refine:1", "dcnn"]}
+    steps["pipeline"].records += [
+        {**base, "network": "auto", "quality_db": 21.6123, "frame_budget": budget},
+        {**base, "network": "model", "presented": 190, "dropped": 10, "late": 3, "quality_db": 21.6},
+        # Random weights: no quality.
+        {**base, "network": "full", "quality_db": None},
+        # The host path, and a row without the quality (an older binary), are left out.
+        {**base, "network": "none", "frame_path": "host", "quality_db": 20.5},
+        {**base, "network": "wiener"},
+    ]
+    steps["pipeline"].text = "| network |"
+    md = check_report.report(steps, {"mode": "device", "date": "today", "commit": "abc", "device": "GPU"})
+    assert "| auto | 1 | 200 | 0 | 0 | 8.00 | 9.50 | 21.61 |" in md
+    assert "| model | 1 | 190 | 10 | 3 | 8.00 | 9.50 | 21.60 |" in md
+    assert "| full | 1 | 200 | 0 | 0 | 8.00 | 9.50 | – |" in md
+    assert "- auto, 1 view(s): budget 9.41 ms; none 10, wiener 180 (1 left late), refine:10 10; left out: " \
+           "refine:1, dcnn" in md
+    table = md[md.index("The frame budget, side by side"):]
+    assert "| none |" not in table and "| wiener |" not in table
+
+
 def test_the_report_compares_each_case_s_first_frame_with_the_settled_ones():
     steps = steps_of_a_run()
     # Twelve frames of a case: the first 60 ms (8 of them on the GPU), the

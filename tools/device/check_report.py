@@ -52,6 +52,7 @@ def report(steps: dict, meta: dict) -> str:
     if text("pipeline"):
         md += ["", f"## The pipeline end to end ({head})", "", text("pipeline")]
         md += pacing_target(records("pipeline", "pipeline"), head)
+        md += frame_budget(records("pipeline", "pipeline"), head)
         md += warm_up(records("pipeline", "frame_log"), head)
         steady = timelines.table(records("pipeline", "frame_log"))
         if steady:
@@ -66,6 +67,36 @@ def report(steps: dict, meta: dict) -> str:
                "tradeoff.md, .json, .svg and .png beside this report; the table:", "", text("tradeoff")]
     md += training(records("train", "train"), head)
     return "\n".join(md) + "\n"
+
+
+def frame_budget(rows: list, head: str) -> list:
+    """Issue 54's side-by-side table: each case on the device path, shown,
+    dropped, late, end to end p50 and p99 and the quality delivered (the
+    tradeoff table's for a fixed case, the levels' weighted by their frames
+    for `auto`), then each `auto` case's frames per level. Nothing where no
+    row has the quality (older binaries)."""
+    rows = [x for x in rows if x.get("frame_path") == "device" and "quality_db" in x]
+    if not rows:
+        return []
+    ms = lambda v: "–" if v is None else f"{v:.2f}"
+    out = ["", f"The frame budget, side by side ({head}; issue 54: `auto` picks each frame's level; quality: "
+           "mean PSNR vs sharp over 0–2.5 D).", "",
+           "| case | views | shown | dropped | late | e2e p50 ms | e2e p99 ms | quality dB |",
+           "| --- | --- | ---: | ---: | ---: | ---: | ---: | ---: |"]
+    levels = []
+    for x in rows:
+        out.append(f"| {x['network']} | {x.get('views', 1)} | {x.get('presented', 0)} | {x.get('dropped', 0)} | "
+                   f"{x.get('late', 0)} | {ms(x.get('e2e_p50_ms'))} | {ms(x.get('e2e_p99_ms'))} | "
+                   f"{ms(x.get('quality_db'))} |")
+        budget = x.get("frame_budget")
+        if budget:
+            run = ", ".join(f"{lv['name']} {lv['frames']}" + (f" ({lv['left_late']} left late)"
+                                                               if lv.get("left_late") else "")
+                            for lv in budget.get("levels", []))
+            dropped = budget.get("dropped") or []
+            levels.append(f"- {x['network']}, {x.get('views', 1)} view(s): budget {budget['budget_ms']:.2f} ms; "
+                          f"{run}" + (f"; left out: {', '.join(dropped)}" if dropped else ""))
+    return out + ([""] + levels if levels else [])
 
 
 def pacing_target(rows: list, head: str) -> list:
