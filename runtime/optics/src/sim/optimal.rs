@@ -28,7 +28,7 @@ mod prefilter;
 mod solver;
 
 pub use prefilter::{DeviceTerms, SolveMode, SolvedPrefilter};
-pub use solver::ProblemPlan;
+pub use solver::{FistaState, ProblemPlan};
 
 use operator::{Operator, RetinalTerms};
 
@@ -264,25 +264,42 @@ impl DisplayProblem {
         start: &Image,
         options: &SolveOptions,
     ) -> (Image, SolveReport) {
+        let states = start.planes().map(FistaState::at).collect();
+        let (display, report, _) = self.solve_from(input, states, options);
+        (display, report)
+    }
+
+    /// As [`DisplayProblem::solve`], from where an earlier solve of a
+    /// frame of this size stopped, per channel (its iterate and momentum:
+    /// K steps from a solve of K steps are a solve of 2K); and where this
+    /// one stops.
+    pub fn solve_from(
+        &self,
+        input: &Image,
+        states: Vec<FistaState>,
+        options: &SolveOptions,
+    ) -> (Image, SolveReport, Vec<FistaState>) {
         let plan = self.plan(input.width, input.height);
         let targets =
             (options.tolerance_db > 0.0 || plan.needs_targets()).then(|| self.targets(input));
         let mut report = SolveReport::default();
-        let planes = (0..self.channels())
-            .map(|c| {
-                let objective = plan.channel_objective(c, input.plane(c), targets.as_deref());
-                let (plane, steps, f0, f1) = plan.fista(c, &objective, start.plane(c), options);
-                report.steps.push(steps);
-                if targets.is_some() {
-                    report.start_objective.push(f0);
-                    report.final_objective.push(f1);
-                }
-                plane
-            })
-            .collect();
+        let mut planes = Vec::new();
+        let mut out = Vec::new();
+        for (c, state) in states.into_iter().enumerate().take(self.channels()) {
+            let objective = plan.channel_objective(c, input.plane(c), targets.as_deref());
+            let (state, steps, f0, f1) = plan.fista_from(c, &objective, state, options);
+            report.steps.push(steps);
+            if targets.is_some() {
+                report.start_objective.push(f0);
+                report.final_objective.push(f1);
+            }
+            planes.push(state.x().to_vec());
+            out.push(state);
+        }
         (
             Image::from_planes(input.width, input.height, planes),
             report,
+            out,
         )
     }
 

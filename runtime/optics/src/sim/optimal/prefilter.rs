@@ -2,7 +2,7 @@
 //! (`lsq`, `refine:k`, `optimal`) and the refinement's terms for the device.
 //! Apart from the problem: the adapters other crates hold.
 
-use super::{DisplayProblem, SolveOptions, SolveReport};
+use super::{DisplayProblem, FistaState, SolveOptions, SolveReport};
 use nedrt_core::image::Image;
 use nedrt_core::preprocess::{Preprocess, PreprocessError, check_frame};
 use std::sync::Arc;
@@ -37,16 +37,65 @@ pub struct SolvedPrefilter {
     pub mode: SolveMode,
     /// The last frame's solve, for reports.
     pub last: Option<SolveReport>,
+    /// `refine:K` only: on a frame unchanged since the last (RMS change
+    /// at most [`SolvedPrefilter::STILL_RMS`]), go on from where the last
+    /// frame's solve stopped instead of the linear prefilter, so that a
+    /// still scene converges over frames at K steps a frame.
+    pub warm_start: bool,
+    /// The last frame and where its solve stopped, per channel.
+    still: Option<(Image, Vec<FistaState>)>,
+    /// Frames in a row the last solve went on from the one before.
+    warm_frames: u64,
 }
 
 impl SolvedPrefilter {
+    /// A frame whose RMS change from the last is at most this (a quarter
+    /// of an 8-bit code, in linear intensity) is the same scene still: a
+    /// renderer's noise, not a change the eye would see.
+    pub const STILL_RMS: f64 = 1.0 / 1024.0;
+
     pub fn new(method: impl Into<String>, problem: Arc<DisplayProblem>, mode: SolveMode) -> Self {
         Self {
             method: method.into(),
             problem,
             mode,
             last: None,
+            warm_start: false,
+            still: None,
+            warm_frames: 0,
         }
+    }
+
+    /// The same, warm-started on still frames (`refine:K`).
+    pub fn warm_started(mut self) -> Self {
+        self.warm_start = true;
+        self
+    }
+
+    /// Frames in a row the last solve went on from the one before (0: it
+    /// started from the linear prefilter).
+    pub fn warm_frames(&self) -> u64 {
+        self.warm_frames
+    }
+
+    /// Where a still frame's solve goes on from, if `input` is one.
+    fn still_states(&mut self, input: &Image) -> Option<Vec<FistaState>> {
+        let (last, states) = self.still.take()?;
+        let same_size = (last.width, last.height, last.channels())
+            == (input.width, input.height, input.channels());
+        if !same_size {
+            return None;
+        }
+        let n = input.data().len().max(1) as f64;
+        let change = (last
+            .data()
+            .iter()
+            .zip(input.data())
+            .map(|(a, b)| ((a - b) as f64).powi(2))
+            .sum::<f64>()
+            / n)
+            .sqrt();
+        (change <= Self::STILL_RMS).then_some(states)
     }
 }
 
@@ -55,6 +104,10 @@ impl Preprocess for SolvedPrefilter {
         let p = &self.problem;
         let what = match self.mode {
             SolveMode::Linear => "linear least-squares prefilter".to_string(),
+            SolveMode::Refine(k) if self.warm_start => format!(
+                "least-squares prefilter + {k} projected-gradient steps, going on from the last \
+                 frame's on a still one"
+            ),
             SolveMode::Refine(k) => {
                 format!("least-squares prefilter + {k} projected-gradient steps")
             }
@@ -83,6 +136,24 @@ impl Preprocess for SolvedPrefilter {
 
     fn run(&mut self, input: &Image) -> Result<Image, PreprocessError> {
         check_frame(input, self.problem.channels())?;
+        if let (SolveMode::Refine(k), true) = (self.mode, self.warm_start) {
+            let options = SolveOptions::steps(k);
+            let states = match self.still_states(input) {
+                Some(states) => {
+                    self.warm_frames += 1;
+                    states
+                }
+                None => {
+                    self.warm_frames = 0;
+                    let linear = self.problem.linear_unclamped(input).clamped();
+                    linear.planes().map(FistaState::at).collect()
+                }
+            };
+            let (display, report, states) = self.problem.solve_from(input, states, &options);
+            self.still = Some((input.clone(), states));
+            self.last = Some(report);
+            return Ok(display);
+        }
         let linear = self.problem.linear_unclamped(input).clamped();
         let options = match self.mode {
             SolveMode::Linear => return Ok(linear),

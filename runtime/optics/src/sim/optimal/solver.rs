@@ -119,19 +119,23 @@ impl ProblemPlan {
         matches!(self.operator, Operator::Cropped(_))
     }
 
-    /// FISTA with gradient restart from `start` (clamped).
-    /// Returns (display plane, steps, objective at start, last objective).
-    pub(super) fn fista(
+    /// FISTA with gradient restart from `state` (a start, or where an
+    /// earlier solve stopped: its iterate, its extrapolated point and its
+    /// momentum, so that K steps and then K more are 2K steps).
+    /// Returns (where it stopped, steps, objective at start, last objective).
+    pub(super) fn fista_from(
         &self,
         c: usize,
         objective: &ChannelObjective,
-        start: &[f32],
+        state: FistaState,
         options: &SolveOptions,
-    ) -> (Vec<f32>, usize, f64, f64) {
+    ) -> (FistaState, usize, f64, f64) {
         let step = (1.0 / self.lipschitz[c]) as f32;
-        let mut x: Vec<f32> = start.iter().map(|v| v.clamp(0.0, 1.0)).collect();
-        let mut y = x.clone();
-        let mut t = 1.0f64;
+        let FistaState {
+            mut x,
+            mut y,
+            mut t,
+        } = state;
         let mut gradient = Vec::new();
         let mut history: Vec<f64> = Vec::new();
         let mut steps = 0;
@@ -174,7 +178,33 @@ impl ProblemPlan {
         }
         let last = objective(&x, None);
         let first = history.first().copied().unwrap_or(last);
-        (x, steps, first, last)
+        (FistaState { x, y, t }, steps, first, last)
+    }
+}
+
+/// Where a channel's FISTA stopped: its iterate, its extrapolated point
+/// and its momentum ([`ProblemPlan::fista_from`] goes on from it).
+#[derive(Debug, Clone, PartialEq)]
+pub struct FistaState {
+    x: Vec<f32>,
+    y: Vec<f32>,
+    t: f64,
+}
+
+impl FistaState {
+    /// A fresh start at `start` (clamped), no momentum.
+    pub(super) fn at(start: &[f32]) -> Self {
+        let x: Vec<f32> = start.iter().map(|v| v.clamp(0.0, 1.0)).collect();
+        Self {
+            y: x.clone(),
+            x,
+            t: 1.0,
+        }
+    }
+
+    /// The iterate: the display plane so far.
+    pub fn x(&self) -> &[f32] {
+        &self.x
     }
 }
 

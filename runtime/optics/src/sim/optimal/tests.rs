@@ -491,3 +491,87 @@ fn the_exported_kernels_give_the_objective() {
         }
     }
 }
+
+/// The frame budget's warm start (issue 54): refine:1 on a still frame
+/// goes on from where the last frame's solve stopped, momentum and all,
+/// so ten frames of it are refine:10.
+#[test]
+fn warm_started_refine_one_on_a_still_frame_is_refine_ten_after_ten_frames() {
+    let p = Arc::new(problem(Objective::Target));
+    let input = frame(16, 12, 1);
+    let mut warm = SolvedPrefilter::new("test", p.clone(), SolveMode::Refine(1)).warm_started();
+    assert!(warm.describe().contains("still"), "{}", warm.describe());
+    let mut shown = Vec::new();
+    for _ in 0..10 {
+        shown.push(warm.run(&input).expect("runs"));
+    }
+    assert_eq!(warm.warm_frames(), 9);
+    let ten = SolvedPrefilter::new("test", p.clone(), SolveMode::Refine(10))
+        .run(&input)
+        .expect("runs");
+    let objective = |d: &Image| p.objective_value(&input, d)[0];
+    let (f_warm, f_ten) = (objective(&shown[9]), objective(&ten));
+    let apart_db = 10.0 * (f_warm / f_ten).log10();
+    assert!(apart_db.abs() < 0.1, "{apart_db} dB from refine:10");
+    let worst = shown[9]
+        .data()
+        .iter()
+        .zip(ten.data())
+        .map(|(a, b)| (a - b).abs())
+        .fold(0.0f32, f32::max);
+    assert!(worst < 1e-5, "{worst} from refine:10's display image");
+    // Each frame is better than the last: the scene converges.
+    for w in shown.windows(2) {
+        assert!(objective(&w[1]) < objective(&w[0]));
+    }
+    // A frame that changed starts again from the linear prefilter; one
+    // whose change is below a quarter of an 8-bit code goes on.
+    let mut moved = input.clone();
+    moved
+        .data_mut()
+        .iter_mut()
+        .for_each(|v| *v = (*v * 0.9).max(0.0));
+    let again = warm.run(&moved).expect("runs");
+    assert_eq!(warm.warm_frames(), 0);
+    let one = SolvedPrefilter::new("test", p.clone(), SolveMode::Refine(1))
+        .run(&moved)
+        .expect("runs");
+    assert!(
+        again.data() == one.data(),
+        "a changed frame is refine:1 from the start"
+    );
+    let mut noisy = moved.clone();
+    noisy
+        .data_mut()
+        .iter_mut()
+        .enumerate()
+        .for_each(|(i, v)| *v += if i % 2 == 0 { 5e-4 } else { -5e-4 });
+    warm.run(&noisy).expect("runs");
+    assert_eq!(warm.warm_frames(), 1, "a renderer's noise is a still frame");
+}
+
+/// A frame of a pan changes by more than a still frame's noise: the warm
+/// start gives it refine:K from the linear prefilter, so it flickers as
+/// much as refine:K and no more (the stability study measures both).
+#[test]
+fn warm_started_refine_on_a_pan_is_refine_from_the_start_every_frame() {
+    let p = Arc::new(problem(Objective::Target));
+    let pan = |t: usize| {
+        let (w, h) = (16, 12);
+        let plane = (0..w * h)
+            .map(|i| {
+                let (x, y) = ((i % w) as f32 + 0.37 * t as f32, (i / w) as f32);
+                (0.5 + 0.4 * (x * 0.8).sin() * (y * 0.5).cos()).clamp(0.0, 1.0)
+            })
+            .collect();
+        Image::from_planes(w, h, vec![plane])
+    };
+    let mut warm = SolvedPrefilter::new("test", p.clone(), SolveMode::Refine(3)).warm_started();
+    let mut cold = SolvedPrefilter::new("test", p.clone(), SolveMode::Refine(3));
+    for t in 0..6 {
+        let f = pan(t);
+        let (a, b) = (warm.run(&f).expect("warm"), cold.run(&f).expect("cold"));
+        assert_eq!(warm.warm_frames(), 0, "frame {t}");
+        assert!(a.data() == b.data(), "frame {t}");
+    }
+}
