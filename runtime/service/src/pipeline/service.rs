@@ -109,6 +109,8 @@ pub(super) struct StageNotes {
     pub(super) gpu_ns: Option<u64>,
     /// The device path's host time up to the frame's submission.
     pub(super) record_ns: Option<u64>,
+    /// The frame budget's level the frame ran.
+    pub(super) level: Option<u8>,
 }
 
 fn spawn_stage<I: Send + 'static, O: Send + 'static>(
@@ -161,6 +163,7 @@ fn spawn_stage<I: Send + 'static, O: Send + 'static>(
                         behind_hold_ns: t.behind_hold_ns + behind_hold_ns,
                         gpu_ns: notes.gpu_ns.or(t.gpu_ns),
                         record_ns: notes.record_ns.or(t.record_ns),
+                        level: notes.level.or(t.level),
                         owner: t.owner,
                         submit_ns: t.submit_ns,
                         predicted_ns: t.predicted_ns,
@@ -349,6 +352,7 @@ impl Service {
                     let _span = tracing::info_span!("level", name = budget.level_name()).entered();
                     let t0 = clock.now_ns();
                     let out = engine.run(id, predicted_ns, f, stats, notes);
+                    notes.level = Some(budget.level_index());
                     // Only the stage's own time: a hold for a present is
                     // not the level's cost.
                     let own = clock

@@ -107,7 +107,18 @@ fn run_engines_one_by_one(
     frames: &[SubmittedFrame],
     before: impl Fn(usize, &Compositor) + Send + 'static,
 ) -> (Vec<DisplayFrame>, crate::pipeline::stats::Report) {
-    let mut service = Service::start(panel(), engines, None, Arc::new(SystemClock)).expect("start");
+    run_laddered_one_by_one(engines, None, frames, before)
+}
+
+/// As [`run_engines_one_by_one`], with a frame budget's ladder.
+fn run_laddered_one_by_one(
+    engines: Engines,
+    ladder: Option<crate::pipeline::ladder::Ladder>,
+    frames: &[SubmittedFrame],
+    before: impl Fn(usize, &Compositor) + Send + 'static,
+) -> (Vec<DisplayFrame>, crate::pipeline::stats::Report) {
+    let mut service =
+        Service::start(panel(), engines, ladder, Arc::new(SystemClock)).expect("start");
     let compositor = service.compositor().expect("open");
     service.close_ingest();
     let feeder = {
@@ -843,5 +854,60 @@ fn each_frame_at_the_panel_leaves_its_timeline_shown_or_replaced() {
     assert!(
         taken >= shown.predicted_ms - 1.5 && on >= shown.predicted_ms - 0.5,
         "{shown:?}"
+    );
+}
+
+/// A ladder's levels in the service (issue 54): each level measured at
+/// start-up, each frame run at the level the budget picks and counted
+/// there, its level in its timeline, and the report's quality delivered.
+#[test]
+fn a_ladder_runs_each_frame_at_the_budgets_level_and_reports_it() {
+    use crate::pipeline::ladder::{HostLevels, Ladder, Level, Selection};
+    let selection = Selection::default();
+    // Two levels, both far inside a 1 ms refresh: the better one runs.
+    let levels: Vec<Box<dyn Preprocess>> = vec![Box::new(Identity), Box::new(Failing { ok: 1000 })];
+    let stage = PreprocessStage {
+        primary: Box::new(HostLevels::new(levels, selection.clone())),
+        fallback: None,
+    };
+    let level = |name: &str, quality_db| Level {
+        name: name.into(),
+        describe: name.into(),
+        quality_db: Some(quality_db),
+        reference_ns: 0,
+    };
+    let ladder = Ladder {
+        levels: vec![level("none", 20.0), level("invert", 21.0)],
+        selection,
+    };
+    let frames: Vec<SubmittedFrame> = (0..6).map(|i| grey(i, 40)).collect();
+    let (shown, report) =
+        run_laddered_one_by_one(Engines::host(stage), Some(ladder), &frames, |_, _| {});
+    assert_eq!(shown.len(), 6);
+    let budget = report.frame_budget.clone().expect("the budget's report");
+    // Both measured at start-up; one may be left out (no better than a
+    // faster one), by how the two trivial levels timed here.
+    assert_eq!(budget.levels.len() + budget.dropped.len(), 2, "{budget:?}");
+    assert!(
+        budget.levels.iter().all(|l| l.reference_ms > 0.0),
+        "measured: {budget:?}"
+    );
+    let frames: u64 = budget.levels.iter().map(|l| l.frames).sum();
+    assert_eq!(frames, 6, "every frame ran a level: {budget:?}");
+    // Each frame's timeline names its level, and shows what that level
+    // makes of it: the frame (40) or its inverse (255 − 40).
+    for (timing, f) in report.frames.iter().zip(&shown) {
+        let level = &budget.levels[usize::from(timing.level.expect("a level"))];
+        let want = if level.name == "invert" { 215 } else { 40 };
+        assert_eq!(f.rgba8[0], want, "{}", level.name);
+    }
+    let q = budget
+        .quality_delivered_db
+        .expect("every level has a quality");
+    assert!((20.0..=21.0).contains(&q), "{q}");
+    assert!(
+        report.table().contains("frame budget: "),
+        "{}",
+        report.table()
     );
 }

@@ -31,6 +31,9 @@ pub(super) struct Timed<T> {
     /// that work's submission (the device path; StageNotes).
     pub(super) gpu_ns: Option<u64>,
     pub(super) record_ns: Option<u64>,
+    /// The frame budget's level it ran (its index in the report's
+    /// levels; none without a ladder).
+    pub(super) level: Option<u8>,
     /// Who submitted it (a socket client's number; 0 in process).
     pub(super) owner: u64,
     /// When it was submitted, and the refresh predicted for it then.
@@ -59,6 +62,7 @@ impl<T> Timed<T> {
             ready_ns: self.ready_ns,
             gpu_ns: self.gpu_ns,
             record_ns: self.record_ns,
+            level: self.level,
         }
     }
 }
@@ -213,6 +217,7 @@ impl Compositor {
             behind_hold_ns: 0,
             gpu_ns: None,
             record_ns: None,
+            level: None,
             owner: self.owner,
             submit_ns: now,
             // A client's display time more than a second from now is no

@@ -193,6 +193,11 @@ impl Budget {
         *stats.frame_budget.lock().unwrap_or_else(|p| p.into_inner()) = Some(report);
     }
 
+    /// The level the frame runs, as the report's levels number it.
+    pub(super) fn level_index(&self) -> u8 {
+        u8::try_from(self.controller.level()).unwrap_or(u8::MAX)
+    }
+
     pub(super) fn level_name(&self) -> &str {
         &self.controller.levels()[self.controller.level()].name
     }

@@ -52,6 +52,9 @@ pub struct FrameMarks {
     /// the device path ran it.
     pub gpu_ns: Option<u64>,
     pub record_ns: Option<u64>,
+    /// The frame budget's level it ran (the report's `frame_budget`
+    /// levels, by index).
+    pub level: Option<u8>,
 }
 
 /// One frame's timeline, ms from the service's start.
@@ -77,6 +80,9 @@ pub struct FrameTiming {
     /// the host's before the submission (the device path).
     pub gpu_ms: Option<f64>,
     pub record_ms: Option<f64>,
+    /// The frame budget's level it ran (the report's `frame_budget`
+    /// levels, by index; none without a ladder).
+    pub level: Option<u8>,
     /// Shown or skipped: when the present loop took it, and the refresh
     /// it was on (shown).
     pub taken_ms: Option<f64>,
@@ -163,6 +169,7 @@ impl Timeline {
             ready_ms: self.ms(m.ready_ns),
             gpu_ms: m.gpu_ns.map(duration_ms),
             record_ms: m.record_ns.map(duration_ms),
+            level: m.level,
             taken_ms: (!replaced).then(|| self.ms(at_ns)),
             shown_ms: shown_ns.map(|ns| self.ms(ns)),
             replaced_ms: replaced.then(|| self.ms(at_ns)),
@@ -335,6 +342,7 @@ mod tests {
             ready_ns: submit_ns + 7 * ms,
             gpu_ns: Some(2 * ms + 1234),
             record_ns: None,
+            level: None,
         }
     }
 
