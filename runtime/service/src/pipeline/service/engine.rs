@@ -89,6 +89,11 @@ pub(super) struct Budget {
 }
 
 impl Budget {
+    /// How long the start-up measurement may take (a software adapter at
+    /// the real panel takes seconds a frame for the higher levels); the
+    /// levels left then are placed, not run.
+    const MEASURE_FOR_NS: u64 = 5_000_000_000;
+
     /// Runs each level of `ladder` whose time is not known on `engine`
     /// (a grey frame of each view's size: the levels' work does not
     /// depend on the picture) and starts the controller.
@@ -115,8 +120,26 @@ impl Budget {
         // Generations no client frame has: the first real frame runs.
         let mut generation = u64::MAX - 2 * ladder.levels.len() as u64;
         let scratch = Stats::default();
+        let started = clock.now_ns();
+        let mut below_ns = 0;
         for (j, level) in ladder.levels.iter_mut().enumerate() {
             if level.reference_ns > 0 {
+                below_ns = level.reference_ns;
+                continue;
+            }
+            // A level not measured (the measuring's time spent, or a run
+            // that failed) is placed above the one below it: twice its time.
+            let placed = (2 * below_ns).max(1_000_000);
+            let spent = clock.now_ns().saturating_sub(started);
+            if spent > Self::MEASURE_FOR_NS {
+                level.reference_ns = placed;
+                below_ns = placed;
+                tracing::info!(
+                    "frame budget: level {} not measured ({:.1} s spent measuring): placed at {:.3} ms",
+                    level.name,
+                    spent as f64 / 1e9,
+                    placed as f64 / 1e6
+                );
                 continue;
             }
             ladder.selection.set(j);
@@ -137,12 +160,8 @@ impl Budget {
                     break;
                 }
             }
-            // A level that failed or took no time is placed by its rank.
-            level.reference_ns = times
-                .last()
-                .copied()
-                .filter(|&ns| ns > 0)
-                .unwrap_or(1_000_000 * (j as u64 + 1));
+            level.reference_ns = times.last().copied().filter(|&ns| ns > 0).unwrap_or(placed);
+            below_ns = level.reference_ns;
             tracing::info!(
                 "frame budget: level {} takes {:.3} ms at start-up",
                 level.name,
