@@ -215,6 +215,24 @@ fn auto_refuses_a_bound_that_names_no_level() {
     assert!(e.contains("no level \"refine:7\""), "{e}");
     assert!(e.contains("refine:10"), "{e}");
     let o = nedrt()
+        .current_dir(repo())
+        .args(["run", "--plan", "--calib", path(&small_panel())])
+        .args([
+            "--preprocess",
+            "auto",
+            "--prefilter",
+            "refine:3",
+            "--sink",
+            "record",
+        ])
+        .output_within(deadline::COMMAND, "nedrt run --plan");
+    assert!(!o.status.success());
+    assert!(
+        stderr(&o).contains("the frame budget picks the prefilter"),
+        "{}",
+        stderr(&o)
+    );
+    let o = nedrt()
         .args(["run", "--plan", "--preprocess", "automatic"])
         .output_within(deadline::COMMAND, "nedrt run --plan");
     assert!(!o.status.success());

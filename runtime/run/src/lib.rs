@@ -413,6 +413,13 @@ fn ladder_inputs(
     let Some(spec) = &opts.ladder else {
         return Ok(None);
     };
+    if !opts.prefilter.is_native() {
+        return Err(AppError::Conflict(format!(
+            "--preprocess {spec} with --prefilter {}: the frame budget picks the prefilter \
+             (bound its levels instead, e.g. --preprocess auto:..refine:10)",
+            opts.prefilter
+        )));
+    }
     let table = QualityTable::load(opts.ladder_quality.as_deref())?;
     let doe_hash = ladder::doe_hash(&ladder::ladder_common(common, opts.preprocess))?;
     let network = network.map(|(m, _)| {
