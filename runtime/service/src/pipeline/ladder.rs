@@ -430,10 +430,13 @@ impl Controller {
 
 /// The budget of a frame's preprocessing (ns): the refresh period less
 /// the present's lead (its work and margin, before each refresh) and a
-/// 32nd of the period to spare, as the pacing plans a submission.
+/// 32nd of the period to spare, as the pacing plans a submission. A lead
+/// over half a period counts as half: that is the present loop's warm-up
+/// (its first presents pay one-time costs), and a budget of nothing then
+/// would drop every view to the lowest level on it.
 pub fn frame_budget_ns(period_ns: u64, present_lead_ns: u64) -> u64 {
     period_ns
-        .saturating_sub(present_lead_ns)
+        .saturating_sub(present_lead_ns.min(period_ns / 2))
         .saturating_sub(period_ns / 32)
         .max(1)
 }
