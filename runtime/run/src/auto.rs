@@ -7,7 +7,7 @@
 
 use std::sync::Arc;
 
-use super::build::{behind, fallback_factory};
+use super::build::{device_network, fallback_factory, host_network};
 use super::ladder::{self, PlannedLevel};
 use super::plan::{PlannedPath, RunPlan, ViewFacts};
 use super::serve::Built;
@@ -15,11 +15,9 @@ use super::{AppError, CommonOptions, RunOptions};
 use nedrt_command::design::Design;
 use nedrt_core::preprocess::Preprocess;
 use nedrt_engines::FailsAfter;
-use nedrt_engines::device_prefilter::wiener_stage;
-use nedrt_infer::gpu::DeviceDcnn;
-use nedrt_infer::{BackendKind, Dcnn, ModelFile};
-use nedrt_optics::sim::Method;
+use nedrt_infer::ModelFile;
 use nedrt_optics::sim::wiener::WienerFilter;
+use nedrt_optics::sim::{Method, Prepared};
 use nedrt_service::pipeline::device_frames::{DeviceFrames, DeviceView};
 use nedrt_service::pipeline::ladder::{DeviceLevels, HostLevels, Ladder, Selection};
 use nedrt_service::pipeline::service::{
@@ -69,13 +67,18 @@ pub(super) fn laddered(
         .iter()
         .map(|v| view_common(common, opts, v))
         .collect::<Result<Vec<_>, _>>()?;
+    // Each view's optics, prepared once for its device and host levels.
+    let prepared = commons
+        .iter()
+        .map(|c| ladder::prepared_levels(c, &levels))
+        .collect::<Result<Vec<_>, _>>()?;
     // Every view's host ladder: the device path's fallbacks (the network
     // on the CPU, or none with --fallback passthrough), or the host path's
     // engines (the network on the chosen backend).
     let host_ladders = |as_fallback: bool| -> Result<Vec<_>, AppError> {
-        commons
+        prepared
             .iter()
-            .map(|c| {
+            .map(|p| {
                 let mut network = || -> Result<Box<dyn Preprocess>, AppError> {
                     let model = parts.model.cloned().ok_or_else(|| {
                         AppError::Internal("a network level without its model".into())
@@ -91,14 +94,22 @@ pub(super) fn laddered(
                         host_network(common, &model, parts.wiener)
                     }
                 };
-                ladder::host_levels(c, &levels, &mut network)
+                ladder::host_levels(p.as_ref(), &levels, &mut network)
             })
             .collect()
     };
     let n = parts.views.len();
     let host_reason = match (device, planned.path) {
         (Some(gpu), PlannedPath::Device) => {
-            match device_frames(opts, panel, gpu, parts, &commons, &levels, &selection) {
+            match device_frames(
+                opts,
+                panel,
+                gpu,
+                parts,
+                (&commons, &prepared),
+                &levels,
+                &selection,
+            ) {
                 Ok(frames) => {
                     let what = format!("{n} view(s), the frame budget over {names} on the GPU");
                     let fallback = host_ladders(true)?
@@ -175,41 +186,23 @@ fn view_common(
 fn device_frames(
     opts: &RunOptions,
     panel: &PanelConfig,
-    (device, queue, name): &(wgpu::Device, wgpu::Queue, String),
+    gpu: &(wgpu::Device, wgpu::Queue, String),
     parts: &LadderParts<'_>,
-    commons: &[CommonOptions],
+    (commons, prepared): (&[CommonOptions], &[Option<Prepared>]),
     levels: &[PlannedLevel],
     selection: &Selection,
 ) -> Result<DeviceFrames, AppError> {
+    let (device, queue, _) = gpu;
     let mut views = Vec::new();
-    for (v, c) in parts.views.iter().zip(commons) {
+    for ((v, c), p) in parts.views.iter().zip(commons).zip(prepared) {
         let size = (v.region.width, v.region.height);
         let mut network = || -> Result<Box<dyn nedrt_gpu::DeviceStage>, AppError> {
             let model = parts
                 .model
-                .cloned()
                 .ok_or_else(|| AppError::Internal("a network level without its model".into()))?;
-            let net: Box<dyn nedrt_gpu::DeviceStage> = Box::new(DeviceDcnn::on_device(
-                model,
-                device,
-                queue,
-                name.clone(),
-                &c.dcnn.backend_options,
-            )?);
-            Ok(match parts.wiener {
-                Some((method, filter)) => {
-                    let what = format!(
-                        "the Wiener prefilter of {method} (K = {:e}) before the clamp",
-                        filter.k_reg
-                    );
-                    let w = wiener_stage(device, what, filter.clone(), Some(size))
-                        .map_err(nedrt_engines::EngineError::from)?;
-                    Box::new(nedrt_gpu::Chain::new(device, w, net))
-                }
-                None => net,
-            })
+            device_network(c, model, gpu, parts.wiener, size)
         };
-        let stages = ladder::device_levels(c, levels, device, size, &mut network)?;
+        let stages = ladder::device_levels(p.as_ref(), levels, device, size, &mut network)?;
         let stage: Box<dyn nedrt_gpu::DeviceStage> =
             Box::new(DeviceLevels::new(stages, selection.clone()));
         let stage = match opts.inject_device_loss_after {
@@ -228,23 +221,4 @@ fn device_frames(
         views,
         &panel.transfer,
     )?)
-}
-
-/// The network level on the host: the chosen backend (tract for wgpu),
-/// f32, behind its Wiener stage where it has one.
-fn host_network(
-    common: &CommonOptions,
-    model: &ModelFile,
-    wiener: &Option<(Method, Arc<WienerFilter>)>,
-) -> Result<Box<dyn Preprocess>, AppError> {
-    let options = nedrt_infer::BackendOptions {
-        precision: nedrt_infer::Precision::F32,
-        ..common.dcnn.backend_options.clone()
-    };
-    let kind = match common.dcnn.backend {
-        BackendKind::Wgpu => BackendKind::Cpu,
-        other => other,
-    };
-    let dcnn = Dcnn::from_model(model.clone(), kind, &options)?;
-    Ok(behind(wiener, Box::new(dcnn)))
 }

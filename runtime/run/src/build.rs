@@ -28,6 +28,55 @@ pub(super) fn behind(
     }
 }
 
+/// A network on the host, f32 (the CPU engines offer no f16), on the
+/// chosen backend (tract where that is wgpu), behind its Wiener stage where
+/// it has one: a view's engine on the host.
+pub(super) fn host_network(
+    common: &CommonOptions,
+    model: &ModelFile,
+    stage: &Option<(Method, Arc<WienerFilter>)>,
+) -> Result<Box<dyn Preprocess>, AppError> {
+    let kind = match common.dcnn.backend {
+        BackendKind::Wgpu => BackendKind::Cpu,
+        other => other,
+    };
+    let options = nedrt_infer::BackendOptions {
+        precision: nedrt_infer::Precision::F32,
+        ..common.dcnn.backend_options.clone()
+    };
+    let dcnn = Dcnn::from_model(model.clone(), kind, &options)?;
+    Ok(behind(stage, Box::new(dcnn)))
+}
+
+/// A network's kernels on the sink's device for frames of `size`, behind
+/// its Wiener stage on the device where it has one.
+pub(super) fn device_network(
+    common: &CommonOptions,
+    model: &ModelFile,
+    (device, queue, name): &(wgpu::Device, wgpu::Queue, String),
+    stage: &Option<(Method, Arc<WienerFilter>)>,
+    size: (usize, usize),
+) -> Result<Box<dyn nedrt_gpu::DeviceStage>, AppError> {
+    let net: Box<dyn nedrt_gpu::DeviceStage> = Box::new(DeviceDcnn::on_device(
+        model.clone(),
+        device,
+        queue,
+        name.clone(),
+        &common.dcnn.backend_options,
+    )?);
+    Ok(match stage {
+        Some((method, filter)) => {
+            let what = format!(
+                "the Wiener prefilter of {method} (K = {:e}) before the clamp",
+                filter.k_reg
+            );
+            let w = wiener_stage(device, what, filter.clone(), Some(size))?;
+            Box::new(nedrt_gpu::Chain::new(device, w, net))
+        }
+        None => net,
+    })
+}
+
 pub(super) fn fallback_factory(
     kind: FallbackKind,
     model: ModelFile,

@@ -16,7 +16,7 @@
 use super::{AppError, CommonOptions};
 use nedrt_core::preprocess::{Identity, Preprocess};
 use nedrt_engines::preprocess::Prefilter;
-use nedrt_optics::sim::{Method, Simulator, SolveMode, SolvedPrefilter};
+use nedrt_optics::sim::{Method, Prepared, Simulator, SolveMode, SolvedPrefilter};
 
 mod quality;
 pub use quality::{QualityTable, fixed_quality};
@@ -251,21 +251,20 @@ pub(super) fn doe_hash(common: &CommonOptions) -> Result<String, AppError> {
     Ok(sim.doe_hash)
 }
 
-/// The host preprocessors of `levels` on `common`'s optics (prepared
-/// once for every refine level); the network's, where a level is one,
-/// from `network`.
+/// The host preprocessors of `levels` on a view's optics `prepared`
+/// ([`prepared_levels`]); the network's, where a level is one, from
+/// `network`.
 pub(super) fn host_levels(
-    common: &CommonOptions,
+    prepared: Option<&Prepared>,
     levels: &[PlannedLevel],
     network: &mut dyn FnMut() -> Result<Box<dyn Preprocess>, AppError>,
 ) -> Result<Vec<Box<dyn Preprocess>>, AppError> {
-    let prepared = prepared_levels(common, levels)?;
     let mut dcnns = std::collections::HashMap::new();
     levels
         .iter()
         .map(|l| -> Result<Box<dyn Preprocess>, AppError> {
             let prepared = || {
-                prepared.as_ref().ok_or_else(|| {
+                prepared.ok_or_else(|| {
                     AppError::Internal("a prefilter level without its optics".into())
                 })
             };
@@ -297,11 +296,12 @@ pub(super) fn host_levels(
 }
 
 /// `common`'s optics prepared for every prefilter level of `levels`
-/// (none where no level needs them).
-fn prepared_levels(
+/// (none where no level needs them), once for a view's host and device
+/// levels alike.
+pub(super) fn prepared_levels(
     common: &CommonOptions,
     levels: &[PlannedLevel],
-) -> Result<Option<nedrt_optics::sim::Prepared>, AppError> {
+) -> Result<Option<Prepared>, AppError> {
     let prefilters: Vec<Prefilter> = levels
         .iter()
         .filter(|l| matches!(l.rung, Rung::Wiener | Rung::Refine(_)))
@@ -319,16 +319,15 @@ fn prepared_levels(
     )?))
 }
 
-/// The device stages of `levels` on `common`'s optics for a view of
-/// `size`; the network's from `network`.
+/// The device stages of `levels` on a view's optics `prepared` for a view
+/// of `size`; the network's from `network`.
 pub(super) fn device_levels(
-    common: &CommonOptions,
+    prepared: Option<&Prepared>,
     levels: &[PlannedLevel],
     device: &wgpu::Device,
     size: (usize, usize),
     network: &mut dyn FnMut() -> Result<Box<dyn nedrt_gpu::DeviceStage>, AppError>,
 ) -> Result<Vec<Box<dyn nedrt_gpu::DeviceStage>>, AppError> {
-    let prepared = prepared_levels(common, levels)?;
     levels
         .iter()
         .map(|l| -> Result<Box<dyn nedrt_gpu::DeviceStage>, AppError> {
@@ -336,7 +335,7 @@ pub(super) fn device_levels(
                 Rung::None => Box::new(nedrt_service::pipeline::ladder::Unprocessed),
                 Rung::Network => network()?,
                 rung => {
-                    let prepared = prepared.as_ref().ok_or_else(|| {
+                    let prepared = prepared.ok_or_else(|| {
                         AppError::Internal("a prefilter level without its optics".into())
                     })?;
                     let what = format!("{} of doe+wiener", l.name);
@@ -364,7 +363,6 @@ pub(super) fn service_levels(
         .iter()
         .map(|l| nedrt_service::pipeline::ladder::Level {
             name: l.name.clone(),
-            describe: l.name.clone(),
             quality_db: l.quality_db,
             reference_ns: 0,
         })

@@ -7,16 +7,14 @@
 
 use std::sync::Arc;
 
-use super::build::{behind, linear_on_device, linear_preprocessor};
+use super::build::{device_network, host_network, linear_on_device, linear_preprocessor};
 use super::plan::ViewFacts;
 use super::serve::Built;
 use super::{AppError, CommonOptions, RunOptions};
 use nedrt_command::design::Design;
 use nedrt_core::calib::Calibration;
 use nedrt_core::preprocess::Preprocess;
-use nedrt_engines::device_prefilter::wiener_stage;
-use nedrt_infer::gpu::DeviceDcnn;
-use nedrt_infer::{BackendKind, Dcnn, ModelFile};
+use nedrt_infer::{BackendKind, ModelFile};
 use nedrt_optics::sim::Method;
 use nedrt_optics::sim::wiener::WienerFilter;
 use nedrt_service::compose::ViewRegion;
@@ -120,10 +118,11 @@ fn device_stages(
     views: &[View],
     opts: &RunOptions,
     panel: &PanelConfig,
-    (device, queue, name): &(wgpu::Device, wgpu::Queue, String),
+    gpu: &(wgpu::Device, wgpu::Queue, String),
     model: Option<&ModelFile>,
     wiener: &Option<(Method, Arc<WienerFilter>)>,
 ) -> Result<Vec<Option<Box<dyn nedrt_gpu::DeviceStage>>>, String> {
+    let device = &gpu.0;
     let mut stages = Vec::new();
     if let Some(model) = model {
         if views[0].common.dcnn.backend != BackendKind::Wgpu {
@@ -133,25 +132,9 @@ fn device_stages(
             ));
         }
         for v in views {
-            let options = &v.common.dcnn.backend_options;
-            let net: Box<dyn nedrt_gpu::DeviceStage> = Box::new(
-                DeviceDcnn::on_device(model.clone(), device, queue, name.clone(), options)
-                    .map_err(|e| format!("view {:?}: {e}", v.name))?,
-            );
-            let stage = match wiener {
-                Some((method, filter)) => {
-                    let what = format!(
-                        "the Wiener prefilter of {method} (K = {:e}) before the clamp",
-                        filter.k_reg
-                    );
-                    let size = Some((v.region.width, v.region.height));
-                    let w = wiener_stage(device, what, filter.clone(), size)
-                        .map_err(|e| format!("view {:?}: {e}", v.name))?;
-                    Box::new(nedrt_gpu::Chain::new(device, w, net))
-                        as Box<dyn nedrt_gpu::DeviceStage>
-                }
-                None => net,
-            };
+            let size = (v.region.width, v.region.height);
+            let stage = device_network(&v.common, model, gpu, wiener, size)
+                .map_err(|e| format!("view {:?}: {e}", v.name))?;
             stages.push(Some(stage));
         }
         return Ok(stages);
@@ -217,20 +200,8 @@ pub(super) fn views(
                     opts.preprocess
                 )));
             }
-            (Some(model), None) => {
-                // Each eye its own engine on the host (tract, or ORT when chosen).
-                let kind = match common.dcnn.backend {
-                    BackendKind::Wgpu => BackendKind::Cpu,
-                    other => other,
-                };
-                // f32 on the host (the CPU engines offer no f16).
-                let options = nedrt_infer::BackendOptions {
-                    precision: nedrt_infer::Precision::F32,
-                    ..common.dcnn.backend_options.clone()
-                };
-                let dcnn = Dcnn::from_model(model.clone(), kind, &options)?;
-                behind(wiener_stage, Box::new(dcnn))
-            }
+            // Each eye its own engine on the host (tract, or ORT when chosen).
+            (Some(model), None) => host_network(common, model, wiener_stage)?,
             (None, _) => linear_preprocessor(&c, opts.preprocess, opts.prefilter)?,
         };
         out.push(View {

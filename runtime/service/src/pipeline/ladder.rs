@@ -36,7 +36,7 @@
 
 mod levels;
 
-pub use levels::{DeviceLevels, HostLevels, Selection, Unprocessed};
+pub use levels::{DeviceLevels, HostLevels, Levels, Selection, Unprocessed};
 
 /// One level of the ladder.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
@@ -44,8 +44,6 @@ pub struct Level {
     /// Its name, as `--preprocess auto:LO..HI` takes it: none, wiener,
     /// refine:K, a network's.
     pub name: String,
-    /// What it runs, for the log and `--plan`.
-    pub describe: String,
     /// The quality it delivers, where the tradeoff study measured it: the
     /// mean PSNR against the sharp image over 0–2.5 D (dB).
     pub quality_db: Option<f64>,
@@ -235,7 +233,6 @@ impl Controller {
         if levels.is_empty() {
             levels.push(Level {
                 name: "none".into(),
-                describe: "none".into(),
                 quality_db: None,
                 reference_ns: 0,
             });

@@ -11,7 +11,6 @@ const MS: u64 = 1_000_000;
 fn level(name: &str, reference_ns: u64, quality_db: Option<f64>) -> Level {
     Level {
         name: name.into(),
-        describe: name.into(),
         quality_db,
         reference_ns,
     }

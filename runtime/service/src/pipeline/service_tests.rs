@@ -872,7 +872,6 @@ fn a_ladder_runs_each_frame_at_the_budgets_level_and_reports_it() {
     };
     let level = |name: &str, quality_db| Level {
         name: name.into(),
-        describe: name.into(),
         quality_db: Some(quality_db),
         reference_ns: 0,
     };

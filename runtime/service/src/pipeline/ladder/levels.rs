@@ -24,29 +24,25 @@ impl Selection {
     }
 }
 
-/// Names the levels and the one selected, for reports.
-fn describe_levels(names: impl Iterator<Item = String>, selected: usize) -> String {
-    let names: Vec<String> = names.collect();
-    format!(
-        "frame budget over {} levels ({}; now {})",
-        names.len(),
-        names.join(" < "),
-        names.get(selected).map_or("none", String::as_str)
-    )
-}
-
-/// A view's levels on the host.
+/// A view's levels, cheapest first, and the selection they follow: on
+/// the host [`HostLevels`], on the device [`DeviceLevels`] (one type, as
+/// `FailsAfter` wraps either kind of engine).
 #[derive(Debug)]
-pub struct HostLevels {
-    levels: Vec<Box<dyn Preprocess>>,
+pub struct Levels<T> {
+    levels: Vec<T>,
     selection: Selection,
 }
 
-impl HostLevels {
-    /// `levels` cheapest first; none is a ladder of one level of no work.
-    pub fn new(mut levels: Vec<Box<dyn Preprocess>>, selection: Selection) -> Self {
+/// A view's levels on the host.
+pub type HostLevels = Levels<Box<dyn Preprocess>>;
+/// A view's levels on the sink's device.
+pub type DeviceLevels = Levels<Box<dyn DeviceStage>>;
+
+impl<T> Levels<T> {
+    /// `levels` cheapest first; none is a ladder of `no_work` alone.
+    fn with(mut levels: Vec<T>, selection: Selection, no_work: impl FnOnce() -> T) -> Self {
         if levels.is_empty() {
-            levels.push(Box::new(nedrt_core::preprocess::Identity));
+            levels.push(no_work());
         }
         Self { levels, selection }
     }
@@ -54,21 +50,49 @@ impl HostLevels {
     fn selected(&self) -> usize {
         self.selection.get().min(self.levels.len() - 1)
     }
+
+    fn current(&self) -> &T {
+        &self.levels[self.selected()]
+    }
+
+    fn current_mut(&mut self) -> &mut T {
+        let j = self.selected();
+        &mut self.levels[j]
+    }
+
+    /// Names the levels and the one selected, for reports.
+    fn describe_with(&self, describe: impl Fn(&T) -> String) -> String {
+        let names: Vec<String> = self.levels.iter().map(describe).collect();
+        format!(
+            "frame budget over {} levels ({}; now {})",
+            names.len(),
+            names.join(" < "),
+            names[self.selected()]
+        )
+    }
+}
+
+impl HostLevels {
+    /// `levels` cheapest first; none is a ladder of one level of no work.
+    pub fn new(levels: Vec<Box<dyn Preprocess>>, selection: Selection) -> Self {
+        Self::with(levels, selection, || {
+            Box::new(nedrt_core::preprocess::Identity)
+        })
+    }
 }
 
 impl Preprocess for HostLevels {
     fn describe(&self) -> String {
-        describe_levels(self.levels.iter().map(|l| l.describe()), self.selected())
+        self.describe_with(|l| l.describe())
     }
     fn run(&mut self, input: &Image) -> Result<Image, PreprocessError> {
-        let j = self.selected();
-        self.levels[j].run(input)
+        self.current_mut().run(input)
     }
     fn last_gpu_ns(&self) -> Option<u64> {
-        self.levels[self.selected()].last_gpu_ns()
+        self.current().last_gpu_ns()
     }
     fn last_traffic(&self) -> HostTraffic {
-        self.levels[self.selected()].last_traffic()
+        self.current().last_traffic()
     }
 }
 
@@ -98,30 +122,16 @@ impl DeviceStage for Unprocessed {
     }
 }
 
-/// A view's levels on the sink's device.
-#[derive(Debug)]
-pub struct DeviceLevels {
-    levels: Vec<Box<dyn DeviceStage>>,
-    selection: Selection,
-}
-
 impl DeviceLevels {
     /// `levels` cheapest first; none is a ladder of [`Unprocessed`] alone.
-    pub fn new(mut levels: Vec<Box<dyn DeviceStage>>, selection: Selection) -> Self {
-        if levels.is_empty() {
-            levels.push(Box::new(Unprocessed));
-        }
-        Self { levels, selection }
-    }
-
-    fn selected(&self) -> usize {
-        self.selection.get().min(self.levels.len() - 1)
+    pub fn new(levels: Vec<Box<dyn DeviceStage>>, selection: Selection) -> Self {
+        Self::with(levels, selection, || Box::new(Unprocessed))
     }
 }
 
 impl DeviceStage for DeviceLevels {
     fn describe(&self) -> String {
-        describe_levels(self.levels.iter().map(|l| l.describe()), self.selected())
+        self.describe_with(|l| l.describe())
     }
     fn record(
         &mut self,
@@ -131,11 +141,11 @@ impl DeviceStage for DeviceLevels {
         width: usize,
         height: usize,
     ) -> Result<(), GpuError> {
-        let j = self.selected();
-        self.levels[j].record(encoder, input, output, width, height)
+        self.current_mut()
+            .record(encoder, input, output, width, height)
     }
     fn passes_through(&self) -> bool {
-        self.levels[self.selected()].passes_through()
+        self.current().passes_through()
     }
     /// Every level is made ready: a switch builds nothing.
     fn warm_up(

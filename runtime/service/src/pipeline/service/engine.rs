@@ -104,16 +104,18 @@ impl Budget {
         schedule: Arc<DisplaySchedule>,
         clock: &dyn Clock,
     ) -> Self {
+        let grey: Vec<Arc<Image>> = regions
+            .iter()
+            .map(|r| {
+                let planes = vec![vec![0.5; r.width * r.height]; 3];
+                Arc::new(Image::from_planes(r.width, r.height, planes))
+            })
+            .collect();
         let frames = |generation: u64| -> Vec<ViewFrame> {
-            regions
-                .iter()
-                .map(|r| ViewFrame {
+            grey.iter()
+                .map(|im| ViewFrame {
                     generation,
-                    content: ViewContent::Planar(Arc::new(Image::from_planes(
-                        r.width,
-                        r.height,
-                        vec![vec![0.5; r.width * r.height]; 3],
-                    ))),
+                    content: ViewContent::Planar(im.clone()),
                 })
                 .collect()
         };
