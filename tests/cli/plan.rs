@@ -34,7 +34,8 @@ fn the_host_frame_path_says_why() {
     assert_eq!(line(&text, "panel:"), "panel:      64×48 at 240 Hz, 1 view");
     assert_eq!(
         line(&text, "network:"),
-        "network:    models/dcnn.onnx: cpu on the host, f32"
+        "network:    models/dcnn.onnx: wgpu on a GPU of its own, f32 (the CPU's tract, f32, if \
+         none starts)"
     );
     assert!(
         line(&text, "view ").starts_with("view \"panel\" 64×48 at (0, 0): decode on the host"),
@@ -137,16 +138,34 @@ mod needs_gpu {
             line(&text, "pacing:").starts_with("pacing:     paced by the display"),
             "{text}"
         );
+        // The default is the frame budget, its ladder topped by the network.
+        assert!(
+            line(&text, "view ").contains("refine:10 < dcnn) on the GPU"),
+            "{text}"
+        );
+        assert!(line(&text, "ladder:").contains("quality"), "{text}");
+    }
+
+    /// A fixed method still plans its own stage on the device.
+    #[test]
+    #[ignore = "needs a GPU adapter (run: scripts/test.sh, or cargo test -- --include-ignored)"]
+    fn the_shipped_system_fixed_keeps_its_network_on_the_gpu() {
+        let text = plan(&["--preprocess", "proposed"], &[]);
         assert!(line(&text, "view ").contains("D-CNN on the GPU"), "{text}");
+        assert!(!text.contains("ladder:"), "{text}");
     }
 }
 
-/// `--preprocess auto` (issue 54): the ladder, each level with its
-/// quality from the tradeoff table (the repository's, matched by the
-/// network's DOE and model) or left out and why, and the budget.
+/// `--preprocess auto`, the default (issue 54): the ladder, each level
+/// with its quality from the tradeoff table (the repository's, matched by
+/// the network's DOE and model) or left out and why, and the budget.
 #[test]
-fn auto_prints_the_ladder_with_each_levels_quality_and_the_budget() {
-    let text = plan(&["--preprocess", "auto", "--sink", "record"], &[]);
+fn the_default_plan_prints_the_ladder_with_each_levels_quality_and_the_budget() {
+    let text = plan(&["--sink", "record"], &[]);
+    assert_eq!(
+        text,
+        plan(&["--preprocess", "auto", "--sink", "record"], &[])
+    );
     assert!(
         line(&text, "ladder:").contains("docs/tradeoff/tradeoff.json"),
         "{text}"
@@ -174,6 +193,36 @@ fn auto_prints_the_ladder_with_each_levels_quality_and_the_budget() {
             "the frame budget's level (none < wiener < refine:1 < refine:3 < refine:10 < dcnn) \
              on the host"
         ),
+        "{text}"
+    );
+}
+
+#[test]
+fn the_default_stereo_plan_runs_the_whole_ladder_in_each_eye() {
+    let text = plan(&["--stereo", "--sink", "record"], &[]);
+    assert!(line(&text, "ladder:").contains("quality"), "{text}");
+    assert!(line(&text, "budget:").contains("(4.17 ms)"), "{text}");
+    let views: Vec<&str> = text.lines().filter(|l| l.starts_with("view ")).collect();
+    assert_eq!(views.len(), 2, "{text}");
+    for v in views {
+        assert!(
+            v.contains(
+                "the frame budget's level (none < wiener < refine:1 < refine:3 < refine:10 < \
+                 dcnn) on the host"
+            ),
+            "{v}"
+        );
+    }
+}
+
+/// A prefilter asked for without a method runs on the shipped system's
+/// optics, as before the frame budget was the default.
+#[test]
+fn a_prefilter_without_a_method_is_the_shipped_systems() {
+    let text = plan(&["--prefilter", "refine:3", "--sink", "record"], &[]);
+    assert!(!text.contains("ladder:"), "{text}");
+    assert!(
+        line(&text, "view ").contains("refine:3@target prefilter of proposed"),
         "{text}"
     );
 }

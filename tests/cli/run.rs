@@ -139,7 +139,10 @@ fn run_records_a_folder_and_writes_a_trace_and_report() {
 fn run_with_the_frame_budget_reports_its_levels() {
     let dir = tempfile::tempdir().expect("tempdir");
     let report = dir.path().join("report.json");
-    let o = run_on_small_panel()
+    let mut c = nedrt();
+    c.current_dir(repo())
+        .args(["run", "--calib", path(&small_panel()), "--backend", "cpu"]);
+    let o = c
         .args(["--preprocess", "auto:none..wiener", "--frames", "12"])
         .args(["--source-rate", "60", "--sink", "record", "--record-dir"])
         .arg(dir.path().join("rec"))
@@ -193,6 +196,8 @@ fn run_falls_back_to_the_cpu_when_the_chosen_backend_cannot_start() {
                 path(&panel),
                 "--backend",
                 "ort",
+                "--preprocess",
+                "proposed",
                 "--frames",
                 "2",
             ])
@@ -351,7 +356,8 @@ fn on_small_panel_without_vulkan() -> std::process::Command {
     let mut c = nedrt();
     c.current_dir(repo())
         .env("VK_ICD_FILENAMES", "/nonexistent")
-        .args(["run", "--calib", path(&small_panel())]);
+        .args(["run", "--calib", path(&small_panel())])
+        .args(["--preprocess", "proposed"]);
     c
 }
 

@@ -51,6 +51,29 @@ def test_a_test_only_use_line_does_not_end_the_count(tmp_path, capsys):
     assert code == 1 and "lib.rs: 602 lines outside tests" in out, out
 
 
+def test_examples_harnesses_and_build_scripts_are_sized_too(tmp_path, capsys):
+    for rel in ["runtime/openxr/examples/client.rs", "bench/burn/src/main.rs", "examples/soak.rs",
+                "bench/burn/build.rs"]:
+        path = tmp_path / rel
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(lines(551))
+    (tmp_path / "examples" / "short.rs").write_text(lines(550))
+    # The crates' own sources are the crate check's; tests and build outputs do not count.
+    for rel in ["runtime/core/src/big.rs", "tests/cli/long.rs", "target/release/build/gen.rs",
+                "bench/burn/src/main_tests.rs"]:
+        path = tmp_path / rel
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(lines(900))
+    code, out = sizes.main(["--rust-rest", str(tmp_path)]), capsys.readouterr().out
+    assert code == 1
+    assert out.splitlines() == [
+        f"{Path('bench/burn/build.rs')}: 551 lines outside tests (at most 550)",
+        f"{Path('bench/burn/src/main.rs')}: 551 lines outside tests (at most 550)",
+        f"{Path('examples/soak.rs')}: 551 lines outside tests (at most 550)",
+        f"{Path('runtime/openxr/examples/client.rs')}: 551 lines outside tests (at most 550)",
+    ]
+
+
 # ---------------------------------------------------------------- Python
 
 

@@ -71,6 +71,11 @@ fn recording_run(dir: &Path, extra: &[&str]) -> Command {
         .arg(dir.join("rec"))
         .arg("--report-json")
         .arg(dir.join("report.json"));
+    // The network fixed unless a test names its preprocessing: these runs
+    // are about the faults, not the frame budget's ladder.
+    if !extra.contains(&"--preprocess") {
+        c.args(["--preprocess", "proposed"]);
+    }
     c
 }
 

@@ -20,7 +20,7 @@ mod needs_gpu {
         require_gpu();
         // The host path (the network on the CPU), and the device path
         // (no network: unpack, encode and the texture copy on the GPU).
-        soak(&["--backend", "cpu"], "host");
+        soak(&["--backend", "cpu", "--preprocess", "proposed"], "host");
         soak(&["--preprocess", "conventional"], "device");
     }
 
@@ -117,6 +117,7 @@ mod needs_gpu {
                 .arg("--dcnn")
                 .arg(&network)
                 .args(["--backend", "wgpu", "--source", "pattern", "--frames", "4"])
+                .args(["--preprocess", "proposed"])
                 .args(["--sink", "headless", "--frame-path", path, "--report-json"])
                 .arg(&report_path)
                 .output_within(deadline::COMMAND, "nedrt run (4 frames on the GPU)");
@@ -294,6 +295,8 @@ mod needs_gpu_fault {
             .args([
                 "--backend",
                 "wgpu",
+                "--preprocess",
+                "proposed",
                 "--source",
                 "pattern",
                 "--source-rate",

@@ -65,16 +65,21 @@ impl Service {
         // ([`reference`]), not with the Wiener stage the card adds.
         let network = dir.path().join("network.onnx");
         std::fs::copy(repo().join("models/dcnn.onnx"), &network).expect("copy the model");
-        let child = Command::new(env!("CARGO_BIN_EXE_nedrt"))
-            .current_dir(repo())
+        let mut c = Command::new(env!("CARGO_BIN_EXE_nedrt"));
+        c.current_dir(repo())
             .env("NEDRT_LOG", "nedrt=info")
             .arg("run")
             .arg("--calib")
             .arg(small_panel())
             .arg("--dcnn")
             .arg(&network)
-            .args(args)
-            .spawn_watched("the service (nedrt run)");
+            .args(args);
+        // The network fixed unless a test names its preprocessing: these
+        // tests are about the service, not the frame budget's ladder.
+        if !args.contains(&"--preprocess") {
+            c.args(["--preprocess", "proposed"]);
+        }
+        let child = c.spawn_watched("the service (nedrt run)");
         Self { child, dir }
     }
 

@@ -2,9 +2,12 @@
 """Sizes a newcomer can read (issues 32 and 39; scripts/check-layers.sh
 runs it): exit 0 when no Rust source file under runtime/*/src holds more
 than 550 lines outside its tests, no crate holds more than 25 % of the
-workspace's Rust lines outside tests, and no Python source file of the
-repository (the trainer in models/, tools/, scripts/, bench/, …) holds
-more than 550 lines; 1 naming each file or crate over.
+workspace's Rust lines outside tests, no other Rust source file of the
+repository (examples, benchmark harnesses such as bench/burn, build
+scripts, fuzz targets) holds more than 550 lines outside its tests, and
+no Python source file of the repository (the trainer in models/, tools/,
+scripts/, bench/, …) holds more than 550 lines; 1 naming each file or
+crate over.
 
 Test code does not count. Rust: files named `tests.rs` or `*_tests.rs`,
 anything under a `tests/` directory, and everything from a file's first
@@ -19,6 +22,7 @@ environments (`.venv`, or any folder with a `pyvenv.cfg`), Cargo's
     python3 tools/layers/sizes.py                 # the repository
     python3 tools/layers/sizes.py --root DIR      # only DIR/*/src's Rust, instead of runtime/*/src
     python3 tools/layers/sizes.py --python DIR    # only the Python files under DIR
+    python3 tools/layers/sizes.py --rust-rest DIR # only the Rust files under DIR outside its runtime/*/src
     python3 tools/layers/sizes.py --root DIR --python DIR2   # both, those
 
 Standard library only.
@@ -83,6 +87,31 @@ def python_sources(root: Path):
     return dict(sorted(files.items()))
 
 
+def other_rust_sources(root: Path):
+    """{file: lines outside tests} of the Rust files under `root` that the
+    crate check does not see (outside root/runtime/*/src): examples,
+    harnesses, build scripts, fuzz targets. Test files, `tests/` folders
+    and the skipped folders are left out."""
+    crates = {src.resolve() for src in root.glob("runtime/*/src")}
+    files = {}
+    for folder, dirs, names in os.walk(root):
+        here = Path(folder)
+        dirs[:] = sorted(d for d in dirs
+                         if d not in SKIPPED_DIRS and d != "tests"
+                         and (here / d).resolve() not in crates
+                         and not (here / d / "pyvenv.cfg").is_file())
+        for name in sorted(names):
+            path = here / name
+            if name.endswith(".rs") and not is_test_file(path.relative_to(root)):
+                files[path] = code_lines(path)
+    return dict(sorted(files.items()))
+
+
+def other_rust_problems(root: Path) -> list:
+    return [f"{f.relative_to(root)}: {n} lines outside tests (at most {MAX_FILE_LINES})"
+            for f, n in other_rust_sources(root).items() if n > MAX_FILE_LINES]
+
+
 def rust_problems(root: Path) -> list:
     crates = measure(root)
     total = sum(sum(f.values()) for f in crates.values())
@@ -109,12 +138,17 @@ def main(argv=None) -> int:
     ap.add_argument("--root", type=Path, help="check the Rust crates DIR/*/src (default: runtime/*/src)")
     ap.add_argument("--python", type=Path, metavar="DIR",
                     help="check the Python files under DIR (default: the repository)")
+    ap.add_argument("--rust-rest", type=Path, metavar="DIR",
+                    help="check the other Rust files under DIR: examples, harnesses, build scripts "
+                         "(default: the repository)")
     args = ap.parse_args(argv)
-    if args.root is None and args.python is None:
-        args.root, args.python = REPO / "runtime", REPO
+    if args.root is None and args.python is None and args.rust_rest is None:
+        args.root, args.python, args.rust_rest = REPO / "runtime", REPO, REPO
     problems = []
     if args.root is not None:
         problems += rust_problems(args.root)
+    if args.rust_rest is not None:
+        problems += other_rust_problems(args.rust_rest)
     if args.python is not None:
         problems += python_problems(args.python)
     for p in problems:

@@ -1,6 +1,6 @@
 //! nedrt's generated WGSL against burn's wgpu backend: the same ONNX model, the
 //! same frame sizes, the same adapter, in one run. For each model and size it
-//! checks that the two engines agree on a deterministic random input, then
+//! checks that the two contenders agree on a deterministic random input, then
 //! times both, interleaved (ABBA order) after warm-up runs, each doing the same
 //! work: a host f32 CHW tensor in, the network, a host f32 tensor out.
 //! README.md says how to build and run it.
@@ -9,10 +9,17 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::{Context, Result, bail, ensure};
-use burn::tensor::{Device, Tensor, TensorData};
+use burn::tensor::{Device, Tensor};
 use nedrt_infer::gpu::GpuBackend;
 use nedrt_infer::{Backend as _, ModelFile, Precision};
-use serde_json::{Value, json};
+use serde_json::json;
+
+mod args;
+mod machine;
+mod measure;
+use args::{Contender, parse_args};
+use machine::{adapter_json, describe, loadavg, nedrt_commit};
+use measure::{Timings, agreement, macs, random_input, run_burn, run_nedrt, stats};
 
 /// The models burn-onnx generated in build.rs.
 #[allow(clippy::all, unused, missing_debug_implementations)]
@@ -40,7 +47,7 @@ impl BurnNet {
     }
 }
 
-/// A model both engines run: nedrt reads `onnx` at run time; burn runs the
+/// A model both contenders run: nedrt reads `onnx` at run time; burn runs the
 /// code build.rs generated from the same file (checked by `fnv`).
 struct ModelSpec {
     name: &'static str,
@@ -78,296 +85,6 @@ fn fnv1a64(bytes: &[u8]) -> u64 {
     })
 }
 
-struct Args {
-    json: Option<PathBuf>,
-    sizes: Vec<usize>,
-    models: Vec<String>,
-    /// Fixed timed iterations per model and size (else from `budget_s`).
-    iters: Option<usize>,
-    /// Seconds of timed runs (both engines) per model and size: iterations
-    /// go on until it is spent (within `min_iters` and `max_iters`).
-    budget_s: f64,
-    min_iters: usize,
-    max_iters: usize,
-    warmup: usize,
-    /// Runs one engine alone (an isolation check): no comparison.
-    only: Option<Engine>,
-}
-
-const USAGE: &str = "usage: nedrt-bench-burn [--json PATH] [--sizes 64,256,512] \
-[--models dcnn,dcnn_w32] [--iters N | --budget SECONDS] [--min-iters N] [--max-iters N] [--warmup N] \
-[--only nedrt|burn]";
-
-fn parse_args() -> Result<Args> {
-    let mut a = Args {
-        json: None,
-        sizes: vec![64, 256, 512],
-        models: vec!["dcnn".into(), "dcnn_w32".into()],
-        iters: None,
-        budget_s: 30.0,
-        min_iters: 4,
-        max_iters: 100,
-        warmup: 1,
-        only: None,
-    };
-    let mut it = std::env::args().skip(1);
-    while let Some(flag) = it.next() {
-        if flag == "-h" || flag == "--help" {
-            println!("{USAGE}");
-            std::process::exit(0);
-        }
-        let value = it
-            .next()
-            .with_context(|| format!("{flag} needs a value\n{USAGE}"))?;
-        let count = |v: &str| -> Result<usize> {
-            v.parse()
-                .with_context(|| format!("{flag}: '{v}' is not a count"))
-        };
-        match flag.as_str() {
-            "--json" => a.json = Some(value.into()),
-            "--sizes" => {
-                a.sizes = value
-                    .split(',')
-                    .map(|s| count(s.trim()))
-                    .collect::<Result<_>>()?
-            }
-            "--models" => a.models = value.split(',').map(|s| s.trim().to_string()).collect(),
-            "--iters" => a.iters = Some(count(&value)?.max(1)),
-            "--budget" => {
-                a.budget_s = value
-                    .parse()
-                    .with_context(|| format!("--budget: '{value}' is not a number"))?
-            }
-            "--min-iters" => a.min_iters = count(&value)?.max(1),
-            "--max-iters" => a.max_iters = count(&value)?.max(1),
-            "--warmup" => a.warmup = count(&value)?.max(1),
-            "--only" => {
-                a.only = Some(match value.as_str() {
-                    "nedrt" => Engine::Nedrt,
-                    "burn" => Engine::Burn,
-                    other => bail!("--only: '{other}' is not nedrt or burn"),
-                })
-            }
-            other => bail!("unknown flag {other}\n{USAGE}"),
-        }
-    }
-    ensure!(!a.sizes.is_empty(), "--sizes is empty");
-    Ok(a)
-}
-
-/// Deterministic values in [0, 1) (xorshift64*), a frame's worth.
-fn random_input(len: usize, seed: u64) -> Vec<f32> {
-    let mut s = seed.max(1);
-    (0..len)
-        .map(|_| {
-            s ^= s >> 12;
-            s ^= s << 25;
-            s ^= s >> 27;
-            let r = s.wrapping_mul(0x2545_f491_4f6c_dd1d);
-            (r >> 40) as f32 / (1u64 << 24) as f32
-        })
-        .collect()
-}
-
-/// Median, p90 (nearest rank) and min of `v`, in the unit given; None
-/// for no values.
-fn stats(v: &[f64]) -> Option<(f64, f64, f64)> {
-    if v.is_empty() {
-        return None;
-    }
-    let mut s = v.to_vec();
-    s.sort_by(f64::total_cmp);
-    let rank = |q: f64| s[((q * s.len() as f64).ceil() as usize).clamp(1, s.len()) - 1];
-    let median = if s.len() % 2 == 1 {
-        s[s.len() / 2]
-    } else {
-        (s[s.len() / 2 - 1] + s[s.len() / 2]) / 2.0
-    };
-    Some((median, rank(0.9), s[0]))
-}
-
-/// An engine under test.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum Engine {
-    Nedrt,
-    Burn,
-}
-
-impl Engine {
-    fn name(self) -> &'static str {
-        match self {
-            Engine::Nedrt => "nedrt",
-            Engine::Burn => "burn",
-        }
-    }
-}
-
-/// One engine's run times on one model and size, ms.
-#[derive(Default)]
-struct Timings {
-    ms: Vec<f64>,
-    /// nedrt's device (timestamp-query) times.
-    dev: Vec<f64>,
-}
-
-impl Timings {
-    fn push(&mut self, ms: f64, dev: Option<f64>) {
-        self.ms.push(ms);
-        self.dev.extend(dev);
-    }
-    fn reset(&mut self) {
-        self.ms.clear();
-        self.dev.clear();
-    }
-}
-
-fn adapter_json(info: &wgpu::AdapterInfo) -> Value {
-    json!({
-        "name": info.name,
-        "backend": format!("{:?}", info.backend),
-        "device_type": format!("{:?}", info.device_type),
-        "driver": info.driver,
-        "driver_info": info.driver_info,
-        "vendor": info.vendor,
-        "device": info.device,
-    })
-}
-
-fn describe(info: &wgpu::AdapterInfo) -> String {
-    format!(
-        "{} ({:?}, {:?}, driver {} {})",
-        info.name, info.backend, info.device_type, info.driver, info.driver_info
-    )
-}
-
-/// nedrt's commit, and whether its runtime differs from it (read-only git).
-fn nedrt_commit() -> String {
-    if let Ok(c) = std::env::var("NEDRT_COMMIT") {
-        return c;
-    }
-    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
-    let git = |args: &[&str]| {
-        std::process::Command::new("git")
-            .args(args)
-            .current_dir(&root)
-            .env("GIT_OPTIONAL_LOCKS", "0")
-            .output()
-            .ok()
-    };
-    let Some(out) = git(&["rev-parse", "--short", "HEAD"]).filter(|o| o.status.success()) else {
-        return "unknown".into();
-    };
-    let mut commit = String::from_utf8_lossy(&out.stdout).trim().to_string();
-    if git(&["diff", "--quiet", "HEAD", "--", "runtime"]).is_some_and(|o| !o.status.success()) {
-        commit.push_str(" (+ uncommitted changes in runtime/)");
-    }
-    commit
-}
-
-/// The machine's load average (Linux), for the report: other work on the
-/// cores slows a CPU adapter such as lavapipe.
-fn loadavg() -> String {
-    std::fs::read_to_string("/proc/loadavg")
-        .map(|s| s.split_whitespace().take(3).collect::<Vec<_>>().join(" "))
-        .unwrap_or_else(|_| "n/a".into())
-}
-
-/// Multiply-adds of one `size`×`size` frame through `network` (its convolutions).
-fn macs(network: &nedrt_infer::Network, size: usize) -> u64 {
-    use nedrt_infer::network::Layer;
-    let plane = |v: usize| {
-        let side = (size >> network.values[v].level) as u64;
-        side * side
-    };
-    network
-        .layers
-        .iter()
-        .map(|l| match l {
-            Layer::Conv(c) => (c.cin * c.cout * c.kernel * c.kernel) as u64 * plane(c.output),
-            // Each input pixel feeds a 2×2 block of every output channel.
-            Layer::ConvTranspose(c) => (c.cin * c.cout * 4) as u64 * plane(c.input),
-            Layer::MaxPool { .. } | Layer::Concat { .. } => 0,
-        })
-        .sum()
-}
-
-/// One nedrt run: host tensor in, network, host tensor out.
-fn run_nedrt(
-    be: &mut GpuBackend,
-    input: &[f32],
-    size: usize,
-) -> Result<(f64, Option<f64>, Vec<f32>)> {
-    let t = Instant::now();
-    let out = be.run_tensor(input, size, size)?;
-    let ms = t.elapsed().as_secs_f64() * 1e3;
-    Ok((ms, be.last_gpu_ns().map(|ns| ns as f64 / 1e6), out))
-}
-
-/// One burn run: `Tensor::from_data` → forward → `into_data` (which waits for
-/// the device). The host `TensorData` is made before the clock starts, as
-/// nedrt's input slice exists before its run.
-fn run_burn(net: &BurnNet, device: &Device, input: &[f32], size: usize) -> Result<(f64, Vec<f32>)> {
-    let data = TensorData::new(input.to_vec(), [1, 3, size, size]);
-    let t = Instant::now();
-    let x = Tensor::<4>::from_data(data, device);
-    let y = net.forward(x);
-    let dims = y.dims();
-    let data = y.into_data();
-    let dtype = data.dtype();
-    let out = data
-        .try_into_vec::<f32>()
-        .map_err(|e| anyhow::anyhow!("burn's output is {dtype:?}, not f32: {e:?}"))?;
-    let ms = t.elapsed().as_secs_f64() * 1e3;
-    ensure!(
-        dims == [1, 3, size, size],
-        "burn's output is {dims:?}, not [1, 3, {size}, {size}]"
-    );
-    Ok((ms, out))
-}
-
-/// How far apart the two outputs are. nedrt's last kernel clamps to [0, 1]
-/// (the panel's range), the ONNX graph does not, so burn's output is clamped
-/// on the host before the comparison (clamping never widens a difference).
-struct Agreement {
-    max_abs: f64,
-    max_abs_out: f64,
-    /// Share of burn's outputs outside [0, 1], where the clamp hides the value.
-    clamped: f64,
-    /// Largest |burn − input|: the size of the U-Net branch of `I + UNet(I)`,
-    /// the scale against which the difference is relative.
-    max_abs_branch: f64,
-    non_finite: usize,
-}
-
-fn agreement(input: &[f32], nedrt: &[f32], burn: &[f32]) -> Result<Agreement> {
-    ensure!(
-        nedrt.len() == burn.len(),
-        "nedrt gave {} values, burn {}",
-        nedrt.len(),
-        burn.len()
-    );
-    let mut a = Agreement {
-        max_abs: 0.0,
-        max_abs_out: 0.0,
-        clamped: 0.0,
-        max_abs_branch: 0.0,
-        non_finite: 0,
-    };
-    let mut clamped = 0usize;
-    for ((&n, &b), &x) in nedrt.iter().zip(burn).zip(input) {
-        if !n.is_finite() || !b.is_finite() {
-            a.non_finite += 1;
-            continue;
-        }
-        clamped += usize::from(!(0.0..=1.0).contains(&b));
-        a.max_abs = a.max_abs.max(f64::from((n - b.clamp(0.0, 1.0)).abs()));
-        a.max_abs_out = a.max_abs_out.max(f64::from(b.abs()));
-        a.max_abs_branch = a.max_abs_branch.max(f64::from((b - x).abs()));
-    }
-    a.clamped = clamped as f64 / burn.len().max(1) as f64;
-    Ok(a)
-}
-
 fn main() -> Result<()> {
     let mut args = parse_args()?;
     // burn's runtime (cubecl) finds its configuration, cubecl.toml, from the
@@ -398,7 +115,7 @@ fn main() -> Result<()> {
         ensure!(
             hash == m.fnv,
             "{} changed since burn imported it at build time (hash {hash}, built from {}): \
-             rebuild (cargo build --release) so both engines run the same model",
+             rebuild (cargo build --release) so both contenders run the same model",
             m.onnx.display(),
             m.fnv
         );
@@ -438,7 +155,7 @@ fn main() -> Result<()> {
         settings.backends = backends;
     }
     let n_gpu = match args.only {
-        Some(Engine::Burn) => None,
+        Some(Contender::Burn) => None,
         _ => Some(
             nedrt_infer::gpu::open_device(&settings, Precision::F32).context("nedrt's device")?,
         ),
@@ -458,7 +175,7 @@ fn main() -> Result<()> {
     // burn: its own device on the adapter its default selection picks; the
     // setup it returns says which.
     let b_gpu = match args.only {
-        Some(Engine::Nedrt) => None,
+        Some(Contender::Nedrt) => None,
         _ => Some(
             Device::wgpu_options()
                 .init_with_setup()
@@ -498,7 +215,7 @@ fn main() -> Result<()> {
         println!("- only {} runs (--only): no comparison", e.name());
     }
     println!(
-        "- timing: {} warm-up run(s) per engine (the first is cold: pipelines, burn's autotune), \
+        "- timing: {} warm-up run(s) per contender (the first is cold: pipelines, burn's autotune), \
          then interleaved (ABBA) timed runs until {:.0} s are spent per model and size \
          (min {} iterations, max {}){}",
         args.warmup,
@@ -547,12 +264,12 @@ fn main() -> Result<()> {
             };
             let input = random_input(3 * size * size, 0x5eed ^ ((size as u64) << 8) ^ mi as u64);
             let (mut n_t, mut b_t) = (Timings::default(), Timings::default());
-            let mut run = |engine: Engine,
+            let mut run = |engine: Contender,
                            n_t: &mut Timings,
                            b_t: &mut Timings|
              -> Result<Option<Vec<f32>>> {
                 Ok(match engine {
-                    Engine::Nedrt => match &mut nedrt {
+                    Contender::Nedrt => match &mut nedrt {
                         Some(be) => {
                             let (ms, dev, out) = run_nedrt(be, &input, size)?;
                             n_t.push(ms, dev);
@@ -560,7 +277,7 @@ fn main() -> Result<()> {
                         }
                         None => None,
                     },
-                    Engine::Burn => match &burn {
+                    Contender::Burn => match &burn {
                         Some((net, device)) => {
                             let (ms, out) = run_burn(net, device, &input, size)?;
                             b_t.push(ms, None);
@@ -575,8 +292,8 @@ fn main() -> Result<()> {
             let mut outs = (None, None);
             for _ in 0..args.warmup {
                 outs = (
-                    run(Engine::Nedrt, &mut n_t, &mut b_t)?,
-                    run(Engine::Burn, &mut n_t, &mut b_t)?,
+                    run(Contender::Nedrt, &mut n_t, &mut b_t)?,
+                    run(Contender::Burn, &mut n_t, &mut b_t)?,
                 );
             }
             let (n_first, b_first) = (n_t.ms.first().copied(), b_t.ms.first().copied());
@@ -621,11 +338,11 @@ fn main() -> Result<()> {
             };
             let mut iters = 0;
             while more(iters) {
-                // ABBA: each engine goes first in half the pairs.
+                // ABBA: each contender goes first in half the pairs.
                 let order = if iters % 2 == 0 {
-                    [Engine::Nedrt, Engine::Burn]
+                    [Contender::Nedrt, Contender::Burn]
                 } else {
-                    [Engine::Burn, Engine::Nedrt]
+                    [Contender::Burn, Contender::Nedrt]
                 };
                 for e in order {
                     run(e, &mut n_t, &mut b_t)?;
@@ -711,7 +428,7 @@ fn main() -> Result<()> {
             "wgpu_version": env!("NEDRT_BENCH_WGPU_VERSION"),
             "precision": "f32",
             "adapters": adapters.iter().map(adapter_json).collect::<Vec<_>>(),
-            "only": args.only.map(Engine::name),
+            "only": args.only.map(Contender::name),
             "nedrt_adapter": n_info.as_ref().map(adapter_json),
             "nedrt_timestamp_queries": n_timestamps,
             "burn_adapter": b_info.as_ref().map(adapter_json),

@@ -248,9 +248,10 @@ pub struct RunArgs {
     /// each frame's level from none < wiener < refine:1 < refine:3 <
     /// refine:10 < the network (dcnn), LO to HI, so that every refresh is
     /// on time (docs/service.md, "The frame budget"). Methods: conventional,
-    /// ai, doe-only, doe+wiener, proposed, lens+dcnn.
-    #[arg(long, value_parser = parse_run_preprocess, default_value = "proposed", value_name = "METHOD|auto[:LO..HI]")]
-    pub preprocess: RunPreprocess,
+    /// ai, doe-only, doe+wiener, proposed, lens+dcnn. [default: auto; with
+    /// --prefilter, proposed: that prefilter on the shipped system's optics]
+    #[arg(long, value_parser = parse_run_preprocess, value_name = "METHOD|auto[:LO..HI]")]
+    pub preprocess: Option<RunPreprocess>,
     /// `--preprocess auto`: the tradeoff table (`nedrt tradeoff`'s JSON)
     /// the levels' quality comes from [default: docs/tradeoff/tradeoff.json
     /// where it exists; without one the levels keep their order].

@@ -155,7 +155,14 @@ pub fn run(cli: Cli) -> Result<()> {
                 ..Default::default()
             };
             install_signals(&control)?;
-            let (preprocess, ladder) = match a.preprocess {
+            // The frame budget by default; a prefilter asked for runs as
+            // asked, on the shipped system's optics (auto picks its own).
+            let preprocess = a.preprocess.unwrap_or(if a.prefilter.is_native() {
+                RunPreprocess::Auto(Default::default())
+            } else {
+                RunPreprocess::Method(Method::Proposed)
+            });
+            let (preprocess, ladder) = match preprocess {
                 RunPreprocess::Method(m) => (m, None),
                 RunPreprocess::Auto(spec) => (Method::Proposed, Some(spec)),
             };

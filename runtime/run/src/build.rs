@@ -1,21 +1,18 @@
-//! The engines `nedrt run` builds: the D-CNN's fallback, the linear
-//! prefilters on the host, and one view's device engines with its host
-//! part and fallback. Apart from `run` so that the wiring reads as
-//! one sequence of choices and the construction details live here.
+//! The parts the builder (`builder`) puts together: a network on the
+//! host or on the sink's device, behind its Wiener stage; the network's
+//! fallback; a method's optics prepared for its prefilter.
 
 use std::sync::Arc;
 
-use super::{AppError, CommonOptions, FallbackKind, RunOptions};
+use super::{AppError, CommonOptions, FallbackKind};
 use nedrt_core::preprocess::{Identity, Preprocess};
-use nedrt_engines::device_prefilter::{prefilter_stage, wiener_stage};
-use nedrt_engines::preprocess::RawWiener;
-use nedrt_engines::{Chain, FailsAfter};
+use nedrt_engines::Chain;
+use nedrt_engines::device_prefilter::wiener_stage;
 use nedrt_infer::gpu::DeviceDcnn;
 use nedrt_infer::{BackendKind, Dcnn, ModelFile};
 use nedrt_optics::sim::wiener::WienerFilter;
 use nedrt_optics::sim::{Method, Simulator};
-use nedrt_service::pipeline::device_frames::DeviceFrames;
-use nedrt_service::pipeline::service::{DeviceEngines, FallbackFactory, HostPrep, PanelConfig};
+use nedrt_service::pipeline::service::FallbackFactory;
 
 /// `network` behind its Wiener stage where the model has one.
 pub(super) fn behind(
@@ -28,24 +25,41 @@ pub(super) fn behind(
     }
 }
 
-/// A network on the host, f32 (the CPU engines offer no f16), on the
-/// chosen backend (tract where that is wgpu), behind its Wiener stage where
-/// it has one: a view's engine on the host.
+/// The sink's device: the device, its queue and the adapter's name.
+pub(super) type Gpu = (wgpu::Device, wgpu::Queue, String);
+
+/// A network for frames on the host, behind its Wiener stage where it has
+/// one: on the chosen backend, wgpu's kernels on the sink's GPU where there
+/// is one that runs the precision (the frames read back), else on its own
+/// GPU; tract f32 where the sink's GPU lacks f16 shaders for an f16 network.
 pub(super) fn host_network(
     common: &CommonOptions,
     model: &ModelFile,
     stage: &Option<(Method, Arc<WienerFilter>)>,
+    device: Option<&Gpu>,
 ) -> Result<Box<dyn Preprocess>, AppError> {
-    let kind = match common.dcnn.backend {
-        BackendKind::Wgpu => BackendKind::Cpu,
-        other => other,
-    };
-    let options = nedrt_infer::BackendOptions {
+    let options = &common.dcnn.backend_options;
+    let f32_options = nedrt_infer::BackendOptions {
         precision: nedrt_infer::Precision::F32,
-        ..common.dcnn.backend_options.clone()
+        ..options.clone()
     };
-    let dcnn = Dcnn::from_model(model.clone(), kind, &options)?;
-    Ok(behind(stage, Box::new(dcnn)))
+    let dcnn: Box<dyn Preprocess> = match (common.dcnn.backend, device) {
+        (BackendKind::Wgpu, Some((d, q, name))) => {
+            if options.precision == nedrt_infer::Precision::F32
+                || d.features().contains(wgpu::Features::SHADER_F16)
+            {
+                Box::new(Dcnn::on_device(model.clone(), d, q, name.clone(), options)?)
+            } else {
+                Box::new(Dcnn::from_model(
+                    model.clone(),
+                    BackendKind::Cpu,
+                    &f32_options,
+                )?)
+            }
+        }
+        (kind, _) => Box::new(Dcnn::from_model(model.clone(), kind, options)?),
+    };
+    Ok(behind(stage, dcnn))
 }
 
 /// A network's kernels on the sink's device for frames of `size`, behind
@@ -53,7 +67,7 @@ pub(super) fn host_network(
 pub(super) fn device_network(
     common: &CommonOptions,
     model: &ModelFile,
-    (device, queue, name): &(wgpu::Device, wgpu::Queue, String),
+    (device, queue, name): &Gpu,
     stage: &Option<(Method, Arc<WienerFilter>)>,
     size: (usize, usize),
 ) -> Result<Box<dyn nedrt_gpu::DeviceStage>, AppError> {
@@ -102,24 +116,6 @@ pub(super) fn fallback_factory(
     }
 }
 
-/// The preprocessing of a method without a network: its Wiener prefilter
-/// (the PSFs it averages come from the cache after the first run), none,
-/// or a least-squares prefilter on its optics.
-pub(super) fn linear_preprocessor(
-    common: &CommonOptions,
-    method: Method,
-    prefilter: nedrt_engines::preprocess::Prefilter,
-) -> Result<Box<dyn Preprocess>, AppError> {
-    if !method.uses_wiener() && prefilter.is_native() {
-        return Ok(Box::new(Identity));
-    }
-    let prepared = prepared_for(common, method, prefilter)?;
-    let mut dcnns = std::collections::HashMap::new();
-    Ok(nedrt_engines::preprocess::for_system(
-        method, prefilter, &prepared, &mut dcnns,
-    )?)
-}
-
 /// `method`'s optics prepared for `prefilter` (its Wiener; the headline
 /// depths for the least-squares family).
 pub(super) fn prepared_for(
@@ -137,126 +133,4 @@ pub(super) fn prepared_for(
         &prefilter.depths_d(&sim.calib),
         common.progress(),
     )?)
-}
-
-/// One view's engines on the sink's device `d`: the network's
-/// kernels behind its Wiener stage (on the device, where the device FFT
-/// takes the panel's size; else on the host first), or no network and the
-/// method's linear prefilter (its Wiener, or `lsq`) on the device, or the
-/// least-squares solvers on the host, or nothing.
-pub(super) fn device_engines(
-    common: &CommonOptions,
-    opts: &RunOptions,
-    panel: &PanelConfig,
-    (device, queue, name): &(wgpu::Device, wgpu::Queue, String),
-    model: Option<ModelFile>,
-    stage: &Option<(Method, Arc<WienerFilter>)>,
-) -> Result<DeviceEngines, AppError> {
-    let (host, network, fallback) = match model {
-        Some(model) => {
-            let net: Box<dyn nedrt_gpu::DeviceStage> = Box::new(DeviceDcnn::on_device(
-                model.clone(),
-                device,
-                queue,
-                name.clone(),
-                &common.dcnn.backend_options,
-            )?);
-            let mut host = None;
-            let mut on_device_stage = None;
-            let net = match stage {
-                Some((method, filter)) => {
-                    let what = format!(
-                        "the Wiener prefilter of {method} (K = {:e}) before the clamp",
-                        filter.k_reg
-                    );
-                    match wiener_stage(
-                        device,
-                        what.clone(),
-                        filter.clone(),
-                        Some((panel.width, panel.height)),
-                    ) {
-                        Ok(w) => {
-                            on_device_stage = stage.clone();
-                            Box::new(nedrt_gpu::Chain::new(device, w, net))
-                                as Box<dyn nedrt_gpu::DeviceStage>
-                        }
-                        Err(e) => {
-                            tracing::warn!("{what} stays on the host: {e}");
-                            host = Some(HostPrep(Box::new(RawWiener {
-                                method: *method,
-                                filter: filter.clone(),
-                            })));
-                            net
-                        }
-                    }
-                }
-                None => net,
-            };
-            let net = match opts.inject_device_loss_after {
-                Some(frames_left) => Box::new(FailsAfter::new(net, frames_left)),
-                None => net,
-            };
-            // The fallback gets what the device got: the frame (the Wiener
-            // then runs in the fallback too), or the host stage's output.
-            let fallback = fallback_factory(opts.fallback, model, common, on_device_stage);
-            (host, Some(net), Some(fallback))
-        }
-        None if !opts.preprocess.uses_wiener() && opts.prefilter.is_native() => (None, None, None),
-        None => match linear_on_device(common, opts, panel, device)? {
-            (Some(stage), linear) => (
-                None,
-                Some(stage),
-                Some(Box::new(move || Ok(linear)) as FallbackFactory),
-            ),
-            (None, linear) => (Some(HostPrep(linear)), None, None),
-        },
-    };
-    let frames = DeviceFrames::single(
-        device,
-        queue,
-        (panel.width, panel.height),
-        &panel.transfer,
-        network,
-    )?;
-    Ok(DeviceEngines::single(frames, host, fallback))
-}
-
-/// A prefilter's device stage, if the device runs it, and the same on the host.
-pub(super) type DeviceAndHost = (Option<Box<dyn nedrt_gpu::DeviceStage>>, Box<dyn Preprocess>);
-
-/// The method's prefilter on the host, and as a device stage where the
-/// device runs it ([`nedrt_engines::device_prefilter::prefilter_stage`]; a size the
-/// device FFT lacks stays on the host, with a warning). The host one is the
-/// device stage's fallback, or the host stage.
-pub(super) fn linear_on_device(
-    common: &CommonOptions,
-    opts: &RunOptions,
-    panel: &PanelConfig,
-    device: &wgpu::Device,
-) -> Result<DeviceAndHost, AppError> {
-    let method = opts.preprocess;
-    let prepared = prepared_for(common, method, opts.prefilter)?;
-    let host = nedrt_engines::preprocess::for_system(
-        method,
-        opts.prefilter,
-        &prepared,
-        &mut std::collections::HashMap::new(),
-    )?;
-    let what = host.describe();
-    let size = Some((panel.width, panel.height));
-    match prefilter_stage(
-        device,
-        method,
-        opts.prefilter,
-        &prepared,
-        what.clone(),
-        size,
-    ) {
-        Ok(stage) => Ok((stage, host)),
-        Err(nedrt_engines::EngineError::Fft(e)) => {
-            tracing::warn!("{what} stays on the host: {e}");
-            Ok((None, host))
-        }
-        Err(e) => Err(e.into()),
-    }
 }

@@ -13,7 +13,8 @@
 //! them (the network is then left out: it runs on the DOE it was trained
 //! with).
 
-use super::{AppError, CommonOptions};
+use super::build::prepared_for;
+use super::{AppError, CommonOptions, RunOptions};
 use nedrt_core::preprocess::{Identity, Preprocess};
 use nedrt_engines::preprocess::Prefilter;
 use nedrt_optics::sim::{Method, Prepared, Simulator, SolveMode, SolvedPrefilter};
@@ -93,6 +94,9 @@ pub enum Rung {
     Wiener,
     Refine(usize),
     Network,
+    /// A fixed run's method with its `--prefilter` (the method's Wiener,
+    /// or a least-squares prefilter on its optics): never a ladder's.
+    Method,
 }
 
 impl Rung {
@@ -231,6 +235,29 @@ pub fn plan_levels(
         .collect())
 }
 
+/// The one level of a run without a ladder: its network (behind its
+/// Wiener stage where the card puts one), or its method's prefilter, or
+/// nothing. The plan and the build both take it from here.
+pub(super) fn fixed_level(opts: &RunOptions, network: bool) -> PlannedLevel {
+    let method = opts.preprocess;
+    let (name, rung) = if network {
+        (method.name().to_string(), Rung::Network)
+    } else if !method.uses_wiener() && opts.prefilter.is_native() {
+        (method.name().to_string(), Rung::None)
+    } else if opts.prefilter.is_native() {
+        (format!("{method}'s Wiener"), Rung::Method)
+    } else {
+        (format!("{} of {method}", opts.prefilter), Rung::Method)
+    };
+    PlannedLevel {
+        name,
+        rung,
+        quality_db: None,
+        table_ms: None,
+        left_out: None,
+    }
+}
+
 /// The DOE the ladder's levels run on for a view with `design` (its own,
 /// else the system's: the network's companion DOE for `proposed`).
 pub(super) fn ladder_common(common: &CommonOptions, method: Method) -> CommonOptions {
@@ -257,6 +284,7 @@ pub(super) fn doe_hash(common: &CommonOptions) -> Result<String, AppError> {
 pub(super) fn host_levels(
     prepared: Option<&Prepared>,
     levels: &[PlannedLevel],
+    opts: &RunOptions,
     network: &mut dyn FnMut() -> Result<Box<dyn Preprocess>, AppError>,
 ) -> Result<Vec<Box<dyn Preprocess>>, AppError> {
     let mut dcnns = std::collections::HashMap::new();
@@ -284,6 +312,12 @@ pub(super) fn host_levels(
                         .warm_started(),
                     )
                 }
+                Rung::Method => nedrt_engines::preprocess::for_system(
+                    opts.preprocess,
+                    opts.prefilter,
+                    prepared()?,
+                    &mut dcnns,
+                )?,
                 rung => nedrt_engines::preprocess::for_system(
                     Method::DoeWiener,
                     rung.prefilter(),
@@ -300,8 +334,12 @@ pub(super) fn host_levels(
 /// levels alike.
 pub(super) fn prepared_levels(
     common: &CommonOptions,
+    opts: &RunOptions,
     levels: &[PlannedLevel],
 ) -> Result<Option<Prepared>, AppError> {
+    if levels.iter().any(|l| l.rung == Rung::Method) {
+        return Ok(Some(prepared_for(common, opts.preprocess, opts.prefilter)?));
+    }
     let prefilters: Vec<Prefilter> = levels
         .iter()
         .filter(|l| matches!(l.rung, Rung::Wiener | Rung::Refine(_)))
@@ -334,6 +372,11 @@ pub(super) fn device_levels(
             Ok(match l.rung {
                 Rung::None => Box::new(nedrt_service::pipeline::ladder::Unprocessed),
                 Rung::Network => network()?,
+                Rung::Method => {
+                    return Err(AppError::Internal(
+                        "a fixed method in a ladder of several levels".into(),
+                    ));
+                }
                 rung => {
                     let prepared = prepared.ok_or_else(|| {
                         AppError::Internal("a prefilter level without its optics".into())

@@ -1,18 +1,20 @@
 //! nedrt-run, layer 4 of nedrt: `nedrt run`, the real-time service, from
 //! its options to its report. [`plan_run`] decides what the run builds and
-//! why ([`RunPlan`], `nedrt run --plan`); [`run`] builds the sink (first: a
-//! window must live on this thread, and its GPU is offered to the D-CNN),
-//! the D-CNN with its fallback, the engines of its views on the sink's
-//! device or the host, and the source, presents until the source ends or a
-//! signal stops it, then reports the counts and latencies.
+//! why ([`RunPlan`], `nedrt run --plan`); [`run`] opens the source and the
+//! sink (first: a window must live on this thread, and its GPU is offered
+//! to the preprocessing), makes the plan from the GPU found, builds every
+//! view from it with one builder (`builder`: the ladder's levels or a
+//! method's one, on the sink's device or the host, each with its
+//! fallback), presents until the source ends or a signal stops it, then
+//! reports the counts and latencies.
 //!
 //! It takes the commands' shared options from nedrt-command and nothing
 //! from nedrt-app: a run's options enter this crate once and go down from
 //! here. Rule: no clap, no indicatif, no environment; the per-frame work is
 //! nedrt-engines' and nedrt-service's, this crate only wires it.
 
-mod auto;
 mod build;
+mod builder;
 mod ladder;
 mod options;
 mod plan;
@@ -21,21 +23,17 @@ mod views;
 
 use std::sync::Arc;
 
-use build::{behind, device_engines, fallback_factory, linear_preprocessor};
 pub use ladder::LadderPlan;
 pub use ladder::{
     DEFAULT_QUALITY_TABLE, LadderSpec, PlannedLevel, QualityTable, Rung, fixed_quality,
 };
 use nedrt_command::{AppError, CommonOptions};
-use nedrt_core::preprocess::Preprocess;
-use nedrt_engines::FailsAfter;
 use nedrt_engines::preprocess::DcnnInput;
+use nedrt_infer::ModelFile;
 use nedrt_infer::gpu::open_device;
-use nedrt_infer::{BackendKind, Dcnn, ModelFile};
-use nedrt_optics::sim::wiener::WienerFilter;
 use nedrt_optics::sim::{Method, Simulator};
 use nedrt_service::pipeline::pacing::{Clock, SystemClock};
-use nedrt_service::pipeline::service::{Control, Engines, PanelConfig, PreprocessStage};
+use nedrt_service::pipeline::service::{Control, PanelConfig};
 use nedrt_service::pipeline::source::{
     Source, SourceRate, dir::DirSource, pattern::PatternSource, socket::SocketSource,
 };
@@ -50,7 +48,7 @@ pub use options::{
     SourceKind,
 };
 pub use plan::{PlannedPath, Probe, RunPlan};
-use serve::{Built, serve};
+use serve::serve;
 
 /// Runs the service until its source ends (and the last frame is shown)
 /// or `control.stop` is set.
@@ -122,20 +120,10 @@ pub fn run(
             Some((method, Arc::new(prepared.wiener_filter(method, k_reg)?)))
         }
     };
-    // Two views: each eye's engine, built (and its design checked) before
-    // the sink opens.
-    let views = if opts.ladder.is_none() && (opts.stereo || !calib.views.is_empty()) {
-        Some(views::views(
-            common,
-            opts,
-            &calib,
-            (panel.width, panel.height),
-            &stage,
-            model.as_ref(),
-        )?)
-    } else {
-        None
-    };
+    // The views, and each view's design against the network, checked
+    // before the sink opens.
+    let views = views::view_facts(opts, &calib, &panel)?;
+    views::check_designs(opts, &views, network.is_some())?;
     let precision = dcnn.backend_options.precision;
     // The sink, and a GPU for the D-CNN to share with it.
     let (sink, device): (Box<dyn Sink>, _) = match opts.sink {
@@ -163,140 +151,25 @@ pub fn run(
     let inputs = plan_inputs(
         common,
         opts,
-        &calib,
+        views,
         &panel,
         network.as_ref(),
         probe,
         ladder_inputs,
-    )?;
+    );
     let planned = plan::plan(&inputs)?;
     tracing::info!("plan:\n{planned}");
     let mut panel = panel;
-    if opts.ladder.is_some() {
-        if inputs.views.len() > 1 {
-            panel.views = inputs.views.iter().map(|v| v.region).collect();
-        }
-        let parts = auto::LadderParts {
-            views: &inputs.views,
-            model: model.as_ref(),
-            wiener: &stage,
-        };
-        let built = auto::laddered(common, opts, &panel, device.as_ref(), &planned, &parts)?;
-        return serve(opts, control, panel, clock, source, sink, built);
+    if inputs.views.len() > 1 {
+        panel.views = inputs.views.iter().map(|v| v.region).collect();
     }
-    let built = match views {
-        Some(views) => {
-            panel.views = views.iter().map(|v| v.region).collect();
-            views::engines(
-                views,
-                opts,
-                &panel,
-                device.as_ref(),
-                &planned,
-                model.as_ref(),
-                &stage,
-            )
-        }
-        None => one_view(
-            common,
-            opts,
-            &panel,
-            device.as_ref(),
-            &planned,
-            model,
-            stage,
-        )?,
+    let parts = builder::Parts {
+        views: &inputs.views,
+        model: model.as_ref(),
+        wiener: &stage,
     };
+    let built = builder::build(common, opts, &panel, device.as_ref(), &planned, &parts)?;
     serve(opts, control, panel, clock, source, sink, built)
-}
-
-/// The engines of a run of one view: on the sink's device where the plan
-/// puts the frames and they can be built there, else on the host, and why.
-fn one_view(
-    common: &CommonOptions,
-    opts: &RunOptions,
-    panel: &PanelConfig,
-    device: Option<&(wgpu::Device, wgpu::Queue, String)>,
-    planned: &RunPlan,
-    model: Option<ModelFile>,
-    stage: Option<(Method, Arc<WienerFilter>)>,
-) -> Result<Built, AppError> {
-    let host_reason = match (device, planned.path) {
-        (Some(d), PlannedPath::Device) => {
-            match device_engines(common, opts, panel, d, model.clone(), &stage) {
-                Ok(engines) => {
-                    let what = match &engines.host[0] {
-                        Some(h) => {
-                            format!(
-                                "{}, then on the GPU: {}",
-                                h.name(),
-                                engines.frames.describe()
-                            )
-                        }
-                        None => format!("on the GPU: {}", engines.frames.describe()),
-                    };
-                    return Ok(Built {
-                        engines: Engines::Device(Box::new(engines)),
-                        what,
-                        host_reason: None,
-                        ladder: None,
-                    });
-                }
-                Err(e) => {
-                    tracing::warn!("frames cannot stay on the GPU: {e}; they go through the host");
-                    e.to_string()
-                }
-            }
-        }
-        _ => planned.path_reason.clone(),
-    };
-    let host = |primary: Box<dyn Preprocess>, fallback| {
-        let what = format!(
-            "{} (frames through the host: {host_reason})",
-            primary.describe()
-        );
-        Built {
-            engines: Engines::host(PreprocessStage { primary, fallback }),
-            what,
-            host_reason: Some(host_reason.clone()),
-            ladder: None,
-        }
-    };
-    let Some(model) = model else {
-        let primary = linear_preprocessor(common, opts.preprocess, opts.prefilter)?;
-        return Ok(host(primary, None));
-    };
-    let dcnn = &common.dcnn;
-    let precision = dcnn.backend_options.precision;
-    let primary: Result<Box<dyn Preprocess>, _> = match (dcnn.backend, device) {
-        (BackendKind::Wgpu, Some((d, q, name)))
-            if precision == nedrt_infer::Precision::F32
-                || d.features().contains(wgpu::Features::SHADER_F16) =>
-        {
-            Dcnn::on_device(model.clone(), d, q, name.clone(), &dcnn.backend_options)
-                .map(|x| Box::new(x) as Box<dyn Preprocess>)
-        }
-        (kind, _) => Dcnn::from_model(model.clone(), kind, &dcnn.backend_options)
-            .map(|x| Box::new(x) as Box<dyn Preprocess>),
-    };
-    let primary = primary.map(|p| behind(&stage, p));
-    let mut fallback = Some(fallback_factory(opts.fallback, model, common, stage));
-    let primary = match primary {
-        Ok(p) => p,
-        Err(e) => {
-            let Some(factory) = fallback.take() else {
-                return Err(e.into());
-            };
-            let f = factory()?;
-            tracing::warn!("{e}; running the D-CNN on the fallback: {}", f.describe());
-            f
-        }
-    };
-    let primary = match opts.inject_device_loss_after {
-        Some(frames_left) => Box::new(FailsAfter::new(primary, frames_left)),
-        None => primary,
-    };
-    Ok(host(primary, fallback))
 }
 
 /// The calibration and the panel a run drives, its options checked.
@@ -365,27 +238,13 @@ fn network_of(
 fn plan_inputs<'a>(
     common: &CommonOptions,
     opts: &'a RunOptions,
-    calib: &nedrt_core::calib::Calibration,
+    views: Vec<plan::ViewFacts>,
     panel: &PanelConfig,
     network: Option<&(ModelFile, DcnnInput)>,
     probe: Probe,
     ladder: Option<ladder::LadderInputs>,
-) -> Result<plan::PlanInputs<'a>, AppError> {
-    let views = if opts.stereo || !calib.views.is_empty() {
-        views::layout(calib, (panel.width, panel.height))?
-    } else {
-        vec![plan::ViewFacts {
-            name: "panel".into(),
-            region: nedrt_service::compose::ViewRegion {
-                x: 0,
-                y: 0,
-                width: panel.width,
-                height: panel.height,
-            },
-            design: None,
-        }]
-    };
-    Ok(plan::PlanInputs {
+) -> plan::PlanInputs<'a> {
+    plan::PlanInputs {
         opts,
         panel: (panel.width, panel.height, panel.refresh_hz),
         views,
@@ -400,7 +259,7 @@ fn plan_inputs<'a>(
         precision: common.dcnn.backend_options.precision,
         probe,
         ladder,
-    })
+    }
 }
 
 /// What `--preprocess auto`'s ladder is planned from: its bounds, the
@@ -457,15 +316,9 @@ pub fn plan_run(common: &CommonOptions, opts: &RunOptions) -> Result<RunPlan, Ap
         }
     };
     let ladder = ladder_inputs(common, opts, network.as_ref())?;
-    let inputs = plan_inputs(
-        common,
-        opts,
-        &calib,
-        &panel,
-        network.as_ref(),
-        probe,
-        ladder,
-    )?;
+    let views = views::view_facts(opts, &calib, &panel)?;
+    views::check_designs(opts, &views, network.is_some())?;
+    let inputs = plan_inputs(common, opts, views, &panel, network.as_ref(), probe, ladder);
     plan::plan(&inputs)
 }
 

@@ -8,14 +8,16 @@
 
 use std::fmt;
 
-use super::ladder::{LadderFacts, plan_levels};
+use super::ladder::{LadderFacts, PlannedLevel, Rung, fixed_level, plan_levels};
 use super::ladder::{LadderInputs, LadderPlan};
 use super::{AppError, FallbackKind, FramePath, RunOptions, SinkKind, SourceKind};
 use nedrt_core::Named;
-use nedrt_engines::device_prefilter::runs_on_device;
 use nedrt_infer::{BackendKind, Precision};
 use nedrt_optics::sim::Method;
 use nedrt_service::compose::ViewRegion;
+
+mod stages;
+use stages::{ladder_stages, prefilter_on_device, stages};
 
 /// The GPU the sink offers, as probed.
 #[derive(Debug, Clone, PartialEq)]
@@ -90,6 +92,9 @@ pub struct RunPlan {
     pub fallback: String,
     pub pacing: String,
     pub views: Vec<ViewPlan>,
+    /// The levels every view runs: the ladder's that are kept, or a fixed
+    /// run's one.
+    pub levels: Vec<PlannedLevel>,
     pub ladder: Option<LadderPlan>,
 }
 
@@ -130,15 +135,15 @@ pub fn plan(inputs: &PlanInputs<'_>) -> Result<RunPlan, AppError> {
         Some(network_on_host(inputs.backend))
     } else if inputs.network.is_some() && f16_missing {
         Some(NO_F16.to_string())
-    } else if !two && inputs.network.is_none() && opts.inject_device_loss_after.is_some() {
-        Some("the injected device loss needs a network".to_string())
-    } else if two {
-        // Every view's stage on the device, or every view on the host.
-        inputs.views.iter().find_map(|v| {
-            prefilter_on_device(inputs, v)
-                .err()
-                .map(|why| format!("view {:?}: its prefilter stays on the host: {why}", v.name))
-        })
+    } else if inputs.network.is_none()
+        && opts.inject_device_loss_after.is_some()
+        && (fixed_level(opts, false).rung == Rung::None
+            || inputs
+                .views
+                .iter()
+                .any(|v| prefilter_on_device(inputs, v).is_err()))
+    {
+        Some("the injected device loss needs a stage on the device to fail".to_string())
     } else {
         None
     };
@@ -169,14 +174,23 @@ pub fn plan(inputs: &PlanInputs<'_>) -> Result<RunPlan, AppError> {
                     "wgpu on the sink's GPU, {}",
                     precision_name(inputs.precision)
                 )
-            } else if two || inputs.backend == BackendKind::Wgpu {
-                // The views' host engines, and wgpu's host fallback, run f32
-                // on the CPU (tract, or ORT where chosen).
-                let kind = match inputs.backend {
-                    BackendKind::Wgpu => BackendKind::Cpu,
-                    other => other,
-                };
-                format!("{} on the host, f32", kind.name())
+            } else if inputs.backend == BackendKind::Wgpu {
+                // The builder's host network (build::host_network).
+                match &inputs.probe {
+                    Probe::Adapter { shader_f16, .. }
+                        if *shader_f16 || inputs.precision == Precision::F32 =>
+                    {
+                        format!(
+                            "wgpu on the sink's GPU, {}, its output read back to the host",
+                            precision_name(inputs.precision)
+                        )
+                    }
+                    Probe::Adapter { .. } => "cpu on the host, f32".to_string(),
+                    _ => format!(
+                        "wgpu on a GPU of its own, {} (the CPU's tract, f32, if none starts)",
+                        precision_name(inputs.precision)
+                    ),
+                }
             } else {
                 format!(
                     "{} on the host, {}",
@@ -188,6 +202,9 @@ pub fn plan(inputs: &PlanInputs<'_>) -> Result<RunPlan, AppError> {
         }
     };
     let fallback = match (&inputs.network, opts.fallback) {
+        _ if ladder.is_some() => "each view's levels on the host (the network's by --fallback), \
+                                 the same level, if the device fails"
+            .to_string(),
         (None, _) => "none needed (no network)".to_string(),
         (Some(_), FallbackKind::Cpu) => {
             "the same network on the CPU (tract), if the engine fails".into()
@@ -256,6 +273,15 @@ pub fn plan(inputs: &PlanInputs<'_>) -> Result<RunPlan, AppError> {
         fallback,
         pacing,
         views,
+        levels: match &ladder {
+            Some(l) => l
+                .levels
+                .iter()
+                .filter(|l| l.left_out.is_none())
+                .cloned()
+                .collect(),
+            None => vec![fixed_level(opts, inputs.network.is_some())],
+        },
         ladder,
     })
 }
@@ -333,126 +359,6 @@ fn ladder_plan(
             period_ms / 32.0
         ),
     })
-}
-
-/// A view's stages under a ladder.
-fn ladder_stages(l: &LadderPlan, on_device: bool) -> Vec<String> {
-    let here = if on_device {
-        "on the GPU"
-    } else {
-        "on the host"
-    };
-    let names: Vec<&str> = l
-        .levels
-        .iter()
-        .filter(|l| l.left_out.is_none())
-        .map(|l| l.name.as_str())
-        .collect();
-    vec![
-        if on_device {
-            "upload as sent, unpack on the GPU".to_string()
-        } else {
-            "decode on the host".to_string()
-        },
-        format!("quad layers blended {here}"),
-        format!("the frame budget's level ({}) {here}", names.join(" < ")),
-        format!("clamp to [0, 1] and the panel's transfer curve {here}"),
-        if on_device {
-            "the sink copies the codes on the GPU".into()
-        } else {
-            "the sink takes the codes from host memory".into()
-        },
-    ]
-}
-
-/// Whether view `v`'s prefilter (its method's Wiener, `lsq` or `refine:K`,
-/// or its network's Wiener stage) has a stage on the device, or why not
-/// (`optimal` has none; the device FFT takes sides whose prime factors are
-/// at most 13). The same tests the build's device stages make.
-fn prefilter_on_device(inputs: &PlanInputs<'_>, v: &ViewFacts) -> Result<(), String> {
-    let opts = inputs.opts;
-    match &inputs.network {
-        Some(n) if n.behind_wiener_k.is_none() => return Ok(()),
-        Some(_) => {}
-        None if !opts.preprocess.uses_wiener() && opts.prefilter.is_native() => return Ok(()),
-        None if !runs_on_device(opts.preprocess, opts.prefilter) => {
-            return Err(format!("{} has no device stage", opts.prefilter));
-        }
-        None => {}
-    }
-    let (w, h) = (v.region.width, v.region.height);
-    for side in [w, h] {
-        nedrt_gpu::fft::radices(side)
-            .map_err(|e| format!("the device FFT takes no {w}×{h} frame: {e}"))?;
-    }
-    Ok(())
-}
-
-/// The stages a frame of view `v` goes through.
-fn stages(inputs: &PlanInputs<'_>, v: &ViewFacts, on_device: bool) -> Vec<String> {
-    let opts = inputs.opts;
-    let here = if on_device {
-        "on the GPU"
-    } else {
-        "on the host"
-    };
-    // A prefilter the device lacks runs on the host before the upload.
-    let host_first = on_device && prefilter_on_device(inputs, v).is_err();
-    let prefilter_here = if host_first { "on the host" } else { here };
-    let mut s = Vec::new();
-    s.push(if on_device && !host_first {
-        "upload as sent, unpack on the GPU".to_string()
-    } else {
-        "decode on the host".to_string()
-    });
-    s.push(format!(
-        "quad layers blended {}",
-        if host_first { "on the host" } else { here }
-    ));
-    let design = v
-        .design
-        .as_deref()
-        .map(|d| format!(" (design {d})"))
-        .unwrap_or_default();
-    match &inputs.network {
-        Some(n) => {
-            if let Some(k) = n.behind_wiener_k {
-                s.push(format!(
-                    "Wiener prefilter of {} (K = {k:.3e}) {prefilter_here}",
-                    opts.preprocess
-                ));
-                if host_first {
-                    s.push("its planes uploaded".into());
-                }
-            }
-            s.push(format!("D-CNN {here}"));
-        }
-        None if !opts.prefilter.is_native() => {
-            s.push(format!(
-                "{} prefilter of {}{design} {prefilter_here}",
-                opts.prefilter, opts.preprocess
-            ));
-        }
-        None if opts.preprocess.uses_wiener() => {
-            s.push(format!(
-                "Wiener prefilter of {}{design} {prefilter_here}",
-                opts.preprocess
-            ));
-        }
-        None => {}
-    }
-    if host_first && inputs.network.is_none() {
-        s.push("its planes uploaded".into());
-    }
-    s.push(format!(
-        "clamp to [0, 1] and the panel's transfer curve {here}"
-    ));
-    s.push(if on_device {
-        "the sink copies the codes on the GPU".into()
-    } else {
-        "the sink takes the codes from host memory".into()
-    });
-    s
 }
 
 fn precision_name(p: Precision) -> &'static str {

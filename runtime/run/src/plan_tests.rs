@@ -101,7 +101,11 @@ fn each_reason_for_the_host_is_named() {
         (p.path, p.path_reason.as_str()),
         (PlannedPath::Host, "--frame-path host")
     );
-    assert_eq!(p.network, "models/dcnn.onnx: cpu on the host, f32");
+    // The network on the sink's GPU all the same, its output read back.
+    assert_eq!(
+        p.network,
+        "models/dcnn.onnx: wgpu on the sink's GPU, f16, its output read back to the host"
+    );
 
     let o = opts();
     let p = plan(&inputs(
@@ -242,7 +246,8 @@ fn a_prefilter_the_device_lacks_runs_on_the_host_before_the_upload() {
     );
     assert_eq!(p.views[0].stages[3], "its planes uploaded");
     assert_eq!(p.views[0].stages[4], "D-CNN on the GPU");
-    // Two views, one of them 34 wide: every view goes to the host, and why.
+    // Two views, one of them 34 wide: the same decision as one view's, in
+    // each view: the device path, that view's prefilter on the host first.
     let views = vec![
         ViewFacts {
             name: "left".into(),
@@ -270,13 +275,29 @@ fn a_prefilter_the_device_lacks_runs_on_the_host_before_the_upload() {
     let mut i = inputs(&o, views, gpu());
     i.network = None;
     let p = plan(&i).expect("plan");
-    assert_eq!(p.path, PlannedPath::Host);
-    assert!(
-        p.path_reason.starts_with(
-            "view \"left\": its prefilter stays on the host: the device FFT takes no 34×48"
-        ),
-        "{}",
-        p.path_reason
+    assert_eq!(p.path, PlannedPath::Device);
+    assert_eq!(p.views[0].stages[0], "decode on the host");
+    assert_eq!(
+        p.views[0].stages[2],
+        "Wiener prefilter of doe+wiener on the host"
+    );
+    assert_eq!(p.views[1].stages[0], "upload as sent, unpack on the GPU");
+    assert_eq!(
+        p.views[1].stages[2],
+        "Wiener prefilter of doe+wiener on the GPU"
+    );
+    // An injected device loss needs a device stage in every view to fail.
+    let mut o = o.clone();
+    o.inject_device_loss_after = Some(3);
+    let mut i = inputs(&o, i.views.clone(), gpu());
+    i.network = None;
+    let p = plan(&i).expect("plan");
+    assert_eq!(
+        (p.path, p.path_reason.as_str()),
+        (
+            PlannedPath::Host,
+            "the injected device loss needs a stage on the device to fail"
+        )
     );
 }
 

@@ -133,6 +133,8 @@ impl QualityTable {
                 row.method == "proposed"
                     && network.is_some_and(|(_, hash)| row.model_hash.as_deref() == Some(hash))
             }
+            // A fixed run's level is looked up by `fixed_quality`.
+            Rung::Method => false,
         });
         let candidates: Vec<&QualityRow> = matching.collect();
         if rung == Rung::Network {
