@@ -19,15 +19,15 @@ declare -A allowed=(
     [nedrt-optics]="nedrt-core"
     [nedrt-infer]="nedrt-core nedrt-gpu"
     [nedrt-service]="nedrt-core nedrt-gpu nedrt-protocol"
-    [nedrt-engines]="nedrt-core nedrt-gpu nedrt-optics nedrt-infer"
-    [nedrt-command]="nedrt-core nedrt-gpu nedrt-protocol nedrt-optics nedrt-infer nedrt-service nedrt-engines"
-    [nedrt-run]="nedrt-core nedrt-gpu nedrt-protocol nedrt-optics nedrt-infer nedrt-service nedrt-engines nedrt-command"
-    [nedrt-app]="nedrt-core nedrt-gpu nedrt-protocol nedrt-optics nedrt-infer nedrt-service nedrt-engines nedrt-command"
-    [nedrt-studies]="nedrt-core nedrt-gpu nedrt-protocol nedrt-optics nedrt-infer nedrt-service nedrt-engines nedrt-command nedrt-run nedrt-app"
+    [nedrt-stages]="nedrt-core nedrt-gpu nedrt-optics nedrt-infer"
+    [nedrt-command]="nedrt-core nedrt-gpu nedrt-protocol nedrt-optics nedrt-infer nedrt-service nedrt-stages"
+    [nedrt-run]="nedrt-core nedrt-gpu nedrt-protocol nedrt-optics nedrt-infer nedrt-service nedrt-stages nedrt-command"
+    [nedrt-app]="nedrt-core nedrt-gpu nedrt-protocol nedrt-optics nedrt-infer nedrt-service nedrt-stages nedrt-command"
+    [nedrt-studies]="nedrt-core nedrt-gpu nedrt-protocol nedrt-optics nedrt-infer nedrt-service nedrt-stages nedrt-command nedrt-run nedrt-app"
 )
 declare -A dir=(
     [nedrt-core]=core [nedrt-gpu]=gpu [nedrt-protocol]=protocol [nedrt-openxr]=openxr [nedrt-optics]=optics
-    [nedrt-infer]=infer [nedrt-service]=service [nedrt-engines]=engines [nedrt-command]=command
+    [nedrt-infer]=infer [nedrt-service]=service [nedrt-stages]=stages [nedrt-command]=command
     [nedrt-run]=run [nedrt-app]=app
     [nedrt-studies]=studies
 )

@@ -77,7 +77,7 @@ def export(run: Path, out: Path, name: str, doe: Path) -> dict:
         card["sessions"] = result["sessions"]
     if wiener_k is not None:
         # The runtime runs the same Wiener in front of the network
-        # (nedrt-engines' preprocess::dcnn_system reads these two fields).
+        # (nedrt-stages' preprocess::dcnn_system reads these two fields).
         card["input"], card["wiener_k"] = "wiener-raw", wiener_k
     (out / f"{name}.card.json").write_text(json.dumps(card, indent=1))
     return card

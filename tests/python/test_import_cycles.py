@@ -157,7 +157,7 @@ def test_the_repository_has_no_import_cycle():
 
 
 def test_the_checks_cover_every_library_crate_of_the_workspace():
-    # A crate left off the list is not checked at all: nedrt-engines and
+    # A crate left off the list is not checked at all: nedrt-stages and
     # nedrt-openxr were, and each held a loop the check did not see.
     sys.path.insert(0, str(SCRIPT.parent))
     from layer_check import RUST_CRATES

@@ -338,68 +338,85 @@ mod needs_gpu_fault {
     }
 }
 
-/// `--preprocess auto` with two views (issue 54): both eyes' levels on
-/// the device, one decision for both; an injected device loss and the
-/// fallback act on both views (each its host ladder, the same level).
+/// Two views (issue 54), the frame budget's ladder and a fixed method
+/// alike, from the one builder: both eyes on the device, one decision for
+/// both; an injected device loss and the fallback act on both views (each
+/// its host preprocessing; the ladder's at the same level).
 mod needs_gpu_ladder {
     use super::*;
 
     #[test]
     #[ignore = "needs a GPU adapter (run: scripts/test.sh, or cargo test -- --include-ignored)"]
-    fn both_views_run_the_ladder_on_the_device_and_fall_back_together() {
+    fn both_views_run_on_the_device_and_fall_back_together() {
         require_gpu();
-        let dir = tempfile::tempdir().expect("tempdir");
-        let report_path = dir.path().join("report.json");
-        let out = Command::new(env!("CARGO_BIN_EXE_nedrt"))
-            .current_dir(repo())
-            .env("NEDRT_LOG", "nedrt=info")
-            .args(["run", "--calib"])
-            .arg(small_panel())
-            .args(["--stereo", "--preprocess", "auto:none..wiener"])
-            .args([
-                "--source",
-                "pattern",
-                "--source-rate",
-                "30",
-                "--frames",
-                "8",
-            ])
-            .args(["--sink", "headless", "--fallback", "passthrough"])
-            .args(["--inject-device-loss-after", "2", "--report-json"])
-            .arg(&report_path)
-            .output_within(deadline::COMMAND, "nedrt run --stereo --preprocess auto");
-        let err = String::from_utf8_lossy(&out.stderr);
-        assert!(out.status.success(), "{err}");
-        let r: serde_json::Value =
-            serde_json::from_str(&std::fs::read_to_string(&report_path).expect("report"))
-                .expect("report JSON");
-        // Both views' levels on the device, in one submission, first.
-        assert!(
-            err.contains("2 view(s), the frame budget over none < wiener on the GPU"),
-            "{err}"
-        );
-        assert!(r["frame_budget"]["levels"].is_array(), "{r}");
-        // Both views' levels failed as one device: one switch, to the host.
-        assert_eq!(r["dcnn_failures"].as_u64(), Some(1), "{r}");
-        assert!(
-            r["frame_path"]
-                .as_str()
-                .is_some_and(|p| p.starts_with("host (after the device path failed)")),
-            "{r}"
-        );
-        // Each view's fallback is its ladder on the host.
-        let backend = r["backend"].as_str().unwrap_or("");
-        assert!(backend.contains("view 0: frame budget over"), "{backend}");
-        assert!(backend.contains("view 1: frame budget over"), "{backend}");
-        for v in 0..2 {
-            let name = format!("preprocess view {v}");
-            let ran = r["view_stages"]
-                .as_array()
-                .and_then(|s| s.iter().find(|s| s["stage"] == name.as_str()))
-                .and_then(|s| s["count"].as_u64());
-            assert!(ran.is_some_and(|n| n > 0), "{name}: {r}");
+        for (preprocess, built, fallback) in [
+            (
+                "auto:none..wiener",
+                "2 view(s), the frame budget over none < wiener on the GPU",
+                "frame budget over",
+            ),
+            (
+                "doe+wiener",
+                "2 views, on the GPU: ",
+                "Wiener prefilter of doe+wiener",
+            ),
+        ] {
+            let dir = tempfile::tempdir().expect("tempdir");
+            let report_path = dir.path().join("report.json");
+            let out = Command::new(env!("CARGO_BIN_EXE_nedrt"))
+                .current_dir(repo())
+                .env("NEDRT_LOG", "nedrt=info")
+                .args(["run", "--calib"])
+                .arg(small_panel())
+                .args(["--stereo", "--preprocess", preprocess])
+                .args([
+                    "--source",
+                    "pattern",
+                    "--source-rate",
+                    "30",
+                    "--frames",
+                    "8",
+                ])
+                .args(["--sink", "headless", "--fallback", "passthrough"])
+                .args(["--inject-device-loss-after", "2", "--report-json"])
+                .arg(&report_path)
+                .output_within(deadline::COMMAND, "nedrt run --stereo (a device lost)");
+            let err = String::from_utf8_lossy(&out.stderr);
+            assert!(out.status.success(), "{preprocess}: {err}");
+            let r: serde_json::Value =
+                serde_json::from_str(&std::fs::read_to_string(&report_path).expect("report"))
+                    .expect("report JSON");
+            // Both views on the device, in one submission, first.
+            assert!(err.contains(built), "{preprocess}: {err}");
+            assert_eq!(
+                r["frame_budget"]["levels"].is_array(),
+                preprocess.starts_with("auto"),
+                "{r}"
+            );
+            // Both views failed as one device: one switch, to the host.
+            assert_eq!(r["dcnn_failures"].as_u64(), Some(1), "{preprocess}: {r}");
+            assert!(
+                r["frame_path"]
+                    .as_str()
+                    .is_some_and(|p| p.starts_with("host (after the device path failed)")),
+                "{preprocess}: {r}"
+            );
+            // Each view's fallback is its preprocessing on the host.
+            let backend = r["backend"].as_str().unwrap_or("");
+            for v in 0..2 {
+                assert!(
+                    backend.contains(&format!("view {v}: {fallback}")),
+                    "{preprocess}: {backend}"
+                );
+                let name = format!("preprocess view {v}");
+                let ran = r["view_stages"]
+                    .as_array()
+                    .and_then(|s| s.iter().find(|s| s["stage"] == name.as_str()))
+                    .and_then(|s| s["count"].as_u64());
+                assert!(ran.is_some_and(|n| n > 0), "{preprocess}: {name}: {r}");
+            }
+            assert_eq!(r["failed"].as_u64(), Some(0), "the frame was re-run: {r}");
         }
-        assert_eq!(r["failed"].as_u64(), Some(0), "the frame was re-run: {r}");
     }
 }
 

@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Flag names only in the binary (issue 32; scripts/check-layers.sh runs it):
 exit 0 when no string literal in the code of the crates below the commands'
-wiring (runtime/{core,gpu,protocol,openxr,optics,infer,service,engines}/src)
+wiring (runtime/{core,gpu,protocol,openxr,optics,infer,service,stages}/src)
 names a command-line flag (`--backend`, `--sink`, …); 1 naming each
 (file:line and the literal).
 
@@ -25,7 +25,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from layer_check import crate_check_main, display  # noqa: E402
 from rust_source import is_test_file, without_tests  # noqa: E402
 
-LIBRARIES = ("core", "gpu", "protocol", "openxr", "optics", "infer", "service", "engines")
+LIBRARIES = ("core", "gpu", "protocol", "openxr", "optics", "infer", "service", "stages")
 FLAG = re.compile(r"(?<![\w-])--[a-z][a-z0-9]*(?:-[a-z0-9]+)*")
 
 

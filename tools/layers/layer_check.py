@@ -10,7 +10,7 @@ import sys
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[2]
-RUST_CRATES = ("core", "gpu", "protocol", "openxr", "optics", "infer", "service", "engines",
+RUST_CRATES = ("core", "gpu", "protocol", "openxr", "optics", "infer", "service", "stages",
                "command", "run", "app", "studies")
 
 

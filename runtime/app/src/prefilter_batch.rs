@@ -16,9 +16,9 @@ use safetensors::tensor::TensorView;
 use super::images::{list_images, load_all};
 use super::{AppError, CommonOptions, create_dir, write_text};
 use nedrt_core::image_io;
-use nedrt_engines::device_prefilter::for_system_on;
-use nedrt_engines::preprocess::Prefilter;
 use nedrt_optics::sim::{Method, Objective, Simulator};
+use nedrt_stages::device_prefilter::for_system_on;
+use nedrt_stages::preprocess::Prefilter;
 
 /// Options of `nedrt prefilter`.
 #[derive(Debug, Clone)]

@@ -7,9 +7,9 @@ use std::time::Instant;
 
 use super::{AppError, CommonOptions, check_accommodation};
 use nedrt_core::image_io::{self, DEFAULT_INPUT_NAME, DEFAULT_INPUT_PNG, LoadedImage};
-use nedrt_engines::preprocess::Prefilter;
 use nedrt_optics::sim::metrics::{psnr, ssim};
 use nedrt_optics::sim::{Image, Method, Optics, Simulator, ZoneRequest};
+use nedrt_stages::preprocess::Prefilter;
 
 /// Options of `nedrt --sim`.
 #[derive(Debug, Clone)]
@@ -276,7 +276,7 @@ fn simulate(
             d.model.hash,
             d.network.macs_per_pixel,
             d.describe(),
-            nedrt_engines::preprocess::stage_note(&d.model.path)
+            nedrt_stages::preprocess::stage_note(&d.model.path)
         )
     });
     if let Some(d) = dcnns.get(&method) {
@@ -297,7 +297,7 @@ fn simulate(
         common.doe_path_for(&[method]).as_deref(),
         common.cache(),
     )?
-    .with_wiener_stages(nedrt_engines::preprocess::wiener_stages(&dcnns)?);
+    .with_wiener_stages(nedrt_stages::preprocess::wiener_stages(&dcnns)?);
     let mut depths = opts.prefilter.depths_d(&sim.calib);
     depths.push(opts.accommodation_d);
     let prepared = sim.prepare(&[method], &depths, common.progress())?;
@@ -307,7 +307,7 @@ fn simulate(
         None => {
             // With --backend wgpu the prefilter runs on the device too.
             let gpu = crate::gpu_for(common, &[method], &[opts.prefilter])?;
-            let e = engine.insert(nedrt_engines::device_prefilter::for_system_on(
+            let e = engine.insert(nedrt_stages::device_prefilter::for_system_on(
                 gpu.as_ref(),
                 method,
                 opts.prefilter,

@@ -155,7 +155,7 @@ pub struct SimArgs {
     /// against the target (default) or, with @sharp, the sharp image over
     /// 0–2.5 D (docs/optimal.md).
     #[arg(long, default_value = "native", value_name = "PREFILTER")]
-    pub prefilter: nedrt_engines::preprocess::Prefilter,
+    pub prefilter: nedrt_stages::preprocess::Prefilter,
     #[command(flatten)]
     pub zones: crate::eye_args::ZoneArgs,
 }
@@ -260,7 +260,7 @@ pub struct RunArgs {
     /// Instead, a least-squares prefilter on --preprocess's optics: lsq,
     /// refine:K or optimal (@sharp or @target; see `nedrt sim --help`).
     #[arg(long, default_value = "native", value_name = "PREFILTER")]
-    pub prefilter: nedrt_engines::preprocess::Prefilter,
+    pub prefilter: nedrt_stages::preprocess::Prefilter,
     /// Where frames come from.
     #[arg(long, value_parser = named::<SourceKind>(), default_value = "pattern")]
     pub source: SourceKind,
@@ -366,7 +366,7 @@ pub struct PrefilterArgs {
     pub method: Method,
     /// lsq, refine:K or optimal, @sharp or @target (see `nedrt sim --help`).
     #[arg(long, default_value = "optimal", value_name = "PREFILTER")]
-    pub prefilter: nedrt_engines::preprocess::Prefilter,
+    pub prefilter: nedrt_stages::preprocess::Prefilter,
     /// Also write the objective as kernels for WxH patches
     /// (operator-WxH.safetensors; repeat or comma-separate for more sizes).
     #[arg(long, value_delimiter = ',', value_parser = parse_size, value_name = "WxH")]

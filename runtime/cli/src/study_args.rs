@@ -76,7 +76,7 @@ pub struct TradeoffArgs {
         default_value = "lsq,refine:1,refine:3,refine:10,optimal",
         value_name = "PREFILTER"
     )]
-    pub prefilter: Vec<nedrt_engines::preprocess::Prefilter>,
+    pub prefilter: Vec<nedrt_stages::preprocess::Prefilter>,
 }
 
 #[derive(Args, Debug)]
@@ -148,7 +148,7 @@ pub struct EvalArgs {
         default_value = "native",
         value_name = "PREFILTER"
     )]
-    pub prefilter: Vec<nedrt_engines::preprocess::Prefilter>,
+    pub prefilter: Vec<nedrt_stages::preprocess::Prefilter>,
     /// Repeat the evaluation for each eye (docs/model.md §4a): `paper`, a
     /// pupil `3mm`, with a field angle `4mm@20`, with eye LCA `4mm+lca`;
     /// one folder each under --out-dir, tables and a chart over them (eyes.md).

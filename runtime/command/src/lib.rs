@@ -269,9 +269,9 @@ pub enum AppError {
 
 /// An engine's error as the command's: the same variants, so that every
 /// message and hint stays as it was when the engines lived in nedrt-app.
-impl From<nedrt_engines::EngineError> for AppError {
-    fn from(e: nedrt_engines::EngineError) -> Self {
-        use nedrt_engines::EngineError as E;
+impl From<nedrt_stages::EngineError> for AppError {
+    fn from(e: nedrt_stages::EngineError) -> Self {
+        use nedrt_stages::EngineError as E;
         match e {
             E::Unavailable(what) => AppError::Unavailable(what),
             E::Input { path, reason } => AppError::Input { path, reason },
@@ -285,15 +285,15 @@ impl From<nedrt_engines::EngineError> for AppError {
 }
 
 /// The GPU of `--backend wgpu` for `methods` with `prefilters`, where one
-/// of them has work for a device ([`nedrt_engines::device_prefilter::wants_gpu`]);
+/// of them has work for a device ([`nedrt_stages::device_prefilter::wants_gpu`]);
 /// `None` on the other backends (the prefilters then run on the CPU, as
 /// the network does).
 pub fn gpu_for(
     common: &CommonOptions,
     methods: &[nedrt_optics::sim::Method],
-    prefilters: &[nedrt_engines::preprocess::Prefilter],
-) -> Result<Option<nedrt_engines::device_prefilter::Gpu>, AppError> {
-    let wanted = nedrt_engines::device_prefilter::wants_gpu(methods, prefilters);
+    prefilters: &[nedrt_stages::preprocess::Prefilter],
+) -> Result<Option<nedrt_stages::device_prefilter::Gpu>, AppError> {
+    let wanted = nedrt_stages::device_prefilter::wants_gpu(methods, prefilters);
     if common.dcnn.backend != BackendKind::Wgpu || !wanted {
         return Ok(None);
     }

@@ -3,7 +3,7 @@
 //! the service puts it on the panel; both hold a `Box<dyn Preprocess>` and
 //! never ask which kind it is. Implementations: [`Identity`] here, the
 //! Wiener prefilter in nedrt-optics, the D-CNN (any backend) in
-//! nedrt-infer; nedrt-engines' registry names them for the command line.
+//! nedrt-infer; nedrt-stages' registry names them for the command line.
 
 use crate::Image;
 

@@ -6,13 +6,13 @@ use std::sync::Arc;
 
 use super::{AppError, CommonOptions, FallbackKind};
 use nedrt_core::preprocess::{Identity, Preprocess};
-use nedrt_engines::Chain;
-use nedrt_engines::device_prefilter::wiener_stage;
 use nedrt_infer::gpu::DeviceDcnn;
 use nedrt_infer::{BackendKind, Dcnn, ModelFile};
 use nedrt_optics::sim::wiener::WienerFilter;
 use nedrt_optics::sim::{Method, Simulator};
 use nedrt_service::pipeline::service::FallbackFactory;
+use nedrt_stages::Chain;
+use nedrt_stages::device_prefilter::wiener_stage;
 
 /// `network` behind its Wiener stage where the model has one.
 pub(super) fn behind(
@@ -121,7 +121,7 @@ pub(super) fn fallback_factory(
 pub(super) fn prepared_for(
     common: &CommonOptions,
     method: Method,
-    prefilter: nedrt_engines::preprocess::Prefilter,
+    prefilter: nedrt_stages::preprocess::Prefilter,
 ) -> Result<nedrt_optics::sim::Prepared, AppError> {
     let sim = Simulator::new(
         common.calibration()?,

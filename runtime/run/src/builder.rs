@@ -14,9 +14,6 @@ use super::serve::Built;
 use super::{AppError, CommonOptions, RunOptions};
 use nedrt_command::design::Design;
 use nedrt_core::preprocess::Preprocess;
-use nedrt_engines::FailsAfter;
-use nedrt_engines::device_prefilter::{prefilter_stage, wiener_stage};
-use nedrt_engines::preprocess::RawWiener;
 use nedrt_gpu::DeviceStage;
 use nedrt_infer::ModelFile;
 use nedrt_infer::gpu::DeviceDcnn;
@@ -25,8 +22,11 @@ use nedrt_optics::sim::{Method, Prepared};
 use nedrt_service::pipeline::device_frames::{DeviceFrames, DeviceView};
 use nedrt_service::pipeline::ladder::{DeviceLevels, HostLevels, Ladder, Selection};
 use nedrt_service::pipeline::service::{
-    DeviceEngines, Engines, FallbackFactory, HostPrep, PanelConfig, PreprocessStage,
+    DevicePreprocessing, FallbackFactory, HostPrep, PanelConfig, PreprocessStage, Preprocessing,
 };
+use nedrt_stages::FailsAfter;
+use nedrt_stages::device_prefilter::{prefilter_stage, wiener_stage};
+use nedrt_stages::preprocess::RawWiener;
 
 /// What the views are built from besides the options and the plan.
 pub(super) struct Parts<'a> {
@@ -102,7 +102,7 @@ pub(super) fn build(
         (Some(gpu), PlannedPath::Device) => match b.on_device(panel, gpu) {
             Ok((engines, what)) => {
                 return Ok(Built {
-                    engines: Engines::Device(Box::new(engines)),
+                    preprocessing: Preprocessing::Device(Box::new(engines)),
                     what,
                     host_reason: None,
                     ladder,
@@ -117,7 +117,7 @@ pub(super) fn build(
     };
     let (stages, what) = b.on_host(device, &host_reason)?;
     Ok(Built {
-        engines: Engines::Host(stages),
+        preprocessing: Preprocessing::Host(stages),
         what,
         host_reason: Some(host_reason),
         ladder,
@@ -291,7 +291,7 @@ impl Build<'_> {
         &self,
         panel: &PanelConfig,
         gpu: &Gpu,
-    ) -> Result<(DeviceEngines, String), AppError> {
+    ) -> Result<(DevicePreprocessing, String), AppError> {
         let (device, queue, _) = gpu;
         let (mut views, mut host, mut fallback) = (Vec::new(), Vec::new(), Vec::new());
         for (i, v) in self.parts.views.iter().enumerate() {
@@ -337,7 +337,7 @@ impl Build<'_> {
                 _ => format!("{n} views, {what}"),
             }
         };
-        let engines = DeviceEngines {
+        let engines = DevicePreprocessing {
             frames,
             host,
             fallback,
@@ -432,7 +432,7 @@ impl Build<'_> {
                     Some(size),
                 ) {
                     Ok(stage) => stage,
-                    Err(nedrt_engines::EngineError::Fft(e)) => {
+                    Err(nedrt_stages::EngineError::Fft(e)) => {
                         tracing::warn!("{what} stays on the host: {e}");
                         None
                     }

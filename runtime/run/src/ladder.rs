@@ -16,8 +16,8 @@
 use super::build::prepared_for;
 use super::{AppError, CommonOptions, RunOptions};
 use nedrt_core::preprocess::{Identity, Preprocess};
-use nedrt_engines::preprocess::Prefilter;
 use nedrt_optics::sim::{Method, Prepared, Simulator, SolveMode, SolvedPrefilter};
+use nedrt_stages::preprocess::Prefilter;
 
 mod quality;
 pub use quality::{QualityTable, fixed_quality};
@@ -312,13 +312,13 @@ pub(super) fn host_levels(
                         .warm_started(),
                     )
                 }
-                Rung::Method => nedrt_engines::preprocess::for_system(
+                Rung::Method => nedrt_stages::preprocess::for_system(
                     opts.preprocess,
                     opts.prefilter,
                     prepared()?,
                     &mut dcnns,
                 )?,
-                rung => nedrt_engines::preprocess::for_system(
+                rung => nedrt_stages::preprocess::for_system(
                     Method::DoeWiener,
                     rung.prefilter(),
                     prepared()?,
@@ -382,7 +382,7 @@ pub(super) fn device_levels(
                         AppError::Internal("a prefilter level without its optics".into())
                     })?;
                     let what = format!("{} of doe+wiener", l.name);
-                    nedrt_engines::device_prefilter::prefilter_stage(
+                    nedrt_stages::device_prefilter::prefilter_stage(
                         device,
                         Method::DoeWiener,
                         rung.prefilter(),

@@ -11,7 +11,7 @@
 //! It takes the commands' shared options from nedrt-command and nothing
 //! from nedrt-app: a run's options enter this crate once and go down from
 //! here. Rule: no clap, no indicatif, no environment; the per-frame work is
-//! nedrt-engines' and nedrt-service's, this crate only wires it.
+//! nedrt-stages' and nedrt-service's, this crate only wires it.
 
 mod build;
 mod builder;
@@ -28,7 +28,6 @@ pub use ladder::{
     DEFAULT_QUALITY_TABLE, LadderSpec, PlannedLevel, QualityTable, Rung, fixed_quality,
 };
 use nedrt_command::{AppError, CommonOptions};
-use nedrt_engines::preprocess::DcnnInput;
 use nedrt_infer::ModelFile;
 use nedrt_infer::gpu::open_device;
 use nedrt_optics::sim::{Method, Simulator};
@@ -43,6 +42,7 @@ use nedrt_service::present::headless::HeadlessSink;
 use nedrt_service::present::recorder::RecorderSink;
 use nedrt_service::present::transfer::Transfer;
 use nedrt_service::present::window::WindowSink;
+use nedrt_stages::preprocess::DcnnInput;
 pub use options::{
     FallbackKind, FramePath, MAX_SOURCE_RATE_HZ, MIN_SOURCE_RATE_HZ, RunOptions, SinkKind,
     SourceKind,
@@ -230,7 +230,7 @@ fn network_of(
         return Ok(None);
     }
     let model = ModelFile::read(path)?;
-    let input = nedrt_engines::preprocess::dcnn_input(&model.path)?;
+    let input = nedrt_stages::preprocess::dcnn_input(&model.path)?;
     Ok(Some((model, input)))
 }
 
@@ -339,9 +339,9 @@ mod tests {
         use nedrt_service::present::transfer::Transfer;
         use nedrt_service::present::{PanelCodes, Sink};
 
-        use nedrt_engines::Chain;
-        use nedrt_engines::device_prefilter::{refine_stage, wiener_stage};
         use nedrt_optics::sim::Method;
+        use nedrt_stages::Chain;
+        use nedrt_stages::device_prefilter::{refine_stage, wiener_stage};
 
         /// Mirror-symmetric Gaussian PSFs with a veil, one width per
         /// channel (as the eyepiece's, which differ by colour).
@@ -514,9 +514,9 @@ mod tests {
         #[test]
         #[ignore = "needs a GPU adapter (run: scripts/test.sh, or cargo test -- --include-ignored)"]
         fn the_device_teacher_reaches_the_cpu_optimum_within_1e4_relative() {
-            use nedrt_engines::device_prefilter::OnDevice;
-            use nedrt_engines::preprocess::MAX_REFINE_STEPS;
             use nedrt_optics::sim::{SolveMode, SolvedPrefilter};
+            use nedrt_stages::device_prefilter::OnDevice;
+            use nedrt_stages::preprocess::MAX_REFINE_STEPS;
             let (device, queue) = nedrt_gpu::test_device(false);
             let problem = three_depths();
             let (w, h) = (48, 40);

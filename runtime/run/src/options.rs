@@ -138,7 +138,7 @@ pub struct RunOptions {
     /// prefilter, or none).
     pub preprocess: Method,
     /// Or a least-squares prefilter on that method's optics (not `native`).
-    pub prefilter: nedrt_engines::preprocess::Prefilter,
+    pub prefilter: nedrt_stages::preprocess::Prefilter,
     /// `--preprocess auto[:LO..HI]`: the frame budget picks each frame's
     /// level from the ladder (`preprocess` names the system whose network
     /// and DOE the levels use).

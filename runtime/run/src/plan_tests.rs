@@ -4,7 +4,7 @@ use std::path::PathBuf;
 fn opts() -> RunOptions {
     RunOptions {
         preprocess: Method::Proposed,
-        prefilter: nedrt_engines::preprocess::Prefilter::Native,
+        prefilter: nedrt_stages::preprocess::Prefilter::Native,
         ladder: None,
         ladder_quality: None,
         source: SourceKind::Pattern,

@@ -1,7 +1,7 @@
-//! The last step of `nedrt run`: start the pipeline with the engines
-//! built for it (host or device, any number of views), run the source and
-//! the present loop to the end, and write the report. Apart from the
-//! construction in `run` and `engines`.
+//! The last step of `nedrt run`: start the pipeline with the
+//! preprocessing built for it (host or device, any number of views), run
+//! the source and the present loop to the end, and write the report. Apart
+//! from the construction in `run` and `builder`.
 
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -9,18 +9,18 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use super::{AppError, RunOptions};
 use nedrt_service::pipeline::ladder::Ladder;
 use nedrt_service::pipeline::pacing::Clock;
-use nedrt_service::pipeline::service::{Control, Engines, PanelConfig, Service};
+use nedrt_service::pipeline::service::{Control, PanelConfig, Preprocessing, Service};
 use nedrt_service::pipeline::source::{self, Source};
 use nedrt_service::pipeline::stats::Report;
 use nedrt_service::present::Sink;
 
-/// The engines `serve` starts the pipeline with, what they are (for the
+/// The preprocessing `serve` starts the pipeline with, what they are (for the
 /// log), and why frames go through the host when they do.
 pub(super) struct Built {
-    pub engines: Engines,
+    pub preprocessing: Preprocessing,
     pub what: String,
     pub host_reason: Option<String>,
-    /// `--preprocess auto`: the ladder the engines' levels follow.
+    /// `--preprocess auto`: the ladder the views' levels follow.
     pub ladder: Option<Ladder>,
 }
 
@@ -37,12 +37,12 @@ pub(super) fn serve(
 ) -> Result<Report, AppError> {
     let (width, height, refresh_hz) = (panel.width, panel.height, panel.refresh_hz);
     let Built {
-        engines,
+        preprocessing,
         what,
         host_reason,
         ladder,
     } = built;
-    let service = Service::start(panel, engines, ladder, clock);
+    let service = Service::start(panel, preprocessing, ladder, clock);
     if let (Ok(s), Some(reason)) = (&service, host_reason) {
         *s.stats()
             .frame_path

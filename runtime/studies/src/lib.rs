@@ -26,5 +26,5 @@ pub(crate) use nedrt_app::{
     AppError, CommonOptions, charts, check_output_folder, create_dir, design, gpu_for, sim, viewer,
     write_text,
 };
-pub(crate) use nedrt_engines::{device_prefilter, preprocess};
 pub(crate) use nedrt_run as run;
+pub(crate) use nedrt_stages::{device_prefilter, preprocess};

@@ -143,12 +143,12 @@ impl FocusScene {
             common.doe_path_for(methods).as_deref(),
             common.cache(),
         )?
-        .with_wiener_stages(nedrt_engines::preprocess::wiener_stages(&dcnns)?);
+        .with_wiener_stages(nedrt_stages::preprocess::wiener_stages(&dcnns)?);
         let prepared = sim.prepare(methods, psf_depths_d, common.progress())?;
         let displays = methods
             .iter()
             .map(|&m| -> Result<Image, AppError> {
-                Ok(nedrt_engines::preprocess::for_method(m, &prepared, &mut dcnns)?.run(&input)?)
+                Ok(nedrt_stages::preprocess::for_method(m, &prepared, &mut dcnns)?.run(&input)?)
             })
             .collect::<Result<Vec<_>, _>>()?;
         let sharp = input.up2();

@@ -342,7 +342,7 @@ impl Prepared {
 
     /// The preprocessing of `method` when it needs no trained network:
     /// its Wiener prefilter, or none. A D-CNN method is an error here (its
-    /// network is loaded by nedrt-infer; nedrt-engines' registry builds every
+    /// network is loaded by nedrt-infer; nedrt-stages' registry builds every
     /// method's preprocessing).
     pub fn preprocessor(&self, method: Method) -> Result<Box<dyn Preprocess>, SimError> {
         if method.uses_dcnn() {

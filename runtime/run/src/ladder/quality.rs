@@ -7,8 +7,8 @@ use std::path::{Path, PathBuf};
 
 use super::{DEFAULT_QUALITY_TABLE, Rung, doe_hash};
 use crate::{AppError, CommonOptions};
-use nedrt_engines::preprocess::Prefilter;
 use nedrt_optics::sim::Method;
+use nedrt_stages::preprocess::Prefilter;
 
 /// The rows of a tradeoff table a ladder reads.
 #[derive(Debug, Clone, Default)]

@@ -2,7 +2,7 @@
 //! prefilter has a stage on the device (what the builder then finds).
 
 use super::{LadderPlan, PlanInputs, ViewFacts};
-use nedrt_engines::device_prefilter::runs_on_device;
+use nedrt_stages::device_prefilter::runs_on_device;
 
 /// A view's stages under a ladder.
 pub(super) fn ladder_stages(l: &LadderPlan, on_device: bool) -> Vec<String> {

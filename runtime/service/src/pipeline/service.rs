@@ -7,7 +7,7 @@
 //!                                 fallback)     transfer) wins)        for the refresh)
 //! ```
 //!
-//! One pipeline for any number of views ([`Engines`]): on the host path
+//! One pipeline for any number of views ([`Preprocessing`]): on the host path
 //! the upload stage decodes each view's frame and blends its quads, the
 //! preprocess stage runs each view's engine into its region of the panel
 //! image ([`views`]) and the encode stage turns it into codes. On the
@@ -52,8 +52,8 @@ pub use compositor::Compositor;
 use compositor::{Submission, Timed, ViewSlot};
 pub use control::Control;
 use engine::{Budget, DeviceGate, Engine, Processed};
-pub use stages::{DeviceEngines, Engines, FallbackFactory, HostPrep, PreprocessStage};
-use views::{HostEngine, Intake, Uptake};
+pub use stages::{DevicePreprocessing, FallbackFactory, HostPrep, PreprocessStage, Preprocessing};
+use views::{HostViews, Intake, Uptake};
 
 /// The panel the service drives.
 #[derive(Debug, Clone)]
@@ -187,7 +187,7 @@ impl Service {
     /// level the frame budget picks.
     pub fn start(
         panel: PanelConfig,
-        engines: Engines,
+        engines: Preprocessing,
         ladder: Option<Ladder>,
         clock: Arc<dyn Clock>,
     ) -> std::io::Result<Self> {
@@ -203,8 +203,8 @@ impl Service {
         };
         let n = regions.len();
         let counts_match = match &engines {
-            Engines::Host(stages) => stages.len() == n,
-            Engines::Device(d) => {
+            Preprocessing::Host(stages) => stages.len() == n,
+            Preprocessing::Device(d) => {
                 d.frames.views() == n && d.host.len() == n && d.fallback.len() == n
             }
         };
@@ -253,7 +253,7 @@ impl Service {
         let period_ns = Pacer::period_ns_of(panel.refresh_hz);
         let gate = Arc::new(PresentGate::new(period_ns));
         let (intake, mut engine, path) = match engines {
-            Engines::Host(stages) => {
+            Preprocessing::Host(stages) => {
                 let intake = (0..n)
                     .map(|v| (regions[v], layers(v), Uptake::Decode))
                     .collect();
@@ -268,10 +268,10 @@ impl Service {
                         .to_string(),
                     _ => format!("host: {n} views, each its engine on the CPU"),
                 };
-                (intake, Engine::Host(HostEngine::new(size, engine)), path)
+                (intake, Engine::Host(HostViews::new(size, engine)), path)
             }
-            Engines::Device(d) => {
-                let DeviceEngines {
+            Preprocessing::Device(d) => {
+                let DevicePreprocessing {
                     mut frames,
                     host,
                     fallback,

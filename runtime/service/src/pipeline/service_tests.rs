@@ -98,12 +98,12 @@ fn run_one_by_one_with(
     frames: &[SubmittedFrame],
     before: impl Fn(usize, &Compositor) + Send + 'static,
 ) -> (Vec<DisplayFrame>, crate::pipeline::stats::Report) {
-    run_engines_one_by_one(Engines::host(dcnn), frames, before)
+    run_engines_one_by_one(Preprocessing::host(dcnn), frames, before)
 }
 
 /// As [`run_one_by_one_with`], on any engines.
 fn run_engines_one_by_one(
-    engines: Engines,
+    engines: Preprocessing,
     frames: &[SubmittedFrame],
     before: impl Fn(usize, &Compositor) + Send + 'static,
 ) -> (Vec<DisplayFrame>, crate::pipeline::stats::Report) {
@@ -112,7 +112,7 @@ fn run_engines_one_by_one(
 
 /// As [`run_engines_one_by_one`], with a frame budget's ladder.
 fn run_laddered_one_by_one(
-    engines: Engines,
+    engines: Preprocessing,
     ladder: Option<crate::pipeline::ladder::Ladder>,
     frames: &[SubmittedFrame],
     before: impl Fn(usize, &Compositor) + Send + 'static,
@@ -272,8 +272,13 @@ fn frames_inside_the_stages_at_a_stop_are_counted_in_flight_not_lost() {
         }),
         fallback: None,
     };
-    let mut service =
-        Service::start(panel(), Engines::host(dcnn), None, Arc::new(SystemClock)).expect("start");
+    let mut service = Service::start(
+        panel(),
+        Preprocessing::host(dcnn),
+        None,
+        Arc::new(SystemClock),
+    )
+    .expect("start");
     let compositor = service.compositor().expect("open");
     service.close_ingest();
     // One frame held inside the D-CNN, the next ones queued behind it (a
@@ -422,7 +427,9 @@ fn quad_layers_are_blended_over_every_frame_until_their_owner_removes_them() {
 /// the left eye, one for the right under a quad of its own, two refused
 /// submissions, and a panel-sized frame for both. The frames shown and the
 /// report.
-fn two_views_scenario(engines: Engines) -> (Vec<DisplayFrame>, crate::pipeline::stats::Report) {
+fn two_views_scenario(
+    engines: Preprocessing,
+) -> (Vec<DisplayFrame>, crate::pipeline::stats::Report) {
     use crate::compose::{Placement, QuadLayer, ViewRegion};
     let mut config = panel();
     config.views = ViewRegion::side_by_side(4, 2).to_vec();
@@ -496,7 +503,7 @@ fn two_views_each_get_their_frames_layers_and_engine_on_one_panel() {
             fallback: None,
         },
     ];
-    let (shown, report) = two_views_scenario(Engines::Host(stages));
+    let (shown, report) = two_views_scenario(Preprocessing::Host(stages));
     assert_eq!(report.presented, 3);
     assert_eq!(report.rejected_total(), 2);
     let rows = |f: &DisplayFrame| -> Vec<Vec<u8>> {
@@ -541,8 +548,13 @@ fn one_view_smaller_than_the_panel_takes_frames_of_its_own_size() {
         primary: Box::new(Identity),
         fallback: None,
     }];
-    let service =
-        Service::start(config, Engines::Host(stages), None, Arc::new(SystemClock)).expect("start");
+    let service = Service::start(
+        config,
+        Preprocessing::Host(stages),
+        None,
+        Arc::new(SystemClock),
+    )
+    .expect("start");
     let compositor = service.compositor().expect("open");
     let view_frame = SubmittedFrame {
         id: 1,
@@ -573,7 +585,15 @@ fn one_view_smaller_than_the_panel_takes_frames_of_its_own_size() {
         primary: Box::new(Identity),
         fallback: None,
     }];
-    assert!(Service::start(bad, Engines::Host(stages), None, Arc::new(SystemClock)).is_err());
+    assert!(
+        Service::start(
+            bad,
+            Preprocessing::Host(stages),
+            None,
+            Arc::new(SystemClock)
+        )
+        .is_err()
+    );
 }
 
 mod needs_gpu {
@@ -609,7 +629,7 @@ mod needs_gpu {
     /// The left eye as it comes, the right stretched, on the device; each
     /// view's host twin its fallback. `poison`: the right eye's stage
     /// overflows (a network gone bad), so the device path fails there.
-    fn on_device(device: &wgpu::Device, queue: &wgpu::Queue, poison: bool) -> Engines {
+    fn on_device(device: &wgpu::Device, queue: &wgpu::Queue, poison: bool) -> Preprocessing {
         let [left, right] = ViewRegion::side_by_side(4, 2);
         let views = vec![
             DeviceView {
@@ -625,7 +645,7 @@ mod needs_gpu {
             DeviceFrames::new(device, queue, (4, 2), views, &panel().transfer).expect("frames");
         let identity: FallbackFactory = Box::new(|| Ok(Box::new(Identity)));
         let stretch: FallbackFactory = Box::new(|| Ok(Box::new(StretchOnHost)));
-        Engines::Device(Box::new(DeviceEngines {
+        Preprocessing::Device(Box::new(DevicePreprocessing {
             frames,
             host: vec![None, None],
             fallback: vec![Some(identity), Some(stretch)],
@@ -646,7 +666,7 @@ mod needs_gpu {
     #[ignore = "needs a GPU adapter (run: scripts/test.sh, or cargo test -- --include-ignored)"]
     fn the_device_engine_shows_two_views_as_the_host_engine_does() {
         let (device, queue) = nedrt_gpu::test_device(false);
-        let host = Engines::Host(vec![on_host(Identity), on_host(StretchOnHost)]);
+        let host = Preprocessing::Host(vec![on_host(Identity), on_host(StretchOnHost)]);
         let (want, host_report) = two_views_scenario(host);
         let (got, report) = two_views_scenario(on_device(&device, &queue, false));
         assert_eq!((report.presented, report.rejected_total()), (3, 2));
@@ -686,7 +706,11 @@ mod needs_gpu {
             DeviceFrames::single(&device, &queue, (4, 2), &panel().transfer, None).expect("frames");
         // Inverts one frame, then fails as an engine.
         let prep = HostPrep(Box::new(Failing { ok: 1 }));
-        let engines = Engines::Device(Box::new(DeviceEngines::single(frames, Some(prep), None)));
+        let engines = Preprocessing::Device(Box::new(DevicePreprocessing::single(
+            frames,
+            Some(prep),
+            None,
+        )));
         let (shown, report) = run_engines_one_by_one(
             engines,
             &[grey(1, 51), grey(2, 102), grey(3, 153)],
@@ -709,7 +733,7 @@ mod needs_gpu {
     #[ignore = "needs a GPU adapter (run: scripts/test.sh, or cargo test -- --include-ignored)"]
     fn two_views_whose_device_fails_go_on_with_each_views_fallback_without_losing_a_frame() {
         let (device, queue) = nedrt_gpu::test_device(false);
-        let host = Engines::Host(vec![on_host(Identity), on_host(StretchOnHost)]);
+        let host = Preprocessing::Host(vec![on_host(Identity), on_host(StretchOnHost)]);
         let (want, _) = two_views_scenario(host);
         let (got, report) = two_views_scenario(on_device(&device, &queue, true));
         // The right eye's first frame fails on the device; it and every
@@ -740,8 +764,13 @@ fn identity_service() -> (Service, Compositor) {
         primary: Box::new(Identity),
         fallback: None,
     };
-    let mut service =
-        Service::start(panel(), Engines::host(stage), None, Arc::new(SystemClock)).expect("start");
+    let mut service = Service::start(
+        panel(),
+        Preprocessing::host(stage),
+        None,
+        Arc::new(SystemClock),
+    )
+    .expect("start");
     let compositor = service.compositor().expect("open");
     service.close_ingest();
     (service, compositor)
@@ -881,7 +910,7 @@ fn a_ladder_runs_each_frame_at_the_budgets_level_and_reports_it() {
     };
     let frames: Vec<SubmittedFrame> = (0..6).map(|i| grey(i, 40)).collect();
     let (shown, report) =
-        run_laddered_one_by_one(Engines::host(stage), Some(ladder), &frames, |_, _| {});
+        run_laddered_one_by_one(Preprocessing::host(stage), Some(ladder), &frames, |_, _| {});
     assert_eq!(shown.len(), 6);
     let budget = report.frame_budget.clone().expect("the budget's report");
     // Both measured at start-up; one may be left out (no better than a

@@ -347,7 +347,9 @@ fn temporal(t: &super::temporal::TemporalSection) -> String {
          next over that of the target (the input as the eye should see it: 1 moves with the content, above 1 adds \
          change of its own); and the display image's change over the input's. A linear, shift-invariant \
          preprocessing only scales the change; the clamp, a network and an iterative solver stopped at K steps \
-         are not shift-invariant.\n\n\
+         are not shift-invariant. \"warm start\" goes on from the previous frame's display image every frame; \
+         \"the runtime's warm start\" is `nedrt run`'s ladder level (refine:1 going on from the last frame's \
+         solver state only where the frame changed by at most a quarter of a code, which a pan never does).\n\n\
          | method | PSNR vs target | perceived change ÷ target's | display change ÷ input's |\n| --- | --- | --- | --- |\n",
         side = t.side,
         image = t.image,

@@ -6,7 +6,10 @@
 //! (the panel's clamp, a network, an iterative solver stopped at a fixed
 //! step count from a frame-dependent start) can add change of its own:
 //! flicker. `refine:K` warm-started from the previous frame's display image
-//! is measured beside the cold start at the same K.
+//! is measured beside the cold start at the same K, and so is the
+//! runtime's warm start (`nedrt run`'s ladder, issue 54): refine:1 going on
+//! from the last frame's solver state only where the frame is still, which
+//! a pan never is, so it must flicker no more than refine:1 from the start.
 
 use std::sync::Arc;
 
@@ -16,7 +19,9 @@ use crate::AppError;
 use crate::preprocess::Prefilter;
 use nedrt_core::Preprocess;
 use nedrt_optics::sim::metrics::psnr;
-use nedrt_optics::sim::{Image, Method, Objective, Prepared, SolveOptions};
+use nedrt_optics::sim::{
+    DisplayProblem, Image, Method, Objective, Prepared, SolveMode, SolveOptions, SolvedPrefilter,
+};
 
 /// Frames of the pan.
 pub const FRAMES: usize = 8;
@@ -26,6 +31,9 @@ pub const STEP_PX: f32 = 0.37;
 pub const SIDE: usize = 96;
 /// Refinement steps of the cold and warm `refine:K` rows.
 pub const REFINE_STEPS: usize = 10;
+/// Refinement steps a frame of the runtime's warm-start row (the ladder's
+/// cheapest refine level), and of its cold twin.
+pub const RUNTIME_WARM_STEPS: usize = 1;
 
 /// One method's row.
 #[derive(Debug, Clone, Serialize)]
@@ -107,10 +115,10 @@ fn rms_change(a: &Image, b: &Image) -> f64 {
         .sqrt()
 }
 
-/// A method's display images of the pan.
-type Engine<'a> = Box<dyn FnMut(&Image, Option<&Image>) -> Result<Image, AppError> + 'a>;
+/// A method's display image of a frame of the pan, given its last one.
+type DisplayOf<'a> = Box<dyn FnMut(&Image, Option<&Image>) -> Result<Image, AppError> + 'a>;
 
-/// The section: every engine on the pan, perceived at the headline depths.
+/// The section: every method on the pan, perceived at the headline depths.
 /// `prepared` must hold conventional, ai, doe-only, doe+wiener (and
 /// proposed, when given) at the headline `depths`.
 pub fn section(
@@ -122,7 +130,7 @@ pub fn section(
 ) -> Result<TemporalSection, AppError> {
     let frames = pan(image_name, image)?;
     let problem = Arc::new(prepared.display_problem(Method::DoeWiener, Objective::Target)?);
-    let mut engines: Vec<(String, Method, Engine)> = Vec::new();
+    let mut methods: Vec<(String, Method, DisplayOf)> = Vec::new();
     for m in [
         Method::Conventional,
         Method::Ai,
@@ -131,10 +139,10 @@ pub fn section(
     ] {
         let mut e =
             crate::preprocess::for_system(m, Prefilter::Native, prepared, &mut Default::default())?;
-        engines.push((m.name().into(), m, Box::new(move |f, _| Ok(e.run(f)?))));
+        methods.push((m.name().into(), m, Box::new(move |f, _| Ok(e.run(f)?))));
     }
     if let Some(mut p) = proposed {
-        engines.push((
+        methods.push((
             "proposed".into(),
             Method::Proposed,
             Box::new(move |f, _| Ok(p.run(f)?)),
@@ -154,7 +162,7 @@ pub fn section(
             prepared,
             &mut Default::default(),
         )?;
-        engines.push((
+        methods.push((
             name.into(),
             Method::DoeWiener,
             Box::new(move |f, _| Ok(e.run(f)?)),
@@ -163,7 +171,7 @@ pub fn section(
     // Warm start: the previous frame's display image (the first frame
     // starts from lsq, as the cold start does).
     let warm = problem.clone();
-    engines.push((
+    methods.push((
         "doe+wiener refine:10, warm start".into(),
         Method::DoeWiener,
         Box::new(move |f, previous| {
@@ -174,13 +182,21 @@ pub fn section(
             Ok(warm.solve(f, &start, &SolveOptions::steps(REFINE_STEPS)).0)
         }),
     ));
+    // The runtime's warm start, beside refine:1 from the start.
+    for (name, mode) in [
+        ("doe+wiener refine:1", false),
+        ("doe+wiener refine:1, the runtime's warm start", true),
+    ] {
+        let mut solver = runtime_refine(problem.clone(), mode);
+        methods.push((
+            name.into(),
+            Method::DoeWiener,
+            Box::new(move |f, _| Ok(solver.run(f)?)),
+        ));
+    }
     let mut rows = Vec::new();
-    for (name, method, mut engine) in engines {
-        let mut displays: Vec<Image> = Vec::new();
-        for f in &frames {
-            let d = engine(f, displays.last())?;
-            displays.push(d);
-        }
+    for (name, method, mut display_of) in methods {
+        let displays = displays(&frames, &mut display_of)?;
         let (mut quality, mut change, mut target_change, mut n) = (0.0, 0.0, 0.0, 0usize);
         for &depth in &depths {
             let mut previous: Option<(Image, Image)> = None;
@@ -215,9 +231,109 @@ pub fn section(
     })
 }
 
+/// refine:`RUNTIME_WARM_STEPS` from the linear prefilter each frame, or
+/// warm-started as `nedrt run`'s ladder runs it.
+fn runtime_refine(problem: Arc<DisplayProblem>, warm: bool) -> SolvedPrefilter {
+    let solver = SolvedPrefilter::new(
+        Method::DoeWiener.name(),
+        problem,
+        SolveMode::Refine(RUNTIME_WARM_STEPS),
+    );
+    if warm { solver.warm_started() } else { solver }
+}
+
+/// The display images of `frames`, each given the last.
+fn displays(frames: &[Image], display_of: &mut DisplayOf) -> Result<Vec<Image>, AppError> {
+    let mut displays: Vec<Image> = Vec::new();
+    for f in frames {
+        let d = display_of(f, displays.last())?;
+        displays.push(d);
+    }
+    Ok(displays)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+    use nedrt_optics::Psf;
+
+    /// Three depths, the middle one's target blurred, Gaussian PSFs wider
+    /// per channel and depth (the multifocal objective's shape).
+    fn three_depths() -> Arc<DisplayProblem> {
+        let gaussians = |s: f64| -> Vec<Psf> {
+            [1.0, 1.3, 1.7]
+                .iter()
+                .map(|k| Psf::gaussian(s * k, 0.02))
+                .collect()
+        };
+        let per_depth: Vec<Vec<Psf>> = [1.2, 3.0, 1.8].iter().map(|s| gaussians(*s)).collect();
+        let psfs = (0..3)
+            .map(|c| per_depth.iter().map(|d| d[c].clone()).collect())
+            .collect();
+        Arc::new(
+            DisplayProblem::new(
+                Objective::Target,
+                vec![0.0, 1.0, 2.0],
+                psfs,
+                vec![false, true, false],
+                Some(gaussians(2.0)),
+                0.03,
+            )
+            .expect("problem"),
+        )
+    }
+
+    /// The runtime's warm start on a pan (issue 54): every frame moved, so
+    /// every frame starts afresh and the display is refine:1's, no more
+    /// flicker; on a still frame it goes on and shows a display of its own.
+    #[test]
+    fn the_runtimes_warm_start_flickers_no_more_than_refine_from_the_start_on_a_pan() {
+        let (w, h) = (140, 100);
+        let plane = |c: usize| -> Vec<f32> {
+            (0..w * h)
+                .map(|i| {
+                    let (x, y) = ((i % w) as f32, (i / w) as f32);
+                    let bars = if (x / 9.0).floor() as i32 % 2 == 0 {
+                        0.85
+                    } else {
+                        0.1
+                    };
+                    (bars * (0.4 + 0.6 * y / h as f32) + 0.05 * (x * 0.7 + c as f32).sin())
+                        .clamp(0.0, 1.0)
+                })
+                .collect()
+        };
+        let image = Image::from_planes(w, h, (0..3).map(plane).collect());
+        let frames = pan("bars.png", &image).expect("pan");
+        let problem = three_depths();
+        let run = |warm: bool, frames: &[Image]| {
+            let mut solver = runtime_refine(problem.clone(), warm);
+            let mut display_of: DisplayOf = Box::new(move |f, _| Ok(solver.run(f)?));
+            displays(frames, &mut display_of).expect("displays")
+        };
+        let change = |d: &[Image]| -> f64 { d.windows(2).map(|p| rms_change(&p[1], &p[0])).sum() };
+        let (cold, warm) = (run(false, &frames), run(true, &frames));
+        assert!(change(&cold) > 0.0);
+        // Every frame of the pan moved: each starts afresh, as the cold one.
+        for (t, (c, w)) in cold.iter().zip(&warm).enumerate() {
+            assert_eq!(c.data(), w.data(), "frame {t}: the pan went on warm");
+        }
+        assert!(
+            change(&warm) <= change(&cold) * (1.0 + 1e-6),
+            "warm {} vs cold {}",
+            change(&warm),
+            change(&cold)
+        );
+        // A still frame: the warm start goes on from its last state.
+        let still = vec![frames[0].clone(); 3];
+        let (cold, warm) = (run(false, &still), run(true, &still));
+        assert_eq!(
+            cold[2].data(),
+            cold[0].data(),
+            "cold: the same solve each frame"
+        );
+        assert_ne!(warm[2].data(), warm[0].data(), "warm: it went on");
+    }
 
     #[test]
     fn the_pan_moves_a_ramp_by_its_step_every_frame() {

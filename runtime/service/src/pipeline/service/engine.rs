@@ -7,7 +7,7 @@ use std::sync::Arc;
 use std::sync::atomic::Ordering::Relaxed;
 
 use super::stages::{FallbackFactory, fallback_preprocessor};
-use super::views::HostEngine;
+use super::views::HostViews;
 use super::{PreprocessStage, Stage, StageNotes, Stats};
 use crate::compose::{LayerSet, ViewRegion};
 use crate::pipeline::device_frames::DeviceFrames;
@@ -21,7 +21,7 @@ use nedrt_core::Image;
 
 /// The preprocess stage's engine.
 pub(super) enum Engine {
-    Host(HostEngine),
+    Host(HostViews),
     /// Every view on the sink's device, one submission a frame; each
     /// view's fallback runs on the host if the device fails.
     Device {
@@ -308,7 +308,7 @@ impl Engine {
                             (region, layers, stage)
                         })
                         .collect();
-                    let host = HostEngine::new(*panel, stages);
+                    let host = HostViews::new(*panel, stages);
                     tracing::error!(
                         "{failed} failed: {e}; frames now go through the host: {}",
                         host.describe()

@@ -111,18 +111,18 @@ impl HostPrep {
     }
 }
 
-/// The device path's engines: the device side of every view, and for
+/// The device path's preprocessing: the device side of every view, and for
 /// each view its host stage before the upload (none: the frame goes up as
 /// the client sent it) and the host preprocessing to switch to if the
 /// device fails (it gets what the device got: the frame, or the host
 /// stage's output; none: [`Identity`]).
-pub struct DeviceEngines {
+pub struct DevicePreprocessing {
     pub frames: DeviceFrames,
     pub host: Vec<Option<HostPrep>>,
     pub fallback: Vec<Option<FallbackFactory>>,
 }
 
-impl DeviceEngines {
+impl DevicePreprocessing {
     /// One view's engines (the whole panel, or a view of it).
     pub fn single(
         frames: DeviceFrames,
@@ -137,9 +137,9 @@ impl DeviceEngines {
     }
 }
 
-impl std::fmt::Debug for DeviceEngines {
+impl std::fmt::Debug for DevicePreprocessing {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("DeviceEngines")
+        f.debug_struct("DevicePreprocessing")
             .field("host", &self.host)
             .field("frames", &self.frames)
             .field(
@@ -157,12 +157,12 @@ impl std::fmt::Debug for DeviceEngines {
 /// The preprocessing of a service: every view's on the host, or every
 /// view's on the sink's device. A panel without views is one view.
 #[derive(Debug)]
-pub enum Engines {
+pub enum Preprocessing {
     Host(Vec<PreprocessStage>),
-    Device(Box<DeviceEngines>),
+    Device(Box<DevicePreprocessing>),
 }
 
-impl Engines {
+impl Preprocessing {
     /// One view on the host.
     pub fn host(stage: PreprocessStage) -> Self {
         Self::Host(vec![stage])

@@ -3,7 +3,7 @@
 //! view's newest frame: as the client sent it for a view on the device (it
 //! is unpacked and its quads blended there), or decoded with its quads
 //! blended, and through a host stage where the view has one. Every
-//! submission hands each view's newest on. The host engine ([`HostEngine`])
+//! submission hands each view's newest on. The host engine ([`HostViews`])
 //! runs each view through its own preprocessing (two fabricated DOEs are
 //! never identical: each eye has its own design) and puts the outputs in
 //! their regions of one panel image; a view whose frame has not changed
@@ -187,21 +187,21 @@ struct HostView {
 }
 
 /// The preprocess stage on the host: each view its own engine.
-pub(super) struct HostEngine {
+pub(super) struct HostViews {
     panel: (usize, usize),
     views: Vec<HostView>,
 }
 
-impl std::fmt::Debug for HostEngine {
+impl std::fmt::Debug for HostViews {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("HostEngine")
+        f.debug_struct("HostViews")
             .field("panel", &self.panel)
             .field("engines", &self.describe())
             .finish()
     }
 }
 
-impl HostEngine {
+impl HostViews {
     pub(super) fn new(
         panel: (usize, usize),
         views: Vec<(ViewRegion, Arc<LayerSet>, PreprocessStage)>,

@@ -1,4 +1,4 @@
-//! nedrt-engines, layer 2 of nedrt: what runs on every frame, whichever
+//! nedrt-stages, layer 2 of nedrt: what runs on every frame, whichever
 //! command asks. The preprocessing registry ([`preprocess`]: which
 //! "input frame → display frame" each display system runs, and the
 //! least-squares family), the prefilters on the device
@@ -9,7 +9,7 @@
 //!
 //! Rule: depends on nedrt-core, nedrt-gpu, nedrt-optics and nedrt-infer
 //! only; it knows neither the service nor the commands, so `nedrt run`,
-//! `nedrt sim`, `nedrt eval` and the studies build the same engines.
+//! `nedrt sim`, `nedrt eval` and the studies build the same stages.
 
 pub mod device_prefilter;
 mod faults;
