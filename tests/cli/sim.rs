@@ -471,3 +471,66 @@ fn the_papers_eye_is_the_default_and_the_eye_options_change_what_they_should() {
     assert_clean_error(&o, "eye.pupil_diameter_mm");
     assert!(!out.exists());
 }
+
+/// `nedrt sim --level NAME` (issue 54): a level of `nedrt run`'s frame
+/// budget by its report's name is that level's method and prefilter on
+/// the shipped system's DOE, the image the run's level shows; a name that
+/// is no level is refused with the names there are.
+#[test]
+fn a_frame_budget_level_is_simulated_by_its_name() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let input = dir.path().join("in.png");
+    write_png(&input, 16, 16);
+    let calib = small_calib();
+    let perceived = dir.path().join("p.png");
+    let sim = |out: &Path, extra: &[&str]| {
+        let mut args = vec![
+            "--calib",
+            path(&calib),
+            "--sim",
+            "--accom",
+            "1.5",
+            "--input",
+            path(&input),
+            "--display-out",
+        ];
+        args.push(path(out));
+        args.extend_from_slice(&["--out", path(&perceived)]);
+        args.extend_from_slice(extra);
+        // From the repository, where the shipped network's DOE is.
+        let o = nedrt()
+            .current_dir(repo())
+            .args(&args)
+            .output_within(deadline::COMMAND, "nedrt sim");
+        assert!(o.status.success(), "{extra:?}: {}", stderr(&o));
+        std::fs::read(out).expect("display image")
+    };
+    let by_level = sim(&dir.path().join("level.png"), &["--level", "refine:3"]);
+    let by_hand = sim(
+        &dir.path().join("hand.png"),
+        &[
+            "--doe",
+            path(&repo().join("models/dcnn.doe.safetensors")),
+            "--method",
+            "doe+wiener",
+            "--prefilter",
+            "refine:3",
+        ],
+    );
+    assert_eq!(
+        by_level, by_hand,
+        "refine:3 is doe+wiener's refine:3 on the shipped DOE"
+    );
+    let wiener = sim(&dir.path().join("wiener.png"), &["--level", "wiener"]);
+    assert_ne!(wiener, by_level, "the levels differ");
+    let o = run(&[
+        "--calib",
+        path(&calib),
+        "--sim",
+        "--accom",
+        "1",
+        "--level",
+        "refine:0",
+    ]);
+    assert_clean_error(&o, "--level refine:0: not a level of the frame budget");
+}

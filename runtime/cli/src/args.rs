@@ -156,6 +156,12 @@ pub struct SimArgs {
     /// 0–2.5 D (docs/optimal.md).
     #[arg(long, default_value = "native", value_name = "PREFILTER")]
     pub prefilter: nedrt_stages::preprocess::Prefilter,
+    /// Instead of --method and --prefilter: a level of `nedrt run`'s frame
+    /// budget by the name its report gives (none, wiener, refine:K, or the
+    /// network's file stem, dcnn), on the optics that level runs on (the
+    /// shipped system's DOE).
+    #[arg(long, value_name = "LEVEL", conflicts_with_all = ["method", "prefilter", "display_image"])]
+    pub level: Option<String>,
     #[command(flatten)]
     pub zones: crate::eye_args::ZoneArgs,
 }
@@ -201,8 +207,9 @@ pub enum Command {
     Prefilter(PrefilterArgs),
     /// Print the resolved calibration and the quantities derived from it.
     Calib,
-    /// The real-time service: frames from a source, preprocessed by the
-    /// D-CNN, encoded through the panel's transfer curve, presented to a sink.
+    /// The real-time service: frames from a source, preprocessed at the best
+    /// level that fits the refresh (or by one method), encoded through the
+    /// panel's transfer curve, presented to a sink.
     Run(RunArgs),
     /// Time the PSF and the perceived image, writing their inputs for
     /// tools/bench/compare_numpy.py (see docs/benchmarks.md).

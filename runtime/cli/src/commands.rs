@@ -355,20 +355,27 @@ pub fn run(cli: Cli) -> Result<()> {
             let accommodation_d = s
                 .accom
                 .context("--sim needs --accom D (the eye's accommodation in diopters)")?;
+            // A level of the frame budget: its method and prefilter, on the
+            // optics the run's ladder puts it on.
+            let (common, method, prefilter) = match &s.level {
+                Some(level) => {
+                    let (c, m, p) = nedrt_run::level_system(&common, level)?;
+                    (c, Some(m), p)
+                }
+                None => (common, s.method, s.prefilter),
+            };
             // No --method: the shipped system, and every method beside it.
-            let compare = s.method.is_none() && s.display_image.is_none();
+            let compare = method.is_none() && s.display_image.is_none();
             let opts = app::sim::SimOptions {
                 accommodation_d,
                 input: s.input,
-                method: s
-                    .method
-                    .unwrap_or_else(|| app::sim::SimOptions::shipped_method(&common)),
+                method: method.unwrap_or_else(|| app::sim::SimOptions::shipped_method(&common)),
                 compare,
                 out: s.out,
                 display_image: s.display_image,
                 optics: s.optics,
                 display_out: s.display_out,
-                prefilter: s.prefilter,
+                prefilter,
                 zones: s.zones.request()?,
             };
             println!("{}", app::sim::run(&common, &opts)?);

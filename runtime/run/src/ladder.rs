@@ -258,6 +258,43 @@ pub(super) fn fixed_level(opts: &RunOptions, network: bool) -> PlannedLevel {
     }
 }
 
+/// `nedrt sim --level NAME`: a level of the frame budget by its name in
+/// the run's report (none, wiener, refine:K for any K ≥ 1, or the network's
+/// file stem), as the method and prefilter it runs and the options of the
+/// optics it runs on (the system's DOE, as the ladder's levels).
+pub fn level_system(
+    common: &CommonOptions,
+    name: &str,
+) -> Result<(CommonOptions, Method, Prefilter), AppError> {
+    let stem = common
+        .dcnn
+        .path
+        .file_stem()
+        .map(|s| s.to_string_lossy().into_owned());
+    let (method, prefilter) = match name {
+        "none" => (Method::DoeOnly, Prefilter::Native),
+        "wiener" => (Method::DoeWiener, Prefilter::Native),
+        n if Some(n) == stem.as_deref() || n == "dcnn" => (Method::Proposed, Prefilter::Native),
+        n => match n.strip_prefix("refine:").map(str::parse::<usize>) {
+            Some(Ok(k)) if k >= 1 => (
+                Method::DoeWiener,
+                Prefilter::Refine(k, Prefilter::DEFAULT_OBJECTIVE),
+            ),
+            _ => {
+                return Err(AppError::option(
+                    format!("--level {name}"),
+                    format!(
+                        "not a level of the frame budget: none, wiener, refine:K (K ≥ 1) or the \
+                         network ({})",
+                        stem.as_deref().unwrap_or("dcnn")
+                    ),
+                ));
+            }
+        },
+    };
+    Ok((ladder_common(common, Method::Proposed), method, prefilter))
+}
+
 /// The DOE the ladder's levels run on for a view with `design` (its own,
 /// else the system's: the network's companion DOE for `proposed`).
 pub(super) fn ladder_common(common: &CommonOptions, method: Method) -> CommonOptions {

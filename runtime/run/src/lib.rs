@@ -26,6 +26,7 @@ use std::sync::Arc;
 pub use ladder::LadderPlan;
 pub use ladder::{
     DEFAULT_QUALITY_TABLE, LadderSpec, PlannedLevel, QualityTable, Rung, fixed_quality,
+    level_system,
 };
 use nedrt_command::{AppError, CommonOptions};
 use nedrt_infer::ModelFile;
