@@ -363,3 +363,50 @@ mod needs_gpu_and_window {
         assert!(stdout(&out).contains("pictures drawn"), "{}", stdout(&out));
     }
 }
+
+/// `nedrt view --levels` (issue 54): a level of the frame budget by its
+/// report's name is a panel, labelled so, showing what `nedrt sim --level`
+/// gives for it; a name that is no level is refused.
+#[test]
+fn the_viewer_shows_frame_budget_levels_by_name() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let input = input(dir.path());
+    let layout = Layout::new(1, 64, 64, false);
+    let im = headless_picture(
+        &input,
+        &dir.path().join("refine.png"),
+        &["--levels", "refine:3", "--step", "0.5", "--accom", "1.5"],
+    );
+    let shown = block(im.as_raw(), layout.width, layout.image_origin(0), 64, 64);
+    let out = dir.path().join("sim-refine.tif");
+    let o = run(&[
+        "--calib",
+        path(&small_calib()),
+        "--sim",
+        "--accom",
+        "1.5",
+        "--level",
+        "refine:3",
+        "--input",
+        path(&input),
+        "--out",
+        path(&out),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let want: Vec<u8> = image::open(&out)
+        .expect("sim tif")
+        .into_rgb32f()
+        .pixels()
+        .flat_map(|p| p.0.map(encode8))
+        .collect();
+    assert_same_codes(&shown, &want, "refine:3 at 1.5 D");
+    let o = run(&[
+        "--calib",
+        path(&small_calib()),
+        "view",
+        "--headless",
+        "--levels",
+        "wiener,refine:0",
+    ]);
+    assert_clean_error(&o, "--level refine:0: not a level of the frame budget");
+}

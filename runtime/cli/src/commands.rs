@@ -131,7 +131,8 @@ pub fn run(cli: Cli) -> Result<()> {
                     ..Default::default()
                 },
             };
-            print!("{}", app::viewer::view(&common, &a.scene.into(), &opts)?);
+            let (common, scene) = a.scene.source(common)?;
+            print!("{}", app::viewer::view(&common, &scene, &opts)?);
         }
         Some(Command::Sweep(a)) => {
             let opts = app::viewer::SweepOptions {
@@ -141,7 +142,8 @@ pub fn run(cli: Cli) -> Result<()> {
                 fps: a.fps,
                 out: a.out,
             };
-            print!("{}", app::viewer::sweep(&common, &a.scene.into(), &opts)?);
+            let (common, scene) = a.scene.source(common)?;
+            print!("{}", app::viewer::sweep(&common, &scene, &opts)?);
         }
         Some(Command::TuneWiener(a)) => {
             print!("{}", app::tune::run(&common, &a.images, a.method, a.write)?)

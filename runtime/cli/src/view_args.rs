@@ -25,18 +25,56 @@ pub struct SceneArgs {
     /// Display systems side by side.
     #[arg(long, value_delimiter = ',', value_parser = named::<Method>(), default_values = ["conventional", "ai", "proposed"])]
     pub methods: Vec<Method>,
+    /// Instead of --methods: levels of `nedrt run`'s frame budget by the
+    /// names its report gives (none, wiener, refine:K, dcnn), side by side
+    /// on the optics they run on (the shipped system's DOE).
+    #[arg(
+        long,
+        value_delimiter = ',',
+        value_name = "LEVEL",
+        conflicts_with = "methods"
+    )]
+    pub levels: Vec<String>,
     /// Show only this region of the input, WxH+X+Y (every retinal pixel 1:1).
     #[arg(long, value_parser = parse_crop, value_name = "WxH+X+Y")]
     pub crop: Option<nedrt_app::viewer::Crop>,
 }
 
-impl From<SceneArgs> for nedrt_app::viewer::SceneSource {
-    fn from(a: SceneArgs) -> Self {
-        Self {
-            input: a.input,
-            crop: a.crop,
-            methods: a.methods,
-        }
+impl SceneArgs {
+    /// The scene's source and the options it is prepared with: `--levels`
+    /// run on the optics `nedrt run`'s ladder puts them on.
+    pub fn source(
+        self,
+        common: nedrt_app::CommonOptions,
+    ) -> Result<(nedrt_app::CommonOptions, nedrt_app::viewer::SceneSource), nedrt_app::AppError>
+    {
+        let (common, panels) = if self.levels.is_empty() {
+            let panels = self
+                .methods
+                .into_iter()
+                .map(nedrt_app::viewer::Panel::of)
+                .collect();
+            (common, panels)
+        } else {
+            let mut panels = Vec::new();
+            let mut optics = common.clone();
+            for label in self.levels {
+                let (c, method, prefilter) = nedrt_run::level_system(&common, &label)?;
+                optics = c;
+                panels.push(nedrt_app::viewer::Panel {
+                    label,
+                    method,
+                    prefilter,
+                });
+            }
+            (optics, panels)
+        };
+        let source = nedrt_app::viewer::SceneSource {
+            input: self.input,
+            crop: self.crop,
+            panels,
+        };
+        Ok((common, source))
     }
 }
 

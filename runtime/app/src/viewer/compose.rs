@@ -163,10 +163,10 @@ pub fn compose(
         root.fill(&BACKGROUND).map_err(draw_err)?;
         let font = |size: u32, color: &RGBColor| ("sans-serif", size).into_font().color(color);
         let main = scene.is_main_depth(accommodation_d);
-        for (i, (method, r)) in scene.methods.iter().zip(rendered).enumerate() {
+        for (i, (label, r)) in scene.labels.iter().zip(rendered).enumerate() {
             let (x, _) = (layout.column_x(i) as i32, 0);
             root.draw(&Text::new(
-                format!("{}  ·  {}", method.name(), shown.label()),
+                format!("{label}  ·  {}", shown.label()),
                 (x, (PAD + 4) as i32),
                 font(16, &TEXT),
             ))

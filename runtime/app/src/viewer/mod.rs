@@ -19,6 +19,7 @@ use nedrt_service::present::window::WindowOptions;
 
 use crate::{AppError, CommonOptions};
 use compose::{Layout, Picture};
+pub use scene::Panel;
 use scene::{FocusScene, Shown};
 
 /// The viewer's grid step: PSFs for every 0.05 D of the calibrated range.
@@ -88,7 +89,8 @@ pub struct SceneSource {
     pub input: Option<PathBuf>,
     /// Only this region of the input.
     pub crop: Option<Crop>,
-    pub methods: Vec<Method>,
+    /// The panels side by side: methods, or frame-budget levels.
+    pub panels: Vec<Panel>,
 }
 
 /// How `nedrt view` shows its scene.
@@ -136,7 +138,7 @@ fn load_scene(
         Some(c) => crop_image(&loaded.image, c, &name)?,
         None => loaded.image,
     };
-    scene_of(common, calib, image, name, &source.methods, depths_d)
+    scene_of(common, calib, image, name, &source.panels, depths_d)
 }
 
 fn crop_image(image: &Image, c: Crop, name: &str) -> Result<Image, AppError> {
@@ -156,7 +158,7 @@ fn scene_of(
     calib: &Calibration,
     image: Image,
     name: String,
-    methods: &[Method],
+    panels: &[Panel],
     depths_d: &[f64],
 ) -> Result<FocusScene, AppError> {
     if image.width < 8 || image.height < 8 {
@@ -170,15 +172,7 @@ fn scene_of(
         .map(|n| n.to_string_lossy().into_owned())
         .unwrap_or(name);
     let psf_depths_d = psf_depths(calib, depths_d);
-    FocusScene::new(
-        common,
-        calib,
-        image,
-        short,
-        methods,
-        depths_d,
-        &psf_depths_d,
-    )
+    FocusScene::new(common, calib, image, short, panels, depths_d, &psf_depths_d)
 }
 
 /// The picture of a scene at grid depth `depth`.
@@ -252,7 +246,7 @@ pub fn view(
         text,
         "nedrt view: {} through {} at {} accommodations ({lo}–{hi} D, step {} D); prepared in {prepared_s:.1} s",
         scene.input_name,
-        names(&scene.methods),
+        scene.labels.join(", "),
         scene.depths_d.len(),
         opts.step_d
     );
@@ -277,14 +271,6 @@ pub fn view(
     let summary = window::interactive(&scene, opts, depth)?;
     let _ = write!(text, "{summary}");
     Ok(text)
-}
-
-fn names(methods: &[Method]) -> String {
-    methods
-        .iter()
-        .map(|m| m.name())
-        .collect::<Vec<_>>()
-        .join(", ")
 }
 
 /// `nedrt sweep`: renders the picture at every accommodation of the range
@@ -333,7 +319,8 @@ pub fn sweep_image(
 ) -> Result<String, AppError> {
     animation::check_request(&opts.out, opts.fps)?;
     let depths = depth_grid(opts.from_d, opts.to_d, opts.step_d)?;
-    let scene = scene_of(common, calib, image, name, methods, &depths)?;
+    let panels: Vec<Panel> = methods.iter().map(|&m| Panel::of(m)).collect();
+    let scene = scene_of(common, calib, image, name, &panels, &depths)?;
     sweep_scene(common, &scene, opts)
 }
 
@@ -382,7 +369,7 @@ fn sweep_scene(
          rendered {perceived} perceived images ({}×{}) in {render_s:.2} s: {:.1} a second on {} threads\n\
          {reports}",
         scene.input_name,
-        names(&scene.methods),
+        scene.labels.join(", "),
         frames.len(),
         scene.depths_d[0],
         scene.depths_d[scene.depths_d.len() - 1],

@@ -11,9 +11,31 @@ use std::sync::{Arc, Mutex};
 use nedrt_core::calib::Calibration;
 use nedrt_optics::sim::metrics::psnr;
 use nedrt_optics::sim::{Image, Method, Prepared, Simulator};
+use nedrt_stages::preprocess::Prefilter;
 use rayon::prelude::*;
 
 use crate::{AppError, CommonOptions};
+
+/// One panel of the viewer: a method's display image, made by its own
+/// preprocessing or by a prefilter on its optics (`nedrt run`'s frame
+/// budget levels, `nedrt view --levels`), under a label.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Panel {
+    pub label: String,
+    pub method: Method,
+    pub prefilter: Prefilter,
+}
+
+impl Panel {
+    /// `method` with its own preprocessing, labelled by its name.
+    pub fn of(method: Method) -> Self {
+        Self {
+            label: method.name().into(),
+            method,
+            prefilter: Prefilter::Native,
+        }
+    }
+}
 
 /// Which image the panels show.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -71,7 +93,9 @@ pub fn rgb8_of(image: &Image) -> Vec<u8> {
 
 /// Every method's view of one input over a grid of accommodations.
 pub struct FocusScene {
+    /// Each panel's method (the optics it is seen through) and label.
     pub methods: Vec<Method>,
+    pub labels: Vec<String>,
     pub input_name: String,
     /// Accommodations the scene can show, ascending, in diopters.
     pub depths_d: Vec<f64>,
@@ -95,7 +119,7 @@ impl std::fmt::Debug for FocusScene {
             f,
             "FocusScene({}, {:?}, {} depths)",
             self.input_name,
-            self.methods,
+            self.labels,
             self.depths_d.len()
         )
     }
@@ -113,7 +137,7 @@ struct Memo {
 const MEMO_BYTES: usize = 512 << 20;
 
 impl FocusScene {
-    /// Prepares `methods` over `depths_d` for `input` (already loaded and
+    /// Prepares `panels` over `depths_d` for `input` (already loaded and
     /// checked against the panel), with the PSFs of `psf_depths_d`, which
     /// must hold every depth of `depths_d` (one request, so one cache entry,
     /// serves the viewer and every sweep on its grid).
@@ -122,11 +146,11 @@ impl FocusScene {
         calib: &Calibration,
         input: Image,
         input_name: String,
-        methods: &[Method],
+        panels: &[Panel],
         depths_d: &[f64],
         psf_depths_d: &[f64],
     ) -> Result<Self, AppError> {
-        if methods.is_empty() {
+        if panels.is_empty() {
             return Err(AppError::Unavailable("no methods to show".into()));
         }
         if depths_d.is_empty() {
@@ -137,18 +161,35 @@ impl FocusScene {
                 tracing::warn!("{w}");
             }
         }
-        let mut dcnns = common.dcnn.load_for(methods)?;
+        let methods: Vec<Method> = panels.iter().map(|p| p.method).collect();
+        let mut dcnns = common.dcnn.load_for(&methods)?;
         let sim = Simulator::new(
             calib.clone(),
-            common.doe_path_for(methods).as_deref(),
+            common.doe_path_for(&methods).as_deref(),
             common.cache(),
         )?
         .with_wiener_stages(nedrt_stages::preprocess::wiener_stages(&dcnns)?);
-        let prepared = sim.prepare(methods, psf_depths_d, common.progress())?;
-        let displays = methods
+        // A prefilter's objective depths beside the grid's.
+        let prefilters: Vec<Prefilter> = panels.iter().map(|p| p.prefilter).collect();
+        let mut psf_depths = psf_depths_d.to_vec();
+        psf_depths.extend(Prefilter::all_depths_d(&prefilters, &sim.calib));
+        psf_depths.sort_by(f64::total_cmp);
+        psf_depths.dedup();
+        let prepared = sim.prepare(&methods, &psf_depths, common.progress())?;
+        let displays = panels
             .iter()
-            .map(|&m| -> Result<Image, AppError> {
-                Ok(nedrt_stages::preprocess::for_method(m, &prepared, &mut dcnns)?.run(&input)?)
+            .map(|p| -> Result<Image, AppError> {
+                let mut preprocess = if p.prefilter.is_native() {
+                    nedrt_stages::preprocess::for_method(p.method, &prepared, &mut dcnns)?
+                } else {
+                    nedrt_stages::preprocess::for_system(
+                        p.method,
+                        p.prefilter,
+                        &prepared,
+                        &mut dcnns,
+                    )?
+                };
+                Ok(preprocess.run(&input)?)
             })
             .collect::<Result<Vec<_>, _>>()?;
         let sharp = input.up2();
@@ -160,7 +201,8 @@ impl FocusScene {
         depths.sort_by(f64::total_cmp);
         depths.dedup();
         Ok(Self {
-            methods: methods.to_vec(),
+            methods,
+            labels: panels.iter().map(|p| p.label.clone()).collect(),
             input_name,
             depths_d: depths,
             width: sharp.width,
