@@ -7,7 +7,8 @@
 //   u  = Σ (y − x⁺)(x⁺ − x)                   (project's partial sums, reduce)
 //   restart if u > 0: t⁺ = 1, m = 0; else t⁺ = (1 + √(1 + 4t²))/2, m = (t − 1)/t⁺
 //   y = x⁺ + m(x⁺ − x), x = x⁺                (advance)
-// `state` holds per channel [1/L, t, m, u]. Planes are `plane` values apart.
+// `state` holds per channel [1/L, t, m, u], then still.wgsl's [warm, had_last,
+// still_rms, 0]. Planes are `plane` values apart.
 
 struct Frame {
     plane: u32,
@@ -32,11 +33,12 @@ fn pixel(gid: vec3<u32>) -> u32 {
     return gid.x + gid.y * f.groups_x * 64u;
 }
 
-// x = y = clamp(linear prefilter), t = 1.
+// x = y = clamp(linear prefilter), t = 1; a warm start (still.wgsl's flag,
+// after the channels' states) keeps the last frame's x, y and t instead.
 @compute @workgroup_size(64)
 fn start(@builtin(global_invocation_id) gid: vec3<u32>) {
     let i = pixel(gid);
-    if i >= f.plane {
+    if i >= f.plane || state[4u * f.channels] > 0.5 {
         return;
     }
     let at = gid.z * f.plane + i;

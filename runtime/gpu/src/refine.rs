@@ -5,12 +5,16 @@
 //! 1/L, restart rule and step count as the CPU, the operator applied by the
 //! DCT filter ([`crate::fft::DctFilter`], three gain sets sharing its
 //! buffers) and the steps by `shaders/fista.wgsl`. A frame records its
-//! dispatches; nothing is allocated or read back.
+//! dispatches; nothing is allocated or read back. Warm-started
+//! ([`RefineStage::warm_started`]), a still frame goes on from where the
+//! last frame's steps stopped (`shaders/still.wgsl` decides on the device,
+//! as the host's `SolvedPrefilter::warm_started` does).
 
 use crate::GpuError;
 use crate::fft::{DctFilter, FftError, FftKernels, TermsError, init_buffer, storage};
 
 const SHADER: &str = include_str!("../../../shaders/fista.wgsl");
+const STILL_SHADER: &str = include_str!("../../../shaders/still.wgsl");
 const OUTPUTS_KEPT: usize = 8;
 
 /// The problem at one frame size, as the device takes it: per channel the
@@ -91,6 +95,52 @@ impl Pipelines {
     }
 }
 
+/// `still.wgsl`'s pipelines: the change from the last frame, and the flag.
+#[derive(Debug)]
+struct StillPipelines {
+    layout: wgpu::BindGroupLayout,
+    change: wgpu::ComputePipeline,
+    decide: wgpu::ComputePipeline,
+}
+
+impl StillPipelines {
+    fn new(device: &wgpu::Device) -> Result<Self, FftError> {
+        crate::fft::checked(device, || {
+            let entries: Vec<wgpu::BindGroupLayoutEntry> = (0..5)
+                .map(|binding| storage(binding, matches!(binding, 0 | 1)))
+                .collect();
+            let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+                label: Some("still"),
+                entries: &entries,
+            });
+            let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+                label: Some("still"),
+                bind_group_layouts: &[Some(&layout)],
+                immediate_size: 0,
+            });
+            let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+                label: Some("still"),
+                source: wgpu::ShaderSource::Wgsl(STILL_SHADER.into()),
+            });
+            let pipeline = |entry: &str| {
+                device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                    label: Some(entry),
+                    layout: Some(&pipeline_layout),
+                    module: &module,
+                    entry_point: Some(entry),
+                    compilation_options: Default::default(),
+                    cache: None,
+                })
+            };
+            Self {
+                change: pipeline("change"),
+                decide: pipeline("decide"),
+                layout,
+            }
+        })
+    }
+}
+
 /// Everything one frame size needs.
 #[derive(Debug)]
 struct Plan {
@@ -107,6 +157,10 @@ struct Plan {
     main: wgpu::BindGroup,
     emits: Vec<(wgpu::Buffer, wgpu::BindGroup)>,
     groups: [u32; 3],
+    /// Warm-started: the last frame's planes, and the still test's bind
+    /// groups by input buffer.
+    last: Option<wgpu::Buffer>,
+    stills: Vec<(wgpu::Buffer, wgpu::BindGroup)>,
 }
 
 /// `refine:K` (or `optimal` with a step budget K) as a
@@ -119,6 +173,8 @@ pub struct RefineStage {
     pipelines: Pipelines,
     terms_for: TermsFor,
     plan: Option<Plan>,
+    /// Warm-started: the still test's pipelines and RMS threshold.
+    warm: Option<(StillPipelines, f32)>,
 }
 
 impl std::fmt::Debug for RefineStage {
@@ -145,7 +201,18 @@ impl RefineStage {
             pipelines: Pipelines::new(device)?,
             terms_for,
             plan: None,
+            warm: None,
         })
+    }
+
+    /// Goes on from the last frame's x, y and t where this frame differs
+    /// from the last by an RMS of at most `still_rms` (the host's
+    /// `SolvedPrefilter::STILL_RMS`), instead of from the linear prefilter:
+    /// a still scene converges over frames at K steps a frame.
+    pub fn warm_started(mut self, still_rms: f32) -> Result<Self, FftError> {
+        self.warm = Some((StillPipelines::new(&self.device)?, still_rms));
+        self.plan = None;
+        Ok(self)
     }
 
     /// Makes the plan of `width`×`height` frames now (the terms computed
@@ -199,10 +266,14 @@ impl RefineStage {
         };
         let init = |label, contents: &[u8]| init_buffer(device, label, contents);
         let frame = init("fista frame", bytemuck::bytes_of(&params));
+        // Per channel [1/L, t, m, u], then the warm start's [warm, had_last,
+        // still_rms, 0] (still.wgsl).
+        let still_rms = self.warm.as_ref().map_or(0.0, |(_, rms)| *rms);
         let state: Vec<f32> = terms
             .step
             .iter()
             .flat_map(|s| [*s, 1.0, 0.0, 0.0])
+            .chain([0.0, 0.0, still_rms, 0.0])
             .collect();
         let state = init("fista state", bytemuck::cast_slice(&state));
         let partials = device.create_buffer(&wgpu::BufferDescriptor {
@@ -235,6 +306,8 @@ impl RefineStage {
             main,
             emits: Vec::new(),
             groups: [gx, gy, channels as u32],
+            last: self.warm.is_some().then(|| buffer("fista last frame")),
+            stills: Vec::new(),
         });
         Ok(())
     }
@@ -262,7 +335,12 @@ fn bind(
 
 impl crate::DeviceStage for RefineStage {
     fn describe(&self) -> String {
-        format!("{} on the device ({} steps)", self.name, self.steps)
+        let warm = if self.warm.is_some() {
+            ", going on from the last frame's on a still one"
+        } else {
+            ""
+        };
+        format!("{} on the device ({} steps{warm})", self.name, self.steps)
     }
 
     fn warm_up(
@@ -315,6 +393,44 @@ impl crate::DeviceStage for RefineStage {
                 g
             }
         };
+        // Warm-started: is this frame the last one still? (The flag `start`
+        // reads.)
+        if let (Some((still, _)), Some(last)) = (&self.warm, &plan.last) {
+            let group = match plan.stills.iter().find(|(b, _)| b == input) {
+                Some((_, g)) => g.clone(),
+                None => {
+                    let [frame, state, _, partials] = &plan.buffers;
+                    let entries: Vec<wgpu::BindGroupEntry> = [frame, input, last, partials, state]
+                        .iter()
+                        .enumerate()
+                        .map(|(i, b)| wgpu::BindGroupEntry {
+                            binding: i as u32,
+                            resource: b.as_entire_binding(),
+                        })
+                        .collect();
+                    let g = self.device.create_bind_group(&wgpu::BindGroupDescriptor {
+                        label: Some("still"),
+                        layout: &still.layout,
+                        entries: &entries,
+                    });
+                    if plan.stills.len() == OUTPUTS_KEPT {
+                        plan.stills.remove(0);
+                    }
+                    plan.stills.push((input.clone(), g.clone()));
+                    g
+                }
+            };
+            let [gx, gy, c] = plan.groups;
+            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some("still"),
+                timestamp_writes: None,
+            });
+            pass.set_bind_group(0, &group, &[]);
+            pass.set_pipeline(&still.change);
+            pass.dispatch_workgroups(gx, gy, c);
+            pass.set_pipeline(&still.decide);
+            pass.dispatch_workgroups(1, 1, 1);
+        }
         // b = Σ A_Dᵀ t_D(I); the start: the linear prefilter, clamped. One
         // input: the two share its rows' forward transform.
         plan.filter

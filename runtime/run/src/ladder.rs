@@ -419,6 +419,20 @@ pub(super) fn device_levels(
                         AppError::Internal("a prefilter level without its optics".into())
                     })?;
                     let what = format!("{} of doe+wiener", l.name);
+                    // A still scene converges over frames, as on the host.
+                    if let Rung::Refine(k) = rung {
+                        let problem = prepared
+                            .display_problem(Method::DoeWiener, Prefilter::DEFAULT_OBJECTIVE)?;
+                        let problem = std::sync::Arc::new(problem);
+                        return Ok(nedrt_stages::device_prefilter::refine_stage(
+                            device,
+                            what,
+                            problem,
+                            k,
+                            Some(size),
+                            true,
+                        )?);
+                    }
                     nedrt_stages::device_prefilter::prefilter_stage(
                         device,
                         Method::DoeWiener,

@@ -61,13 +61,16 @@ pub fn lsq_stage(
     spectral_stage(device, what, gains_for, size)
 }
 
-/// `refine:K` of `problem` on the device.
+/// `refine:K` of `problem` on the device; `warm`: a still frame goes on
+/// from the last frame's steps, as [`nedrt_optics::sim::SolvedPrefilter::warm_started`]
+/// does on the host.
 pub fn refine_stage(
     device: &wgpu::Device,
     what: String,
     problem: Arc<DisplayProblem>,
     steps: usize,
     size: Option<(usize, usize)>,
+    warm: bool,
 ) -> Result<Box<dyn DeviceStage>, FftError> {
     let terms_for: TermsFor = Box::new(move |w, h| {
         let t = problem.device_terms(w, h)?;
@@ -79,6 +82,10 @@ pub fn refine_stage(
         })
     });
     let mut stage = RefineStage::new(device, what, steps, terms_for)?;
+    if warm {
+        let still_rms = nedrt_optics::sim::SolvedPrefilter::STILL_RMS as f32;
+        stage = stage.warm_started(still_rms)?;
+    }
     if let Some((w, h)) = size {
         stage.prepare(w, h)?;
     }
@@ -124,6 +131,7 @@ pub fn prefilter_stage(
             Arc::new(prepared.display_problem(method, o)?),
             k,
             size,
+            false,
         )?,
         _ => match prepared.wiener_shared(method) {
             Some(filter) => wiener_stage(device, what, filter, size)?,
