@@ -272,8 +272,16 @@ def test_the_timelines_give_each_case_s_stage_holds_and_bounds(tmp_path, capsys)
     assert "The steady state (GPU, commit abc)" in md and row in md and "| none 1 f32 |" not in md
     assert timelines.main(["timelines.py", str(summary), "--frames", "model 1 f32", "0", "1"]) == 0
     out = capsys.readouterr().out
-    assert "| 0 | shown | 0.00 | 20.00 | 4.00 | 0.00 | 5.00 | 20.00 | 1.00 |" in out
+    assert "| 0 | shown | 0.00 | 20.00 | 4.00 | 0.00 | 5.00 | 20.00 | 1.00 | – |" in out
     assert "| 20.00 | 9.00 | 11.00 | 0 | 10.00 |" in out
+    # `auto`: the levels the frames ran, by the log's names.
+    auto = {**log, "network": "auto", "levels": ["none", "wiener", "refine:10"],
+            "frames": {**frames, "level": [2] * 25 + [1] * 5}}
+    assert timelines.table([auto])[2].endswith("| wiener 5, refine:10 5 |")
+    summary.write_text(json.dumps({"steps": [{"name": "pipeline", "records": [auto]}]}))
+    assert timelines.main(["timelines.py", str(summary), "--frames", "auto 1 f32", "27", "1"]) == 0
+    assert "| 27 | shown |" in (out := capsys.readouterr().out) and out.rstrip().splitlines()[2].endswith("| wiener |")
+    summary.write_text(json.dumps({"steps": [{"name": "pipeline", "records": [log]}]}))
     # Bad input: a named reason and a non-zero exit.
     assert timelines.main(["timelines.py", str(summary), "--frames", "half 1 f32"]) == 1
     assert "no case 'half 1 f32'; there are: model 1 f32" in capsys.readouterr().err
@@ -418,6 +426,9 @@ def test_a_cases_frame_timelines_become_one_record_column_by_column(tmp_path):
     assert got["frames"]["id"] == [0, 1, 2] and got["frames"]["submitted_ms"] == [0.0, 1.0, 2.0]
     assert got["frames"]["stages_ms"][1] == [[0.0, 1.0]] * 3
     assert got["refreshes"] == {"refresh_ms": [11.1], "wake_ms": [9.9], "frame": [0]}
+    assert got["levels"] is None
+    path.write_text(json.dumps({**log, "levels": ["none", "wiener"]}))
+    assert check_steps.frame_log(path)["levels"] == ["none", "wiener"]
     # A case that showed nothing has empty columns, not an error.
     path.write_text(json.dumps({**log, "frames": [], "refreshes": []}))
     assert check_steps.frame_log(path)["frames"] == {}

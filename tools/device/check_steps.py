@@ -223,6 +223,7 @@ def frame_log(path: Path) -> dict:
     columns = lambda rows: {k: [row[k] for row in rows] for k in (rows[0] if rows else {})}
     return {"kind": "frame_log", "file": path.name,
             **{k: log[k] for k in ("network", "frame_path", "views", "refresh_hz", "precision")},
+            "levels": log.get("levels"),
             "frames": columns(log["frames"]), "refreshes": columns(log["refreshes"])}
 
 

@@ -7,7 +7,8 @@ there are this script's output on docs/devcheck/2026-11-28-h200-2/summary.json.
 With --frames, one case's frames instead ("model 1 f32": network, views,
 precision), from the FIRST-th (0) on, COUNT of them (40), each with its
 submission, predicted refresh, preprocess span and hold, ready, shown or
-replaced, and its present (the take to the present's end), ms; then the
+replaced, its present (the take to the present's end), ms, and the frame
+budget's level it ran (`auto`; the log's `levels` name them); then the
 present loop's refreshes over the same time: each refresh, its wake and
 lead (the refresh less the wake), the frame taken and the present's end.
 
@@ -20,6 +21,8 @@ For each `frame_log` record of the pipeline step, over the frames after the
 - the gaps between submissions at p10, p50 and p90;
 - the present loop's lead (each refresh less its planned wake) over the
   refreshes after the 20th, p50;
+- for `auto`, the frame budget's levels the frames after the 20th ran, by
+  name and count;
 - the pipeline's bound (mean + 4 deviations, the service's `Estimate` with
   its warm-up, in floating point) fed, frame by frame in the order they were
   taken, with submission to ready less the hold (the feed before
@@ -104,6 +107,14 @@ def case(record: dict) -> dict:
             e.observe(feed(i))
             b.append(e.bound())
         bounds[name] = pct(b[SKIP:], 0.5)
+    # Each level the frames after the 20th ran, in the ladder's order.
+    names = record.get("levels") or []
+    counts = {}
+    for i in later:
+        level = (f.get("level") or [None] * n)[i]
+        if level is not None:
+            counts[level] = counts.get(level, 0) + 1
+    ran = {(names[k] if k < len(names) else f"level {k}"): counts[k] for k in sorted(counts)}
     r = record.get("refreshes") or {}
     leads = [t - w for t, w in zip(r.get("refresh_ms", []), r.get("wake_ms", [])) if w is not None]
     lead_p50 = pct(leads[SKIP:], 0.5)
@@ -116,6 +127,7 @@ def case(record: dict) -> dict:
         "ahead_p50": pct([f["predicted_ms"][i] - f["submitted_ms"][i] for i in later], 0.5),
         "gap_p10": pct(gaps, 0.1), "gap_p50": pct(gaps, 0.5), "gap_p90": pct(gaps, 0.9),
         **{f"bound_{k}": v for k, v in bounds.items()},
+        "levels": ", ".join(f"{k} {v}" for k, v in ran.items()) or "–",
         **plan(bounds["less_hold_and_behind"], lead_p50, record.get("refresh_hz")),
     }
 
@@ -139,8 +151,8 @@ def table(logs: list) -> list:
     ms = lambda v: "–" if v is None else f"{v:.2f}"
     rows = ["| case | own p50 ms | own p90 ms | wall p50 ms | held back | hold p50 / max ms | submitted ahead p50 ms "
             "| submission gaps p10/p50/p90 ms | present's lead p50 ms | bound p50 ms: less the hold "
-            "| less also the queue behind it | own work | plan's lead ms (within a refresh) |",
-            "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+            "| less also the queue behind it | own work | plan's lead ms (within a refresh) | levels run |",
+            "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
     within = lambda c: "–" if c["plan_ms"] is None else (
         f"{c['plan_ms']:.2f} ({'yes' if c['plan_ms'] <= c['refresh_ms'] else 'no'}: {c['refresh_ms']:.2f})")
     for r in logs:
@@ -151,7 +163,7 @@ def table(logs: list) -> list:
                     f"{c['held']} of {c['of']} | {ms(c['held_p50'])} / {ms(c['held_max'])} | {ms(c['ahead_p50'])} | "
                     f"{ms(c['gap_p10'])} / {ms(c['gap_p50'])} / {ms(c['gap_p90'])} | {ms(c['lead_p50'])} | "
                     f"{ms(c['bound_less_hold'])} | {ms(c['bound_less_hold_and_behind'])} | {ms(c['bound_own_work'])} | "
-                    f"{within(c)} |")
+                    f"{within(c)} | {c['levels']} |")
     return rows if len(rows) > 2 else []
 
 
@@ -161,14 +173,17 @@ def frames(record: dict, first: int, count: int) -> list:
     present = {(fr, t): p - t for fr, t, p in zip(r.get("frame", []), r.get("taken_ms", []),
                                                r.get("presented_ms", [])) if fr is not None and p is not None}
     ms = lambda v: "–" if v is None else f"{v:.2f}"
-    rows = ["| id | outcome | submitted | predicted | preprocess | held | ready | shown or replaced | present |",
-            "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+    names = record.get("levels") or []
+    level_of = lambda i: "–" if (f.get("level") or [None] * (i + 1))[i] is None else (
+        names[f["level"][i]] if f["level"][i] < len(names) else str(f["level"][i]))
+    rows = ["| id | outcome | submitted | predicted | preprocess | held | ready | shown or replaced | present | level |",
+            "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
     for i in range(first, min(first + count, len(f["id"]))):
         span = f["stages_ms"][i][1]
         end = f["shown_ms"][i] if f["outcome"][i] != "replaced" else f["replaced_ms"][i]
         rows.append(f"| {f['id'][i]} | {f['outcome'][i]} | {ms(f['submitted_ms'][i])} | {ms(f['predicted_ms'][i])} | "
                     f"{ms(span[1] - span[0])} | {ms(f['held_ms'][i])} | {ms(f['ready_ms'][i])} | {ms(end)} | "
-                    f"{ms(present.get((f['id'][i], f['taken_ms'][i])))} |")
+                    f"{ms(present.get((f['id'][i], f['taken_ms'][i])))} | {level_of(i)} |")
     shown = range(first, min(first + count, len(f["id"])))
     if not r.get("refresh_ms") or not shown:
         return rows

@@ -309,6 +309,11 @@ pub fn run(
                     "views": if b.stereo { 2 } else { 1 },
                     "refresh_hz": calib.panel.refresh_hz,
                     "precision": precision,
+                    // The frame budget's level names: each frame's `level`
+                    // indexes them (`auto` only).
+                    "levels": report.frame_budget.as_ref().map(|b| {
+                        b.levels.iter().map(|l| l.name.clone()).collect::<Vec<_>>()
+                    }),
                     "frames": report.frames,
                     "refreshes": report.refreshes,
                 });
