@@ -17,7 +17,7 @@ use nedrt_optics::sim::Method;
 use nedrt_service::compose::ViewRegion;
 
 mod stages;
-use stages::{ladder_stages, prefilter_on_device, stages};
+use stages::{prefilter_on_device, stages};
 
 /// The GPU the sink offers, as probed.
 #[derive(Debug, Clone, PartialEq)]
@@ -220,10 +220,7 @@ pub fn plan(inputs: &PlanInputs<'_>) -> Result<RunPlan, AppError> {
         .map(|v| ViewPlan {
             name: v.name.clone(),
             region: v.region,
-            stages: match &ladder {
-                Some(l) => ladder_stages(l, on_device),
-                None => stages(inputs, v, on_device),
-            },
+            stages: stages(inputs, v, on_device, ladder.as_ref()),
         })
         .collect();
     let source = match (opts.source, opts.source_rate_hz) {

@@ -4,36 +4,6 @@
 use super::{LadderPlan, PlanInputs, ViewFacts};
 use nedrt_stages::device_prefilter::runs_on_device;
 
-/// A view's stages under a ladder.
-pub(super) fn ladder_stages(l: &LadderPlan, on_device: bool) -> Vec<String> {
-    let here = if on_device {
-        "on the GPU"
-    } else {
-        "on the host"
-    };
-    let names: Vec<&str> = l
-        .levels
-        .iter()
-        .filter(|l| l.left_out.is_none())
-        .map(|l| l.name.as_str())
-        .collect();
-    vec![
-        if on_device {
-            "upload as sent, unpack on the GPU".to_string()
-        } else {
-            "decode on the host".to_string()
-        },
-        format!("quad layers blended {here}"),
-        format!("the frame budget's level ({}) {here}", names.join(" < ")),
-        format!("clamp to [0, 1] and the panel's transfer curve {here}"),
-        if on_device {
-            "the sink copies the codes on the GPU".into()
-        } else {
-            "the sink takes the codes from host memory".into()
-        },
-    ]
-}
-
 /// Whether view `v`'s prefilter (its method's Wiener, `lsq` or `refine:K`,
 /// or its network's Wiener stage) has a stage on the device, or why not
 /// (`optimal` has none; the device FFT takes sides whose prime factors are
@@ -57,8 +27,15 @@ pub(super) fn prefilter_on_device(inputs: &PlanInputs<'_>, v: &ViewFacts) -> Res
     Ok(())
 }
 
-/// The stages a frame of view `v` goes through.
-pub(super) fn stages(inputs: &PlanInputs<'_>, v: &ViewFacts, on_device: bool) -> Vec<String> {
+/// The stages a frame of view `v` goes through: the ladder's level where
+/// the run has one (its levels the device cannot run are left out of it),
+/// else the method's stages.
+pub(super) fn stages(
+    inputs: &PlanInputs<'_>,
+    v: &ViewFacts,
+    on_device: bool,
+    ladder: Option<&LadderPlan>,
+) -> Vec<String> {
     let opts = inputs.opts;
     let here = if on_device {
         "on the GPU"
@@ -66,7 +43,7 @@ pub(super) fn stages(inputs: &PlanInputs<'_>, v: &ViewFacts, on_device: bool) ->
         "on the host"
     };
     // A prefilter the device lacks runs on the host before the upload.
-    let host_first = on_device && prefilter_on_device(inputs, v).is_err();
+    let host_first = on_device && ladder.is_none() && prefilter_on_device(inputs, v).is_err();
     let prefilter_here = if host_first { "on the host" } else { here };
     let mut s = Vec::new();
     s.push(if on_device && !host_first {
@@ -83,8 +60,20 @@ pub(super) fn stages(inputs: &PlanInputs<'_>, v: &ViewFacts, on_device: bool) ->
         .as_deref()
         .map(|d| format!(" (design {d})"))
         .unwrap_or_default();
-    match &inputs.network {
-        Some(n) => {
+    match (ladder, &inputs.network) {
+        (Some(l), _) => {
+            let names: Vec<&str> = l
+                .levels
+                .iter()
+                .filter(|l| l.left_out.is_none())
+                .map(|l| l.name.as_str())
+                .collect();
+            s.push(format!(
+                "the frame budget's level ({}) {here}",
+                names.join(" < ")
+            ));
+        }
+        (None, Some(n)) => {
             if let Some(k) = n.behind_wiener_k {
                 s.push(format!(
                     "Wiener prefilter of {} (K = {k:.3e}) {prefilter_here}",
@@ -96,19 +85,19 @@ pub(super) fn stages(inputs: &PlanInputs<'_>, v: &ViewFacts, on_device: bool) ->
             }
             s.push(format!("D-CNN {here}"));
         }
-        None if !opts.prefilter.is_native() => {
+        (None, None) if !opts.prefilter.is_native() => {
             s.push(format!(
                 "{} prefilter of {}{design} {prefilter_here}",
                 opts.prefilter, opts.preprocess
             ));
         }
-        None if opts.preprocess.uses_wiener() => {
+        (None, None) if opts.preprocess.uses_wiener() => {
             s.push(format!(
                 "Wiener prefilter of {}{design} {prefilter_here}",
                 opts.preprocess
             ));
         }
-        None => {}
+        (None, None) => {}
     }
     if host_first && inputs.network.is_none() {
         s.push("its planes uploaded".into());
