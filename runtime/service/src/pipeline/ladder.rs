@@ -77,6 +77,18 @@ pub struct BudgetReport {
     pub dropped: Vec<String>,
 }
 
+/// The mean quality of the frames run, each weighted by the frames at its
+/// level (where every level run has a quality).
+fn delivered(levels: &[LevelReport]) -> Option<f64> {
+    let frames: u64 = levels.iter().map(|l| l.frames).sum();
+    let weighted = levels
+        .iter()
+        .filter(|l| l.frames > 0)
+        .map(|l| l.quality_db.map(|q| q * l.frames as f64))
+        .sum::<Option<f64>>()?;
+    (frames > 0).then(|| weighted / frames as f64)
+}
+
 /// One level's line of the [`BudgetReport`].
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct LevelReport {
@@ -92,6 +104,39 @@ pub struct LevelReport {
 }
 
 impl BudgetReport {
+    /// Brings the report up to `c` in place (a frame's update: the levels'
+    /// names are kept, nothing is allocated); a report of other levels is
+    /// made afresh.
+    pub fn update(&mut self, c: &Controller) {
+        let same = self.levels.len() == c.levels().len()
+            && self
+                .levels
+                .iter()
+                .zip(c.levels())
+                .all(|(r, l)| r.name == l.name);
+        if !same {
+            let dropped = std::mem::take(&mut self.dropped);
+            *self = Self::of(c);
+            self.dropped = dropped;
+            return;
+        }
+        for (r, (l, n)) in self
+            .levels
+            .iter_mut()
+            .zip(c.levels().iter().zip(c.counts()))
+        {
+            r.quality_db = l.quality_db;
+            r.reference_ms = l.reference_ns as f64 / 1e6;
+            r.frames = n.frames;
+            r.mean_ms = (n.frames > 0).then(|| n.time_ns as f64 / n.frames as f64 / 1e6);
+            r.switches_in = n.switches_in;
+            r.left_late = n.left_late;
+        }
+        self.budget_ms = c.budget_ns() as f64 / 1e6;
+        self.level_now.clone_from(&c.levels()[c.level()].name);
+        self.quality_delivered_db = delivered(&self.levels);
+    }
+
     pub fn of(c: &Controller) -> Self {
         let levels: Vec<LevelReport> = c
             .levels()
@@ -107,16 +152,7 @@ impl BudgetReport {
                 left_late: n.left_late,
             })
             .collect();
-        let run: Vec<&LevelReport> = levels.iter().filter(|l| l.frames > 0).collect();
-        let frames: u64 = run.iter().map(|l| l.frames).sum();
-        let quality_delivered_db = (frames > 0)
-            .then(|| {
-                run.iter()
-                    .map(|l| l.quality_db.map(|q| q * l.frames as f64))
-                    .sum::<Option<f64>>()
-            })
-            .flatten()
-            .map(|sum| sum / frames as f64);
+        let quality_delivered_db = delivered(&levels);
         Self {
             budget_ms: c.budget_ns() as f64 / 1e6,
             level_now: c.levels()[c.level()].name.clone(),

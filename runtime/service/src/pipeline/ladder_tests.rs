@@ -298,3 +298,26 @@ fn the_pareto_front_drops_levels_no_better_than_a_cheaper_one() {
         .collect();
     assert_eq!(kept, ["none", "wiener", "refine:10", "half"]);
 }
+
+/// The service updates its report every frame in place: it says what a
+/// report made afresh says, and a report of other levels is remade.
+#[test]
+fn a_report_updated_in_place_is_the_report_made_afresh() {
+    let mut c = Controller::new(ladder(), 10 * MS);
+    let mut report = BudgetReport::of(&c);
+    report.dropped = vec!["refine:1".into()];
+    for t in [5, 12, 3, 3, 4, 12, 2] {
+        c.observe(t * MS);
+        report.update(&c);
+        let fresh = BudgetReport {
+            dropped: vec!["refine:1".into()],
+            ..BudgetReport::of(&c)
+        };
+        assert_eq!(report, fresh);
+    }
+    assert!(report.quality_delivered_db.is_some());
+    let other = Controller::new(ladder()[..2].to_vec(), 10 * MS);
+    report.update(&other);
+    assert_eq!(report.levels.len(), 2);
+    assert_eq!(report.dropped, ["refine:1"]);
+}

@@ -218,9 +218,15 @@ impl Budget {
     /// present), learnt; the report brought up to date.
     pub(super) fn observe(&mut self, own_ns: u64, stats: &Stats) {
         self.controller.observe(own_ns);
-        let mut report = BudgetReport::of(&self.controller);
-        report.dropped = self.dropped.clone();
-        *stats.frame_budget.lock().unwrap_or_else(|p| p.into_inner()) = Some(report);
+        let mut report = stats.frame_budget.lock().unwrap_or_else(|p| p.into_inner());
+        match report.as_mut() {
+            Some(r) => r.update(&self.controller),
+            None => {
+                let mut r = BudgetReport::of(&self.controller);
+                r.dropped = self.dropped.clone();
+                *report = Some(r);
+            }
+        }
     }
 
     /// The level the frame runs, as the report's levels number it.
