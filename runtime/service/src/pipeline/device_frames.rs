@@ -375,20 +375,28 @@ impl DeviceFrames {
             view.encoder.record(&mut encoder, shown, &codes)?;
             encoded[v] = true;
         }
-        let timer_bytes = self.timer.as_ref().map_or(0, |t| t.resolve(&mut encoder));
+        // Timestamps only where a stage recorded some (the frame budget's
+        // lowest level passes the frame through: nothing to resolve).
+        let stamped = self
+            .views
+            .iter()
+            .enumerate()
+            .any(|(v, view)| self.last_ran[v] && view.stage.is_some() && !view.passed);
+        let timer = self.timer.as_ref().filter(|_| stamped);
+        let timer_bytes = timer.map_or(0, |t| t.resolve(&mut encoder));
         let submission = self.queue.submit([encoder.finish()]);
         self.last_record_ns = started.elapsed().as_nanos() as u64;
         for (view, _) in self.views.iter().zip(&encoded).filter(|(_, e)| **e) {
             view.encoder.map_non_finite();
         }
-        if let Some(t) = &self.timer {
+        if let Some(t) = timer {
             t.map();
         }
         // The fence wait the stage does anyway (its time includes the
         // device's work); it also brings the 4-byte non-finite counts and
         // the timestamps back.
         nedrt_gpu::wait_for(&self.device, submission).map_err(PresentError::gpu(STAGE))?;
-        let spans = self.timer.as_ref().and_then(|t| t.spans_ns().ok());
+        let spans = timer.and_then(|t| t.spans_ns().ok());
         for (v, view) in self.views.iter().enumerate() {
             // Only a view that ran a stage wrote its timestamps.
             let staged = self.last_ran[v] && view.stage.is_some() && !view.passed;
