@@ -11,7 +11,7 @@ use std::time::Instant;
 use anyhow::{Context, Result, bail, ensure};
 use burn::tensor::{Device, Tensor};
 use nedrt_infer::gpu::GpuBackend;
-use nedrt_infer::{Backend as _, ModelFile, Precision};
+use nedrt_infer::{ModelFile, Precision};
 use serde_json::json;
 
 mod args;
