@@ -58,23 +58,55 @@ impl Pipelines {
     }
 
     fn make(device: &wgpu::Device) -> Self {
-        let entries: Vec<wgpu::BindGroupLayoutEntry> = (0..8)
-            .map(|binding| storage(binding, matches!(binding, 0 | 5 | 6)))
-            .collect();
-        let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-            label: Some("fista"),
-            entries: &entries,
-        });
-        let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-            label: Some("fista"),
-            bind_group_layouts: &[Some(&layout)],
-            immediate_size: 0,
-        });
-        let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
-            label: Some("fista"),
-            source: wgpu::ShaderSource::Wgsl(SHADER.into()),
-        });
-        let pipeline = |entry: &str| {
+        let (layout, mut p) = pipelines(
+            device,
+            "fista",
+            SHADER,
+            8,
+            &[0, 5, 6],
+            &["start", "project", "reduce", "advance", "emit"],
+        );
+        let [start, project, reduce, advance, emit] = [0; 5].map(|_| p.remove(0));
+        Self {
+            start,
+            project,
+            reduce,
+            advance,
+            emit,
+            layout,
+        }
+    }
+}
+
+/// A shader's compute pipelines, `entries`, over one bind group of
+/// `bindings` storage buffers (`read_only` among them).
+fn pipelines(
+    device: &wgpu::Device,
+    label: &str,
+    source: &str,
+    bindings: u32,
+    read_only: &[u32],
+    entries: &[&str],
+) -> (wgpu::BindGroupLayout, Vec<wgpu::ComputePipeline>) {
+    let layout_entries: Vec<wgpu::BindGroupLayoutEntry> = (0..bindings)
+        .map(|binding| storage(binding, read_only.contains(&binding)))
+        .collect();
+    let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+        label: Some(label),
+        entries: &layout_entries,
+    });
+    let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+        label: Some(label),
+        bind_group_layouts: &[Some(&layout)],
+        immediate_size: 0,
+    });
+    let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+        label: Some(label),
+        source: wgpu::ShaderSource::Wgsl(source.into()),
+    });
+    let pipelines = entries
+        .iter()
+        .map(|entry| {
             device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
                 label: Some(entry),
                 layout: Some(&pipeline_layout),
@@ -83,16 +115,9 @@ impl Pipelines {
                 compilation_options: Default::default(),
                 cache: None,
             })
-        };
-        Self {
-            start: pipeline("start"),
-            project: pipeline("project"),
-            reduce: pipeline("reduce"),
-            advance: pipeline("advance"),
-            emit: pipeline("emit"),
-            layout,
-        }
-    }
+        })
+        .collect();
+    (layout, pipelines)
 }
 
 /// `still.wgsl`'s pipelines: the change from the last frame, and the flag.
@@ -106,35 +131,18 @@ struct StillPipelines {
 impl StillPipelines {
     fn new(device: &wgpu::Device) -> Result<Self, FftError> {
         crate::fft::checked(device, || {
-            let entries: Vec<wgpu::BindGroupLayoutEntry> = (0..5)
-                .map(|binding| storage(binding, matches!(binding, 0 | 1)))
-                .collect();
-            let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-                label: Some("still"),
-                entries: &entries,
-            });
-            let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-                label: Some("still"),
-                bind_group_layouts: &[Some(&layout)],
-                immediate_size: 0,
-            });
-            let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
-                label: Some("still"),
-                source: wgpu::ShaderSource::Wgsl(STILL_SHADER.into()),
-            });
-            let pipeline = |entry: &str| {
-                device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-                    label: Some(entry),
-                    layout: Some(&pipeline_layout),
-                    module: &module,
-                    entry_point: Some(entry),
-                    compilation_options: Default::default(),
-                    cache: None,
-                })
-            };
+            let (layout, mut p) = pipelines(
+                device,
+                "still",
+                STILL_SHADER,
+                5,
+                &[0, 1],
+                &["change", "decide"],
+            );
+            let [change, decide] = [0; 2].map(|_| p.remove(0));
             Self {
-                change: pipeline("change"),
-                decide: pipeline("decide"),
+                change,
+                decide,
                 layout,
             }
         })
