@@ -108,12 +108,11 @@ def case(record: dict) -> dict:
             b.append(e.bound())
         bounds[name] = pct(b[SKIP:], 0.5)
     # Each level the frames after the 20th ran, in the ladder's order.
-    names = record.get("levels") or []
+    names, levels = record.get("levels") or [], f.get("level") or [None] * n
     counts = {}
     for i in later:
-        level = (f.get("level") or [None] * n)[i]
-        if level is not None:
-            counts[level] = counts.get(level, 0) + 1
+        if levels[i] is not None:
+            counts[levels[i]] = counts.get(levels[i], 0) + 1
     ran = {(names[k] if k < len(names) else f"level {k}"): counts[k] for k in sorted(counts)}
     r = record.get("refreshes") or {}
     leads = [t - w for t, w in zip(r.get("refresh_ms", []), r.get("wake_ms", [])) if w is not None]
@@ -173,9 +172,9 @@ def frames(record: dict, first: int, count: int) -> list:
     present = {(fr, t): p - t for fr, t, p in zip(r.get("frame", []), r.get("taken_ms", []),
                                                r.get("presented_ms", [])) if fr is not None and p is not None}
     ms = lambda v: "–" if v is None else f"{v:.2f}"
-    names = record.get("levels") or []
-    level_of = lambda i: "–" if (f.get("level") or [None] * (i + 1))[i] is None else (
-        names[f["level"][i]] if f["level"][i] < len(names) else str(f["level"][i]))
+    names, levels = record.get("levels") or [], f.get("level") or [None] * len(f["id"])
+    level_of = lambda i: "–" if levels[i] is None else (
+        names[levels[i]] if levels[i] < len(names) else str(levels[i]))
     rows = ["| id | outcome | submitted | predicted | preprocess | held | ready | shown or replaced | present | level |",
             "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
     for i in range(first, min(first + count, len(f["id"]))):

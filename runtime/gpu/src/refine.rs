@@ -299,8 +299,9 @@ impl RefineStage {
         );
         let main = bind(
             device,
+            "fista",
             &self.pipelines.layout,
-            [&frame, &state, &y, &x, &xn, &ay, &b, &partials],
+            &[&frame, &state, &y, &x, &xn, &ay, &b, &partials],
         );
         self.plan = Some(Plan {
             width,
@@ -321,10 +322,12 @@ impl RefineStage {
     }
 }
 
+/// A bind group of `buffers` at bindings 0, 1, ….
 fn bind(
     device: &wgpu::Device,
+    label: &str,
     layout: &wgpu::BindGroupLayout,
-    buffers: [&wgpu::Buffer; 8],
+    buffers: &[&wgpu::Buffer],
 ) -> wgpu::BindGroup {
     let entries: Vec<wgpu::BindGroupEntry> = buffers
         .iter()
@@ -335,7 +338,7 @@ fn bind(
         })
         .collect();
     device.create_bind_group(&wgpu::BindGroupDescriptor {
-        label: Some("fista"),
+        label: Some(label),
         layout,
         entries: &entries,
     })
@@ -389,8 +392,9 @@ impl crate::DeviceStage for RefineStage {
                 let [frame, state, x, partials] = &plan.buffers;
                 let g = bind(
                     &self.device,
+                    "fista",
                     &self.pipelines.layout,
-                    [
+                    &[
                         frame, state, &plan.y, x, output, &plan.ay, &plan.b, partials,
                     ],
                 );
@@ -408,19 +412,12 @@ impl crate::DeviceStage for RefineStage {
                 Some((_, g)) => g.clone(),
                 None => {
                     let [frame, state, _, partials] = &plan.buffers;
-                    let entries: Vec<wgpu::BindGroupEntry> = [frame, input, last, partials, state]
-                        .iter()
-                        .enumerate()
-                        .map(|(i, b)| wgpu::BindGroupEntry {
-                            binding: i as u32,
-                            resource: b.as_entire_binding(),
-                        })
-                        .collect();
-                    let g = self.device.create_bind_group(&wgpu::BindGroupDescriptor {
-                        label: Some("still"),
-                        layout: &still.layout,
-                        entries: &entries,
-                    });
+                    let g = bind(
+                        &self.device,
+                        "still",
+                        &still.layout,
+                        &[frame, input, last, partials, state],
+                    );
                     if plan.stills.len() == OUTPUTS_KEPT {
                         plan.stills.remove(0);
                     }

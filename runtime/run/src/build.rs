@@ -13,6 +13,7 @@ use nedrt_optics::sim::{Method, Simulator};
 use nedrt_service::pipeline::service::FallbackFactory;
 use nedrt_stages::Chain;
 use nedrt_stages::device_prefilter::wiener_stage;
+use nedrt_stages::preprocess::RawWiener;
 
 /// `network` behind its Wiener stage where the model has one.
 pub(super) fn behind(
@@ -63,14 +64,18 @@ pub(super) fn host_network(
 }
 
 /// A network's kernels on the sink's device for frames of `size`, behind
-/// its Wiener stage on the device where it has one.
+/// its Wiener stage on the device where it has one. Where that stage
+/// cannot be built there (a size the device FFT lacks), `host_wiener`
+/// says what to do: run the Wiener on the host before the upload (it is
+/// returned, to go there), or fail.
 pub(super) fn device_network(
     common: &CommonOptions,
     model: &ModelFile,
     (device, queue, name): &Gpu,
     stage: &Option<(Method, Arc<WienerFilter>)>,
     size: (usize, usize),
-) -> Result<Box<dyn nedrt_gpu::DeviceStage>, AppError> {
+    host_wiener: bool,
+) -> Result<(Box<dyn nedrt_gpu::DeviceStage>, Option<RawWiener>), AppError> {
     let net: Box<dyn nedrt_gpu::DeviceStage> = Box::new(DeviceDcnn::on_device(
         model.clone(),
         device,
@@ -78,17 +83,25 @@ pub(super) fn device_network(
         name.clone(),
         &common.dcnn.backend_options,
     )?);
-    Ok(match stage {
-        Some((method, filter)) => {
-            let what = format!(
-                "the Wiener prefilter of {method} (K = {:e}) before the clamp",
-                filter.k_reg
-            );
-            let w = wiener_stage(device, what, filter.clone(), Some(size))?;
-            Box::new(nedrt_gpu::Chain::new(device, w, net))
+    let Some((method, filter)) = stage else {
+        return Ok((net, None));
+    };
+    let what = format!(
+        "the Wiener prefilter of {method} (K = {:e}) before the clamp",
+        filter.k_reg
+    );
+    match wiener_stage(device, what.clone(), filter.clone(), Some(size)) {
+        Ok(w) => Ok((Box::new(nedrt_gpu::Chain::new(device, w, net)), None)),
+        Err(e) if host_wiener => {
+            tracing::warn!("{what} stays on the host: {e}");
+            let raw = RawWiener {
+                method: *method,
+                filter: filter.clone(),
+            };
+            Ok((net, Some(raw)))
         }
-        None => net,
-    })
+        Err(e) => Err(e.into()),
+    }
 }
 
 pub(super) fn fallback_factory(

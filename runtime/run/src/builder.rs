@@ -16,7 +16,6 @@ use nedrt_command::design::Design;
 use nedrt_core::preprocess::Preprocess;
 use nedrt_gpu::DeviceStage;
 use nedrt_infer::ModelFile;
-use nedrt_infer::gpu::DeviceDcnn;
 use nedrt_optics::sim::wiener::WienerFilter;
 use nedrt_optics::sim::{Method, Prepared};
 use nedrt_service::pipeline::device_frames::{DeviceFrames, DeviceView};
@@ -25,8 +24,7 @@ use nedrt_service::pipeline::service::{
     DevicePreprocessing, FallbackFactory, HostPrep, PanelConfig, PreprocessStage, Preprocessing,
 };
 use nedrt_stages::FailsAfter;
-use nedrt_stages::device_prefilter::{prefilter_stage, wiener_stage};
-use nedrt_stages::preprocess::RawWiener;
+use nedrt_stages::device_prefilter::prefilter_stage;
 
 /// What the views are built from besides the options and the plan.
 pub(super) struct Parts<'a> {
@@ -76,7 +74,6 @@ pub(super) fn build(
     parts: &Parts<'_>,
 ) -> Result<Built, AppError> {
     let levels = planned.levels.clone();
-    super::views::check_designs(opts, parts.views, parts.model.is_some())?;
     let views = parts
         .views
         .iter()
@@ -151,6 +148,12 @@ impl Build<'_> {
             .ok_or_else(|| AppError::Internal("a network level without its model".into()))
     }
 
+    /// The network's Wiener stage for its fallback, where the fallback
+    /// runs it itself (not where the host ran it before the upload).
+    fn fallback_wiener(&self, behind_wiener: bool) -> Option<(Method, Arc<WienerFilter>)> {
+        behind_wiener.then(|| self.parts.wiener.clone()).flatten()
+    }
+
     fn level_names(&self) -> String {
         self.levels
             .iter()
@@ -172,19 +175,12 @@ impl Build<'_> {
             let model = self.model()?;
             match network {
                 HostNetwork::Primary => host_network(&v.common, model, self.parts.wiener, device),
-                HostNetwork::Fallback { behind_wiener } => {
-                    let wiener = if behind_wiener {
-                        self.parts.wiener.clone()
-                    } else {
-                        None
-                    };
-                    Ok(fallback_factory(
-                        self.opts.fallback,
-                        model.clone(),
-                        &v.common,
-                        wiener,
-                    )()?)
-                }
+                HostNetwork::Fallback { behind_wiener } => Ok(fallback_factory(
+                    self.opts.fallback,
+                    model.clone(),
+                    &v.common,
+                    self.fallback_wiener(behind_wiener),
+                )()?),
             }
         };
         let mut levels = ladder::host_levels(
@@ -205,13 +201,11 @@ impl Build<'_> {
     fn host_fallback(&self, i: usize, behind_wiener: bool) -> Result<FallbackFactory, AppError> {
         let fallback = HostNetwork::Fallback { behind_wiener };
         if !self.laddered && self.has_network() {
-            let wiener = behind_wiener.then(|| self.parts.wiener.clone()).flatten();
-            let c = &self.views[i].common;
             return Ok(fallback_factory(
                 self.opts.fallback,
                 self.model()?.clone(),
-                c,
-                wiener,
+                &self.views[i].common,
+                self.fallback_wiener(behind_wiener),
             ));
         }
         let levels = self.host_view(i, None, fallback)?;
@@ -348,10 +342,19 @@ impl Build<'_> {
     /// View `i`'s work on the device for frames of `size`.
     fn device_view(&self, i: usize, gpu: &Gpu, size: (usize, usize)) -> Result<OnDevice, AppError> {
         let v = &self.views[i];
-        let (device, queue, name) = gpu;
+        let device = &gpu.0;
         if self.laddered {
-            let mut network =
-                || device_network(&v.common, self.model()?, gpu, self.parts.wiener, size);
+            let mut network = || {
+                let (stage, _) = device_network(
+                    &v.common,
+                    self.model()?,
+                    gpu,
+                    self.parts.wiener,
+                    size,
+                    false,
+                )?;
+                Ok(stage)
+            };
             let stages = ladder::device_levels(
                 v.prepared.as_ref(),
                 &self.levels,
@@ -372,46 +375,17 @@ impl Build<'_> {
                 fallback: None,
             }),
             Rung::Network => {
-                let net: Box<dyn DeviceStage> = Box::new(DeviceDcnn::on_device(
-                    self.model()?.clone(),
-                    device,
-                    queue,
-                    name.clone(),
-                    &v.common.dcnn.backend_options,
-                )?);
-                let Some((method, filter)) = self.parts.wiener else {
-                    return Ok(OnDevice {
-                        prep: None,
-                        stage: Some(net),
-                        fallback: Some(self.host_fallback(i, false)?),
-                    });
-                };
-                let what = format!(
-                    "the Wiener prefilter of {method} (K = {:e}) before the clamp",
-                    filter.k_reg
-                );
-                // The fallback gets what the device got: the frame (the
-                // Wiener then runs in the fallback too), or the output of
-                // the Wiener on the host where the device FFT lacks the size.
-                match wiener_stage(device, what.clone(), filter.clone(), Some(size)) {
-                    Ok(w) => Ok(OnDevice {
-                        prep: None,
-                        stage: Some(Box::new(nedrt_gpu::Chain::new(device, w, net))),
-                        fallback: Some(self.host_fallback(i, true)?),
-                    }),
-                    Err(e) => {
-                        tracing::warn!("{what} stays on the host: {e}");
-                        let raw = RawWiener {
-                            method: *method,
-                            filter: filter.clone(),
-                        };
-                        Ok(OnDevice {
-                            prep: Some(HostPrep(Box::new(raw))),
-                            stage: Some(net),
-                            fallback: Some(self.host_fallback(i, false)?),
-                        })
-                    }
-                }
+                let (stage, host_wiener) =
+                    device_network(&v.common, self.model()?, gpu, self.parts.wiener, size, true)?;
+                // The fallback gets what the device got: the frame (it then
+                // runs the network's Wiener itself), or the output of the
+                // Wiener on the host where the device FFT lacks the size.
+                let fallback = self.host_fallback(i, host_wiener.is_none())?;
+                Ok(OnDevice {
+                    prep: host_wiener.map(|w| HostPrep(Box::new(w))),
+                    stage: Some(stage),
+                    fallback: Some(fallback),
+                })
             }
             Rung::Wiener | Rung::Refine(_) => Err(AppError::Internal(
                 "a ladder's level outside a ladder".into(),

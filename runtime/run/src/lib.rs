@@ -123,8 +123,7 @@ pub fn run(
     };
     // The views, and each view's design against the network, checked
     // before the sink opens.
-    let views = views::view_facts(opts, &calib, &panel)?;
-    views::check_designs(opts, &views, network.is_some())?;
+    let views = views::view_facts(opts, &calib, &panel, network.is_some())?;
     let precision = dcnn.backend_options.precision;
     // The sink, and a GPU for the D-CNN to share with it.
     let (sink, device): (Box<dyn Sink>, _) = match opts.sink {
@@ -317,8 +316,7 @@ pub fn plan_run(common: &CommonOptions, opts: &RunOptions) -> Result<RunPlan, Ap
         }
     };
     let ladder = ladder_inputs(common, opts, network.as_ref())?;
-    let views = views::view_facts(opts, &calib, &panel)?;
-    views::check_designs(opts, &views, network.is_some())?;
+    let views = views::view_facts(opts, &calib, &panel, network.is_some())?;
     let inputs = plan_inputs(common, opts, views, &panel, network.as_ref(), probe, ladder);
     plan::plan(&inputs)
 }

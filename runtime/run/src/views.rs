@@ -11,14 +11,18 @@ use nedrt_service::compose::ViewRegion;
 use nedrt_service::pipeline::service::PanelConfig;
 
 /// The views of the run: the calibration's or `--stereo`'s, else one
-/// covering the panel.
+/// covering the panel; their designs checked against the run's `network`
+/// ([`check_designs`]).
 pub(super) fn view_facts(
     opts: &RunOptions,
     calib: &Calibration,
     panel: &PanelConfig,
+    network: bool,
 ) -> Result<Vec<ViewFacts>, AppError> {
     if opts.stereo || !calib.views.is_empty() {
-        return layout(calib, (panel.width, panel.height));
+        let views = layout(calib, (panel.width, panel.height))?;
+        check_designs(opts, &views, network)?;
+        return Ok(views);
     }
     Ok(vec![ViewFacts {
         name: "panel".into(),
@@ -35,7 +39,7 @@ pub(super) fn view_facts(
 /// A view's own design with a network is refused rather than ignored: the
 /// network runs on the DOE it was trained with. The frame budget's ladder
 /// leaves its network level out instead (`plan`).
-pub(super) fn check_designs(
+fn check_designs(
     opts: &RunOptions,
     views: &[ViewFacts],
     network: bool,

@@ -375,14 +375,13 @@ impl DeviceFrames {
             view.encoder.record(&mut encoder, shown, &codes)?;
             encoded[v] = true;
         }
-        // Timestamps only where a stage recorded some (the frame budget's
-        // lowest level passes the frame through: nothing to resolve).
-        let stamped = self
-            .views
-            .iter()
-            .enumerate()
-            .any(|(v, view)| self.last_ran[v] && view.stage.is_some() && !view.passed);
-        let timer = self.timer.as_ref().filter(|_| stamped);
+        // The views whose stage recorded its work and timestamps this
+        // frame: timestamps are resolved only where one did (the frame
+        // budget's lowest level passes the frame through).
+        let staged: Vec<bool> = (self.views.iter().enumerate())
+            .map(|(v, view)| self.last_ran[v] && view.stage.is_some() && !view.passed)
+            .collect();
+        let timer = self.timer.as_ref().filter(|_| staged.contains(&true));
         let timer_bytes = timer.map_or(0, |t| t.resolve(&mut encoder));
         let submission = self.queue.submit([encoder.finish()]);
         self.last_record_ns = started.elapsed().as_nanos() as u64;
@@ -397,9 +396,8 @@ impl DeviceFrames {
         // the timestamps back.
         nedrt_gpu::wait_for(&self.device, submission).map_err(PresentError::gpu(STAGE))?;
         let spans = timer.and_then(|t| t.spans_ns().ok());
-        for (v, view) in self.views.iter().enumerate() {
+        for (v, staged) in staged.into_iter().enumerate() {
             // Only a view that ran a stage wrote its timestamps.
-            let staged = self.last_ran[v] && view.stage.is_some() && !view.passed;
             self.last_view_ns[v] = spans
                 .as_ref()
                 .filter(|_| staged)
