@@ -39,11 +39,7 @@ pub(super) fn view_facts(
 /// A view's own design with a network is refused rather than ignored: the
 /// network runs on the DOE it was trained with. The frame budget's ladder
 /// leaves its network level out instead (`plan`).
-fn check_designs(
-    opts: &RunOptions,
-    views: &[ViewFacts],
-    network: bool,
-) -> Result<(), AppError> {
+fn check_designs(opts: &RunOptions, views: &[ViewFacts], network: bool) -> Result<(), AppError> {
     match views.iter().find(|v| v.design.is_some()) {
         Some(v) if network && opts.ladder.is_none() => Err(AppError::Conflict(format!(
             "view {:?}: design {:?} with --preprocess {}: a D-CNN runs on the DOE it was \
