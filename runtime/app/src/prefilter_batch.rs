@@ -35,10 +35,7 @@ pub struct PrefilterOptions {
 
 /// The objective of a prefilter (the default one for `native`).
 fn objective_of(p: Prefilter) -> Objective {
-    match p {
-        Prefilter::Native => Prefilter::DEFAULT_OBJECTIVE,
-        Prefilter::Lsq(o) | Prefilter::Refine(_, o) | Prefilter::Optimal(o) => o,
-    }
+    p.objective().unwrap_or(Prefilter::DEFAULT_OBJECTIVE)
 }
 
 pub fn run(common: &CommonOptions, o: &PrefilterOptions) -> Result<String, AppError> {
@@ -46,7 +43,7 @@ pub fn run(common: &CommonOptions, o: &PrefilterOptions) -> Result<String, AppEr
     if o.method.uses_dcnn() && o.prefilter.is_native() {
         return Err(AppError::Conflict(format!(
             "nedrt prefilter makes display images without a network; {} needs --prefilter lsq, \
-             refine:K or optimal",
+             refine:K, admm:K or optimal",
             o.method
         )));
     }

@@ -151,7 +151,8 @@ pub struct SimArgs {
     /// How the display image is made from the frame, given the method's
     /// optics: native (the method's own: none, Wiener or D-CNN), lsq (the
     /// linear least-squares prefilter), refine:K (lsq and K projected-gradient
-    /// steps) or optimal (the bounded least-squares optimum); the last three
+    /// steps), admm:K (lsq and K split-solver steps) or optimal (the bounded
+    /// least-squares optimum); all but native
     /// against the target (default) or, with @sharp, the sharp image over
     /// 0–2.5 D (docs/optimal.md).
     #[arg(long, default_value = "native", value_name = "PREFILTER")]
@@ -265,7 +266,7 @@ pub struct RunArgs {
     #[arg(long, value_name = "FILE")]
     pub ladder_quality: Option<PathBuf>,
     /// Instead, a least-squares prefilter on --preprocess's optics: lsq,
-    /// refine:K or optimal (@sharp or @target; see `nedrt sim --help`).
+    /// refine:K, admm:K or optimal (@sharp or @target; see `nedrt sim --help`).
     #[arg(long, default_value = "native", value_name = "PREFILTER")]
     pub prefilter: nedrt_stages::preprocess::Prefilter,
     /// Where frames come from.
@@ -371,7 +372,7 @@ pub struct PrefilterArgs {
     /// Display system whose optics (and K) the prefilter uses.
     #[arg(long, default_value = "doe+wiener", value_parser = named::<Method>())]
     pub method: Method,
-    /// lsq, refine:K or optimal, @sharp or @target (see `nedrt sim --help`).
+    /// lsq, refine:K, admm:K or optimal, @sharp or @target (see `nedrt sim --help`).
     #[arg(long, default_value = "optimal", value_name = "PREFILTER")]
     pub prefilter: nedrt_stages::preprocess::Prefilter,
     /// Also write the objective as kernels for WxH patches

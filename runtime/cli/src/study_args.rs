@@ -138,7 +138,8 @@ pub struct EvalArgs {
     /// How each display image is made from the frame, given the method's
     /// optics: native (the method's own: none, Wiener or D-CNN), lsq (the
     /// linear least-squares prefilter), refine:K (lsq and K projected-gradient
-    /// steps) or optimal (the bounded least-squares optimum); the last three
+    /// steps), admm:K (lsq and K split-solver steps) or optimal (the bounded
+    /// least-squares optimum); all but native
     /// against the target (default) or, with @sharp, the sharp image over
     /// 0–2.5 D (docs/optimal.md).
     /// A list gives one row per method (and design) and prefilter.

@@ -80,7 +80,7 @@ impl Pipelines {
 
 /// A shader's compute pipelines, `entries`, over one bind group of
 /// `bindings` storage buffers (`read_only` among them).
-fn pipelines(
+pub(crate) fn pipelines(
     device: &wgpu::Device,
     label: &str,
     source: &str,
@@ -323,7 +323,7 @@ impl RefineStage {
 }
 
 /// A bind group of `buffers` at bindings 0, 1, ….
-fn bind(
+pub(crate) fn bind(
     device: &wgpu::Device,
     label: &str,
     layout: &wgpu::BindGroupLayout,

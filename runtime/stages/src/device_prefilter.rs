@@ -13,7 +13,9 @@ use nedrt_core::{Image, Preprocess};
 use nedrt_gpu::DeviceStage;
 use nedrt_gpu::fft::{FftError, GainsFor, SpectralStage};
 use nedrt_gpu::refine::{RefineStage, RefineTerms, TermsFor};
+use nedrt_gpu::split::{SplitStage, SplitTerms, SplitTermsFor};
 use nedrt_infer::Dcnn;
+use nedrt_optics::sim::optimal::SplitSchedule;
 use nedrt_optics::sim::wiener::WienerFilter;
 use nedrt_optics::sim::{DisplayProblem, Method, Prepared};
 
@@ -92,14 +94,39 @@ pub fn refine_stage(
     Ok(Box::new(stage))
 }
 
-/// Whether the device runs `method`'s `prefilter`: its Wiener, `lsq` and
-/// `refine:K` (not `optimal`, whose stopping rule reads its objective
+/// `admm:K` of `problem` on the device (the shipped schedule, whose
+/// penalty is constant).
+pub fn split_stage(
+    device: &wgpu::Device,
+    what: String,
+    problem: Arc<DisplayProblem>,
+    steps: usize,
+    size: Option<(usize, usize)>,
+) -> Result<Box<dyn DeviceStage>, FftError> {
+    let terms_for: SplitTermsFor = Box::new(move |w, h| {
+        let t = problem.device_split_terms(w, h, &SplitSchedule::SHIPPED)?;
+        Ok(SplitTerms {
+            linear: t.linear,
+            data: t.data,
+            penalty: t.penalty,
+            relaxation: t.relaxation,
+        })
+    });
+    let mut stage = SplitStage::new(device, what, steps, terms_for)?;
+    if let Some((w, h)) = size {
+        stage.prepare(w, h)?;
+    }
+    Ok(Box::new(stage))
+}
+
+/// Whether the device runs `method`'s `prefilter`: its Wiener, `lsq`,
+/// `refine:K` and `admm:K` (not `optimal`, whose stopping rule reads its objective
 /// back, nor a method without a prefilter; a network's Wiener front end
 /// is its own case).
 pub fn runs_on_device(method: Method, prefilter: Prefilter) -> bool {
     match prefilter {
         Prefilter::Native => method.uses_wiener(),
-        Prefilter::Lsq(_) | Prefilter::Refine(..) => true,
+        Prefilter::Lsq(_) | Prefilter::Refine(..) | Prefilter::Admm(..) => true,
         Prefilter::Optimal(_) => false,
     }
 }
@@ -133,6 +160,13 @@ pub fn prefilter_stage(
             size,
             false,
         )?,
+        Prefilter::Admm(k, o) => {
+            let problem = prepared.display_problem(method, o)?;
+            if !problem.has_split() {
+                return Ok(None);
+            }
+            split_stage(device, what, Arc::new(problem), k, size)?
+        }
         _ => match prepared.wiener_shared(method) {
             Some(filter) => wiener_stage(device, what, filter, size)?,
             None => return Ok(None),

@@ -226,6 +226,9 @@ pub enum Prefilter {
     Lsq(Objective),
     /// `lsq` and this many projected-gradient steps.
     Refine(usize, Objective),
+    /// `lsq` and this many steps of the split solver (ADMM: the panel's
+    /// box split off, the quadratic solved exactly each step).
+    Admm(usize, Objective),
     /// The bounded least-squares optimum (to 0.001 dB).
     Optimal(Objective),
 }
@@ -261,12 +264,24 @@ impl Prefilter {
         }
     }
 
+    /// What it solves against (`None` for `native`).
+    pub fn objective(self) -> Option<Objective> {
+        match self {
+            Prefilter::Native => None,
+            Prefilter::Lsq(o)
+            | Prefilter::Refine(_, o)
+            | Prefilter::Admm(_, o)
+            | Prefilter::Optimal(o) => Some(o),
+        }
+    }
+
     /// The same prefilter against `objective` (`native` stays itself).
     pub fn with_objective(self, objective: Objective) -> Self {
         match self {
             Prefilter::Native => Prefilter::Native,
             Prefilter::Lsq(_) => Prefilter::Lsq(objective),
             Prefilter::Refine(k, _) => Prefilter::Refine(k, objective),
+            Prefilter::Admm(k, _) => Prefilter::Admm(k, objective),
             Prefilter::Optimal(_) => Prefilter::Optimal(objective),
         }
     }
@@ -286,6 +301,7 @@ impl std::fmt::Display for Prefilter {
             Prefilter::Native => f.write_str("native"),
             Prefilter::Lsq(o) => write!(f, "lsq@{}", o.name()),
             Prefilter::Refine(k, o) => write!(f, "refine:{k}@{}", o.name()),
+            Prefilter::Admm(k, o) => write!(f, "admm:{k}@{}", o.name()),
             Prefilter::Optimal(o) => write!(f, "optimal@{}", o.name()),
         }
     }
@@ -293,11 +309,11 @@ impl std::fmt::Display for Prefilter {
 
 impl std::str::FromStr for Prefilter {
     type Err = String;
-    /// `native`, `lsq`, `refine:K` or `optimal`, the last three with an
-    /// optional `@sharp` or `@target`.
+    /// `native`, `lsq`, `refine:K`, `admm:K` or `optimal`, all but the
+    /// first with an optional `@sharp` or `@target`.
     fn from_str(s: &str) -> Result<Self, String> {
-        const CHOICES: &str = "choose native, lsq, refine:K or optimal (K ≥ 1 steps), the last \
-             three optionally with @sharp or @target";
+        const CHOICES: &str = "choose native, lsq, refine:K, admm:K or optimal (K ≥ 1 steps), \
+             all but native optionally with @sharp or @target";
         let (kind, objective) = match s.split_once('@') {
             Some((k, o)) => (
                 k,
@@ -310,18 +326,21 @@ impl std::str::FromStr for Prefilter {
             "native" if !s.contains('@') => Ok(Prefilter::Native),
             "lsq" => Ok(Prefilter::Lsq(objective)),
             "optimal" => Ok(Prefilter::Optimal(objective)),
-            _ => match kind.strip_prefix("refine:") {
-                Some(k) => match k.parse::<usize>() {
-                    Ok(k) if (1..=MAX_REFINE_STEPS).contains(&k) => {
-                        Ok(Prefilter::Refine(k, objective))
-                    }
+            _ => {
+                let (make, k): (fn(usize, Objective) -> Prefilter, _) =
+                    match (kind.strip_prefix("refine:"), kind.strip_prefix("admm:")) {
+                        (Some(k), _) => (Prefilter::Refine, k),
+                        (_, Some(k)) => (Prefilter::Admm, k),
+                        _ => return Err(format!("unknown prefilter {s:?}; {CHOICES}")),
+                    };
+                match k.parse::<usize>() {
+                    Ok(k) if (1..=MAX_REFINE_STEPS).contains(&k) => Ok(make(k, objective)),
                     _ => Err(format!(
                         "prefilter {s:?}: the number of steps must be a whole number from 1 to \
                          {MAX_REFINE_STEPS}"
                     )),
-                },
-                None => Err(format!("unknown prefilter {s:?}; {CHOICES}")),
-            },
+                }
+            }
         }
     }
 }
@@ -338,9 +357,16 @@ pub fn for_system(
         Prefilter::Native => return for_method(method, prepared, dcnns),
         Prefilter::Lsq(o) => (SolveMode::Linear, o),
         Prefilter::Refine(k, o) => (SolveMode::Refine(k), o),
+        Prefilter::Admm(k, o) => (SolveMode::Admm(k), o),
         Prefilter::Optimal(o) => (SolveMode::Optimal, o),
     };
     let problem = prepared.display_problem(method, objective)?;
+    if matches!(mode, SolveMode::Admm(_)) && !problem.has_split() {
+        return Err(EngineError::Unavailable(format!(
+            "{prefilter} of {method}: its PSFs are not mirror-symmetric, so the split solver has \
+             no exact data step; use refine:K"
+        )));
+    }
     Ok(Box::new(SolvedPrefilter::new(
         method.name(),
         Arc::new(problem),
@@ -358,6 +384,7 @@ mod tests {
             Prefilter::Native,
             Prefilter::Lsq(Objective::Sharp),
             Prefilter::Refine(3, Objective::Target),
+            Prefilter::Admm(5, Objective::Sharp),
             Prefilter::Optimal(Objective::Sharp),
         ] {
             assert_eq!(p.to_string().parse::<Prefilter>(), Ok(p));
@@ -370,12 +397,18 @@ mod tests {
             "refine:10".parse::<Prefilter>(),
             Ok(Prefilter::Refine(10, Objective::Target))
         );
+        assert_eq!(
+            "admm:3".parse::<Prefilter>(),
+            Ok(Prefilter::Admm(3, Objective::Target))
+        );
         for (bad, says) in [
             ("wiener", "choose native"),
             ("refine:0", "from 1 to"),
             ("refine:", "from 1 to"),
             ("refine:x", "whole number"),
             ("refine:1001", "1000"),
+            ("admm:0", "from 1 to"),
+            ("admm:two", "whole number"),
             ("optimal@blurry", "sharp or target"),
             ("native@sharp", "choose native"),
         ] {

@@ -21,14 +21,18 @@
 //! - `lsq`: the best linear prefilter for the objective on the display grid,
 //!   G = Σ_D K_D* T_D / (Σ_D |K_D|² + N_D·K) at unit gain at zero frequency
 //!   (K_D the display-grid transfer of h_D, T_D the target's), clamped;
-//! - `refine:k`: the `lsq` output improved by k projected-gradient steps.
+//! - `refine:k`: the `lsq` output improved by k projected-gradient steps;
+//! - `admm:k`: the `lsq` output improved by k steps of the split solver
+//!   (ADMM, the constraint split off and the quadratic solved exactly).
 
 mod operator;
 mod prefilter;
 mod solver;
+mod split;
 
 pub use prefilter::{DeviceTerms, SolveMode, SolvedPrefilter};
 pub use solver::{FistaState, ProblemPlan};
+pub use split::{SplitSchedule, SplitState, SplitTerms};
 
 use operator::{Operator, RetinalTerms};
 
@@ -301,6 +305,50 @@ impl DisplayProblem {
             report,
             out,
         )
+    }
+
+    /// Whether the split solver (`admm:K`) runs: the objective must be
+    /// diagonal on the mirrored grid (mirror-symmetric PSFs).
+    pub fn has_split(&self) -> bool {
+        self.is_mirror_symmetric()
+    }
+
+    /// `steps` split-solver steps per channel from `states` (a start:
+    /// [`SplitState::at`] of the clamped `lsq` image, or where an earlier
+    /// solve of this frame size stopped), on `schedule`; the display image
+    /// and where each channel stopped. An error without the mirrored form
+    /// ([`DisplayProblem::has_split`]).
+    pub fn solve_split(
+        &self,
+        input: &Image,
+        states: Vec<SplitState>,
+        steps: usize,
+        schedule: &SplitSchedule,
+    ) -> Result<(Image, Vec<SplitState>), super::SimError> {
+        let plan = self.plan(input.width, input.height);
+        let mut out = Vec::new();
+        for (c, state) in states.into_iter().enumerate().take(self.channels()) {
+            let state = plan
+                .split_from(c, input.plane(c), state, steps, schedule)
+                .ok_or_else(|| {
+                    super::SimError::Invalid(
+                        "the PSFs are not mirror-symmetric: the split solver (admm:K) has no \
+                         exact data step; use refine:K"
+                            .into(),
+                    )
+                })?;
+            out.push(state);
+        }
+        let planes = out.iter().map(|s| s.z.clone()).collect();
+        Ok((Image::from_planes(input.width, input.height, planes), out))
+    }
+
+    /// The split solver's start for `input`: the clamped `lsq` image.
+    pub fn split_start(&self, input: &Image) -> Vec<SplitState> {
+        self.linear_unclamped(input)
+            .planes()
+            .map(SplitState::at)
+            .collect()
     }
 
     /// The objective as convolution kernels on the mirrored 2w×2h display

@@ -191,6 +191,42 @@ impl MirroredOperator {
         first_quadrant(&self.fft.inverse(s), w, h)
     }
 
+    /// The mirrored spectrum of Σ_D A_Dᵀ t_D(I): the split solver's data
+    /// term, made once a frame.
+    pub(super) fn adjoint_target_spectrum(
+        &self,
+        c: usize,
+        input: &[f32],
+        w: usize,
+        h: usize,
+    ) -> Vec<c32> {
+        let mut s = self.fft.forward(&Self::mirror(input, w, h));
+        s.par_iter_mut()
+            .zip(&self.adjoint_target[c])
+            .for_each(|(x, k)| *x *= k);
+        s
+    }
+
+    /// argmin_x ½ xᵀ(Σ_D A_Dᵀ A_D)x − bᵀx + ρ/2 ‖x − v‖², exactly: the
+    /// normal operator is diagonal in this basis, so (N + ρ) x = b + ρ v
+    /// is one division per frequency (`b` from
+    /// [`MirroredOperator::adjoint_target_spectrum`]).
+    pub(super) fn penalised_solve(
+        &self,
+        c: usize,
+        b: &[c32],
+        v: &[f32],
+        rho: f32,
+        w: usize,
+        h: usize,
+    ) -> Vec<f32> {
+        let mut s = self.fft.forward(&Self::mirror(v, w, h));
+        s.par_iter_mut()
+            .zip(b.par_iter().zip(&self.normal[c]))
+            .for_each(|(x, (bv, m))| *x = (bv + *x * rho) / (m + rho));
+        first_quadrant(&self.fft.inverse(s), w, h)
+    }
+
     #[allow(clippy::too_many_arguments)]
     pub(super) fn value_and_gradient(
         &self,

@@ -2,7 +2,7 @@
 //! (`lsq`, `refine:k`, `optimal`) and the refinement's terms for the device.
 //! Apart from the problem: the adapters other crates hold.
 
-use super::{DisplayProblem, FistaState, SolveOptions, SolveReport};
+use super::{DisplayProblem, FistaState, SolveOptions, SolveReport, SplitSchedule};
 use nedrt_core::image::Image;
 use nedrt_core::preprocess::{Preprocess, PreprocessError, check_frame};
 use std::sync::Arc;
@@ -14,6 +14,9 @@ pub enum SolveMode {
     Linear,
     /// The linear output and `k` projected-gradient steps.
     Refine(usize),
+    /// The linear output and `k` steps of the split solver
+    /// ([`SplitSchedule::SHIPPED`]).
+    Admm(usize),
     /// Solved to convergence.
     Optimal,
 }
@@ -78,6 +81,18 @@ impl SolvedPrefilter {
         self.warm_frames
     }
 
+    /// `k` split-solver steps from the clamped `lsq` image.
+    fn split(&self, input: &Image, k: usize) -> Result<Image, PreprocessError> {
+        let start = self.problem.split_start(input);
+        self.problem
+            .solve_split(input, start, k, &SplitSchedule::SHIPPED)
+            .map(|(display, _)| display)
+            .map_err(|e| PreprocessError::Engine {
+                engine: self.describe(),
+                reason: e.to_string(),
+            })
+    }
+
     /// Where a still frame's solve goes on from, if `input` is one.
     fn still_states(&mut self, input: &Image) -> Option<Vec<FistaState>> {
         let (last, states) = self.still.take()?;
@@ -110,6 +125,9 @@ impl Preprocess for SolvedPrefilter {
             ),
             SolveMode::Refine(k) => {
                 format!("least-squares prefilter + {k} projected-gradient steps")
+            }
+            SolveMode::Admm(k) => {
+                format!("least-squares prefilter + {k} split-solver (ADMM) steps")
             }
             SolveMode::Optimal => "bounded least-squares optimum".to_string(),
         };
@@ -154,12 +172,13 @@ impl Preprocess for SolvedPrefilter {
             self.last = Some(report);
             return Ok(display);
         }
-        let linear = self.problem.linear_unclamped(input).clamped();
         let options = match self.mode {
-            SolveMode::Linear => return Ok(linear),
+            SolveMode::Linear => return Ok(self.problem.linear_unclamped(input).clamped()),
+            SolveMode::Admm(k) => return self.split(input, k),
             SolveMode::Refine(k) => SolveOptions::steps(k),
             SolveMode::Optimal => SolveOptions::CONVERGED,
         };
+        let linear = self.problem.linear_unclamped(input).clamped();
         let (display, report) = self.problem.solve(input, &linear, &options);
         self.last = Some(report);
         Ok(display)

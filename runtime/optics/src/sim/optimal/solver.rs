@@ -193,7 +193,7 @@ pub struct FistaState {
 
 impl FistaState {
     /// A fresh start at `start` (clamped), no momentum.
-    pub(super) fn at(start: &[f32]) -> Self {
+    pub fn at(start: &[f32]) -> Self {
         let x: Vec<f32> = start.iter().map(|v| v.clamp(0.0, 1.0)).collect();
         Self {
             y: x.clone(),

@@ -575,3 +575,81 @@ fn warm_started_refine_on_a_pan_is_refine_from_the_start_every_frame() {
         assert!(a.data() == b.data(), "frame {t}");
     }
 }
+
+#[test]
+fn the_split_data_step_solves_its_penalised_problem() {
+    // (N + ρ) x = b + ρ v: the penalised objective's gradient, N x − b +
+    // ρ (x − v), vanishes at the data step's x.
+    let p = symmetric_problem(Objective::Target);
+    let input = frame(14, 10, 1);
+    let plan = p.plan(14, 10);
+    let Operator::Mirrored(op) = &plan.operator else {
+        panic!("symmetric PSFs take the mirrored path");
+    };
+    let b = op.adjoint_target_spectrum(0, input.plane(0), 14, 10);
+    let v: Vec<f32> = (0..140).map(|i| ((i * 37) % 11) as f32 / 10.0).collect();
+    for rho in [0.01f32, 0.3, 2.0] {
+        let x = op.penalised_solve(0, &b, &v, rho, 14, 10);
+        let (_, g) = evaluate(&plan, &p, &input, &x);
+        let worst = g
+            .iter()
+            .zip(x.iter().zip(&v))
+            .map(|(g, (x, v))| (g + rho * (x - v)).abs())
+            .fold(0.0f32, f32::max);
+        let scale = g.iter().fold(rho, |m, g| m.max(g.abs()));
+        assert!(worst < 1e-4 * scale.max(1.0), "ρ = {rho}: residual {worst}");
+    }
+}
+
+#[test]
+fn split_steps_improve_on_lsq_and_reach_the_optimum() {
+    let p = symmetric_problem(Objective::Target);
+    let input = frame(16, 12, 1);
+    let linear = p.linear_unclamped(&input).clamped();
+    let f0 = p.objective_value(&input, &linear)[0];
+    let schedule = SplitSchedule::SHIPPED;
+    for k in [1, 3, 10] {
+        let (d, _) = p
+            .solve_split(&input, p.split_start(&input), k, &schedule)
+            .expect("mirrored");
+        assert!(d.plane(0).iter().all(|v| (0.0..=1.0).contains(v)));
+        let f = p.objective_value(&input, &d)[0];
+        assert!(f < f0, "admm:{k}: {f} not below lsq's {f0}");
+    }
+    // K steps and K more are 2K steps.
+    let (once, _) = p
+        .solve_split(&input, p.split_start(&input), 8, &schedule)
+        .expect("mirrored");
+    let (_, half) = p
+        .solve_split(&input, p.split_start(&input), 4, &schedule)
+        .expect("mirrored");
+    let (twice, _) = p.solve_split(&input, half, 4, &schedule).expect("mirrored");
+    assert_eq!(once.data(), twice.data());
+    let (best, _) = p.solve(&input, &linear, &SolveOptions::CONVERGED);
+    let optimum = p.objective_value(&input, &best)[0];
+    let (d, _) = p
+        .solve_split(&input, p.split_start(&input), 400, &schedule)
+        .expect("mirrored");
+    let f = p.objective_value(&input, &d)[0];
+    assert!(
+        (f - optimum).abs() <= 1e-3 * optimum,
+        "admm:400 {f} against the optimum {optimum}"
+    );
+    let mut admm = SolvedPrefilter::new("test", Arc::new(p), SolveMode::Admm(3));
+    let d = admm.run(&input).expect("solves");
+    assert!(admm.problem.objective_value(&input, &d)[0] < f0);
+    assert!(admm.describe().contains("split-solver"));
+}
+
+#[test]
+fn the_split_solver_refuses_psfs_without_the_mirrored_form() {
+    let p = problem(Objective::Target);
+    assert!(!p.has_split());
+    let input = frame(10, 8, 1);
+    let e = p
+        .solve_split(&input, p.split_start(&input), 2, &SplitSchedule::SHIPPED)
+        .expect_err("no exact data step");
+    assert!(e.to_string().contains("mirror-symmetric"), "{e}");
+    let mut admm = SolvedPrefilter::new("test", Arc::new(p), SolveMode::Admm(2));
+    assert!(admm.run(&input).is_err());
+}

@@ -1,0 +1,274 @@
+//! `admm:K` on the device: the linear least-squares prefilter, then K steps
+//! of the split solver (ADMM at a constant penalty) per channel, the same
+//! steps as nedrt-optics' `ProblemPlan::split_from` (docs/optimal.md). The
+//! data step's two filters are gain sets of one [`DctFilter`] (the frame's
+//! data term once, the penalty's share every step) and the rest is
+//! `shaders/admm.wgsl`: a step is one filter and one per-pixel pass, with
+//! no reduction. A frame records its dispatches; nothing is allocated or
+//! read back.
+
+use crate::GpuError;
+use crate::fft::{DctFilter, FftError, FftKernels, TermsError, init_buffer};
+use crate::refine::{bind, pipelines};
+
+const SHADER: &str = include_str!("../../../shaders/admm.wgsl");
+const OUTPUTS_KEPT: usize = 8;
+
+/// The split solver at one frame size, as the device takes it: per channel
+/// the gains (DCT layout, [`DctFilter`]) of the linear prefilter (the
+/// start), of the data term Σ_D A_Dᵀ t_D / (N + ρ) and of the penalty's
+/// share ρ / (N + ρ); and the relaxation α.
+#[derive(Debug, Clone)]
+pub struct SplitTerms {
+    pub linear: Vec<Vec<f32>>,
+    pub data: Vec<Vec<f32>>,
+    pub penalty: Vec<Vec<f32>>,
+    pub relaxation: f32,
+}
+
+/// The terms of a frame size, or why they cannot be made.
+pub type SplitTermsFor = Box<dyn FnMut(usize, usize) -> Result<SplitTerms, TermsError> + Send>;
+
+/// `admm.wgsl`'s `Frame`.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct FrameParams {
+    plane: u32,
+    channels: u32,
+    groups_x: u32,
+    relaxation: f32,
+}
+
+#[derive(Debug)]
+struct Pipelines {
+    layout: wgpu::BindGroupLayout,
+    start: wgpu::ComputePipeline,
+    step: wgpu::ComputePipeline,
+    emit: wgpu::ComputePipeline,
+}
+
+/// Everything one frame size needs.
+#[derive(Debug)]
+struct Plan {
+    width: usize,
+    height: usize,
+    filter: DctFilter,
+    /// frame, z, u, v, ax, c, the linear start.
+    buffers: [wgpu::Buffer; 7],
+    main: wgpu::BindGroup,
+    emits: Vec<(wgpu::Buffer, wgpu::BindGroup)>,
+    groups: [u32; 3],
+}
+
+/// `admm:K` as a [`crate::DeviceStage`].
+pub struct SplitStage {
+    name: String,
+    steps: usize,
+    device: wgpu::Device,
+    kernels: FftKernels,
+    pipelines: Pipelines,
+    terms_for: SplitTermsFor,
+    plan: Option<Plan>,
+}
+
+impl std::fmt::Debug for SplitStage {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("SplitStage")
+            .field("name", &self.name)
+            .field("steps", &self.steps)
+            .finish()
+    }
+}
+
+impl SplitStage {
+    pub fn new(
+        device: &wgpu::Device,
+        name: String,
+        steps: usize,
+        terms_for: SplitTermsFor,
+    ) -> Result<Self, FftError> {
+        let pipelines = crate::fft::checked(device, || {
+            let (layout, mut p) = pipelines(
+                device,
+                "admm",
+                SHADER,
+                7,
+                &[0, 4, 5],
+                &["start", "step", "emit"],
+            );
+            let [start, step, emit] = [0; 3].map(|_| p.remove(0));
+            Pipelines {
+                layout,
+                start,
+                step,
+                emit,
+            }
+        })?;
+        Ok(Self {
+            name,
+            steps,
+            device: device.clone(),
+            kernels: FftKernels::new(device)?,
+            pipelines,
+            terms_for,
+            plan: None,
+        })
+    }
+
+    /// Makes the plan of `width`×`height` frames now (the terms computed
+    /// and uploaded), as the first frame of that size would.
+    pub fn prepare(&mut self, width: usize, height: usize) -> Result<(), FftError> {
+        if matches!(&self.plan, Some(p) if (p.width, p.height) == (width, height)) {
+            return Ok(());
+        }
+        let terms = (self.terms_for)(width, height).map_err(|e| FftError::Gains(e.to_string()))?;
+        let channels = terms.linear.len();
+        if channels == 0 || terms.data.len() != channels || terms.penalty.len() != channels {
+            return Err(FftError::Gains(format!(
+                "split terms of {} / {} / {} channels",
+                terms.linear.len(),
+                terms.data.len(),
+                terms.penalty.len()
+            )));
+        }
+        if !(terms.relaxation.is_finite() && terms.relaxation > 0.0 && terms.relaxation < 2.0) {
+            return Err(FftError::Gains(format!(
+                "a relaxation of {} is outside (0, 2)",
+                terms.relaxation
+            )));
+        }
+        let filter = DctFilter::with_gain_sets(
+            &mut self.kernels,
+            width,
+            height,
+            &[&terms.linear, &terms.data, &terms.penalty],
+        )?;
+        let device = &self.device;
+        let plane = (width * height) as u32;
+        let bytes = u64::from(plane) * channels as u64 * 4;
+        let buffer = |label| {
+            device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some(label),
+                size: bytes,
+                usage: wgpu::BufferUsages::STORAGE,
+                mapped_at_creation: false,
+            })
+        };
+        let [gx, gy] = crate::workgroups(u64::from(plane));
+        let params = FrameParams {
+            plane,
+            channels: channels as u32,
+            groups_x: gx,
+            relaxation: terms.relaxation,
+        };
+        let frame = init_buffer(device, "admm frame", bytemuck::bytes_of(&params));
+        let buffers = [
+            frame,
+            buffer("admm z"),
+            buffer("admm u"),
+            buffer("admm v"),
+            buffer("admm ax"),
+            buffer("admm c"),
+            buffer("admm start"),
+        ];
+        let main = bind(
+            device,
+            "admm",
+            &self.pipelines.layout,
+            &buffers.iter().collect::<Vec<_>>(),
+        );
+        self.plan = Some(Plan {
+            width,
+            height,
+            filter,
+            buffers,
+            main,
+            emits: Vec::new(),
+            groups: [gx, gy, channels as u32],
+        });
+        Ok(())
+    }
+}
+
+impl crate::DeviceStage for SplitStage {
+    fn describe(&self) -> String {
+        format!(
+            "{} on the device ({} split-solver steps)",
+            self.name, self.steps
+        )
+    }
+
+    fn warm_up(
+        &mut self,
+        _input: &wgpu::Buffer,
+        _output: &wgpu::Buffer,
+        width: usize,
+        height: usize,
+    ) -> Result<(), GpuError> {
+        self.prepare(width, height).map_err(GpuError::from)
+    }
+
+    fn record(
+        &mut self,
+        encoder: &mut wgpu::CommandEncoder,
+        input: &wgpu::Buffer,
+        output: &wgpu::Buffer,
+        width: usize,
+        height: usize,
+    ) -> Result<(), GpuError> {
+        self.prepare(width, height)?;
+        let Some(plan) = self.plan.as_mut() else {
+            return Err(GpuError::Buffers(
+                "the split solver's plan was not made".into(),
+            ));
+        };
+        let [frame, z, u, v, ax, c, start] = &plan.buffers;
+        let need = z.size();
+        if output.size() < need || input.size() < need {
+            return Err(GpuError::Buffers(format!(
+                "the split solver's buffers hold {} and {} bytes; a frame is {need}",
+                input.size(),
+                output.size()
+            )));
+        }
+        let emit = match plan.emits.iter().find(|(b, _)| b == output) {
+            Some((_, g)) => g.clone(),
+            None => {
+                let g = bind(
+                    &self.device,
+                    "admm",
+                    &self.pipelines.layout,
+                    &[frame, z, u, v, ax, c, output],
+                );
+                if plan.emits.len() == OUTPUTS_KEPT {
+                    plan.emits.remove(0);
+                }
+                plan.emits.push((output.clone(), g.clone()));
+                g
+            }
+        };
+        // The data term and the start share the input's forward rows.
+        plan.filter
+            .record_sets(encoder, input, &[(c, 1), (start, 0)])?;
+        let groups = plan.groups;
+        let dispatch = |encoder: &mut wgpu::CommandEncoder,
+                        pipeline: &wgpu::ComputePipeline,
+                        group: &wgpu::BindGroup| {
+            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some("admm"),
+                timestamp_writes: None,
+            });
+            pass.set_bind_group(0, group, &[]);
+            pass.set_pipeline(pipeline);
+            pass.dispatch_workgroups(groups[0], groups[1], groups[2]);
+        };
+        let p = &self.pipelines;
+        dispatch(encoder, &p.start, &plan.main);
+        for _ in 0..self.steps {
+            plan.filter.record_set(encoder, v, ax, 2)?;
+            dispatch(encoder, &p.step, &plan.main);
+        }
+        dispatch(encoder, &p.emit, &emit);
+        Ok(())
+    }
+}
