@@ -24,16 +24,19 @@ struct Frame {
 @group(0) @binding(5) var<storage, read> c: array<f32>;
 // The linear prefilter's output at the start; the display image at the end (emit).
 @group(0) @binding(6) var<storage, read_write> io: array<f32>;
+// still.wgsl's state: after 4 values per channel, [warm, had_last, still_rms, 0].
+@group(0) @binding(7) var<storage, read> state: array<f32>;
 
 fn pixel(gid: vec3<u32>) -> u32 {
     return gid.x + gid.y * f.groups_x * 64u;
 }
 
-// z = clamp(linear prefilter), u = 0, v = z.
+// z = clamp(linear prefilter), u = 0, v = z; a warm start (still.wgsl's
+// flag) keeps the last frame's z, u and v instead.
 @compute @workgroup_size(64)
 fn start(@builtin(global_invocation_id) gid: vec3<u32>) {
     let i = pixel(gid);
-    if i >= f.plane {
+    if i >= f.plane || state[4u * f.channels] > 0.5 {
         return;
     }
     let at = gid.z * f.plane + i;

@@ -61,7 +61,7 @@ fn assert_whole_recording(rec: &Path) -> usize {
 /// `extra` options, recording into `<dir>/rec` and reporting into
 /// `<dir>/report.json`.
 fn recording_run(dir: &Path, extra: &[&str]) -> Command {
-    let mut c = Command::new(env!("CARGO_BIN_EXE_nedrt"));
+    let mut c = nedrt();
     c.current_dir(repo())
         .args(["run", "--calib"])
         .arg(small_panel())
@@ -403,7 +403,7 @@ fn stop_signals_during_eval_leave_no_half_written_output() {
     ] {
         let dir = tempfile::tempdir().expect("tempdir");
         let out_dir = dir.path().join("eval");
-        let child = Command::new(env!("CARGO_BIN_EXE_nedrt"))
+        let child = nedrt()
             .current_dir(repo())
             .env(
                 "NEDRT_CACHE_DIR",

@@ -28,7 +28,7 @@ mod needs_gpu {
         let dir = tempfile::tempdir().expect("tempdir");
         let report_path = dir.path().join("report.json");
         let frames = 3000u64;
-        let out = Command::new(env!("CARGO_BIN_EXE_nedrt"))
+        let out = nedrt()
             .current_dir(repo())
             .args(["run", "--calib"])
             .arg(small_panel())
@@ -110,7 +110,7 @@ mod needs_gpu {
         std::fs::copy(repo().join("models/dcnn.onnx"), &network).expect("copy the model");
         for path in ["device", "host"] {
             let report_path = dir.path().join(format!("{path}.json"));
-            let out = Command::new(env!("CARGO_BIN_EXE_nedrt"))
+            let out = nedrt()
                 .current_dir(repo())
                 .args(["run", "--calib"])
                 .arg(small_panel())
@@ -220,7 +220,7 @@ mod needs_gpu_prefilters {
         .enumerate()
         {
             let report_path = dir.path().join(format!("{i}.json"));
-            let out = Command::new(env!("CARGO_BIN_EXE_nedrt"))
+            let out = nedrt()
                 .current_dir(repo())
                 .args(["--calib"])
                 .arg(small_panel())
@@ -285,7 +285,7 @@ mod needs_gpu_fault {
         std::fs::copy(repo().join("models/dcnn.onnx"), &network).expect("copy the model");
         let report_path = dir.path().join("report.json");
         let frames = 5u64;
-        let out = Command::new(env!("CARGO_BIN_EXE_nedrt"))
+        let out = nedrt()
             .current_dir(repo())
             .env("NEDRT_LOG", "nedrt=info")
             .args(["run", "--calib"])
@@ -363,7 +363,7 @@ mod needs_gpu_ladder {
         ] {
             let dir = tempfile::tempdir().expect("tempdir");
             let report_path = dir.path().join("report.json");
-            let out = Command::new(env!("CARGO_BIN_EXE_nedrt"))
+            let out = nedrt()
                 .current_dir(repo())
                 .env("NEDRT_LOG", "nedrt=info")
                 .args(["run", "--calib"])
@@ -430,7 +430,7 @@ mod needs_gpu_bench {
     fn the_pipeline_bench_puts_both_frame_paths_side_by_side() {
         require_gpu();
         let dir = tempfile::tempdir().expect("tempdir");
-        let out = Command::new(env!("CARGO_BIN_EXE_nedrt"))
+        let out = nedrt()
             .current_dir(repo())
             .args(["bench", "pipeline", "--networks", "none,half"])
             .args(["--panel", "32x32", "--frames", "2", "--max-seconds", "100"])

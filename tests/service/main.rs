@@ -34,6 +34,17 @@ use nedrt_service::present::transfer::Transfer;
 const W: usize = 64;
 const H: usize = 48;
 
+/// `nedrt`, with the PSF cache of the whole test run inside the build
+/// folder: the tests never fill the user's own cache.
+fn nedrt() -> Command {
+    let mut c = Command::new(env!("CARGO_BIN_EXE_nedrt"));
+    c.env(
+        "NEDRT_CACHE_DIR",
+        Path::new(env!("CARGO_TARGET_TMPDIR")).join("psf-cache"),
+    );
+    c
+}
+
 fn repo() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
 }
@@ -65,7 +76,7 @@ impl Service {
         // ([`reference`]), not with the Wiener stage the card adds.
         let network = dir.path().join("network.onnx");
         std::fs::copy(repo().join("models/dcnn.onnx"), &network).expect("copy the model");
-        let mut c = Command::new(env!("CARGO_BIN_EXE_nedrt"));
+        let mut c = nedrt();
         c.current_dir(repo())
             .env("NEDRT_LOG", "nedrt=info")
             .arg("run")

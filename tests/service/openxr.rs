@@ -9,7 +9,7 @@ use std::process::{Command, Output};
 use std::time::Duration;
 
 use super::deadline::{CommandWithin, Watched};
-use super::{EXIT_WITHIN, repo, report, signal, wait_until};
+use super::{EXIT_WITHIN, nedrt, repo, report, signal, wait_until};
 
 /// A file the OpenXR tests need, built beside the test binary
 /// (target/<profile>/), as `cargo build --release -p nedrt-openxr --lib
@@ -42,7 +42,7 @@ fn manifest(dir: &Path) -> PathBuf {
 /// panel shows what the application rendered), on the shipped calibration
 /// (1920×1080, two 960×1080 views) or on `calib`.
 fn stereo_service(dir: &Path, calib: Option<&Path>) -> Watched {
-    let mut c = Command::new(env!("CARGO_BIN_EXE_nedrt"));
+    let mut c = nedrt();
     c.current_dir(repo()).env("NEDRT_LOG", "nedrt=info");
     if let Some(calib) = calib {
         c.arg("--calib").arg(calib);
@@ -415,7 +415,7 @@ mod needs_gpu_and_openxr_client {
             .save(&comp_path)
             .expect("write the composition");
         let shown = dir.path().join("shown.tif");
-        let sim = Command::new(env!("CARGO_BIN_EXE_nedrt"))
+        let sim = nedrt()
             .current_dir(repo())
             .arg("--calib")
             .arg(super::super::small_panel())

@@ -122,14 +122,14 @@ pub(crate) fn pipelines(
 
 /// `still.wgsl`'s pipelines: the change from the last frame, and the flag.
 #[derive(Debug)]
-struct StillPipelines {
-    layout: wgpu::BindGroupLayout,
+pub(crate) struct StillPipelines {
+    pub(crate) layout: wgpu::BindGroupLayout,
     change: wgpu::ComputePipeline,
     decide: wgpu::ComputePipeline,
 }
 
 impl StillPipelines {
-    fn new(device: &wgpu::Device) -> Result<Self, FftError> {
+    pub(crate) fn new(device: &wgpu::Device) -> Result<Self, FftError> {
         crate::fft::checked(device, || {
             let (layout, mut p) = pipelines(
                 device,
@@ -146,6 +146,28 @@ impl StillPipelines {
                 layout,
             }
         })
+    }
+}
+
+impl StillPipelines {
+    /// Records the still test of a frame: `group` binds still.wgsl's
+    /// frame, input, last frame, partial sums and state; `groups` are the
+    /// per-pixel dispatch's workgroups (x, y, channels).
+    pub(crate) fn record(
+        &self,
+        encoder: &mut wgpu::CommandEncoder,
+        group: &wgpu::BindGroup,
+        groups: [u32; 3],
+    ) {
+        let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+            label: Some("still"),
+            timestamp_writes: None,
+        });
+        pass.set_bind_group(0, group, &[]);
+        pass.set_pipeline(&self.change);
+        pass.dispatch_workgroups(groups[0], groups[1], groups[2]);
+        pass.set_pipeline(&self.decide);
+        pass.dispatch_workgroups(1, 1, 1);
     }
 }
 
@@ -425,16 +447,7 @@ impl crate::DeviceStage for RefineStage {
                     g
                 }
             };
-            let [gx, gy, c] = plan.groups;
-            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                label: Some("still"),
-                timestamp_writes: None,
-            });
-            pass.set_bind_group(0, &group, &[]);
-            pass.set_pipeline(&still.change);
-            pass.dispatch_workgroups(gx, gy, c);
-            pass.set_pipeline(&still.decide);
-            pass.dispatch_workgroups(1, 1, 1);
+            still.record(encoder, &group, plan.groups);
         }
         // b = Σ A_Dᵀ t_D(I); the start: the linear prefilter, clamped. One
         // input: the two share its rows' forward transform.

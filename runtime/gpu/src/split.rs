@@ -5,11 +5,13 @@
 //! data term once, the penalty's share every step) and the rest is
 //! `shaders/admm.wgsl`: a step is one filter and one per-pixel pass, with
 //! no reduction. A frame records its dispatches; nothing is allocated or
-//! read back.
+//! read back. Warm-started ([`SplitStage::warm_started`]), a still frame
+//! goes on from where the last frame's steps stopped (`shaders/still.wgsl`
+//! decides, as for the refinement).
 
 use crate::GpuError;
 use crate::fft::{DctFilter, FftError, FftKernels, TermsError, init_buffer};
-use crate::refine::{bind, pipelines};
+use crate::refine::{StillPipelines, bind, pipelines};
 
 const SHADER: &str = include_str!("../../../shaders/admm.wgsl");
 const OUTPUTS_KEPT: usize = 8;
@@ -47,17 +49,31 @@ struct Pipelines {
     emit: wgpu::ComputePipeline,
 }
 
+/// `still.wgsl`'s `Frame` (the refinement's layout).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct StillParams {
+    plane: u32,
+    channels: u32,
+    groups_per_plane: u32,
+    groups_x: u32,
+}
+
 /// Everything one frame size needs.
 #[derive(Debug)]
 struct Plan {
     width: usize,
     height: usize,
     filter: DctFilter,
-    /// frame, z, u, v, ax, c, the linear start.
-    buffers: [wgpu::Buffer; 7],
+    /// frame, z, u, v, ax, c, the linear start, the still test's state.
+    buffers: [wgpu::Buffer; 8],
     main: wgpu::BindGroup,
     emits: Vec<(wgpu::Buffer, wgpu::BindGroup)>,
     groups: [u32; 3],
+    /// Warm-started: still.wgsl's frame, the last frame's planes, the
+    /// partial sums, and its bind groups by input buffer.
+    still: Option<[wgpu::Buffer; 3]>,
+    stills: Vec<(wgpu::Buffer, wgpu::BindGroup)>,
 }
 
 /// `admm:K` as a [`crate::DeviceStage`].
@@ -69,6 +85,8 @@ pub struct SplitStage {
     pipelines: Pipelines,
     terms_for: SplitTermsFor,
     plan: Option<Plan>,
+    /// Warm-started: the still test's pipelines and RMS threshold.
+    warm: Option<(StillPipelines, f32)>,
 }
 
 impl std::fmt::Debug for SplitStage {
@@ -92,8 +110,8 @@ impl SplitStage {
                 device,
                 "admm",
                 SHADER,
-                7,
-                &[0, 4, 5],
+                8,
+                &[0, 4, 5, 7],
                 &["start", "step", "emit"],
             );
             let [start, step, emit] = [0; 3].map(|_| p.remove(0));
@@ -112,7 +130,17 @@ impl SplitStage {
             pipelines,
             terms_for,
             plan: None,
+            warm: None,
         })
+    }
+
+    /// Goes on from the last frame's z and u where this frame differs from
+    /// the last by an RMS of at most `still_rms` (the host's
+    /// `SolvedPrefilter::STILL_RMS`): a still scene converges over frames.
+    pub fn warm_started(mut self, still_rms: f32) -> Result<Self, FftError> {
+        self.warm = Some((StillPipelines::new(&self.device)?, still_rms));
+        self.plan = None;
+        Ok(self)
     }
 
     /// Makes the plan of `width`×`height` frames now (the terms computed
@@ -162,6 +190,35 @@ impl SplitStage {
             relaxation: terms.relaxation,
         };
         let frame = init_buffer(device, "admm frame", bytemuck::bytes_of(&params));
+        // still.wgsl's flag and its memory: 4 values per channel, then
+        // [warm, had_last, still_rms, 0].
+        let still_rms = self.warm.as_ref().map_or(0.0, |(_, rms)| *rms);
+        let mut state = vec![0.0f32; 4 * channels];
+        state.extend([0.0, 0.0, still_rms, 0.0]);
+        let state = init_buffer(device, "admm still state", bytemuck::cast_slice(&state));
+        let still = self.warm.is_some().then(|| {
+            let still_params = StillParams {
+                plane,
+                channels: channels as u32,
+                groups_per_plane: gx * gy,
+                groups_x: gx,
+            };
+            let partials = device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("admm still partial sums"),
+                size: u64::from(gx * gy) * channels as u64 * 4,
+                usage: wgpu::BufferUsages::STORAGE,
+                mapped_at_creation: false,
+            });
+            [
+                init_buffer(
+                    device,
+                    "admm still frame",
+                    bytemuck::bytes_of(&still_params),
+                ),
+                buffer("admm last frame"),
+                partials,
+            ]
+        });
         let buffers = [
             frame,
             buffer("admm z"),
@@ -170,6 +227,7 @@ impl SplitStage {
             buffer("admm ax"),
             buffer("admm c"),
             buffer("admm start"),
+            state,
         ];
         let main = bind(
             device,
@@ -185,6 +243,8 @@ impl SplitStage {
             main,
             emits: Vec::new(),
             groups: [gx, gy, channels as u32],
+            still,
+            stills: Vec::new(),
         });
         Ok(())
     }
@@ -192,8 +252,13 @@ impl SplitStage {
 
 impl crate::DeviceStage for SplitStage {
     fn describe(&self) -> String {
+        let warm = if self.warm.is_some() {
+            ", going on from the last frame's on a still one"
+        } else {
+            ""
+        };
         format!(
-            "{} on the device ({} split-solver steps)",
+            "{} on the device ({} split-solver steps{warm})",
             self.name, self.steps
         )
     }
@@ -222,7 +287,7 @@ impl crate::DeviceStage for SplitStage {
                 "the split solver's plan was not made".into(),
             ));
         };
-        let [frame, z, u, v, ax, c, start] = &plan.buffers;
+        let [frame, z, u, v, ax, c, start, state] = &plan.buffers;
         let need = z.size();
         if output.size() < need || input.size() < need {
             return Err(GpuError::Buffers(format!(
@@ -238,7 +303,7 @@ impl crate::DeviceStage for SplitStage {
                     &self.device,
                     "admm",
                     &self.pipelines.layout,
-                    &[frame, z, u, v, ax, c, output],
+                    &[frame, z, u, v, ax, c, output, state],
                 );
                 if plan.emits.len() == OUTPUTS_KEPT {
                     plan.emits.remove(0);
@@ -247,6 +312,29 @@ impl crate::DeviceStage for SplitStage {
                 g
             }
         };
+        // Warm-started: is this frame the last one still? (The flag `start`
+        // reads.)
+        if let (Some((pipelines, _)), Some([still_frame, last, partials])) =
+            (&self.warm, &plan.still)
+        {
+            let group = match plan.stills.iter().find(|(b, _)| b == input) {
+                Some((_, g)) => g.clone(),
+                None => {
+                    let g = bind(
+                        &self.device,
+                        "still",
+                        &pipelines.layout,
+                        &[still_frame, input, last, partials, state],
+                    );
+                    if plan.stills.len() == OUTPUTS_KEPT {
+                        plan.stills.remove(0);
+                    }
+                    plan.stills.push((input.clone(), g.clone()));
+                    g
+                }
+            };
+            pipelines.record(encoder, &group, plan.groups);
+        }
         // The data term and the start share the input's forward rows.
         plan.filter
             .record_sets(encoder, input, &[(c, 1), (start, 0)])?;

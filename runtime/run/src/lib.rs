@@ -522,8 +522,15 @@ mod tests {
                 let mut cpu = SolvedPrefilter::new("test", problem.clone(), SolveMode::Admm(steps));
                 let host = cpu.run(&input).expect("host");
                 let stage = |what: &str| {
-                    split_stage(&device, what.into(), problem.clone(), steps, Some((w, h)))
-                        .expect("stage")
+                    split_stage(
+                        &device,
+                        what.into(),
+                        problem.clone(),
+                        steps,
+                        Some((w, h)),
+                        false,
+                    )
+                    .expect("stage")
                 };
                 let mut read = OnDevice::new(
                     &device,
@@ -548,6 +555,72 @@ mod tests {
                     &host_codes(&transfer, &host),
                 );
             }
+        }
+
+        /// admm:1 warm-started on the device goes on over still frames and
+        /// starts afresh on a changed one, as the host's does: every
+        /// frame's values within 1e-4 of the host's.
+        #[test]
+        #[ignore = "needs a GPU adapter (run: scripts/test.sh, or cargo test -- --include-ignored)"]
+        fn warm_admm_on_the_device_goes_on_as_the_hosts_does() {
+            use nedrt_optics::sim::{SolveMode, SolvedPrefilter};
+            use nedrt_stages::device_prefilter::OnDevice;
+            let (device, queue) = nedrt_gpu::test_device(false);
+            let problem = three_depths();
+            let (w, h) = (64, 40);
+            let still = frame(w, h);
+            let mut moved = still.clone();
+            moved
+                .data_mut()
+                .iter_mut()
+                .for_each(|v| *v = (*v * 0.8 + 0.1).min(1.0));
+            let mut host =
+                SolvedPrefilter::new("host", problem.clone(), SolveMode::Admm(1)).warm_started();
+            let stage = split_stage(
+                &device,
+                "warm admm".into(),
+                problem.clone(),
+                1,
+                Some((w, h)),
+                true,
+            )
+            .expect("stage");
+            let fallback = Box::new(SolvedPrefilter::new(
+                "f",
+                problem.clone(),
+                SolveMode::Admm(1),
+            ));
+            let mut warm = OnDevice::new(&device, &queue, stage, true, fallback);
+            assert!(warm.describe().contains("going on from the last frame's"));
+            let mut shown = Vec::new();
+            for (t, f) in [&still, &still, &still, &moved, &moved].iter().enumerate() {
+                let (d, hst) = (warm.run(f).expect("device"), host.run(f).expect("host"));
+                assert_eq!(
+                    warm.last_traffic().read_backs,
+                    1,
+                    "frame {t} ran on the device"
+                );
+                let worst = d
+                    .data()
+                    .iter()
+                    .zip(hst.data())
+                    .map(|(a, b)| (a - b).abs())
+                    .fold(0.0f32, f32::max);
+                eprintln!("warm admm:1, frame {t}: within {worst:e} of the host's");
+                assert!(worst <= 1e-4, "frame {t}: {worst} off the host");
+                shown.push(d);
+            }
+            assert_ne!(shown[1].data(), shown[0].data(), "a still frame went on");
+            let afresh = SolvedPrefilter::new("a", problem.clone(), SolveMode::Admm(1))
+                .run(&moved)
+                .expect("host");
+            let off = shown[3]
+                .data()
+                .iter()
+                .zip(afresh.data())
+                .map(|(a, b)| (a - b).abs())
+                .fold(0.0f32, f32::max);
+            assert!(off <= 1e-4, "a changed frame starts afresh: {off}");
         }
 
         /// The warm start on the device (issue 54) is the host's: over

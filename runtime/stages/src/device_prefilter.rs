@@ -95,13 +95,15 @@ pub fn refine_stage(
 }
 
 /// `admm:K` of `problem` on the device (the shipped schedule, whose
-/// penalty is constant).
+/// penalty is constant); `warm`: a still frame goes on from the last
+/// frame's steps, as on the host.
 pub fn split_stage(
     device: &wgpu::Device,
     what: String,
     problem: Arc<DisplayProblem>,
     steps: usize,
     size: Option<(usize, usize)>,
+    warm: bool,
 ) -> Result<Box<dyn DeviceStage>, FftError> {
     let terms_for: SplitTermsFor = Box::new(move |w, h| {
         let t = problem.device_split_terms(w, h, &SplitSchedule::SHIPPED)?;
@@ -113,6 +115,10 @@ pub fn split_stage(
         })
     });
     let mut stage = SplitStage::new(device, what, steps, terms_for)?;
+    if warm {
+        let still_rms = nedrt_optics::sim::SolvedPrefilter::STILL_RMS as f32;
+        stage = stage.warm_started(still_rms)?;
+    }
     if let Some((w, h)) = size {
         stage.prepare(w, h)?;
     }
@@ -165,7 +171,7 @@ pub fn prefilter_stage(
             if !problem.has_split() {
                 return Ok(None);
             }
-            split_stage(device, what, Arc::new(problem), k, size)?
+            split_stage(device, what, Arc::new(problem), k, size, false)?
         }
         _ => match prepared.wiener_shared(method) {
             Some(filter) => wiener_stage(device, what, filter, size)?,

@@ -2,7 +2,7 @@
 //! (`lsq`, `refine:k`, `optimal`) and the refinement's terms for the device.
 //! Apart from the problem: the adapters other crates hold.
 
-use super::{DisplayProblem, FistaState, SolveOptions, SolveReport, SplitSchedule};
+use super::{DisplayProblem, FistaState, SolveOptions, SolveReport, SplitSchedule, SplitState};
 use nedrt_core::image::Image;
 use nedrt_core::preprocess::{Preprocess, PreprocessError, check_frame};
 use std::sync::Arc;
@@ -31,7 +31,14 @@ pub struct DeviceTerms {
     pub step: Vec<f32>,
 }
 
-/// `lsq`, `refine:k` and `optimal` as the preprocessing of a display system.
+/// Where the last frame's solve stopped, per channel.
+#[derive(Debug, Clone)]
+enum Stopped {
+    Fista(Vec<FistaState>),
+    Split(Vec<SplitState>),
+}
+
+/// `lsq`, `refine:k`, `admm:k` and `optimal` as the preprocessing of a display system.
 #[derive(Debug, Clone)]
 pub struct SolvedPrefilter {
     /// The display system whose optics the problem holds ("doe+wiener").
@@ -40,13 +47,14 @@ pub struct SolvedPrefilter {
     pub mode: SolveMode,
     /// The last frame's solve, for reports.
     pub last: Option<SolveReport>,
-    /// `refine:K` only: on a frame unchanged since the last (RMS change
-    /// at most [`SolvedPrefilter::STILL_RMS`]), go on from where the last
-    /// frame's solve stopped instead of the linear prefilter, so that a
-    /// still scene converges over frames at K steps a frame.
+    /// `refine:K` and `admm:K` only: on a frame unchanged since the last
+    /// (RMS change at most [`SolvedPrefilter::STILL_RMS`]), go on from
+    /// where the last frame's solve stopped instead of the linear
+    /// prefilter, so that a still scene converges over frames at K steps
+    /// a frame.
     pub warm_start: bool,
     /// The last frame and where its solve stopped, per channel.
-    still: Option<(Image, Vec<FistaState>)>,
+    still: Option<(Image, Stopped)>,
     /// Frames in a row the last solve went on from the one before.
     warm_frames: u64,
 }
@@ -69,7 +77,7 @@ impl SolvedPrefilter {
         }
     }
 
-    /// The same, warm-started on still frames (`refine:K`).
+    /// The same, warm-started on still frames (`refine:K`, `admm:K`).
     pub fn warm_started(mut self) -> Self {
         self.warm_start = true;
         self
@@ -81,12 +89,15 @@ impl SolvedPrefilter {
         self.warm_frames
     }
 
-    /// `k` split-solver steps from the clamped `lsq` image.
-    fn split(&self, input: &Image, k: usize) -> Result<Image, PreprocessError> {
-        let start = self.problem.split_start(input);
+    /// `k` split-solver steps from `states`.
+    fn split_from(
+        &self,
+        input: &Image,
+        states: Vec<SplitState>,
+        k: usize,
+    ) -> Result<(Image, Vec<SplitState>), PreprocessError> {
         self.problem
-            .solve_split(input, start, k, &SplitSchedule::SHIPPED)
-            .map(|(display, _)| display)
+            .solve_split(input, states, k, &SplitSchedule::SHIPPED)
             .map_err(|e| PreprocessError::Engine {
                 engine: self.describe(),
                 reason: e.to_string(),
@@ -94,7 +105,7 @@ impl SolvedPrefilter {
     }
 
     /// Where a still frame's solve goes on from, if `input` is one.
-    fn still_states(&mut self, input: &Image) -> Option<Vec<FistaState>> {
+    fn still_states(&mut self, input: &Image) -> Option<Stopped> {
         let (last, states) = self.still.take()?;
         let same_size = (last.width, last.height, last.channels())
             == (input.width, input.height, input.channels());
@@ -126,6 +137,10 @@ impl Preprocess for SolvedPrefilter {
             SolveMode::Refine(k) => {
                 format!("least-squares prefilter + {k} projected-gradient steps")
             }
+            SolveMode::Admm(k) if self.warm_start => format!(
+                "least-squares prefilter + {k} split-solver (ADMM) steps, going on from the last \
+                 frame's on a still one"
+            ),
             SolveMode::Admm(k) => {
                 format!("least-squares prefilter + {k} split-solver (ADMM) steps")
             }
@@ -154,27 +169,47 @@ impl Preprocess for SolvedPrefilter {
 
     fn run(&mut self, input: &Image) -> Result<Image, PreprocessError> {
         check_frame(input, self.problem.channels())?;
-        if let (SolveMode::Refine(k), true) = (self.mode, self.warm_start) {
-            let options = SolveOptions::steps(k);
-            let states = match self.still_states(input) {
-                Some(states) => {
-                    self.warm_frames += 1;
-                    states
-                }
-                None => {
-                    self.warm_frames = 0;
-                    let linear = self.problem.linear_unclamped(input).clamped();
-                    linear.planes().map(FistaState::at).collect()
-                }
+        if self.warm_start {
+            let still = self.still_states(input);
+            self.warm_frames = if still.is_some() {
+                self.warm_frames + 1
+            } else {
+                0
             };
-            let (display, report, states) = self.problem.solve_from(input, states, &options);
-            self.still = Some((input.clone(), states));
-            self.last = Some(report);
-            return Ok(display);
+            match self.mode {
+                SolveMode::Refine(k) => {
+                    let states = match still {
+                        Some(Stopped::Fista(states)) => states,
+                        _ => {
+                            let linear = self.problem.linear_unclamped(input).clamped();
+                            linear.planes().map(FistaState::at).collect()
+                        }
+                    };
+                    let options = SolveOptions::steps(k);
+                    let (display, report, states) =
+                        self.problem.solve_from(input, states, &options);
+                    self.still = Some((input.clone(), Stopped::Fista(states)));
+                    self.last = Some(report);
+                    return Ok(display);
+                }
+                SolveMode::Admm(k) => {
+                    let states = match still {
+                        Some(Stopped::Split(states)) => states,
+                        _ => self.problem.split_start(input),
+                    };
+                    let (display, states) = self.split_from(input, states, k)?;
+                    self.still = Some((input.clone(), Stopped::Split(states)));
+                    return Ok(display);
+                }
+                SolveMode::Linear | SolveMode::Optimal => {}
+            }
         }
         let options = match self.mode {
             SolveMode::Linear => return Ok(self.problem.linear_unclamped(input).clamped()),
-            SolveMode::Admm(k) => return self.split(input, k),
+            SolveMode::Admm(k) => {
+                let start = self.problem.split_start(input);
+                return self.split_from(input, start, k).map(|(display, _)| display);
+            }
             SolveMode::Refine(k) => SolveOptions::steps(k),
             SolveMode::Optimal => SolveOptions::CONVERGED,
         };

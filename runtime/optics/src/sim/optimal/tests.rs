@@ -653,3 +653,32 @@ fn the_split_solver_refuses_psfs_without_the_mirrored_form() {
     let mut admm = SolvedPrefilter::new("test", Arc::new(p), SolveMode::Admm(2));
     assert!(admm.run(&input).is_err());
 }
+
+#[test]
+fn warm_started_admm_on_a_still_frame_goes_on_and_a_changed_one_starts_afresh() {
+    let p = Arc::new(symmetric_problem(Objective::Target));
+    let input = frame(16, 12, 1);
+    let mut warm = SolvedPrefilter::new("test", p.clone(), SolveMode::Admm(1)).warm_started();
+    assert!(warm.describe().contains("still"), "{}", warm.describe());
+    let mut shown = Vec::new();
+    for _ in 0..5 {
+        shown.push(warm.run(&input).expect("runs"));
+    }
+    assert_eq!(warm.warm_frames(), 4);
+    // Five frames of one step are admm:5.
+    let five = SolvedPrefilter::new("test", p.clone(), SolveMode::Admm(5))
+        .run(&input)
+        .expect("runs");
+    assert_eq!(shown[4].data(), five.data());
+    let mut moved = input.clone();
+    moved
+        .data_mut()
+        .iter_mut()
+        .for_each(|v| *v = (*v * 0.9).max(0.0));
+    let again = warm.run(&moved).expect("runs");
+    assert_eq!(warm.warm_frames(), 0);
+    let one = SolvedPrefilter::new("test", p.clone(), SolveMode::Admm(1))
+        .run(&moved)
+        .expect("runs");
+    assert_eq!(again.data(), one.data(), "a changed frame starts afresh");
+}
