@@ -534,7 +534,7 @@ const ROWS: &[Row] = &[
             "--prefilter",
             "native",
         ],
-        "needs --prefilter lsq, refine:K or optimal",
+        "needs --prefilter lsq, refine:K, admm:K or optimal",
     ),
     row(
         "prefilter command: unclamped output of a prefilter without a clamp to undo",

@@ -174,7 +174,7 @@ fn the_prefilter_command_writes_displays_kernels_and_a_manifest() {
         &dir.path().join("x"),
         &["--method", "proposed", "--prefilter", "native"],
     );
-    assert_clean_error(&o, "needs --prefilter lsq, refine:K or optimal");
+    assert_clean_error(&o, "needs --prefilter lsq, refine:K, admm:K or optimal");
 }
 
 /// `--unclamped` writes the Wiener's output before the panel's clamp:

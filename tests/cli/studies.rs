@@ -94,6 +94,7 @@ fn tradeoff_writes_the_chart_and_the_picker_reads_it() {
         // The least-squares prefilters on each design, with its own objective.
         "doe+wiener multifocal lsq@target",
         "doe+wiener multifocal refine:3@target",
+        "doe+wiener multifocal admm:3@target",
         "doe+wiener multifocal optimal@target",
         "doe+wiener allsharp refine:10@sharp",
         "doe+wiener allsharp optimal@sharp",
@@ -115,6 +116,60 @@ fn tradeoff_writes_the_chart_and_the_picker_reads_it() {
         md.contains("32×24") && md.contains("models/dcnn.onnx ("),
         "{md}"
     );
+    // --add measures a design's prefilters only and adds their rows,
+    // replacing a row of the same name and keeping every other.
+    let add = |out: &std::path::Path, size: &str, prefilter: &str| {
+        run(&[
+            &base[..],
+            &[
+                "tradeoff",
+                "--add",
+                "--designs",
+                path(&repo().join("designs/multifocal.toml")),
+                "--prefilter",
+                prefilter,
+                "--images",
+                path(&imgs),
+                "--out-dir",
+                path(out),
+                "--size",
+                size,
+                "--backends",
+                "cpu",
+                "--repeat",
+                "1",
+                "--no-fidelity",
+                "--models",
+                path(&model),
+            ],
+        ]
+        .concat())
+    };
+    let before = std::fs::read_to_string(&table).expect("json");
+    let o = add(&out, "32x24", "admm:2,refine:3");
+    assert!(o.status.success(), "{}", stderr(&o));
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&table).expect("json")).expect("parse");
+    let added: Vec<&str> = json["records"]
+        .as_array()
+        .expect("records")
+        .iter()
+        .map(|r| r["name"].as_str().expect("name"))
+        .collect();
+    assert_eq!(added.len(), names.len() + 1, "{added:?}");
+    for n in names
+        .iter()
+        .chain(["doe+wiener multifocal admm:2@target"].iter())
+    {
+        assert!(added.contains(n), "{n} missing after --add: {added:?}");
+    }
+    // Another frame size cannot share the chart: refused, the table as it was.
+    let added_table = std::fs::read_to_string(&table).expect("json");
+    assert_ne!(added_table, before);
+    assert_clean_error(&add(&out, "40x24", "admm:1"), "frame size");
+    assert_eq!(std::fs::read_to_string(&table).expect("json"), added_table);
+    let o = add(&dir.path().join("none"), "32x24", "admm:1");
+    assert_clean_error(&o, "there is none");
     // The fastest configuration meets an easy floor; among equally fast
     // ones (several preprocess nothing) the picker takes the best PSNR.
     let fastest = records

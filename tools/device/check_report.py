@@ -42,13 +42,14 @@ def report(steps: dict, meta: dict) -> str:
             if x.get("backend") == "torch.fft":
                 md.append(f"\ntorch.fft (mirror, rfft2, gain, irfft2) {x['width']}×{x['height']}: "
                           f"{x['median_s'] * 1e3:.3f} ms median on {x['device']}.")
-    refine = next((x for x in records("pipeline", "pipeline") if x.get("network") == "refine10"), None)
-    if refine:
-        ms = lambda v: "–" if v is None else f"{v:.1f}"
-        md += ["", f"## refine:10 per frame ({head})", "",
-               f"{refine['width']}×{refine['height']} on the {refine['frame_path']} path: GPU p50 "
-               f"{ms(refine.get('gpu_p50_ms'))} ms a frame (timestamps), end to end p50 "
-               f"{ms(refine.get('e2e_p50_ms'))} ms; {refine['presented']} shown, {refine['dropped']} dropped."]
+    for network, name in (("refine10", "refine:10"), ("admm10", "admm:10")):
+        solver = next((x for x in records("pipeline", "pipeline") if x.get("network") == network), None)
+        if solver:
+            ms = lambda v: "–" if v is None else f"{v:.1f}"
+            md += ["", f"## {name} per frame ({head})", "",
+                   f"{solver['width']}×{solver['height']} on the {solver['frame_path']} path: GPU p50 "
+                   f"{ms(solver.get('gpu_p50_ms'))} ms a frame (timestamps), end to end p50 "
+                   f"{ms(solver.get('e2e_p50_ms'))} ms; {solver['presented']} shown, {solver['dropped']} dropped."]
     if text("pipeline"):
         md += ["", f"## The pipeline end to end ({head})", "", text("pipeline")]
         md += pacing_target(records("pipeline", "pipeline"), head)

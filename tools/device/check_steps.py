@@ -202,7 +202,7 @@ def step_pipeline(r: Runner, s: Step, z: dict):
     # from; the half network, the shipped model's width without its
     # Wiener, made room for it.
     out = r.sh([r.nedrt, "--design", "multifocal", "bench", "pipeline", "--networks",
-                "auto,none,wiener,refine10,full,model", *common], s.cap_s)
+                "auto,none,wiener,refine10,admm10,full,model", *common], s.cap_s)
     # One view and two (issues 39 and 54): the frame budget and the shipped
     # model (no network with two views met the refresh at b239a3e).
     stereo = r.sh([r.nedrt, "--design", "multifocal", "bench", "pipeline", "--stereo", "--networks",

@@ -158,7 +158,7 @@ pub struct SimArgs {
     #[arg(long, default_value = "native", value_name = "PREFILTER")]
     pub prefilter: nedrt_stages::preprocess::Prefilter,
     /// Instead of --method and --prefilter: a level of `nedrt run`'s frame
-    /// budget by the name its report gives (none, wiener, refine:K, or the
+    /// budget by the name its report gives (none, wiener, admm:K, refine:K, or the
     /// network's file stem, dcnn), on the optics that level runs on (the
     /// shipped system's DOE).
     #[arg(long, value_name = "LEVEL", conflicts_with_all = ["method", "prefilter", "display_image"])]
@@ -253,8 +253,8 @@ pub struct RunArgs {
     /// The preprocessing on the panel: a display system's (its D-CNN, its
     /// Wiener prefilter, or none; `ai` and `doe+wiener` put the Wiener
     /// prefilter on the panel), or `auto[:LO..HI]`: the frame budget picks
-    /// each frame's level from none < wiener < refine:1 < refine:3 <
-    /// refine:10 < the network (dcnn), LO to HI, so that every refresh is
+    /// each frame's level from none < wiener < admm:1 < admm:3 <
+    /// admm:10 < the network (dcnn), LO to HI, so that every refresh is
     /// on time (docs/service.md, "The frame budget"). Methods: conventional,
     /// ai, doe-only, doe+wiener, proposed, lens+dcnn. [default: auto; with
     /// --prefilter, proposed: that prefilter on the shipped system's optics]

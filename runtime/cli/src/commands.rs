@@ -296,6 +296,7 @@ pub fn run(cli: Cli) -> Result<()> {
                     }
                     b => b,
                 },
+                add: a.add,
             };
             print!("{}", studies::tradeoff::run(&common, &opts)?);
         }

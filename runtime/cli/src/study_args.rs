@@ -63,17 +63,22 @@ pub struct TradeoffArgs {
     /// Measure nothing: rewrite the tables and charts from the JSON in --out-dir.
     #[arg(long)]
     pub replot: bool,
+    /// Measure only each design's --prefilter rows and add them to the
+    /// table already in --out-dir (a row of the same name is replaced); the
+    /// table must come from this host, --size, calibration and --images.
+    #[arg(long, conflicts_with = "replot")]
+    pub add: bool,
     /// Display designs compared beside the baselines (names in designs/ or
     /// files); default: every design in designs/.
     #[arg(long, value_delimiter = ',', value_name = "NAME|FILE")]
     pub designs: Option<Vec<String>>,
     /// Least-squares prefilters priced on each design's optics (lsq,
-    /// refine:K, optimal; each against the objective its design was made
-    /// for; `native` alone adds none).
+    /// refine:K, admm:K, optimal; each against the objective its design was
+    /// made for; `native` alone adds none).
     #[arg(
         long,
         value_delimiter = ',',
-        default_value = "lsq,refine:1,refine:3,refine:10,optimal",
+        default_value = "lsq,refine:1,refine:3,refine:10,admm:1,admm:3,admm:10,optimal",
         value_name = "PREFILTER"
     )]
     pub prefilter: Vec<nedrt_stages::preprocess::Prefilter>,

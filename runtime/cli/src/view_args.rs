@@ -26,7 +26,7 @@ pub struct SceneArgs {
     #[arg(long, value_delimiter = ',', value_parser = named::<Method>(), default_values = ["conventional", "ai", "proposed"])]
     pub methods: Vec<Method>,
     /// Instead of --methods: levels of `nedrt run`'s frame budget by the
-    /// names its report gives (none, wiener, refine:K, dcnn), side by side
+    /// names its report gives (none, wiener, admm:K, refine:K, dcnn), side by side
     /// on the optics they run on (the shipped system's DOE).
     #[arg(
         long,

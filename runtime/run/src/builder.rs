@@ -387,7 +387,7 @@ impl Build<'_> {
                     fallback: Some(fallback),
                 })
             }
-            Rung::Wiener | Rung::Refine(_) => Err(AppError::Internal(
+            Rung::Wiener | Rung::Refine(_) | Rung::Admm(_) => Err(AppError::Internal(
                 "a ladder's level outside a ladder".into(),
             )),
             Rung::Method => {

@@ -1,6 +1,8 @@
 //! `nedrt run --preprocess auto[:LO..HI]` (issue 54): the ladder of
 //! preprocessing levels this run can afford, cheapest first: none, the
-//! DOE's Wiener prefilter, refine:K for a few K, and the network where
+//! DOE's Wiener prefilter, admm:K for a few K (the split solver, issue
+//! 55: at every K it gains more than refine:K for the same FFT pairs, and
+//! its device step is one pass lighter), and the network where
 //! the run has one; each with its quality from the tradeoff study's table
 //! (matched by DOE and model hash) and its time measured at start-up by
 //! the service, which picks the level frame by frame
@@ -22,8 +24,8 @@ use nedrt_stages::preprocess::Prefilter;
 mod quality;
 pub use quality::{QualityTable, fixed_quality};
 
-/// The refine:K levels a ladder offers.
-pub const REFINE_STEPS: [usize; 3] = [1, 3, 10];
+/// The admm:K levels a ladder offers.
+pub const SOLVER_STEPS: [usize; 3] = [1, 3, 10];
 
 /// The table the levels' quality comes from when `--ladder-quality` is
 /// not given (relative to the working directory; `nedrt tradeoff` writes
@@ -54,7 +56,7 @@ impl LadderSpec {
         };
         let Some((lo, hi)) = bounds.split_once("..") else {
             return Some(Err(format!(
-                "{s:?}: the bounds are LO..HI (e.g. auto:wiener..refine:10; either may be left \
+                "{s:?}: the bounds are LO..HI (e.g. auto:wiener..admm:10; either may be left \
                  out)"
             )));
         };
@@ -82,7 +84,7 @@ impl std::fmt::Display for LadderSpec {
 
 fn level_names_help() -> String {
     let mut names = vec!["none".to_string(), "wiener".to_string()];
-    names.extend(REFINE_STEPS.iter().map(|k| format!("refine:{k}")));
+    names.extend(SOLVER_STEPS.iter().map(|k| format!("admm:{k}")));
     names.push("the network's file stem (dcnn)".into());
     names.join(", ")
 }
@@ -92,7 +94,11 @@ fn level_names_help() -> String {
 pub enum Rung {
     None,
     Wiener,
+    /// A least-squares solve of doe+wiener's optics, K steps against the
+    /// default objective: `admm:K` in a ladder, `refine:K` by name only
+    /// (`nedrt sim --level`, a fixed run's quality).
     Refine(usize),
+    Admm(usize),
     Network,
     /// A fixed run's method with its `--prefilter` (the method's Wiener,
     /// or a least-squares prefilter on its optics): never a ladder's.
@@ -103,6 +109,7 @@ impl Rung {
     fn prefilter(self) -> Prefilter {
         match self {
             Rung::Refine(k) => Prefilter::Refine(k, Prefilter::DEFAULT_OBJECTIVE),
+            Rung::Admm(k) => Prefilter::Admm(k, Prefilter::DEFAULT_OBJECTIVE),
             _ => Prefilter::Native,
         }
     }
@@ -168,9 +175,9 @@ pub fn plan_levels(
     let mut rungs = vec![("none".to_string(), Rung::None)];
     rungs.push(("wiener".into(), Rung::Wiener));
     rungs.extend(
-        REFINE_STEPS
+        SOLVER_STEPS
             .iter()
-            .map(|&k| (format!("refine:{k}"), Rung::Refine(k))),
+            .map(|&k| (format!("admm:{k}"), Rung::Admm(k))),
     );
     if let Some((name, _)) = &facts.network {
         rungs.push((name.clone(), Rung::Network));
@@ -206,7 +213,7 @@ pub fn plan_levels(
         .map(|(name, rung)| {
             let left_out = match rung {
                 Rung::Network => facts.network_excluded.clone(),
-                Rung::Wiener | Rung::Refine(_) if facts.on_device => {
+                Rung::Wiener | Rung::Refine(_) | Rung::Admm(_) if facts.on_device => {
                     facts.device_fft_refuses.clone()
                 }
                 _ => None,
@@ -259,7 +266,7 @@ pub(super) fn fixed_level(opts: &RunOptions, network: bool) -> PlannedLevel {
 }
 
 /// `nedrt sim --level NAME`: a level of the frame budget by its name in
-/// the run's report (none, wiener, refine:K for any K ≥ 1, or the network's
+/// the run's report (none, wiener, admm:K or refine:K for any K ≥ 1, or the network's
 /// file stem), as the method and prefilter it runs and the options of the
 /// optics it runs on (the system's DOE, as the ladder's levels).
 pub fn level_system(
@@ -275,17 +282,16 @@ pub fn level_system(
         "none" => (Method::DoeOnly, Prefilter::Native),
         "wiener" => (Method::DoeWiener, Prefilter::Native),
         n if Some(n) == stem.as_deref() || n == "dcnn" => (Method::Proposed, Prefilter::Native),
-        n => match n.strip_prefix("refine:").map(str::parse::<usize>) {
-            Some(Ok(k)) if k >= 1 => (
-                Method::DoeWiener,
-                Prefilter::Refine(k, Prefilter::DEFAULT_OBJECTIVE),
-            ),
+        n => match n.parse::<Prefilter>() {
+            Ok(p @ (Prefilter::Refine(..) | Prefilter::Admm(..))) if !n.contains('@') => {
+                (Method::DoeWiener, p)
+            }
             _ => {
                 return Err(AppError::option(
                     format!("--level {name}"),
                     format!(
-                        "not a level of the frame budget: none, wiener, refine:K (K ≥ 1) or the \
-                         network ({})",
+                        "not a level of the frame budget: none, wiener, admm:K or refine:K \
+                         (K ≥ 1) or the network ({})",
                         stem.as_deref().unwrap_or("dcnn")
                     ),
                 ));
@@ -337,18 +343,8 @@ pub(super) fn host_levels(
                 Rung::None => Box::new(Identity),
                 Rung::Network => network()?,
                 // A still scene converges over frames (docs/service.md).
-                Rung::Refine(k) => {
-                    let problem = prepared()?
-                        .display_problem(Method::DoeWiener, Prefilter::DEFAULT_OBJECTIVE)?;
-                    Box::new(
-                        SolvedPrefilter::new(
-                            Method::DoeWiener.name(),
-                            std::sync::Arc::new(problem),
-                            SolveMode::Refine(k),
-                        )
-                        .warm_started(),
-                    )
-                }
+                Rung::Refine(k) => warm_solved(prepared()?, SolveMode::Refine(k))?,
+                Rung::Admm(k) => warm_solved(prepared()?, SolveMode::Admm(k))?,
                 Rung::Method => nedrt_stages::preprocess::for_system(
                     opts.preprocess,
                     opts.prefilter,
@@ -366,6 +362,15 @@ pub(super) fn host_levels(
         .collect()
 }
 
+/// doe+wiener's least-squares solve in `mode`, warm-started on still frames.
+fn warm_solved(prepared: &Prepared, mode: SolveMode) -> Result<Box<dyn Preprocess>, AppError> {
+    let problem = prepared.display_problem(Method::DoeWiener, Prefilter::DEFAULT_OBJECTIVE)?;
+    Ok(Box::new(
+        SolvedPrefilter::new(Method::DoeWiener.name(), std::sync::Arc::new(problem), mode)
+            .warm_started(),
+    ))
+}
+
 /// `common`'s optics prepared for every prefilter level of `levels`
 /// (none where no level needs them), once for a view's host and device
 /// levels alike.
@@ -379,7 +384,7 @@ pub(super) fn prepared_levels(
     }
     let prefilters: Vec<Prefilter> = levels
         .iter()
-        .filter(|l| matches!(l.rung, Rung::Wiener | Rung::Refine(_)))
+        .filter(|l| matches!(l.rung, Rung::Wiener | Rung::Refine(_) | Rung::Admm(_)))
         .map(|l| l.rung.prefilter())
         .collect();
     if prefilters.is_empty() {
@@ -420,18 +425,30 @@ pub(super) fn device_levels(
                     })?;
                     let what = format!("{} of doe+wiener", l.name);
                     // A still scene converges over frames, as on the host.
-                    if let Rung::Refine(k) = rung {
+                    if let Rung::Refine(k) | Rung::Admm(k) = rung {
                         let problem = prepared
                             .display_problem(Method::DoeWiener, Prefilter::DEFAULT_OBJECTIVE)?;
                         let problem = std::sync::Arc::new(problem);
-                        return Ok(nedrt_stages::device_prefilter::refine_stage(
-                            device,
-                            what,
-                            problem,
-                            k,
-                            Some(size),
-                            true,
-                        )?);
+                        let stage = if rung == Rung::Admm(k) {
+                            nedrt_stages::device_prefilter::split_stage(
+                                device,
+                                what,
+                                problem,
+                                k,
+                                Some(size),
+                                true,
+                            )?
+                        } else {
+                            nedrt_stages::device_prefilter::refine_stage(
+                                device,
+                                what,
+                                problem,
+                                k,
+                                Some(size),
+                                true,
+                            )?
+                        };
+                        return Ok(stage);
                     }
                     nedrt_stages::device_prefilter::prefilter_stage(
                         device,

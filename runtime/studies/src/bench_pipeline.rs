@@ -41,6 +41,7 @@ pub enum PipelineNetwork {
     None,
     Wiener,
     Refine10,
+    Admm10,
     Half,
     Full,
     Model,
@@ -52,6 +53,7 @@ impl Named for PipelineNetwork {
         Self::None,
         Self::Wiener,
         Self::Refine10,
+        Self::Admm10,
         Self::Half,
         Self::Full,
         Self::Model,
@@ -62,6 +64,7 @@ impl Named for PipelineNetwork {
             Self::None => "none",
             Self::Wiener => "wiener",
             Self::Refine10 => "refine10",
+            Self::Admm10 => "admm10",
             Self::Half => "half",
             Self::Full => "full",
             Self::Model => "model",
@@ -70,13 +73,16 @@ impl Named for PipelineNetwork {
     fn help(self) -> &'static str {
         match self {
             Self::Auto => {
-                "the frame budget: each frame the best level of none < wiener < refine:K < the \
+                "the frame budget: each frame the best level of none < wiener < admm:K < the \
                  --dcnn model that fits the refresh (--preprocess auto)"
             }
             Self::None => "no network: the frame as it comes, clamped",
             Self::Wiener => "no network: the DOE's Wiener prefilter (doe+wiener, the --design's)",
             Self::Refine10 => {
                 "no network: doe+wiener's lsq prefilter and 10 projected-gradient steps (refine:10)"
+            }
+            Self::Admm10 => {
+                "no network: doe+wiener's lsq prefilter and 10 split-solver steps (admm:10)"
             }
             Self::Half => "the U-Net at 16–128 channels (random weights)",
             Self::Full => "the U-Net at 32–256 channels (random weights)",
@@ -181,7 +187,9 @@ pub fn run(
         let preprocess = match network {
             PipelineNetwork::Auto => Method::Proposed,
             PipelineNetwork::None => Method::Conventional,
-            PipelineNetwork::Wiener | PipelineNetwork::Refine10 => Method::DoeWiener,
+            PipelineNetwork::Wiener | PipelineNetwork::Refine10 | PipelineNetwork::Admm10 => {
+                Method::DoeWiener
+            }
             PipelineNetwork::Model => Method::Proposed,
             PipelineNetwork::Half | PipelineNetwork::Full => {
                 let width = if network == PipelineNetwork::Half {
@@ -200,13 +208,16 @@ pub fn run(
         for &path in &b.paths {
             let opts = RunOptions {
                 preprocess,
-                prefilter: if network == PipelineNetwork::Refine10 {
-                    crate::preprocess::Prefilter::Refine(
+                prefilter: match network {
+                    PipelineNetwork::Refine10 => crate::preprocess::Prefilter::Refine(
                         10,
                         crate::preprocess::Prefilter::DEFAULT_OBJECTIVE,
-                    )
-                } else {
-                    crate::preprocess::Prefilter::Native
+                    ),
+                    PipelineNetwork::Admm10 => crate::preprocess::Prefilter::Admm(
+                        10,
+                        crate::preprocess::Prefilter::DEFAULT_OBJECTIVE,
+                    ),
+                    _ => crate::preprocess::Prefilter::Native,
                 },
                 ladder: (network == PipelineNetwork::Auto).then(LadderSpec::default),
                 ladder_quality: None,

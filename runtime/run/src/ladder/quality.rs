@@ -121,13 +121,15 @@ impl QualityTable {
             Rung::Wiener => {
                 row.method == "doe+wiener" && same_doe(row) && prefilter_of(row).is_none()
             }
-            Rung::Refine(k) => {
+            Rung::Refine(_) | Rung::Admm(_) => {
+                let full = rung.prefilter().to_string();
+                let short = full
+                    .strip_suffix(&format!("@{}", Prefilter::DEFAULT_OBJECTIVE.name()))
+                    .unwrap_or(&full)
+                    .to_string();
                 row.method == "doe+wiener"
                     && same_doe(row)
-                    && prefilter_of(row).is_some_and(|p| {
-                        p == format!("refine:{k}")
-                            || p == format!("refine:{k}@{}", Prefilter::DEFAULT_OBJECTIVE.name())
-                    })
+                    && prefilter_of(row).is_some_and(|p| p == full || p == short)
             }
             Rung::Network => {
                 row.method == "proposed"
@@ -180,6 +182,7 @@ pub fn fixed_quality(
         (Method::DoeOnly, Prefilter::Native) => Rung::None,
         (Method::DoeWiener, Prefilter::Native) => Rung::Wiener,
         (Method::DoeWiener, Prefilter::Refine(k, Prefilter::DEFAULT_OBJECTIVE)) => Rung::Refine(k),
+        (Method::DoeWiener, Prefilter::Admm(k, Prefilter::DEFAULT_OBJECTIVE)) => Rung::Admm(k),
         (Method::Proposed, Prefilter::Native) => {
             let path = &common.dcnn.path;
             if !path.exists() {

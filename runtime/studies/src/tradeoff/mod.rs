@@ -62,6 +62,10 @@ pub struct TradeoffOptions {
     /// left are listed as not run and the table of those done is written
     /// (a lent GPU's step has a cap; a partial chart beats none).
     pub time_budget_s: Option<f64>,
+    /// Measure only each design's `prefilters` and add their rows to the
+    /// table already in `out_dir` (replacing rows of the same name), which
+    /// must come from this host, frame size, calibration and images.
+    pub add: bool,
 }
 
 /// Whether `--time-budget` is spent; if so, `name` goes to the skipped
@@ -87,6 +91,66 @@ pub fn replot(out_dir: &Path) -> Result<String, AppError> {
         text.push_str(&fidelity::replot(out_dir)?);
     }
     Ok(text)
+}
+
+/// The table `--add` adds to, checked to be comparable with this run.
+fn earlier_table(
+    o: &TradeoffOptions,
+    host: &str,
+    calibration: &str,
+    files: &[PathBuf],
+) -> Result<Table, AppError> {
+    let path = o.out_dir.join("tradeoff.json");
+    if !path.exists() {
+        return Err(AppError::input(
+            path.display(),
+            "--add adds rows to the table in --out-dir, and there is none (run nedrt tradeoff \
+             without --add first)",
+        ));
+    }
+    let table = Table::load(&path)?;
+    let images: Vec<String> = files.iter().map(|f| f.display().to_string()).collect();
+    let differs = [
+        ("host", table.host == host),
+        (
+            "frame size",
+            (table.frame_width, table.frame_height) == o.size,
+        ),
+        ("calibration", table.calibration == calibration),
+        ("images", table.images == images),
+    ];
+    if let Some((what, _)) = differs.iter().find(|(_, same)| !same) {
+        return Err(AppError::input(
+            path.display(),
+            format!(
+                "its {what} is not this run's, so their rows cannot share a chart (the table: \
+                 {} at {}×{}, {}, {} images)",
+                table.host,
+                table.frame_width,
+                table.frame_height,
+                table.calibration,
+                table.images.len()
+            ),
+        ));
+    }
+    Ok(table)
+}
+
+/// `earlier` with `records` added, each replacing a row of its name, and
+/// the front recomputed.
+fn merged(mut earlier: Table, records: Vec<Record>, skipped: Vec<String>) -> Table {
+    let names: Vec<String> = records.iter().map(|r| r.point.name.clone()).collect();
+    earlier.records.retain(|r| !names.contains(&r.point.name));
+    earlier
+        .skipped
+        .retain(|s| !names.iter().any(|n| s.starts_with(&format!("{n}:"))));
+    earlier.records.extend(records);
+    earlier.skipped.extend(skipped);
+    let points = earlier.points();
+    for (r, on) in earlier.records.iter_mut().zip(pareto_front(&points)) {
+        r.on_front = on;
+    }
+    earlier
 }
 
 /// One configuration's row of the table.
@@ -199,8 +263,12 @@ pub fn run(common: &CommonOptions, o: &TradeoffOptions) -> Result<String, AppErr
         .iter()
         .map(|d| d.simulator(calib.clone(), common.cache()))
         .collect::<Result<Vec<_>, _>>()?;
-    let scorer = Scorer::new(&sim, &baselines, &inputs, common.progress())?;
     let design_methods = [Method::DoeOnly, Method::DoeWiener];
+    let earlier = if o.add {
+        Some(earlier_table(o, &host, &calib.source, &files)?)
+    } else {
+        None
+    };
     let design_scorers = design_sims
         .iter()
         .map(|s| Scorer::new(s, &design_methods, &inputs, common.progress()))
@@ -269,6 +337,14 @@ pub fn run(common: &CommonOptions, o: &TradeoffOptions) -> Result<String, AppErr
         &mut records,
         &mut skipped,
     )?;
+    if let Some(earlier) = earlier {
+        bar.finish_and_clear();
+        let text = write_table(&merged(earlier, records, skipped), &o.out_dir)?;
+        return Ok(format!(
+            "{text}\nWall time {:.1} s.\n",
+            start.elapsed().as_secs_f64()
+        ));
+    }
 
     for model in &o.models {
         let doe = companion_doe(model)?;
@@ -344,6 +420,7 @@ pub fn run(common: &CommonOptions, o: &TradeoffOptions) -> Result<String, AppErr
         }
         bar.inc(1);
     }
+    let scorer = Scorer::new(&sim, &baselines, &inputs, common.progress())?;
     priced.linear(
         baselines
             .iter()

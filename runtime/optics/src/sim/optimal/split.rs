@@ -26,9 +26,9 @@ impl SplitSchedule {
     /// The schedule `admm:K` runs (docs/optimal.md: chosen on crops of
     /// data/images/train by `cargo run --release --example split_schedule`).
     pub const SHIPPED: SplitSchedule = SplitSchedule {
-        rho: 0.03,
+        rho: 0.05,
         growth: 1.0,
-        relaxation: 1.6,
+        relaxation: 1.8,
     };
 
     /// The penalty of step `k` (from 0) for a channel whose step bound is `lipschitz`.
