@@ -140,7 +140,7 @@ mod needs_gpu {
         );
         // The default is the frame budget, its ladder topped by the network.
         assert!(
-            line(&text, "view ").contains("refine:10 < dcnn) on the GPU"),
+            line(&text, "view ").contains("admm:10 < dcnn) on the GPU"),
             "{text}"
         );
         assert!(line(&text, "ladder:").contains("quality"), "{text}");
@@ -170,14 +170,7 @@ fn the_default_plan_prints_the_ladder_with_each_levels_quality_and_the_budget() 
         line(&text, "ladder:").contains("docs/tradeoff/tradeoff.json"),
         "{text}"
     );
-    for level in [
-        "none",
-        "wiener",
-        "refine:1",
-        "refine:3",
-        "refine:10",
-        "dcnn",
-    ] {
+    for level in ["none", "wiener", "admm:1", "admm:3", "admm:10", "dcnn"] {
         let l = line(&text, &format!("  {level} "));
         assert!(l.contains(" dB, "), "{level}: {l}");
         assert!(l.contains("measured at start-up"), "{level}: {l}");
@@ -190,7 +183,7 @@ fn the_default_plan_prints_the_ladder_with_each_levels_quality_and_the_budget() 
     );
     assert!(
         line(&text, "view ").contains(
-            "the frame budget's level (none < wiener < refine:1 < refine:3 < refine:10 < dcnn) \
+            "the frame budget's level (none < wiener < admm:1 < admm:3 < admm:10 < dcnn) \
              on the host"
         ),
         "{text}"
@@ -207,7 +200,7 @@ fn the_default_stereo_plan_runs_the_whole_ladder_in_each_eye() {
     for v in views {
         assert!(
             v.contains(
-                "the frame budget's level (none < wiener < refine:1 < refine:3 < refine:10 < \
+                "the frame budget's level (none < wiener < admm:1 < admm:3 < admm:10 < \
                  dcnn) on the host"
             ),
             "{v}"
@@ -233,7 +226,7 @@ fn auto_with_bounds_and_two_views_runs_the_same_levels_in_each_eye() {
         &[
             "--stereo",
             "--preprocess",
-            "auto:wiener..refine:10",
+            "auto:wiener..admm:10",
             "--sink",
             "record",
         ],
@@ -243,7 +236,7 @@ fn auto_with_bounds_and_two_views_runs_the_same_levels_in_each_eye() {
     assert_eq!(views.len(), 2, "{text}");
     for v in views {
         assert!(
-            v.contains("the frame budget's level (wiener < refine:1 < refine:3 < refine:10)"),
+            v.contains("the frame budget's level (wiener < admm:1 < admm:3 < admm:10)"),
             "{v}"
         );
     }
@@ -262,7 +255,7 @@ fn auto_refuses_a_bound_that_names_no_level() {
     let e = stderr(&o);
     assert!(e.contains("--preprocess auto:refine:7.."), "{e}");
     assert!(e.contains("no level \"refine:7\""), "{e}");
-    assert!(e.contains("refine:10"), "{e}");
+    assert!(e.contains("admm:10"), "{e}");
     let o = nedrt()
         .current_dir(repo())
         .args(["run", "--plan", "--calib", path(&small_panel())])

@@ -15,7 +15,6 @@ use crate::fft::{DctFilter, FftError, FftKernels, TermsError, init_buffer, stora
 
 const SHADER: &str = include_str!("../../../shaders/fista.wgsl");
 const STILL_SHADER: &str = include_str!("../../../shaders/still.wgsl");
-const OUTPUTS_KEPT: usize = 8;
 
 /// The problem at one frame size, as the device takes it: per channel the
 /// gains (DCT layout, [`DctFilter`]) of the linear prefilter (the start),
@@ -171,6 +170,32 @@ impl StillPipelines {
     }
 }
 
+/// Bind groups by the buffer they were made for (a stage's output or
+/// input: the service cycles a few), the last few kept.
+#[derive(Debug, Default)]
+pub(crate) struct GroupCache(Vec<(wgpu::Buffer, wgpu::BindGroup)>);
+
+impl GroupCache {
+    const KEPT: usize = 8;
+
+    /// The group made for `key`, made by `make` the first time.
+    pub(crate) fn get(
+        &mut self,
+        key: &wgpu::Buffer,
+        make: impl FnOnce() -> wgpu::BindGroup,
+    ) -> wgpu::BindGroup {
+        if let Some((_, g)) = self.0.iter().find(|(b, _)| b == key) {
+            return g.clone();
+        }
+        let g = make();
+        if self.0.len() == Self::KEPT {
+            self.0.remove(0);
+        }
+        self.0.push((key.clone(), g.clone()));
+        g
+    }
+}
+
 /// Everything one frame size needs.
 #[derive(Debug)]
 struct Plan {
@@ -185,12 +210,12 @@ struct Plan {
     b: wgpu::Buffer,
     buffers: [wgpu::Buffer; 4],
     main: wgpu::BindGroup,
-    emits: Vec<(wgpu::Buffer, wgpu::BindGroup)>,
+    emits: GroupCache,
     groups: [u32; 3],
     /// Warm-started: the last frame's planes, and the still test's bind
     /// groups by input buffer.
     last: Option<wgpu::Buffer>,
-    stills: Vec<(wgpu::Buffer, wgpu::BindGroup)>,
+    stills: GroupCache,
 }
 
 /// `refine:K` (or `optimal` with a step budget K) as a
@@ -335,10 +360,10 @@ impl RefineStage {
             b,
             buffers: [frame, state, x, partials],
             main,
-            emits: Vec::new(),
+            emits: GroupCache::default(),
             groups: [gx, gy, channels as u32],
             last: self.warm.is_some().then(|| buffer("fista last frame")),
-            stills: Vec::new(),
+            stills: GroupCache::default(),
         });
         Ok(())
     }
@@ -408,45 +433,28 @@ impl crate::DeviceStage for RefineStage {
                 output.size()
             )));
         }
-        let emit = match plan.emits.iter().find(|(b, _)| b == output) {
-            Some((_, g)) => g.clone(),
-            None => {
-                let [frame, state, x, partials] = &plan.buffers;
-                let g = bind(
-                    &self.device,
-                    "fista",
-                    &self.pipelines.layout,
-                    &[
-                        frame, state, &plan.y, x, output, &plan.ay, &plan.b, partials,
-                    ],
-                );
-                if plan.emits.len() == OUTPUTS_KEPT {
-                    plan.emits.remove(0);
-                }
-                plan.emits.push((output.clone(), g.clone()));
-                g
-            }
-        };
+        let [frame, state, x, partials] = &plan.buffers;
+        let emit = plan.emits.get(output, || {
+            bind(
+                &self.device,
+                "fista",
+                &self.pipelines.layout,
+                &[
+                    frame, state, &plan.y, x, output, &plan.ay, &plan.b, partials,
+                ],
+            )
+        });
         // Warm-started: is this frame the last one still? (The flag `start`
         // reads.)
         if let (Some((still, _)), Some(last)) = (&self.warm, &plan.last) {
-            let group = match plan.stills.iter().find(|(b, _)| b == input) {
-                Some((_, g)) => g.clone(),
-                None => {
-                    let [frame, state, _, partials] = &plan.buffers;
-                    let g = bind(
-                        &self.device,
-                        "still",
-                        &still.layout,
-                        &[frame, input, last, partials, state],
-                    );
-                    if plan.stills.len() == OUTPUTS_KEPT {
-                        plan.stills.remove(0);
-                    }
-                    plan.stills.push((input.clone(), g.clone()));
-                    g
-                }
-            };
+            let group = plan.stills.get(input, || {
+                bind(
+                    &self.device,
+                    "still",
+                    &still.layout,
+                    &[frame, input, last, partials, state],
+                )
+            });
             still.record(encoder, &group, plan.groups);
         }
         // b = Σ A_Dᵀ t_D(I); the start: the linear prefilter, clamped. One

@@ -11,10 +11,9 @@
 
 use crate::GpuError;
 use crate::fft::{DctFilter, FftError, FftKernels, TermsError, init_buffer};
-use crate::refine::{StillPipelines, bind, pipelines};
+use crate::refine::{GroupCache, StillPipelines, bind, pipelines};
 
 const SHADER: &str = include_str!("../../../shaders/admm.wgsl");
-const OUTPUTS_KEPT: usize = 8;
 
 /// The split solver at one frame size, as the device takes it: per channel
 /// the gains (DCT layout, [`DctFilter`]) of the linear prefilter (the
@@ -68,12 +67,12 @@ struct Plan {
     /// frame, z, u, v, ax, c, the linear start, the still test's state.
     buffers: [wgpu::Buffer; 8],
     main: wgpu::BindGroup,
-    emits: Vec<(wgpu::Buffer, wgpu::BindGroup)>,
+    emits: GroupCache,
     groups: [u32; 3],
     /// Warm-started: still.wgsl's frame, the last frame's planes, the
     /// partial sums, and its bind groups by input buffer.
     still: Option<[wgpu::Buffer; 3]>,
-    stills: Vec<(wgpu::Buffer, wgpu::BindGroup)>,
+    stills: GroupCache,
 }
 
 /// `admm:K` as a [`crate::DeviceStage`].
@@ -241,10 +240,10 @@ impl SplitStage {
             filter,
             buffers,
             main,
-            emits: Vec::new(),
+            emits: GroupCache::default(),
             groups: [gx, gy, channels as u32],
             still,
-            stills: Vec::new(),
+            stills: GroupCache::default(),
         });
         Ok(())
     }
@@ -296,43 +295,27 @@ impl crate::DeviceStage for SplitStage {
                 output.size()
             )));
         }
-        let emit = match plan.emits.iter().find(|(b, _)| b == output) {
-            Some((_, g)) => g.clone(),
-            None => {
-                let g = bind(
-                    &self.device,
-                    "admm",
-                    &self.pipelines.layout,
-                    &[frame, z, u, v, ax, c, output, state],
-                );
-                if plan.emits.len() == OUTPUTS_KEPT {
-                    plan.emits.remove(0);
-                }
-                plan.emits.push((output.clone(), g.clone()));
-                g
-            }
-        };
+        let emit = plan.emits.get(output, || {
+            bind(
+                &self.device,
+                "admm",
+                &self.pipelines.layout,
+                &[frame, z, u, v, ax, c, output, state],
+            )
+        });
         // Warm-started: is this frame the last one still? (The flag `start`
         // reads.)
         if let (Some((pipelines, _)), Some([still_frame, last, partials])) =
             (&self.warm, &plan.still)
         {
-            let group = match plan.stills.iter().find(|(b, _)| b == input) {
-                Some((_, g)) => g.clone(),
-                None => {
-                    let g = bind(
-                        &self.device,
-                        "still",
-                        &pipelines.layout,
-                        &[still_frame, input, last, partials, state],
-                    );
-                    if plan.stills.len() == OUTPUTS_KEPT {
-                        plan.stills.remove(0);
-                    }
-                    plan.stills.push((input.clone(), g.clone()));
-                    g
-                }
-            };
+            let group = plan.stills.get(input, || {
+                bind(
+                    &self.device,
+                    "still",
+                    &pipelines.layout,
+                    &[still_frame, input, last, partials, state],
+                )
+            });
             pipelines.record(encoder, &group, plan.groups);
         }
         // The data term and the start share the input's forward rows.

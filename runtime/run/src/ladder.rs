@@ -489,18 +489,18 @@ mod tests {
     fn specs_parse_with_either_bound_left_out() {
         assert_eq!(LadderSpec::parse("proposed"), None);
         assert_eq!(LadderSpec::parse("auto"), Some(Ok(LadderSpec::default())));
-        let spec = LadderSpec::parse("auto:wiener..refine:10")
+        let spec = LadderSpec::parse("auto:wiener..admm:10")
             .expect("auto")
             .expect("parses");
         assert_eq!(spec.lowest.as_deref(), Some("wiener"));
-        assert_eq!(spec.highest.as_deref(), Some("refine:10"));
-        assert_eq!(spec.to_string(), "auto:wiener..refine:10");
-        let spec = LadderSpec::parse("auto:..refine:3")
+        assert_eq!(spec.highest.as_deref(), Some("admm:10"));
+        assert_eq!(spec.to_string(), "auto:wiener..admm:10");
+        let spec = LadderSpec::parse("auto:..admm:3")
             .expect("auto")
             .expect("parses");
         assert_eq!(
             (spec.lowest, spec.highest.as_deref()),
-            (None, Some("refine:3"))
+            (None, Some("admm:3"))
         );
         assert!(LadderSpec::parse("auto:wiener").expect("auto").is_err());
         assert!(LadderSpec::parse("autox").expect("auto").is_err());
@@ -543,7 +543,7 @@ mod tests {
                 ),
                 row("doe+wiener", "doe+wiener", Some("d1"), None, 21.6),
                 row(
-                    "doe+wiener multifocal refine:10@target wgpu",
+                    "doe+wiener multifocal admm:10@target wgpu",
                     "doe+wiener",
                     Some("d1"),
                     None,
@@ -579,9 +579,9 @@ mod tests {
             [
                 ("none", Some(20.5)),
                 ("wiener", Some(21.6)),
-                ("refine:1", None),
-                ("refine:3", None),
-                ("refine:10", Some(22.0)),
+                ("admm:1", None),
+                ("admm:3", None),
+                ("admm:10", Some(22.0)),
                 ("dcnn", Some(21.7)),
             ]
         );
@@ -593,24 +593,24 @@ mod tests {
         f.design = Some("multifocal".into());
         let levels = plan_levels(&LadderSpec::default(), &f, &table()).expect("plan");
         assert_eq!(levels[1].quality_db, Some(21.5));
-        // refine:10's only row names the design: it is the run's too.
+        // admm:10's only row names the design: it is the run's too.
         assert_eq!(levels[4].quality_db, Some(22.0));
     }
 
     #[test]
     fn bounds_cut_the_ladder_and_unknown_names_are_refused() {
-        let spec = LadderSpec::parse("auto:wiener..refine:3")
+        let spec = LadderSpec::parse("auto:wiener..admm:3")
             .expect("auto")
             .expect("parses");
         let levels = plan_levels(&spec, &facts(false), &table()).expect("plan");
         let names: Vec<&str> = levels.iter().map(|l| l.name.as_str()).collect();
-        assert_eq!(names, ["wiener", "refine:1", "refine:3"]);
+        assert_eq!(names, ["wiener", "admm:1", "admm:3"]);
         let spec = LadderSpec::parse("auto:..dcnn")
             .expect("auto")
             .expect("parses");
         let e = plan_levels(&spec, &facts(false), &table()).expect_err("no network");
         assert!(e.to_string().contains("no level \"dcnn\""), "{e}");
-        let spec = LadderSpec::parse("auto:refine:3..wiener")
+        let spec = LadderSpec::parse("auto:admm:3..wiener")
             .expect("auto")
             .expect("parses");
         assert!(plan_levels(&spec, &facts(false), &table()).is_err());

@@ -275,7 +275,7 @@ fn ladder_inputs(
     if !opts.prefilter.is_native() {
         return Err(AppError::Conflict(format!(
             "--preprocess {spec} with --prefilter {}: the frame budget picks the prefilter \
-             (bound its levels instead, e.g. --preprocess auto:..refine:10)",
+             (bound its levels instead, e.g. --preprocess auto:..admm:10)",
             opts.prefilter
         )));
     }

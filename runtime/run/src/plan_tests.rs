@@ -331,7 +331,7 @@ fn a_ladder_leaves_out_what_the_device_cannot_run_and_keeps_the_device_path() {
     );
     assert!(
         p.views[0].stages[2].starts_with(
-            "the frame budget's level (none < wiener < refine:1 < refine:3 < refine:10) on the GPU"
+            "the frame budget's level (none < wiener < admm:1 < admm:3 < admm:10) on the GPU"
         ),
         "{:?}",
         p.views[0].stages
