@@ -47,9 +47,9 @@ STEPS = [
     ("torch", "the same networks in PyTorch: f32 (TF32 off), TF32, f16 channels-last; cuDNN benchmark", 35, 1),
     ("fft", "the prefilters' DCT filter at 1920×1080: nedrt's on the device, the CPU's, torch.fft (cuFFT)", 25, 1),
     ("pipeline", "nedrt bench pipeline at 1920×1080 and the panel's refresh on the device path: the frame "
-                 "budget (auto: its levels and the quality delivered), none, the Wiener, refine:10 (its GPU time "
-                 "per frame), full, the shipped model; then two views (--stereo): auto and the shipped model; "
-                 "the shipped model and the full network at "
+                 "budget (auto: its levels and the quality delivered), the Wiener, refine:10 and admm:10 "
+                 "(their GPU time per frame, side by side), full, the shipped model; then two views (--stereo): "
+                 "auto and the shipped model; the shipped model and the full network at "
                  "--precision f16; every case's frame timelines (why a frame was dropped or late)", 110, 1),
     ("teacher", "the D-CNN's teacher: the training photographs' optimum with nedrt's solver on the device "
                 "(refine:1000@target, wgpu), the kernels and the validation sets with nedrt prefilter on the CPU",
@@ -202,7 +202,7 @@ def step_pipeline(r: Runner, s: Step, z: dict):
     # from; the half network, the shipped model's width without its
     # Wiener, made room for it.
     out = r.sh([r.nedrt, "--design", "multifocal", "bench", "pipeline", "--networks",
-                "auto,none,wiener,refine10,admm10,full,model", *common], s.cap_s)
+                "auto,wiener,refine10,admm10,full,model", *common], s.cap_s)
     # One view and two (issues 39 and 54): the frame budget and the shipped
     # model (no network with two views met the refresh at b239a3e).
     stereo = r.sh([r.nedrt, "--design", "multifocal", "bench", "pipeline", "--stereo", "--networks",
