@@ -12,8 +12,9 @@ into its receptive field), and corrects the point before the clamp:
     r   = α_k x + (1 − α_k) z
     z⁺  = clamp(r + u + CNN_k(r + u, u, ∇f(r)), 0, 1),   u⁺ = u + r − z⁺
 
-trained with a loss at every step (the objective's mean squared error per
-depth, channel and retinal value, the evaluation's PSNR scale). It prints,
+trained with a loss at every step or at the last (`--loss`; the
+objective's mean squared error per depth, channel and retinal value, the
+evaluation's PSNR scale). It prints,
 per step, the classical solver's and the learned one's PSNR on held-out
 crops of data/images/val.
 
@@ -125,6 +126,8 @@ def main(argv=None) -> None:
     ap.add_argument("--width", type=int, default=16)
     ap.add_argument("--lr", type=float, default=1e-3)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--loss", choices=("every", "last"), default="every",
+                    help="the squared error of every step's display image, averaged, or of the last alone")
     ap.add_argument("--out", type=Path, default=Path("out/unrolled"))
     a = ap.parse_args(argv)
     torch.manual_seed(a.seed)
@@ -152,7 +155,8 @@ def main(argv=None) -> None:
     for it in range(1, a.iterations + 1):
         batch = crops(photos, patch, rng, a.batch)
         displays = model(batch, batch)
-        loss = sum(objective.mse(d, batch).mean() for d in displays) / len(displays)
+        scored = displays if a.loss == "every" else displays[-1:]
+        loss = sum(objective.mse(d, batch).mean() for d in scored) / len(scored)
         opt.zero_grad()
         loss.backward()
         opt.step()
@@ -166,7 +170,8 @@ def main(argv=None) -> None:
             log.append(row)
             print(json.dumps(row))
     a.out.mkdir(parents=True, exist_ok=True)
-    (a.out / f"log-k{a.steps}.json").write_text(json.dumps(log, indent=1))
+    suffix = "" if a.loss == "every" else f"-{a.loss}"
+    (a.out / f"log-k{a.steps}{suffix}.json").write_text(json.dumps(log, indent=1))
 
 
 if __name__ == "__main__":

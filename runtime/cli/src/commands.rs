@@ -43,6 +43,7 @@ pub fn run(cli: Cli) -> Result<()> {
         } else {
             g.cache_dir.clone().or_else(|| env.cache_dir())
         },
+        cache_max_bytes: env.cache_max_bytes()?,
         doe: design
             .as_ref()
             .map(|d| d.doe.clone())

@@ -27,6 +27,7 @@ use nedrt_infer::ort_backend::ORT_VERSION;
 #[derive(Debug, Clone, Default)]
 pub struct Environment {
     pub nedrt_cache_dir: Option<OsString>,
+    pub nedrt_cache_max_gb: Option<OsString>,
     pub xdg_cache_home: Option<OsString>,
     pub home: Option<OsString>,
     pub ort_dylib_path: Option<OsString>,
@@ -39,6 +40,7 @@ impl Environment {
         let var = |k: &str| std::env::var_os(k).filter(|v| !v.is_empty());
         Self {
             nedrt_cache_dir: var("NEDRT_CACHE_DIR"),
+            nedrt_cache_max_gb: var("NEDRT_CACHE_MAX_GB"),
             xdg_cache_home: var("XDG_CACHE_HOME"),
             home: var("HOME"),
             ort_dylib_path: std::env::var_os("ORT_DYLIB_PATH"),
@@ -48,6 +50,21 @@ impl Environment {
                 flags: wgpu::InstanceFlags::default().with_env(),
                 backend_options: wgpu::BackendOptions::default().with_env(),
             },
+        }
+    }
+
+    /// The PSF cache's bound from `NEDRT_CACHE_MAX_GB` (GB of 2³⁰ bytes, a
+    /// number > 0), if set.
+    pub fn cache_max_bytes(&self) -> anyhow::Result<Option<u64>> {
+        let Some(v) = &self.nedrt_cache_max_gb else {
+            return Ok(None);
+        };
+        let text = v.to_string_lossy();
+        match text.trim().parse::<f64>() {
+            Ok(gb) if gb.is_finite() && gb > 0.0 => Ok(Some((gb * f64::from(1u32 << 30)) as u64)),
+            _ => anyhow::bail!(
+                "NEDRT_CACHE_MAX_GB={text:?}: not a number of GB above 0 (the PSF cache's bound)"
+            ),
         }
     }
 
@@ -155,6 +172,24 @@ mod tests {
         env.nedrt_cache_dir = Some("/n".into());
         assert_eq!(env.cache_dir(), Some(PathBuf::from("/n")));
         assert_eq!(Environment::default().cache_dir(), None);
+    }
+
+    #[test]
+    fn the_cache_bound_is_a_number_of_gb_or_a_clear_error() {
+        let with = |v: &str| Environment {
+            nedrt_cache_max_gb: Some(v.into()),
+            ..Default::default()
+        };
+        assert_eq!(
+            Environment::default().cache_max_bytes().expect("unset"),
+            None
+        );
+        assert_eq!(with("2").cache_max_bytes().expect("2"), Some(2 << 30));
+        assert_eq!(with("0.5").cache_max_bytes().expect("0.5"), Some(1 << 29));
+        for bad in ["0", "-1", "lots", "inf"] {
+            let e = with(bad).cache_max_bytes().expect_err(bad).to_string();
+            assert!(e.contains("NEDRT_CACHE_MAX_GB") && e.contains(bad), "{e}");
+        }
     }
 
     #[test]

@@ -31,6 +31,9 @@ pub struct CommonOptions {
     pub calib: Option<PathBuf>,
     /// PSF cache folder (the binary resolves the default); `None`: no cache.
     pub cache_dir: Option<PathBuf>,
+    /// Most bytes the cache folder keeps (`NEDRT_CACHE_MAX_GB`); `None`:
+    /// nedrt-optics' default bound.
+    pub cache_max_bytes: Option<u64>,
     /// DOE height-map file overriding the calibration's.
     pub doe: Option<PathBuf>,
     /// A named design (`--design`): its DOE is `doe`, its K the Wiener's.
@@ -47,6 +50,7 @@ impl Default for CommonOptions {
         Self {
             calib: None,
             cache_dir: None,
+            cache_max_bytes: None,
             doe: None,
             design: None,
             dcnn: DcnnOptions::default(),
@@ -147,7 +151,11 @@ impl CommonOptions {
     }
 
     pub fn cache(&self) -> PsfCache {
-        PsfCache::at(self.cache_dir.clone())
+        let cache = PsfCache::at(self.cache_dir.clone());
+        match self.cache_max_bytes {
+            Some(max) => cache.with_max_bytes(Some(max)),
+            None => cache,
+        }
     }
 
     /// The progress reporter, for the simulator.

@@ -21,17 +21,38 @@ pub const MODEL_VERSION: &str = "nedrt-psf/3";
 #[derive(Debug, Clone, Default)]
 pub struct PsfCache {
     pub dir: Option<PathBuf>,
+    /// Most bytes of entries the folder keeps: past it, the entries used
+    /// longest ago are removed after a new one is written (`None`: no
+    /// bound).
+    pub max_bytes: Option<u64>,
 }
+
+/// The bound of a cache made by [`PsfCache::at`]: a few of the largest
+/// entries (a DOE's PSFs at every depth of a study reach 1.5 GB).
+pub const DEFAULT_MAX_BYTES: u64 = 8 << 30;
 
 impl PsfCache {
     /// A cache in `dir` (the binary chooses the folder: docs/README's
-    /// `NEDRT_CACHE_DIR` rule); `None` disables caching.
+    /// `NEDRT_CACHE_DIR` rule), bounded by [`DEFAULT_MAX_BYTES`]; `None`
+    /// disables caching.
     pub fn at(dir: Option<PathBuf>) -> Self {
-        Self { dir }
+        Self {
+            dir,
+            max_bytes: Some(DEFAULT_MAX_BYTES),
+        }
+    }
+
+    /// The same cache with another bound (`None`: no bound).
+    pub fn with_max_bytes(mut self, max_bytes: Option<u64>) -> Self {
+        self.max_bytes = max_bytes;
+        self
     }
 
     pub fn disabled() -> Self {
-        Self { dir: None }
+        Self {
+            dir: None,
+            max_bytes: None,
+        }
     }
 
     /// Cache key of a request.
@@ -70,6 +91,8 @@ impl PsfCache {
         if let Some(path) = self.path(&key).filter(|p| p.exists()) {
             match read(&path, request.specs.len()) {
                 Ok(mut set) => {
+                    // Used now: the bound removes the entries used longest ago.
+                    touch(&path);
                     set.report.from_cache = true;
                     tracing::debug!("PSFs from cache {}", path.display());
                     return Ok(set);
@@ -81,16 +104,73 @@ impl PsfCache {
             }
         }
         let set = compute_psfs(calib, request, tick)?;
-        if let Some(path) = self.path(&key)
-            && let Err(e) = write(&path, &set)
-        {
-            tracing::warn!(
-                "{}: cannot write PSF cache ({e}); continuing without it",
-                path.display()
-            );
+        if let Some(path) = self.path(&key) {
+            match write(&path, &set) {
+                Err(e) => tracing::warn!(
+                    "{}: cannot write PSF cache ({e}); continuing without it",
+                    path.display()
+                ),
+                Ok(()) => {
+                    if let (Some(dir), Some(max)) = (&self.dir, self.max_bytes) {
+                        evict(dir, max, &path);
+                    }
+                }
+            }
         }
         Ok(set)
     }
+}
+
+/// Marks a cache entry as used now (its modification time).
+fn touch(path: &Path) {
+    if let Ok(f) = std::fs::File::options().append(true).open(path) {
+        let _ = f.set_modified(std::time::SystemTime::now());
+    }
+}
+
+/// Removes the PSF entries of `dir` used longest ago until the rest take
+/// at most `max_bytes`, never `keep` (the entry just written). Returns the
+/// entries removed.
+fn evict(dir: &Path, max_bytes: u64, keep: &Path) -> Vec<PathBuf> {
+    let Ok(read) = std::fs::read_dir(dir) else {
+        return Vec::new();
+    };
+    let mut entries: Vec<(std::time::SystemTime, u64, PathBuf)> = read
+        .filter_map(Result::ok)
+        .filter(|e| {
+            let name = e.file_name();
+            let name = name.to_string_lossy();
+            name.starts_with("psf-") && name.ends_with(".safetensors")
+        })
+        .filter_map(|e| {
+            let meta = e.metadata().ok()?;
+            Some((meta.modified().ok()?, meta.len(), e.path()))
+        })
+        .collect();
+    let mut total: u64 = entries.iter().map(|(_, len, _)| len).sum();
+    entries.sort();
+    let mut removed = Vec::new();
+    for (_, len, path) in entries {
+        if total <= max_bytes {
+            break;
+        }
+        if path == keep {
+            continue;
+        }
+        match std::fs::remove_file(&path) {
+            Ok(()) => {
+                tracing::info!(
+                    "{}: removed from the PSF cache (over its {} MB bound)",
+                    path.display(),
+                    max_bytes >> 20
+                );
+                total -= len;
+                removed.push(path);
+            }
+            Err(e) => tracing::warn!("{}: cannot remove ({e})", path.display()),
+        }
+    }
+    removed
 }
 
 fn write(path: &Path, set: &PsfSet) -> Result<(), String> {
@@ -189,9 +269,7 @@ mod tests {
     fn second_run_loads_and_damage_is_recomputed() {
         let c = Calibration::default_embedded().expect("calib");
         let dir = tempfile::tempdir().expect("tmp");
-        let cache = PsfCache {
-            dir: Some(dir.path().to_path_buf()),
-        };
+        let cache = PsfCache::at(Some(dir.path().to_path_buf()));
         let req = PsfRequest {
             specs: vec![PsfSpec {
                 channel: 1,
@@ -263,5 +341,40 @@ mod tests {
                 assert_ne!(keys[i], keys[j]);
             }
         }
+    }
+
+    #[test]
+    fn the_bound_removes_the_entries_used_longest_ago_but_never_the_new_one() {
+        let dir = tempfile::tempdir().expect("tmp");
+        let at = |name: &str, bytes: usize, age_s: u64| {
+            let p = dir.path().join(name);
+            std::fs::write(&p, vec![0u8; bytes]).expect("write");
+            let when = std::time::SystemTime::now() - std::time::Duration::from_secs(age_s);
+            std::fs::File::options()
+                .append(true)
+                .open(&p)
+                .expect("open")
+                .set_modified(when)
+                .expect("mtime");
+            p
+        };
+        let oldest = at("psf-a.safetensors", 400, 300);
+        let older = at("psf-b.safetensors", 400, 200);
+        let recent = at("psf-c.safetensors", 400, 100);
+        let other = at("notes.txt", 4000, 1000);
+        let new = at("psf-d.safetensors", 400, 50);
+        // 1600 bytes of entries, a bound of 900: the two used longest ago go.
+        assert_eq!(evict(dir.path(), 900, &new), [oldest.clone(), older]);
+        assert!(recent.exists() && new.exists() && other.exists());
+        // Reading an entry marks it used: it outlives an older one.
+        touch(&recent);
+        let newer = at("psf-e.safetensors", 400, 0);
+        assert_eq!(evict(dir.path(), 900, &newer), [new]);
+        assert!(recent.exists());
+        // A new entry larger than the bound stays (it is being used).
+        let big = at("psf-f.safetensors", 2000, 0);
+        let removed = evict(dir.path(), 900, &big);
+        assert!(big.exists() && !removed.contains(&big), "{removed:?}");
+        assert!(!oldest.exists());
     }
 }
