@@ -404,6 +404,7 @@ impl Build<'_> {
                     prepared,
                     what.clone(),
                     Some(size),
+                    false,
                 ) {
                     Ok(stage) => stage,
                     Err(nedrt_stages::EngineError::Fft(e)) => {

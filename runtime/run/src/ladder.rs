@@ -18,7 +18,7 @@
 use super::build::prepared_for;
 use super::{AppError, CommonOptions, RunOptions};
 use nedrt_core::preprocess::{Identity, Preprocess};
-use nedrt_optics::sim::{Method, Prepared, Simulator, SolveMode, SolvedPrefilter};
+use nedrt_optics::sim::{Method, Prepared, Simulator};
 use nedrt_stages::preprocess::Prefilter;
 
 mod quality;
@@ -343,8 +343,12 @@ pub(super) fn host_levels(
                 Rung::None => Box::new(Identity),
                 Rung::Network => network()?,
                 // A still scene converges over frames (docs/service.md).
-                Rung::Refine(k) => warm_solved(prepared()?, SolveMode::Refine(k))?,
-                Rung::Admm(k) => warm_solved(prepared()?, SolveMode::Admm(k))?,
+                rung @ (Rung::Refine(_) | Rung::Admm(_)) => nedrt_stages::preprocess::solved(
+                    Method::DoeWiener,
+                    rung.prefilter(),
+                    prepared()?,
+                    true,
+                )?,
                 Rung::Method => nedrt_stages::preprocess::for_system(
                     opts.preprocess,
                     opts.prefilter,
@@ -360,15 +364,6 @@ pub(super) fn host_levels(
             })
         })
         .collect()
-}
-
-/// doe+wiener's least-squares solve in `mode`, warm-started on still frames.
-fn warm_solved(prepared: &Prepared, mode: SolveMode) -> Result<Box<dyn Preprocess>, AppError> {
-    let problem = prepared.display_problem(Method::DoeWiener, Prefilter::DEFAULT_OBJECTIVE)?;
-    Ok(Box::new(
-        SolvedPrefilter::new(Method::DoeWiener.name(), std::sync::Arc::new(problem), mode)
-            .warm_started(),
-    ))
 }
 
 /// `common`'s optics prepared for every prefilter level of `levels`
@@ -424,32 +419,6 @@ pub(super) fn device_levels(
                         AppError::Internal("a prefilter level without its optics".into())
                     })?;
                     let what = format!("{} of doe+wiener", l.name);
-                    // A still scene converges over frames, as on the host.
-                    if let Rung::Refine(k) | Rung::Admm(k) = rung {
-                        let problem = prepared
-                            .display_problem(Method::DoeWiener, Prefilter::DEFAULT_OBJECTIVE)?;
-                        let problem = std::sync::Arc::new(problem);
-                        let stage = if rung == Rung::Admm(k) {
-                            nedrt_stages::device_prefilter::split_stage(
-                                device,
-                                what,
-                                problem,
-                                k,
-                                Some(size),
-                                true,
-                            )?
-                        } else {
-                            nedrt_stages::device_prefilter::refine_stage(
-                                device,
-                                what,
-                                problem,
-                                k,
-                                Some(size),
-                                true,
-                            )?
-                        };
-                        return Ok(stage);
-                    }
                     nedrt_stages::device_prefilter::prefilter_stage(
                         device,
                         Method::DoeWiener,
@@ -457,6 +426,8 @@ pub(super) fn device_levels(
                         prepared,
                         what,
                         Some(size),
+                        // A still scene converges over frames, as on the host.
+                        true,
                     )?
                     .ok_or_else(|| AppError::Internal(format!("{} has no device stage", l.name)))?
                 }

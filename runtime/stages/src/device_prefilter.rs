@@ -139,7 +139,9 @@ pub fn runs_on_device(method: Method, prefilter: Prefilter) -> bool {
 
 /// `method`'s `prefilter` as a device stage named `what`, prepared for
 /// `size` where given; `None` where the device does not run it
-/// ([`runs_on_device`]). A size the device FFT lacks is `EngineError::Fft`.
+/// ([`runs_on_device`]). `warm`: `refine:K` and `admm:K` go on over still
+/// frames (the ladder's levels). A size the device FFT lacks is
+/// `EngineError::Fft`.
 pub fn prefilter_stage(
     device: &wgpu::Device,
     method: Method,
@@ -147,6 +149,7 @@ pub fn prefilter_stage(
     prepared: &Prepared,
     what: String,
     size: Option<(usize, usize)>,
+    warm: bool,
 ) -> Result<Option<Box<dyn DeviceStage>>, EngineError> {
     if !runs_on_device(method, prefilter) {
         return Ok(None);
@@ -164,14 +167,14 @@ pub fn prefilter_stage(
             Arc::new(prepared.display_problem(method, o)?),
             k,
             size,
-            false,
+            warm,
         )?,
         Prefilter::Admm(k, o) => {
             let problem = prepared.display_problem(method, o)?;
             if !problem.has_split() {
                 return Ok(None);
             }
-            split_stage(device, what, Arc::new(problem), k, size, false)?
+            split_stage(device, what, Arc::new(problem), k, size, warm)?
         }
         _ => match prepared.wiener_shared(method) {
             Some(filter) => wiener_stage(device, what, filter, size)?,
@@ -361,7 +364,7 @@ pub fn for_system_on(
     let host = crate::preprocess::for_system(method, prefilter, prepared, dcnns)?;
     let what = host.describe();
     Ok(
-        match prefilter_stage(device, method, prefilter, prepared, what, None)? {
+        match prefilter_stage(device, method, prefilter, prepared, what, None, false)? {
             Some(stage) => Box::new(OnDevice::new(device, queue, stage, false, host)),
             None => host,
         },

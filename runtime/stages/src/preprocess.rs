@@ -353,8 +353,27 @@ pub fn for_system(
     prepared: &Prepared,
     dcnns: &mut HashMap<Method, Dcnn>,
 ) -> Result<Box<dyn Preprocess>, EngineError> {
+    if prefilter.is_native() {
+        return for_method(method, prepared, dcnns);
+    }
+    solved(method, prefilter, prepared, false)
+}
+
+/// A least-squares `prefilter` (not `native`) on `method`'s optics;
+/// `warm`: `refine:K` and `admm:K` go on over still frames
+/// ([`SolvedPrefilter::warm_started`], the frame budget's levels).
+pub fn solved(
+    method: Method,
+    prefilter: Prefilter,
+    prepared: &Prepared,
+    warm: bool,
+) -> Result<Box<dyn Preprocess>, EngineError> {
     let (mode, objective) = match prefilter {
-        Prefilter::Native => return for_method(method, prepared, dcnns),
+        Prefilter::Native => {
+            return Err(EngineError::Unavailable(format!(
+                "{method}'s own preprocessing is not a least-squares solve"
+            )));
+        }
         Prefilter::Lsq(o) => (SolveMode::Linear, o),
         Prefilter::Refine(k, o) => (SolveMode::Refine(k), o),
         Prefilter::Admm(k, o) => (SolveMode::Admm(k), o),
@@ -367,11 +386,8 @@ pub fn for_system(
              no exact data step; use refine:K"
         )));
     }
-    Ok(Box::new(SolvedPrefilter::new(
-        method.name(),
-        Arc::new(problem),
-        mode,
-    )))
+    let solver = SolvedPrefilter::new(method.name(), Arc::new(problem), mode);
+    Ok(Box::new(if warm { solver.warm_started() } else { solver }))
 }
 
 #[cfg(test)]

@@ -56,17 +56,12 @@ impl SplitState {
             steps: 0,
         }
     }
-
-    /// The display plane so far.
-    pub fn z(&self) -> &[f32] {
-        &self.z
-    }
 }
 
 impl ProblemPlan {
     /// `steps` split steps of channel `c` for the frame plane `input`,
     /// from `state`, on `schedule`. `None` on the cropped path (no exact
-    /// data step there: [`ProblemPlan::has_split`]).
+    /// data step there).
     pub(super) fn split_from(
         &self,
         c: usize,
