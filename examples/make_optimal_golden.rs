@@ -140,6 +140,7 @@ fn main() -> anyhow::Result<()> {
             "normal_per_depth": depth_kernel(0),
             "adjoint_target_per_depth": depth_kernel(1),
             "target_gram_per_depth": depth_kernel(2),
+            "linear": problem.mirrored_linear_kernels(w, h).concat(),
         },
     });
     nedrt_core::util::write_atomic(&out, serde_json::to_string(&v)?.as_bytes())?;

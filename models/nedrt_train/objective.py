@@ -29,13 +29,25 @@ class Objective:
         self.spectra = {k: spectrum(kernels[k]) for k in self.NAMES}
         self.depth_spectra = ({k: spectrum(kernels[k + "_per_depth"]) for k in self.NAMES}
                               if all(k + "_per_depth" in kernels for k in self.NAMES) else None)
+        # The lsq prefilter (the split solver's start), where the file has it.
+        self.linear = spectrum(kernels["linear"]) if "linear" in kernels else None
 
     def to(self, device) -> "Objective":
         """The same objective with its spectra on `device`."""
         self.spectra = {k: v.to(device) for k, v in self.spectra.items()}
         if self.depth_spectra is not None:
             self.depth_spectra = {k: v.to(device) for k, v in self.depth_spectra.items()}
+        if self.linear is not None:
+            self.linear = self.linear.to(device)
         return self
+
+    def lsq(self, image: torch.Tensor) -> torch.Tensor:
+        """nedrt's `lsq` prefilter of `image` before the clamp (B×C×h×w)."""
+        if self.linear is None:
+            raise ValueError("these kernels have no lsq filter (an older nedrt prefilter --operator)")
+        h, w = self.size
+        m = self.mirror(image)
+        return torch.fft.irfft2(torch.fft.rfft2(m) * self.linear, s=m.shape[-2:])[..., :h, :w]
 
     @classmethod
     def load(cls, path: Path) -> "Objective":

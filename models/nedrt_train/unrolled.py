@@ -12,14 +12,19 @@ into its receptive field), and corrects the point before the clamp:
     r   = α_k x + (1 − α_k) z
     z⁺  = clamp(r + u + CNN_k(r + u, u, ∇f(r)), 0, 1),   u⁺ = u + r − z⁺
 
-trained with a loss at every step or at the last (`--loss`; the
+from z = the clamped `lsq` image (the kernels' `linear` filter, as
+nedrt's `admm:K` starts; the clamped frame for older kernel files) and
+u = 0, trained with a loss at every step or at the last (`--loss`; the
 objective's mean squared error per depth, channel and retinal value, the
-evaluation's PSNR scale). It prints,
-per step, the classical solver's and the learned one's PSNR on held-out
-crops of data/images/val.
+evaluation's PSNR scale). The CNN's convolutions pad with zeros, as the
+runtime's do, and the objective works on the mirrored frame, as the
+runtime's split solver does, so the exported model (`--export`,
+unrolled_export.py) computes on the runtime what it computed here. It
+prints, per step, the classical solver's and the learned one's PSNR on
+held-out crops of data/images/val.
 
     python -m nedrt_train.unrolled --kernels out/op/operator-128x128.safetensors \\
-        --steps 3 --iterations 300 --out out/unrolled
+        --steps 3 --iterations 300 --out out/unrolled --export models/unrolled
 """
 import argparse
 import json
@@ -42,14 +47,18 @@ class StepCorrection(nn.Module):
         chans = [9] + [width] * (layers - 1)
         body = []
         for cin, cout in zip(chans[:-1], chans[1:]):
-            body += [nn.Conv2d(cin, cout, 3, padding=1, padding_mode="reflect"), nn.ReLU()]
+            body += [nn.Conv2d(cin, cout, 3, padding=1), nn.ReLU()]
         self.body = nn.Sequential(*body)
-        self.last = nn.Conv2d(chans[-1], 3, 3, padding=1, padding_mode="reflect")
+        self.last = nn.Conv2d(chans[-1], 3, 3, padding=1)
         nn.init.zeros_(self.last.weight)
         nn.init.zeros_(self.last.bias)
 
     def forward(self, point, dual, gradient):
-        return self.last(self.body(torch.cat([point, dual, gradient], dim=1)))
+        return self.planes(torch.cat([point, dual, gradient], dim=1))
+
+    def planes(self, seen):
+        """On the 9 planes as the runtime stacks them: point, dual, gradient."""
+        return self.last(self.body(seen))
 
 
 class Unrolled(nn.Module):
@@ -72,13 +81,20 @@ class Unrolled(nn.Module):
         h, w = self.objective.size
         return x[..., :h, :w]
 
-    def forward(self, image, start):
+    def start(self, image):
+        """The clamped `lsq` image, as nedrt's split solver starts (the
+        clamped frame where the kernels have no lsq filter)."""
+        if self.objective.linear is None:
+            return image.clamp(0, 1)
+        return self.objective.lsq(image).clamp(0, 1)
+
+    def forward(self, image, start=None):
         """Every step's display image (a list of B×3×h×w)."""
         o = self.objective
         spectrum = lambda x: torch.fft.rfft2(o.mirror(x))
         s = o.mirror(image).shape[-2:]
         b = spectrum(image) * o.spectra["adjoint_target"]
-        z = start.clamp(0, 1)
+        z = (self.start(image) if start is None else start).clamp(0, 1)
         u = torch.zeros_like(z)
         out = []
         for k in range(self.steps):
@@ -129,6 +145,9 @@ def main(argv=None) -> None:
     ap.add_argument("--loss", choices=("every", "last"), default="every",
                     help="the squared error of every step's display image, averaged, or of the last alone")
     ap.add_argument("--out", type=Path, default=Path("out/unrolled"))
+    ap.add_argument("--export", type=Path, default=None,
+                    help="write the trained model here for the runtime (a manifest and one ONNX per step)")
+    ap.add_argument("--name", default=None, help="the exported model's name (default unrolled-kK)")
     a = ap.parse_args(argv)
     torch.manual_seed(a.seed)
     objective = Objective.load(a.kernels)
@@ -142,19 +161,18 @@ def main(argv=None) -> None:
     rng = np.random.default_rng(a.seed)
     classical = Unrolled(objective, a.steps, learned=False)
     model = Unrolled(objective, a.steps, width=a.width)
-    # The start: the frame itself, clamped (the network's and the solver's alike).
     with torch.no_grad():
-        base = step_db(objective, classical(val, val), val)
-        start_db = db(objective.mse(val.clamp(0, 1), val).mean())
+        base = step_db(objective, classical(val), val)
+        start_db = db(objective.mse(classical.start(val), val).mean())
         # The ceiling at this crop: the classical solver run to convergence.
-        ceiling_db = step_db(objective, Unrolled(objective, 300, learned=False)(val, val)[-1:], val)[0]
+        ceiling_db = step_db(objective, Unrolled(objective, 300, learned=False)(val)[-1:], val)[0]
     print(f"val dB: start {start_db:.3f}, classical admm steps 1..{a.steps} {[round(v, 3) for v in base]}, "
           f"ceiling (300 steps) {ceiling_db:.3f}")
     opt = torch.optim.Adam(model.parameters(), lr=a.lr)
     log = []
     for it in range(1, a.iterations + 1):
         batch = crops(photos, patch, rng, a.batch)
-        displays = model(batch, batch)
+        displays = model(batch)
         scored = displays if a.loss == "every" else displays[-1:]
         loss = sum(objective.mse(d, batch).mean() for d in scored) / len(scored)
         opt.zero_grad()
@@ -162,7 +180,7 @@ def main(argv=None) -> None:
         opt.step()
         if it % 50 == 0 or it == a.iterations:
             with torch.no_grad():
-                learned = step_db(objective, model(val, val), val)
+                learned = step_db(objective, model(val), val)
             row = {"iteration": it, "train_loss_db": db(loss.item()), "val_db": learned,
                    "classical_val_db": base, "start_val_db": start_db, "ceiling_val_db": ceiling_db,
                    "rho": torch.exp(model.log_rho).tolist(),
@@ -172,6 +190,11 @@ def main(argv=None) -> None:
     a.out.mkdir(parents=True, exist_ok=True)
     suffix = "" if a.loss == "every" else f"-{a.loss}"
     (a.out / f"log-k{a.steps}{suffix}.json").write_text(json.dumps(log, indent=1))
+    if a.export is not None:
+        from .unrolled_export import export
+        manifest = export(model, a.kernels, a.export, a.name or f"unrolled-k{a.steps}",
+                          note=f"{a.iterations} iterations at {patch}², loss on {a.loss} step(s), seed {a.seed}")
+        print(f"wrote {manifest}")
 
 
 if __name__ == "__main__":

@@ -168,6 +168,9 @@ fn the_prefilter_command_writes_displays_kernels_and_a_manifest() {
     let bytes = std::fs::read(out.join("operator-8x8.safetensors")).expect("read");
     let t = safetensors::SafeTensors::deserialize(&bytes).expect("safetensors");
     assert_eq!(t.tensor("normal").expect("normal").shape(), &[3, 16, 16]);
+    // The lsq filter, the unrolled model's start (its values are checked
+    // against the runtime by tests/golden/unrolled, stages' tests/unrolled.rs).
+    assert_eq!(t.tensor("linear").expect("linear").shape(), &[3, 16, 16]);
     // A D-CNN method has no network-free display image of its own.
     let o = prefilter_in(
         &imgs,

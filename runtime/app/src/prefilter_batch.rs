@@ -79,9 +79,11 @@ pub fn run(common: &CommonOptions, o: &PrefilterOptions) -> Result<String, AppEr
             .mirrored_depth_kernels(w, h)
             .ok_or_else(|| AppError::input(o.method, "no per-depth kernels"))?;
         let path = o.out_dir.join(format!("operator-{w}x{h}.safetensors"));
+        let linear = problem.mirrored_linear_kernels(w, h);
         let kernels = Kernels {
             summed: &kernels,
             per_depth: &per_depth,
+            linear: &linear,
             width: w,
             height: h,
         };
@@ -188,10 +190,11 @@ pub fn run(common: &CommonOptions, o: &PrefilterOptions) -> Result<String, AppEr
 }
 
 /// The objective's kernels for one patch size: summed over the depths, and
-/// per depth.
+/// per depth; and the `lsq` prefilter's (the split solver's start).
 struct Kernels<'a> {
     summed: &'a [[Vec<f32>; 3]],
     per_depth: &'a [Vec<[Vec<f32>; 3]>],
+    linear: &'a [Vec<f32>],
     width: usize,
     height: usize,
 }
@@ -226,6 +229,14 @@ fn write_kernels(
             k.per_depth.iter().flat_map(|d| bytes(d)).collect(),
         ));
     }
+    tensors.push((
+        "linear".to_string(),
+        vec![channels, 2 * h, 2 * w],
+        k.linear
+            .iter()
+            .flat_map(|c| c.iter().flat_map(|v| v.to_le_bytes()))
+            .collect(),
+    ));
     let views = tensors
         .iter()
         .map(|(n, shape, b)| {
@@ -248,7 +259,8 @@ fn write_kernels(
             "definition",
             "per channel, on the mirrored 2h×2w display grid (periodic, origin at [0, 0]): \
              ½ Σ_D ‖A_D d − t_D‖² = ¼ (½ d̃·(normal ⊛ d̃) − d̃·(adjoint_target ⊛ Ĩ) + ½ Ĩ·(target_gram ⊛ Ĩ)); \
-             the *_per_depth tensors (depth × channel × 2h × 2w) give each depth's ½ ‖A_D d − t_D‖² alike"
+             the *_per_depth tensors (depth × channel × 2h × 2w) give each depth's ½ ‖A_D d − t_D‖² alike; \
+             linear (channel × 2h × 2w): the lsq prefilter before the clamp, lsq(I) = first quadrant of linear ⊛ Ĩ"
                 .to_string(),
         ),
     ]

@@ -72,6 +72,7 @@ fn kernel_networks() -> Vec<(&'static str, Network)> {
                 output: 1,
                 multiple: 1,
                 macs_per_pixel: 0.0,
+                clamped: true,
             },
         ),
         (
@@ -82,6 +83,7 @@ fn kernel_networks() -> Vec<(&'static str, Network)> {
                 output: 1,
                 multiple: 1,
                 macs_per_pixel: 0.0,
+                clamped: true,
             },
         ),
     ]
@@ -131,6 +133,7 @@ fn pool_upsample_net(skip: usize) -> Network {
         output: 5,
         multiple: 2,
         macs_per_pixel: 0.0,
+        clamped: true,
     }
 }
 
@@ -483,6 +486,26 @@ mod needs_gpu {
             for (w, h) in [(40, 24), (97, 61)] {
                 let d = padded_against_twin(&mut gpu, &net, (w, h), 33);
                 assert!(d <= tolerance(Precision::F16), "{name} {w}×{h}: {d}");
+            }
+        }
+    }
+
+    #[test]
+    #[ignore = "needs a GPU adapter (run: scripts/test.sh, or cargo test -- --include-ignored)"]
+    fn a_correction_network_of_nine_planes_matches_its_twin_signed() {
+        let model = model_from(&synth::step_correction(9, 16, 3, 9), "step.onnx");
+        let net = model.lower().expect("lowers");
+        for precision in [Precision::F32, Precision::F16] {
+            let (device, queue) = gpu_device(precision);
+            let mut gpu =
+                GpuBackend::new(&device, &queue, "test".into(), &net, precision).expect("builds");
+            for (w, h) in [(16, 16), (21, 13)] {
+                let frame = crate::tests::signed_planes(w, h, 9, 4);
+                let got = gpu.run_tensor(frame.data(), w, h).expect("runs");
+                let want = reference::run(&net, frame.data(), h, w);
+                assert!(got.iter().any(|v| *v < 0.0), "{precision:?}: clamped");
+                let d = max_abs_diff(&want, &got);
+                assert!(d <= tolerance(precision), "{precision:?} {w}×{h}: {d}");
             }
         }
     }

@@ -9,6 +9,9 @@
 pub mod content;
 pub mod gpu;
 mod lower;
+/// The ONNX metadata key that says whether a network's output is a display
+/// image (clamped) or a signed correction.
+pub use lower::OUTPUT_KEY;
 pub mod model_file;
 pub mod network;
 pub mod ort_backend;
@@ -349,8 +352,13 @@ impl Dcnn {
     /// 16×16 fields. A flat field is seen unchanged through any
     /// energy-conserving optics, so a network that moves it changes the
     /// frame's brightness for nothing (docs/stability.md).
+    /// Zero for a network that does not take an image (other than 3
+    /// input channels).
     pub fn flat_field_shift(&mut self) -> Result<f32, InferenceError> {
         let mut worst = 0.0f32;
+        if self.input_channels() != 3 {
+            return Ok(worst);
+        }
         for level in [0.0f32, 0.5, 1.0] {
             let frame = Image::rgb(16, 16, vec![level; 3 * 256]);
             let out = self.run_frame(&frame)?;
@@ -442,17 +450,33 @@ impl Dcnn {
         self.backend.layer_timings(frame)
     }
 
-    /// Preprocesses one frame: pad to the network's multiple by reflection
-    /// ([`Image::pad_reflect`], the trainer's rule), run, crop back, clamp
-    /// to [0, 1].
+    /// Preprocesses one frame: [`Dcnn::run_unclamped`], then the panel's
+    /// clamp to [0, 1].
     pub fn run_frame(&mut self, frame: &Image) -> Result<Image, InferenceError> {
-        check_frame(frame, 3).map_err(|e| match e {
+        let mut out = self.run_unclamped(frame)?;
+        for v in out.data_mut() {
+            *v = v.clamp(0.0, 1.0);
+        }
+        Ok(out)
+    }
+
+    /// The network's input channels (3 for a D-CNN).
+    pub fn input_channels(&self) -> usize {
+        self.network.values[0].channels
+    }
+
+    /// The network on one frame of [`Dcnn::input_channels`] planes, padded
+    /// to the network's multiple by reflection ([`Image::pad_reflect`], the
+    /// trainer's rule), run and cropped back, not clamped (a step
+    /// correction of the unrolled preprocessor is signed).
+    pub fn run_unclamped(&mut self, frame: &Image) -> Result<Image, InferenceError> {
+        check_frame(frame, self.input_channels()).map_err(|e| match e {
             PreprocessError::Frame(reason) => InferenceError::Frame(reason),
             other => InferenceError::Frame(other.to_string()),
         })?;
         let m = self.network.multiple;
         let (pw, ph) = (frame.width.div_ceil(m) * m, frame.height.div_ceil(m) * m);
-        let mut out = if (pw, ph) == (frame.width, frame.height) {
+        let out = if (pw, ph) == (frame.width, frame.height) {
             self.backend.run(frame)?
         } else {
             self.backend
@@ -461,12 +485,8 @@ impl Dcnn {
         };
         // The clamp would turn ±inf into 0 or 1 and pass NaN on: a network
         // that overflows is a failure of the engine, said and counted, not
-        // a black or white pixel. Counted in the clamp's own pass.
-        let mut non_finite = 0;
-        for v in out.data_mut() {
-            non_finite += usize::from(!v.is_finite());
-            *v = v.clamp(0.0, 1.0);
-        }
+        // a black or white pixel.
+        let non_finite = out.data().iter().filter(|v| !v.is_finite()).count();
         if non_finite > 0 {
             return Err(InferenceError::NonFinite {
                 engine: self.backend.describe(),

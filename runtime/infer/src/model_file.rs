@@ -64,8 +64,8 @@ impl ModelFile {
         })
     }
 
-    /// Checks the signature (one 1×3×H×W float input with dynamic H and W,
-    /// one output of the same shape) and every operator, and lowers the graph.
+    /// Checks the signature (one 1×C×H×W float input with dynamic H and W,
+    /// one 1×3×H×W output) and every operator, and lowers the graph.
     pub fn lower(&self) -> Result<Network, InferenceError> {
         crate::lower::lower(&self.proto).map_err(|reason| InferenceError::Model {
             path: self.path.clone(),

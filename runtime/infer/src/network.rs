@@ -63,7 +63,8 @@ pub enum Layer {
     },
 }
 
-/// A validated, lowered network. Input is value 0 (3 channels, level 0).
+/// A validated, lowered network. Input is value 0 (level 0; 3 channels for
+/// a D-CNN, more for a network that takes other planes beside the image).
 #[derive(Debug, Clone)]
 pub struct Network {
     pub layers: Vec<Layer>,
@@ -73,6 +74,11 @@ pub struct Network {
     pub multiple: usize,
     /// Multiply-adds per frame pixel (convolutions).
     pub macs_per_pixel: f64,
+    /// Whether the output is a display image, clamped to the panel's
+    /// [0, 1] in its last layer (a D-CNN), or a signed correction, not
+    /// clamped (the ONNX metadata `nedrt.output = correction`: a step of
+    /// the unrolled preprocessor).
+    pub clamped: bool,
 }
 
 impl Layer {

@@ -115,7 +115,7 @@ impl Backend for OrtBackend {
     }
 
     fn run(&mut self, frame: &Image) -> Result<Image, InferenceError> {
-        let shape = (1, 3, frame.height, frame.width);
+        let shape = (1, frame.channels(), frame.height, frame.width);
         let view = ArrayView4::from_shape(shape, frame.data()).map_err(err)?;
         let input = TensorRef::from_array_view(view).map_err(err)?;
         let outputs = self.session.run(ort::inputs![input]).map_err(err)?;

@@ -105,7 +105,7 @@ pub fn conv_transpose2(input: &[f32], h: usize, w: usize, ct: &ConvTranspose) ->
 }
 
 /// Runs the lowered network on a 3×h×w frame (sides multiples of
-/// `net.multiple`); the output is clamped to [0, 1] like the GPU's.
+/// `net.multiple`); a display image is clamped to [0, 1] like the GPU's.
 pub fn run(net: &Network, frame: &[f32], h: usize, w: usize) -> Vec<f32> {
     let mut vals: Vec<Option<Vec<f32>>> = vec![None; net.values.len()];
     vals[0] = Some(frame.to_vec());
@@ -117,7 +117,7 @@ pub fn run(net: &Network, frame: &[f32], h: usize, w: usize) -> Vec<f32> {
                 let epi = Epilogue {
                     relu: c.relu,
                     residual: c.residual.and_then(|r| vals[r].as_deref()),
-                    clamp: c.output == net.output,
+                    clamp: c.output == net.output && net.clamped,
                 };
                 conv_same(vals[c.input].as_deref().unwrap_or_default(), lh, lw, c, epi)
             }

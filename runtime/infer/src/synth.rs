@@ -192,8 +192,13 @@ impl GraphBuilder {
     }
 
     /// Wraps the graph with input `image` and output `display`.
-    pub fn finish(mut self, output: &str) -> pb::ModelProto {
-        self.graph.input = vec![image_value("image", 3)];
+    pub fn finish(self, output: &str) -> pb::ModelProto {
+        self.finish_with(output, 3)
+    }
+
+    /// As [`GraphBuilder::finish`], for an input of `input_channels` planes.
+    pub fn finish_with(mut self, output: &str, input_channels: i64) -> pb::ModelProto {
+        self.graph.input = vec![image_value("image", input_channels)];
         if let Some(last) = self.graph.node.iter_mut().find(|n| n.output[0] == output) {
             last.output[0] = "display".into();
         }
@@ -239,6 +244,27 @@ pub fn unet(width: i64, levels: u32, seed: u64) -> pb::ModelProto {
     let out = g.conv(&h, widths[0], 3, 1);
     let sum = g.node("Add", &["image", &out], vec![]);
     g.finish(&sum)
+}
+
+/// A step correction of the unrolled preprocessor, node for node as the
+/// trainer exports it (models/nedrt_train/unrolled.py `StepCorrection`):
+/// `layers` 3×3 convs from `cin` planes, `width` channels, ReLU between,
+/// the last to 3 signed channels (metadata `nedrt.output = correction`).
+pub fn step_correction(cin: i64, width: i64, layers: usize, seed: u64) -> pb::ModelProto {
+    let mut g = GraphBuilder::new(seed);
+    let mut h = "image".to_string();
+    let mut c = cin;
+    for _ in 1..layers {
+        h = g.conv_relu(&h, c, width);
+        c = width;
+    }
+    let out = g.conv(&h, c, 3, 3);
+    let mut model = g.finish_with(&out, cin);
+    model.metadata_props.push(pb::StringStringEntryProto {
+        key: crate::OUTPUT_KEY.into(),
+        value: "correction".into(),
+    });
+    model
 }
 
 /// The protobuf bytes of a model.

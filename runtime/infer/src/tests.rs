@@ -78,6 +78,41 @@ fn reference_twin_matches_tract_on_a_random_unet() {
     }
 }
 
+/// A frame of `channels` planes, uniform in ±1 (a step correction's
+/// inputs are signed: the dual and the gradient).
+pub(crate) fn signed_planes(width: usize, height: usize, channels: usize, seed: u64) -> Image {
+    let mut rng = SplitMix::new(seed);
+    let planes = (0..channels)
+        .map(|_| (0..width * height).map(|_| rng.symmetric(1.0)).collect())
+        .collect();
+    Image::from_planes(width, height, planes)
+}
+
+#[test]
+fn a_correction_network_of_nine_planes_runs_signed_at_odd_sizes() {
+    let model = model_from(&synth::step_correction(9, 8, 3, 5), "step.onnx");
+    let net = model.lower().expect("lowers");
+    assert_eq!((net.values[0].channels, net.clamped), (9, false));
+    let mut dcnn =
+        Dcnn::from_model(model, BackendKind::Cpu, &BackendOptions::default()).expect("loads");
+    assert_eq!(dcnn.input_channels(), 9);
+    assert_eq!(dcnn.flat_field_shift().expect("no image to shift"), 0.0);
+    for (w, h) in [(21, 13), (8, 8), (1, 3)] {
+        let frame = signed_planes(w, h, 9, (w * h) as u64);
+        let out = dcnn.run_unclamped(&frame).expect("runs");
+        assert_eq!((out.channels(), out.width, out.height), (3, w, h));
+        let want = reference::run(&net, frame.data(), h, w);
+        let d = max_abs_diff(out.data(), &want);
+        assert!(d <= 1e-5, "{w}×{h}: {d}");
+        // Signed: neither the backend nor the twin clamped it.
+        assert!(out.data().iter().any(|v| *v < 0.0) || w * h < 8, "{w}×{h}");
+    }
+    let e = dcnn
+        .run_unclamped(&random_frame(8, 8, 1))
+        .expect_err("3 planes for a network of 9");
+    assert!(e.to_string().contains('9'), "{e}");
+}
+
 #[test]
 fn frames_of_any_size_are_padded_by_reflection_and_cropped_back() {
     let model = model_from(&synth::unet(4, 3, 3), "small.onnx");
@@ -136,10 +171,29 @@ fn unsupported_operators_and_wrong_signatures_are_refused() {
     relu.op_type = "Sigmoid".into();
     assert!(lowering_error(&m).contains("operator 'Sigmoid' is not supported"));
 
+    // An input of other planes than its first conv takes.
     let mut m = synth::unet(4, 3, 1);
     m.graph.as_mut().expect("graph").input[0] = synth::image_value("image", 4);
     let e = lowering_error(&m);
-    assert!(e.contains("1×3×H×W") && e.contains("bad.onnx"), "{e}");
+    assert!(e.contains("4") && e.contains("bad.onnx"), "{e}");
+
+    let mut m = synth::step_correction(9, 4, 2, 1);
+    m.graph.as_mut().expect("graph").input[0] = synth::image_value("image", 65);
+    let e = lowering_error(&m);
+    assert!(e.contains("1×C×H×W (C from 1 to 64)"), "{e}");
+
+    let mut m = synth::step_correction(9, 4, 2, 1);
+    m.graph.as_mut().expect("graph").output[0] = synth::image_value("display", 9);
+    let e = lowering_error(&m);
+    assert!(e.contains("output") && e.contains("1×3×H×W"), "{e}");
+
+    let mut m = synth::step_correction(9, 4, 2, 1);
+    m.metadata_props[0].value = "residual".into();
+    let e = lowering_error(&m);
+    assert!(
+        e.contains("nedrt.output") && e.contains("\"residual\""),
+        "{e}"
+    );
 
     let mut m = synth::unet(4, 3, 1);
     if let Some(tract_onnx::pb::type_proto::Value::TensorType(t)) =
@@ -255,6 +309,23 @@ mod needs_ort {
                 let d = max_abs_diff(&a, &b);
                 assert!(d <= 1e-4, "width {width}, {w}×{h}: {d}");
             }
+        }
+    }
+
+    #[test]
+    #[ignore = "needs ONNX Runtime (run: scripts/test.sh, or cargo test -- --include-ignored)"]
+    fn tract_matches_onnxruntime_on_a_correction_network() {
+        let model = model_from(&synth::step_correction(9, 16, 3, 8), "step.onnx");
+        let mut ort = open_ort(&model);
+        let mut tract =
+            tract_backend::TractBackend::new(&model, &BackendOptions::default()).expect("tract");
+        for (w, h) in [(16, 16), (21, 13)] {
+            let frame = signed_planes(w, h, 9, 3);
+            let a = ort.run(&frame).expect("ort runs").into_data();
+            let b = tract.run(&frame).expect("tract runs").into_data();
+            assert!(a.iter().any(|v| *v < 0.0), "ort clamped");
+            let d = max_abs_diff(&a, &b);
+            assert!(d <= 1e-4, "{w}×{h}: {d}");
         }
     }
 

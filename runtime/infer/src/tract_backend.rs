@@ -17,7 +17,7 @@ type Plan = Arc<TypedRunnableModel>;
 pub struct TractBackend {
     /// The decoded graph, parsed into tract's form once at load time.
     model: InferenceModel,
-    plans: HashMap<(usize, usize), Plan>,
+    plans: HashMap<(usize, usize, usize), Plan>,
 }
 
 impl std::fmt::Debug for TractBackend {
@@ -52,18 +52,23 @@ impl TractBackend {
         })
     }
 
-    fn plan(&mut self, width: usize, height: usize) -> Result<Plan, InferenceError> {
-        if let Some(p) = self.plans.get(&(width, height)) {
+    fn plan(
+        &mut self,
+        channels: usize,
+        width: usize,
+        height: usize,
+    ) -> Result<Plan, InferenceError> {
+        if let Some(p) = self.plans.get(&(channels, width, height)) {
             return Ok(p.clone());
         }
         let plan = self
             .model
             .clone()
-            .with_input_fact(0, f32::fact([1, 3, height, width]).into())
+            .with_input_fact(0, f32::fact([1, channels, height, width]).into())
             .and_then(|m| m.into_optimized())
             .and_then(|m| m.into_runnable())
             .map_err(|e| err(format!("preparing {width}×{height}: {e:#}")))?;
-        self.plans.insert((width, height), plan.clone());
+        self.plans.insert((channels, width, height), plan.clone());
         Ok(plan)
     }
 }
@@ -74,9 +79,12 @@ impl Backend for TractBackend {
     }
 
     fn run(&mut self, frame: &Image) -> Result<Image, InferenceError> {
-        let plan = self.plan(frame.width, frame.height)?;
-        let input =
-            Tensor::from_shape(&[1, 3, frame.height, frame.width], frame.data()).map_err(err)?;
+        let plan = self.plan(frame.channels(), frame.width, frame.height)?;
+        let input = Tensor::from_shape(
+            &[1, frame.channels(), frame.height, frame.width],
+            frame.data(),
+        )
+        .map_err(err)?;
         let out = plan.run(tvec!(input.into())).map_err(err)?;
         let view = out[0].to_plain_array_view::<f32>().map_err(err)?;
         if view.shape() != [1, 3, frame.height, frame.width] {

@@ -4,8 +4,10 @@
 //! least-squares family), the prefilters on the device
 //! ([`device_prefilter`]: nedrt-gpu's stages fed by nedrt-optics, and
 //! [`device_prefilter::OnDevice`] to run one as a host preprocessor), the
-//! stage combinator ([`Chain`], the twin of [`nedrt_gpu::Chain`]) and the
-//! fault injection ([`FailsAfter`], for either kind of stage).
+//! stage combinator ([`Chain`], the twin of [`nedrt_gpu::Chain`]), the
+//! unrolled preprocessor on the host ([`unrolled`]: split-solver steps with
+//! learned corrections) and the fault injection ([`FailsAfter`], for either
+//! kind of stage).
 //!
 //! Rule: depends on nedrt-core, nedrt-gpu, nedrt-optics and nedrt-infer
 //! only; it knows neither the service nor the commands, so `nedrt run`,
@@ -14,6 +16,7 @@
 pub mod device_prefilter;
 mod faults;
 pub mod preprocess;
+pub mod unrolled;
 
 pub use faults::FailsAfter;
 pub use preprocess::Chain;

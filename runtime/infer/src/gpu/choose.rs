@@ -125,8 +125,11 @@ pub(super) fn layer_kernel(
                     codegen::MAX_CONV_KERNEL
                 )));
             }
-            let (relu, residual, clamp) =
-                (c.relu, c.residual.is_some(), c.output == network.output);
+            let (relu, residual, clamp) = (
+                c.relu,
+                c.residual.is_some(),
+                c.output == network.output && network.clamped,
+            );
             let what = format!("conv {0}×{0} {1}→{2}", c.kernel, c.cin, c.cout);
             let (kind, packed, path) = match support.coop_for(c.cin, c.cout, weights, false) {
                 Ok(subgroup_size) => (

@@ -94,9 +94,26 @@ pub(super) fn tensor_data(t: &pb::TensorProto) -> Result<Initializer, String> {
     Ok((dims, data))
 }
 
-/// Checks a graph input or output is float 1×3×H×W; returns whether H and W
-/// are symbolic (or absent).
-pub(super) fn check_image_signature(v: &pb::ValueInfoProto, what: &str) -> Result<(), String> {
+/// The most input channels a network may take (the unrolled
+/// preprocessor's step corrections take 9: point, dual and gradient).
+pub(super) const MAX_INPUT_CHANNELS: i64 = 64;
+
+/// Checks a graph input or output is float 1×C×H×W with dynamic H and W
+/// and C in `channels`; returns C (3 where the file does not say).
+pub(super) fn check_image_signature(
+    v: &pb::ValueInfoProto,
+    what: &str,
+    channels: std::ops::RangeInclusive<i64>,
+) -> Result<usize, String> {
+    let want = if channels.start() == channels.end() {
+        format!("1×{}×H×W", channels.start())
+    } else {
+        format!(
+            "1×C×H×W (C from {} to {})",
+            channels.start(),
+            channels.end()
+        )
+    };
     let Some(pb::type_proto::Value::TensorType(t)) =
         v.r#type.as_ref().and_then(|t| t.value.as_ref())
     else {
@@ -109,27 +126,35 @@ pub(super) fn check_image_signature(v: &pb::ValueInfoProto, what: &str) -> Resul
         ));
     }
     let Some(shape) = &t.shape else {
-        return Ok(());
+        return Ok(3);
     };
     use pb::tensor_shape_proto::dimension::Value as D;
     let dims: Vec<Option<&D>> = shape.dim.iter().map(|d| d.value.as_ref()).collect();
     if dims.len() != 4 {
         return Err(format!(
-            "{what} '{}' has rank {}, the runtime needs 1×3×H×W",
+            "{what} '{}' has rank {}, the runtime needs {want}",
             v.name,
             dims.len()
         ));
     }
-    for (axis, want) in [(0usize, 1i64), (1, 3)] {
-        if let Some(D::DimValue(n)) = dims[axis]
-            && *n != want
-        {
+    if let Some(D::DimValue(n)) = dims[0]
+        && *n != 1
+    {
+        return Err(format!(
+            "{what} '{}' has {n} along axis 0, the runtime needs {want}",
+            v.name
+        ));
+    }
+    let count = match dims[1] {
+        Some(D::DimValue(n)) if channels.contains(n) => *n as usize,
+        Some(D::DimValue(n)) => {
             return Err(format!(
-                "{what} '{}' has {n} along axis {axis}, the runtime needs 1×3×H×W",
+                "{what} '{}' has {n} along axis 1, the runtime needs {want}",
                 v.name
             ));
         }
-    }
+        _ => 3,
+    };
     if let (Some(D::DimValue(h)), Some(D::DimValue(w))) = (dims[2], dims[3]) {
         return Err(format!(
             "{what} '{}' has a fixed size {h}×{w}; the runtime feeds frames of any size, \
@@ -137,7 +162,7 @@ pub(super) fn check_image_signature(v: &pb::ValueInfoProto, what: &str) -> Resul
             v.name
         ));
     }
-    Ok(())
+    Ok(count)
 }
 
 /// Compares each attribute with the one value the runtime implements.

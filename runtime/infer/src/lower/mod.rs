@@ -1,6 +1,6 @@
 //! Validation and lowering of a decoded ONNX graph to [`Network`]: the
-//! signature (one float 1×3×H×W input with dynamic H and W, one output of
-//! the same shape), every operator and attribute against what the runtime
+//! signature (one float 1×C×H×W input with dynamic H and W, C = 3 for a
+//! D-CNN and up to 64 for other networks, one 1×3×H×W output), every operator and attribute against what the runtime
 //! implements, symbolic shape propagation (channels and pooling level), and
 //! the fusions (ReLU and the residual Add into the conv before them).
 //! Errors are reasons; the caller adds the file name. One file per
@@ -17,7 +17,7 @@ use std::collections::HashMap;
 use tract_onnx::pb;
 
 use super::network::{Layer, Network, ValueId, ValueInfo};
-use attrs::{Initializer, check_image_signature, describe, tensor_data};
+use attrs::{Initializer, MAX_INPUT_CHANNELS, check_image_signature, describe, tensor_data};
 
 /// What the lowering has built so far: every activation's shape, and the layers.
 pub(super) struct Graph {
@@ -99,14 +99,14 @@ pub(super) fn lower(model: &pb::ModelProto) -> Result<Network, String> {
         .collect();
     if inputs.len() != 1 || graph.output.len() != 1 {
         return Err(format!(
-            "the graph has {} inputs and {} outputs; the runtime needs one 1×3×H×W image in \
-             and one out",
+            "the graph has {} inputs and {} outputs; the runtime needs one 1×C×H×W image in \
+             and one 1×3×H×W out",
             inputs.len(),
             graph.output.len()
         ));
     }
-    check_image_signature(inputs[0], "input")?;
-    check_image_signature(&graph.output[0], "output")?;
+    let input_channels = check_image_signature(inputs[0], "input", 1..=MAX_INPUT_CHANNELS)?;
+    check_image_signature(&graph.output[0], "output", 3..=3)?;
 
     let mut uses: HashMap<&str, usize> = HashMap::new();
     for name in graph
@@ -119,7 +119,7 @@ pub(super) fn lower(model: &pb::ModelProto) -> Result<Network, String> {
     }
     let mut g = Graph {
         values: vec![ValueInfo {
-            channels: 3,
+            channels: input_channels,
             level: 0,
         }],
         layers: Vec::new(),
@@ -213,5 +213,27 @@ pub(super) fn lower(model: &pb::ModelProto) -> Result<Network, String> {
         output,
         multiple: 1 << deepest,
         macs_per_pixel,
+        clamped: output_is_clamped(model)?,
     })
+}
+
+/// The metadata key that says what the network's output is.
+pub const OUTPUT_KEY: &str = "nedrt.output";
+
+/// `nedrt.output`: `display` (the default: a display image, clamped) or
+/// `correction` (signed, not clamped).
+fn output_is_clamped(model: &pb::ModelProto) -> Result<bool, String> {
+    match model
+        .metadata_props
+        .iter()
+        .find(|p| p.key == OUTPUT_KEY)
+        .map(|p| p.value.as_str())
+    {
+        None | Some("display") => Ok(true),
+        Some("correction") => Ok(false),
+        Some(other) => Err(format!(
+            "metadata {OUTPUT_KEY} = {other:?}: choose display (a display image, clamped to \
+             [0, 1]) or correction (signed, not clamped)"
+        )),
+    }
 }

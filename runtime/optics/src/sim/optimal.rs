@@ -29,10 +29,12 @@ mod operator;
 mod prefilter;
 mod solver;
 mod split;
+mod steps;
 
 pub use prefilter::{DeviceTerms, SolveMode, SolvedPrefilter};
 pub use solver::{FistaState, ProblemPlan};
 pub use split::{SplitSchedule, SplitState, SplitTerms};
+pub use steps::SplitSteps;
 
 use operator::{Operator, RetinalTerms};
 
@@ -374,6 +376,14 @@ impl DisplayProblem {
                 })
                 .collect(),
         )
+    }
+
+    /// The `lsq` prefilter (before the clamp) as convolution kernels on the
+    /// mirrored 2w×2h display grid, per channel, laid out as
+    /// [`DisplayProblem::mirrored_kernels`]: the split solver's start, for
+    /// the trainer's unrolled model.
+    pub fn mirrored_linear_kernels(&self, width: usize, height: usize) -> Vec<Vec<f32>> {
+        self.plan(width, height).linear.mirrored_kernels()
     }
 
     /// [`DisplayProblem::mirrored_kernels`] for each depth on its own,

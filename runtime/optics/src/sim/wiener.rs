@@ -163,6 +163,17 @@ impl WienerPlan {
             .collect()
     }
 
+    /// The filter as convolution kernels on the mirrored 2w×2h grid, per
+    /// channel (row-major 2h×2w, periodic, origin at [0, 0]): the filtered
+    /// frame is the first quadrant of the kernel convolved with the
+    /// mirrored frame.
+    pub fn mirrored_kernels(&self) -> Vec<Vec<f32>> {
+        self.gains
+            .iter()
+            .map(|g| self.fft.inverse(g.clone()))
+            .collect()
+    }
+
     /// The prefiltered frame before the panel's clamp. The frame is
     /// mirrored to 2w×2h, which is exactly periodic, so the FFT's circular
     /// convolution equals convolution of the symmetrically extended frame.

@@ -23,7 +23,7 @@ fn psf(window: usize, seed: usize, veil: f64) -> Psf {
     }
 }
 
-fn frame(w: usize, h: usize, channels: usize) -> Image {
+pub(super) fn frame(w: usize, h: usize, channels: usize) -> Image {
     let planes = (0..channels)
         .map(|c| {
             (0..w * h)
@@ -37,7 +37,7 @@ fn frame(w: usize, h: usize, channels: usize) -> Image {
     Image::from_planes(w, h, planes)
 }
 
-fn problem(objective: Objective) -> DisplayProblem {
+pub(super) fn problem(objective: Objective) -> DisplayProblem {
     let depths = vec![0.0, 0.5, 1.0];
     let psfs = vec![vec![psf(7, 0, 0.02), psf(9, 1, 0.05), psf(9, 2, 0.0)]; 1];
     let blurred = vec![false, objective == Objective::Target, false];
@@ -86,7 +86,7 @@ fn symmetric(window: usize, spread: f64, veil: f64) -> Psf {
 
 /// A problem with mirror-symmetric PSFs (the mirrored path), windows wider
 /// than the frame included.
-fn symmetric_problem(objective: Objective) -> DisplayProblem {
+pub(super) fn symmetric_problem(objective: Objective) -> DisplayProblem {
     DisplayProblem::new(
         objective,
         vec![0.0, 0.5, 1.0],

@@ -1,0 +1,335 @@
+//! The unrolled preprocessor on the host (issue 55, docs/unrolled.md): K
+//! steps of the split solver through the design's optics
+//! ([`nedrt_optics::sim::SplitSteps`]), each followed by a small learned
+//! correction between the data step and the panel's clamp, run by any
+//! D-CNN backend (cpu, ort, wgpu). The trainer's `nedrt_train.unrolled`
+//! computes the same, step for step; `nedrt_train.unrolled_export` writes
+//! the manifest this reads (`NAME.unrolled.toml`) and one ONNX per step.
+//!
+//! load (the manifest, strictly; each step's network, its SHA-256 checked)
+//! → check against the optics it runs through (method, DOE, objective, K)
+//! → run.
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use nedrt_core::preprocess::{HostTraffic, PreprocessError, check_frame};
+use nedrt_core::{Image, Preprocess};
+use nedrt_infer::{BackendKind, BackendOptions, Dcnn, ModelFile};
+use nedrt_optics::sim::{DisplayProblem, Method, Objective, Prepared};
+use serde::Deserialize;
+use sha2::Digest;
+
+use crate::EngineError;
+
+/// The manifest's `format`.
+pub const FORMAT: &str = "nedrt unrolled 1";
+/// A manifest's name ends so.
+pub const SUFFIX: &str = ".unrolled.toml";
+/// Most steps a manifest may give.
+pub const MAX_STEPS: usize = 64;
+/// Largest manifest read.
+const MAX_MANIFEST_BYTES: u64 = 1 << 20;
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawManifest {
+    format: String,
+    method: String,
+    objective: String,
+    doe: String,
+    calibration: String,
+    k_reg: f64,
+    kernels_sha256: String,
+    trained_size: [usize; 2],
+    step: Vec<RawStep>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawStep {
+    rho: f64,
+    relaxation: f64,
+    network: Option<String>,
+    network_sha256: Option<String>,
+}
+
+/// One step: ρ_k = `rho` · L, relaxation α_k, and its correction's ONNX
+/// (none: the classical step).
+#[derive(Debug, Clone, PartialEq)]
+pub struct StepSpec {
+    pub rho: f32,
+    pub relaxation: f32,
+    pub network: Option<PathBuf>,
+}
+
+/// A validated manifest: what the model was trained through, and its steps.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Manifest {
+    pub path: PathBuf,
+    /// The method whose optics the steps solve through ("doe+wiener").
+    pub method: Method,
+    pub objective: Objective,
+    /// The DOE's content hash (nedrt's), as the kernels were made with.
+    pub doe: String,
+    /// The calibration the kernels were made with (provenance).
+    pub calibration: String,
+    /// The `lsq` start's K.
+    pub k_reg: f64,
+    pub kernels_sha256: String,
+    /// Width and height of the crops it was trained on.
+    pub trained_size: [usize; 2],
+    pub steps: Vec<StepSpec>,
+}
+
+/// Whether `path` names an unrolled model's manifest (by its suffix).
+pub fn is_manifest(path: &Path) -> bool {
+    path.to_string_lossy().ends_with(SUFFIX)
+}
+
+impl Manifest {
+    /// Reads and checks `path` (each step's network must exist beside it
+    /// with the SHA-256 the manifest gives).
+    pub fn read(path: &Path) -> Result<Self, EngineError> {
+        let bad = |reason: String| EngineError::input(path.display(), reason);
+        let bytes = nedrt_core::util::read_capped(path, MAX_MANIFEST_BYTES)
+            .map_err(|e| bad(format!("cannot read the unrolled model's manifest: {e}")))?;
+        let text = std::str::from_utf8(&bytes).map_err(|e| bad(format!("not UTF-8: {e}")))?;
+        let raw: RawManifest = toml::from_str(text)
+            .map_err(|e| bad(format!("not an unrolled model manifest: {e}")))?;
+        if raw.format != FORMAT {
+            return Err(bad(format!(
+                "format {:?}; this nedrt reads {FORMAT:?}",
+                raw.format
+            )));
+        }
+        let method: Method = raw
+            .method
+            .parse()
+            .map_err(|e| bad(format!("method: {e}")))?;
+        let objective: Objective = raw
+            .objective
+            .parse()
+            .map_err(|e| bad(format!("objective: {e}")))?;
+        if !(raw.k_reg.is_finite() && raw.k_reg > 0.0) {
+            return Err(bad(format!("k_reg = {}: a positive number", raw.k_reg)));
+        }
+        if raw.step.is_empty() || raw.step.len() > MAX_STEPS {
+            return Err(bad(format!(
+                "{} steps; from 1 to {MAX_STEPS}",
+                raw.step.len()
+            )));
+        }
+        let dir = path.parent().unwrap_or(Path::new("."));
+        let mut steps = Vec::new();
+        for (k, s) in raw.step.iter().enumerate() {
+            let at = |reason: String| bad(format!("step {}: {reason}", k + 1));
+            if !(s.rho.is_finite() && s.rho > 0.0) {
+                return Err(at(format!("rho = {}: a positive share of L", s.rho)));
+            }
+            if !(s.relaxation > 0.0 && s.relaxation < 2.0) {
+                return Err(at(format!(
+                    "relaxation = {}: between 0 and 2",
+                    s.relaxation
+                )));
+            }
+            let network = match (&s.network, &s.network_sha256) {
+                (None, None) => None,
+                (Some(name), Some(want)) => {
+                    let file = dir.join(name);
+                    let data = std::fs::read(&file)
+                        .map_err(|e| at(format!("network {}: {e}", file.display())))?;
+                    let got = hex(&sha2::Sha256::digest(&data));
+                    if !got.eq_ignore_ascii_case(want) {
+                        return Err(at(format!(
+                            "network {} has SHA-256 {got}, the manifest says {want}: a changed \
+                             or partly copied file",
+                            file.display()
+                        )));
+                    }
+                    Some(file)
+                }
+                _ => {
+                    return Err(at(
+                        "network and network_sha256 go together (both or neither)".into(),
+                    ));
+                }
+            };
+            steps.push(StepSpec {
+                rho: s.rho as f32,
+                relaxation: s.relaxation as f32,
+                network,
+            });
+        }
+        Ok(Self {
+            path: path.to_path_buf(),
+            method,
+            objective,
+            doe: raw.doe,
+            calibration: raw.calibration,
+            k_reg: raw.k_reg,
+            kernels_sha256: raw.kernels_sha256,
+            trained_size: raw.trained_size,
+            steps,
+        })
+    }
+}
+
+fn hex(bytes: &[u8]) -> String {
+    bytes.iter().map(|b| format!("{b:02x}")).collect()
+}
+
+/// The unrolled preprocessor, ready to run on frames.
+#[derive(Debug)]
+pub struct Unrolled {
+    pub manifest: Manifest,
+    problem: Arc<DisplayProblem>,
+    /// Per step: its correction's network, where it has one.
+    networks: Vec<Option<Dcnn>>,
+    engine: String,
+}
+
+impl Unrolled {
+    /// Loads `manifest`'s networks on `kind` and checks it against the
+    /// optics it will run through: `doe_hash` (the simulator's DOE) and
+    /// `prepared`'s problem for the manifest's method and objective (its
+    /// `lsq` K must be the one trained with).
+    pub fn load(
+        manifest: Manifest,
+        prepared: &Prepared,
+        doe_hash: &str,
+        kind: BackendKind,
+        options: &BackendOptions,
+    ) -> Result<Self, EngineError> {
+        let bad = |reason: String| EngineError::input(manifest.path.display(), reason);
+        if manifest.doe != doe_hash {
+            return Err(bad(format!(
+                "trained through DOE {}, this display's is {doe_hash}: run it with the DOE it \
+                 was trained through, or train it for this one",
+                manifest.doe
+            )));
+        }
+        let problem = prepared.display_problem(manifest.method, manifest.objective)?;
+        if ((problem.k_reg - manifest.k_reg) / manifest.k_reg).abs() > 1e-6 {
+            return Err(bad(format!(
+                "trained from an lsq start with K = {:e}, this calibration gives K = {:e}",
+                manifest.k_reg, problem.k_reg
+            )));
+        }
+        Self::with_problem(manifest, problem, kind, options)
+    }
+
+    /// [`Unrolled::load`] through `problem` as given (its method, DOE and
+    /// objective the caller's to check).
+    pub fn with_problem(
+        manifest: Manifest,
+        problem: DisplayProblem,
+        kind: BackendKind,
+        options: &BackendOptions,
+    ) -> Result<Self, EngineError> {
+        if !problem.has_split() {
+            return Err(EngineError::input(
+                manifest.path.display(),
+                format!(
+                    "{}'s PSFs are not mirror-symmetric, so the split solver has no exact data \
+                     step",
+                    manifest.method
+                ),
+            ));
+        }
+        let mut networks = Vec::new();
+        for s in &manifest.steps {
+            networks.push(match &s.network {
+                None => None,
+                Some(path) => {
+                    let dcnn = Dcnn::from_model(ModelFile::read(path)?, kind, options)?;
+                    if dcnn.input_channels() != 3 * problem.channels() {
+                        return Err(EngineError::input(
+                            path.display(),
+                            format!(
+                                "a step correction of {} input planes; it takes {} (point, \
+                                 dual and gradient of each of {} channels)",
+                                dcnn.input_channels(),
+                                3 * problem.channels(),
+                                problem.channels()
+                            ),
+                        ));
+                    }
+                    Some(dcnn)
+                }
+            });
+        }
+        let engine = networks
+            .iter()
+            .flatten()
+            .next()
+            .map_or_else(|| "no networks".to_string(), |d| d.describe());
+        Ok(Self {
+            manifest,
+            problem: Arc::new(problem),
+            networks,
+            engine,
+        })
+    }
+
+    /// K.
+    pub fn steps(&self) -> usize {
+        self.manifest.steps.len()
+    }
+}
+
+impl Preprocess for Unrolled {
+    fn describe(&self) -> String {
+        format!(
+            "unrolled {} ({} split-solver steps @{} with learned corrections, on {})",
+            self.manifest.path.display(),
+            self.steps(),
+            self.manifest.objective.name(),
+            self.engine
+        )
+    }
+
+    fn run(&mut self, input: &Image) -> Result<Image, PreprocessError> {
+        check_frame(input, self.problem.channels())?;
+        let engine = |e: String| PreprocessError::Engine {
+            engine: "unrolled".into(),
+            reason: e,
+        };
+        let mut state = self
+            .problem
+            .split_steps(input)
+            .map_err(|e| engine(e.to_string()))?;
+        for (spec, network) in self.manifest.steps.iter().zip(&mut self.networks) {
+            state.relax(spec.rho, spec.relaxation);
+            let correction = match network {
+                None => None,
+                Some(net) => Some(
+                    net.run_unclamped(&state.correction_inputs())
+                        .map_err(|e| engine(e.to_string()))?,
+                ),
+            };
+            state
+                .constrain(correction.as_ref())
+                .map_err(|e| engine(e.to_string()))?;
+        }
+        Ok(state.display())
+    }
+
+    fn last_gpu_ns(&self) -> Option<u64> {
+        let times: Vec<u64> = self
+            .networks
+            .iter()
+            .flatten()
+            .filter_map(|n| n.last_gpu_ns())
+            .collect();
+        (!times.is_empty()).then(|| times.iter().sum())
+    }
+
+    fn last_traffic(&self) -> HostTraffic {
+        let mut all = HostTraffic::default();
+        for n in self.networks.iter().flatten() {
+            all.add(n.last_traffic());
+        }
+        all
+    }
+}
