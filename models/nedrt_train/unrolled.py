@@ -148,7 +148,12 @@ def main(argv=None) -> None:
     ap.add_argument("--export", type=Path, default=None,
                     help="write the trained model here for the runtime (a manifest and one ONNX per step)")
     ap.add_argument("--name", default=None, help="the exported model's name (default unrolled-kK)")
+    ap.add_argument("--doe", type=Path, default=None,
+                    help="the DOE file the kernels were made through, copied beside the export "
+                         "(NAME.unrolled.doe.safetensors, where nedrt's --dcnn looks for a model's DOE)")
     a = ap.parse_args(argv)
+    if a.doe is not None and not a.doe.is_file():
+        raise SystemExit(f"{a.doe}: no DOE file")
     torch.manual_seed(a.seed)
     objective = Objective.load(a.kernels)
     patch = objective.size[0]
@@ -193,7 +198,8 @@ def main(argv=None) -> None:
     if a.export is not None:
         from .unrolled_export import export
         manifest = export(model, a.kernels, a.export, a.name or f"unrolled-k{a.steps}",
-                          note=f"{a.iterations} iterations at {patch}², loss on {a.loss} step(s), seed {a.seed}")
+                          note=f"{a.iterations} iterations at {patch}², loss on {a.loss} step(s), seed {a.seed}",
+                          doe=a.doe)
         print(f"wrote {manifest}")
 
 

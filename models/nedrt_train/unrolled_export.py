@@ -55,7 +55,7 @@ def _toml_str(v: str) -> str:
 
 
 def export(model, kernels: Path, out: Path, name: str, note: str = "", classical=None,
-           checkpoint: bool = True) -> Path:
+           checkpoint: bool = True, doe: Path = None) -> Path:
     """Writes `out/NAME.stepK.onnx` for each step with a correction and
     `out/NAME.unrolled.toml` (and the weights, `out/NAME.unrolled.pt`, where
     `checkpoint`); returns the manifest's path. `classical[k]`: step k has
@@ -95,6 +95,12 @@ def export(model, kernels: Path, out: Path, name: str, note: str = "", classical
     tmp = manifest.with_name(manifest.name + ".tmp")
     tmp.write_text("\n".join(lines) + "\n")
     tmp.replace(manifest)
+    if doe is not None:
+        # Where nedrt looks for a model's DOE: the manifest's name with
+        # `.doe.safetensors` for its last extension.
+        tmp = out / f"{name}.unrolled.doe.safetensors.tmp"
+        tmp.write_bytes(Path(doe).read_bytes())
+        tmp.replace(out / f"{name}.unrolled.doe.safetensors")
     if checkpoint:
         torch.save({"state": model.state_dict(), "steps": model.steps, "name": name},
                    out / f"{name}.unrolled.pt")

@@ -14,6 +14,7 @@ mod run;
 mod sim;
 mod stereo;
 mod studies;
+mod unrolled;
 mod view;
 #[path = "../common/xwd.rs"]
 mod xwd;

@@ -269,17 +269,18 @@ fn simulate(
         None => opts.method,
     };
     let mut dcnns = common.dcnn.load_for(&[method])?;
-    let dcnn_line = dcnns.get(&method).map(|d| {
-        format!(
+    let dcnn_line = dcnns.get(&method).map(|n| match n.dcnn() {
+        Some(d) => format!(
             "D-CNN     {} ({}, {:.0} MAC/pixel) on {}{}",
             d.model.path.display(),
             d.model.hash,
             d.network.macs_per_pixel,
             d.describe(),
             nedrt_stages::preprocess::stage_note(&d.model.path)
-        )
+        ),
+        None => format!("network   {}", n.line()),
     });
-    if let Some(d) = dcnns.get(&method) {
+    if let Some(d) = dcnns.get(&method).and_then(|n| n.dcnn()) {
         let m = d.network.multiple;
         if !input.width.is_multiple_of(m) || !input.height.is_multiple_of(m) {
             tracing::warn!(
@@ -299,6 +300,9 @@ fn simulate(
     )?
     .with_wiener_stages(nedrt_stages::preprocess::wiener_stages(&dcnns)?);
     let mut depths = opts.prefilter.depths_d(&sim.calib);
+    if dcnns.values().any(|n| n.needs_objective_depths()) {
+        depths = nedrt_optics::sim::objective_depths_d(&sim.calib);
+    }
     depths.push(opts.accommodation_d);
     let prepared = sim.prepare(&[method], &depths, common.progress())?;
     let mut engine = None;

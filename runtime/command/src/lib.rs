@@ -20,9 +20,10 @@ use nedrt_core::progress::Silent;
 use std::collections::HashMap;
 
 use nedrt_core::calib::{CalibError, Calibration, EyeOverrides};
-use nedrt_infer::{BackendKind, BackendOptions, Dcnn, InferenceError};
+use nedrt_infer::{BackendKind, BackendOptions, InferenceError};
 use nedrt_optics::cache::PsfCache;
 use nedrt_optics::sim::Method;
+use nedrt_stages::Network;
 
 /// Options every command shares.
 #[derive(Debug, Clone)]
@@ -88,8 +89,9 @@ impl DcnnOptions {
         self.path.with_extension("doe.safetensors")
     }
 
-    /// Loads (once) the D-CNN of every method in `methods` that has one.
-    pub fn load_for(&self, methods: &[Method]) -> Result<HashMap<Method, Dcnn>, AppError> {
+    /// Loads (once) the network of every method in `methods` that has one:
+    /// a D-CNN, or an unrolled model by its manifest (`NAME.unrolled.toml`).
+    pub fn load_for(&self, methods: &[Method]) -> Result<HashMap<Method, Network>, AppError> {
         let mut out = HashMap::new();
         for &m in methods.iter().filter(|m| m.uses_dcnn()) {
             let path = match m {
@@ -106,9 +108,9 @@ impl DcnnOptions {
                     ),
                 ));
             }
-            let dcnn = Dcnn::load(path, self.backend, &self.backend_options)?;
-            tracing::info!("{m}: {} on {}", path.display(), dcnn.describe());
-            out.insert(m, dcnn);
+            let network = Network::load(m, path, self.backend, &self.backend_options)?;
+            tracing::info!("{m}: {}", network.line());
+            out.insert(m, network);
         }
         Ok(out)
     }

@@ -229,6 +229,13 @@ fn network_of(
         tracing::info!("{}: no network, so no network level", path.display());
         return Ok(None);
     }
+    if nedrt_stages::unrolled::is_manifest(path) {
+        return Err(AppError::input(
+            path.display(),
+            "an unrolled model runs in sim, eval, tradeoff and view; the runtime composes it on \
+             the device next (docs/unrolled.md), so nedrt run does not take it yet",
+        ));
+    }
     let model = ModelFile::read(path)?;
     let input = nedrt_stages::preprocess::dcnn_input(&model.path)?;
     Ok(Some((model, input)))

@@ -8,13 +8,13 @@
 use std::collections::HashMap;
 use std::sync::Arc;
 
+use crate::Network;
 use nedrt_core::preprocess::{HostTraffic, PreprocessError, check_frame};
 use nedrt_core::{Image, Preprocess};
 use nedrt_gpu::DeviceStage;
 use nedrt_gpu::fft::{FftError, GainsFor, SpectralStage};
 use nedrt_gpu::refine::{RefineStage, RefineTerms, TermsFor};
 use nedrt_gpu::split::{SplitStage, SplitTerms, SplitTermsFor};
-use nedrt_infer::Dcnn;
 use nedrt_optics::sim::optimal::SplitSchedule;
 use nedrt_optics::sim::wiener::WienerFilter;
 use nedrt_optics::sim::{DisplayProblem, Method, Prepared};
@@ -332,16 +332,21 @@ pub fn for_system_on(
     method: Method,
     prefilter: Prefilter,
     prepared: &Prepared,
-    dcnns: &mut HashMap<Method, Dcnn>,
+    dcnns: &mut HashMap<Method, Network>,
 ) -> Result<Box<dyn Preprocess>, EngineError> {
     let Some((device, queue)) = gpu else {
         return crate::preprocess::for_system(method, prefilter, prepared, dcnns);
     };
     if method.uses_dcnn() && prefilter.is_native() {
-        let Some(dcnn) = dcnns.remove(&method) else {
-            return Err(EngineError::Unavailable(format!(
-                "no D-CNN loaded for {method}"
-            )));
+        let dcnn = match dcnns.remove(&method) {
+            Some(Network::Dcnn(d)) => d,
+            // Its steps on the host, its networks on their backend.
+            Some(unrolled) => return unrolled.into_preprocess(method, prepared),
+            None => {
+                return Err(EngineError::Unavailable(format!(
+                    "no D-CNN loaded for {method}"
+                )));
+            }
         };
         return Ok(match crate::preprocess::dcnn_input(&dcnn.model.path)? {
             DcnnInput::Frame => Box::new(dcnn),

@@ -15,10 +15,12 @@
 
 pub mod device_prefilter;
 mod faults;
+pub mod network;
 pub mod preprocess;
 pub mod unrolled;
 
 pub use faults::FailsAfter;
+pub use network::Network;
 pub use preprocess::Chain;
 
 /// Why an engine could not be built.

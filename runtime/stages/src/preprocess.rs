@@ -6,212 +6,40 @@
 //! engine, plus one arm in [`for_method`].
 
 use std::collections::HashMap;
-use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
+use nedrt_core::Preprocess;
 use nedrt_core::calib::Calibration;
-use nedrt_core::preprocess::{PreprocessError, check_frame};
-use nedrt_core::{Image, Preprocess};
-use nedrt_infer::Dcnn;
-use nedrt_optics::sim::wiener::WienerFilter;
 use nedrt_optics::sim::{
     Method, Objective, Prepared, SolveMode, SolvedPrefilter, objective_depths_d,
 };
 
 use crate::EngineError;
+use crate::network::Network;
+/// The D-CNN's parts, where they were before the unrolled model joined them.
+pub use crate::network::{
+    Chain, DcnnInput, RawWiener, card_path, dcnn_input, dcnn_lines, dcnn_system, stage_note,
+    wiener_stages,
+};
 
 /// The preprocessing of `method`: none (conventional, DOE only), its
-/// Wiener prefilter from `prepared` (AI, DOE + Wiener), or its D-CNN, taken
-/// from `dcnns` (nedrt-command's `DcnnOptions::load_for` loads them).
+/// Wiener prefilter from `prepared` (AI, DOE + Wiener), or its network (a
+/// D-CNN or an unrolled model), taken from `dcnns` (nedrt-command's
+/// `DcnnOptions::load_for` loads them).
 pub fn for_method(
     method: Method,
     prepared: &Prepared,
-    dcnns: &mut HashMap<Method, Dcnn>,
+    dcnns: &mut HashMap<Method, Network>,
 ) -> Result<Box<dyn Preprocess>, EngineError> {
     if method.uses_dcnn() {
         return match dcnns.remove(&method) {
-            Some(d) => dcnn_system(method, d, prepared),
+            Some(n) => n.into_preprocess(method, prepared),
             None => Err(EngineError::Unavailable(format!(
                 "no D-CNN loaded for {method}"
             ))),
         };
     }
     Ok(prepared.preprocessor(method)?)
-}
-
-/// What a D-CNN takes in, from its model card (`NAME.card.json` beside
-/// `NAME.onnx`, written by `nedrt-train dcnn export`): the frame itself
-/// (no card, or a card without `input`), or its optics' Wiener prefilter
-/// output before the panel's clamp (`"input": "wiener-raw"` with the
-/// filter's `"wiener_k"`), so that the network corrects the Wiener where
-/// the clamp cuts it (docs/training.md).
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub enum DcnnInput {
-    Frame,
-    WienerRaw { k_reg: f64 },
-}
-
-/// Largest model card read.
-const MAX_CARD_BYTES: u64 = 1 << 20;
-
-/// The card of the model at `model`: `NAME.card.json` beside `NAME.onnx`.
-pub fn card_path(model: &Path) -> PathBuf {
-    model.with_extension("card.json")
-}
-
-/// The input the model at `model` was trained on, from its card.
-pub fn dcnn_input(model: &Path) -> Result<DcnnInput, EngineError> {
-    let path = card_path(model);
-    if !path.is_file() {
-        return Ok(DcnnInput::Frame);
-    }
-    let bad = |reason: String| EngineError::input(path.display(), reason);
-    let bytes = nedrt_core::util::read_capped(&path, MAX_CARD_BYTES)
-        .map_err(|e| bad(format!("cannot read the model card: {e}")))?;
-    let card: serde_json::Value =
-        serde_json::from_slice(&bytes).map_err(|e| bad(format!("not a model card (JSON): {e}")))?;
-    match card.get("input").and_then(|v| v.as_str()) {
-        None | Some("image") => Ok(DcnnInput::Frame),
-        Some("wiener-raw") => match card.get("wiener_k").and_then(|v| v.as_f64()) {
-            Some(k) if k.is_finite() && k > 0.0 => Ok(DcnnInput::WienerRaw { k_reg: k }),
-            _ => Err(bad(
-                "\"input\": \"wiener-raw\" needs \"wiener_k\", the Wiener filter's K (a positive number)"
-                    .into(),
-            )),
-        },
-        Some(other) => Err(bad(format!(
-            "\"input\": {other:?} is not an input nedrt knows (image or wiener-raw)"
-        ))),
-    }
-}
-
-/// The methods among `dcnns` whose network runs behind its optics' Wiener
-/// (for [`nedrt_optics::sim::Simulator::with_wiener_stages`]).
-pub fn wiener_stages(dcnns: &HashMap<Method, Dcnn>) -> Result<Vec<Method>, EngineError> {
-    let mut out = Vec::new();
-    for (m, d) in dcnns {
-        if let DcnnInput::WienerRaw { .. } = dcnn_input(&d.model.path)? {
-            out.push(*m);
-        }
-    }
-    Ok(out)
-}
-
-/// For reports: ", behind its optics' Wiener prefilter …" where the model
-/// at `model` runs behind one, else nothing.
-pub fn stage_note(model: &Path) -> String {
-    match dcnn_input(model) {
-        Ok(DcnnInput::WienerRaw { k_reg }) => {
-            format!(", behind its optics' Wiener prefilter (K = {k_reg:e}) before the clamp")
-        }
-        _ => String::new(),
-    }
-}
-
-/// The preprocessing of a D-CNN method: the network alone, or, for a
-/// network trained on the Wiener's output, its optics' Wiener prefilter
-/// (before the clamp) and then the network.
-pub fn dcnn_system(
-    method: Method,
-    dcnn: Dcnn,
-    prepared: &Prepared,
-) -> Result<Box<dyn Preprocess>, EngineError> {
-    Ok(match dcnn_input(&dcnn.model.path)? {
-        DcnnInput::Frame => Box::new(dcnn),
-        DcnnInput::WienerRaw { k_reg } => Box::new(Chain::behind_wiener(
-            method,
-            Arc::new(prepared.wiener_filter(method, k_reg)?),
-            Box::new(dcnn),
-        )),
-    })
-}
-
-/// `method`'s Wiener prefilter before the clamp, on the host: a
-/// network's input (in front of it in a [`Chain`]; where the device FFT
-/// lacks the frame's size), and the service's host stage.
-#[derive(Debug)]
-pub struct RawWiener {
-    pub method: Method,
-    pub filter: Arc<WienerFilter>,
-}
-
-impl Preprocess for RawWiener {
-    fn describe(&self) -> String {
-        format!(
-            "Wiener prefilter of {} (K = {:e}) before the clamp",
-            self.method, self.filter.k_reg
-        )
-    }
-
-    fn run(&mut self, input: &Image) -> Result<Image, PreprocessError> {
-        check_frame(input, self.filter.channels())?;
-        Ok(self.filter.apply_unclamped(input))
-    }
-}
-
-/// Two preprocessors one after the other: a network behind its optics'
-/// Wiener prefilter (on the host, [`RawWiener`],
-/// or on the device, [`crate::device_prefilter::OnDevice`]), which sees the
-/// Wiener's output before the panel's clamp and returns the display image.
-/// The host twin of [`nedrt_gpu::Chain`]; its GPU time and traffic are the
-/// second's (the network's).
-#[derive(Debug)]
-pub struct Chain {
-    first: Box<dyn Preprocess>,
-    second: Box<dyn Preprocess>,
-}
-
-impl Chain {
-    pub fn new(first: Box<dyn Preprocess>, second: Box<dyn Preprocess>) -> Self {
-        Self { first, second }
-    }
-
-    /// `network` behind `method`'s Wiener `filter` on the host.
-    pub fn behind_wiener(
-        method: Method,
-        filter: Arc<WienerFilter>,
-        network: Box<dyn Preprocess>,
-    ) -> Self {
-        let wiener = RawWiener { method, filter };
-        Self::new(Box::new(wiener), network)
-    }
-}
-
-impl Preprocess for Chain {
-    fn describe(&self) -> String {
-        format!("{}, then {}", self.first.describe(), self.second.describe())
-    }
-
-    fn run(&mut self, input: &Image) -> Result<Image, PreprocessError> {
-        let middle = self.first.run(input)?;
-        self.second.run(&middle)
-    }
-
-    fn last_gpu_ns(&self) -> Option<u64> {
-        self.second.last_gpu_ns()
-    }
-
-    fn last_traffic(&self) -> nedrt_core::preprocess::HostTraffic {
-        self.second.last_traffic()
-    }
-}
-
-/// One line per D-CNN for reports: model file, content hash and engine.
-pub fn dcnn_lines(dcnns: &HashMap<Method, Dcnn>, methods: &[Method]) -> Vec<String> {
-    methods
-        .iter()
-        .filter_map(|m| {
-            dcnns.get(m).map(|d| {
-                format!(
-                    "{m}: {} ({}) on {}{}",
-                    d.model.path.display(),
-                    d.model.hash,
-                    d.describe(),
-                    stage_note(&d.model.path)
-                )
-            })
-        })
-        .collect()
 }
 
 /// How the display image is made from a frame, given a method's optics
@@ -351,7 +179,7 @@ pub fn for_system(
     method: Method,
     prefilter: Prefilter,
     prepared: &Prepared,
-    dcnns: &mut HashMap<Method, Dcnn>,
+    dcnns: &mut HashMap<Method, Network>,
 ) -> Result<Box<dyn Preprocess>, EngineError> {
     if prefilter.is_native() {
         return for_method(method, prepared, dcnns);

@@ -77,6 +77,9 @@ pub struct Manifest {
     /// The `lsq` start's K.
     pub k_reg: f64,
     pub kernels_sha256: String,
+    /// The manifest's own content hash (SHA-256, 16 hex digits): with the
+    /// steps' hashes inside it, it names the whole model.
+    pub hash: String,
     /// Width and height of the crops it was trained on.
     pub trained_size: [usize; 2],
     pub steps: Vec<StepSpec>,
@@ -169,6 +172,7 @@ impl Manifest {
             calibration: raw.calibration,
             k_reg: raw.k_reg,
             kernels_sha256: raw.kernels_sha256,
+            hash: hex(&sha2::Sha256::digest(&bytes))[..16].to_string(),
             trained_size: raw.trained_size,
             steps,
         })
@@ -191,17 +195,17 @@ pub struct Unrolled {
 
 impl Unrolled {
     /// Loads `manifest`'s networks on `kind` and checks it against the
-    /// optics it will run through: `doe_hash` (the simulator's DOE) and
-    /// `prepared`'s problem for the manifest's method and objective (its
-    /// `lsq` K must be the one trained with).
+    /// optics it will run through, `prepared`'s: their DOE, and the problem
+    /// of the manifest's method and objective (its `lsq` K must be the one
+    /// trained with).
     pub fn load(
         manifest: Manifest,
         prepared: &Prepared,
-        doe_hash: &str,
         kind: BackendKind,
         options: &BackendOptions,
     ) -> Result<Self, EngineError> {
         let bad = |reason: String| EngineError::input(manifest.path.display(), reason);
+        let doe_hash = prepared.doe_hash();
         if manifest.doe != doe_hash {
             return Err(bad(format!(
                 "trained through DOE {}, this display's is {doe_hash}: run it with the DOE it \

@@ -173,6 +173,9 @@ impl FocusScene {
         let prefilters: Vec<Prefilter> = panels.iter().map(|p| p.prefilter).collect();
         let mut psf_depths = psf_depths_d.to_vec();
         psf_depths.extend(Prefilter::all_depths_d(&prefilters, &sim.calib));
+        if dcnns.values().any(|n| n.needs_objective_depths()) {
+            psf_depths.extend(nedrt_optics::sim::objective_depths_d(&sim.calib));
+        }
         psf_depths.sort_by(f64::total_cmp);
         psf_depths.dedup();
         let prepared = sim.prepare(&methods, &psf_depths, common.progress())?;

@@ -159,6 +159,7 @@ impl Simulator {
         progress.finish();
         let mut prepared = Prepared {
             calib: c.clone(),
+            doe_hash: self.doe_hash.clone(),
             lens,
             doe,
             wiener: HashMap::new(),
@@ -250,6 +251,8 @@ impl PsfTable {
 #[derive(Debug)]
 pub struct Prepared {
     calib: Calibration,
+    /// The DOE's content hash (the simulator's).
+    doe_hash: String,
     lens: Option<PsfTable>,
     doe: Option<PsfTable>,
     wiener: HashMap<Method, Arc<WienerFilter>>,
@@ -258,6 +261,11 @@ pub struct Prepared {
 }
 
 impl Prepared {
+    /// The content hash of the DOE these PSFs were computed through.
+    pub fn doe_hash(&self) -> &str {
+        &self.doe_hash
+    }
+
     fn table(&self, optics: Optics) -> Result<&PsfTable, SimError> {
         match optics {
             Optics::Lens => self.lens.as_ref(),

@@ -27,10 +27,11 @@ pub use report::{markdown, write_table};
 
 use super::eval::{list_images, load_all};
 use super::{AppError, CommonOptions, create_dir};
-use crate::preprocess::{Prefilter, dcnn_system};
+use crate::preprocess::Prefilter;
 use linear::{Config, LinearRun, Priced};
-use nedrt_infer::{BackendKind, BackendOptions, Dcnn};
+use nedrt_infer::{BackendKind, BackendOptions};
 use nedrt_optics::sim::{Method, Simulator};
+use nedrt_stages::Network;
 use pareto::{Point, pareto_front};
 
 /// What `nedrt tradeoff` measures.
@@ -383,7 +384,7 @@ pub fn run(common: &CommonOptions, o: &TradeoffOptions) -> Result<String, AppErr
                 if out_of_time(o, start, &name, &mut skipped) {
                     continue;
                 }
-                let dcnn = match Dcnn::load(model, kind, &options) {
+                let network = match Network::load(Method::Proposed, model, kind, &options) {
                     Ok(d) => d,
                     Err(e) => {
                         tracing::warn!("{name}: skipped: {e}");
@@ -391,11 +392,12 @@ pub fn run(common: &CommonOptions, o: &TradeoffOptions) -> Result<String, AppErr
                         continue;
                     }
                 };
-                let model_hash = dcnn.model.hash.clone();
+                let model_hash = network.hash().to_string();
                 // The network with the stage its card asks for in front
-                // (the Wiener, for a network trained on its output): timed
-                // and scored as the runtime runs it.
-                let mut dcnn = dcnn_system(Method::Proposed, dcnn, &scorer.prepared)?;
+                // (the Wiener, for a network trained on its output), or the
+                // unrolled model through the prepared optics: timed and
+                // scored as the runtime runs it.
+                let mut dcnn = network.into_preprocess(Method::Proposed, &scorer.prepared)?;
                 let Measured {
                     displays,
                     latency_ms,
