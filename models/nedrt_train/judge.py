@@ -80,6 +80,47 @@ def verdict(candidate: Scores, wiener: Scores) -> list:
     return reasons
 
 
+#: The unrolled model's rule (issue 55): this much above its Wiener vs sharp, on the mean.
+UNROLLED_SHARP_GAIN_DB = 0.5
+
+
+def unrolled_verdict(candidate: Scores, wiener: Scores) -> list:
+    """The unrolled preprocessor's rule (issue 55 item 5), at the tables'
+    precision: at least +0.5 dB over its Wiener on the mean vs sharp, and
+    not below it vs target on the mean or the worst depth. (Its third line,
+    the Pareto front of the tradeoff chart at equal device time, needs the
+    device's time: the tradeoff chart's, not this command's.)"""
+    r = lambda name: round(candidate.numbers[name][0], 2)
+    rw = lambda name: round(wiener.numbers[name][0], 2)
+    reasons = []
+    if not r("mean vs sharp") >= round(rw("mean vs sharp") + UNROLLED_SHARP_GAIN_DB, 2):
+        reasons.append(f"mean vs sharp {r('mean vs sharp'):.2f} dB is not {UNROLLED_SHARP_GAIN_DB} dB above its "
+                       f"Wiener's {rw('mean vs sharp'):.2f}")
+    for name in ("mean vs target", "worst vs target"):
+        if r(name) < rw(name):
+            reasons.append(f"{name} {r(name):.2f} dB is below its Wiener's {rw(name):.2f}")
+    return reasons
+
+
+def is_unrolled(path: Path) -> bool:
+    return path.name.endswith(".unrolled.toml")
+
+
+def manifest_line(path: Path) -> str:
+    """The unrolled model's facts, from its manifest."""
+    import tomllib
+    try:
+        m = tomllib.loads(path.read_text())
+        steps = m["step"]
+        rho = ", ".join(f"{s['rho']:.3f}" for s in steps)
+        alpha = ", ".join(f"{s['relaxation']:.2f}" for s in steps)
+        nets = sum("network" in s for s in steps)
+        return (f"Manifest: {len(steps)} split-solver steps @{m['objective']} ({nets} with a learned correction), "
+                f"ρ/L {rho}, α {alpha}, trained at {m['trained_size'][0]}×{m['trained_size'][1]}.")
+    except (OSError, ValueError, KeyError, TypeError) as e:
+        raise JudgeError(f"{path}: not an unrolled model's manifest ({e})") from e
+
+
 def table(candidate: Scores, wiener: Scores, shipped: Scores | None) -> str:
     rows = ["| network | mean / worst vs target dB (SSIM) | mean / worst vs sharp dB (SSIM) |",
             "| --- | --- | --- |"]
@@ -89,9 +130,15 @@ def table(candidate: Scores, wiener: Scores, shipped: Scores | None) -> str:
 
 
 def entry(date: str, candidate_path: str, card_line: str, candidate: Scores, wiener: Scores,
-          shipped: Scores | None, reasons: list, shipped_now: bool, images: str, note: str) -> str:
+          shipped: Scores | None, reasons: list, shipped_now: bool, images: str, note: str,
+          rule: str = "dcnn") -> str:
     """One log entry: the candidate, the table, the verdict."""
-    if reasons:
+    if rule == "unrolled":
+        decision = ("**does not pass the unrolled rule**: " + "; ".join(reasons) + "." if reasons else
+                    f"**passes the unrolled rule's quality lines** (≥ +{UNROLLED_SHARP_GAIN_DB} dB mean vs sharp, "
+                    "not below its Wiener vs target on the mean or the worst depth); its Pareto line is the tradeoff "
+                    "chart's.")
+    elif reasons:
         decision = "**does not ship**: " + "; ".join(reasons) + "."
     elif shipped_now:
         decision = "**ships**: above its Wiener on all four headline numbers, no SSIM lower; now `models/dcnn.onnx`."
@@ -197,9 +244,15 @@ def row(result: dict, method: str, source: str) -> dict:
 def judge(args, evaluate=run_eval) -> int:
     """Scores, logs and (with --ship) ships; 0 whether it ships or not."""
     candidate = Path(args.candidate)
-    if candidate.suffix != ".onnx" or not candidate.is_file():
-        raise JudgeError(f"{candidate}: not an ONNX file (--candidate takes NAME.onnx, its card beside it)")
-    card = card_of(candidate)
+    unrolled = is_unrolled(candidate)
+    if not (candidate.suffix == ".onnx" or unrolled) or not candidate.is_file():
+        raise JudgeError(f"{candidate}: not an ONNX file (--candidate takes NAME.onnx, its card beside it, "
+                         "or an unrolled model's NAME.unrolled.toml)")
+    if unrolled and args.ship:
+        raise JudgeError(f"{candidate}: an unrolled model is judged, not shipped yet: nedrt run and the service "
+                         "do not take it until its device composition exists (docs/unrolled.md)")
+    card = {} if unrolled else card_of(candidate)
+    line = manifest_line(candidate) if unrolled else card_line(card)
     with tempfile.TemporaryDirectory(prefix="nedrt-judge-") as tmp:
         tmp = Path(tmp)
         result = evaluate(args.nedrt, args.design, Path(args.images), candidate, "proposed,doe+wiener",
@@ -215,14 +268,14 @@ def judge(args, evaluate=run_eval) -> int:
             res = evaluate(args.nedrt, args.design, Path(args.images), shipped_path, "proposed", tmp / "shipped")
             shipped = Scores.of(row(res, "proposed", "the shipped network's eval"),
                                 f"shipped (`{shipped_path}`)", "the shipped network's eval")
-    reasons = verdict(cand, wiener)
+    reasons = unrolled_verdict(cand, wiener) if unrolled else verdict(cand, wiener)
     shipped_now = False
     if args.ship and not reasons:
         ship(candidate, card, Path(args.repo), Path(args.models))
         shipped_now = True
     date = args.date or datetime.date.today().isoformat()
-    text = entry(date, str(candidate), card_line(card), cand, wiener, shipped, reasons, shipped_now, args.images,
-                 args.note)
+    text = entry(date, str(candidate), line, cand, wiener, shipped, reasons, shipped_now, args.images,
+                 args.note, rule="unrolled" if unrolled else "dcnn")
     if args.log != "none":
         append_log(Path(args.log), text)
     sys.stdout.write(text)
@@ -232,7 +285,8 @@ def judge(args, evaluate=run_eval) -> int:
 def main(argv=None, prog="nedrt-train judge"):
     ap = argparse.ArgumentParser(prog=prog, description=__doc__.split("\n\n")[0],
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--candidate", required=True, help="the returned network, NAME.onnx (its card beside it)")
+    ap.add_argument("--candidate", required=True,
+                    help="the returned network, NAME.onnx (its card beside it), or NAME.unrolled.toml")
     ap.add_argument("--shipped", default="models/dcnn.onnx", help="the shipped network to score beside it, or none")
     ap.add_argument("--images", default="data/images/val", help="the validation photographs")
     ap.add_argument("--design", default="multifocal", help="the design the network was trained on")

@@ -143,3 +143,39 @@ def test_bad_inputs_are_clear_errors_naming_the_file(tmp_path, capsys):
     no_row = {"methods": [{"method": "doe+wiener", **headline(1, 1, 1, 1)}]}
     with pytest.raises(judge.JudgeError, match="no row 'proposed'"):
         judge.judge(args(repo, cand, shipped="none"), evaluate=fake_eval({"proposed,doe+wiener": no_row}))
+
+
+def unrolled_candidate(tmp_path) -> Path:
+    """An unrolled model's manifest (its networks are not read here)."""
+    repo, _ = repo_with_candidate(tmp_path)
+    path = repo / "out" / "unrolled-k3.unrolled.toml"
+    path.write_text('format = "nedrt unrolled 1"\nobjective = "target"\ntrained_size = [256, 256]\n'
+                    + "".join(f'\n[[step]]\nrho = {r}\nrelaxation = 1.8\n' + ('network = "n.onnx"\n' if n else "")
+                              for r, n in ((0.05, True), (0.06, False), (0.07, True))))
+    return repo, path
+
+
+def test_an_unrolled_model_is_judged_by_its_own_rule_and_not_shipped(tmp_path):
+    repo, cand = unrolled_candidate(tmp_path)
+    wiener = headline(29.75, 23.60, 23.83, 22.51, 0.84)
+    # +0.5 vs sharp and not below vs target (mean, worst): it passes, SSIM aside.
+    good = {"methods": [{"method": "proposed", **headline(29.75, 23.70, 24.33, 22.60, 0.80)},
+                        {"method": "doe+wiener", **wiener}]}
+    ev = fake_eval({"proposed,doe+wiener": good})
+    judge.judge(args(repo, cand, shipped="none"), evaluate=ev)
+    log = (repo / "training.md").read_text()
+    assert ev.calls == [("unrolled-k3.unrolled.toml", "proposed,doe+wiener")]
+    assert "**passes the unrolled rule's quality lines**" in log
+    assert "Manifest: 3 split-solver steps @target (2 with a learned correction), ρ/L 0.050, 0.060, 0.070" in log
+    # 0.49 dB vs sharp is short; the worst depth vs target below the Wiener's fails too.
+    short = {"methods": [{"method": "proposed", **headline(30.5, 23.59, 24.32, 22.60)},
+                         {"method": "doe+wiener", **wiener}]}
+    judge.judge(args(repo, cand, shipped="none"), evaluate=fake_eval({"proposed,doe+wiener": short}))
+    log = (repo / "training.md").read_text()
+    assert "mean vs sharp 24.32 dB is not 0.5 dB above its Wiener's 23.83" in log
+    assert "worst vs target 23.59 dB is below its Wiener's 23.60" in log
+    with pytest.raises(judge.JudgeError, match="judged, not shipped"):
+        judge.judge(args(repo, cand, ship=True), evaluate=ev)
+    cand.write_text("not toml [")
+    with pytest.raises(judge.JudgeError, match="not an unrolled model's manifest"):
+        judge.judge(args(repo, cand, shipped="none"), evaluate=ev)
