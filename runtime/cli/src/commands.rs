@@ -283,7 +283,13 @@ pub fn run(cli: Cli) -> Result<()> {
                 size: a
                     .size
                     .unwrap_or((calib.panel.width_px, calib.panel.height_px)),
-                models: a.models,
+                models: a.models.unwrap_or_else(|| {
+                    if a.add {
+                        Vec::new()
+                    } else {
+                        vec!["models/dcnn.onnx".into()]
+                    }
+                }),
                 backends: a.backends,
                 repeat: a.repeat,
                 max_seconds: a.max_seconds,

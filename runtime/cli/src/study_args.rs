@@ -42,9 +42,11 @@ pub struct TradeoffArgs {
     /// Frame size of the latency measurements (default: the panel's).
     #[arg(long, value_parser = parse_size)]
     pub size: Option<(usize, usize)>,
-    /// Trained D-CNNs (each with its .doe.safetensors beside it).
-    #[arg(long, value_delimiter = ',', default_values = ["models/dcnn.onnx"])]
-    pub models: Vec<PathBuf>,
+    /// Trained networks: D-CNNs (NAME.onnx) or unrolled models
+    /// (NAME.unrolled.toml), each with its .doe.safetensors beside it
+    /// (default: models/dcnn.onnx; with --add, none).
+    #[arg(long, value_delimiter = ',')]
+    pub models: Option<Vec<PathBuf>>,
     #[arg(long, value_delimiter = ',', value_parser = named::<BackendKind>(), default_values = ["cpu", "ort", "wgpu"])]
     pub backends: Vec<BackendKind>,
     /// Timed runs per latency (median reported).
@@ -63,7 +65,7 @@ pub struct TradeoffArgs {
     /// Measure nothing: rewrite the tables and charts from the JSON in --out-dir.
     #[arg(long)]
     pub replot: bool,
-    /// Measure only each design's --prefilter rows and add them to the
+    /// Measure only each design's --prefilter rows and the --models and add them to the
     /// table already in --out-dir (a row of the same name is replaced); the
     /// table must come from this host, --size, calibration and --images.
     #[arg(long, conflicts_with = "replot")]

@@ -63,7 +63,7 @@ pub struct TradeoffOptions {
     /// left are listed as not run and the table of those done is written
     /// (a lent GPU's step has a cap; a partial chart beats none).
     pub time_budget_s: Option<f64>,
-    /// Measure only each design's `prefilters` and add their rows to the
+    /// Measure only each design's `prefilters` and the `models` and add their rows to the
     /// table already in `out_dir` (replacing rows of the same name), which
     /// must come from this host, frame size, calibration and images.
     pub add: bool,
@@ -338,15 +338,6 @@ pub fn run(common: &CommonOptions, o: &TradeoffOptions) -> Result<String, AppErr
         &mut records,
         &mut skipped,
     )?;
-    if let Some(earlier) = earlier {
-        bar.finish_and_clear();
-        let text = write_table(&merged(earlier, records, skipped), &o.out_dir)?;
-        return Ok(format!(
-            "{text}\nWall time {:.1} s.\n",
-            start.elapsed().as_secs_f64()
-        ));
-    }
-
     for model in &o.models {
         let doe = companion_doe(model)?;
         let stem = model
@@ -422,6 +413,16 @@ pub fn run(common: &CommonOptions, o: &TradeoffOptions) -> Result<String, AppErr
         }
         bar.inc(1);
     }
+    // --add: the designs' prefilters and the networks, not the baselines.
+    if let Some(earlier) = earlier {
+        bar.finish_and_clear();
+        let text = write_table(&merged(earlier, records, skipped), &o.out_dir)?;
+        return Ok(format!(
+            "{text}\nWall time {:.1} s.\n",
+            start.elapsed().as_secs_f64()
+        ));
+    }
+
     let scorer = Scorer::new(&sim, &baselines, &inputs, common.progress())?;
     priced.linear(
         baselines
