@@ -1,8 +1,9 @@
 //! The unrolled preprocessor where a D-CNN goes (`--dcnn NAME.unrolled.toml`):
 //! a model made as the trainer makes one (its optics' facts from `nedrt
 //! prefilter --operator`, a signed step correction, a classical step), run
-//! by `sim` and `eval`; refused with the reason where its optics are not
-//! the display's, and by `run`, which does not compose it yet.
+//! by `sim` and `eval` from its own lsq start; refused with the reason
+//! where its optics are not the display's, and by `run`, which does not
+//! compose it yet.
 
 use super::*;
 
@@ -144,6 +145,15 @@ fn an_unrolled_model_without_corrections_is_the_split_solver_and_with_them_moves
     assert!(admm.status.success(), "{}", stderr(&admm));
     // Two uncorrected steps at the shipped schedule are admm:2, score for score.
     assert_eq!(proposed(&classical, "classical"), vs_sharp(&admm));
+    // The lsq start's K is the model's own (as a D-CNN's card names its
+    // Wiener's), whatever the display's.
+    let other_k = write_model(
+        d,
+        "k",
+        &(facts.0.clone(), facts.1.clone(), "0.5".into()),
+        &[(0.05, 1.8, false); 2],
+    );
+    assert_ne!(proposed(&other_k, "k"), vs_sharp(&admm));
     assert_ne!(proposed(&learned, "learned"), vs_sharp(&admm));
     // eval takes it as it takes a D-CNN.
     let imgs = d.join("imgs");
@@ -184,27 +194,6 @@ fn an_unrolled_model_on_other_optics_or_in_run_is_refused_with_the_reason() {
     );
     assert_clean_error(&o, "trained through DOE");
     assert!(stderr(&o).contains("m.unrolled.toml"), "{}", stderr(&o));
-    // Another calibration's K.
-    let other = write_model(
-        d,
-        "k",
-        &(facts.0.clone(), facts.1.clone(), "0.5".into()),
-        &[(0.05, 1.8, false)],
-    );
-    let doe = doe();
-    let o = sim_small(
-        d,
-        "k",
-        &[
-            "--method",
-            "proposed",
-            "--dcnn",
-            path(&other),
-            "--doe",
-            path(&doe),
-        ],
-    );
-    assert_clean_error(&o, "lsq start with K");
     // The lens alone is not the optics it solves through.
     let o = sim_small(
         d,

@@ -123,12 +123,17 @@ def test_the_report_shows_wall_and_gpu_time_refine_and_the_tradeoff():
     steps["pipeline"].records.append({"kind": "pipeline", "network": "refine10", "frame_path": "device",
                                       "width": 8, "height": 8, "presented": 5, "dropped": 0, "gpu_p50_ms": 3.25,
                                       "e2e_p50_ms": 12.5})
+    steps["pipeline"].records.append({"kind": "pipeline", "network": "admm3", "frame_path": "device",
+                                      "width": 8, "height": 8, "presented": 5, "dropped": 0, "gpu_p50_ms": 1.75,
+                                      "e2e_p50_ms": 9.5})
     steps["tradeoff"].text = "| configuration | latency ms |\n| --- | --- |\n| refine:10 wgpu | 3.3 |"
     md = check_report.report(steps, {"mode": "device", "date": "today", "commit": "abc", "device": "GPU",
                                      "call_flag": " --call 2"})
     # wall 4 ms and GPU 2 ms against PyTorch's 1 ms.
     assert "| half | wgpu | f16 | auto | 8×8 | 4.00 | 2.00 | 2 | 4.00 | 2.00 |" in md
     assert "GPU p50 3.2 ms a frame" in md and "end to end p50 12.5 ms" in md
+    # admm:3, issue 55's time line, in its own section.
+    assert "## admm:3 per frame" in md and "GPU p50 1.8 ms a frame" in md
     assert "| refine:10 wgpu | 3.3 |" in md
     assert "device-check.sh --call 2`" in md
 

@@ -42,7 +42,7 @@ def report(steps: dict, meta: dict) -> str:
             if x.get("backend") == "torch.fft":
                 md.append(f"\ntorch.fft (mirror, rfft2, gain, irfft2) {x['width']}×{x['height']}: "
                           f"{x['median_s'] * 1e3:.3f} ms median on {x['device']}.")
-    for network, name in (("refine10", "refine:10"), ("admm10", "admm:10")):
+    for network, name in (("refine10", "refine:10"), ("admm3", "admm:3"), ("admm10", "admm:10")):
         solver = next((x for x in records("pipeline", "pipeline") if x.get("network") == network), None)
         if solver:
             ms = lambda v: "–" if v is None else f"{v:.1f}"

@@ -195,9 +195,9 @@ pub struct Unrolled {
 
 impl Unrolled {
     /// Loads `manifest`'s networks on `kind` and checks it against the
-    /// optics it will run through, `prepared`'s: their DOE, and the problem
-    /// of the manifest's method and objective (its `lsq` K must be the one
-    /// trained with).
+    /// optics it will run through, `prepared`'s (their DOE); it solves the
+    /// problem of the manifest's method and objective from the `lsq` start
+    /// of the manifest's K.
     pub fn load(
         manifest: Manifest,
         prepared: &Prepared,
@@ -213,13 +213,10 @@ impl Unrolled {
                 manifest.doe
             )));
         }
-        let problem = prepared.display_problem(manifest.method, manifest.objective)?;
-        if ((problem.k_reg - manifest.k_reg) / manifest.k_reg).abs() > 1e-6 {
-            return Err(bad(format!(
-                "trained from an lsq start with K = {:e}, this calibration gives K = {:e}",
-                manifest.k_reg, problem.k_reg
-            )));
-        }
+        // The lsq start's K is the model's own, as a D-CNN's card names its
+        // Wiener's: it was trained from that start.
+        let mut problem = prepared.display_problem(manifest.method, manifest.objective)?;
+        problem.k_reg = manifest.k_reg;
         Self::with_problem(manifest, problem, kind, options)
     }
 

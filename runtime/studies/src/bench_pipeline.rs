@@ -41,6 +41,7 @@ pub enum PipelineNetwork {
     None,
     Wiener,
     Refine10,
+    Admm3,
     Admm10,
     Half,
     Full,
@@ -53,6 +54,7 @@ impl Named for PipelineNetwork {
         Self::None,
         Self::Wiener,
         Self::Refine10,
+        Self::Admm3,
         Self::Admm10,
         Self::Half,
         Self::Full,
@@ -64,6 +66,7 @@ impl Named for PipelineNetwork {
             Self::None => "none",
             Self::Wiener => "wiener",
             Self::Refine10 => "refine10",
+            Self::Admm3 => "admm3",
             Self::Admm10 => "admm10",
             Self::Half => "half",
             Self::Full => "full",
@@ -80,6 +83,10 @@ impl Named for PipelineNetwork {
             Self::Wiener => "no network: the DOE's Wiener prefilter (doe+wiener, the --design's)",
             Self::Refine10 => {
                 "no network: doe+wiener's lsq prefilter and 10 projected-gradient steps (refine:10)"
+            }
+            Self::Admm3 => {
+                "no network: doe+wiener's lsq prefilter and 3 split-solver steps (admm:3, issue 55's \
+                 time line)"
             }
             Self::Admm10 => {
                 "no network: doe+wiener's lsq prefilter and 10 split-solver steps (admm:10)"
@@ -187,9 +194,10 @@ pub fn run(
         let preprocess = match network {
             PipelineNetwork::Auto => Method::Proposed,
             PipelineNetwork::None => Method::Conventional,
-            PipelineNetwork::Wiener | PipelineNetwork::Refine10 | PipelineNetwork::Admm10 => {
-                Method::DoeWiener
-            }
+            PipelineNetwork::Wiener
+            | PipelineNetwork::Refine10
+            | PipelineNetwork::Admm3
+            | PipelineNetwork::Admm10 => Method::DoeWiener,
             PipelineNetwork::Model => Method::Proposed,
             PipelineNetwork::Half | PipelineNetwork::Full => {
                 let width = if network == PipelineNetwork::Half {
@@ -211,6 +219,10 @@ pub fn run(
                 prefilter: match network {
                     PipelineNetwork::Refine10 => crate::preprocess::Prefilter::Refine(
                         10,
+                        crate::preprocess::Prefilter::DEFAULT_OBJECTIVE,
+                    ),
+                    PipelineNetwork::Admm3 => crate::preprocess::Prefilter::Admm(
+                        3,
                         crate::preprocess::Prefilter::DEFAULT_OBJECTIVE,
                     ),
                     PipelineNetwork::Admm10 => crate::preprocess::Prefilter::Admm(
