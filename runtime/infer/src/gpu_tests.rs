@@ -292,6 +292,68 @@ mod needs_gpu {
 
     #[test]
     #[ignore = "needs a GPU adapter (run: scripts/test.sh, or cargo test -- --include-ignored)"]
+    fn a_correction_on_nine_planes_on_the_device_is_the_host_path() {
+        use wgpu::util::DeviceExt;
+        let model = model_from(&synth::step_correction(9, 8, 3, 12), "step.onnx");
+        let net = model.lower().expect("lowers");
+        let (w, h) = (21, 13);
+        let (device, queue) = gpu_device(Precision::F32);
+        let open = || {
+            GpuBackend::new(&device, &queue, "test".into(), &net, Precision::F32).expect("builds")
+        };
+        let planes = crate::tests::signed_planes(w, h, 9, 5);
+        let want = open().run_tensor(planes.data(), w, h).expect("host");
+        let usage = wgpu::BufferUsages::STORAGE
+            | wgpu::BufferUsages::COPY_SRC
+            | wgpu::BufferUsages::COPY_DST;
+        let input = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: None,
+            contents: bytemuck::cast_slice(planes.data()),
+            usage,
+        });
+        let bytes = (3 * w * h * 4) as u64;
+        let output = device.create_buffer(&wgpu::BufferDescriptor {
+            label: None,
+            size: bytes,
+            usage,
+            mapped_at_creation: false,
+        });
+        let readback = device.create_buffer(&wgpu::BufferDescriptor {
+            label: None,
+            size: bytes,
+            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let limit = open().largest_activation_bytes(w, 9);
+        for (label, mut gpu) in [
+            ("whole", open()),
+            ("banded", open().with_binding_limit(limit)),
+        ] {
+            let mut encoder = device.create_command_encoder(&Default::default());
+            gpu.record_frame(&mut encoder, &input, &output, w, h)
+                .expect("records");
+            encoder.copy_buffer_to_buffer(&output, 0, &readback, 0, bytes);
+            queue.submit([encoder.finish()]);
+            nedrt_gpu::map_and_wait(&device, &readback).expect("reads back");
+            let got: Vec<f32> =
+                bytemuck::cast_slice(&readback.slice(..).get_mapped_range().expect("view"))
+                    .to_vec();
+            readback.unmap();
+            assert!(got.iter().any(|v| *v < 0.0), "{label}: clamped");
+            let d = max_abs_diff(&want, &got);
+            assert!(d <= 1e-5, "{label}: {d}");
+        }
+        // Three planes for a network of nine: refused, not misread.
+        let mut encoder = device.create_command_encoder(&Default::default());
+        let e = open()
+            .record_frame(&mut encoder, &output, &output, w, h)
+            .expect_err("too small")
+            .to_string();
+        assert!(e.contains("of 9 planes in"), "{e}");
+    }
+
+    #[test]
+    #[ignore = "needs a GPU adapter (run: scripts/test.sh, or cargo test -- --include-ignored)"]
     fn a_frame_on_the_device_is_the_host_path_bit_for_bit() {
         use wgpu::util::DeviceExt;
         let model = model_from(&synth::unet(4, 4, 33), "random.onnx");
@@ -387,7 +449,7 @@ mod needs_gpu {
                 .record_frame(&mut encoder, &small, &small, w, h)
                 .expect_err("too small")
                 .to_string();
-            assert!(e.contains("needs two buffers"), "{e}");
+            assert!(e.contains("needs buffers of"), "{e}");
         }
     }
 

@@ -180,10 +180,11 @@ pub(crate) fn bands(padded_height: usize, rows: usize, halo: usize) -> Vec<Band>
 
 impl GpuBackend {
     /// Records the network from the frame in `input` to the display image
-    /// in `output` (three f32 planes of `width`×`height` each), padded to
-    /// the network's multiple by reflection and cropped back, in bands
-    /// where the activations do not fit the adapter. The display image is
-    /// clamped to [0, 1] by the last layer.
+    /// in `output` (f32 planes of `width`×`height`: the network's input
+    /// channels in, three out), padded to the network's multiple by
+    /// reflection and cropped back, in bands where the activations do not
+    /// fit the adapter. A display image is clamped to [0, 1] by the last
+    /// layer; a correction is not.
     pub fn record_frame(
         &mut self,
         encoder: &mut wgpu::CommandEncoder,
@@ -196,15 +197,17 @@ impl GpuBackend {
             self.network.values[0].channels,
             self.network.values[self.network.output].channels,
         );
-        if cin != 3 || cout != 3 {
+        if cout != 3 {
             return Err(err(format!(
-                "a network from {cin} to {cout} channels; a frame on the device has 3"
+                "a network to {cout} channels; a display image on the device has 3"
             )));
         }
-        let frame_bytes = (3 * width * height * 4) as u64;
-        if width == 0 || height == 0 || input.size() < frame_bytes || output.size() < frame_bytes {
+        let plane_bytes = (width * height * 4) as u64;
+        let (in_bytes, out_bytes) = (cin as u64 * plane_bytes, 3 * plane_bytes);
+        if width == 0 || height == 0 || input.size() < in_bytes || output.size() < out_bytes {
             return Err(err(format!(
-                "a {width}×{height} frame needs two buffers of {frame_bytes} bytes; given {} and {}",
+                "a {width}×{height} frame of {cin} planes in and 3 out needs buffers of {in_bytes} \
+                 and {out_bytes} bytes; given {} and {}",
                 input.size(),
                 output.size()
             )));
@@ -305,7 +308,7 @@ impl GpuBackend {
                 dst_offset: u(plan.input.offset)?,
                 row0: 0,
                 rows: u(rows)?,
-                channels: 3,
+                channels: u(self.network.values[0].channels)?,
                 row_shift: i32::try_from(band.top).map_err(|_| err("frame too tall"))?,
                 reflect: 1,
             };
