@@ -214,3 +214,38 @@ fn an_unrolled_model_on_other_optics_or_in_run_is_refused_with_the_reason() {
     ]);
     assert_clean_error(&o, "does not take it yet");
 }
+
+mod needs_gpu {
+    use super::*;
+
+    #[test]
+    #[ignore = "needs a GPU adapter (run: scripts/test.sh, or cargo test -- --include-ignored)"]
+    fn an_unrolled_model_on_the_device_scores_what_the_host_scores() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let d = dir.path();
+        let facts = optics_facts(d);
+        let model = write_model(d, "m", &facts, &[(0.04, 1.7, true), (0.06, 1.8, false)]);
+        let doe = doe();
+        let on = |backend: &str| {
+            let o = sim_small(
+                d,
+                backend,
+                &[
+                    "--method",
+                    "proposed",
+                    "--dcnn",
+                    path(&model),
+                    "--doe",
+                    path(&doe),
+                    "--backend",
+                    backend,
+                ],
+            );
+            assert!(o.status.success(), "{backend}: {}", stderr(&o));
+            o
+        };
+        let (cpu, gpu) = (on("cpu"), on("wgpu"));
+        assert!(stdout(&gpu).contains(") on wgpu"), "{}", stdout(&gpu));
+        assert_eq!(vs_sharp(&cpu), vs_sharp(&gpu));
+    }
+}

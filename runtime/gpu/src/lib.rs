@@ -11,6 +11,7 @@ pub mod adapter;
 pub mod fft;
 pub mod refine;
 pub mod split;
+pub mod unrolled;
 
 /// How wgpu's instance is made: which backends it may use, its flags and
 /// per-backend options. The binary fills it from wgpu's environment

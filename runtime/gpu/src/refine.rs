@@ -370,6 +370,42 @@ impl RefineStage {
 }
 
 /// A bind group of `buffers` at bindings 0, 1, ….
+/// Whether `input` and `output` each hold a frame of `need` bytes; else
+/// the error, naming `what` ("the refinement").
+pub(crate) fn check_frame_buffers(
+    what: &str,
+    input: &wgpu::Buffer,
+    output: &wgpu::Buffer,
+    need: u64,
+) -> Result<(), GpuError> {
+    if output.size() < need || input.size() < need {
+        return Err(GpuError::Buffers(format!(
+            "{what}'s buffers hold {} and {} bytes; a frame is {need}",
+            input.size(),
+            output.size()
+        )));
+    }
+    Ok(())
+}
+
+/// One compute pass of `pipeline` over `groups` with `group` bound (the
+/// per-pixel passes of the solvers' stages).
+pub(crate) fn dispatch(
+    encoder: &mut wgpu::CommandEncoder,
+    label: &str,
+    pipeline: &wgpu::ComputePipeline,
+    group: &wgpu::BindGroup,
+    groups: [u32; 3],
+) {
+    let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+        label: Some(label),
+        timestamp_writes: None,
+    });
+    pass.set_bind_group(0, group, &[]);
+    pass.set_pipeline(pipeline);
+    pass.dispatch_workgroups(groups[0], groups[1], groups[2]);
+}
+
 pub(crate) fn bind(
     device: &wgpu::Device,
     label: &str,
@@ -426,13 +462,7 @@ impl crate::DeviceStage for RefineStage {
             ));
         };
         let need = plan.y.size();
-        if output.size() < need || input.size() < need {
-            return Err(GpuError::Buffers(format!(
-                "the refinement's buffers hold {} and {} bytes; a frame is {need}",
-                input.size(),
-                output.size()
-            )));
-        }
+        crate::refine::check_frame_buffers("the refinement", input, output, need)?;
         let [frame, state, x, partials] = &plan.buffers;
         let emit = plan.emits.get(output, || {
             bind(

@@ -288,13 +288,7 @@ impl crate::DeviceStage for SplitStage {
         };
         let [frame, z, u, v, ax, c, start, state] = &plan.buffers;
         let need = z.size();
-        if output.size() < need || input.size() < need {
-            return Err(GpuError::Buffers(format!(
-                "the split solver's buffers hold {} and {} bytes; a frame is {need}",
-                input.size(),
-                output.size()
-            )));
-        }
+        crate::refine::check_frame_buffers("the split solver", input, output, need)?;
         let emit = plan.emits.get(output, || {
             bind(
                 &self.device,
@@ -325,13 +319,7 @@ impl crate::DeviceStage for SplitStage {
         let dispatch = |encoder: &mut wgpu::CommandEncoder,
                         pipeline: &wgpu::ComputePipeline,
                         group: &wgpu::BindGroup| {
-            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                label: Some("admm"),
-                timestamp_writes: None,
-            });
-            pass.set_bind_group(0, group, &[]);
-            pass.set_pipeline(pipeline);
-            pass.dispatch_workgroups(groups[0], groups[1], groups[2]);
+            crate::refine::dispatch(encoder, "admm", pipeline, group, groups)
         };
         let p = &self.pipelines;
         dispatch(encoder, &p.start, &plan.main);

@@ -340,8 +340,26 @@ pub fn for_system_on(
     if method.uses_dcnn() && prefilter.is_native() {
         let dcnn = match dcnns.remove(&method) {
             Some(Network::Dcnn(d)) => d,
-            // Its steps on the host, its networks on their backend.
-            Some(unrolled) => return unrolled.into_preprocess(method, prepared),
+            // On wgpu its steps and corrections as one device stage (the
+            // host twin for sizes the device FFT lacks); else on the host.
+            Some(Network::Unrolled {
+                manifest,
+                kind,
+                options,
+            }) => {
+                let host = crate::unrolled::Unrolled::load(manifest, prepared, kind, &options)?;
+                if kind != nedrt_infer::BackendKind::Wgpu {
+                    return Ok(Box::new(host));
+                }
+                let stage = host.device_stage(device, queue, "the frame's device", &options)?;
+                return Ok(Box::new(OnDevice::new(
+                    device,
+                    queue,
+                    Box::new(stage),
+                    false,
+                    Box::new(host),
+                )));
+            }
             None => {
                 return Err(EngineError::Unavailable(format!(
                     "no D-CNN loaded for {method}"

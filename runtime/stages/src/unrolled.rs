@@ -277,6 +277,58 @@ impl Unrolled {
     pub fn steps(&self) -> usize {
         self.manifest.steps.len()
     }
+
+    /// The model as one device stage (nedrt-gpu's `UnrolledStage`): its
+    /// steps' filters and passes and its corrections on the wgpu backend
+    /// on `device`, recorded into the frame's encoder, nothing read back.
+    /// Its host twin is this [`Unrolled`] itself (its `run`).
+    pub fn device_stage(
+        &self,
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        adapter_name: &str,
+        options: &BackendOptions,
+    ) -> Result<nedrt_gpu::unrolled::UnrolledStage, EngineError> {
+        let mut steps = Vec::new();
+        for spec in &self.manifest.steps {
+            let correction: Option<Box<dyn nedrt_gpu::DeviceStage>> = match &spec.network {
+                None => None,
+                Some(path) => Some(Box::new(nedrt_infer::gpu::DeviceDcnn::on_device(
+                    ModelFile::read(path)?,
+                    device,
+                    queue,
+                    adapter_name.to_string(),
+                    options,
+                )?)),
+            };
+            steps.push(nedrt_gpu::unrolled::UnrolledStep {
+                relaxation: spec.relaxation,
+                correction,
+            });
+        }
+        let problem = self.problem.clone();
+        let rhos: Vec<f32> = self.manifest.steps.iter().map(|s| s.rho).collect();
+        let terms_for: nedrt_gpu::unrolled::UnrolledTermsFor = Box::new(move |w, h| {
+            let t = problem.device_unrolled_terms(w, h, &rhos)?;
+            Ok(nedrt_gpu::unrolled::UnrolledTerms {
+                linear: t.linear,
+                adjoint: t.adjoint,
+                normal: t.normal,
+                steps: t
+                    .steps
+                    .into_iter()
+                    .map(|s| nedrt_gpu::unrolled::UnrolledStepTerms {
+                        data: s.data,
+                        penalty: s.penalty,
+                    })
+                    .collect(),
+            })
+        });
+        let what = format!("unrolled {}", self.manifest.path.display());
+        Ok(nedrt_gpu::unrolled::UnrolledStage::new(
+            device, what, steps, terms_for,
+        )?)
+    }
 }
 
 impl Preprocess for Unrolled {

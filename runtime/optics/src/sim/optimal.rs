@@ -34,7 +34,7 @@ mod steps;
 pub use prefilter::{DeviceTerms, SolveMode, SolvedPrefilter};
 pub use solver::{FistaState, ProblemPlan};
 pub use split::{SplitSchedule, SplitState, SplitTerms};
-pub use steps::SplitSteps;
+pub use steps::{SplitSteps, StepTerms, UnrolledTerms};
 
 use operator::{Operator, RetinalTerms};
 

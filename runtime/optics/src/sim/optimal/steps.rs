@@ -177,6 +177,78 @@ impl SplitSteps {
     }
 }
 
+/// The unrolled model's terms at one frame size, as the device takes them
+/// (per channel, the DCT filter's layout, [`crate::sim::wiener::dct_plane`]):
+/// the `lsq` start's gains; Σ_D A_Dᵀ t_D / L and N / L, the gradient's
+/// constant and operator; and per step the data term's gains
+/// Σ_D A_Dᵀ t_D / (N + ρ_k) and the penalty's share ρ_k / (N + ρ_k), so
+/// that the data step is x = data_k(I) + penalty_k(z − u), as
+/// [`SplitSteps::relax`] computes it.
+#[derive(Debug, Clone)]
+pub struct UnrolledTerms {
+    pub linear: Vec<Vec<f32>>,
+    pub adjoint: Vec<Vec<f32>>,
+    pub normal: Vec<Vec<f32>>,
+    pub steps: Vec<StepTerms>,
+}
+
+/// One step's gains per channel: the data term's and the penalty share's.
+#[derive(Debug, Clone, Default)]
+pub struct StepTerms {
+    pub data: Vec<Vec<f32>>,
+    pub penalty: Vec<Vec<f32>>,
+}
+
+impl DisplayProblem {
+    /// [`UnrolledTerms`] at `width`×`height` for steps of penalties
+    /// `rho_shares` (ρ_k / L). The PSFs must be mirror-symmetric.
+    pub fn device_unrolled_terms(
+        &self,
+        width: usize,
+        height: usize,
+        rho_shares: &[f32],
+    ) -> Result<UnrolledTerms, SimError> {
+        use crate::sim::wiener::dct_plane;
+        let plan = self.plan(width, height);
+        let Operator::Mirrored(op) = &plan.operator else {
+            return Err(SimError::Invalid(
+                "the PSFs are not mirror-symmetric: the split solver has no exact data step".into(),
+            ));
+        };
+        let real = |v: f32| c32::new(v, 0.0);
+        let mut adjoint = Vec::new();
+        let mut normal = Vec::new();
+        let mut steps = vec![StepTerms::default(); rho_shares.len()];
+        for c in 0..self.channels() {
+            let l = plan.lipschitz[c] as f32;
+            let a: Vec<c32> = op.adjoint_target[c].iter().map(|v| v / l).collect();
+            adjoint.push(dct_plane(&a, width, height, c)?);
+            let n: Vec<c32> = op.normal[c].iter().map(|m| real(m / l)).collect();
+            normal.push(dct_plane(&n, width, height, c)?);
+            for (k, share) in rho_shares.iter().enumerate() {
+                let rho = share * l;
+                let data: Vec<c32> = op.adjoint_target[c]
+                    .iter()
+                    .zip(&op.normal[c])
+                    .map(|(a, m)| a / (m + rho))
+                    .collect();
+                let penalty: Vec<c32> =
+                    op.normal[c].iter().map(|m| real(rho / (m + rho))).collect();
+                steps[k].data.push(dct_plane(&data, width, height, c)?);
+                steps[k]
+                    .penalty
+                    .push(dct_plane(&penalty, width, height, c)?);
+            }
+        }
+        Ok(UnrolledTerms {
+            linear: plan.linear.dct_gains()?,
+            adjoint,
+            normal,
+            steps,
+        })
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::super::tests::{frame, problem, symmetric_problem};
