@@ -323,6 +323,47 @@ pub fn wants_gpu(methods: &[Method], prefilters: &[Prefilter]) -> bool {
         .any(|&m| m.uses_dcnn() || prefilters.iter().any(|&p| runs_on_device(m, p)))
 }
 
+/// `network` as [`Network::into_preprocess`] builds it, with an unrolled model on wgpu as
+/// one device stage on `gpu` (its host twin for frame sizes the device
+/// FFT lacks), each frame uploaded and its display image read back;
+/// at f16 on a device opened without f16 shaders, as the host runs it
+/// (its networks on a device of their own).
+pub fn network_on(
+    network: Network,
+    gpu: Option<&Gpu>,
+    method: Method,
+    prepared: &Prepared,
+) -> Result<Box<dyn Preprocess>, EngineError> {
+    match (network, gpu) {
+        (
+            Network::Unrolled {
+                manifest,
+                kind: nedrt_infer::BackendKind::Wgpu,
+                options,
+            },
+            Some((device, queue)),
+        ) if options.precision == nedrt_infer::Precision::F32
+            || device.features().contains(wgpu::Features::SHADER_F16) =>
+        {
+            let host = crate::unrolled::Unrolled::load(
+                manifest,
+                prepared,
+                nedrt_infer::BackendKind::Wgpu,
+                &options,
+            )?;
+            let stage = host.device_stage(device, queue, "the frame's device", &options)?;
+            Ok(Box::new(OnDevice::new(
+                device,
+                queue,
+                Box::new(stage),
+                false,
+                Box::new(host),
+            )))
+        }
+        (network, _) => network.into_preprocess(method, prepared),
+    }
+}
+
 /// [`crate::preprocess::for_system`] with the prefilter on `gpu` where the
 /// device has it (the Wiener, `lsq`, `refine:K`, and the Wiener in front of
 /// a network); `optimal` and the methods without a prefilter run as on
@@ -340,26 +381,8 @@ pub fn for_system_on(
     if method.uses_dcnn() && prefilter.is_native() {
         let dcnn = match dcnns.remove(&method) {
             Some(Network::Dcnn(d)) => d,
-            // On wgpu its steps and corrections as one device stage (the
-            // host twin for sizes the device FFT lacks); else on the host.
-            Some(Network::Unrolled {
-                manifest,
-                kind,
-                options,
-            }) => {
-                let host = crate::unrolled::Unrolled::load(manifest, prepared, kind, &options)?;
-                if kind != nedrt_infer::BackendKind::Wgpu {
-                    return Ok(Box::new(host));
-                }
-                let stage = host.device_stage(device, queue, "the frame's device", &options)?;
-                return Ok(Box::new(OnDevice::new(
-                    device,
-                    queue,
-                    Box::new(stage),
-                    false,
-                    Box::new(host),
-                )));
-            }
+            // On wgpu its steps and corrections as one device stage.
+            Some(unrolled) => return network_on(unrolled, gpu, method, prepared),
             None => {
                 return Err(EngineError::Unavailable(format!(
                     "no D-CNN loaded for {method}"

@@ -388,7 +388,13 @@ pub fn run(common: &CommonOptions, o: &TradeoffOptions) -> Result<String, AppErr
                 // (the Wiener, for a network trained on its output), or the
                 // unrolled model through the prepared optics: timed and
                 // scored as the runtime runs it.
-                let mut dcnn = network.into_preprocess(Method::Proposed, &scorer.prepared)?;
+                let gpu = run.gpu.as_ref().map(|(g, _)| g);
+                let mut dcnn = crate::device_prefilter::network_on(
+                    network,
+                    gpu,
+                    Method::Proposed,
+                    &scorer.prepared,
+                )?;
                 let Measured {
                     displays,
                     latency_ms,
