@@ -232,8 +232,9 @@ fn network_of(
     if nedrt_stages::unrolled::is_manifest(path) {
         return Err(AppError::input(
             path.display(),
-            "an unrolled model runs in sim, eval, tradeoff and view; the runtime composes it on \
-             the device next (docs/unrolled.md), so nedrt run does not take it yet",
+            "an unrolled model runs in sim, eval, tradeoff and view (on wgpu as one device \
+             stage); nedrt run's builder takes an ONNX network, so it does not take it yet \
+             (docs/unrolled.md)",
         ));
     }
     let model = ModelFile::read(path)?;
