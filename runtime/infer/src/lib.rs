@@ -450,14 +450,10 @@ impl Dcnn {
         self.backend.layer_timings(frame)
     }
 
-    /// Preprocesses one frame: [`Dcnn::run_unclamped`], then the panel's
-    /// clamp to [0, 1].
+    /// Preprocesses one frame: [`Dcnn::run_unclamped`]'s network, then the
+    /// panel's clamp to [0, 1].
     pub fn run_frame(&mut self, frame: &Image) -> Result<Image, InferenceError> {
-        let mut out = self.run_unclamped(frame)?;
-        for v in out.data_mut() {
-            *v = v.clamp(0.0, 1.0);
-        }
-        Ok(out)
+        self.run_checked(frame, true)
     }
 
     /// The network's input channels (3 for a D-CNN).
@@ -470,13 +466,17 @@ impl Dcnn {
     /// trainer's rule), run and cropped back, not clamped (a step
     /// correction of the unrolled preprocessor is signed).
     pub fn run_unclamped(&mut self, frame: &Image) -> Result<Image, InferenceError> {
+        self.run_checked(frame, false)
+    }
+
+    fn run_checked(&mut self, frame: &Image, clamp: bool) -> Result<Image, InferenceError> {
         check_frame(frame, self.input_channels()).map_err(|e| match e {
             PreprocessError::Frame(reason) => InferenceError::Frame(reason),
             other => InferenceError::Frame(other.to_string()),
         })?;
         let m = self.network.multiple;
         let (pw, ph) = (frame.width.div_ceil(m) * m, frame.height.div_ceil(m) * m);
-        let out = if (pw, ph) == (frame.width, frame.height) {
+        let mut out = if (pw, ph) == (frame.width, frame.height) {
             self.backend.run(frame)?
         } else {
             self.backend
@@ -485,8 +485,14 @@ impl Dcnn {
         };
         // The clamp would turn ±inf into 0 or 1 and pass NaN on: a network
         // that overflows is a failure of the engine, said and counted, not
-        // a black or white pixel.
-        let non_finite = out.data().iter().filter(|v| !v.is_finite()).count();
+        // a black or white pixel. Counted in the clamp's own pass.
+        let mut non_finite = 0;
+        for v in out.data_mut() {
+            non_finite += usize::from(!v.is_finite());
+            if clamp {
+                *v = v.clamp(0.0, 1.0);
+            }
+        }
         if non_finite > 0 {
             return Err(InferenceError::NonFinite {
                 engine: self.backend.describe(),

@@ -54,17 +54,18 @@ struct RawStep {
     network_sha256: Option<String>,
 }
 
-/// One step: ρ_k = `rho` · L, relaxation α_k, and its correction's ONNX
+/// One step: ρ_k = `rho` · L, relaxation α_k, and its correction's ONNX,
+/// read once and checked against the manifest's SHA-256
 /// (none: the classical step).
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone)]
 pub struct StepSpec {
     pub rho: f32,
     pub relaxation: f32,
-    pub network: Option<PathBuf>,
+    pub network: Option<ModelFile>,
 }
 
 /// A validated manifest: what the model was trained through, and its steps.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone)]
 pub struct Manifest {
     pub path: PathBuf,
     /// The method whose optics the steps solve through ("doe+wiener").
@@ -150,7 +151,8 @@ impl Manifest {
                             file.display()
                         )));
                     }
-                    Some(file)
+                    // The bytes checked are the bytes run: not read again.
+                    Some(ModelFile::from_bytes(&file, data)?)
                 }
                 _ => {
                     return Err(at(
@@ -242,11 +244,11 @@ impl Unrolled {
         for s in &manifest.steps {
             networks.push(match &s.network {
                 None => None,
-                Some(path) => {
-                    let dcnn = Dcnn::from_model(ModelFile::read(path)?, kind, options)?;
+                Some(model) => {
+                    let dcnn = Dcnn::from_model(model.clone(), kind, options)?;
                     if dcnn.input_channels() != 3 * problem.channels() {
                         return Err(EngineError::input(
-                            path.display(),
+                            model.path.display(),
                             format!(
                                 "a step correction of {} input planes; it takes {} (point, \
                                  dual and gradient of each of {} channels)",
@@ -293,8 +295,8 @@ impl Unrolled {
         for spec in &self.manifest.steps {
             let correction: Option<Box<dyn nedrt_gpu::DeviceStage>> = match &spec.network {
                 None => None,
-                Some(path) => Some(Box::new(nedrt_infer::gpu::DeviceDcnn::on_device(
-                    ModelFile::read(path)?,
+                Some(model) => Some(Box::new(nedrt_infer::gpu::DeviceDcnn::on_device(
+                    model.clone(),
                     device,
                     queue,
                     adapter_name.to_string(),

@@ -53,11 +53,13 @@ impl DisplayProblem {
             ));
         };
         let channels = self.channels();
-        let data = (0..channels)
+        let data: Vec<Vec<c32>> = (0..channels)
             .map(|c| op.adjoint_target_spectrum(c, input.plane(c), w, h))
             .collect();
-        let adjoint = (0..channels)
-            .map(|c| op.adjoint_target(c, input.plane(c), w, h))
+        // The same spectrum back on the frame (not a second forward FFT).
+        let adjoint = data
+            .iter()
+            .map(|b| crate::sim::wiener::first_quadrant(&op.fft.inverse(b.clone()), w, h))
             .collect();
         let z: Vec<Vec<f32>> = self
             .linear_unclamped(input)
