@@ -36,11 +36,13 @@ fn proposed_method_runs_the_dcnn_with_its_companion_doe() {
 /// The display frame of `method` for a 61×45 frame, as `nedrt sim
 /// --display-out` renders it and as `nedrt run --preprocess` records it on
 /// the panel (codes after the transfer curve), with the panel's encoder.
-struct SimAndService {
-    sim_codes: Vec<u8>,
-    recorded: Vec<u8>,
+pub(super) struct SimAndService {
+    pub(super) sim_codes: Vec<u8>,
+    pub(super) recorded: Vec<u8>,
+    /// The simulator's display frame (planar RGB, linear intensity).
+    pub(super) sim_display: Vec<f32>,
     input: PathBuf,
-    transfer: nedrt_service::present::transfer::Transfer,
+    pub(super) transfer: nedrt_service::present::transfer::Transfer,
     _dir: tempfile::TempDir,
 }
 
@@ -63,9 +65,17 @@ fn panel_codes(
 const ODD: (usize, usize) = (61, 45);
 
 impl SimAndService {
+    /// The panel's codes of the input frame itself.
+    pub(super) fn input_codes(&self) -> Vec<u8> {
+        let source = nedrt_core::image_io::load(&self.input)
+            .expect("input")
+            .image;
+        self.codes(&source)
+    }
+
     /// The service showed the simulator's display frame, and it is not the
     /// input's: the prefilter ran in both.
-    fn assert_same_changed_frame(&self) {
+    pub(super) fn assert_same_changed_frame(&self) {
         assert_eq!(self.sim_codes, self.recorded, "sim and service differ");
         let source = nedrt_core::image_io::load(&self.input)
             .expect("input")
@@ -83,7 +93,7 @@ fn sim_and_service(method: &str) -> SimAndService {
 }
 
 /// [`sim_and_service`] with more arguments for both commands.
-fn sim_and_service_with(method: &str, extra: &[&str]) -> SimAndService {
+pub(super) fn sim_and_service_with(method: &str, extra: &[&str]) -> SimAndService {
     use nedrt_core::Image;
     let dir = tempfile::tempdir().expect("tempdir");
     let (w, h) = ODD;
@@ -134,8 +144,9 @@ fn sim_and_service_with(method: &str, extra: &[&str]) -> SimAndService {
         .flat_map(|c| rgb.iter().skip(c).step_by(3).copied().collect::<Vec<_>>())
         .collect();
     SimAndService {
-        sim_codes: panel_codes(&transfer, &Image::rgb(w, h, planar)),
+        sim_codes: panel_codes(&transfer, &Image::rgb(w, h, planar.clone())),
         recorded,
+        sim_display: planar,
         input,
         transfer,
         _dir: dir,

@@ -1,9 +1,9 @@
 //! The unrolled preprocessor where a D-CNN goes (`--dcnn NAME.unrolled.toml`):
 //! a model made as the trainer makes one (its optics' facts from `nedrt
 //! prefilter --operator`, a signed step correction, a classical step), run
-//! by `sim` and `eval` from its own lsq start; refused with the reason
-//! where its optics are not the display's, and by `run`, which does not
-//! compose it yet.
+//! by `sim`, `eval` and `run` (a fixed level and a level of the frame
+//! budget, on the host and as one device stage) from its own lsq start;
+//! refused with the reason where its optics are not the display's.
 
 use super::*;
 
@@ -181,7 +181,7 @@ fn an_unrolled_model_without_corrections_is_the_split_solver_and_with_them_moves
 }
 
 #[test]
-fn an_unrolled_model_on_other_optics_or_in_run_is_refused_with_the_reason() {
+fn an_unrolled_model_on_other_optics_is_refused_with_the_reason_by_sim_and_run() {
     let dir = tempfile::tempdir().expect("tempdir");
     let d = dir.path();
     let facts = optics_facts(d);
@@ -201,6 +201,8 @@ fn an_unrolled_model_on_other_optics_or_in_run_is_refused_with_the_reason() {
         &["--method", "lens+dcnn", "--dcnn-lens", path(&model)],
     );
     assert_clean_error(&o, "not lens+dcnn's");
+    // `run` checks it before its sink opens: nothing is recorded.
+    let rec = d.join("rec");
     let o = run(&[
         "run",
         "--calib",
@@ -211,8 +213,170 @@ fn an_unrolled_model_on_other_optics_or_in_run_is_refused_with_the_reason() {
         path(&model),
         "--frames",
         "1",
+        "--sink",
+        "record",
+        "--record-dir",
+        path(&rec),
     ]);
-    assert_clean_error(&o, "does not take it yet");
+    assert_clean_error(&o, "trained through DOE");
+    assert!(!rec.exists(), "a refused run made its record folder");
+}
+
+/// `nedrt run` puts on the panel the display frame `nedrt sim` renders for
+/// an unrolled model, code for code, on an odd-sized panel (61×45, whose
+/// sides the device FFT lacks: the host runs it); its correction moved
+/// the frame from the classical steps'.
+#[test]
+fn run_shows_the_display_frame_sim_renders_for_an_unrolled_model() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let d = dir.path();
+    let facts = optics_facts(d);
+    let learned = write_model(
+        d,
+        "learned",
+        &facts,
+        &[(0.05, 1.8, true), (0.05, 1.8, false)],
+    );
+    let classical = write_model(d, "classical", &facts, &[(0.05, 1.8, false); 2]);
+    let doe = doe();
+    let shown = |model: &Path| {
+        super::dcnn::sim_and_service_with("proposed", &["--dcnn", path(model), "--doe", path(&doe)])
+    };
+    let learned = shown(&learned);
+    assert_codes_of(&learned);
+    assert_ne!(
+        learned.sim_codes,
+        panel_codes_of_input(&learned),
+        "the model changed nothing"
+    );
+    let classical = shown(&classical);
+    assert_codes_of(&classical);
+    assert_ne!(
+        learned.recorded, classical.recorded,
+        "the learned correction changed nothing"
+    );
+}
+
+/// Every recorded code is the one of the simulator's display value, up to
+/// 1e-5 in linear intensity either side of the code's interval: the
+/// correction's convolutions (tract, several threads) sum in an order that
+/// differs from run to run by about 1e-6, which moves a value lying on a
+/// threshold to its neighbour code.
+fn assert_codes_of(s: &super::dcnn::SimAndService) {
+    let n = s.recorded.len() / 3;
+    let mut off = 0;
+    for (i, &code) in s.recorded.iter().enumerate() {
+        let (c, p) = (i % 3, i / 3);
+        let x = s.sim_display[c * n + p].clamp(0.0, 1.0);
+        let t = s.transfer.thresholds(c);
+        let lo = if code == 0 {
+            f32::MIN
+        } else {
+            t[code as usize - 1]
+        };
+        let hi = t.get(code as usize).copied().unwrap_or(f32::MAX);
+        if !(x >= lo - 1e-5 && x < hi + 1e-5) {
+            off += 1;
+        }
+    }
+    assert_eq!(off, 0, "{off} recorded codes are not the simulator's");
+}
+
+fn panel_codes_of_input(s: &super::dcnn::SimAndService) -> Vec<u8> {
+    s.input_codes()
+}
+
+/// The frame budget's ladder takes unrolled models as network levels, one
+/// per K (`--ladder-network`, then `--dcnn`), each named by its manifest's
+/// stem, in the order given; refused with the reason without a ladder or
+/// where two levels would share a name.
+#[test]
+fn unrolled_models_are_levels_of_the_frame_budget() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let d = dir.path();
+    let facts = optics_facts(d);
+    let k1 = write_model(d, "k1", &facts, &[(0.05, 1.8, true)]);
+    let k2 = write_model(d, "k2", &facts, &[(0.05, 1.8, true), (0.05, 1.8, false)]);
+    let report = d.join("report.json");
+    let run_with = |args: &[&str]| {
+        nedrt()
+            .current_dir(repo())
+            .args(["run", "--calib", path(&small_panel()), "--backend", "cpu"])
+            .args([
+                "--doe",
+                path(&doe()),
+                "--frames",
+                "4",
+                "--source-rate",
+                "60",
+            ])
+            .args(["--sink", "record", "--record-dir", path(&d.join("rec"))])
+            .args(args)
+            .output_within(deadline::COMMAND, "nedrt run --preprocess auto")
+    };
+    let o = run_with(&[
+        "--preprocess",
+        "auto:admm:10..",
+        "--ladder-network",
+        path(&k1),
+        "--dcnn",
+        path(&k2),
+        "--report-json",
+        path(&report),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let r: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&report).expect("report")).expect("JSON");
+    let budget = &r["frame_budget"];
+    // Each kept or, where no better than a faster level, dropped: in the
+    // ladder's order either way.
+    let mut named: Vec<String> = budget["levels"]
+        .as_array()
+        .expect("levels")
+        .iter()
+        .filter_map(|l| l["name"].as_str().map(str::to_string))
+        .collect();
+    named.extend(
+        budget["dropped"]
+            .as_array()
+            .into_iter()
+            .flatten()
+            .filter_map(|n| n.as_str().map(str::to_string)),
+    );
+    for level in ["admm:10", "k1", "k2"] {
+        assert!(named.iter().any(|n| n == level), "{level}: {budget}");
+    }
+    let frames: u64 = budget["levels"]
+        .as_array()
+        .expect("levels")
+        .iter()
+        .filter_map(|l| l["frames"].as_u64())
+        .sum();
+    assert_eq!(frames, 4, "every frame ran a level: {budget}");
+    std::fs::remove_dir_all(d.join("rec")).expect("remove the recording");
+
+    let o = run_with(&[
+        "--preprocess",
+        "proposed",
+        "--dcnn",
+        path(&k2),
+        "--ladder-network",
+        path(&k1),
+    ]);
+    assert_clean_error(&o, "--ladder-network adds a level");
+    let o = run_with(&[
+        "--preprocess",
+        "auto",
+        "--dcnn",
+        path(&k2),
+        "--ladder-network",
+        path(&k2),
+    ]);
+    assert_clean_error(&o, "would be named \"k2\"");
+    assert!(
+        !d.join("rec").exists(),
+        "a refused run made its record folder"
+    );
 }
 
 mod needs_gpu {
@@ -247,5 +411,33 @@ mod needs_gpu {
         let (cpu, gpu) = (on("cpu"), on("wgpu"));
         assert!(stdout(&gpu).contains(") on wgpu"), "{}", stdout(&gpu));
         assert_eq!(vs_sharp(&cpu), vs_sharp(&gpu));
+    }
+
+    /// On the sink's GPU the model is one device stage of the frame: the
+    /// frame uploaded once, nothing read back.
+    #[test]
+    #[ignore = "needs a GPU adapter (run: scripts/test.sh, or cargo test -- --include-ignored)"]
+    fn run_keeps_an_unrolled_models_frames_on_the_device() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let d = dir.path();
+        let facts = optics_facts(d);
+        let model = write_model(d, "m", &facts, &[(0.05, 1.8, true), (0.05, 1.8, false)]);
+        let o = nedrt()
+            .current_dir(repo())
+            .args(["run", "--calib", path(&small_panel()), "--backend", "wgpu"])
+            .args(["--preprocess", "proposed", "--dcnn", path(&model)])
+            .args(["--doe", path(&doe()), "--frames", "3", "--source-rate", "4"])
+            .args(["--sink", "headless"])
+            .output_within(deadline::COMMAND, "nedrt run --sink headless");
+        assert!(o.status.success(), "{}", stderr(&o));
+        let out = stdout(&o);
+        // A loaded machine may drop a frame as stale; none may fail.
+        assert!(out.contains("3 submitted, "), "{out}");
+        assert!(out.contains(" 0 failed;"), "{out}");
+        assert!(
+            out.contains("on the device (2 split-solver steps, 1 with a learned correction)"),
+            "{out}"
+        );
+        assert!(out.contains("0.00 read-backs"), "{out}");
     }
 }

@@ -265,6 +265,12 @@ pub struct RunArgs {
     /// where it exists; without one the levels keep their order].
     #[arg(long, value_name = "FILE")]
     pub ladder_quality: Option<PathBuf>,
+    /// `--preprocess auto`: one more network level of the ladder, repeated
+    /// for more (a D-CNN's ONNX or an unrolled model's manifest, as --dcnn
+    /// takes them; e.g. models/unrolled/unrolled-k1.unrolled.toml): named by
+    /// its file's stem, cheapest first, between admm:10 and --dcnn's.
+    #[arg(long, value_name = "FILE")]
+    pub ladder_network: Vec<PathBuf>,
     /// Instead, a least-squares prefilter on --preprocess's optics: lsq,
     /// refine:K, admm:K or optimal (@sharp or @target; see `nedrt sim --help`).
     #[arg(long, default_value = "native", value_name = "PREFILTER")]

@@ -174,6 +174,7 @@ pub fn run(cli: Cli) -> Result<()> {
                 prefilter: a.prefilter,
                 ladder,
                 ladder_quality: a.ladder_quality,
+                ladder_networks: a.ladder_network,
                 source: a.source,
                 input: a.input,
                 socket: a.socket,

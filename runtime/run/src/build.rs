@@ -1,13 +1,15 @@
 //! The parts the builder (`builder`) puts together: a network on the
-//! host or on the sink's device, behind its Wiener stage; the network's
-//! fallback; a method's optics prepared for its prefilter.
+//! host or on the sink's device (a D-CNN behind its Wiener stage, or an
+//! unrolled model); the network's fallback; a method's optics prepared
+//! for its prefilter.
 
 use std::sync::Arc;
 
+use super::network::RunNetwork;
 use super::{AppError, CommonOptions, FallbackKind};
 use nedrt_core::preprocess::{Identity, Preprocess};
 use nedrt_infer::gpu::DeviceDcnn;
-use nedrt_infer::{BackendKind, Dcnn, ModelFile};
+use nedrt_infer::{BackendKind, Dcnn};
 use nedrt_optics::sim::wiener::WienerFilter;
 use nedrt_optics::sim::{Method, Simulator};
 use nedrt_service::pipeline::service::FallbackFactory;
@@ -35,11 +37,15 @@ pub(super) type Gpu = (wgpu::Device, wgpu::Queue, String);
 /// GPU; tract f32 where the sink's GPU lacks f16 shaders for an f16 network.
 pub(super) fn host_network(
     common: &CommonOptions,
-    model: &ModelFile,
+    network: &RunNetwork,
     stage: &Option<(Method, Arc<WienerFilter>)>,
     device: Option<&Gpu>,
 ) -> Result<Box<dyn Preprocess>, AppError> {
     let options = &common.dcnn.backend_options;
+    let model = match network {
+        RunNetwork::Dcnn { model, .. } => model,
+        RunNetwork::Unrolled { .. } => return host_unrolled(common, network, device),
+    };
     let f32_options = nedrt_infer::BackendOptions {
         precision: nedrt_infer::Precision::F32,
         ..options.clone()
@@ -63,6 +69,33 @@ pub(super) fn host_network(
     Ok(behind(stage, dcnn))
 }
 
+/// An unrolled model on the host: its steps on the host and its
+/// corrections on the run's backend; with wgpu and the sink's GPU, the
+/// whole model as one device stage there (the frames read back), its
+/// host twin for sizes the device FFT lacks.
+fn host_unrolled(
+    common: &CommonOptions,
+    network: &RunNetwork,
+    device: Option<&Gpu>,
+) -> Result<Box<dyn Preprocess>, AppError> {
+    let Some(unrolled) = network.unrolled() else {
+        return Err(AppError::Internal("not an unrolled model".into()));
+    };
+    let (manifest, prepared) = unrolled?;
+    let net = nedrt_stages::network::Network::Unrolled {
+        manifest: manifest.clone(),
+        kind: common.dcnn.backend,
+        options: common.dcnn.backend_options.clone(),
+    };
+    let gpu = device.map(|(d, q, _)| (d.clone(), q.clone()));
+    Ok(nedrt_stages::device_prefilter::network_on(
+        net,
+        gpu.as_ref(),
+        manifest.method,
+        prepared,
+    )?)
+}
+
 /// A network's kernels on the sink's device for frames of `size`, behind
 /// its Wiener stage on the device where it has one. Where that stage
 /// cannot be built there (a size the device FFT lacks), `host_wiener`
@@ -70,12 +103,29 @@ pub(super) fn host_network(
 /// returned, to go there), or fail.
 pub(super) fn device_network(
     common: &CommonOptions,
-    model: &ModelFile,
+    network: &RunNetwork,
     (device, queue, name): &Gpu,
     stage: &Option<(Method, Arc<WienerFilter>)>,
     size: (usize, usize),
     host_wiener: bool,
 ) -> Result<(Box<dyn nedrt_gpu::DeviceStage>, Option<RawWiener>), AppError> {
+    let model = match network {
+        RunNetwork::Dcnn { model, .. } => model,
+        RunNetwork::Unrolled { .. } => {
+            let (manifest, prepared) = network
+                .unrolled()
+                .ok_or_else(|| AppError::Internal("not an unrolled model".into()))??;
+            let stage = nedrt_stages::unrolled::device_stage(
+                manifest,
+                prepared,
+                device,
+                queue,
+                name,
+                &common.dcnn.backend_options,
+            )?;
+            return Ok((Box::new(stage), None));
+        }
+    };
     let net: Box<dyn nedrt_gpu::DeviceStage> = Box::new(DeviceDcnn::on_device(
         model.clone(),
         device,
@@ -104,9 +154,11 @@ pub(super) fn device_network(
     }
 }
 
+/// `--fallback`'s network: the same network on the CPU (tract, f32), or
+/// none (a D-CNN's Wiener stage alone where it has one).
 pub(super) fn fallback_factory(
     kind: FallbackKind,
-    model: ModelFile,
+    network: RunNetwork,
     common: &CommonOptions,
     stage: Option<(Method, Arc<WienerFilter>)>,
 ) -> FallbackFactory {
@@ -114,15 +166,31 @@ pub(super) fn fallback_factory(
         precision: nedrt_infer::Precision::F32,
         ..common.dcnn.backend_options.clone()
     };
+    let engine = |e: &dyn std::fmt::Display| nedrt_core::PreprocessError::Engine {
+        engine: "cpu (tract)".into(),
+        reason: e.to_string(),
+    };
     match kind {
-        FallbackKind::Cpu => Box::new(move || {
-            let dcnn = Dcnn::from_model(model, BackendKind::Cpu, &options).map_err(|e| {
-                nedrt_core::PreprocessError::Engine {
-                    engine: "cpu (tract)".into(),
-                    reason: e.to_string(),
-                }
-            })?;
-            Ok(behind(&stage, Box::new(dcnn)))
+        FallbackKind::Cpu => Box::new(move || match network {
+            RunNetwork::Dcnn { model, .. } => {
+                let dcnn =
+                    Dcnn::from_model(model, BackendKind::Cpu, &options).map_err(|e| engine(&e))?;
+                Ok(behind(&stage, Box::new(dcnn)))
+            }
+            RunNetwork::Unrolled { .. } => {
+                let (manifest, prepared) = network
+                    .unrolled()
+                    .ok_or_else(|| engine(&"not an unrolled model"))?
+                    .map_err(|e| engine(&e))?;
+                let model = nedrt_stages::unrolled::Unrolled::load(
+                    manifest.clone(),
+                    prepared,
+                    BackendKind::Cpu,
+                    &options,
+                )
+                .map_err(|e| engine(&e))?;
+                Ok(Box::new(model) as Box<dyn Preprocess>)
+            }
         }),
         // Without the network a Wiener-stage system still shows its Wiener.
         FallbackKind::Passthrough => Box::new(move || Ok(behind(&stage, Box::new(Identity)))),

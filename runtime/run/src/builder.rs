@@ -5,19 +5,16 @@
 //! host. Fault injection and the fallback act on every view alike, and all
 //! views take the same host/device decision.
 
-use std::sync::Arc;
-
 use super::build::{Gpu, device_network, fallback_factory, host_network};
 use super::ladder::{self, PlannedLevel, Rung};
+use super::network::{RunNetwork, WienerStage};
 use super::plan::{PlannedPath, RunPlan, ViewFacts};
 use super::serve::Built;
 use super::{AppError, CommonOptions, RunOptions};
 use nedrt_command::design::Design;
 use nedrt_core::preprocess::Preprocess;
 use nedrt_gpu::DeviceStage;
-use nedrt_infer::ModelFile;
-use nedrt_optics::sim::wiener::WienerFilter;
-use nedrt_optics::sim::{Method, Prepared};
+use nedrt_optics::sim::Prepared;
 use nedrt_service::pipeline::device_frames::{DeviceFrames, DeviceView};
 use nedrt_service::pipeline::ladder::{DeviceLevels, HostLevels, Ladder, Selection};
 use nedrt_service::pipeline::service::{
@@ -29,9 +26,8 @@ use nedrt_stages::device_prefilter::prefilter_stage;
 /// What the views are built from besides the options and the plan.
 pub(super) struct Parts<'a> {
     pub views: &'a [ViewFacts],
-    pub model: Option<&'a ModelFile>,
-    /// The network's Wiener stage, where its card puts one in front.
-    pub wiener: &'a Option<(Method, Arc<WienerFilter>)>,
+    /// The run's networks, in the ladder's order (a fixed run's alone).
+    pub networks: &'a [RunNetwork],
 }
 
 /// A view's options and its optics, prepared once for all its levels on
@@ -139,19 +135,26 @@ fn view_common(
 
 impl Build<'_> {
     fn has_network(&self) -> bool {
-        self.levels.iter().any(|l| l.rung == Rung::Network)
+        self.levels
+            .iter()
+            .any(|l| matches!(l.rung, Rung::Network(_)))
     }
 
-    fn model(&self) -> Result<&ModelFile, AppError> {
+    /// The run's `n`-th network.
+    fn model(&self, n: usize) -> Result<&RunNetwork, AppError> {
         self.parts
-            .model
+            .networks
+            .get(n)
             .ok_or_else(|| AppError::Internal("a network level without its model".into()))
     }
 
-    /// The network's Wiener stage for its fallback, where the fallback
+    /// Network `n`'s Wiener stage for its fallback, where the fallback
     /// runs it itself (not where the host ran it before the upload).
-    fn fallback_wiener(&self, behind_wiener: bool) -> Option<(Method, Arc<WienerFilter>)> {
-        behind_wiener.then(|| self.parts.wiener.clone()).flatten()
+    fn fallback_wiener(&self, n: usize, behind_wiener: bool) -> WienerStage {
+        match behind_wiener {
+            true => self.model(n).ok().and_then(RunNetwork::wiener),
+            false => None,
+        }
     }
 
     fn level_names(&self) -> String {
@@ -171,15 +174,15 @@ impl Build<'_> {
         network: HostNetwork,
     ) -> Result<Box<dyn Preprocess>, AppError> {
         let v = &self.views[i];
-        let mut make_network = || -> Result<Box<dyn Preprocess>, AppError> {
-            let model = self.model()?;
+        let mut make_network = |n: usize| -> Result<Box<dyn Preprocess>, AppError> {
+            let model = self.model(n)?;
             match network {
-                HostNetwork::Primary => host_network(&v.common, model, self.parts.wiener, device),
+                HostNetwork::Primary => host_network(&v.common, model, &model.wiener(), device),
                 HostNetwork::Fallback { behind_wiener } => Ok(fallback_factory(
                     self.opts.fallback,
                     model.clone(),
                     &v.common,
-                    self.fallback_wiener(behind_wiener),
+                    self.fallback_wiener(n, behind_wiener),
                 )()?),
             }
         };
@@ -203,9 +206,9 @@ impl Build<'_> {
         if !self.laddered && self.has_network() {
             return Ok(fallback_factory(
                 self.opts.fallback,
-                self.model()?.clone(),
+                self.model(0)?.clone(),
                 &self.views[i].common,
-                self.fallback_wiener(behind_wiener),
+                self.fallback_wiener(0, behind_wiener),
             ));
         }
         let levels = self.host_view(i, None, fallback)?;
@@ -344,15 +347,10 @@ impl Build<'_> {
         let v = &self.views[i];
         let device = &gpu.0;
         if self.laddered {
-            let mut network = || {
-                let (stage, _) = device_network(
-                    &v.common,
-                    self.model()?,
-                    gpu,
-                    self.parts.wiener,
-                    size,
-                    false,
-                )?;
+            let mut network = |n: usize| {
+                let model = self.model(n)?;
+                let (stage, _) =
+                    device_network(&v.common, model, gpu, &model.wiener(), size, false)?;
                 Ok(stage)
             };
             let stages = ladder::device_levels(
@@ -374,9 +372,10 @@ impl Build<'_> {
                 stage: None,
                 fallback: None,
             }),
-            Rung::Network => {
+            Rung::Network(n) => {
+                let model = self.model(n)?;
                 let (stage, host_wiener) =
-                    device_network(&v.common, self.model()?, gpu, self.parts.wiener, size, true)?;
+                    device_network(&v.common, model, gpu, &model.wiener(), size, true)?;
                 // The fallback gets what the device got: the frame (it then
                 // runs the network's Wiener itself), or the output of the
                 // Wiener on the host where the device FFT lacks the size.

@@ -85,7 +85,7 @@ impl std::fmt::Display for LadderSpec {
 fn level_names_help() -> String {
     let mut names = vec!["none".to_string(), "wiener".to_string()];
     names.extend(SOLVER_STEPS.iter().map(|k| format!("admm:{k}")));
-    names.push("the network's file stem (dcnn)".into());
+    names.push("the network's file stem (dcnn, unrolled-k3)".into());
     names.join(", ")
 }
 
@@ -99,7 +99,8 @@ pub enum Rung {
     /// (`nedrt sim --level`, a fixed run's quality).
     Refine(usize),
     Admm(usize),
-    Network,
+    /// The run's i-th network (`--ladder-network`'s, then `--dcnn`'s).
+    Network(usize),
     /// A fixed run's method with its `--prefilter` (the method's Wiener,
     /// or a least-squares prefilter on its optics): never a ladder's.
     Method,
@@ -127,6 +128,16 @@ pub struct PlannedLevel {
     pub left_out: Option<String>,
 }
 
+/// A network level: its name (the file's stem), its content hash (what
+/// the quality table's rows name) and whether it is an unrolled model
+/// (whose steps need the device FFT, as a prefilter's).
+#[derive(Debug, Clone, PartialEq)]
+pub struct NetworkLevel {
+    pub name: String,
+    pub hash: String,
+    pub unrolled: bool,
+}
+
 /// What a ladder is planned from besides the run's facts.
 #[derive(Debug, Clone)]
 pub struct LadderInputs {
@@ -135,8 +146,8 @@ pub struct LadderInputs {
     /// The DOE the levels run on, by content hash, and the run's design.
     pub doe_hash: String,
     pub design: Option<String>,
-    /// The network's name (file stem) and hash, where the run has one.
-    pub network: Option<(String, String)>,
+    /// The run's networks, in the ladder's order.
+    pub networks: Vec<NetworkLevel>,
 }
 
 /// The ladder of a run with `--preprocess auto`.
@@ -151,9 +162,9 @@ pub struct LadderPlan {
 /// The facts a ladder is planned from.
 #[derive(Debug, Clone)]
 pub struct LadderFacts {
-    /// The network's name (its file stem) and content hash, if the run has one.
-    pub network: Option<(String, String)>,
-    /// Why the network cannot be a level here (another backend than the
+    /// The run's networks, in the ladder's order.
+    pub networks: Vec<NetworkLevel>,
+    /// Why no network can be a level here (another backend than the
     /// device's on the device path, a view's design).
     pub network_excluded: Option<String>,
     /// The DOE the levels run on, by content hash, and the design whose K
@@ -179,9 +190,13 @@ pub fn plan_levels(
             .iter()
             .map(|&k| (format!("admm:{k}"), Rung::Admm(k))),
     );
-    if let Some((name, _)) = &facts.network {
-        rungs.push((name.clone(), Rung::Network));
-    }
+    rungs.extend(
+        facts
+            .networks
+            .iter()
+            .enumerate()
+            .map(|(i, n)| (n.name.clone(), Rung::Network(i))),
+    );
     let position = |bound: &Option<String>, default: usize| -> Result<usize, AppError> {
         match bound {
             None => Ok(default),
@@ -211,18 +226,28 @@ pub fn plan_levels(
     Ok(rungs[lo..=hi]
         .iter()
         .map(|(name, rung)| {
+            let device_fft = || match facts.on_device {
+                true => facts.device_fft_refuses.clone(),
+                false => None,
+            };
+            let network = match rung {
+                Rung::Network(i) => facts.networks.get(*i),
+                _ => None,
+            };
             let left_out = match rung {
-                Rung::Network => facts.network_excluded.clone(),
-                Rung::Wiener | Rung::Refine(_) | Rung::Admm(_) if facts.on_device => {
-                    facts.device_fft_refuses.clone()
-                }
+                // An unrolled model's steps are the device FFT's too.
+                Rung::Network(_) => facts
+                    .network_excluded
+                    .clone()
+                    .or_else(|| network.filter(|n| n.unrolled).and_then(|_| device_fft())),
+                Rung::Wiener | Rung::Refine(_) | Rung::Admm(_) => device_fft(),
                 _ => None,
             };
             let found = table.find(
                 *rung,
                 &facts.doe_hash,
                 facts.design.as_deref(),
-                facts.network.as_ref(),
+                network.map(|n| (n.name.clone(), n.hash.clone())).as_ref(),
             );
             PlannedLevel {
                 name: name.clone(),
@@ -248,7 +273,7 @@ pub fn plan_levels(
 pub(super) fn fixed_level(opts: &RunOptions, network: bool) -> PlannedLevel {
     let method = opts.preprocess;
     let (name, rung) = if network {
-        (method.name().to_string(), Rung::Network)
+        (method.name().to_string(), Rung::Network(0))
     } else if !method.uses_wiener() && opts.prefilter.is_native() {
         (method.name().to_string(), Rung::None)
     } else if opts.prefilter.is_native() {
@@ -273,11 +298,7 @@ pub fn level_system(
     common: &CommonOptions,
     name: &str,
 ) -> Result<(CommonOptions, Method, Prefilter), AppError> {
-    let stem = common
-        .dcnn
-        .path
-        .file_stem()
-        .map(|s| s.to_string_lossy().into_owned());
+    let stem = Some(super::network::level_name(&common.dcnn.path));
     let (method, prefilter) = match name {
         "none" => (Method::DoeOnly, Prefilter::Native),
         "wiener" => (Method::DoeWiener, Prefilter::Native),
@@ -328,7 +349,7 @@ pub(super) fn host_levels(
     prepared: Option<&Prepared>,
     levels: &[PlannedLevel],
     opts: &RunOptions,
-    network: &mut dyn FnMut() -> Result<Box<dyn Preprocess>, AppError>,
+    network: &mut dyn FnMut(usize) -> Result<Box<dyn Preprocess>, AppError>,
 ) -> Result<Vec<Box<dyn Preprocess>>, AppError> {
     let mut dcnns = std::collections::HashMap::new();
     levels
@@ -341,7 +362,7 @@ pub(super) fn host_levels(
             };
             Ok(match l.rung {
                 Rung::None => Box::new(Identity),
-                Rung::Network => network()?,
+                Rung::Network(i) => network(i)?,
                 // A still scene converges over frames (docs/service.md).
                 rung @ (Rung::Refine(_) | Rung::Admm(_)) => nedrt_stages::preprocess::solved(
                     Method::DoeWiener,
@@ -401,14 +422,14 @@ pub(super) fn device_levels(
     levels: &[PlannedLevel],
     device: &wgpu::Device,
     size: (usize, usize),
-    network: &mut dyn FnMut() -> Result<Box<dyn nedrt_gpu::DeviceStage>, AppError>,
+    network: &mut dyn FnMut(usize) -> Result<Box<dyn nedrt_gpu::DeviceStage>, AppError>,
 ) -> Result<Vec<Box<dyn nedrt_gpu::DeviceStage>>, AppError> {
     levels
         .iter()
         .map(|l| -> Result<Box<dyn nedrt_gpu::DeviceStage>, AppError> {
             Ok(match l.rung {
                 Rung::None => Box::new(nedrt_service::pipeline::ladder::Unprocessed),
-                Rung::Network => network()?,
+                Rung::Network(i) => network(i)?,
                 Rung::Method => {
                     return Err(AppError::Internal(
                         "a fixed method in a ladder of several levels".into(),
@@ -479,7 +500,14 @@ mod tests {
 
     fn facts(network: bool) -> LadderFacts {
         LadderFacts {
-            network: network.then(|| ("dcnn".to_string(), "m1".to_string())),
+            networks: network
+                .then(|| NetworkLevel {
+                    name: "dcnn".into(),
+                    hash: "m1".into(),
+                    unrolled: false,
+                })
+                .into_iter()
+                .collect(),
             network_excluded: None,
             doe_hash: "d1".into(),
             design: None,

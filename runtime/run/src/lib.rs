@@ -16,6 +16,7 @@
 mod build;
 mod builder;
 mod ladder;
+mod network;
 mod options;
 mod plan;
 mod serve;
@@ -29,9 +30,8 @@ pub use ladder::{
     level_system,
 };
 use nedrt_command::{AppError, CommonOptions};
-use nedrt_infer::ModelFile;
 use nedrt_infer::gpu::open_device;
-use nedrt_optics::sim::{Method, Simulator};
+use nedrt_optics::sim::Method;
 use nedrt_service::pipeline::pacing::{Clock, SystemClock};
 use nedrt_service::pipeline::service::{Control, PanelConfig};
 use nedrt_service::pipeline::source::{
@@ -43,7 +43,7 @@ use nedrt_service::present::headless::HeadlessSink;
 use nedrt_service::present::recorder::RecorderSink;
 use nedrt_service::present::transfer::Transfer;
 use nedrt_service::present::window::WindowSink;
-use nedrt_stages::preprocess::DcnnInput;
+use network::RunNetwork;
 pub use options::{
     FallbackKind, FramePath, MAX_SOURCE_RATE_HZ, MIN_SOURCE_RATE_HZ, RunOptions, SinkKind,
     SourceKind,
@@ -102,28 +102,17 @@ pub fn run(
 
     let dcnn = &common.dcnn;
     // A network trained on its optics' Wiener output runs behind that
-    // Wiener (its card says so), on every engine and fallback alike; read
-    // before the sink opens, so that a bad card leaves nothing behind.
-    let network = network_of(common, opts)?;
-    let model = network.as_ref().map(|(m, _)| m.clone());
-    let ladder_inputs = ladder_inputs(common, opts, network.as_ref())?;
-    let stage = match network.as_ref().map(|(_, input)| input) {
-        None | Some(DcnnInput::Frame) => None,
-        Some(&DcnnInput::WienerRaw { k_reg }) => {
-            let method = opts.preprocess;
-            let sim = Simulator::new(
-                common.calibration()?,
-                common.doe_path_for(&[method]).as_deref(),
-                common.cache(),
-            )?
-            .with_wiener_stages(vec![method]);
-            let prepared = sim.prepare(&[method], &[], common.progress())?;
-            Some((method, Arc::new(prepared.wiener_filter(method, k_reg)?)))
-        }
-    };
+    // Wiener (its card says so), on every engine and fallback alike; an
+    // unrolled model solves through the optics. Both read and prepared
+    // before the sink opens, so that a bad file leaves nothing behind.
+    let networks = networks_of(common, opts)?
+        .into_iter()
+        .map(|n| n.prepare(common, opts.preprocess))
+        .collect::<Result<Vec<_>, _>>()?;
+    let ladder_inputs = ladder_inputs(common, opts, &networks)?;
     // The views, and each view's design against the network, checked
     // before the sink opens.
-    let views = views::view_facts(opts, &calib, &panel, network.is_some())?;
+    let views = views::view_facts(opts, &calib, &panel, !networks.is_empty())?;
     let precision = dcnn.backend_options.precision;
     // The sink, and a GPU for the D-CNN to share with it.
     let (sink, device): (Box<dyn Sink>, _) = match opts.sink {
@@ -153,7 +142,7 @@ pub fn run(
         opts,
         views,
         &panel,
-        network.as_ref(),
+        networks.last(),
         probe,
         ladder_inputs,
     );
@@ -165,8 +154,7 @@ pub fn run(
     }
     let parts = builder::Parts {
         views: &inputs.views,
-        model: model.as_ref(),
-        wiener: &stage,
+        networks: &networks,
     };
     let built = builder::build(common, opts, &panel, device.as_ref(), &planned, &parts)?;
     serve(opts, control, panel, clock, source, sink, built)
@@ -210,11 +198,9 @@ fn checked_panel(
     Ok((calib, panel))
 }
 
-/// The network of a run (its file and card), if its system has one.
-fn network_of(
-    common: &CommonOptions,
-    opts: &RunOptions,
-) -> Result<Option<(ModelFile, DcnnInput)>, AppError> {
+/// The network of a run (a D-CNN and its card, or an unrolled model's
+/// manifest), if its system has one.
+fn network_of(common: &CommonOptions, opts: &RunOptions) -> Result<Option<RunNetwork>, AppError> {
     let dcnn = &common.dcnn;
     if !(opts.preprocess.uses_dcnn() && opts.prefilter.is_native()) {
         return Ok(None);
@@ -229,17 +215,39 @@ fn network_of(
         tracing::info!("{}: no network, so no network level", path.display());
         return Ok(None);
     }
-    if nedrt_stages::unrolled::is_manifest(path) {
-        return Err(AppError::input(
-            path.display(),
-            "an unrolled model runs in sim, eval, tradeoff and view (on wgpu as one device \
-             stage); nedrt run's builder takes an ONNX network, so it does not take it yet \
-             (docs/unrolled.md)",
+    RunNetwork::read(opts.preprocess, path).map(Some)
+}
+
+/// Every network of a run, in its ladder's order: `--ladder-network`'s,
+/// then the system's own (`--dcnn`); a fixed run has its own alone.
+fn networks_of(common: &CommonOptions, opts: &RunOptions) -> Result<Vec<RunNetwork>, AppError> {
+    if !opts.ladder_networks.is_empty() && opts.ladder.is_none() {
+        return Err(AppError::Conflict(
+            "--ladder-network adds a level to the frame budget's ladder: give --preprocess \
+             auto[:LO..HI] with it"
+                .into(),
         ));
     }
-    let model = ModelFile::read(path)?;
-    let input = nedrt_stages::preprocess::dcnn_input(&model.path)?;
-    Ok(Some((model, input)))
+    let mut all = opts
+        .ladder_networks
+        .iter()
+        .map(|p| RunNetwork::read(opts.preprocess, p))
+        .collect::<Result<Vec<_>, _>>()?;
+    all.extend(network_of(common, opts)?);
+    for (i, n) in all.iter().enumerate() {
+        let name = n.name();
+        let taken = ["none", "wiener"].contains(&name.as_str()) || name.starts_with("admm:");
+        if taken || all[..i].iter().any(|m| m.name() == name) {
+            return Err(AppError::input(
+                n.path().display(),
+                format!(
+                    "its level would be named {name:?}, as another level of the ladder is: \
+                     give each network a file name of its own"
+                ),
+            ));
+        }
+    }
+    Ok(all)
 }
 
 /// The inputs of the plan: the panel's views and the network's facts.
@@ -248,7 +256,7 @@ fn plan_inputs<'a>(
     opts: &'a RunOptions,
     views: Vec<plan::ViewFacts>,
     panel: &PanelConfig,
-    network: Option<&(ModelFile, DcnnInput)>,
+    network: Option<&RunNetwork>,
     probe: Probe,
     ladder: Option<ladder::LadderInputs>,
 ) -> plan::PlanInputs<'a> {
@@ -256,12 +264,10 @@ fn plan_inputs<'a>(
         opts,
         panel: (panel.width, panel.height, panel.refresh_hz),
         views,
-        network: network.map(|(m, input)| plan::NetworkFacts {
-            path: m.path.display().to_string(),
-            behind_wiener_k: match input {
-                DcnnInput::Frame => None,
-                DcnnInput::WienerRaw { k_reg } => Some(*k_reg),
-            },
+        network: network.map(|n| plan::NetworkFacts {
+            path: n.path().display().to_string(),
+            behind_wiener_k: n.behind_wiener_k(),
+            unrolled_steps: n.unrolled_steps(),
         }),
         backend: common.dcnn.backend,
         precision: common.dcnn.backend_options.precision,
@@ -275,7 +281,7 @@ fn plan_inputs<'a>(
 fn ladder_inputs(
     common: &CommonOptions,
     opts: &RunOptions,
-    network: Option<&(ModelFile, DcnnInput)>,
+    networks: &[RunNetwork],
 ) -> Result<Option<ladder::LadderInputs>, AppError> {
     let Some(spec) = &opts.ladder else {
         return Ok(None);
@@ -289,19 +295,20 @@ fn ladder_inputs(
     }
     let table = QualityTable::load(opts.ladder_quality.as_deref())?;
     let doe_hash = ladder::doe_hash(&ladder::ladder_common(common, opts.preprocess))?;
-    let network = network.map(|(m, _)| {
-        let name = m
-            .path
-            .file_stem()
-            .map_or("network".into(), |s| s.to_string_lossy().into_owned());
-        (name, m.hash.clone())
-    });
+    let networks = networks
+        .iter()
+        .map(|n| ladder::NetworkLevel {
+            name: n.name(),
+            hash: n.hash().to_string(),
+            unrolled: n.unrolled_steps().is_some(),
+        })
+        .collect();
     Ok(Some(ladder::LadderInputs {
         spec: spec.clone(),
         table,
         doe_hash,
         design: common.design.as_ref().map(|d| d.name.clone()),
-        network,
+        networks,
     }))
 }
 
@@ -310,7 +317,7 @@ fn ladder_inputs(
 /// started, no window opened, no socket bound).
 pub fn plan_run(common: &CommonOptions, opts: &RunOptions) -> Result<RunPlan, AppError> {
     let (calib, panel) = checked_panel(common, opts)?;
-    let network = network_of(common, opts)?;
+    let networks = networks_of(common, opts)?;
     let probe = match opts.sink {
         SinkKind::Record => Probe::NotNeeded,
         SinkKind::Window | SinkKind::Headless => {
@@ -323,9 +330,9 @@ pub fn plan_run(common: &CommonOptions, opts: &RunOptions) -> Result<RunPlan, Ap
             }
         }
     };
-    let ladder = ladder_inputs(common, opts, network.as_ref())?;
-    let views = views::view_facts(opts, &calib, &panel, network.is_some())?;
-    let inputs = plan_inputs(common, opts, views, &panel, network.as_ref(), probe, ladder);
+    let ladder = ladder_inputs(common, opts, &networks)?;
+    let views = views::view_facts(opts, &calib, &panel, !networks.is_empty())?;
+    let inputs = plan_inputs(common, opts, views, &panel, networks.last(), probe, ladder);
     plan::plan(&inputs)
 }
 

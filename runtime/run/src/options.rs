@@ -146,6 +146,10 @@ pub struct RunOptions {
     /// The tradeoff table the ladder's quality comes from (default
     /// [`crate::ladder::DEFAULT_QUALITY_TABLE`] where it exists).
     pub ladder_quality: Option<PathBuf>,
+    /// More network levels of the ladder (D-CNNs or unrolled models, as
+    /// `--dcnn` takes them), cheapest first, between admm:10 and the
+    /// system's own network.
+    pub ladder_networks: Vec<PathBuf>,
     pub source: SourceKind,
     pub input: Option<PathBuf>,
     pub socket: PathBuf,

@@ -36,6 +36,8 @@ pub struct NetworkFacts {
     pub path: String,
     /// The Wiener stage it runs behind (its card's `wiener_k`), if any.
     pub behind_wiener_k: Option<f64>,
+    /// An unrolled model's steps (its manifest's), for a D-CNN none.
+    pub unrolled_steps: Option<usize>,
 }
 
 /// A view to plan: its name, region and design (from `[[view]]`, or the
@@ -135,6 +137,19 @@ pub fn plan(inputs: &PlanInputs<'_>) -> Result<RunPlan, AppError> {
         Some(network_on_host(inputs.backend))
     } else if inputs.network.is_some() && f16_missing {
         Some(NO_F16.to_string())
+    } else if let Some(e) = inputs
+        .network
+        .as_ref()
+        .filter(|n| n.unrolled_steps.is_some())
+        .and_then(|_| {
+            inputs
+                .views
+                .iter()
+                .find_map(|v| prefilter_on_device(inputs, v).err())
+        })
+    {
+        // Its steps' transforms are the device FFT's.
+        Some(format!("the unrolled model's steps: {e}"))
     } else if inputs.network.is_none()
         && opts.inject_device_loss_after.is_some()
         && (fixed_level(opts, false).rung == Rung::None
@@ -198,7 +213,13 @@ pub fn plan(inputs: &PlanInputs<'_>) -> Result<RunPlan, AppError> {
                     precision_name(inputs.precision)
                 )
             };
-            format!("{}: {engine}", n.path)
+            match n.unrolled_steps {
+                Some(k) => format!(
+                    "{} (unrolled: {k} split-solver steps with learned corrections): {engine}",
+                    n.path
+                ),
+                None => format!("{}: {engine}", n.path),
+            }
         }
     };
     let fallback = match (&inputs.network, opts.fallback) {
@@ -287,7 +308,7 @@ const NO_F16: &str = "the adapter has no f16 shaders for the f16 network";
 
 fn network_on_host(backend: BackendKind) -> String {
     format!(
-        "the D-CNN runs on the {} backend, on the host",
+        "the network runs on the {} backend, on the host",
         backend.name()
     )
 }
@@ -326,7 +347,7 @@ fn ladder_plan(
         })
         .flatten();
     let facts = LadderFacts {
-        network: l.network.clone(),
+        networks: l.networks.clone(),
         network_excluded,
         doe_hash: l.doe_hash.clone(),
         design: l.design.clone(),

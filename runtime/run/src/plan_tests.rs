@@ -7,6 +7,7 @@ fn opts() -> RunOptions {
         prefilter: nedrt_stages::preprocess::Prefilter::Native,
         ladder: None,
         ladder_quality: None,
+        ladder_networks: Vec::new(),
         source: SourceKind::Pattern,
         input: None,
         socket: PathBuf::from("/tmp/nedrt.sock"),
@@ -49,6 +50,7 @@ fn network() -> Option<NetworkFacts> {
     Some(NetworkFacts {
         path: "models/dcnn.onnx".into(),
         behind_wiener_k: Some(0.01),
+        unrolled_steps: None,
     })
 }
 
@@ -130,7 +132,7 @@ fn each_reason_for_the_host_is_named() {
     let p = plan(&i).expect("plan");
     assert_eq!(
         p.path_reason,
-        "the D-CNN runs on the cpu backend, on the host"
+        "the network runs on the cpu backend, on the host"
     );
 
     let o = opts();
@@ -305,14 +307,19 @@ fn a_prefilter_the_device_lacks_runs_on_the_host_before_the_upload() {
 /// with its reason, not every level sent to the host.
 #[test]
 fn a_ladder_leaves_out_what_the_device_cannot_run_and_keeps_the_device_path() {
-    use crate::ladder::{LadderInputs, LadderSpec, QualityTable};
+    use crate::ladder::{LadderInputs, LadderSpec, NetworkLevel, QualityTable};
     let o = opts();
+    let network = |name: &str, unrolled| NetworkLevel {
+        name: name.into(),
+        hash: format!("{name} hash"),
+        unrolled,
+    };
     let ladder = || LadderInputs {
         spec: LadderSpec::default(),
         table: QualityTable::default(),
         doe_hash: "d".into(),
         design: None,
-        network: Some(("dcnn".into(), "m".into())),
+        networks: vec![network("unrolled-k1", true), network("dcnn", false)],
     };
     let mut i = inputs(&o, whole(1920, 1080), gpu());
     i.backend = BackendKind::Cpu;
@@ -325,10 +332,8 @@ fn a_ladder_leaves_out_what_the_device_cannot_run_and_keeps_the_device_path() {
         .iter()
         .filter_map(|l| l.left_out.as_deref().map(|why| (l.name.as_str(), why)))
         .collect();
-    assert_eq!(
-        left_out,
-        [("dcnn", "the D-CNN runs on the cpu backend, on the host")]
-    );
+    let on_host = "the network runs on the cpu backend, on the host";
+    assert_eq!(left_out, [("unrolled-k1", on_host), ("dcnn", on_host)]);
     assert!(
         p.views[0].stages[2].starts_with(
             "the frame budget's level (none < wiener < admm:1 < admm:3 < admm:10) on the GPU"
@@ -337,7 +342,8 @@ fn a_ladder_leaves_out_what_the_device_cannot_run_and_keeps_the_device_path() {
         p.views[0].stages
     );
     // A side the device FFT lacks (a prime factor over 13) leaves out the
-    // prefilter levels; none stays.
+    // prefilter levels and the unrolled model's (its steps are the FFT's);
+    // none and the D-CNN stay.
     let mut i = inputs(&o, whole(17 * 8, 48), gpu());
     i.ladder = Some(ladder());
     let p = plan(&i).expect("plan");
@@ -356,5 +362,28 @@ fn a_ladder_leaves_out_what_the_device_cannot_run_and_keeps_the_device_path() {
     assert!(
         text.contains("  wiener     left out: the device FFT takes no"),
         "{text}"
+    );
+    assert!(text.contains("unrolled-k1"), "{text}");
+    // On the GPU with the device's backend every network is a level.
+    let mut i = inputs(&o, whole(1920, 1080), gpu());
+    i.ladder = Some(ladder());
+    let p = plan(&i).expect("plan");
+    let names: Vec<&str> = p.levels.iter().map(|l| l.name.as_str()).collect();
+    assert_eq!(
+        names,
+        [
+            "none",
+            "wiener",
+            "admm:1",
+            "admm:3",
+            "admm:10",
+            "unrolled-k1",
+            "dcnn"
+        ]
+    );
+    assert!(
+        p.levels
+            .iter()
+            .any(|l| l.name == "unrolled-k1" && l.rung == crate::ladder::Rung::Network(0))
     );
 }

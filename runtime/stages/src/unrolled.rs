@@ -206,19 +206,7 @@ impl Unrolled {
         kind: BackendKind,
         options: &BackendOptions,
     ) -> Result<Self, EngineError> {
-        let bad = |reason: String| EngineError::input(manifest.path.display(), reason);
-        let doe_hash = prepared.doe_hash();
-        if manifest.doe != doe_hash {
-            return Err(bad(format!(
-                "trained through DOE {}, this display's is {doe_hash}: run it with the DOE it \
-                 was trained through, or train it for this one",
-                manifest.doe
-            )));
-        }
-        // The lsq start's K is the model's own, as a D-CNN's card names its
-        // Wiener's: it was trained from that start.
-        let mut problem = prepared.display_problem(manifest.method, manifest.objective)?;
-        problem.k_reg = manifest.k_reg;
+        let problem = problem_for(&manifest, prepared)?;
         Self::with_problem(manifest, problem, kind, options)
     }
 
@@ -230,16 +218,7 @@ impl Unrolled {
         kind: BackendKind,
         options: &BackendOptions,
     ) -> Result<Self, EngineError> {
-        if !problem.has_split() {
-            return Err(EngineError::input(
-                manifest.path.display(),
-                format!(
-                    "{}'s PSFs are not mirror-symmetric, so the split solver has no exact data \
-                     step",
-                    manifest.method
-                ),
-            ));
-        }
+        check_split(&manifest, &problem)?;
         let mut networks = Vec::new();
         for s in &manifest.steps {
             networks.push(match &s.network {
@@ -291,46 +270,121 @@ impl Unrolled {
         adapter_name: &str,
         options: &BackendOptions,
     ) -> Result<nedrt_gpu::unrolled::UnrolledStage, EngineError> {
-        let mut steps = Vec::new();
-        for spec in &self.manifest.steps {
-            let correction: Option<Box<dyn nedrt_gpu::DeviceStage>> = match &spec.network {
-                None => None,
-                Some(model) => Some(Box::new(nedrt_infer::gpu::DeviceDcnn::on_device(
-                    model.clone(),
-                    device,
-                    queue,
-                    adapter_name.to_string(),
-                    options,
-                )?)),
-            };
-            steps.push(nedrt_gpu::unrolled::UnrolledStep {
-                relaxation: spec.relaxation,
-                correction,
-            });
-        }
-        let problem = self.problem.clone();
-        let rhos: Vec<f32> = self.manifest.steps.iter().map(|s| s.rho).collect();
-        let terms_for: nedrt_gpu::unrolled::UnrolledTermsFor = Box::new(move |w, h| {
-            let t = problem.device_unrolled_terms(w, h, &rhos)?;
-            Ok(nedrt_gpu::unrolled::UnrolledTerms {
-                linear: t.linear,
-                adjoint: t.adjoint,
-                normal: t.normal,
-                steps: t
-                    .steps
-                    .into_iter()
-                    .map(|s| nedrt_gpu::unrolled::UnrolledStepTerms {
-                        data: s.data,
-                        penalty: s.penalty,
-                    })
-                    .collect(),
-            })
-        });
-        let what = format!("unrolled {}", self.manifest.path.display());
-        Ok(nedrt_gpu::unrolled::UnrolledStage::new(
-            device, what, steps, terms_for,
-        )?)
+        stage_of(
+            &self.manifest,
+            self.problem.clone(),
+            device,
+            queue,
+            adapter_name,
+            options,
+        )
     }
+}
+
+/// The model of `manifest` as one device stage through `prepared`'s
+/// optics, without a host twin (a service's device level, whose fallback
+/// is built apart): the checks of [`Unrolled::load`], then
+/// [`Unrolled::device_stage`].
+pub fn device_stage(
+    manifest: &Manifest,
+    prepared: &Prepared,
+    device: &wgpu::Device,
+    queue: &wgpu::Queue,
+    adapter_name: &str,
+    options: &BackendOptions,
+) -> Result<nedrt_gpu::unrolled::UnrolledStage, EngineError> {
+    let problem = problem_for(manifest, prepared)?;
+    check_split(manifest, &problem)?;
+    stage_of(
+        manifest,
+        Arc::new(problem),
+        device,
+        queue,
+        adapter_name,
+        options,
+    )
+}
+
+/// The problem `manifest` solves through `prepared`'s optics: its DOE
+/// must be the one it was trained through, and the `lsq` start's K is the
+/// model's own, as a D-CNN's card names its Wiener's (it was trained from
+/// that start).
+fn problem_for(manifest: &Manifest, prepared: &Prepared) -> Result<DisplayProblem, EngineError> {
+    let doe_hash = prepared.doe_hash();
+    if manifest.doe != doe_hash {
+        return Err(EngineError::input(
+            manifest.path.display(),
+            format!(
+                "trained through DOE {}, this display's is {doe_hash}: run it with the DOE it \
+                 was trained through, or train it for this one",
+                manifest.doe
+            ),
+        ));
+    }
+    let mut problem = prepared.display_problem(manifest.method, manifest.objective)?;
+    problem.k_reg = manifest.k_reg;
+    Ok(problem)
+}
+
+fn check_split(manifest: &Manifest, problem: &DisplayProblem) -> Result<(), EngineError> {
+    if problem.has_split() {
+        return Ok(());
+    }
+    Err(EngineError::input(
+        manifest.path.display(),
+        format!(
+            "{}'s PSFs are not mirror-symmetric, so the split solver has no exact data step",
+            manifest.method
+        ),
+    ))
+}
+
+fn stage_of(
+    manifest: &Manifest,
+    problem: Arc<DisplayProblem>,
+    device: &wgpu::Device,
+    queue: &wgpu::Queue,
+    adapter_name: &str,
+    options: &BackendOptions,
+) -> Result<nedrt_gpu::unrolled::UnrolledStage, EngineError> {
+    let mut steps = Vec::new();
+    for spec in &manifest.steps {
+        let correction: Option<Box<dyn nedrt_gpu::DeviceStage>> = match &spec.network {
+            None => None,
+            Some(model) => Some(Box::new(nedrt_infer::gpu::DeviceDcnn::on_device(
+                model.clone(),
+                device,
+                queue,
+                adapter_name.to_string(),
+                options,
+            )?)),
+        };
+        steps.push(nedrt_gpu::unrolled::UnrolledStep {
+            relaxation: spec.relaxation,
+            correction,
+        });
+    }
+    let rhos: Vec<f32> = manifest.steps.iter().map(|s| s.rho).collect();
+    let terms_for: nedrt_gpu::unrolled::UnrolledTermsFor = Box::new(move |w, h| {
+        let t = problem.device_unrolled_terms(w, h, &rhos)?;
+        Ok(nedrt_gpu::unrolled::UnrolledTerms {
+            linear: t.linear,
+            adjoint: t.adjoint,
+            normal: t.normal,
+            steps: t
+                .steps
+                .into_iter()
+                .map(|s| nedrt_gpu::unrolled::UnrolledStepTerms {
+                    data: s.data,
+                    penalty: s.penalty,
+                })
+                .collect(),
+        })
+    });
+    let what = format!("unrolled {}", manifest.path.display());
+    Ok(nedrt_gpu::unrolled::UnrolledStage::new(
+        device, what, steps, terms_for,
+    )?)
 }
 
 impl Preprocess for Unrolled {

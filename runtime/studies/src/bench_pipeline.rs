@@ -233,6 +233,7 @@ pub fn run(
                 },
                 ladder: (network == PipelineNetwork::Auto).then(LadderSpec::default),
                 ladder_quality: None,
+                ladder_networks: Vec::new(),
                 source: SourceKind::Pattern,
                 input: None,
                 socket: PathBuf::from("unused.sock"),

@@ -131,7 +131,7 @@ impl QualityTable {
                     && same_doe(row)
                     && prefilter_of(row).is_some_and(|p| p == full || p == short)
             }
-            Rung::Network => {
+            Rung::Network(_) => {
                 row.method == "proposed"
                     && network.is_some_and(|(_, hash)| row.model_hash.as_deref() == Some(hash))
             }
@@ -139,7 +139,7 @@ impl QualityTable {
             Rung::Method => false,
         });
         let candidates: Vec<&QualityRow> = matching.collect();
-        if rung == Rung::Network {
+        if matches!(rung, Rung::Network(_)) {
             return candidates.first().copied();
         }
         // The run's design's row first, then one of no design, then any.
@@ -188,10 +188,13 @@ pub fn fixed_quality(
             if !path.exists() {
                 return Ok(None);
             }
-            let model = nedrt_infer::ModelFile::read(path)?;
-            let network = (String::new(), model.hash);
+            let hash = match nedrt_stages::unrolled::is_manifest(path) {
+                true => nedrt_stages::unrolled::Manifest::read(path)?.hash,
+                false => nedrt_infer::ModelFile::read(path)?.hash,
+            };
+            let network = (String::new(), hash);
             return Ok(table
-                .find(Rung::Network, "", None, Some(&network))
+                .find(Rung::Network(0), "", None, Some(&network))
                 .map(|r| r.mean_psnr_db));
         }
         _ => return Ok(None),

@@ -11,7 +11,7 @@ use nedrt_stages::device_prefilter::runs_on_device;
 pub(super) fn prefilter_on_device(inputs: &PlanInputs<'_>, v: &ViewFacts) -> Result<(), String> {
     let opts = inputs.opts;
     match &inputs.network {
-        Some(n) if n.behind_wiener_k.is_none() => return Ok(()),
+        Some(n) if n.behind_wiener_k.is_none() && n.unrolled_steps.is_none() => return Ok(()),
         Some(_) => {}
         None if !opts.preprocess.uses_wiener() && opts.prefilter.is_native() => return Ok(()),
         None if !runs_on_device(opts.preprocess, opts.prefilter) => {
@@ -83,7 +83,13 @@ pub(super) fn stages(
                     s.push("its planes uploaded".into());
                 }
             }
-            s.push(format!("D-CNN {here}"));
+            s.push(match n.unrolled_steps {
+                Some(k) => format!(
+                    "unrolled model: the lsq start, {k} split-solver steps with learned \
+                     corrections {here}"
+                ),
+                None => format!("D-CNN {here}"),
+            });
         }
         (None, None) if !opts.prefilter.is_native() => {
             s.push(format!(
