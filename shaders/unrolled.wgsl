@@ -1,12 +1,12 @@
 // The unrolled preprocessor's per-pixel passes (runtime/gpu/src/unrolled.rs),
 // the device twin of nedrt-optics' `SplitSteps`. The DCT filter makes, into
-// `ax` and `c`: at the start the lsq image (ax) and Σ_D A_Dᵀ t_D / L (c);
-// per step the penalty's share of v (ax) and the data term (c), then N r / L
-// (ax). Per pixel:
-//   start:     z = clamp(ax), u = 0, v = z, b = c
-//   relax:     r = α (ax + c) + (1 − α) z;  planes = [r + u, u, ·]
+// `ax` and `c`: at the start the lsq image (ax) and b = Σ_D A_Dᵀ t_D / L (c);
+// per step the data step x = L (N + ρ)⁻¹ v (ax), from v = b + ρ/L (z − u),
+// then N r / L (ax). Per pixel:
+//   start:     z = clamp(ax), u = 0, b = c, v = b + share · z
+//   relax:     r = α ax + (1 − α) z;  planes = [r + u, u, ·]
 //   gradient:  planes[2C..] = ax − b                         (∇f(r) / L)
-//   constrain: z⁺ = clamp(r + u + aux), u⁺ = u + r − z⁺, v = z⁺ − u⁺
+//   constrain: z⁺ = clamp(r + u + aux), u⁺ = u + r − z⁺, v = b + share_next (z⁺ − u⁺)
 //   emit:      aux = z
 // `work` holds z, u and b (C planes each); `aux` is the step's correction
 // (zeros for a classical step) or, to emit, the display image.
@@ -16,6 +16,8 @@ struct Frame {
     channels: u32,
     groups_x: u32,          // workgroups along x (pixel = x + y·groups_x·64)
     relaxation: f32,
+    share: f32,             // this step's ρ / L
+    share_next: f32,        // the next step's (0 after the last)
 }
 
 @group(0) @binding(0) var<storage, read> f: Frame;
@@ -47,7 +49,7 @@ fn start(@builtin(global_invocation_id) gid: vec3<u32>) {
     work[z_at(at)] = s;
     work[u_at(at)] = 0.0;
     work[b_at(at)] = c[at];
-    v[at] = s;
+    v[at] = c[at] + f.share * s;
 }
 
 @compute @workgroup_size(64)
@@ -58,7 +60,7 @@ fn relax(@builtin(global_invocation_id) gid: vec3<u32>) {
     }
     let at = gid.z * f.plane + i;
     let a = f.relaxation;
-    let rv = a * (ax[at] + c[at]) + (1.0 - a) * work[z_at(at)];
+    let rv = a * ax[at] + (1.0 - a) * work[z_at(at)];
     let uv = work[u_at(at)];
     r[at] = rv;
     planes[at] = rv + uv;
@@ -88,7 +90,7 @@ fn constrain(@builtin(global_invocation_id) gid: vec3<u32>) {
     let un = uv + rv - next;
     work[z_at(at)] = next;
     work[u_at(at)] = un;
-    v[at] = next - un;
+    v[at] = work[b_at(at)] + f.share_next * (next - un);
 }
 
 @compute @workgroup_size(64)

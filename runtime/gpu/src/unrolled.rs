@@ -6,8 +6,9 @@
 //! recorded into the frame's encoder: nothing is uploaded, allocated or
 //! read back per frame. The device twin of nedrt-optics' `SplitSteps`; the
 //! per-pixel passes are `shaders/unrolled.wgsl`, the filters gain sets of
-//! one [`DctFilter`] (the start, the gradient's two, and each step's data
-//! term and penalty share).
+//! one [`DctFilter`] (the start, the gradient's two, and each step's
+//! solve: its data step is one filter of b + ρ_k/L · (z − u), the frame's
+//! own term b made once).
 
 use crate::fft::{DctFilter, FftError, FftKernels, TermsError, init_buffer};
 use crate::refine::{GroupCache, bind, pipelines};
@@ -17,7 +18,7 @@ const SHADER: &str = include_str!("../../../shaders/unrolled.wgsl");
 
 /// The model's terms at one frame size (nedrt-optics' `UnrolledTerms`):
 /// per channel in the DCT filter's layout, the `lsq` start, Σ_D A_Dᵀ t_D / L,
-/// N / L, and per step (data, penalty).
+/// N / L, and per step the solve L / (N + ρ_k).
 #[derive(Debug, Clone)]
 pub struct UnrolledTerms {
     pub linear: Vec<Vec<f32>>,
@@ -26,21 +27,22 @@ pub struct UnrolledTerms {
     pub steps: Vec<UnrolledStepTerms>,
 }
 
-/// One step's gains per channel: the data term's and the penalty share's.
+/// One step's gains per channel: the solve's, L / (N + ρ_k).
 #[derive(Debug, Clone)]
 pub struct UnrolledStepTerms {
-    pub data: Vec<Vec<f32>>,
-    pub penalty: Vec<Vec<f32>>,
+    pub solve: Vec<Vec<f32>>,
 }
 
 /// The terms of a frame size, or why they cannot be made.
 pub type UnrolledTermsFor =
     Box<dyn FnMut(usize, usize) -> Result<UnrolledTerms, TermsError> + Send>;
 
-/// One step: its relaxation α and its correction (none: a classical step),
-/// which maps 9 planes to 3 (its [`DeviceStage::record`]'s input holds 9).
+/// One step: its penalty's share ρ_k / L, its relaxation α and its
+/// correction (none: a classical step), which maps 9 planes to 3 (its
+/// [`DeviceStage::record`]'s input holds 9).
 #[derive(Debug)]
 pub struct UnrolledStep {
+    pub rho_share: f32,
     pub relaxation: f32,
     pub correction: Option<Box<dyn DeviceStage>>,
 }
@@ -53,18 +55,19 @@ struct FrameParams {
     channels: u32,
     groups_x: u32,
     relaxation: f32,
+    /// This step's ρ / L (the start's v), and the next one's (0 after the
+    /// last), which the clamp's v is made for.
+    share: f32,
+    share_next: f32,
 }
 
 /// Gain sets of the plan's filter, in this order: start, gradient's
-/// constant, gradient's operator, then each step's data and penalty.
+/// constant, gradient's operator, then each step's solve.
 const LINEAR: usize = 0;
 const ADJOINT: usize = 1;
 const NORMAL: usize = 2;
-fn data_set(k: usize) -> usize {
-    3 + 2 * k
-}
-fn penalty_set(k: usize) -> usize {
-    4 + 2 * k
+fn solve_set(k: usize) -> usize {
+    3 + k
 }
 
 #[derive(Debug)]
@@ -174,8 +177,7 @@ impl UnrolledStage {
         }
         let mut sets: Vec<&[Vec<f32>]> = vec![&terms.linear, &terms.adjoint, &terms.normal];
         for step in &terms.steps {
-            sets.push(&step.data);
-            sets.push(&step.penalty);
+            sets.push(&step.solve);
         }
         let filter = DctFilter::with_gain_sets(&mut self.kernels, width, height, &sets)?;
         let device = &self.device;
@@ -204,7 +206,8 @@ impl UnrolledStage {
         let params: Vec<wgpu::Buffer> = self
             .steps
             .iter()
-            .map(|s| {
+            .enumerate()
+            .map(|(k, s)| {
                 init_buffer(
                     device,
                     "unrolled frame",
@@ -213,6 +216,8 @@ impl UnrolledStage {
                         channels: channels as u32,
                         groups_x: gx,
                         relaxation: s.relaxation,
+                        share: s.rho_share,
+                        share_next: self.steps.get(k + 1).map_or(0.0, |n| n.rho_share),
                     }),
                 )
             })
@@ -317,8 +322,7 @@ impl DeviceStage for UnrolledStage {
         dispatch(encoder, &p.start, &plan.steps[0]);
         for (k, step) in self.steps.iter_mut().enumerate() {
             let group = &plan.steps[k];
-            plan.filter.record_set(encoder, v, ax, penalty_set(k))?;
-            plan.filter.record_set(encoder, input, c, data_set(k))?;
+            plan.filter.record_set(encoder, v, ax, solve_set(k))?;
             dispatch(encoder, &p.relax, group);
             if let Some(net) = step.correction.as_mut() {
                 plan.filter.record_set(encoder, r, ax, NORMAL)?;

@@ -360,6 +360,7 @@ fn stage_of(
             )?)),
         };
         steps.push(nedrt_gpu::unrolled::UnrolledStep {
+            rho_share: spec.rho,
             relaxation: spec.relaxation,
             correction,
         });
@@ -374,10 +375,7 @@ fn stage_of(
             steps: t
                 .steps
                 .into_iter()
-                .map(|s| nedrt_gpu::unrolled::UnrolledStepTerms {
-                    data: s.data,
-                    penalty: s.penalty,
-                })
+                .map(|s| nedrt_gpu::unrolled::UnrolledStepTerms { solve: s.solve })
                 .collect(),
         })
     });

@@ -181,11 +181,10 @@ impl SplitSteps {
 
 /// The unrolled model's terms at one frame size, as the device takes them
 /// (per channel, the DCT filter's layout, [`crate::sim::wiener::dct_plane`]):
-/// the `lsq` start's gains; Σ_D A_Dᵀ t_D / L and N / L, the gradient's
-/// constant and operator; and per step the data term's gains
-/// Σ_D A_Dᵀ t_D / (N + ρ_k) and the penalty's share ρ_k / (N + ρ_k), so
-/// that the data step is x = data_k(I) + penalty_k(z − u), as
-/// [`SplitSteps::relax`] computes it.
+/// the `lsq` start's gains; b = Σ_D A_Dᵀ t_D / L and N / L, the gradient's
+/// constant and operator; and per step the solve's gains L / (N + ρ_k), so
+/// that the data step (N + ρ_k)⁻¹ (Σ_D A_Dᵀ t_D + ρ_k (z − u)), as
+/// [`SplitSteps::relax`] computes it, is one filter of b + (ρ_k / L)(z − u).
 #[derive(Debug, Clone)]
 pub struct UnrolledTerms {
     pub linear: Vec<Vec<f32>>,
@@ -194,11 +193,10 @@ pub struct UnrolledTerms {
     pub steps: Vec<StepTerms>,
 }
 
-/// One step's gains per channel: the data term's and the penalty share's.
+/// One step's gains per channel: the solve's, L / (N + ρ_k).
 #[derive(Debug, Clone, Default)]
 pub struct StepTerms {
-    pub data: Vec<Vec<f32>>,
-    pub penalty: Vec<Vec<f32>>,
+    pub solve: Vec<Vec<f32>>,
 }
 
 impl DisplayProblem {
@@ -229,17 +227,8 @@ impl DisplayProblem {
             normal.push(dct_plane(&n, width, height, c)?);
             for (k, share) in rho_shares.iter().enumerate() {
                 let rho = share * l;
-                let data: Vec<c32> = op.adjoint_target[c]
-                    .iter()
-                    .zip(&op.normal[c])
-                    .map(|(a, m)| a / (m + rho))
-                    .collect();
-                let penalty: Vec<c32> =
-                    op.normal[c].iter().map(|m| real(rho / (m + rho))).collect();
-                steps[k].data.push(dct_plane(&data, width, height, c)?);
-                steps[k]
-                    .penalty
-                    .push(dct_plane(&penalty, width, height, c)?);
+                let solve: Vec<c32> = op.normal[c].iter().map(|m| real(l / (m + rho))).collect();
+                steps[k].solve.push(dct_plane(&solve, width, height, c)?);
             }
         }
         Ok(UnrolledTerms {
