@@ -119,6 +119,10 @@ if [ "${#hw_run[@]}" -gt 0 ]; then
     cargo build --release -p nedrt-openxr --lib --examples
     cargo test --release --workspace --tests -- --ignored --test-threads=1 "${hw_filter[@]}"
 fi
+echo "== the Python package (runtime/python) into .venv"
+# maturin builds it with the workspace's target folder and release profile:
+# the libraries compiled above are reused.
+VIRTUAL_ENV="$PWD/.venv" .venv/bin/maturin develop --release --quiet -m runtime/python/Cargo.toml
 echo "== pytest tests/python models/tests"
 # One thread: OpenMP busy-waiting makes two threads slower on a shared 2-core machine.
 OMP_NUM_THREADS=1 .venv/bin/python -m pytest -q -W ignore::DeprecationWarning tests/python models/tests

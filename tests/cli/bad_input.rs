@@ -764,6 +764,16 @@ const ROWS: &[Row] = &[
         ],
         "none.json",
     ),
+    row(
+        "psf --at: accommodation out of range",
+        &["psf", "--at", "40", "--out-dir", "{out}"],
+        "beyond what an eye accommodates",
+    ),
+    row(
+        "psf: --method without --at",
+        &["psf", "--method", "ai", "--out-dir", "{out}"],
+        "required arguments were not provided",
+    ),
 ];
 
 /// Rows that take the small-aperture calibration and the `--sim` arguments
@@ -779,6 +789,7 @@ fn command_line(r: &Row, dir: &Path, out: &Path) -> Vec<String> {
             "sweep",
             "prefilter",
             "bench",
+            "psf",
         ]
         .contains(a)
     });

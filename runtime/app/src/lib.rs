@@ -11,6 +11,7 @@
 //! progress through [`nedrt_core::Progress`]).
 
 pub mod charts;
+pub mod frames;
 pub mod images;
 pub mod prefilter_batch;
 pub mod sim;

@@ -5,10 +5,9 @@ use std::fmt::Write as _;
 use std::path::PathBuf;
 use std::time::Instant;
 
-use super::{AppError, CommonOptions, check_accommodation};
+use super::{AppError, CommonOptions};
 use nedrt_core::image_io::{self, DEFAULT_INPUT_NAME, DEFAULT_INPUT_PNG, LoadedImage};
-use nedrt_optics::sim::metrics::{psnr, ssim};
-use nedrt_optics::sim::{Image, Method, Optics, Simulator, ZoneRequest};
+use nedrt_optics::sim::{Method, Optics, ZoneRequest};
 use nedrt_stages::preprocess::Prefilter;
 
 /// Options of `nedrt --sim`.
@@ -50,21 +49,7 @@ impl SimOptions {
 /// What `--out` and `--display-out` write: 16-bit PNG, or 32-bit float TIFF (exact).
 const DISPLAY_OUT_FORMATS: &[&str] = &["png", "tif", "tiff"];
 
-/// PSNR and SSIM of a perceived image against one reference.
-#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
-pub struct Score {
-    pub psnr_db: f64,
-    pub ssim: f64,
-}
-
-impl Score {
-    pub fn of(perceived: &Image, reference: &Image) -> Self {
-        Self {
-            psnr_db: psnr(perceived, reference),
-            ssim: ssim(perceived, reference),
-        }
-    }
-}
+pub use crate::frames::Score;
 
 /// Everything `nedrt --sim` reports.
 #[derive(Debug, Clone)]
@@ -217,9 +202,6 @@ fn simulate(
 ) -> Result<SimReport, AppError> {
     let start = Instant::now();
     let calib = common.calibration()?;
-    if let Some(w) = check_accommodation(&calib, opts.accommodation_d)? {
-        tracing::warn!("{w}");
-    }
     let panel = (calib.panel.width_px, calib.panel.height_px);
     let (loaded, input_name) = load_input(opts.input.as_deref(), panel)?;
     for n in &loaded.notes {
@@ -230,8 +212,6 @@ fn simulate(
         image_io::check_extension(p, DISPLAY_OUT_FORMATS)?;
     }
     let input = loaded.image;
-    // Below 8 pixels a side the scores mean nothing (SSIM needs an 11×11
-    // window on the 2× retinal grid); `eval` refuses the same images.
     if input.width < 8 || input.height < 8 {
         return Err(AppError::input(
             input_name,
@@ -257,92 +237,31 @@ fn simulate(
         }
         None => None,
     };
-
-    if display_loaded.is_some() && !opts.prefilter.is_native() {
-        return Err(AppError::Conflict(format!(
-            "--prefilter {} makes a display image, --display-image gives one; use one of them",
-            opts.prefilter
-        )));
+    let frame = crate::frames::simulate(
+        common,
+        &crate::frames::FrameRequest {
+            input: &input,
+            display: display_loaded.as_ref(),
+            optics: opts.optics,
+            accommodation_d: opts.accommodation_d,
+            method: opts.method,
+            prefilter: opts.prefilter,
+            zones: opts.zones,
+        },
+    )?;
+    let (perceived, display, sim) = (&frame.perceived, &frame.display, &frame.sim);
+    let (rw, rh) = (frame.sharp.width, frame.sharp.height);
+    if write_files {
+        image_io::save(perceived, &opts.out, DISPLAY_OUT_FORMATS)?;
+        if let Some(p) = &opts.display_out {
+            image_io::save(display, p, DISPLAY_OUT_FORMATS)?;
+        }
     }
+    let (vs_sharp, vs_target) = (frame.vs_sharp, frame.vs_target);
     let method = match display_loaded {
         Some(_) => Method::unprocessed(opts.optics),
         None => opts.method,
     };
-    let mut dcnns = common.dcnn.load_for(&[method])?;
-    let dcnn_line = dcnns.get(&method).map(|n| match n.dcnn() {
-        Some(d) => format!(
-            "D-CNN     {} ({}, {:.0} MAC/pixel) on {}{}",
-            d.model.path.display(),
-            d.model.hash,
-            d.network.macs_per_pixel,
-            d.describe(),
-            nedrt_stages::preprocess::stage_note(&d.model.path)
-        ),
-        None => format!("network   {}", n.line()),
-    });
-    if let Some(d) = dcnns.get(&method).and_then(|n| n.dcnn()) {
-        let m = d.network.multiple;
-        if !input.width.is_multiple_of(m) || !input.height.is_multiple_of(m) {
-            tracing::warn!(
-                "{input_name}: {}×{} is not a multiple of {m}; the D-CNN pads it to {}×{} by \
-                 reflection and crops its output back",
-                input.width,
-                input.height,
-                input.width.div_ceil(m) * m,
-                input.height.div_ceil(m) * m
-            );
-        }
-    }
-    let sim = Simulator::new(
-        calib,
-        common.doe_path_for(&[method]).as_deref(),
-        common.cache(),
-    )?
-    .with_wiener_stages(nedrt_stages::preprocess::wiener_stages(&dcnns)?);
-    let mut depths = opts.prefilter.depths_d(&sim.calib);
-    if dcnns.values().any(|n| n.needs_objective_depths()) {
-        depths = nedrt_optics::sim::objective_depths_d(&sim.calib);
-    }
-    depths.push(opts.accommodation_d);
-    let prepared = sim.prepare(&[method], &depths, common.progress())?;
-    let mut engine = None;
-    let display = match &display_loaded {
-        Some(d) => d.clone(),
-        None => {
-            // With --backend wgpu the prefilter runs on the device too.
-            let gpu = crate::gpu_for(common, &[method], &[opts.prefilter])?;
-            let e = engine.insert(nedrt_stages::device_prefilter::for_system_on(
-                gpu.as_ref(),
-                method,
-                opts.prefilter,
-                &prepared,
-                &mut dcnns,
-            )?);
-            e.run(&input)?
-        }
-    };
-    // Where the eye's pupil is the stop, the PSF changes across the field:
-    // rendered by zones (the display image stays the centre's).
-    let zoned = sim.field_zones(
-        &prepared,
-        method,
-        &display,
-        opts.accommodation_d,
-        opts.zones,
-        common.progress(),
-    )?;
-    let perceived = zoned.perceived(&prepared, method, &display, opts.accommodation_d)?;
-    let target = zoned.target(&prepared, &input, opts.accommodation_d)?;
-    let sharp = input.up2();
-    let (rw, rh) = (sharp.width, sharp.height);
-    if write_files {
-        image_io::save(&perceived, &opts.out, DISPLAY_OUT_FORMATS)?;
-        if let Some(p) = &opts.display_out {
-            image_io::save(&display, p, DISPLAY_OUT_FORMATS)?;
-        }
-    }
-    let vs_sharp = Score::of(&perceived, &sharp);
-    let vs_target = Score::of(&perceived, &target);
 
     let c = &sim.calib;
     let mut t = String::new();
@@ -366,15 +285,12 @@ fn simulate(
     if method.optics() == Optics::Doe {
         let _ = writeln!(t, "DOE       {} ({})", sim.doe_hash, sim.doe.description);
     }
-    if let Some(line) = &dcnn_line {
+    if let Some(line) = &frame.network_line {
         let _ = writeln!(t, "{line}");
     }
     // The prefilter, and where it ran (the CPU, or the device with --backend wgpu).
-    if let Some(e) = engine
-        .as_ref()
-        .filter(|_| !opts.prefilter.is_native() || method.uses_wiener())
-    {
-        let _ = writeln!(t, "display   {}", e.describe());
+    if let Some(e) = &frame.engine_line {
+        let _ = writeln!(t, "display   {e}");
     }
     let _ = writeln!(
         t,
@@ -410,11 +326,11 @@ fn simulate(
         vs_target.psnr_db, vs_target.ssim
     );
     let _ = writeln!(t, "eye       {}", c.eye_summary());
-    if c.eye.pupil_diameter_m.is_some() {
-        let _ = writeln!(t, "zones     {}", zoned.summary());
+    if let Some(z) = &frame.zones_line {
+        let _ = writeln!(t, "zones     {z}");
     }
-    for (name, r) in &prepared.reports {
-        let _ = writeln!(t, "model     {name}: {}", r.summary());
+    for (name, r) in &frame.models {
+        let _ = writeln!(t, "model     {name}: {r}");
     }
     let _ = write!(t, "time      {:.2} s", start.elapsed().as_secs_f64());
     Ok(SimReport {

@@ -186,8 +186,9 @@ pub enum Command {
     /// image and the target (`nedrt sim` or `nedrt --sim`).
     #[command(long_flag = "sim")]
     Sim(SimArgs),
-    /// PSF cross-sections against accommodation (paper Fig. 4b): PNG, SVG, CSV.
-    Psf(PlotArgs),
+    /// PSF cross-sections against accommodation (paper Fig. 4b): PNG, SVG,
+    /// CSV; with --at D, a method's full PSFs at D (safetensors).
+    Psf(PsfArgs),
     /// MTFs (paper Fig. 5): at 0.5 D against CPD, and against depth at 1, 5, 10 CPD.
     Mtf(PlotArgs),
     /// The DOE height map (paper Fig. 4a); `--write-init FILE` saves the three-lens DOE.
@@ -353,6 +354,20 @@ pub struct PlotArgs {
     /// Accommodation step of the sweep (D).
     #[arg(long, default_value_t = 0.1, value_name = "D")]
     pub step: f64,
+}
+
+#[derive(Args, Debug)]
+pub struct PsfArgs {
+    #[command(flatten)]
+    pub plot: PlotArgs,
+    /// Instead of the sweep: the full PSFs of --method's optics with the
+    /// eye accommodated at D diopters, into OUT_DIR/psfs.safetensors
+    /// (channel × N × N, each cell's share of the light; `veil` beside).
+    #[arg(long, value_name = "D")]
+    pub at: Option<f64>,
+    /// The method whose optics --at takes.
+    #[arg(long, default_value = "doe+wiener", value_name = "METHOD", value_parser = named::<Method>(), requires = "at")]
+    pub method: Method,
 }
 
 #[derive(Args, Debug)]

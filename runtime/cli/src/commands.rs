@@ -71,7 +71,16 @@ pub fn run(cli: Cli) -> Result<()> {
         progress: Arc::new(Console::default()),
     };
     match cli.command {
-        Some(Command::Psf(a)) => print!("{}", studies::plots::psf(&common, &a.out_dir, a.step)?),
+        Some(Command::Psf(a)) => match a.at {
+            Some(d) => print!(
+                "{}",
+                app::frames::write_psfs(&common, a.method, d, &a.plot.out_dir)?
+            ),
+            None => print!(
+                "{}",
+                studies::plots::psf(&common, &a.plot.out_dir, a.plot.step)?
+            ),
+        },
         Some(Command::Mtf(a)) => print!("{}", studies::plots::mtf(&common, &a.out_dir, a.step)?),
         Some(Command::Doe(a)) => print!(
             "{}",
