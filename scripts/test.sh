@@ -66,7 +66,10 @@ cargo clippy --all-targets -- -D warnings
 echo "== layers (docs/ARCHITECTURE.md)"
 bash scripts/check-layers.sh
 echo "== cargo test --release"
-cargo test --release --workspace
+# The Python package's extension (nedrt-python) has no Rust tests: maturin
+# builds it below, with its own pyo3 settings, reusing every library built
+# here, so that no crate is compiled twice.
+cargo test --release --workspace --exclude nedrt-python
 
 # The hardware tests, for each part this machine has (see the top).
 hw_filter=(needs_)
@@ -117,7 +120,7 @@ if [ "${#hw_run[@]}" -gt 0 ]; then
     # run at once (seen on the 2-core machine; each passes alone).
     # The OpenXR tests load the runtime library from the target folder.
     cargo build --release -p nedrt-openxr --lib --examples
-    cargo test --release --workspace --tests -- --ignored --test-threads=1 "${hw_filter[@]}"
+    cargo test --release --workspace --exclude nedrt-python --tests -- --ignored --test-threads=1 "${hw_filter[@]}"
 fi
 echo "== the Python package (runtime/python) into .venv"
 # maturin builds it with the workspace's target folder and release profile:
