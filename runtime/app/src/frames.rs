@@ -31,6 +31,10 @@ impl Score {
 #[derive(Debug, Clone, Copy)]
 pub struct FrameRequest<'a> {
     pub input: &'a Image,
+    /// What bad-input errors call the input and the display image (their
+    /// files, or the caller's argument names).
+    pub input_name: &'a str,
+    pub display_name: &'a str,
     /// Simulate this display image instead of the method's preprocessing
     /// (the input's size).
     pub display: Option<&'a Image>,
@@ -78,10 +82,10 @@ pub fn simulate(common: &CommonOptions, req: &FrameRequest<'_>) -> Result<Simula
     // Below 8 pixels a side the scores mean nothing (SSIM needs an 11×11
     // window on the 2× retinal grid); `eval` refuses the same images.
     if input.width < 8 || input.height < 8 {
-        return Err(AppError::Conflict(format!(
-            "the input is {}×{} pixels, smaller than 8×8",
-            input.width, input.height
-        )));
+        return Err(AppError::input(
+            req.input_name,
+            format!("{}×{} pixels, smaller than 8×8", input.width, input.height),
+        ));
     }
     if input.channels() != calib.channels.len() {
         return Err(AppError::Conflict(format!(
@@ -92,15 +96,19 @@ pub fn simulate(common: &CommonOptions, req: &FrameRequest<'_>) -> Result<Simula
     }
     if let Some(d) = req.display {
         if (d.width, d.height, d.channels()) != (input.width, input.height, input.channels()) {
-            return Err(AppError::Conflict(format!(
-                "the display image is {}×{}×{}, the input {}×{}×{}; they must match",
-                d.width,
-                d.height,
-                d.channels(),
-                input.width,
-                input.height,
-                input.channels()
-            )));
+            return Err(AppError::input(
+                req.display_name,
+                format!(
+                    "display image is {}×{}×{}, the input {} is {}×{}×{}; they must match",
+                    d.width,
+                    d.height,
+                    d.channels(),
+                    req.input_name,
+                    input.width,
+                    input.height,
+                    input.channels()
+                ),
+            ));
         }
         if !req.prefilter.is_native() {
             return Err(AppError::Conflict(format!(
@@ -113,8 +121,14 @@ pub fn simulate(common: &CommonOptions, req: &FrameRequest<'_>) -> Result<Simula
         Some(_) => Method::unprocessed(req.optics),
         None => req.method,
     };
-    let mut dcnns = common.dcnn.load_for(&[method])?;
-    let network_line = dcnns.get(&method).map(|n| match n.dcnn() {
+    let mut system = System::new(
+        common,
+        calib,
+        method,
+        req.prefilter,
+        Some(req.accommodation_d),
+    )?;
+    let network_line = system.dcnns.get(&method).map(|n| match n.dcnn() {
         Some(d) => format!(
             "D-CNN     {} ({}, {:.0} MAC/pixel) on {}{}",
             d.model.path.display(),
@@ -125,7 +139,7 @@ pub fn simulate(common: &CommonOptions, req: &FrameRequest<'_>) -> Result<Simula
         ),
         None => format!("network   {}", n.line()),
     });
-    if let Some(d) = dcnns.get(&method).and_then(|n| n.dcnn()) {
+    if let Some(d) = system.dcnns.get(&method).and_then(|n| n.dcnn()) {
         let m = d.network.multiple;
         if !input.width.is_multiple_of(m) || !input.height.is_multiple_of(m) {
             tracing::warn!(
@@ -138,31 +152,11 @@ pub fn simulate(common: &CommonOptions, req: &FrameRequest<'_>) -> Result<Simula
             );
         }
     }
-    let sim = Simulator::new(
-        calib,
-        common.doe_path_for(&[method]).as_deref(),
-        common.cache(),
-    )?
-    .with_wiener_stages(nedrt_stages::preprocess::wiener_stages(&dcnns)?);
-    let mut depths = req.prefilter.depths_d(&sim.calib);
-    if dcnns.values().any(|n| n.needs_objective_depths()) {
-        depths = nedrt_optics::sim::objective_depths_d(&sim.calib);
-    }
-    depths.push(req.accommodation_d);
-    let prepared = sim.prepare(&[method], &depths, common.progress())?;
     let mut engine_line = None;
     let display = match req.display {
         Some(d) => d.clone(),
         None => {
-            // With --backend wgpu the prefilter runs on the device too.
-            let gpu = crate::gpu_for(common, &[method], &[req.prefilter])?;
-            let mut engine = nedrt_stages::device_prefilter::for_system_on(
-                gpu.as_ref(),
-                method,
-                req.prefilter,
-                &prepared,
-                &mut dcnns,
-            )?;
+            let mut engine = system.engine(common, method, req.prefilter)?;
             let display = engine.run(input)?;
             if !req.prefilter.is_native() || method.uses_wiener() {
                 engine_line = Some(engine.describe());
@@ -170,6 +164,7 @@ pub fn simulate(common: &CommonOptions, req: &FrameRequest<'_>) -> Result<Simula
             display
         }
     };
+    let System { sim, prepared, .. } = system;
     // Where the eye's pupil is the stop, the PSF changes across the field:
     // rendered by zones (the display image stays the centre's).
     let zoned = sim.field_zones(
@@ -252,27 +247,64 @@ pub fn display_image(
             calib.channels.len()
         )));
     }
-    let mut dcnns = common.dcnn.load_for(&[method])?;
-    let sim = Simulator::new(
-        calib,
-        common.doe_path_for(&[method]).as_deref(),
-        common.cache(),
-    )?
-    .with_wiener_stages(nedrt_stages::preprocess::wiener_stages(&dcnns)?);
-    let mut depths = prefilter.depths_d(&sim.calib);
-    if dcnns.values().any(|n| n.needs_objective_depths()) {
-        depths = nedrt_optics::sim::objective_depths_d(&sim.calib);
+    let mut system = System::new(common, calib, method, prefilter, None)?;
+    Ok(system.engine(common, method, prefilter)?.run(input)?)
+}
+
+/// A method's optics made ready for its display image: its networks, the
+/// simulator (with their Wiener stages) and the PSFs of the prefilter's
+/// depths (the objective's for an unrolled model), and of `extra_d`.
+struct System {
+    sim: Simulator,
+    prepared: nedrt_optics::sim::Prepared,
+    dcnns: std::collections::HashMap<Method, nedrt_stages::network::Network>,
+}
+
+impl System {
+    fn new(
+        common: &CommonOptions,
+        calib: nedrt_core::calib::Calibration,
+        method: Method,
+        prefilter: Prefilter,
+        extra_d: Option<f64>,
+    ) -> Result<Self, AppError> {
+        let dcnns = common.dcnn.load_for(&[method])?;
+        let sim = Simulator::new(
+            calib,
+            common.doe_path_for(&[method]).as_deref(),
+            common.cache(),
+        )?
+        .with_wiener_stages(nedrt_stages::preprocess::wiener_stages(&dcnns)?);
+        let mut depths = prefilter.depths_d(&sim.calib);
+        if dcnns.values().any(|n| n.needs_objective_depths()) {
+            depths = nedrt_optics::sim::objective_depths_d(&sim.calib);
+        }
+        depths.extend(extra_d);
+        let prepared = sim.prepare(&[method], &depths, common.progress())?;
+        Ok(Self {
+            sim,
+            prepared,
+            dcnns,
+        })
     }
-    let prepared = sim.prepare(&[method], &depths, common.progress())?;
-    let gpu = crate::gpu_for(common, &[method], &[prefilter])?;
-    let mut engine = nedrt_stages::device_prefilter::for_system_on(
-        gpu.as_ref(),
-        method,
-        prefilter,
-        &prepared,
-        &mut dcnns,
-    )?;
-    Ok(engine.run(input)?)
+
+    /// The engine that makes the display image: on the device with
+    /// `--backend wgpu`, where the prefilter has a device stage.
+    fn engine(
+        &mut self,
+        common: &CommonOptions,
+        method: Method,
+        prefilter: Prefilter,
+    ) -> Result<Box<dyn nedrt_core::Preprocess>, AppError> {
+        let gpu = crate::gpu_for(common, &[method], &[prefilter])?;
+        Ok(nedrt_stages::device_prefilter::for_system_on(
+            gpu.as_ref(),
+            method,
+            prefilter,
+            &self.prepared,
+            &mut self.dcnns,
+        )?)
+    }
 }
 
 /// `nedrt psf --at D`: [`psfs`] written to `out_dir/psfs.safetensors`

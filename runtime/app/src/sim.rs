@@ -212,35 +212,26 @@ fn simulate(
         image_io::check_extension(p, DISPLAY_OUT_FORMATS)?;
     }
     let input = loaded.image;
-    if input.width < 8 || input.height < 8 {
-        return Err(AppError::input(
-            input_name,
-            format!("{}×{} pixels, smaller than 8×8", input.width, input.height),
-        ));
-    }
     let display_loaded = match &opts.display_image {
         Some(p) => {
             let l = image_io::load_for_panel(p, panel)?;
             for n in &l.notes {
                 tracing::warn!("{n}");
             }
-            if (l.image.width, l.image.height) != (input.width, input.height) {
-                return Err(AppError::input(
-                    p.display(),
-                    format!(
-                        "display image is {}×{}, the input {input_name} is {}×{}; they must match",
-                        l.image.width, l.image.height, input.width, input.height
-                    ),
-                ));
-            }
             Some(l.image)
         }
         None => None,
     };
+    let display_name = opts
+        .display_image
+        .as_ref()
+        .map_or(String::new(), |p| p.display().to_string());
     let frame = crate::frames::simulate(
         common,
         &crate::frames::FrameRequest {
             input: &input,
+            input_name: &input_name,
+            display_name: &display_name,
             display: display_loaded.as_ref(),
             optics: opts.optics,
             accommodation_d: opts.accommodation_d,

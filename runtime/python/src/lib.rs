@@ -254,6 +254,8 @@ impl Display {
                     common,
                     &FrameRequest {
                         input: &input,
+                        input_name: "image",
+                        display_name: "display",
                         display: None,
                         optics: Optics::Doe,
                         accommodation_d,

@@ -5,17 +5,18 @@
 
 use std::sync::Arc;
 
-use super::network::RunNetwork;
+use super::network::{RunNetwork, optics};
 use super::{AppError, CommonOptions, FallbackKind};
 use nedrt_core::preprocess::{Identity, Preprocess};
 use nedrt_infer::gpu::DeviceDcnn;
 use nedrt_infer::{BackendKind, Dcnn};
 use nedrt_optics::sim::wiener::WienerFilter;
-use nedrt_optics::sim::{Method, Simulator};
+use nedrt_optics::sim::{Method, Prepared, Simulator};
 use nedrt_service::pipeline::service::FallbackFactory;
 use nedrt_stages::Chain;
 use nedrt_stages::device_prefilter::wiener_stage;
 use nedrt_stages::preprocess::RawWiener;
+use nedrt_stages::unrolled::Manifest;
 
 /// `network` behind its Wiener stage where the model has one.
 pub(super) fn behind(
@@ -38,13 +39,14 @@ pub(super) type Gpu = (wgpu::Device, wgpu::Queue, String);
 pub(super) fn host_network(
     common: &CommonOptions,
     network: &RunNetwork,
-    stage: &Option<(Method, Arc<WienerFilter>)>,
     device: Option<&Gpu>,
 ) -> Result<Box<dyn Preprocess>, AppError> {
     let options = &common.dcnn.backend_options;
-    let model = match network {
-        RunNetwork::Dcnn { model, .. } => model,
-        RunNetwork::Unrolled { .. } => return host_unrolled(common, network, device),
+    let (model, stage) = match network {
+        RunNetwork::Dcnn { model, wiener, .. } => (model, wiener),
+        RunNetwork::Unrolled { manifest, prepared } => {
+            return host_unrolled(common, manifest, optics(prepared)?, device);
+        }
     };
     let f32_options = nedrt_infer::BackendOptions {
         precision: nedrt_infer::Precision::F32,
@@ -75,13 +77,10 @@ pub(super) fn host_network(
 /// host twin for sizes the device FFT lacks.
 fn host_unrolled(
     common: &CommonOptions,
-    network: &RunNetwork,
+    manifest: &Manifest,
+    prepared: &Prepared,
     device: Option<&Gpu>,
 ) -> Result<Box<dyn Preprocess>, AppError> {
-    let Some(unrolled) = network.unrolled() else {
-        return Err(AppError::Internal("not an unrolled model".into()));
-    };
-    let (manifest, prepared) = unrolled?;
     let net = nedrt_stages::network::Network::Unrolled {
         manifest: manifest.clone(),
         kind: common.dcnn.backend,
@@ -105,19 +104,15 @@ pub(super) fn device_network(
     common: &CommonOptions,
     network: &RunNetwork,
     (device, queue, name): &Gpu,
-    stage: &Option<(Method, Arc<WienerFilter>)>,
     size: (usize, usize),
     host_wiener: bool,
 ) -> Result<(Box<dyn nedrt_gpu::DeviceStage>, Option<RawWiener>), AppError> {
-    let model = match network {
-        RunNetwork::Dcnn { model, .. } => model,
-        RunNetwork::Unrolled { .. } => {
-            let (manifest, prepared) = network
-                .unrolled()
-                .ok_or_else(|| AppError::Internal("not an unrolled model".into()))??;
+    let (model, stage) = match network {
+        RunNetwork::Dcnn { model, wiener, .. } => (model, wiener),
+        RunNetwork::Unrolled { manifest, prepared } => {
             let stage = nedrt_stages::unrolled::device_stage(
                 manifest,
-                prepared,
+                optics(prepared)?,
                 device,
                 queue,
                 name,
@@ -177,13 +172,10 @@ pub(super) fn fallback_factory(
                     Dcnn::from_model(model, BackendKind::Cpu, &options).map_err(|e| engine(&e))?;
                 Ok(behind(&stage, Box::new(dcnn)))
             }
-            RunNetwork::Unrolled { .. } => {
-                let (manifest, prepared) = network
-                    .unrolled()
-                    .ok_or_else(|| engine(&"not an unrolled model"))?
-                    .map_err(|e| engine(&e))?;
+            RunNetwork::Unrolled { manifest, prepared } => {
+                let prepared = optics(&prepared).map_err(|e| engine(&e))?;
                 let model = nedrt_stages::unrolled::Unrolled::load(
-                    manifest.clone(),
+                    manifest,
                     prepared,
                     BackendKind::Cpu,
                     &options,

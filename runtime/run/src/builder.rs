@@ -177,7 +177,7 @@ impl Build<'_> {
         let mut make_network = |n: usize| -> Result<Box<dyn Preprocess>, AppError> {
             let model = self.model(n)?;
             match network {
-                HostNetwork::Primary => host_network(&v.common, model, &model.wiener(), device),
+                HostNetwork::Primary => host_network(&v.common, model, device),
                 HostNetwork::Fallback { behind_wiener } => Ok(fallback_factory(
                     self.opts.fallback,
                     model.clone(),
@@ -349,8 +349,7 @@ impl Build<'_> {
         if self.laddered {
             let mut network = |n: usize| {
                 let model = self.model(n)?;
-                let (stage, _) =
-                    device_network(&v.common, model, gpu, &model.wiener(), size, false)?;
+                let (stage, _) = device_network(&v.common, model, gpu, size, false)?;
                 Ok(stage)
             };
             let stages = ladder::device_levels(
@@ -374,8 +373,7 @@ impl Build<'_> {
             }),
             Rung::Network(n) => {
                 let model = self.model(n)?;
-                let (stage, host_wiener) =
-                    device_network(&v.common, model, gpu, &model.wiener(), size, true)?;
+                let (stage, host_wiener) = device_network(&v.common, model, gpu, size, true)?;
                 // The fallback gets what the device got: the frame (it then
                 // runs the network's Wiener itself), or the output of the
                 // Wiener on the host where the device FFT lacks the size.

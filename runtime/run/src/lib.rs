@@ -105,10 +105,7 @@ pub fn run(
     // Wiener (its card says so), on every engine and fallback alike; an
     // unrolled model solves through the optics. Both read and prepared
     // before the sink opens, so that a bad file leaves nothing behind.
-    let networks = networks_of(common, opts)?
-        .into_iter()
-        .map(|n| n.prepare(common, opts.preprocess))
-        .collect::<Result<Vec<_>, _>>()?;
+    let networks = network::prepare(networks_of(common, opts)?, common, opts.preprocess)?;
     let ladder_inputs = ladder_inputs(common, opts, &networks)?;
     // The views, and each view's design against the network, checked
     // before the sink opens.

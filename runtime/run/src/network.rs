@@ -53,67 +53,9 @@ impl RunNetwork {
                 wiener: None,
             });
         }
-        let manifest = Manifest::read(path)?;
-        if manifest.method.optics() != method.optics() {
-            return Err(AppError::input(
-                path.display(),
-                format!(
-                    "solves through the optics of {}, not {method}'s",
-                    manifest.method
-                ),
-            ));
-        }
         Ok(Self::Unrolled {
-            manifest,
+            manifest: Manifest::read_for(method, path)?,
             prepared: None,
-        })
-    }
-
-    /// What a network needs of `method`'s optics, made once for every view
-    /// and level before the sink opens: a D-CNN's Wiener stage where its
-    /// card puts one in front; an unrolled model's optics (its DOE and its
-    /// steps' networks checked here). Prepared as the simulator prepares
-    /// them, so that a run shows what `nedrt sim` renders.
-    pub(crate) fn prepare(self, common: &CommonOptions, method: Method) -> Result<Self, AppError> {
-        let sim = |wiener_stages: Vec<Method>| -> Result<Simulator, AppError> {
-            Ok(Simulator::new(
-                common.calibration()?,
-                common.doe_path_for(&[method]).as_deref(),
-                common.cache(),
-            )?
-            .with_wiener_stages(wiener_stages))
-        };
-        let manifest = match self {
-            Self::Dcnn {
-                model,
-                input: DcnnInput::WienerRaw { k_reg },
-                ..
-            } => {
-                let prepared = sim(vec![method])?.prepare(&[method], &[], common.progress())?;
-                let filter = Arc::new(prepared.wiener_filter(method, k_reg)?);
-                return Ok(Self::Dcnn {
-                    model,
-                    input: DcnnInput::WienerRaw { k_reg },
-                    wiener: Some((method, filter)),
-                });
-            }
-            Self::Dcnn { .. } => return Ok(self),
-            Self::Unrolled { manifest, .. } => manifest,
-        };
-        let sim = sim(Vec::new())?;
-        let depths = nedrt_optics::sim::objective_depths_d(&sim.calib);
-        let prepared = sim.prepare(&[method], &depths, common.progress())?;
-        // Every check of a load (DOE, split, each step's planes) now, on
-        // the CPU: a model that cannot run fails before anything opens.
-        Unrolled::load(
-            manifest.clone(),
-            &prepared,
-            nedrt_infer::BackendKind::Cpu,
-            &nedrt_infer::BackendOptions::default(),
-        )?;
-        Ok(Self::Unrolled {
-            manifest,
-            prepared: Some(Arc::new(prepared)),
         })
     }
 
@@ -163,19 +105,78 @@ impl RunNetwork {
             Self::Dcnn { .. } => None,
         }
     }
+}
 
-    /// An unrolled model's manifest and prepared optics.
-    pub(crate) fn unrolled(&self) -> Option<Result<(&Manifest, &Prepared), AppError>> {
-        match self {
-            Self::Dcnn { .. } => None,
-            Self::Unrolled { manifest, prepared } => Some(
-                prepared
-                    .as_deref()
-                    .map(|p| (manifest, p))
-                    .ok_or_else(|| AppError::Internal("an unrolled model not prepared".into())),
-            ),
-        }
-    }
+/// What the networks need of `method`'s optics, made once for every view
+/// and level before the sink opens: each D-CNN's Wiener stage where its
+/// card puts one in front; the unrolled models' optics, prepared once for
+/// all of them (each one's DOE and steps' networks checked here).
+/// Prepared as the simulator prepares them, so that a run shows what
+/// `nedrt sim` renders.
+pub(crate) fn prepare(
+    networks: Vec<RunNetwork>,
+    common: &CommonOptions,
+    method: Method,
+) -> Result<Vec<RunNetwork>, AppError> {
+    let sim = |wiener_stages: Vec<Method>| -> Result<Simulator, AppError> {
+        Ok(Simulator::new(
+            common.calibration()?,
+            common.doe_path_for(&[method]).as_deref(),
+            common.cache(),
+        )?
+        .with_wiener_stages(wiener_stages))
+    };
+    let mut optics: Option<Arc<Prepared>> = None;
+    networks
+        .into_iter()
+        .map(|n| match n {
+            RunNetwork::Dcnn {
+                model,
+                input: DcnnInput::WienerRaw { k_reg },
+                ..
+            } => {
+                let prepared = sim(vec![method])?.prepare(&[method], &[], common.progress())?;
+                let filter = Arc::new(prepared.wiener_filter(method, k_reg)?);
+                Ok(RunNetwork::Dcnn {
+                    model,
+                    input: DcnnInput::WienerRaw { k_reg },
+                    wiener: Some((method, filter)),
+                })
+            }
+            RunNetwork::Dcnn { .. } => Ok(n),
+            RunNetwork::Unrolled { manifest, .. } => {
+                let prepared = match &optics {
+                    Some(p) => p.clone(),
+                    None => {
+                        let sim = sim(Vec::new())?;
+                        let depths = nedrt_optics::sim::objective_depths_d(&sim.calib);
+                        let p = Arc::new(sim.prepare(&[method], &depths, common.progress())?);
+                        optics.insert(p).clone()
+                    }
+                };
+                // Every check of a load (DOE, split, each step's planes)
+                // now, on the CPU: a model that cannot run fails before
+                // anything opens.
+                Unrolled::load(
+                    manifest.clone(),
+                    &prepared,
+                    nedrt_infer::BackendKind::Cpu,
+                    &nedrt_infer::BackendOptions::default(),
+                )?;
+                Ok(RunNetwork::Unrolled {
+                    manifest,
+                    prepared: Some(prepared),
+                })
+            }
+        })
+        .collect()
+}
+
+/// An unrolled model's prepared optics ([`prepare`] made them).
+pub(crate) fn optics(prepared: &Option<Arc<Prepared>>) -> Result<&Prepared, AppError> {
+    prepared
+        .as_deref()
+        .ok_or_else(|| AppError::Internal("an unrolled model not prepared".into()))
 }
 
 /// A network file's level name: its stem, without an unrolled manifest's

@@ -41,18 +41,8 @@ impl Network {
         if !is_manifest(path) {
             return Ok(Network::Dcnn(Dcnn::load(path, kind, options)?));
         }
-        let manifest = Manifest::read(path)?;
-        if manifest.method.optics() != method.optics() {
-            return Err(EngineError::input(
-                path.display(),
-                format!(
-                    "solves through the optics of {}, not {method}'s",
-                    manifest.method
-                ),
-            ));
-        }
         Ok(Network::Unrolled {
-            manifest,
+            manifest: Manifest::read_for(method, path)?,
             kind,
             options: options.clone(),
         })

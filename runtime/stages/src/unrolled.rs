@@ -92,6 +92,22 @@ pub fn is_manifest(path: &Path) -> bool {
 }
 
 impl Manifest {
+    /// [`Manifest::read`] for `method`: the model must solve through its
+    /// optics (the DOE's or the lens's).
+    pub fn read_for(method: Method, path: &Path) -> Result<Self, EngineError> {
+        let manifest = Self::read(path)?;
+        if manifest.method.optics() != method.optics() {
+            return Err(EngineError::input(
+                path.display(),
+                format!(
+                    "solves through the optics of {}, not {method}'s",
+                    manifest.method
+                ),
+            ));
+        }
+        Ok(manifest)
+    }
+
     /// Reads and checks `path` (each step's network must exist beside it
     /// with the SHA-256 the manifest gives).
     pub fn read(path: &Path) -> Result<Self, EngineError> {
