@@ -11,13 +11,59 @@ use crate::ffi::{
     XrResult, expect_type, guard, lock, non_null, non_null_mut, read_fixed, two_call, two_call_str,
 };
 use crate::instance::{path_string, valid_path};
-use crate::state::{Action, ActionSet, registry};
+use crate::profiles::{TOP_LEVEL_USER_PATHS, profile};
+use crate::state::{Action, ActionSet, Instance, Session, registry};
 
-fn valid_name(name: &str) -> bool {
-    !name.is_empty()
-        && name
-            .chars()
-            .all(|c| c.is_ascii_lowercase() || c.is_ascii_digit() || "-_.".contains(c))
+/// An action's or action set's name (§11.2): empty is NAME_INVALID, a
+/// character a path component may not hold is PATH_FORMAT_INVALID.
+fn check_name(name: Option<String>) -> XrResult<String> {
+    let name = name
+        .filter(|n| !n.is_empty())
+        .ok_or(xr::Result::ERROR_NAME_INVALID)?;
+    if name
+        .chars()
+        .all(|c| c.is_ascii_lowercase() || c.is_ascii_digit() || "-_.".contains(c))
+    {
+        Ok(name)
+    } else {
+        Err(xr::Result::ERROR_PATH_FORMAT_INVALID)
+    }
+}
+
+fn check_localized_name(name: Option<String>) -> XrResult<String> {
+    name.filter(|n| !n.is_empty())
+        .ok_or(xr::Result::ERROR_LOCALIZED_NAME_INVALID)
+}
+
+fn instance_of(s: &Session) -> XrResult<Arc<Instance>> {
+    registry()
+        .instances
+        .get(&s.instance)
+        .cloned()
+        .ok_or(xr::Result::ERROR_HANDLE_INVALID)
+}
+
+/// Whether `set` is attached to the session (§11.5).
+fn attached_to(s: &Session, set: u64) -> bool {
+    lock(&s.inner)
+        .attached_sets
+        .as_ref()
+        .is_some_and(|sets| sets.contains(&set))
+}
+
+/// A query's subaction path: none (0), or one of the action's own. A value
+/// that is no path is PATH_INVALID; a path the action was not created
+/// with is PATH_UNSUPPORTED (§11.6).
+fn check_subaction_path(inst: &Instance, a: &Action, sub: u64) -> XrResult {
+    if sub == 0 {
+        return Ok(());
+    }
+    path_string(inst, sub).ok_or(xr::Result::ERROR_PATH_INVALID)?;
+    if a.subaction_paths.contains(&sub) {
+        Ok(())
+    } else {
+        Err(xr::Result::ERROR_PATH_UNSUPPORTED)
+    }
 }
 
 pub unsafe extern "system" fn create_action_set(
@@ -32,19 +78,19 @@ pub unsafe extern "system" fn create_action_set(
         let info = unsafe { &*info };
         expect_type(info.ty, xr::StructureType::ACTION_SET_CREATE_INFO)?;
         let inst = registry().instance(instance)?;
-        let name = read_fixed(&info.action_set_name)
-            .filter(|n| valid_name(n))
-            .ok_or(xr::Result::ERROR_PATH_FORMAT_INVALID)?;
-        read_fixed(&info.localized_action_set_name)
-            .filter(|n| !n.is_empty())
-            .ok_or(xr::Result::ERROR_LOCALIZED_NAME_INVALID)?;
+        let name = check_name(read_fixed(&info.action_set_name))?;
+        let localized_name = check_localized_name(read_fixed(&info.localized_action_set_name))?;
         let mut reg = registry();
-        if reg
-            .action_sets
-            .values()
-            .any(|s| s.instance == inst.handle && s.name == name)
-        {
+        let siblings = || {
+            reg.action_sets
+                .values()
+                .filter(|s| s.instance == inst.handle)
+        };
+        if siblings().any(|s| s.name == name) {
             return Err(xr::Result::ERROR_NAME_DUPLICATED);
+        }
+        if siblings().any(|s| s.localized_name == localized_name) {
+            return Err(xr::Result::ERROR_LOCALIZED_NAME_DUPLICATED);
         }
         let h = reg.new_handle();
         reg.action_sets.insert(
@@ -52,6 +98,7 @@ pub unsafe extern "system" fn create_action_set(
             Arc::new(ActionSet {
                 instance: inst.handle,
                 name,
+                localized_name,
                 attached: Mutex::new(false),
             }),
         );
@@ -88,12 +135,8 @@ pub unsafe extern "system" fn create_action(
         if *lock(&s.attached) {
             return Err(xr::Result::ERROR_ACTIONSETS_ALREADY_ATTACHED);
         }
-        let name = read_fixed(&info.action_name)
-            .filter(|n| valid_name(n))
-            .ok_or(xr::Result::ERROR_PATH_FORMAT_INVALID)?;
-        read_fixed(&info.localized_action_name)
-            .filter(|n| !n.is_empty())
-            .ok_or(xr::Result::ERROR_LOCALIZED_NAME_INVALID)?;
+        let name = check_name(read_fixed(&info.action_name))?;
+        let localized_name = check_localized_name(read_fixed(&info.localized_action_name))?;
         let inst = registry()
             .instances
             .get(&s.instance)
@@ -105,20 +148,23 @@ pub unsafe extern "system" fn create_action(
             for i in 0..info.count_subaction_paths as usize {
                 // SAFETY: count_subaction_paths elements (the application).
                 let path = unsafe { *p.add(i) }.into_raw();
-                if path_string(&inst, path).is_none() {
-                    return Err(xr::Result::ERROR_PATH_INVALID);
+                let text = path_string(&inst, path).ok_or(xr::Result::ERROR_PATH_INVALID)?;
+                // Only the top-level user paths, each once (§11.3).
+                if !TOP_LEVEL_USER_PATHS.contains(&text.as_str()) || subaction_paths.contains(&path)
+                {
+                    return Err(xr::Result::ERROR_PATH_UNSUPPORTED);
                 }
                 subaction_paths.push(path);
             }
         }
         let mut reg = registry();
         let h_set = set.into_raw();
-        if reg
-            .actions
-            .values()
-            .any(|a| a.set == h_set && a.name == name)
-        {
+        let siblings = || reg.actions.values().filter(|a| a.set == h_set);
+        if siblings().any(|a| a.name == name) {
             return Err(xr::Result::ERROR_NAME_DUPLICATED);
+        }
+        if siblings().any(|a| a.localized_name == localized_name) {
+            return Err(xr::Result::ERROR_LOCALIZED_NAME_DUPLICATED);
         }
         let h = reg.new_handle();
         reg.actions.insert(
@@ -127,6 +173,7 @@ pub unsafe extern "system" fn create_action(
                 instance: s.instance,
                 set: h_set,
                 name,
+                localized_name,
                 action_type: info.action_type,
                 subaction_paths,
             }),
@@ -160,11 +207,9 @@ pub unsafe extern "system" fn suggest_interaction_profile_bindings(
             xr::StructureType::INTERACTION_PROFILE_SUGGESTED_BINDING,
         )?;
         let inst = registry().instance(instance)?;
-        let profile = path_string(&inst, info.interaction_profile.into_raw())
+        let profile_path = path_string(&inst, info.interaction_profile.into_raw())
             .ok_or(xr::Result::ERROR_PATH_INVALID)?;
-        if !profile.starts_with("/interaction_profiles/") {
-            return Err(xr::Result::ERROR_PATH_UNSUPPORTED);
-        }
+        let profile = profile(&profile_path).ok_or(xr::Result::ERROR_PATH_UNSUPPORTED)?;
         if info.count_suggested_bindings == 0 {
             return Err(xr::Result::ERROR_VALIDATION_FAILURE);
         }
@@ -178,9 +223,12 @@ pub unsafe extern "system" fn suggest_interaction_profile_bindings(
             }
             let path = path_string(&inst, binding.binding.into_raw())
                 .ok_or(xr::Result::ERROR_PATH_INVALID)?;
-            if !path.starts_with("/user/") {
+            if !profile.binds(&path) {
                 return Err(xr::Result::ERROR_PATH_UNSUPPORTED);
             }
+        }
+        if lock(&inst.inner).actions_attached {
+            return Err(xr::Result::ERROR_ACTIONSETS_ALREADY_ATTACHED);
         }
         // Accepted; no device here will ever fill them.
         Ok(xr::Result::SUCCESS)
@@ -196,19 +244,32 @@ pub unsafe extern "system" fn attach_session_action_sets(
         // SAFETY: non-null, from the application.
         let info = unsafe { &*info };
         expect_type(info.ty, xr::StructureType::SESSION_ACTION_SETS_ATTACH_INFO)?;
-        registry().session(session)?;
+        let s = registry().session(session)?;
+        if info.count_action_sets == 0 {
+            return Err(xr::Result::ERROR_VALIDATION_FAILURE);
+        }
         let p = non_null(info.action_sets)?;
         let mut sets = Vec::new();
         for i in 0..info.count_action_sets as usize {
             // SAFETY: count_action_sets elements (the application).
-            sets.push(registry().action_set(unsafe { *p.add(i) })?);
+            let h = unsafe { *p.add(i) };
+            registry().action_set(h)?;
+            sets.push(h.into_raw());
         }
-        if sets.iter().any(|s| *lock(&s.attached)) {
+        let inst = instance_of(&s)?;
+        let mut inner = lock(&s.inner);
+        // Once a session (§11.5); a set may be attached to several.
+        if inner.attached_sets.is_some() {
             return Err(xr::Result::ERROR_ACTIONSETS_ALREADY_ATTACHED);
         }
-        for s in sets {
-            *lock(&s.attached) = true;
+        let reg = registry();
+        for h in &sets {
+            if let Some(set) = reg.action_sets.get(h) {
+                *lock(&set.attached) = true;
+            }
         }
+        inner.attached_sets = Some(sets);
+        lock(&inst.inner).actions_attached = true;
         Ok(xr::Result::SUCCESS)
     })
 }
@@ -221,15 +282,18 @@ pub unsafe extern "system" fn get_current_interaction_profile(
     guard("xrGetCurrentInteractionProfile", || {
         let out = non_null_mut(out)?;
         let s = registry().session(session)?;
-        let inst = registry()
-            .instances
-            .get(&s.instance)
-            .cloned()
-            .ok_or(xr::Result::ERROR_HANDLE_INVALID)?;
-        path_string(&inst, top_level.into_raw()).ok_or(xr::Result::ERROR_PATH_INVALID)?;
+        let inst = instance_of(&s)?;
+        let path =
+            path_string(&inst, top_level.into_raw()).ok_or(xr::Result::ERROR_PATH_INVALID)?;
         // SAFETY: non-null; the application initialised its type.
         let out = unsafe { &mut *out };
         expect_type(out.ty, xr::StructureType::INTERACTION_PROFILE_STATE)?;
+        if lock(&s.inner).attached_sets.is_none() {
+            return Err(xr::Result::ERROR_ACTIONSET_NOT_ATTACHED);
+        }
+        if !TOP_LEVEL_USER_PATHS.contains(&path.as_str()) {
+            return Err(xr::Result::ERROR_PATH_UNSUPPORTED);
+        }
         out.interaction_profile = xr::Path::NULL;
         Ok(xr::Result::SUCCESS)
     })
@@ -245,21 +309,18 @@ fn action_for(
     // SAFETY: non-null, from the application.
     let info = unsafe { &*info };
     expect_type(info.ty, xr::StructureType::ACTION_STATE_GET_INFO)?;
-    let reg = registry();
-    reg.session(session)?;
-    let a = reg.action(info.action)?;
+    let (s, a) = {
+        let reg = registry();
+        (reg.session(session)?, reg.action(info.action)?)
+    };
     if !types.contains(&a.action_type) {
         return Err(xr::Result::ERROR_ACTION_TYPE_MISMATCH);
     }
-    let set = reg.action_set(xr::ActionSet::from_raw(a.set))?;
-    if !*lock(&set.attached) {
+    if !attached_to(&s, a.set) {
         return Err(xr::Result::ERROR_ACTIONSET_NOT_ATTACHED);
     }
-    let sub = info.subaction_path.into_raw();
-    if sub != 0 && !a.subaction_paths.contains(&sub) {
-        return Err(xr::Result::ERROR_PATH_UNSUPPORTED);
-    }
-    Ok(())
+    let inst = instance_of(&s)?;
+    check_subaction_path(&inst, &a, info.subaction_path.into_raw())
 }
 
 macro_rules! inactive_state {
@@ -333,8 +394,8 @@ pub unsafe extern "system" fn sync_actions(
             for i in 0..info.count_active_action_sets as usize {
                 // SAFETY: count_active_action_sets elements.
                 let a = unsafe { *p.add(i) };
-                let set = registry().action_set(a.action_set)?;
-                if !*lock(&set.attached) {
+                registry().action_set(a.action_set)?;
+                if !attached_to(&s, a.action_set.into_raw()) {
                     return Err(xr::Result::ERROR_ACTIONSET_NOT_ATTACHED);
                 }
             }
@@ -363,10 +424,13 @@ pub unsafe extern "system" fn enumerate_bound_sources_for_action(
             info.ty,
             xr::StructureType::BOUND_SOURCES_FOR_ACTION_ENUMERATE_INFO,
         )?;
-        let reg = registry();
-        reg.session(session)?;
-        reg.action(info.action)?;
-        drop(reg);
+        let (s, a) = {
+            let reg = registry();
+            (reg.session(session)?, reg.action(info.action)?)
+        };
+        if !attached_to(&s, a.set) {
+            return Err(xr::Result::ERROR_ACTIONSET_NOT_ATTACHED);
+        }
         // SAFETY: the application's arrays; nothing is bound.
         unsafe { two_call(capacity, count, sources, &[]) }
     })
@@ -387,12 +451,14 @@ pub unsafe extern "system" fn get_input_source_localized_name(
             info.ty,
             xr::StructureType::INPUT_SOURCE_LOCALIZED_NAME_GET_INFO,
         )?;
+        if info.which_components.is_empty() {
+            return Err(xr::Result::ERROR_VALIDATION_FAILURE);
+        }
         let s = registry().session(session)?;
-        let inst = registry()
-            .instances
-            .get(&s.instance)
-            .cloned()
-            .ok_or(xr::Result::ERROR_HANDLE_INVALID)?;
+        let inst = instance_of(&s)?;
+        if lock(&s.inner).attached_sets.is_none() {
+            return Err(xr::Result::ERROR_ACTIONSET_NOT_ATTACHED);
+        }
         let path = path_string(&inst, info.source_path.into_raw())
             .filter(|p| valid_path(p))
             .ok_or(xr::Result::ERROR_PATH_INVALID)?;
@@ -422,12 +488,18 @@ fn haptic(name: &str, session: xr::Session, info: *const xr::HapticActionInfo) -
         // SAFETY: non-null, from the application.
         let info = unsafe { &*info };
         expect_type(info.ty, xr::StructureType::HAPTIC_ACTION_INFO)?;
-        let reg = registry();
-        reg.session(session)?;
-        let a = reg.action(info.action)?;
+        let (s, a) = {
+            let reg = registry();
+            (reg.session(session)?, reg.action(info.action)?)
+        };
         if a.action_type != xr::ActionType::VIBRATION_OUTPUT {
             return Err(xr::Result::ERROR_ACTION_TYPE_MISMATCH);
         }
+        if !attached_to(&s, a.set) {
+            return Err(xr::Result::ERROR_ACTIONSET_NOT_ATTACHED);
+        }
+        let inst = instance_of(&s)?;
+        check_subaction_path(&inst, &a, info.subaction_path.into_raw())?;
         // No actuator: the specification's answer for an unbound output.
         Ok(xr::Result::SUCCESS)
     })

@@ -17,23 +17,21 @@ pub const MAX_LAYERS: u32 = 16;
 
 /// The refresh a frame started now is shown at, and when to start it.
 ///
-/// The service's last reply predicted `timing.predicted_display_ns` for a
-/// frame submitted when the reply was received (`received_ns`): that is
-/// the service's lead from a submission to its refresh. A frame started
-/// now is submitted `make_ns` later (the application's rendering and the
-/// copy-out, as learnt), so it is given the first refresh on the service's
-/// grid at or after now + `make_ns` + the lead, and never the same refresh
-/// twice; it should start the lead and `make_ns` before that refresh.
+/// The service's replies give its lead (`lead_ns`) from a submission to
+/// the refresh it is shown at. A frame started now is submitted `make_ns`
+/// later (the application's rendering and the copy-out, as learnt), so it
+/// is given the first refresh on the service's grid (`timing`) at or after
+/// now + `make_ns` + the lead, and never the same refresh twice; it should
+/// start the lead and `make_ns` before that refresh.
 pub fn next_frame(
     timing: Timing,
-    received_ns: i64,
+    lead_ns: i64,
     now: i64,
     last_predicted: i64,
     make_ns: i64,
 ) -> (i64, i64) {
     let period = timing.period_ns.max(1);
-    let lead = (timing.predicted_display_ns - received_ns).max(0);
-    let ahead = lead + make_ns.max(0);
+    let ahead = lead_ns.max(0) + make_ns.max(0);
     let behind = (now + ahead - timing.predicted_display_ns).max(0);
     let steps = (behind + period - 1) / period;
     let mut predicted = timing.predicted_display_ns + steps * period;
@@ -92,14 +90,14 @@ pub unsafe extern "system" fn wait_frame(
                 return Ok(xr::Result::SESSION_LOSS_PENDING);
             }
             inner.check_running()?;
-            let (timing, received) = inner
+            let (timing, lead) = inner
                 .link
                 .as_ref()
-                .and_then(|l| l.timing().map(|t| (t, l.received_ns())))
+                .and_then(|l| Some((l.timing()?, l.lead_ns()?)))
                 .ok_or(xr::Result::ERROR_SESSION_LOST)?;
             let (p, w) = next_frame(
                 timing,
-                received,
+                lead,
                 now_ns(),
                 inner.frame.last_predicted,
                 inner.frame.make.bound_ns(),
@@ -111,7 +109,7 @@ pub unsafe extern "system" fn wait_frame(
         let mut inner = lock(&s.inner);
         inner.check_running()?;
         inner.frame.waited += 1;
-        inner.frame.woke_ns = now_ns();
+        inner.frame.woke(predicted, now_ns());
         inner.advance(&inst, s.handle);
         state.predicted_display_time = xr::Time::from_nanos(predicted);
         state.predicted_display_period = xr::Duration::from_nanos(period);
@@ -192,6 +190,9 @@ unsafe fn check_layer(
                 // SAFETY: view_count elements (checked above).
                 let pv = unsafe { &*p.views.add(v) };
                 expect_type(pv.ty, xr::StructureType::COMPOSITION_LAYER_PROJECTION_VIEW)?;
+                // The view's pose is not used (a fixed head), but a
+                // non-unit orientation is still refused (§10.5.1).
+                Pose::from_xr(&pv.pose)?;
                 out.push((pv.sub_image, check_sub_image(&pv.sub_image)?));
             }
             Ok(Submitted::Projection(out))
@@ -200,7 +201,9 @@ unsafe fn check_layer(
             // SAFETY: the type names the structure.
             let q = unsafe { *layer.cast::<xr::CompositionLayerQuad>() };
             Pose::from_xr(&q.pose)?;
-            if !(q.size.width > 0.0 && q.size.height > 0.0) {
+            // A quad of zero size is valid and shows nothing (the CTS
+            // submits one); a negative or non-finite size is no size.
+            if !(q.size.width >= 0.0 && q.size.height >= 0.0) {
                 return Err(xr::Result::ERROR_VALIDATION_FAILURE);
             }
             let sc = check_sub_image(&q.sub_image)?;
@@ -251,18 +254,21 @@ pub unsafe extern "system" fn end_frame(
             layers.push(unsafe { check_layer(l, views) }?);
         }
         let mut inner = lock(&s.inner);
-        inner.frame.begun = false;
-        inner.frame.frames_ended += 1;
         let time = info.display_time.as_nanos();
         if let Err(e) = compose(&mut inner, &layers, time) {
             match e {
+                // A refused frame stays begun: the next xrBeginFrame
+                // discards it (§10.4; the CTS's layer checks this).
                 Failure::Xr(r) => return Err(r),
                 Failure::Link(e) => {
+                    inner.frame.begun = false;
                     inner.lose(&inst, s.handle, &e);
                     return Ok(xr::Result::SESSION_LOSS_PENDING);
                 }
             }
         }
+        inner.frame.begun = false;
+        inner.frame.frames_ended += 1;
         inner.advance(&inst, s.handle);
         Ok(xr::Result::SUCCESS)
     })
@@ -321,14 +327,17 @@ fn compose(inner: &mut SessionInner, layers: &[Submitted], time: i64) -> Result<
                         let said = link.timing().map_or(time, |t| t.predicted_display_ns);
                         // The service predicts as it replies: a frame is
                         // made by then (rendered, copied out, sent, taken).
-                        let woke = inner.frame.woke_ns;
-                        log_debug!(
-                            "frame for {time}: made in {:.2} ms (bound {:.2}); the service says {:+.2} periods",
-                            (now_ns() - woke) as f64 / 1e6,
-                            inner.frame.make.bound_ns() as f64 / 1e6,
-                            (said - time) as f64 / info.refresh_period_ns.max(1) as f64
-                        );
-                        inner.frame.make.record(now_ns() - woke);
+                        // A display time no wait gave (the application's
+                        // own) is not a frame the estimate can time.
+                        if let Some(woke) = inner.frame.woke_for(time) {
+                            log_debug!(
+                                "frame for {time}: made in {:.2} ms (bound {:.2}); the service says {:+.2} periods",
+                                (now_ns() - woke) as f64 / 1e6,
+                                inner.frame.make.bound_ns() as f64 / 1e6,
+                                (said - time) as f64 / info.refresh_period_ns.max(1) as f64
+                            );
+                            inner.frame.make.record(now_ns() - woke);
+                        }
                         let st = &mut inner.stats;
                         st.frames += 1;
                         match said.cmp(&time) {
@@ -341,6 +350,10 @@ fn compose(inner: &mut SessionInner, layers: &[Submitted], time: i64) -> Result<
             }
             Submitted::Quad { layer, sc } => {
                 let id = index as u32;
+                if layer.size.width == 0.0 || layer.size.height == 0.0 {
+                    // No area: shown nowhere (and removed where it was).
+                    continue;
+                }
                 let (texels, size, srgb) = read_released(
                     sc,
                     layer.sub_image.image_rect,
@@ -355,11 +368,14 @@ fn compose(inner: &mut SessionInner, layers: &[Submitted], time: i64) -> Result<
                         .contains(xr::CompositionLayerFlags::UNPREMULTIPLIED_ALPHA),
                 };
                 for v in visible_views(layer.eye_visibility, info.views.len()) {
-                    let Some((placement, px)) = place_quad(inner, &info, layer, v, time) else {
-                        log_warn!("quad layer {id} is behind the eye of view {v}: not shown there");
+                    let Some((placement, px, region)) = place_quad(inner, &info, layer, v, time)
+                    else {
+                        log_debug!(
+                            "quad layer {id} is outside view {v} or behind the eye: not shown there"
+                        );
                         continue;
                     };
-                    let rgba = pixels::quad_rgba(&texels, srgb, alpha, size, px);
+                    let rgba = pixels::quad_rgba(&texels, srgb, alpha, size, region, px);
                     let link = inner.link.as_mut().ok_or(xr::Result::ERROR_SESSION_LOST)?;
                     link.quad(v as u8, id, id as i32, placement, px, &rgba)?;
                     quads_now[v].insert(id);
@@ -387,18 +403,22 @@ fn visible_views(eye: xr::EyeVisibility, views: usize) -> Vec<usize> {
     }
 }
 
-/// Where a quad lands on view `v`: the centre of its projected corners as
-/// a direction from the view's centre, and the panel pixels its bounding
-/// box covers. The service draws a quad upright, texel rows along the
-/// panel's rows: a quad turned away from the eye is drawn at its bounding
-/// box (docs/openxr.md).
+/// Where a quad lands on view `v`: the centre of its projected corners'
+/// bounding box, cut to the view, as a direction from the view's centre;
+/// the panel pixels that box covers; and the part of the quad's image it
+/// shows. The service draws a quad upright, texel rows along the panel's
+/// rows: a quad turned away from the eye is drawn at its bounding box
+/// (docs/openxr.md). A quad larger than the view (the CTS's text quads
+/// span 2463 pixels of a 32-pixel view) is cut to the view here, as the
+/// service takes no quad larger than a view; None where none of it is in
+/// the view or it is behind the eye.
 fn place_quad(
     inner: &SessionInner,
     info: &SystemInfo,
     q: &xr::CompositionLayerQuad,
     v: usize,
     time: i64,
-) -> Option<(Placement, (usize, usize))> {
+) -> Option<(Placement, (usize, usize), pixels::Region)> {
     let space = registry().space(q.space).ok()?;
     // The session's lock is held by the caller: locate with its poses.
     let base =
@@ -430,15 +450,37 @@ fn place_quad(
     let (min_y, max_y) = ys
         .iter()
         .fold((f32::MAX, f32::MIN), |(a, b), &y| (a.min(y), b.max(y)));
-    let w = (max_x - min_x).round().max(1.0) as usize;
-    let h = (max_y - min_y).round().max(1.0) as usize;
-    let cx = (min_x + max_x) / 2.0 / ppt;
-    let cy = (min_y + max_y) / 2.0 / ppt;
+    let (vw, vh) = info.view_size(v);
+    let (half_w, half_h) = (vw as f32 / 2.0, vh as f32 / 2.0);
+    let (x0, x1) = (min_x.max(-half_w), max_x.min(half_w));
+    let (y0, y1) = (min_y.max(-half_h), max_y.min(half_h));
+    if x0 >= x1 || y0 >= y1 {
+        return None;
+    }
+    // The shown part in the quad image's fractions (rows from the top).
+    let (bw, bh) = (
+        (max_x - min_x).max(f32::MIN_POSITIVE),
+        (max_y - min_y).max(f32::MIN_POSITIVE),
+    );
+    let region = if (x0, x1, y0, y1) == (min_x, max_x, min_y, max_y) {
+        pixels::Region::WHOLE
+    } else {
+        pixels::Region([
+            (x0 - min_x) / bw,
+            (max_y - y1) / bh,
+            (x1 - min_x) / bw,
+            (max_y - y0) / bh,
+        ])
+    };
+    let w = ((x1 - x0).round().max(1.0) as usize).min(vw);
+    let h = ((y1 - y0).round().max(1.0) as usize).min(vh);
+    let cx = (x0 + x1) / 2.0 / ppt;
+    let cy = (y0 + y1) / 2.0 / ppt;
     let placement = Placement::Degrees {
         x_deg: f64::from(cx.atan().to_degrees()),
         y_deg: f64::from(cy.atan().to_degrees()),
     };
-    Some((placement, (w, h)))
+    Some((placement, (w, h), region))
 }
 
 #[cfg(test)]
@@ -458,20 +500,20 @@ mod tests {
         // prediction.
         let received = 100 * P - P / 2;
         assert_eq!(
-            next_frame(t, received, received, 0, 0),
+            next_frame(t, P / 2, received, 0, 0),
             (100 * P, 100 * P - P / 2)
         );
         // Asked a period and a bit later: the next refresh it can make.
-        let (p, wake) = next_frame(t, received, received + P + 1, 0, 0);
+        let (p, wake) = next_frame(t, P / 2, received + P + 1, 0, 0);
         assert_eq!(p, 102 * P);
         assert_eq!(wake, p - P / 2);
         // Never the same refresh twice.
-        assert_eq!(next_frame(t, received, received, 100 * P, 0).0, 101 * P);
-        assert_eq!(next_frame(t, received, received, 103 * P, 0).0, 104 * P);
+        assert_eq!(next_frame(t, P / 2, received, 100 * P, 0).0, 101 * P);
+        assert_eq!(next_frame(t, P / 2, received, 103 * P, 0).0, 104 * P);
         // A frame that takes 0.7 of a period to make misses the refresh
         // the service predicts for a submission now: it is given the next,
         // and starts early enough for it.
-        let (p, wake) = next_frame(t, received, received, 0, 7 * P / 10);
+        let (p, wake) = next_frame(t, P / 2, received, 0, 7 * P / 10);
         assert_eq!(p, 101 * P);
         assert_eq!(wake, p - P / 2 - 7 * P / 10);
     }

@@ -241,6 +241,17 @@ fn find_instance_of(entry: &Entry, pd: *const std::ffi::c_void) -> XrResult<ash:
 /// Physical devices handed out, with their instance.
 static PHYSICAL_DEVICES: Mutex<Vec<(u64, u64)>> = Mutex::new(Vec::new());
 
+/// Remembers that `pd` was handed out for `vk_instance`. A handle is an
+/// address, so an instance made after another was destroyed may give its
+/// physical device the same one: the newest instance replaces the older,
+/// which may be gone (the CTS's repeated sessions found the dead one, and
+/// the Vulkan loader aborted on it).
+fn remember_physical_device(pd: u64, vk_instance: u64) {
+    let mut known = lock(&PHYSICAL_DEVICES);
+    known.retain(|&(p, _)| p != pd);
+    known.push((pd, vk_instance));
+}
+
 pub unsafe extern "system" fn get_vulkan_graphics_device2_khr(
     instance: xr::Instance,
     info: *const xr::VulkanGraphicsDeviceGetInfoKHR,
@@ -261,7 +272,7 @@ pub unsafe extern "system" fn get_vulkan_graphics_device2_khr(
             .ok_or(xr::Result::ERROR_VALIDATION_FAILURE)?;
         let entry = Entry::of_app(gipa);
         let pd = physical_device(&entry, info.vulkan_instance)?;
-        lock(&PHYSICAL_DEVICES).push((pd as u64, info.vulkan_instance as u64));
+        remember_physical_device(pd as u64, info.vulkan_instance as u64);
         // SAFETY: non-null output.
         unsafe { out.write(pd) };
         Ok(xr::Result::SUCCESS)

@@ -93,9 +93,9 @@ pub unsafe extern "system" fn create_instance(
         if v.major() != 1 || v.minor() != 0 {
             return Err(xr::Result::ERROR_API_VERSION_UNSUPPORTED);
         }
-        if info.enabled_api_layer_count > 0 {
-            return Err(xr::Result::ERROR_API_LAYER_NOT_PRESENT);
-        }
+        // The API layers are the loader's: it loads them and passes the
+        // application's create info on unchanged, names included, so a
+        // runtime ignores them (the CTS runs with its conformance layer).
         let mut extensions = Vec::new();
         for i in 0..info.enabled_extension_count as usize {
             let names = non_null(info.enabled_extension_names)?;
@@ -186,13 +186,13 @@ pub unsafe extern "system" fn poll_event(
 
 /// `XR_<NAME>` of an enumerant's Debug name, or the specification's
 /// fallback for values this runtime does not know.
-fn enum_name(debug: String, fallback: String) -> String {
+fn enum_name(debug: String, prefix: &str, fallback: String) -> String {
     if debug.contains('(')
         || debug.chars().any(|c| c.is_ascii_digit()) && debug.parse::<i64>().is_ok()
     {
         fallback
     } else {
-        format!("XR_{debug}")
+        format!("{prefix}{debug}")
     }
 }
 
@@ -210,7 +210,7 @@ pub unsafe extern "system" fn result_to_string(
         } else {
             format!("XR_UNKNOWN_FAILURE_{}", -raw)
         };
-        let s = enum_name(format!("{value:?}"), fallback);
+        let s = enum_name(format!("{value:?}"), "XR_", fallback);
         // SAFETY: the buffer holds XR_MAX_RESULT_STRING_SIZE characters.
         let dst = unsafe { std::slice::from_raw_parts_mut(buffer, xr::MAX_RESULT_STRING_SIZE) };
         write_fixed(dst, &s);
@@ -227,7 +227,9 @@ pub unsafe extern "system" fn structure_type_to_string(
         let buffer = non_null_mut(buffer)?;
         registry().instance(instance)?;
         let fallback = format!("XR_UNKNOWN_STRUCTURE_TYPE_{}", value.into_raw());
-        let s = enum_name(format!("{value:?}"), fallback).replacen("XR_", "XR_TYPE_", 1);
+        // The specification's names are XR_TYPE_…; openxr-sys's drop the prefix.
+        // An unknown value keeps the generated XR_UNKNOWN_STRUCTURE_TYPE_N.
+        let s = enum_name(format!("{value:?}"), "XR_TYPE_", fallback);
         // SAFETY: the buffer holds XR_MAX_STRUCTURE_NAME_SIZE characters.
         let dst = unsafe { std::slice::from_raw_parts_mut(buffer, xr::MAX_STRUCTURE_NAME_SIZE) };
         write_fixed(dst, &s);
@@ -316,7 +318,10 @@ pub unsafe extern "system" fn get_system(
             xr::FormFactor::HANDHELD_DISPLAY => {
                 return Err(xr::Result::ERROR_FORM_FACTOR_UNSUPPORTED);
             }
-            _ => return Err(xr::Result::ERROR_VALIDATION_FAILURE),
+            // Any other value names no form factor this runtime supports
+            // (§5.1: FORM_FACTOR_UNSUPPORTED, as the CTS's xrGetSystem
+            // case checks with XR_FORM_FACTOR_MAX_ENUM).
+            _ => return Err(xr::Result::ERROR_FORM_FACTOR_UNSUPPORTED),
         }
         let mut inner = lock(&inst.inner);
         if inner.system.is_none() {

@@ -23,6 +23,7 @@ mod graphics;
 mod instance;
 mod link;
 mod pixels;
+mod profiles;
 mod session;
 mod space;
 mod spaces;
@@ -129,6 +130,7 @@ fn lookup(
         "xrGetReferenceSpaceBoundsRect" => f!(spaces::get_reference_space_bounds_rect),
         "xrCreateActionSpace" => f!(spaces::create_action_space),
         "xrLocateSpace" => f!(spaces::locate_space),
+        "xrLocateSpaces" => f!(spaces::locate_spaces),
         "xrDestroySpace" => f!(spaces::destroy_space),
         "xrLocateViews" => f!(session::locate_views),
         "xrEnumerateSwapchainFormats" => f!(swapchain::enumerate_swapchain_formats),

@@ -82,8 +82,13 @@ pub struct Link {
     /// When the last reply arrived (CLOCK_MONOTONIC ns): its prediction
     /// was for a frame submitted then.
     received_ns: i64,
+    /// The last replies' leads (prediction less arrival), newest last.
+    leads: std::collections::VecDeque<i64>,
     pub info: SystemInfo,
 }
+
+/// How many replies the lead is taken over.
+const LEADS: usize = 8;
 
 /// The service's prediction of when a frame submitted now is shown.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -120,6 +125,7 @@ impl Link {
             client,
             next_id: 1,
             received_ns: crate::ffi::now_ns(),
+            leads: std::collections::VecDeque::with_capacity(LEADS),
             info,
         })
     }
@@ -133,8 +139,24 @@ impl Link {
         })
     }
 
-    pub fn received_ns(&self) -> i64 {
-        self.received_ns
+    /// The service's lead from a submission to its refresh: the least of
+    /// the last replies' (prediction less arrival). One reply's is the
+    /// pipeline's bound rounded up to the next refresh, so by up to a
+    /// period more, depending on where in the period it came; the runtime
+    /// rounds up to a refresh again when it predicts, and with one reply's
+    /// lead frames skipped refreshes (the CTS's pipelined frame case at
+    /// 240 Hz: one frame in two planned a refresh late).
+    pub fn lead_ns(&self) -> Option<i64> {
+        let last = self
+            .timing()
+            .map(|t| (t.predicted_display_ns - self.received_ns).max(0))?;
+        Some(
+            self.leads
+                .iter()
+                .copied()
+                .min()
+                .map_or(last, |m| m.min(last)),
+        )
     }
 
     /// Whether the service is still there: a closed socket reads as end
@@ -163,6 +185,13 @@ impl Link {
             .send_v2(header, payload)
             .map_err(LinkError::Lost)?;
         self.received_ns = crate::ffi::now_ns();
+        if let Some(t) = self.timing() {
+            if self.leads.len() == LEADS {
+                self.leads.pop_front();
+            }
+            self.leads
+                .push_back((t.predicted_display_ns - self.received_ns).max(0));
+        }
         if reply.reply.status != STATUS_OK {
             // A refused submission is the application's content (a quad
             // outside the view, say): logged, and the session goes on.

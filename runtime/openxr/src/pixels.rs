@@ -23,18 +23,40 @@ pub fn resample(
     if from == to {
         return src.to_vec();
     }
+    resample_region(src, from, Region::WHOLE, to, channels)
+}
+
+/// A part of an image, in fractions of its width and height from its top
+/// left corner: `[u0, v0, u1, v1]`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Region(pub [f32; 4]);
+
+impl Region {
+    pub const WHOLE: Region = Region([0.0, 0.0, 1.0, 1.0]);
+}
+
+/// `resample` of the part `region` of `src` (bilinear, texel centres).
+pub fn resample_region(
+    src: &[f32],
+    from: (usize, usize),
+    region: Region,
+    to: (usize, usize),
+    channels: usize,
+) -> Vec<f32> {
     let (sw, sh) = from;
     let (dw, dh) = to;
+    let [u0, v0, u1, v1] = region.0;
     let mut out = vec![0.0; dw * dh * channels];
-    let axis = |d: usize, dn: usize, sn: usize| {
-        let s = ((d as f32 + 0.5) * sn as f32 / dn as f32 - 0.5).clamp(0.0, (sn - 1) as f32);
+    let axis = |d: usize, dn: usize, sn: usize, a: f32, b: f32| {
+        let s = (a * sn as f32 + (d as f32 + 0.5) * (b - a) * sn as f32 / dn as f32 - 0.5)
+            .clamp(0.0, (sn - 1) as f32);
         let i = s.floor() as usize;
         (i, (i + 1).min(sn - 1), s - i as f32)
     };
     for y in 0..dh {
-        let (y0, y1, fy) = axis(y, dh, sh);
+        let (y0, y1, fy) = axis(y, dh, sh, v0, v1);
         for x in 0..dw {
-            let (x0, x1, fx) = axis(x, dw, sw);
+            let (x0, x1, fx) = axis(x, dw, sw, u0, u1);
             for c in 0..channels {
                 let at = |xx: usize, yy: usize| src[(yy * sw + xx) * channels + c];
                 let top = at(x0, y0) * (1.0 - fx) + at(x1, y0) * fx;
@@ -69,13 +91,14 @@ pub struct QuadAlpha {
     pub unpremultiplied: bool,
 }
 
-/// A quad's texels as premultiplied linear RGBA f32 at the panel size it
-/// covers.
+/// The part `region` of a quad's texels as premultiplied linear RGBA f32
+/// at the panel size it covers.
 pub fn quad_rgba(
     texels: &[u8],
     srgb: bool,
     alpha: QuadAlpha,
     from: (usize, usize),
+    region: Region,
     to: (usize, usize),
 ) -> Vec<f32> {
     let mut f = Vec::with_capacity(texels.len());
@@ -99,7 +122,11 @@ pub fn quad_rgba(
         }
         f.push(a);
     }
-    resample(&f, from, to, 4)
+    if region == Region::WHOLE {
+        resample(&f, from, to, 4)
+    } else {
+        resample_region(&f, from, region, to, 4)
+    }
 }
 
 #[cfg(test)]
@@ -136,6 +163,7 @@ mod tests {
                 unpremultiplied: false,
             },
             (1, 1),
+            Region::WHOLE,
             (1, 1),
         );
         assert_eq!(opaque, vec![1.0, 0.0, 0.0, 1.0]);
@@ -147,6 +175,7 @@ mod tests {
                 unpremultiplied: true,
             },
             (1, 1),
+            Region::WHOLE,
             (1, 1),
         );
         let a = 128.0 / 255.0;

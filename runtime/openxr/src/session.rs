@@ -101,6 +101,7 @@ pub unsafe extern "system" fn create_session(
             frame: FrameLoop::default(),
             quads: vec![BTreeSet::new(); views],
             stats: FrameStats::default(),
+            attached_sets: None,
         };
         let mut reg = registry();
         let h = reg.new_handle();
@@ -197,7 +198,7 @@ pub unsafe extern "system" fn request_exit_session(session: xr::Session) -> xr::
         let mut inner = lock(&s.inner);
         inner.check_running()?;
         inner.exit_requested = true;
-        inner.set_state(&inst, s.handle, xr::SessionState::STOPPING);
+        inner.stop(&inst, s.handle);
         Ok(xr::Result::SUCCESS)
     })
 }

@@ -140,18 +140,71 @@ pub unsafe extern "system" fn locate_space(
         // SAFETY: non-null; the application initialised its type.
         let location = unsafe { &mut *location };
         expect_type(location.ty, xr::StructureType::SPACE_LOCATION)?;
-        let t = time.as_nanos();
-        match (locate_in_local(&s, &sp, t), locate_in_local(&s, &bs, t)) {
-            (Some(p), Some(b)) => {
-                location.pose = b.inverse().then(p).to_xr();
-                // Valid, not tracked: no tracker measures the head.
-                location.location_flags = xr::SpaceLocationFlags::ORIENTATION_VALID
-                    | xr::SpaceLocationFlags::POSITION_VALID;
+        (location.location_flags, location.pose) = locate(&s, &sp, &bs, time.as_nanos());
+        Ok(xr::Result::SUCCESS)
+    })
+}
+
+/// `space` in `base` at `t`: valid, never tracked (no tracker measures the
+/// head), or nothing where either cannot be located.
+fn locate(s: &Session, space: &Space, base: &Space, t: i64) -> (xr::SpaceLocationFlags, xr::Posef) {
+    match (locate_in_local(s, space, t), locate_in_local(s, base, t)) {
+        (Some(p), Some(b)) => (
+            xr::SpaceLocationFlags::ORIENTATION_VALID | xr::SpaceLocationFlags::POSITION_VALID,
+            b.inverse().then(p).to_xr(),
+        ),
+        _ => (xr::SpaceLocationFlags::EMPTY, Pose::IDENTITY.to_xr()),
+    }
+}
+
+/// xrLocateSpaces (core in OpenXR 1.1): xrLocateSpace for several spaces at
+/// once. The CTS's xrGetInstanceProcAddr case expects it resolved also
+/// on a 1.0 instance, as its function table lists it with no extension.
+pub unsafe extern "system" fn locate_spaces(
+    session: xr::Session,
+    info: *const xr::SpacesLocateInfo,
+    locations: *mut xr::SpaceLocations,
+) -> xr::Result {
+    guard("xrLocateSpaces", || {
+        let info = non_null(info)?;
+        let locations = non_null_mut(locations)?;
+        // SAFETY: non-null, from the application.
+        let info = unsafe { &*info };
+        expect_type(info.ty, xr::StructureType::SPACES_LOCATE_INFO)?;
+        // SAFETY: non-null; the application initialised its type.
+        let locations = unsafe { &mut *locations };
+        expect_type(locations.ty, xr::StructureType::SPACE_LOCATIONS)?;
+        if info.space_count == 0 || info.space_count != locations.location_count {
+            return Err(xr::Result::ERROR_VALIDATION_FAILURE);
+        }
+        let spaces = non_null(info.spaces)?;
+        let out = non_null_mut(locations.locations)?;
+        let (s, base, located) = {
+            let reg = registry();
+            let s = reg.session(session)?;
+            let base = reg.space(info.base_space)?;
+            let mut located = Vec::with_capacity(info.space_count as usize);
+            for i in 0..info.space_count as usize {
+                // SAFETY: space_count handles (the application).
+                located.push(reg.space(unsafe { *spaces.add(i) })?);
             }
-            _ => {
-                location.pose = Pose::IDENTITY.to_xr();
-                location.location_flags = xr::SpaceLocationFlags::EMPTY;
-            }
+            (s, base, located)
+        };
+        if base.session != s.handle || located.iter().any(|sp| sp.session != s.handle) {
+            return Err(xr::Result::ERROR_VALIDATION_FAILURE);
+        }
+        if info.time.as_nanos() <= 0 {
+            return Err(xr::Result::ERROR_TIME_INVALID);
+        }
+        for (i, sp) in located.iter().enumerate() {
+            let (location_flags, pose) = locate(&s, sp, &base, info.time.as_nanos());
+            // SAFETY: location_count (= space_count) elements.
+            unsafe {
+                out.add(i).write(xr::SpaceLocationData {
+                    location_flags,
+                    pose,
+                })
+            };
         }
         Ok(xr::Result::SUCCESS)
     })

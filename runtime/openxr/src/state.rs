@@ -86,7 +86,16 @@ impl Registry {
     pub fn remove_session(&mut self, session: u64) -> Option<Arc<Session>> {
         self.spaces.retain(|_, s| s.session != session);
         self.swapchains.retain(|_, s| s.session != session);
-        self.sessions.remove(&session)
+        let removed = self.sessions.remove(&session)?;
+        // Its queued events name a handle that is gone: the application
+        // never sees them (the CTS's layer refuses an event of an unknown
+        // session).
+        if let Some(instance) = self.instances.get(&removed.instance) {
+            lock(&instance.inner)
+                .events
+                .retain(|Event::SessionState { session: s, .. }| *s != session);
+        }
+        Some(removed)
     }
 
     /// Removes an instance and everything made from it.
@@ -139,6 +148,9 @@ pub struct InstanceInner {
     /// The `vkGetInstanceProcAddr` the application gave
     /// `xrCreateVulkanInstanceKHR`, for its sessions' Vulkan calls.
     pub vk_get_instance_proc_addr: Option<ash::vk::PFN_vkGetInstanceProcAddr>,
+    /// A session of this instance has attached action sets: no more
+    /// bindings may be suggested (§11.4).
+    pub actions_attached: bool,
 }
 
 impl Instance {
@@ -191,6 +203,7 @@ pub struct Swapchain {
 pub struct ActionSet {
     pub instance: u64,
     pub name: String,
+    pub localized_name: String,
     /// Once attached to a session, no action may be added (§11.5).
     pub attached: Mutex<bool>,
 }
@@ -200,6 +213,7 @@ pub struct Action {
     pub instance: u64,
     pub set: u64,
     pub name: String,
+    pub localized_name: String,
     pub action_type: xr::ActionType,
     pub subaction_paths: Vec<u64>,
 }
@@ -221,6 +235,8 @@ pub struct SessionInner {
     /// a frame no longer submits them.
     pub quads: Vec<BTreeSet<u32>>,
     pub stats: FrameStats,
+    /// The action sets xrAttachSessionActionSets attached (once a session).
+    pub attached_sets: Option<Vec<u64>>,
 }
 
 /// How the session's frames went, logged when it ends.
@@ -274,11 +290,34 @@ pub struct FrameLoop {
     pub begun_ns: i64,
     /// The last predicted display time handed out.
     pub last_predicted: i64,
-    /// When xrWaitFrame last returned.
-    pub woke_ns: i64,
+    /// When xrWaitFrame returned, by the display time it gave: a frame
+    /// is made from its own wait, also where an application waits for the
+    /// next frame before it ends this one (the CTS's pipelined case; with
+    /// the last wait's time, the estimate jittered and frames skipped
+    /// refreshes). The last few, newest last.
+    pub woke: std::collections::VecDeque<(i64, i64)>,
     /// How long a frame takes from then to its submission.
     pub make: MakeTime,
     pub frames_ended: u64,
+}
+
+impl FrameLoop {
+    /// xrWaitFrame returned now with `predicted`.
+    pub fn woke(&mut self, predicted: i64, now: i64) {
+        if self.woke.len() == 8 {
+            self.woke.pop_front();
+        }
+        self.woke.push_back((predicted, now));
+    }
+
+    /// When the wait that gave display time `predicted` returned.
+    pub fn woke_for(&self, predicted: i64) -> Option<i64> {
+        self.woke
+            .iter()
+            .rev()
+            .find(|&&(p, _)| p == predicted)
+            .map(|&(_, t)| t)
+    }
 }
 
 impl SessionInner {
@@ -309,6 +348,24 @@ impl SessionInner {
             Err(xr::Result::ERROR_SESSION_NOT_RUNNING)
         } else {
             Ok(())
+        }
+    }
+
+    /// xrRequestExitSession: down to STOPPING through the states between,
+    /// as the specification's state machine allows (§9.3: FOCUSED →
+    /// VISIBLE → SYNCHRONIZED → STOPPING; a session begun but not yet
+    /// synchronised passes through SYNCHRONIZED).
+    pub fn stop(&mut self, instance: &Instance, session: u64) {
+        use xr::SessionState as S;
+        let path: &[S] = match self.state {
+            S::FOCUSED => &[S::VISIBLE, S::SYNCHRONIZED, S::STOPPING],
+            S::VISIBLE => &[S::SYNCHRONIZED, S::STOPPING],
+            S::READY | S::SYNCHRONIZED => &[S::SYNCHRONIZED, S::STOPPING],
+            _ => &[],
+        };
+        let now = self.state;
+        for &state in path.iter().skip_while(|&&st| st == now) {
+            self.set_state(instance, session, state);
         }
     }
 
@@ -366,6 +423,9 @@ pub struct SwapchainInner {
     pub cycle: ImageCycle,
     /// The image `xrEndFrame` shows: the last one released.
     pub last_released: Option<u32>,
+    /// The images are in the layout an acquired image is in (set at the
+    /// first acquire).
+    pub laid_out: bool,
 }
 
 /// The order a swapchain's images go through (§10.1): acquired one after
@@ -396,10 +456,17 @@ impl ImageCycle {
     }
 
     /// `xrAcquireSwapchainImage`: the next image's index.
-    pub fn acquire(&mut self) -> XrResult<u32> {
+    /// Whether an image may be acquired now (`acquire` would succeed).
+    pub fn check_acquire(&self) -> XrResult {
         if self.acquired.len() as u32 >= self.count || (self.static_image && self.acquired_ever) {
-            return Err(xr::Result::ERROR_CALL_ORDER_INVALID);
+            Err(xr::Result::ERROR_CALL_ORDER_INVALID)
+        } else {
+            Ok(())
         }
+    }
+
+    pub fn acquire(&mut self) -> XrResult<u32> {
+        self.check_acquire()?;
         let i = self.next;
         self.next = (i + 1) % self.count;
         self.acquired.push_back(i);

@@ -137,6 +137,7 @@ pub unsafe extern "system" fn create_swapchain(
             layers: info.array_size,
             cycle: ImageCycle::new(count, static_image),
             last_released: None,
+            laid_out: false,
         };
         for _ in 0..count {
             let made = vk_ctx
@@ -153,9 +154,6 @@ pub unsafe extern "system" fn create_swapchain(
             inner.images.push(made);
             images.push(made.0);
         }
-        vk_ctx
-            .initial_layout(&images, info.array_size, format)
-            .map_err(vk_error)?;
         let mut reg = registry();
         let h = reg.new_handle();
         reg.swapchains.insert(
@@ -218,6 +216,19 @@ pub unsafe extern "system" fn acquire_swapchain_image(
         }
         let sc = registry().swapchain(swapchain)?;
         let mut inner = lock(&sc.inner);
+        inner.cycle.check_acquire()?;
+        if !inner.laid_out {
+            // The images' first layout is set here, not in xrCreateSwapchain:
+            // the queue is the runtime's only inside the calls
+            // XR_KHR_vulkan_enable lists, and this is the first of them an
+            // image meets.
+            let images: Vec<_> = inner.images.iter().map(|&(image, _)| image).collect();
+            inner
+                .vk
+                .initial_layout(&images, inner.layers, inner.format)
+                .map_err(vk_error)?;
+            inner.laid_out = true;
+        }
         let i = inner.cycle.acquire()?;
         // SAFETY: non-null output.
         unsafe { index.write(i) };
@@ -268,17 +279,9 @@ pub fn read_released(
     let inner = lock(&sc.inner);
     let index = inner.last_released.ok_or(xr::Result::ERROR_LAYER_INVALID)?;
     let (w, h) = inner.size;
+    check_rect(rect, (w, h))?;
     let (x, y) = (rect.offset.x, rect.offset.y);
     let (rw, rh) = (rect.extent.width, rect.extent.height);
-    let inside = x >= 0
-        && y >= 0
-        && rw > 0
-        && rh > 0
-        && (x as i64 + rw as i64) <= i64::from(w)
-        && (y as i64 + rh as i64) <= i64::from(h);
-    if !inside {
-        return Err(xr::Result::ERROR_SWAPCHAIN_RECT_INVALID);
-    }
     if layer >= inner.layers {
         return Err(xr::Result::ERROR_VALIDATION_FAILURE);
     }
@@ -305,6 +308,29 @@ pub fn check_sub_image(sub: &xr::SwapchainSubImage) -> XrResult<Arc<Swapchain>> 
         if inner.last_released.is_none() || formats::format_layout(inner.format).is_none() {
             return Err(xr::Result::ERROR_LAYER_INVALID);
         }
+        // Every layer is checked before any is read or sent, so that a
+        // refused frame leaves nothing half-shown (and stays begun, §10.5).
+        check_rect(sub.image_rect, inner.size)?;
+        if sub.image_array_index >= inner.layers {
+            return Err(xr::Result::ERROR_VALIDATION_FAILURE);
+        }
     }
     Ok(sc)
+}
+
+/// A sub-image's rectangle lies inside its swapchain's images.
+fn check_rect(rect: xr::Rect2Di, (w, h): (u32, u32)) -> XrResult {
+    let (x, y) = (rect.offset.x, rect.offset.y);
+    let (rw, rh) = (rect.extent.width, rect.extent.height);
+    let inside = x >= 0
+        && y >= 0
+        && rw > 0
+        && rh > 0
+        && (i64::from(x) + i64::from(rw)) <= i64::from(w)
+        && (i64::from(y) + i64::from(rh)) <= i64::from(h);
+    if inside {
+        Ok(())
+    } else {
+        Err(xr::Result::ERROR_SWAPCHAIN_RECT_INVALID)
+    }
 }

@@ -117,6 +117,11 @@ pub struct Context {
     pool: vk::CommandPool,
     cmd: vk::CommandBuffer,
     fence: vk::Fence,
+    /// Held from recording to the fence: one command buffer and one fence
+    /// serve every call, and the application may make the calls that
+    /// submit from several threads at once (the CTS's multithreading case
+    /// did, and the shared buffer then crashed or hung).
+    submitting: Mutex<()>,
     staging: Mutex<Option<Staging>>,
 }
 
@@ -188,6 +193,7 @@ impl Context {
             pool,
             cmd,
             fence,
+            submitting: Mutex::new(()),
             staging: Mutex::new(None),
         })
     }
@@ -268,9 +274,12 @@ impl Context {
 
     /// Records `record` into the command buffer, submits it to the
     /// application's queue and waits for it. The queue is the
-    /// application's: OpenXR lets the runtime use it inside the frame
-    /// functions, the swapchain functions and xrCreateSwapchain (§12.20).
+    /// application's: OpenXR lets the runtime use it only inside
+    /// xrBeginFrame, xrEndFrame, xrAcquireSwapchainImage and
+    /// xrReleaseSwapchainImage (XR_KHR_vulkan_enable, "Concurrency"), which
+    /// the application keeps from its own use of the queue.
     fn submit(&self, record: impl FnOnce(&ash::Device, vk::CommandBuffer)) -> VkResult<()> {
+        let _one_at_a_time = lock(&self.submitting);
         let d = &self.device;
         // SAFETY: the buffer is ours, and idle: every submission waits for
         // its fence before returning.
