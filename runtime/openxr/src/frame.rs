@@ -450,14 +450,34 @@ fn place_quad(
     let (min_y, max_y) = ys
         .iter()
         .fold((f32::MAX, f32::MIN), |(a, b), &y| (a.min(y), b.max(y)));
-    let (vw, vh) = info.view_size(v);
+    let (centre, px, region) = cut_to_view([min_x, max_x, min_y, max_y], info.view_size(v))?;
+    let (cx, cy) = (centre.0 / ppt, centre.1 / ppt);
+    let placement = Placement::Degrees {
+        x_deg: f64::from(cx.atan().to_degrees()),
+        y_deg: f64::from(cy.atan().to_degrees()),
+    };
+    Some((placement, px, region))
+}
+
+/// What of a quad's box a view shows: the cut box's centre (panel pixels
+/// from the view's centre, y up), its size in pixels, and the part of the
+/// quad's image it keeps.
+pub type Cut = ((f32, f32), (usize, usize), pixels::Region);
+
+/// A box `[min_x, max_x, min_y, max_y]` in panel pixels from a view's
+/// centre (y up), cut to the view (`vw`×`vh`): the cut box's centre, its
+/// size in pixels (at least one, at most the view's), and the part of the
+/// box it keeps (rows from the top); None if none of it is in the view.
+pub fn cut_to_view(
+    [min_x, max_x, min_y, max_y]: [f32; 4],
+    (vw, vh): (usize, usize),
+) -> Option<Cut> {
     let (half_w, half_h) = (vw as f32 / 2.0, vh as f32 / 2.0);
     let (x0, x1) = (min_x.max(-half_w), max_x.min(half_w));
     let (y0, y1) = (min_y.max(-half_h), max_y.min(half_h));
     if x0 >= x1 || y0 >= y1 {
         return None;
     }
-    // The shown part in the quad image's fractions (rows from the top).
     let (bw, bh) = (
         (max_x - min_x).max(f32::MIN_POSITIVE),
         (max_y - min_y).max(f32::MIN_POSITIVE),
@@ -474,13 +494,7 @@ fn place_quad(
     };
     let w = ((x1 - x0).round().max(1.0) as usize).min(vw);
     let h = ((y1 - y0).round().max(1.0) as usize).min(vh);
-    let cx = (x0 + x1) / 2.0 / ppt;
-    let cy = (y0 + y1) / 2.0 / ppt;
-    let placement = Placement::Degrees {
-        x_deg: f64::from(cx.atan().to_degrees()),
-        y_deg: f64::from(cy.atan().to_degrees()),
-    };
-    Some((placement, (w, h), region))
+    Some((((x0 + x1) / 2.0, (y0 + y1) / 2.0), (w, h), region))
 }
 
 #[cfg(test)]

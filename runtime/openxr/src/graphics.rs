@@ -224,11 +224,8 @@ pub unsafe extern "system" fn create_vulkan_device_khr(
 /// The VkInstance a physical device handed out by this runtime belongs to
 /// (remembered by `xrGetVulkanGraphicsDevice2KHR`), with its functions.
 fn find_instance_of(entry: &Entry, pd: *const std::ffi::c_void) -> XrResult<ash::Instance> {
-    let known = lock(&PHYSICAL_DEVICES);
-    let &(_, vk_instance) = known
-        .iter()
-        .find(|(p, _)| *p == pd as u64)
-        .ok_or(xr::Result::ERROR_VALIDATION_FAILURE)?;
+    let vk_instance =
+        instance_of_physical_device(pd as u64).ok_or(xr::Result::ERROR_VALIDATION_FAILURE)?;
     // SAFETY: an instance the application created through this runtime
     // and queried with xrGetVulkanGraphicsDevice2KHR.
     Ok(
@@ -246,10 +243,18 @@ static PHYSICAL_DEVICES: Mutex<Vec<(u64, u64)>> = Mutex::new(Vec::new());
 /// physical device the same one: the newest instance replaces the older,
 /// which may be gone (the CTS's repeated sessions found the dead one, and
 /// the Vulkan loader aborted on it).
-fn remember_physical_device(pd: u64, vk_instance: u64) {
+pub(crate) fn remember_physical_device(pd: u64, vk_instance: u64) {
     let mut known = lock(&PHYSICAL_DEVICES);
     known.retain(|&(p, _)| p != pd);
     known.push((pd, vk_instance));
+}
+
+/// The VkInstance `pd` was last handed out for.
+pub(crate) fn instance_of_physical_device(pd: u64) -> Option<u64> {
+    lock(&PHYSICAL_DEVICES)
+        .iter()
+        .find(|&&(p, _)| p == pd)
+        .map(|&(_, i)| i)
 }
 
 pub unsafe extern "system" fn get_vulkan_graphics_device2_khr(

@@ -221,4 +221,6 @@ pub unsafe extern "system" fn get_instance_proc_addr(
 }
 
 #[cfg(test)]
+mod cts_tests;
+#[cfg(test)]
 mod tests;

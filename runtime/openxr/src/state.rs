@@ -295,7 +295,7 @@ pub struct FrameLoop {
     /// next frame before it ends this one (the CTS's pipelined case; with
     /// the last wait's time, the estimate jittered and frames skipped
     /// refreshes). The last few, newest last.
-    pub woke: std::collections::VecDeque<(i64, i64)>,
+    pub wakes: std::collections::VecDeque<(i64, i64)>,
     /// How long a frame takes from then to its submission.
     pub make: MakeTime,
     pub frames_ended: u64,
@@ -304,15 +304,15 @@ pub struct FrameLoop {
 impl FrameLoop {
     /// xrWaitFrame returned now with `predicted`.
     pub fn woke(&mut self, predicted: i64, now: i64) {
-        if self.woke.len() == 8 {
-            self.woke.pop_front();
+        if self.wakes.len() == 8 {
+            self.wakes.pop_front();
         }
-        self.woke.push_back((predicted, now));
+        self.wakes.push_back((predicted, now));
     }
 
     /// When the wait that gave display time `predicted` returned.
     pub fn woke_for(&self, predicted: i64) -> Option<i64> {
-        self.woke
+        self.wakes
             .iter()
             .rev()
             .find(|&&(p, _)| p == predicted)

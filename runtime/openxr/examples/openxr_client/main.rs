@@ -20,7 +20,7 @@ use ash::vk::Handle;
 use openxr as xr;
 
 mod vulkan;
-use vulkan::{Gpu, draw, target};
+use vulkan::{draw, target};
 
 /// Eye `eye`'s sRGB codes at (x, y).
 fn projection_texel(eye: usize, x: usize, y: usize) -> [u8; 4] {
@@ -126,66 +126,7 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
     let views = instance.enumerate_view_configuration_views(system, stereo)?;
     instance.graphics_requirements::<xr::Vulkan>(system)?;
 
-    // SAFETY: the system's Vulkan loader.
-    let vk_entry = unsafe { ash::Entry::load() }?;
-    let app = vk::ApplicationInfo::default().api_version(vk::make_api_version(0, 1, 0, 0));
-    let create = vk::InstanceCreateInfo::default().application_info(&app);
-    let gipa = vk_entry.static_fn().get_instance_proc_addr;
-    // SAFETY: the loader's own vkGetInstanceProcAddr, given to the runtime
-    // as its type (the same function, spelt by another crate); the create
-    // infos outlive the calls; the handles are the ones Vulkan returned.
-    let (vk_instance, physical, device, family) = unsafe {
-        let gipa: openxr::sys::platform::VkGetInstanceProcAddr = std::mem::transmute(gipa);
-        let raw = instance
-            .create_vulkan_instance(system, gipa, (&raw const create).cast())?
-            .map_err(vk::Result::from_raw)?;
-        let vk_instance =
-            ash::Instance::load(vk_entry.static_fn(), vk::Instance::from_raw(raw as u64));
-        let physical =
-            vk::PhysicalDevice::from_raw(instance.vulkan_graphics_device(system, raw)? as u64);
-        let family = vk_instance
-            .get_physical_device_queue_family_properties(physical)
-            .iter()
-            .position(|q| q.queue_flags.contains(vk::QueueFlags::GRAPHICS))
-            .ok_or("no graphics queue")? as u32;
-        let priorities = [1.0];
-        let queues = [vk::DeviceQueueCreateInfo::default()
-            .queue_family_index(family)
-            .queue_priorities(&priorities)];
-        let dci = vk::DeviceCreateInfo::default().queue_create_infos(&queues);
-        let raw_device = instance
-            .create_vulkan_device(
-                system,
-                gipa,
-                physical.as_raw() as _,
-                (&raw const dci).cast(),
-            )?
-            .map_err(vk::Result::from_raw)?;
-        let device = ash::Device::load(
-            vk_instance.fp_v1_0(),
-            vk::Device::from_raw(raw_device as u64),
-        );
-        (vk_instance, physical, device, family)
-    };
-    // SAFETY: live device, a queue family it was created with.
-    let (queue, pool, fence) = unsafe {
-        (
-            device.get_device_queue(family, 0),
-            device.create_command_pool(
-                &vk::CommandPoolCreateInfo::default().queue_family_index(family),
-                None,
-            )?,
-            device.create_fence(&vk::FenceCreateInfo::default(), None)?,
-        )
-    };
-    let gpu = Gpu {
-        instance: vk_instance,
-        device,
-        physical,
-        queue,
-        pool,
-        fence,
-    };
+    let (gpu, family) = vulkan::gpu_for(&instance, system)?;
     // SAFETY: the handles are the live objects made above.
     let (session, mut waiter, mut stream) = unsafe {
         instance.create_session::<xr::Vulkan>(

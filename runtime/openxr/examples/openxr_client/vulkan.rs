@@ -15,6 +15,9 @@ pub(super) struct Target {
 }
 
 pub(super) struct Gpu {
+    /// The Vulkan loader, kept loaded: the runtime holds its
+    /// vkGetInstanceProcAddr for the session's life.
+    pub(super) _entry: ash::Entry,
     pub(super) instance: ash::Instance,
     pub(super) device: ash::Device,
     pub(super) physical: vk::PhysicalDevice,
@@ -198,4 +201,75 @@ pub(super) fn draw(t: &mut Target, gpu: &Gpu) -> Result<(), Box<dyn std::error::
     gpu.upload(t.buffer, t.images[i as usize], t.size)?;
     t.swapchain.release_image()?;
     Ok(())
+}
+
+/// The application's Vulkan device, made through the runtime
+/// (XR_KHR_vulkan_enable2) on the system's Vulkan loader, with a graphics
+/// queue family; and that family.
+pub(super) fn gpu_for(
+    instance: &xr::Instance,
+    system: xr::SystemId,
+) -> Result<(Gpu, u32), Box<dyn std::error::Error>> {
+    // SAFETY: the system's Vulkan loader.
+    let vk_entry = unsafe { ash::Entry::load() }?;
+    let app = vk::ApplicationInfo::default().api_version(vk::make_api_version(0, 1, 0, 0));
+    let create = vk::InstanceCreateInfo::default().application_info(&app);
+    let gipa = vk_entry.static_fn().get_instance_proc_addr;
+    // SAFETY: the loader's own vkGetInstanceProcAddr, given to the runtime
+    // as its type (the same function, spelt by another crate); the create
+    // infos outlive the calls; the handles are the ones Vulkan returned.
+    let (vk_instance, physical, device, family) = unsafe {
+        let gipa: openxr::sys::platform::VkGetInstanceProcAddr = std::mem::transmute(gipa);
+        let raw = instance
+            .create_vulkan_instance(system, gipa, (&raw const create).cast())?
+            .map_err(vk::Result::from_raw)?;
+        let vk_instance =
+            ash::Instance::load(vk_entry.static_fn(), vk::Instance::from_raw(raw as u64));
+        let physical =
+            vk::PhysicalDevice::from_raw(instance.vulkan_graphics_device(system, raw)? as u64);
+        let family = vk_instance
+            .get_physical_device_queue_family_properties(physical)
+            .iter()
+            .position(|q| q.queue_flags.contains(vk::QueueFlags::GRAPHICS))
+            .ok_or("no graphics queue")? as u32;
+        let priorities = [1.0];
+        let queues = [vk::DeviceQueueCreateInfo::default()
+            .queue_family_index(family)
+            .queue_priorities(&priorities)];
+        let dci = vk::DeviceCreateInfo::default().queue_create_infos(&queues);
+        let raw_device = instance
+            .create_vulkan_device(
+                system,
+                gipa,
+                physical.as_raw() as _,
+                (&raw const dci).cast(),
+            )?
+            .map_err(vk::Result::from_raw)?;
+        let device = ash::Device::load(
+            vk_instance.fp_v1_0(),
+            vk::Device::from_raw(raw_device as u64),
+        );
+        (vk_instance, physical, device, family)
+    };
+    // SAFETY: live device, a queue family it was created with.
+    let (queue, pool, fence) = unsafe {
+        (
+            device.get_device_queue(family, 0),
+            device.create_command_pool(
+                &vk::CommandPoolCreateInfo::default().queue_family_index(family),
+                None,
+            )?,
+            device.create_fence(&vk::FenceCreateInfo::default(), None)?,
+        )
+    };
+    let gpu = Gpu {
+        _entry: vk_entry,
+        instance: vk_instance,
+        device,
+        physical,
+        queue,
+        pool,
+        fence,
+    };
+    Ok((gpu, family))
 }
