@@ -13,42 +13,7 @@ use openxr_sys::Handle as _;
 use crate::{actions, get_instance_proc_addr, instance, pixels};
 
 fn create_with(layers: &[&str], extensions: &[&str]) -> Result<xr::Instance, xr::Result> {
-    let layer_names: Vec<CString> = layers
-        .iter()
-        .map(|l| CString::new(*l).expect("name"))
-        .collect();
-    let layer_ptrs: Vec<*const c_char> = layer_names.iter().map(|n| n.as_ptr()).collect();
-    let ext_names: Vec<CString> = extensions
-        .iter()
-        .map(|e| CString::new(*e).expect("name"))
-        .collect();
-    let ext_ptrs: Vec<*const c_char> = ext_names.iter().map(|n| n.as_ptr()).collect();
-    let mut app = xr::ApplicationInfo {
-        application_name: [0; xr::MAX_APPLICATION_NAME_SIZE],
-        application_version: 1,
-        engine_name: [0; xr::MAX_ENGINE_NAME_SIZE],
-        engine_version: 0,
-        api_version: xr::Version::new(1, 0, 0),
-    };
-    crate::ffi::write_fixed(&mut app.application_name, "nedrt-openxr CTS findings");
-    let info = xr::InstanceCreateInfo {
-        ty: xr::StructureType::INSTANCE_CREATE_INFO,
-        next: ptr::null(),
-        create_flags: xr::InstanceCreateFlags::EMPTY,
-        application_info: app,
-        enabled_api_layer_count: layer_ptrs.len() as u32,
-        enabled_api_layer_names: layer_ptrs.as_ptr(),
-        enabled_extension_count: ext_ptrs.len() as u32,
-        enabled_extension_names: ext_ptrs.as_ptr(),
-    };
-    let mut out = xr::Instance::NULL;
-    // SAFETY: a valid create info whose strings outlive the call.
-    let r = unsafe { instance::create_instance(&info, &mut out) };
-    if r == xr::Result::SUCCESS {
-        Ok(out)
-    } else {
-        Err(r)
-    }
+    crate::tests::create_with(layers, extensions, xr::Version::new(1, 0, 0))
 }
 
 fn destroy(i: xr::Instance) {

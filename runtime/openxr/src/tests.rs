@@ -23,11 +23,25 @@ fn app_info() -> xr::ApplicationInfo {
 }
 
 fn create(extensions: &[&str], api: xr::Version) -> Result<xr::Instance, xr::Result> {
-    let names: Vec<CString> = extensions
-        .iter()
-        .map(|e| CString::new(*e).expect("name"))
-        .collect();
-    let ptrs: Vec<*const c_char> = names.iter().map(|n| n.as_ptr()).collect();
+    create_with(&[], extensions, api)
+}
+
+/// An instance with API layers named in its create info (as the loader
+/// passes them on) and `extensions`, at `api`.
+pub(crate) fn create_with(
+    layers: &[&str],
+    extensions: &[&str],
+    api: xr::Version,
+) -> Result<xr::Instance, xr::Result> {
+    let c_strings = |names: &[&str]| -> Vec<CString> {
+        names
+            .iter()
+            .map(|n| CString::new(*n).expect("name"))
+            .collect()
+    };
+    let (layer_names, ext_names) = (c_strings(layers), c_strings(extensions));
+    let layer_ptrs: Vec<*const c_char> = layer_names.iter().map(|n| n.as_ptr()).collect();
+    let ptrs: Vec<*const c_char> = ext_names.iter().map(|n| n.as_ptr()).collect();
     let mut app = app_info();
     app.api_version = api;
     let info = xr::InstanceCreateInfo {
@@ -35,8 +49,8 @@ fn create(extensions: &[&str], api: xr::Version) -> Result<xr::Instance, xr::Res
         next: ptr::null(),
         create_flags: xr::InstanceCreateFlags::EMPTY,
         application_info: app,
-        enabled_api_layer_count: 0,
-        enabled_api_layer_names: ptr::null(),
+        enabled_api_layer_count: layer_ptrs.len() as u32,
+        enabled_api_layer_names: layer_ptrs.as_ptr(),
         enabled_extension_count: ptrs.len() as u32,
         enabled_extension_names: ptrs.as_ptr(),
     };

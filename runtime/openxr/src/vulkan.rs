@@ -117,10 +117,9 @@ pub struct Context {
     pool: vk::CommandPool,
     cmd: vk::CommandBuffer,
     fence: vk::Fence,
-    /// Held from recording to the fence: one command buffer and one fence
-    /// serve every call, and the application may make the calls that
-    /// submit from several threads at once (the CTS's multithreading case
-    /// did, and the shared buffer then crashed or hung).
+    /// Held from recording to the fence: one command buffer and fence serve
+    /// calls an application may make from several threads at once (the
+    /// CTS's multithreading case crashed or hung on them).
     submitting: Mutex<()>,
     staging: Mutex<Option<Staging>>,
 }

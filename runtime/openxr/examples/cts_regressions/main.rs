@@ -14,21 +14,22 @@ use std::ptr;
 use openxr as xr;
 use xr::sys;
 
+mod actions;
 #[path = "../openxr_client/vulkan.rs"]
 mod vulkan;
-use vulkan::{Target, draw, target};
+use vulkan::{Target, draw, rect, target};
 
 /// The wide quad's sRGB code (opaque).
 const WIDE_QUAD: [u8; 4] = [200, 120, 40, 255];
 const STEREO: xr::ViewConfigurationType = xr::ViewConfigurationType::PRIMARY_STEREO;
 
 #[derive(Default)]
-struct Checks {
+pub(crate) struct Checks {
     failed: usize,
 }
 
 impl Checks {
-    fn check(&mut self, name: &str, ok: bool, why: impl FnOnce() -> String) {
+    pub(crate) fn check(&mut self, name: &str, ok: bool, why: impl FnOnce() -> String) {
         if ok {
             println!("ok {name}");
         } else {
@@ -37,7 +38,7 @@ impl Checks {
         }
     }
 
-    fn expect(&mut self, name: &str, got: sys::Result, want: sys::Result) {
+    pub(crate) fn expect(&mut self, name: &str, got: sys::Result, want: sys::Result) {
         self.check(name, got == want, || format!("{got:?}, not {want:?}"));
     }
 }
@@ -86,7 +87,7 @@ fn session(
 
 /// The session states the queue holds now, in order; any other event is
 /// an error (none is expected here).
-fn states(instance: &xr::Instance) -> xr::Result<Vec<(sys::Session, xr::SessionState)>> {
+pub(crate) fn states(instance: &xr::Instance) -> xr::Result<Vec<(sys::Session, xr::SessionState)>> {
     let mut buf = xr::EventDataBuffer::new();
     let mut out = Vec::new();
     while let Some(event) = instance.poll_event(&mut buf)? {
@@ -99,16 +100,6 @@ fn states(instance: &xr::Instance) -> xr::Result<Vec<(sys::Session, xr::SessionS
 
 fn only_states(s: &[(sys::Session, xr::SessionState)]) -> Vec<xr::SessionState> {
     s.iter().map(|&(_, st)| st).collect()
-}
-
-fn rect((w, h): (u32, u32)) -> xr::Rect2Di {
-    xr::Rect2Di {
-        offset: xr::Offset2Di { x: 0, y: 0 },
-        extent: xr::Extent2Di {
-            width: w as i32,
-            height: h as i32,
-        },
-    }
 }
 
 fn run() -> Result<usize, Box<dyn std::error::Error>> {
@@ -172,141 +163,7 @@ fn run() -> Result<usize, Box<dyn std::error::Error>> {
         );
     }
 
-    // xrAttachSessionActionSets and StateQueryFunctionsAndHaptics.
-    {
-        let set = instance.create_action_set("a_set", "a set", 0)?;
-        let left = instance.string_to_path("/user/hand/left")?;
-        let right = instance.string_to_path("/user/hand/right")?;
-        let select = set.create_action::<bool>("select", "select", &[left, right])?;
-        let buzz = set.create_action::<xr::Haptic>("buzz", "buzz", &[left, right])?;
-        let (s, _waiter, _stream) = session(&instance, system, &gpu, family)?;
-        let mut profile = sys::InteractionProfileState {
-            ty: sys::InteractionProfileState::TYPE,
-            next: ptr::null_mut(),
-            interaction_profile: sys::Path::NULL,
-        };
-        // SAFETY: a live session and a typed output.
-        let r = unsafe { (fp.get_current_interaction_profile)(s.as_raw(), left, &mut profile) };
-        c.expect(
-            "xrAttachSessionActionSets: interaction profile before attaching",
-            r,
-            sys::Result::ERROR_ACTIONSET_NOT_ATTACHED,
-        );
-        let haptic_info = |sub: sys::Path| sys::HapticActionInfo {
-            ty: sys::HapticActionInfo::TYPE,
-            next: ptr::null(),
-            action: buzz.as_raw(),
-            subaction_path: sub,
-        };
-        // SAFETY: a live session and a typed info.
-        let r = unsafe { (fp.stop_haptic_feedback)(s.as_raw(), &haptic_info(sys::Path::NULL)) };
-        c.check(
-            "xrAttachSessionActionSets: haptics before attaching",
-            matches!(
-                r,
-                sys::Result::ERROR_ACTIONSET_NOT_ATTACHED | sys::Result::SESSION_NOT_FOCUSED
-            ),
-            || format!("{r:?}"),
-        );
-        let sets = [set.as_raw()];
-        let attach = |count: u32| sys::SessionActionSetsAttachInfo {
-            ty: sys::SessionActionSetsAttachInfo::TYPE,
-            next: ptr::null(),
-            count_action_sets: count,
-            action_sets: sets.as_ptr(),
-        };
-        // SAFETY: a live session and typed infos whose array outlives them.
-        let (none, first, again) = unsafe {
-            (
-                (fp.attach_session_action_sets)(s.as_raw(), &attach(0)),
-                (fp.attach_session_action_sets)(s.as_raw(), &attach(1)),
-                (fp.attach_session_action_sets)(s.as_raw(), &attach(1)),
-            )
-        };
-        c.expect(
-            "xrAttachSessionActionSets: no sets",
-            none,
-            sys::Result::ERROR_VALIDATION_FAILURE,
-        );
-        c.expect(
-            "xrAttachSessionActionSets: attach",
-            first,
-            sys::Result::SUCCESS,
-        );
-        c.expect(
-            "xrAttachSessionActionSets: a second attach",
-            again,
-            sys::Result::ERROR_ACTIONSETS_ALREADY_ATTACHED,
-        );
-        let binding = sys::ActionSuggestedBinding {
-            action: select.as_raw(),
-            binding: instance.string_to_path("/user/hand/left/input/select/click")?,
-        };
-        let suggested = sys::InteractionProfileSuggestedBinding {
-            ty: sys::InteractionProfileSuggestedBinding::TYPE,
-            next: ptr::null(),
-            interaction_profile: instance
-                .string_to_path("/interaction_profiles/khr/simple_controller")?,
-            count_suggested_bindings: 1,
-            suggested_bindings: &binding,
-        };
-        // SAFETY: a live instance and a typed info whose binding outlives it.
-        let r = unsafe { (fp.suggest_interaction_profile_bindings)(instance.as_raw(), &suggested) };
-        c.expect(
-            "xrSuggestInteractionProfileBindings: after attaching",
-            r,
-            sys::Result::ERROR_ACTIONSETS_ALREADY_ATTACHED,
-        );
-        let query = |sub: sys::Path| {
-            let info = sys::ActionStateGetInfo {
-                ty: sys::ActionStateGetInfo::TYPE,
-                next: ptr::null(),
-                action: select.as_raw(),
-                subaction_path: sub,
-            };
-            let mut state = sys::ActionStateBoolean {
-                ty: sys::ActionStateBoolean::TYPE,
-                next: ptr::null_mut(),
-                current_state: sys::FALSE,
-                changed_since_last_sync: sys::FALSE,
-                last_change_time: sys::Time::from_nanos(0),
-                is_active: sys::FALSE,
-            };
-            // SAFETY: a live session and typed structures.
-            unsafe { (fp.get_action_state_boolean)(s.as_raw(), &info, &mut state) }
-        };
-        c.expect(
-            "StateQueryFunctionsAndHaptics: no such path",
-            query(sys::Path::from_raw(0x1234)),
-            sys::Result::ERROR_PATH_INVALID,
-        );
-        let gamepad = instance.string_to_path("/user/gamepad")?;
-        c.expect(
-            "StateQueryFunctionsAndHaptics: a path the action lacks",
-            query(gamepad),
-            sys::Result::ERROR_PATH_UNSUPPORTED,
-        );
-        // SAFETY: a live session and a typed info.
-        let r = unsafe { (fp.stop_haptic_feedback)(s.as_raw(), &haptic_info(gamepad)) };
-        c.expect(
-            "StateQueryFunctionsAndHaptics: haptics on a path the action lacks",
-            r,
-            sys::Result::ERROR_PATH_UNSUPPORTED,
-        );
-        drop((_waiter, _stream, s));
-        states(&instance)?;
-        // "Can attach to multiple sessions".
-        let (s2, _w2, _st2) = session(&instance, system, &gpu, family)?;
-        // SAFETY: as above.
-        let r = unsafe { (fp.attach_session_action_sets)(s2.as_raw(), &attach(1)) };
-        c.expect(
-            "xrAttachSessionActionSets: the same set, another session",
-            r,
-            sys::Result::SUCCESS,
-        );
-        drop((_w2, _st2, s2));
-        states(&instance)?;
-    }
+    actions::check(&instance, system, &gpu, family, &mut c)?;
 
     // xrCreateSwapchain from several threads at once (multithreading): the
     // runtime's one command buffer and fence were shared unguarded, and it

@@ -20,7 +20,7 @@ use ash::vk::Handle;
 use openxr as xr;
 
 mod vulkan;
-use vulkan::{draw, target};
+use vulkan::{draw, rect, target};
 
 /// Eye `eye`'s sRGB codes at (x, y).
 fn projection_texel(eye: usize, x: usize, y: usize) -> [u8; 4] {
@@ -80,16 +80,6 @@ fn args() -> Result<Args, String> {
         }
     }
     Ok(a)
-}
-
-fn rect((w, h): (u32, u32)) -> xr::Rect2Di {
-    xr::Rect2Di {
-        offset: xr::Offset2Di { x: 0, y: 0 },
-        extent: xr::Extent2Di {
-            width: w as i32,
-            height: h as i32,
-        },
-    }
 }
 
 fn main() {

@@ -273,3 +273,14 @@ pub(super) fn gpu_for(
     };
     Ok((gpu, family))
 }
+
+/// The whole of an image of `(w, h)` texels.
+pub(super) fn rect((w, h): (u32, u32)) -> xr::Rect2Di {
+    xr::Rect2Di {
+        offset: xr::Offset2Di { x: 0, y: 0 },
+        extent: xr::Extent2Di {
+            width: w as i32,
+            height: h as i32,
+        },
+    }
+}
