@@ -4,6 +4,7 @@
     openxr-cts-case.py NAME RC JUNIT_XML OUTPUT      -> one TSV row
     openxr-cts-case.py --table RESULTS_TSV CTS_COMMIT NEDRT_COMMIT PLUGIN
                                                      -> the Markdown table
+    openxr-cts-case.py --merge LABEL=RESULTS_TSV...  -> one table, a column a run
 
 A case is `passed`, `failed` or `skipped` as Catch2's JUnit report says;
 `hung` when the deadline killed it (timeout's 124/137); `crashed` when the
@@ -123,7 +124,39 @@ def table(tsv: str, cts_commit: str, nedrt_commit: str, plugin: str) -> None:
         print(f"| {cell} | {status} | {first} |")
 
 
+def read_tsv(path: str) -> list[tuple[str, str, str]]:
+    with open(path) as f:
+        next(f)
+        return [tuple((line.rstrip("\n").split("\t") + ["", ""])[:3]) for line in f]
+
+
+def merge(runs: list[str]) -> None:
+    """Several runs' results (LABEL=results.tsv) as one table: a column a
+    run, and the first line of whatever did not pass in some run."""
+    labelled = [(r.split("=", 1)[0], read_tsv(r.split("=", 1)[1])) for r in runs]
+    names = [name for name, _, _ in labelled[0][1]]
+    by_run = [{n: (st, first) for n, st, first in rows} for _, rows in labelled]
+    print("| case | " + " | ".join(label for label, _ in labelled) + " | why not passed |")
+    print("| --- | " + " | ".join("---" for _ in labelled) + " | --- |")
+    for name in names:
+        cells = [run.get(name, ("absent", ""))[0] for run in by_run]
+        why = next(
+            (run[name][1] for run in by_run if name in run and run[name][0] != "passed"), ""
+        )
+        cell = name.replace("|", "\\|")
+        print(f"| {cell} | " + " | ".join(cells) + f" | {why} |")
+    counts = [f"{label}: " + ", ".join(
+        f"{sum(1 for s, _ in run.values() if s == k)} {k}"
+        for k in ("passed", "failed", "skipped", "crashed", "hung")
+        if any(s == k for s, _ in run.values())) for (label, _), run in zip(labelled, by_run)]
+    print()
+    print("; ".join(counts) + ".")
+
+
 def main() -> None:
+    if len(sys.argv) > 2 and sys.argv[1] == "--merge":
+        merge(sys.argv[2:])
+        return
     if len(sys.argv) == 6 and sys.argv[1] == "--table":
         table(*sys.argv[2:6])
         return
