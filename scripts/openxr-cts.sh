@@ -36,16 +36,24 @@ usage() {
 cts_build=$1
 shift
 out="" plugin=vulkan2 timeout_s=300 only="" validation=()
+value() { # the option's value, or a clear error
+    [ $# -ge 2 ] || { echo "openxr-cts.sh: $1 needs a value" >&2; exit 2; }
+}
 while [ $# -gt 0 ]; do
     case $1 in
-    --out) out=$2; shift 2 ;;
-    --plugin) plugin=$2; shift 2 ;;
-    --timeout) timeout_s=$2; shift 2 ;;
-    --only) only=$2; shift 2 ;;
+    --out) value "$@"; out=$2; shift 2 ;;
+    --plugin) value "$@"; plugin=$2; shift 2 ;;
+    --timeout) value "$@"; timeout_s=$2; shift 2 ;;
+    --only) value "$@"; only=$2; shift 2 ;;
     --validation) validation=(--invalidHandleValidation --invalidTypeValidation); shift ;;
     *) echo "openxr-cts.sh: unknown argument '$1'" >&2; usage ;;
     esac
 done
+case $timeout_s in '' | *[!0-9]*)
+    echo "openxr-cts.sh: --timeout $timeout_s: expected whole seconds" >&2
+    exit 2
+    ;;
+esac
 case $plugin in vulkan | vulkan2) ;; *)
     echo "openxr-cts.sh: --plugin $plugin: nedrt offers only the Vulkan plugins (vulkan, vulkan2)" >&2
     exit 2
