@@ -767,7 +767,7 @@ const ROWS: &[Row] = &[
     row(
         "psf --at: accommodation out of range",
         &["psf", "--at", "40", "--out-dir", "{out}"],
-        "beyond what an eye accommodates",
+        "--at 4e1: beyond what an eye accommodates",
     ),
     row(
         "psf: --method without --at",

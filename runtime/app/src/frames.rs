@@ -3,7 +3,7 @@
 //! for an [`Image`] a caller already has (the Python package's
 //! `nedrt.Display`). One path, so that both give the same numbers.
 
-use super::{AppError, CommonOptions, check_accommodation};
+use super::{AppError, CommonOptions, check_accommodation_as};
 use nedrt_optics::psf::Psf;
 use nedrt_optics::sim::metrics::{psnr, ssim};
 use nedrt_optics::sim::{Image, Method, Optics, Simulator, ZoneRequest};
@@ -41,6 +41,8 @@ pub struct FrameRequest<'a> {
     /// Optics the `display` image is seen through.
     pub optics: Optics,
     pub accommodation_d: f64,
+    /// What errors call the accommodation (`--accom`, or the argument).
+    pub accommodation_name: &'a str,
     pub method: Method,
     pub prefilter: Prefilter,
     pub zones: ZoneRequest,
@@ -75,7 +77,7 @@ pub struct Simulated {
 /// `tracing`.
 pub fn simulate(common: &CommonOptions, req: &FrameRequest<'_>) -> Result<Simulated, AppError> {
     let calib = common.calibration()?;
-    if let Some(w) = check_accommodation(&calib, req.accommodation_d)? {
+    if let Some(w) = check_accommodation_as(&calib, req.accommodation_d, req.accommodation_name)? {
         tracing::warn!("{w}");
     }
     let input = req.input;
@@ -209,14 +211,16 @@ pub fn simulate(common: &CommonOptions, req: &FrameRequest<'_>) -> Result<Simula
 /// The PSFs of `method`'s optics with the eye accommodated at
 /// `accommodation_d`, one per colour channel, on the retinal grid (each
 /// the fraction of the light in each cell; the window's centre is the
-/// axis), as the simulator convolves the display image with.
+/// axis), as the simulator convolves the display image with. Errors call
+/// the accommodation `accommodation_name` (`--at`, or the argument).
 pub fn psfs(
     common: &CommonOptions,
     method: Method,
     accommodation_d: f64,
+    accommodation_name: &str,
 ) -> Result<(Vec<Psf>, Simulator), AppError> {
     let calib = common.calibration()?;
-    if let Some(w) = check_accommodation(&calib, accommodation_d)? {
+    if let Some(w) = check_accommodation_as(&calib, accommodation_d, accommodation_name)? {
         tracing::warn!("{w}");
     }
     let sim = Simulator::new(
@@ -318,7 +322,7 @@ pub fn write_psfs(
 ) -> Result<String, AppError> {
     use safetensors::{Dtype, tensor::TensorView};
     // Computed first: a refused request leaves no folder behind.
-    let (psfs, sim) = psfs(common, method, accommodation_d)?;
+    let (psfs, sim) = psfs(common, method, accommodation_d, "--at")?;
     crate::create_dir(out_dir)?;
     let path = out_dir.join("psfs.safetensors");
     let n = psfs.first().map_or(0, |p| p.window);

@@ -21,7 +21,7 @@ pub mod viewer;
 pub use nedrt_command::design;
 pub use nedrt_command::{
     AppError, CommonOptions, DcnnOptions, MAX_ACCOMMODATION_D, Phase, check_accommodation,
-    check_output_folder, create_dir, gpu_for, write_text,
+    check_accommodation_as, check_output_folder, create_dir, gpu_for, write_text,
 };
 
 /// Deadlines for the unit tests (shared with the integration tests).

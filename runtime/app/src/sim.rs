@@ -235,6 +235,7 @@ fn simulate(
             display: display_loaded.as_ref(),
             optics: opts.optics,
             accommodation_d: opts.accommodation_d,
+            accommodation_name: "--accom",
             method: opts.method,
             prefilter: opts.prefilter,
             zones: opts.zones,

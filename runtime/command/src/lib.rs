@@ -371,27 +371,38 @@ pub fn check_output_folder(file: &Path) -> Result<(), AppError> {
 /// (near point 5 cm); past it the request is a typo, not an eye.
 pub const MAX_ACCOMMODATION_D: f64 = 20.0;
 
-/// Checks an accommodation: finite and in [0, 20] D (errors), inside the
-/// calibrated range (else a warning, returned for printing).
+/// Checks an accommodation given as `--accom`: finite and in [0, 20] D
+/// (errors), inside the calibrated range (else a warning, returned for
+/// printing).
 pub fn check_accommodation(
     calib: &Calibration,
     accommodation_d: f64,
 ) -> Result<Option<String>, AppError> {
+    check_accommodation_as(calib, accommodation_d, "--accom")
+}
+
+/// `check_accommodation` of a value the user gave as `name` (a flag, or a
+/// Python argument): errors name it.
+pub fn check_accommodation_as(
+    calib: &Calibration,
+    accommodation_d: f64,
+    name: &str,
+) -> Result<Option<String>, AppError> {
     if !accommodation_d.is_finite() {
         return Err(AppError::option(
-            format!("--accom {accommodation_d}"),
+            format!("{name} {accommodation_d}"),
             "not a number of diopters",
         ));
     }
     if accommodation_d < 0.0 {
         return Err(AppError::option(
-            format!("--accom {accommodation_d}"),
+            format!("{name} {accommodation_d}"),
             "accommodation must be ≥ 0 D (0 D is focus at infinity; an eye cannot focus beyond it)",
         ));
     }
     if accommodation_d > MAX_ACCOMMODATION_D {
         return Err(AppError::option(
-            format!("--accom {accommodation_d:e}"),
+            format!("{name} {accommodation_d:e}"),
             format!(
                 "beyond what an eye accommodates (at most {MAX_ACCOMMODATION_D} D, a child's \
                  near point of 5 cm)"

@@ -259,6 +259,7 @@ impl Display {
                         display: None,
                         optics: Optics::Doe,
                         accommodation_d,
+                        accommodation_name: "accommodation_d",
                         method,
                         prefilter,
                         zones: ZoneRequest::default(),
@@ -307,7 +308,7 @@ impl Display {
         let method = method_arg(py, method, &self.common)?;
         let common = &self.common;
         let (psfs, _) = py
-            .detach(|| frames::psfs(common, method, accommodation_d))
+            .detach(|| frames::psfs(common, method, accommodation_d, "accommodation_d"))
             .map_err(|e| to_py(py, e))?;
         let n = psfs.first().map_or(0, |p| p.window);
         let cells: Vec<f64> = psfs.iter().flat_map(|p| p.cells.iter().copied()).collect();
