@@ -774,6 +774,25 @@ const ROWS: &[Row] = &[
         &["psf", "--method", "ai", "--out-dir", "{out}"],
         "required arguments were not provided",
     ),
+    row(
+        "calib patterns: a margin under 1",
+        &["calib", "patterns", "--out", "{out}", "--margin", "0.5"],
+        "--margin 0.5: must be at least 1",
+    ),
+    row(
+        "calib patterns: a panel too small for one dot",
+        &[
+            "--calib",
+            "{repo}/tests/data/small-aperture.toml",
+            "calib",
+            "patterns",
+            "--out",
+            "{out}",
+            "--margin",
+            "20",
+        ],
+        "panel holds no dot",
+    ),
 ];
 
 /// Rows that take the small-aperture calibration and the `--sim` arguments
@@ -790,6 +809,7 @@ fn command_line(r: &Row, dir: &Path, out: &Path) -> Vec<String> {
             "prefilter",
             "bench",
             "psf",
+            "calib",
         ]
         .contains(a)
     });

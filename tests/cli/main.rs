@@ -4,6 +4,7 @@
 //! binary; a module per command family, the helpers here.
 
 mod bad_input;
+mod calib;
 mod dcnn;
 #[path = "../common/deadline.rs"]
 mod deadline;

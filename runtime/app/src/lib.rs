@@ -10,6 +10,7 @@
 //! Rule: no clap, no indicatif, no environment (settings arrive as values,
 //! progress through [`nedrt_core::Progress`]).
 
+pub mod calib_patterns;
 pub mod charts;
 pub mod frames;
 pub mod images;

@@ -207,8 +207,10 @@ pub enum Command {
     /// images (32-bit float TIFF), and the objective's kernels for the
     /// trainer: the D-CNN recipe's teacher (docs/optimal.md).
     Prefilter(PrefilterArgs),
-    /// Print the resolved calibration and the quantities derived from it.
-    Calib,
+    /// Print the resolved calibration and the quantities derived from it;
+    /// `calib patterns` writes what to show the built display to calibrate
+    /// it (docs/calibration.md).
+    Calib(CalibArgs),
     /// The real-time service: frames from a source, preprocessed at the best
     /// level that fits the refresh (or by one method), encoded through the
     /// panel's transfer curve, presented to a sink.
@@ -368,6 +370,32 @@ pub struct PsfArgs {
     /// The method whose optics --at takes.
     #[arg(long, default_value = "doe+wiener", value_name = "METHOD", value_parser = named::<Method>(), requires = "at")]
     pub method: Method,
+}
+
+#[derive(Args, Debug)]
+pub struct CalibArgs {
+    #[command(subcommand)]
+    pub action: Option<CalibAction>,
+}
+
+#[derive(Subcommand, Debug)]
+pub enum CalibAction {
+    /// The patterns a lab shows on the built display and photographs: per
+    /// channel, a grid of lit pixels whose PSFs never overlap over the
+    /// calibrated range; a checkerboard to register camera pixels to panel
+    /// pixels; flat and dark fields; patterns.toml naming each.
+    Patterns(CalibPatternsArgs),
+}
+
+#[derive(Args, Debug)]
+pub struct CalibPatternsArgs {
+    /// The folder the images and patterns.toml go to (made if missing).
+    #[arg(long, value_name = "DIR")]
+    pub out: PathBuf,
+    /// Room for the built optics' blur: dots 2 × margin × the design PSF's
+    /// radius apart (its 99.9 % light), at least 1.
+    #[arg(long, default_value_t = 1.5, value_name = "F")]
+    pub margin: f64,
 }
 
 #[derive(Args, Debug)]

@@ -11,7 +11,7 @@ use nedrt_service::pipeline::service::Control;
 use nedrt_service::present::window::WindowOptions;
 use nedrt_studies as studies;
 
-use crate::args::{BenchKind, Cli, Command, RunPreprocess, ShownArg};
+use crate::args::{BenchKind, CalibAction, Cli, Command, RunPreprocess, ShownArg};
 use crate::console::Console;
 use crate::install_signals;
 use crate::settings::Environment;
@@ -218,7 +218,12 @@ pub fn run(cli: Cli) -> Result<()> {
             let report = nedrt_run::run(&common, &opts, &control)?;
             print!("{}", report.table());
         }
-        Some(Command::Calib) => print!("{}", studies::plots::calib_summary(&common)?),
+        Some(Command::Calib(a)) => match a.action {
+            None => print!("{}", studies::plots::calib_summary(&common)?),
+            Some(CalibAction::Patterns(p)) => {
+                print!("{}", app::calib_patterns::write(&common, &p.out, p.margin)?)
+            }
+        },
         Some(Command::Bench(a)) => match a.what {
             BenchKind::Psf => println!("{}", studies::bench::psf(&common, &a.dump, a.repeat)?),
             BenchKind::Perceived => {

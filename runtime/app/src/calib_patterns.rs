@@ -1,0 +1,274 @@
+//! `nedrt calib patterns`: what a lab shows on the built display to
+//! calibrate it from camera captures (docs/calibration.md). Per colour
+//! channel a grid of single lit pixels, far enough apart that their PSFs
+//! never overlap at any accommodation of the calibrated range; a
+//! checkerboard that registers camera pixels to panel pixels; flat and dark
+//! fields; and `patterns.toml`, which names each image.
+
+use std::path::Path;
+
+use nedrt_optics::psf::Psf;
+use nedrt_optics::sim::Method;
+use serde::{Deserialize, Serialize};
+
+use crate::{AppError, CommonOptions};
+
+/// The share of a PSF's light (its cells, the veil aside) inside the
+/// radius the dot spacing is built on. The DOE's PSFs have long tails: on
+/// the 3 mm-aperture calibration 90 % of the light lies within 11–15 px,
+/// 99 % within 89–116 px, 99.9 % within 156–169 px (docs/calibration.md).
+/// At 99 % the 1 % beyond is spread thinly over a neighbour's window, where
+/// the extraction's background removal takes it out.
+pub const ENERGY_SHARE: f64 = 0.99;
+
+/// `patterns.toml`: the panel, the dot grid, and each image.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PatternsManifest {
+    pub panel: PanelInfo,
+    pub dots: DotGrid,
+    pub pattern: Vec<Pattern>,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PanelInfo {
+    pub width_px: usize,
+    pub height_px: usize,
+    pub pixel_pitch_um: f64,
+    /// The calibration the patterns were made for (its file).
+    pub calibration: String,
+}
+
+/// The lit pixels of every dot pattern: columns × rows of them, the first
+/// at `origin_px`, `spacing_px` apart.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DotGrid {
+    pub origin_px: [usize; 2],
+    pub spacing_px: usize,
+    pub columns: usize,
+    pub rows: usize,
+    /// The design PSF's radius holding `ENERGY_SHARE` of its light, the
+    /// largest over the accommodations in `depths_d` and the channels, in
+    /// panel pixels.
+    pub psf_radius_px: f64,
+    /// The room left for the built optics: dots are 2 × margin × radius
+    /// apart, and margin × radius from the panel's edges.
+    pub margin: f64,
+    pub depths_d: Vec<f64>,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Pattern {
+    pub file: String,
+    /// `dots`, `checkerboard`, `flat` or `dark`.
+    pub kind: String,
+    /// The lit channel of a dot pattern (the calibration's order).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub channel: Option<usize>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub wavelength_nm: Option<f64>,
+    /// A checkerboard's square; its first square (top left) is lit.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub square_px: Option<usize>,
+}
+
+/// The radius, in the PSF's cells from its window's centre, inside which
+/// `share` of its cells' light lies.
+pub fn energy_radius_cells(psf: &Psf, share: f64) -> f64 {
+    let n = psf.window;
+    let c = (n as f64 - 1.0) / 2.0;
+    let mut by_radius: Vec<(f64, f64)> = psf
+        .cells
+        .iter()
+        .enumerate()
+        .map(|(i, &v)| {
+            let (x, y) = ((i % n) as f64 - c, (i / n) as f64 - c);
+            ((x * x + y * y).sqrt(), v.max(0.0))
+        })
+        .collect();
+    by_radius.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let total: f64 = by_radius.iter().map(|&(_, v)| v).sum();
+    let mut inside = 0.0;
+    for (r, v) in by_radius {
+        inside += v;
+        if inside >= share * total {
+            return r;
+        }
+    }
+    c * std::f64::consts::SQRT_2
+}
+
+/// The dot grid on a `width`×`height` panel for PSFs of radius `radius_px`.
+pub fn dot_grid(
+    width: usize,
+    height: usize,
+    radius_px: f64,
+    margin: f64,
+) -> Option<([usize; 2], usize, usize, usize)> {
+    let room = (margin * radius_px).ceil() as usize;
+    let spacing = ((2.0 * margin * radius_px).ceil() as usize + 1).max(2);
+    let fit = |len: usize| (len > 2 * room).then(|| (len - 1 - 2 * room) / spacing + 1);
+    Some(([room, room], spacing, fit(width)?, fit(height)?))
+}
+
+/// Writes the patterns into `out_dir` and says what it wrote. The design
+/// PSFs are computed first: a refused request leaves no folder behind.
+pub fn write(common: &CommonOptions, out_dir: &Path, margin: f64) -> Result<String, AppError> {
+    if !(margin.is_finite() && margin >= 1.0) {
+        return Err(AppError::option(
+            format!("--margin {margin}"),
+            "must be at least 1 (dots 2 × margin × the PSF's radius apart)",
+        ));
+    }
+    let calib = common.calibration()?;
+    let [lo, hi] = calib.range_d;
+    let depths_d = vec![lo, (lo + hi) / 2.0, hi];
+    let mut radius_px: f64 = 0.0;
+    for &d in &depths_d {
+        let (psfs, _) = crate::frames::psfs(common, Method::DoeWiener, d, "the calibrated range")?;
+        for psf in &psfs {
+            // A display pixel is 2×2 retinal cells.
+            radius_px = radius_px.max(energy_radius_cells(psf, ENERGY_SHARE) / 2.0);
+        }
+    }
+    let (w, h) = (calib.panel.width_px, calib.panel.height_px);
+    let (origin, spacing, columns, rows) = dot_grid(w, h, radius_px, margin).ok_or_else(|| {
+        AppError::input(
+            &calib.source,
+            format!(
+                "the {w}×{h} panel holds no dot: a dot needs {:.0} px of room each side \
+                 (the design PSF's radius {radius_px:.1} px × margin {margin})",
+                (margin * radius_px).ceil()
+            ),
+        )
+    })?;
+    let mut images: Vec<(Pattern, image::RgbImage)> = Vec::new();
+    for (c, ch) in calib.channels.iter().enumerate().take(3) {
+        let mut img = image::RgbImage::new(w as u32, h as u32);
+        for j in 0..rows {
+            for i in 0..columns {
+                let (x, y) = (origin[0] + i * spacing, origin[1] + j * spacing);
+                img.get_pixel_mut(x as u32, y as u32)[c] = 255;
+            }
+        }
+        images.push((
+            Pattern {
+                file: format!("dots-{}.png", ch.name.to_lowercase()),
+                kind: "dots".into(),
+                channel: Some(c),
+                wavelength_nm: Some(ch.wavelength_m * 1e9),
+                square_px: None,
+            },
+            img,
+        ));
+    }
+    let square = (w.min(h) / 16).max(4);
+    let board = image::RgbImage::from_fn(w as u32, h as u32, |x, y| {
+        let lit = (x as usize / square + y as usize / square).is_multiple_of(2);
+        image::Rgb([if lit { 255 } else { 0 }; 3])
+    });
+    images.push((
+        Pattern {
+            file: "checkerboard.png".into(),
+            kind: "checkerboard".into(),
+            channel: None,
+            wavelength_nm: None,
+            square_px: Some(square),
+        },
+        board,
+    ));
+    for (name, code) in [("flat", 255u8), ("dark", 0)] {
+        images.push((
+            Pattern {
+                file: format!("{name}.png"),
+                kind: name.into(),
+                channel: None,
+                wavelength_nm: None,
+                square_px: None,
+            },
+            image::RgbImage::from_pixel(w as u32, h as u32, image::Rgb([code; 3])),
+        ));
+    }
+    let manifest = PatternsManifest {
+        panel: PanelInfo {
+            width_px: w,
+            height_px: h,
+            pixel_pitch_um: calib.pixel_pitch_m * 1e6,
+            calibration: calib.source.clone(),
+        },
+        dots: DotGrid {
+            origin_px: origin,
+            spacing_px: spacing,
+            columns,
+            rows,
+            psf_radius_px: (radius_px * 1000.0).round() / 1000.0,
+            margin,
+            depths_d,
+        },
+        pattern: images.iter().map(|(p, _)| p.clone()).collect(),
+    };
+    let text = toml::to_string(&manifest)
+        .map_err(|e| AppError::Internal(format!("patterns.toml: {e}")))?;
+    crate::create_dir(out_dir)?;
+    for (p, img) in &images {
+        let path = out_dir.join(&p.file);
+        img.save(&path).map_err(|e| AppError::output(&path, e))?;
+    }
+    let manifest_path = out_dir.join("patterns.toml");
+    crate::write_text(&manifest_path, &text)?;
+    Ok(format!(
+        "{} patterns in {}: dots every {spacing} px ({columns}×{rows} a channel; the design PSF's \
+         {:.1} % radius {radius_px:.1} px × margin {margin}), a checkerboard of {square} px squares, \
+         flat and dark fields; {}\n",
+        images.len(),
+        out_dir.display(),
+        ENERGY_SHARE * 100.0,
+        manifest_path.display()
+    ))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_energy_radius_of_a_disk_is_its_radius() {
+        let n = 41;
+        let c = 20.0;
+        let cells: Vec<f64> = (0..n * n)
+            .map(|i| {
+                let (x, y) = ((i % n) as f64 - c, (i / n) as f64 - c);
+                if (x * x + y * y).sqrt() <= 10.0 {
+                    1.0
+                } else {
+                    0.0
+                }
+            })
+            .collect();
+        let psf = Psf {
+            window: n,
+            cells,
+            veil: 0.0,
+        };
+        let r = energy_radius_cells(&psf, 0.999);
+        assert!((9.5..=10.0).contains(&r), "{r}");
+        // Half the light of a uniform disk lies within r/√2.
+        let half = energy_radius_cells(&psf, 0.5);
+        assert!((half - 10.0 / 2f64.sqrt()).abs() < 0.6, "{half}");
+    }
+
+    #[test]
+    fn dots_stay_apart_and_inside_the_panel() {
+        let (origin, spacing, columns, rows) = dot_grid(64, 48, 3.2, 1.5).expect("a grid");
+        assert_eq!(origin, [5, 5]);
+        assert_eq!(spacing, 11);
+        assert!(spacing as f64 > 2.0 * 1.5 * 3.2);
+        assert_eq!((columns, rows), (5, 4));
+        assert!(origin[0] + (columns - 1) * spacing + 5 <= 63);
+        assert!(origin[1] + (rows - 1) * spacing + 5 <= 47);
+        assert!(dot_grid(8, 8, 5.0, 1.0).is_none());
+    }
+}
