@@ -14,11 +14,10 @@ use serde::{Deserialize, Serialize};
 use crate::{AppError, CommonOptions};
 
 /// The share of a PSF's light (its cells, the veil aside) inside the
-/// radius the dot spacing is built on. The DOE's PSFs have long tails: on
-/// the 3 mm-aperture calibration 90 % of the light lies within 11–15 px,
-/// 99 % within 89–116 px, 99.9 % within 156–169 px (docs/calibration.md).
-/// At 99 % the 1 % beyond is spread thinly over a neighbour's window, where
-/// the extraction's background removal takes it out.
+/// radius the dot spacing is built on. The DOE's PSFs have long tails
+/// (docs/calibration.md has their radii at 90, 99 and 99.9 %). At 99 % the
+/// 1 % beyond is spread thinly over a neighbour's window, where the
+/// extraction's background removal takes it out.
 pub const ENERGY_SHARE: f64 = 0.99;
 
 /// `patterns.toml`: the panel, the dot grid, and each image.
@@ -126,14 +125,20 @@ pub fn write(common: &CommonOptions, out_dir: &Path, margin: f64) -> Result<Stri
     let calib = common.calibration()?;
     let [lo, hi] = calib.range_d;
     let depths_d = vec![lo, (lo + hi) / 2.0, hi];
-    let mut radius_px: f64 = 0.0;
+    // The largest radius over the depths and channels at each share, the
+    // spacing's (ENERGY_SHARE) among them; the others are reported.
+    let shares = [0.9, ENERGY_SHARE, 0.999];
+    let mut radii_px = [0.0f64; 3];
     for &d in &depths_d {
         let (psfs, _) = crate::frames::psfs(common, Method::DoeWiener, d, "the calibrated range")?;
         for psf in &psfs {
-            // A display pixel is 2×2 retinal cells.
-            radius_px = radius_px.max(energy_radius_cells(psf, ENERGY_SHARE) / 2.0);
+            for (r, &share) in radii_px.iter_mut().zip(&shares) {
+                // A display pixel is 2×2 retinal cells.
+                *r = r.max(energy_radius_cells(psf, share) / 2.0);
+            }
         }
     }
+    let radius_px = radii_px[1];
     let (w, h) = (calib.panel.width_px, calib.panel.height_px);
     let (origin, spacing, columns, rows) = dot_grid(w, h, radius_px, margin).ok_or_else(|| {
         AppError::input(
@@ -222,11 +227,23 @@ pub fn write(common: &CommonOptions, out_dir: &Path, margin: f64) -> Result<Stri
     Ok(format!(
         "{} patterns in {}: dots every {spacing} px ({columns}×{rows} a channel; the design PSF's \
          {:.1} % radius {radius_px:.1} px × margin {margin}), a checkerboard of {square} px squares, \
-         flat and dark fields; {}\n",
+         flat and dark fields; {}\n\
+         the design PSF's radius, the largest over the channels at {depths}: 90 % of its light \
+         within {:.1} px, 99 % within {:.1} px, 99.9 % within {:.1} px\n",
         images.len(),
         out_dir.display(),
         ENERGY_SHARE * 100.0,
-        manifest_path.display()
+        manifest_path.display(),
+        radii_px[0],
+        radii_px[1],
+        radii_px[2],
+        depths = manifest
+            .dots
+            .depths_d
+            .iter()
+            .map(|d| format!("{d} D"))
+            .collect::<Vec<_>>()
+            .join(", "),
     ))
 }
 
