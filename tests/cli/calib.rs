@@ -33,14 +33,27 @@ fn patterns_are_what_their_manifest_says() {
         g.spacing_px as f64 > 2.0 * g.margin * g.psf_radius_px,
         "{g:?}"
     );
+    assert_eq!(g.shifts, 2);
     let room = (g.margin * g.psf_radius_px).ceil() as usize;
-    assert!(g.origin_px[0] >= room && g.origin_px[1] >= room);
-    assert!(g.origin_px[0] + (g.columns - 1) * g.spacing_px + room < 1920);
-    assert!(g.origin_px[1] + (g.rows - 1) * g.spacing_px + room < 1080);
     let kinds: Vec<&str> = m.pattern.iter().map(|p| p.kind.as_str()).collect();
+    let mut want_kinds = vec!["dots"; 3 * 4];
+    want_kinds.extend(["checkerboard", "flat", "dark"]);
+    assert_eq!(kinds, want_kinds);
+    // Each channel's four grids: the first at the margin, the others half a
+    // spacing across, down, or both.
+    let origins: Vec<[usize; 2]> = m.pattern[..4]
+        .iter()
+        .map(|p| p.origin_px.expect("an origin"))
+        .collect();
+    let half = g.spacing_px / 2;
     assert_eq!(
-        kinds,
-        ["dots", "dots", "dots", "checkerboard", "flat", "dark"]
+        origins,
+        [
+            [room, room],
+            [room + half, room],
+            [room, room + half],
+            [room + half, room + half]
+        ]
     );
     for p in &m.pattern {
         let img = image::open(out.join(&p.file)).expect("a pattern").to_rgb8();
@@ -48,6 +61,19 @@ fn patterns_are_what_their_manifest_says() {
         match p.kind.as_str() {
             "dots" => {
                 let c = p.channel.expect("a dot pattern's channel");
+                let origin = p.origin_px.expect("an origin");
+                let (columns, rows) = (p.columns.expect("columns"), p.rows.expect("rows"));
+                assert!(origin[0] >= room && origin[1] >= room, "{}", p.file);
+                assert!(
+                    origin[0] + (columns - 1) * g.spacing_px + room < 1920,
+                    "{}",
+                    p.file
+                );
+                assert!(
+                    origin[1] + (rows - 1) * g.spacing_px + room < 1080,
+                    "{}",
+                    p.file
+                );
                 let mut lit = Vec::new();
                 for (x, y, px) in img.enumerate_pixels() {
                     for (k, &v) in px.0.iter().enumerate() {
@@ -58,12 +84,9 @@ fn patterns_are_what_their_manifest_says() {
                     }
                 }
                 let mut want = Vec::new();
-                for j in 0..g.rows {
-                    for i in 0..g.columns {
-                        want.push((
-                            g.origin_px[0] + i * g.spacing_px,
-                            g.origin_px[1] + j * g.spacing_px,
-                        ));
+                for j in 0..rows {
+                    for i in 0..columns {
+                        want.push((origin[0] + i * g.spacing_px, origin[1] + j * g.spacing_px));
                     }
                 }
                 lit.sort_by_key(|&(x, y)| (y, x));

@@ -39,15 +39,16 @@ pub struct PanelInfo {
     pub calibration: String,
 }
 
-/// The lit pixels of every dot pattern: columns × rows of them, the first
-/// at `origin_px`, `spacing_px` apart.
+/// What every dot pattern shares: its lit pixels are `spacing_px` apart
+/// (each pattern gives its grid's first pixel and size), and the grid is
+/// shifted by a `shifts`-th of the spacing across and down between the
+/// patterns of a channel, so that together they sample the field more
+/// densely than one grid can.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct DotGrid {
-    pub origin_px: [usize; 2],
     pub spacing_px: usize,
-    pub columns: usize,
-    pub rows: usize,
+    pub shifts: usize,
     /// The design PSF's radius holding `ENERGY_SHARE` of its light, the
     /// largest over the accommodations in `depths_d` and the channels, in
     /// panel pixels.
@@ -67,6 +68,14 @@ pub struct Pattern {
     /// The lit channel of a dot pattern (the calibration's order).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub channel: Option<usize>,
+    /// A dot pattern's first lit pixel, and how many columns and rows of
+    /// dots follow, `spacing_px` apart.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub origin_px: Option<[usize; 2]>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub columns: Option<usize>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rows: Option<usize>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub wavelength_nm: Option<f64>,
     /// A checkerboard's square; its first square (top left) is lit.
@@ -100,26 +109,55 @@ pub fn energy_radius_cells(psf: &Psf, share: f64) -> f64 {
     c * std::f64::consts::SQRT_2
 }
 
-/// The dot grid on a `width`×`height` panel for PSFs of radius `radius_px`.
-pub fn dot_grid(
+/// One shifted dot grid: its shift (across, down), first dot, columns, rows.
+pub type Grid = ([usize; 2], [usize; 2], usize, usize);
+
+/// The dot grids on a `width`×`height` panel for PSFs of radius
+/// `radius_px`: the spacing, and for each of the `shifts`² shifts (across,
+/// down) the first dot and the columns and rows, dots at least
+/// margin × radius from every edge. None if no dot fits.
+pub fn dot_grids(
     width: usize,
     height: usize,
     radius_px: f64,
     margin: f64,
-) -> Option<([usize; 2], usize, usize, usize)> {
+    shifts: usize,
+) -> Option<(usize, Vec<Grid>)> {
     let room = (margin * radius_px).ceil() as usize;
     let spacing = ((2.0 * margin * radius_px).ceil() as usize + 1).max(2);
-    let fit = |len: usize| (len > 2 * room).then(|| (len - 1 - 2 * room) / spacing + 1);
-    Some(([room, room], spacing, fit(width)?, fit(height)?))
+    let fit = |len: usize, first: usize| {
+        (len > first + room).then(|| (len - 1 - room - first) / spacing + 1)
+    };
+    let mut grids = Vec::new();
+    for sy in 0..shifts {
+        for sx in 0..shifts {
+            let first = [room + sx * spacing / shifts, room + sy * spacing / shifts];
+            if let (Some(columns), Some(rows)) = (fit(width, first[0]), fit(height, first[1])) {
+                grids.push(([sx, sy], first, columns, rows));
+            }
+        }
+    }
+    (!grids.is_empty() && grids[0].1 == [room, room]).then_some((spacing, grids))
 }
 
 /// Writes the patterns into `out_dir` and says what it wrote. The design
 /// PSFs are computed first: a refused request leaves no folder behind.
-pub fn write(common: &CommonOptions, out_dir: &Path, margin: f64) -> Result<String, AppError> {
+pub fn write(
+    common: &CommonOptions,
+    out_dir: &Path,
+    margin: f64,
+    shifts: usize,
+) -> Result<String, AppError> {
     if !(margin.is_finite() && margin >= 1.0) {
         return Err(AppError::option(
             format!("--margin {margin}"),
             "must be at least 1 (dots 2 × margin × the PSF's radius apart)",
+        ));
+    }
+    if !(1..=8).contains(&shifts) {
+        return Err(AppError::option(
+            format!("--shifts {shifts}"),
+            "must lie in [1, 8] (shifted grids across and down, each a pattern a channel)",
         ));
     }
     let calib = common.calibration()?;
@@ -140,7 +178,7 @@ pub fn write(common: &CommonOptions, out_dir: &Path, margin: f64) -> Result<Stri
     }
     let radius_px = radii_px[1];
     let (w, h) = (calib.panel.width_px, calib.panel.height_px);
-    let (origin, spacing, columns, rows) = dot_grid(w, h, radius_px, margin).ok_or_else(|| {
+    let (spacing, grids) = dot_grids(w, h, radius_px, margin, shifts).ok_or_else(|| {
         AppError::input(
             &calib.source,
             format!(
@@ -152,23 +190,33 @@ pub fn write(common: &CommonOptions, out_dir: &Path, margin: f64) -> Result<Stri
     })?;
     let mut images: Vec<(Pattern, image::RgbImage)> = Vec::new();
     for (c, ch) in calib.channels.iter().enumerate().take(3) {
-        let mut img = image::RgbImage::new(w as u32, h as u32);
-        for j in 0..rows {
-            for i in 0..columns {
-                let (x, y) = (origin[0] + i * spacing, origin[1] + j * spacing);
-                img.get_pixel_mut(x as u32, y as u32)[c] = 255;
+        for &([sx, sy], origin, columns, rows) in &grids {
+            let mut img = image::RgbImage::new(w as u32, h as u32);
+            for j in 0..rows {
+                for i in 0..columns {
+                    let (x, y) = (origin[0] + i * spacing, origin[1] + j * spacing);
+                    img.get_pixel_mut(x as u32, y as u32)[c] = 255;
+                }
             }
+            let name = ch.name.to_lowercase();
+            images.push((
+                Pattern {
+                    file: if shifts == 1 {
+                        format!("dots-{name}.png")
+                    } else {
+                        format!("dots-{name}-{sx}-{sy}.png")
+                    },
+                    kind: "dots".into(),
+                    channel: Some(c),
+                    origin_px: Some(origin),
+                    columns: Some(columns),
+                    rows: Some(rows),
+                    wavelength_nm: Some(ch.wavelength_m * 1e9),
+                    square_px: None,
+                },
+                img,
+            ));
         }
-        images.push((
-            Pattern {
-                file: format!("dots-{}.png", ch.name.to_lowercase()),
-                kind: "dots".into(),
-                channel: Some(c),
-                wavelength_nm: Some(ch.wavelength_m * 1e9),
-                square_px: None,
-            },
-            img,
-        ));
     }
     let square = (w.min(h) / 16).max(4);
     let board = image::RgbImage::from_fn(w as u32, h as u32, |x, y| {
@@ -180,6 +228,9 @@ pub fn write(common: &CommonOptions, out_dir: &Path, margin: f64) -> Result<Stri
             file: "checkerboard.png".into(),
             kind: "checkerboard".into(),
             channel: None,
+            origin_px: None,
+            columns: None,
+            rows: None,
             wavelength_nm: None,
             square_px: Some(square),
         },
@@ -191,6 +242,9 @@ pub fn write(common: &CommonOptions, out_dir: &Path, margin: f64) -> Result<Stri
                 file: format!("{name}.png"),
                 kind: name.into(),
                 channel: None,
+                origin_px: None,
+                columns: None,
+                rows: None,
                 wavelength_nm: None,
                 square_px: None,
             },
@@ -205,10 +259,8 @@ pub fn write(common: &CommonOptions, out_dir: &Path, margin: f64) -> Result<Stri
             calibration: calib.source.clone(),
         },
         dots: DotGrid {
-            origin_px: origin,
             spacing_px: spacing,
-            columns,
-            rows,
+            shifts,
             psf_radius_px: (radius_px * 1000.0).round() / 1000.0,
             margin,
             depths_d,
@@ -225,13 +277,27 @@ pub fn write(common: &CommonOptions, out_dir: &Path, margin: f64) -> Result<Stri
     let manifest_path = out_dir.join("patterns.toml");
     crate::write_text(&manifest_path, &text)?;
     Ok(format!(
-        "{} patterns in {}: dots every {spacing} px ({columns}×{rows} a channel; the design PSF's \
+        "{} patterns in {}: dots every {spacing} px ({} a pattern, {shifts}×{shifts} shifted grids a \
+         channel; the design PSF's \
          {:.1} % radius {radius_px:.1} px × margin {margin}), a checkerboard of {square} px squares, \
          flat and dark fields; {}\n\
          the design PSF's radius, the largest over the channels at {depths}: 90 % of its light \
          within {:.1} px, 99 % within {:.1} px, 99.9 % within {:.1} px\n",
         images.len(),
         out_dir.display(),
+        grids
+            .iter()
+            .map(|g| g.2 * g.3)
+            .min()
+            .map(|lo| {
+                let hi = grids.iter().map(|g| g.2 * g.3).max().unwrap_or(lo);
+                if lo == hi {
+                    lo.to_string()
+                } else {
+                    format!("{lo}–{hi}")
+                }
+            })
+            .unwrap_or_default(),
         ENERGY_SHARE * 100.0,
         manifest_path.display(),
         radii_px[0],
@@ -279,13 +345,19 @@ mod tests {
 
     #[test]
     fn dots_stay_apart_and_inside_the_panel() {
-        let (origin, spacing, columns, rows) = dot_grid(64, 48, 3.2, 1.5).expect("a grid");
-        assert_eq!(origin, [5, 5]);
+        let (spacing, grids) = dot_grids(64, 48, 3.2, 1.5, 1).expect("a grid");
         assert_eq!(spacing, 11);
         assert!(spacing as f64 > 2.0 * 1.5 * 3.2);
-        assert_eq!((columns, rows), (5, 4));
-        assert!(origin[0] + (columns - 1) * spacing + 5 <= 63);
-        assert!(origin[1] + (rows - 1) * spacing + 5 <= 47);
-        assert!(dot_grid(8, 8, 5.0, 1.0).is_none());
+        assert_eq!(grids, [([0, 0], [5, 5], 5, 4)]);
+        assert!(5 + 4 * spacing + 5 <= 63 && 5 + 3 * spacing + 5 <= 47);
+        // Two shifts: half a spacing across and down, each still inside.
+        let (_, grids) = dot_grids(64, 48, 3.2, 1.5, 2).expect("grids");
+        assert_eq!(grids.len(), 4);
+        assert_eq!(grids[3].1, [5 + 5, 5 + 5]);
+        for (_, [x0, y0], columns, rows) in grids {
+            assert!(x0 + (columns - 1) * spacing + 5 <= 63);
+            assert!(y0 + (rows - 1) * spacing + 5 <= 47);
+        }
+        assert!(dot_grids(8, 8, 5.0, 1.0, 1).is_none());
     }
 }

@@ -396,6 +396,10 @@ pub struct CalibPatternsArgs {
     /// radius apart (its 99.9 % light), at least 1.
     #[arg(long, default_value_t = 1.5, value_name = "F")]
     pub margin: f64,
+    /// Shifted copies of each channel's grid, N across × N down, a
+    /// pattern each, to sample the field more densely (1 to 8).
+    #[arg(long, default_value_t = 2, value_name = "N")]
+    pub shifts: usize,
 }
 
 #[derive(Args, Debug)]

@@ -221,7 +221,10 @@ pub fn run(cli: Cli) -> Result<()> {
         Some(Command::Calib(a)) => match a.action {
             None => print!("{}", studies::plots::calib_summary(&common)?),
             Some(CalibAction::Patterns(p)) => {
-                print!("{}", app::calib_patterns::write(&common, &p.out, p.margin)?)
+                print!(
+                    "{}",
+                    app::calib_patterns::write(&common, &p.out, p.margin, p.shifts)?
+                )
             }
         },
         Some(Command::Bench(a)) => match a.what {
