@@ -167,9 +167,10 @@ pub fn write(
     // spacing's (ENERGY_SHARE) among them; the others are reported.
     let shares = [0.9, ENERGY_SHARE, 0.999];
     let mut radii_px = [0.0f64; 3];
-    for &d in &depths_d {
-        let (psfs, _) = crate::frames::psfs(common, Method::DoeWiener, d, "the calibrated range")?;
-        for psf in &psfs {
+    let (at, _) =
+        crate::frames::psfs_at(common, Method::DoeWiener, &depths_d, "the calibrated range")?;
+    for psfs in &at {
+        for psf in psfs {
             for (r, &share) in radii_px.iter_mut().zip(&shares) {
                 // A display pixel is 2×2 retinal cells.
                 *r = r.max(energy_radius_cells(psf, share) / 2.0);

@@ -219,17 +219,33 @@ pub fn psfs(
     accommodation_d: f64,
     accommodation_name: &str,
 ) -> Result<(Vec<Psf>, Simulator), AppError> {
+    let (mut at, sim) = psfs_at(common, method, &[accommodation_d], accommodation_name)?;
+    Ok((at.remove(0), sim))
+}
+
+/// [`psfs`] at each of `depths_d`, from one simulator prepared once.
+pub fn psfs_at(
+    common: &CommonOptions,
+    method: Method,
+    depths_d: &[f64],
+    accommodation_name: &str,
+) -> Result<(Vec<Vec<Psf>>, Simulator), AppError> {
     let calib = common.calibration()?;
-    if let Some(w) = check_accommodation_as(&calib, accommodation_d, accommodation_name)? {
-        tracing::warn!("{w}");
+    for &d in depths_d {
+        if let Some(w) = check_accommodation_as(&calib, d, accommodation_name)? {
+            tracing::warn!("{w}");
+        }
     }
     let sim = Simulator::new(
         calib,
         common.doe_path_for(&[method]).as_deref(),
         common.cache(),
     )?;
-    let prepared = sim.prepare(&[method], &[accommodation_d], common.progress())?;
-    let psfs = prepared.system_psfs(method, accommodation_d)?;
+    let prepared = sim.prepare(&[method], depths_d, common.progress())?;
+    let psfs = depths_d
+        .iter()
+        .map(|&d| prepared.system_psfs(method, d))
+        .collect::<Result<Vec<_>, _>>()?;
     Ok((psfs, sim))
 }
 

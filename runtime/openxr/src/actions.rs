@@ -12,6 +12,7 @@ use crate::ffi::{
 };
 use crate::instance::{path_string, valid_path};
 use crate::profiles::{TOP_LEVEL_USER_PATHS, profile};
+use crate::session::session_and_instance;
 use crate::state::{Action, ActionSet, Instance, Session, registry};
 
 /// An action's or action set's name (§11.2): empty is NAME_INVALID, a
@@ -33,14 +34,6 @@ fn check_name(name: Option<String>) -> XrResult<String> {
 fn check_localized_name(name: Option<String>) -> XrResult<String> {
     name.filter(|n| !n.is_empty())
         .ok_or(xr::Result::ERROR_LOCALIZED_NAME_INVALID)
-}
-
-fn instance_of(s: &Session) -> XrResult<Arc<Instance>> {
-    registry()
-        .instances
-        .get(&s.instance)
-        .cloned()
-        .ok_or(xr::Result::ERROR_HANDLE_INVALID)
 }
 
 /// Whether `set` is attached to the session (§11.5).
@@ -244,7 +237,7 @@ pub unsafe extern "system" fn attach_session_action_sets(
         // SAFETY: non-null, from the application.
         let info = unsafe { &*info };
         expect_type(info.ty, xr::StructureType::SESSION_ACTION_SETS_ATTACH_INFO)?;
-        let s = registry().session(session)?;
+        let (s, inst) = session_and_instance(session)?;
         if info.count_action_sets == 0 {
             return Err(xr::Result::ERROR_VALIDATION_FAILURE);
         }
@@ -253,22 +246,17 @@ pub unsafe extern "system" fn attach_session_action_sets(
         for i in 0..info.count_action_sets as usize {
             // SAFETY: count_action_sets elements (the application).
             let h = unsafe { *p.add(i) };
-            registry().action_set(h)?;
-            sets.push(h.into_raw());
+            sets.push((h.into_raw(), registry().action_set(h)?));
         }
-        let inst = instance_of(&s)?;
         let mut inner = lock(&s.inner);
         // Once a session (§11.5); a set may be attached to several.
         if inner.attached_sets.is_some() {
             return Err(xr::Result::ERROR_ACTIONSETS_ALREADY_ATTACHED);
         }
-        let reg = registry();
-        for h in &sets {
-            if let Some(set) = reg.action_sets.get(h) {
-                *lock(&set.attached) = true;
-            }
+        for (_, set) in &sets {
+            *lock(&set.attached) = true;
         }
-        inner.attached_sets = Some(sets);
+        inner.attached_sets = Some(sets.into_iter().map(|(h, _)| h).collect());
         lock(&inst.inner).actions_attached = true;
         Ok(xr::Result::SUCCESS)
     })
@@ -281,8 +269,7 @@ pub unsafe extern "system" fn get_current_interaction_profile(
 ) -> xr::Result {
     guard("xrGetCurrentInteractionProfile", || {
         let out = non_null_mut(out)?;
-        let s = registry().session(session)?;
-        let inst = instance_of(&s)?;
+        let (s, inst) = session_and_instance(session)?;
         let path =
             path_string(&inst, top_level.into_raw()).ok_or(xr::Result::ERROR_PATH_INVALID)?;
         // SAFETY: non-null; the application initialised its type.
@@ -309,17 +296,14 @@ fn action_for(
     // SAFETY: non-null, from the application.
     let info = unsafe { &*info };
     expect_type(info.ty, xr::StructureType::ACTION_STATE_GET_INFO)?;
-    let (s, a) = {
-        let reg = registry();
-        (reg.session(session)?, reg.action(info.action)?)
-    };
+    let (s, inst) = session_and_instance(session)?;
+    let a = registry().action(info.action)?;
     if !types.contains(&a.action_type) {
         return Err(xr::Result::ERROR_ACTION_TYPE_MISMATCH);
     }
     if !attached_to(&s, a.set) {
         return Err(xr::Result::ERROR_ACTIONSET_NOT_ATTACHED);
     }
-    let inst = instance_of(&s)?;
     check_subaction_path(&inst, &a, info.subaction_path.into_raw())
 }
 
@@ -454,8 +438,7 @@ pub unsafe extern "system" fn get_input_source_localized_name(
         if info.which_components.is_empty() {
             return Err(xr::Result::ERROR_VALIDATION_FAILURE);
         }
-        let s = registry().session(session)?;
-        let inst = instance_of(&s)?;
+        let (s, inst) = session_and_instance(session)?;
         if lock(&s.inner).attached_sets.is_none() {
             return Err(xr::Result::ERROR_ACTIONSET_NOT_ATTACHED);
         }
@@ -488,17 +471,14 @@ fn haptic(name: &str, session: xr::Session, info: *const xr::HapticActionInfo) -
         // SAFETY: non-null, from the application.
         let info = unsafe { &*info };
         expect_type(info.ty, xr::StructureType::HAPTIC_ACTION_INFO)?;
-        let (s, a) = {
-            let reg = registry();
-            (reg.session(session)?, reg.action(info.action)?)
-        };
+        let (s, inst) = session_and_instance(session)?;
+        let a = registry().action(info.action)?;
         if a.action_type != xr::ActionType::VIBRATION_OUTPUT {
             return Err(xr::Result::ERROR_ACTION_TYPE_MISMATCH);
         }
         if !attached_to(&s, a.set) {
             return Err(xr::Result::ERROR_ACTIONSET_NOT_ATTACHED);
         }
-        let inst = instance_of(&s)?;
         check_subaction_path(&inst, &a, info.subaction_path.into_raw())?;
         // No actuator: the specification's answer for an unbound output.
         Ok(xr::Result::SUCCESS)

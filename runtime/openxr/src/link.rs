@@ -146,17 +146,12 @@ impl Link {
     /// rounds up to a refresh again when it predicts, and with one reply's
     /// lead frames skipped refreshes (the CTS's pipelined frame case at
     /// 240 Hz: one frame in two planned a refresh late).
+    /// Before the first reply, the welcome's.
     pub fn lead_ns(&self) -> Option<i64> {
-        let last = self
-            .timing()
-            .map(|t| (t.predicted_display_ns - self.received_ns).max(0))?;
-        Some(
-            self.leads
-                .iter()
-                .copied()
-                .min()
-                .map_or(last, |m| m.min(last)),
-        )
+        self.leads.iter().copied().min().or_else(|| {
+            self.timing()
+                .map(|t| (t.predicted_display_ns - self.received_ns).max(0))
+        })
     }
 
     /// Whether the service is still there: a closed socket reads as end

@@ -20,9 +20,6 @@ pub fn resample(
     to: (usize, usize),
     channels: usize,
 ) -> Vec<f32> {
-    if from == to {
-        return src.to_vec();
-    }
     resample_region(src, from, Region::WHOLE, to, channels)
 }
 
@@ -43,6 +40,9 @@ pub fn resample_region(
     to: (usize, usize),
     channels: usize,
 ) -> Vec<f32> {
+    if from == to && region == Region::WHOLE {
+        return src.to_vec();
+    }
     let (sw, sh) = from;
     let (dw, dh) = to;
     let [u0, v0, u1, v1] = region.0;
@@ -122,11 +122,7 @@ pub fn quad_rgba(
         }
         f.push(a);
     }
-    if region == Region::WHOLE {
-        resample(&f, from, to, 4)
-    } else {
-        resample_region(&f, from, region, to, 4)
-    }
+    resample_region(&f, from, region, to, 4)
 }
 
 #[cfg(test)]

@@ -128,7 +128,6 @@ pub unsafe extern "system" fn create_swapchain(
         } else {
             vk::ImageCreateFlags::empty()
         };
-        let mut images = Vec::new();
         let mut inner = SwapchainInner {
             vk: vk_ctx.clone(),
             images: Vec::new(),
@@ -152,7 +151,6 @@ pub unsafe extern "system" fn create_swapchain(
                 .map_err(vk_error)?;
             // Pushed at once: a later failure drops `inner`, which frees it.
             inner.images.push(made);
-            images.push(made.0);
         }
         let mut reg = registry();
         let h = reg.new_handle();
