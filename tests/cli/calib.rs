@@ -8,7 +8,7 @@ use super::{assert_clean_error, path, run, small_calib, small_panel, stdout};
 /// On the 3 mm-aperture calibration (1920×1080): each dot image lights one
 /// channel at exactly the grid patterns.toml gives, dots twice the margin
 /// times the PSF's radius apart and that far from the edges; the
-/// checkerboard, flat and dark fields are what they say.
+/// checkerboard, the flat fields (one a channel) and the dark field are what they say.
 #[test]
 fn patterns_are_what_their_manifest_says() {
     let dir = tempfile::tempdir().expect("tempdir");
@@ -37,7 +37,7 @@ fn patterns_are_what_their_manifest_says() {
     let room = (g.margin * g.psf_radius_px).ceil() as usize;
     let kinds: Vec<&str> = m.pattern.iter().map(|p| p.kind.as_str()).collect();
     let mut want_kinds = vec!["dots"; 3 * 4];
-    want_kinds.extend(["checkerboard", "flat", "dark"]);
+    want_kinds.extend(["checkerboard", "flat", "flat", "flat", "dark"]);
     assert_eq!(kinds, want_kinds);
     // Each channel's four grids: the first at the margin, the others half a
     // spacing across, down, or both.
@@ -98,7 +98,12 @@ fn patterns_are_what_their_manifest_says() {
                 assert_eq!(img.get_pixel(q, 0).0, [0; 3]);
                 assert_eq!(img.get_pixel(q, q).0, [255; 3]);
             }
-            "flat" => assert!(img.pixels().all(|px| px.0 == [255; 3])),
+            "flat" => {
+                let c = p.channel.expect("a flat field's channel");
+                let mut want = [0u8; 3];
+                want[c] = 255;
+                assert!(img.pixels().all(|px| px.0 == want), "{}", p.file);
+            }
             "dark" => assert!(img.pixels().all(|px| px.0 == [0; 3])),
             other => panic!("an unknown kind {other}"),
         }
@@ -134,4 +139,89 @@ fn patterns_that_cannot_be_made_are_refused_before_anything_is_written() {
     ]);
     assert_clean_error(&o, "--margin 0.5");
     assert!(!out.exists());
+}
+
+/// A bundle of `psf` at every accommodation of `depths_d` (3 channels).
+fn bundle_of(
+    dir: &std::path::Path,
+    depths_d: &[f64],
+    psf: &nedrt_optics::psf::Psf,
+) -> std::path::PathBuf {
+    let out = dir.join(format!("bundle-{}", depths_d.len()));
+    let psfs = depths_d.iter().flat_map(|_| vec![psf.clone(); 3]).collect();
+    nedrt_optics::bundle::PsfBundle::new(
+        "test",
+        depths_d.to_vec(),
+        vec![600.0, 530.0, 450.0],
+        psfs,
+        None,
+    )
+    .expect("a bundle")
+    .save(&out)
+    .expect("saved");
+    out
+}
+
+fn vs_sharp_db(o: &std::process::Output) -> f64 {
+    stdout(o)
+        .lines()
+        .find_map(|l| l.strip_prefix("vs sharp  PSNR"))
+        .and_then(|l| l.split_whitespace().next()?.parse().ok())
+        .unwrap_or_else(|| panic!("no PSNR in {}", stdout(o)))
+}
+
+/// `--psfs` stands for the DOE's optics: a bundle of perfect PSFs (all the
+/// light in one cell) makes doe-only's perceived image the display image
+/// itself, against the computed DOE's blur without it; out of the
+/// bundle's range, or a changed bundle, is a clear error.
+#[test]
+fn sim_sees_through_a_measured_bundle() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let input = dir.path().join("in.png");
+    image::RgbImage::from_fn(64, 48, |x, y| {
+        image::Rgb([(x * 4) as u8, (y * 5) as u8, ((x + y) * 2) as u8])
+    })
+    .save(&input)
+    .expect("input");
+    let perfect = nedrt_optics::psf::Psf {
+        window: 1,
+        cells: vec![1.0],
+        veil: 0.0,
+    };
+    let bundle = bundle_of(dir.path(), &[0.0, 1.5, 3.0], &perfect);
+    let out = dir.path().join("p.png");
+    let calib = small_panel();
+    let base = [
+        "--calib",
+        path(&calib),
+        "--sim",
+        "--method",
+        "doe-only",
+        "--accom",
+        "1.0",
+        "--input",
+        path(&input),
+        "--out",
+        path(&out),
+    ];
+    let designed = run(&base);
+    assert!(designed.status.success(), "{}", super::stderr(&designed));
+    let measured = run(&[&base[..], &["--psfs", path(&bundle)]].concat());
+    assert!(measured.status.success(), "{}", super::stderr(&measured));
+    assert!(vs_sharp_db(&designed) < 30.0, "{}", stdout(&designed));
+    assert!(vs_sharp_db(&measured) > 60.0, "{}", stdout(&measured));
+    // doe+wiener averages its filter over 0–3 D: a bundle of 0.5–1 D is refused.
+    let short = bundle_of(dir.path(), &[0.5, 1.0], &perfect);
+    let mut wiener = base.to_vec();
+    wiener[4] = "doe+wiener";
+    let o = run(&[&wiener[..], &["--psfs", path(&short)]].concat());
+    assert_clean_error(&o, "was measured at 0.5–1 D");
+    // A tensor file that is not the card's.
+    let t = bundle.join("psfs.safetensors");
+    let mut bytes = std::fs::read(&t).expect("read");
+    let n = bytes.len() - 1;
+    bytes[n] ^= 0x10;
+    std::fs::write(&t, bytes).expect("write");
+    let o = run(&[&base[..], &["--psfs", path(&bundle)]].concat());
+    assert_clean_error(&o, "psfs.safetensors");
 }

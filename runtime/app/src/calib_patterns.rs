@@ -237,21 +237,38 @@ pub fn write(
         },
         board,
     ));
-    for (name, code) in [("flat", 255u8), ("dark", 0)] {
+    // One flat field a channel: a camera's response differs between the
+    // primaries, and each channel's dots are normalised by its own flat.
+    for (c, ch) in calib.channels.iter().enumerate().take(3) {
+        let mut img = image::RgbImage::new(w as u32, h as u32);
+        img.pixels_mut().for_each(|p| p[c] = 255);
         images.push((
             Pattern {
-                file: format!("{name}.png"),
-                kind: name.into(),
-                channel: None,
+                file: format!("flat-{}.png", ch.name.to_lowercase()),
+                kind: "flat".into(),
+                channel: Some(c),
                 origin_px: None,
                 columns: None,
                 rows: None,
-                wavelength_nm: None,
+                wavelength_nm: Some(ch.wavelength_m * 1e9),
                 square_px: None,
             },
-            image::RgbImage::from_pixel(w as u32, h as u32, image::Rgb([code; 3])),
+            img,
         ));
     }
+    images.push((
+        Pattern {
+            file: "dark.png".into(),
+            kind: "dark".into(),
+            channel: None,
+            origin_px: None,
+            columns: None,
+            rows: None,
+            wavelength_nm: None,
+            square_px: None,
+        },
+        image::RgbImage::new(w as u32, h as u32),
+    ));
     let manifest = PatternsManifest {
         panel: PanelInfo {
             width_px: w,
@@ -281,7 +298,7 @@ pub fn write(
         "{} patterns in {}: dots every {spacing} px ({} a pattern, {shifts}×{shifts} shifted grids a \
          channel; the design PSF's \
          {:.1} % radius {radius_px:.1} px × margin {margin}), a checkerboard of {square} px squares, \
-         flat and dark fields; {}\n\
+         a flat field a channel and a dark field; {}\n\
          the design PSF's radius, the largest over the channels at {depths}: 90 % of its light \
          within {:.1} px, 99 % within {:.1} px, 99.9 % within {:.1} px\n",
         images.len(),

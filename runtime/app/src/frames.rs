@@ -236,11 +236,11 @@ pub fn psfs_at(
             tracing::warn!("{w}");
         }
     }
-    let sim = Simulator::new(
+    let sim = common.measured(Simulator::new(
         calib,
         common.doe_path_for(&[method]).as_deref(),
         common.cache(),
-    )?;
+    )?)?;
     let prepared = sim.prepare(&[method], depths_d, common.progress())?;
     let psfs = depths_d
         .iter()
@@ -289,12 +289,13 @@ impl System {
         extra_d: Option<f64>,
     ) -> Result<Self, AppError> {
         let dcnns = common.dcnn.load_for(&[method])?;
-        let sim = Simulator::new(
-            calib,
-            common.doe_path_for(&[method]).as_deref(),
-            common.cache(),
-        )?
-        .with_wiener_stages(nedrt_stages::preprocess::wiener_stages(&dcnns)?);
+        let sim = common
+            .measured(Simulator::new(
+                calib,
+                common.doe_path_for(&[method]).as_deref(),
+                common.cache(),
+            )?)?
+            .with_wiener_stages(nedrt_stages::preprocess::wiener_stages(&dcnns)?);
         let mut depths = prefilter.depths_d(&sim.calib);
         if dcnns.values().any(|n| n.needs_objective_depths()) {
             depths = nedrt_optics::sim::objective_depths_d(&sim.calib);

@@ -10,7 +10,14 @@
 //! Rule: no clap, no indicatif, no environment (settings arrive as values,
 //! progress through [`nedrt_core::Progress`]).
 
+pub mod calib_capture;
+pub mod calib_fit;
+pub mod calib_loop;
 pub mod calib_patterns;
+pub mod calib_psfs;
+pub mod calib_register;
+pub mod calib_show;
+pub mod calib_synth;
 pub mod charts;
 pub mod frames;
 pub mod images;

@@ -56,11 +56,11 @@ pub fn run(common: &CommonOptions, o: &PrefilterOptions) -> Result<String, AppEr
     }
     let files = list_images(&o.images)?;
     let images = load_all(&files, common.panel_px()?)?;
-    let sim = Simulator::new(
+    let sim = common.measured(Simulator::new(
         common.calibration()?,
         common.doe_path_for(&[o.method]).as_deref(),
         common.cache(),
-    )?;
+    )?)?;
     let depths = nedrt_optics::sim::objective_depths_d(&sim.calib);
     let prepared = sim.prepare(&[o.method], &depths, common.progress())?;
     create_dir(&o.out_dir)?;

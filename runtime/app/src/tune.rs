@@ -35,7 +35,11 @@ pub fn run(
     }
     let files = list_images(images_dir)?;
     let images = load_all(&files, common.panel_px()?)?;
-    let sim = Simulator::new(common.calibration()?, common.doe_path(), common.cache())?;
+    let sim = common.measured(Simulator::new(
+        common.calibration()?,
+        common.doe_path(),
+        common.cache(),
+    )?)?;
     let depths: Vec<f64> = sim
         .calib
         .evaluation_depths_d()

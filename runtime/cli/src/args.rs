@@ -12,6 +12,7 @@ use nedrt_optics::sim::{Method, Optics};
 use nedrt_run::{FallbackKind, FramePath, SinkKind, SourceKind};
 use nedrt_studies::bench_pipeline::PipelineNetwork;
 
+pub use crate::calib_args::{CalibAction, CalibArgs};
 pub use crate::study_args::{EvalArgs, PickArgs, StabilityArgs, TradeoffArgs, TuneArgs};
 pub use crate::view_args::{ShownArg, SweepArgs, ViewArgs};
 
@@ -70,6 +71,11 @@ pub struct GlobalArgs {
     /// (designs/NAME.toml: multifocal, allsharp) or as a design FILE.
     #[arg(long, global = true, value_name = "NAME|FILE", conflicts_with = "doe")]
     pub design: Option<String>,
+    /// A measured PSF bundle (`nedrt calib psfs`): its PSFs, interpolated
+    /// in diopters, stand for the lens + DOE optics' computed ones in
+    /// every method through the DOE (docs/calibration.md).
+    #[arg(long, global = true, value_name = "DIR")]
+    pub psfs: Option<PathBuf>,
     /// PSF cache folder (default: $NEDRT_CACHE_DIR, $XDG_CACHE_HOME/nedrt or ~/.cache/nedrt).
     #[arg(long, global = true, value_name = "DIR")]
     pub cache_dir: Option<PathBuf>,
@@ -370,36 +376,6 @@ pub struct PsfArgs {
     /// The method whose optics --at takes.
     #[arg(long, default_value = "doe+wiener", value_name = "METHOD", value_parser = named::<Method>(), requires = "at")]
     pub method: Method,
-}
-
-#[derive(Args, Debug)]
-pub struct CalibArgs {
-    #[command(subcommand)]
-    pub action: Option<CalibAction>,
-}
-
-#[derive(Subcommand, Debug)]
-pub enum CalibAction {
-    /// The patterns a lab shows on the built display and photographs: per
-    /// channel, a grid of lit pixels whose PSFs never overlap over the
-    /// calibrated range; a checkerboard to register camera pixels to panel
-    /// pixels; flat and dark fields; patterns.toml naming each.
-    Patterns(CalibPatternsArgs),
-}
-
-#[derive(Args, Debug)]
-pub struct CalibPatternsArgs {
-    /// The folder the images and patterns.toml go to (made if missing).
-    #[arg(long, value_name = "DIR")]
-    pub out: PathBuf,
-    /// Room for the built optics' blur: dots 2 × margin × the design PSF's
-    /// radius apart (its 99.9 % light), at least 1.
-    #[arg(long, default_value_t = 1.5, value_name = "F")]
-    pub margin: f64,
-    /// Shifted copies of each channel's grid, N across × N down, a
-    /// pattern each, to sample the field more densely (1 to 8).
-    #[arg(long, default_value_t = 2, value_name = "N")]
-    pub shifts: usize,
 }
 
 #[derive(Args, Debug)]

@@ -49,6 +49,7 @@ pub fn run(cli: Cli) -> Result<()> {
             .map(|d| d.doe.clone())
             .or_else(|| g.doe.clone()),
         design,
+        psfs: g.psfs.clone(),
         dcnn: app::DcnnOptions {
             path: g.dcnn.clone(),
             lens_path: g.dcnn_lens.clone(),
@@ -225,6 +226,37 @@ pub fn run(cli: Cli) -> Result<()> {
                     "{}",
                     app::calib_patterns::write(&common, &p.out, p.margin, p.shifts)?
                 )
+            }
+            Some(CalibAction::Synth(s)) => {
+                let camera = match &s.camera {
+                    Some(path) => app::calib_capture::Camera::load(path)?,
+                    None => Default::default(),
+                };
+                let opts = app::calib_synth::SynthOptions {
+                    patterns_dir: s.patterns,
+                    out: s.out,
+                    accommodations_d: s.accommodations,
+                    perturbation: nedrt_optics::perturb::Perturbation {
+                        etch_scale: s.etch,
+                        levels: s.levels,
+                        decentre_mm: [s.decentre_mm[0], s.decentre_mm[1]],
+                        eye_relief_mm: s.eye_relief_mm,
+                        panel_distance_mm: s.panel_distance_mm,
+                        primaries_nm: [s.primaries_nm[0], s.primaries_nm[1], s.primaries_nm[2]],
+                    },
+                    camera,
+                    seed: s.seed,
+                };
+                print!("{}", app::calib_synth::write(&common, &opts)?)
+            }
+            Some(CalibAction::Show(s)) => {
+                print!(
+                    "{}",
+                    app::calib_show::show(&common, &s.psfs, s.against.as_deref())?
+                )
+            }
+            Some(CalibAction::Psfs(p)) => {
+                print!("{}", app::calib_psfs::write(&common, &p.captures, &p.out)?)
             }
         },
         Some(Command::Bench(a)) => match a.what {

@@ -39,6 +39,9 @@ pub struct CommonOptions {
     pub doe: Option<PathBuf>,
     /// A named design (`--design`): its DOE is `doe`, its K the Wiener's.
     pub design: Option<design::Design>,
+    /// A measured PSF bundle (`--psfs`, `calib psfs`) standing for the
+    /// lens + DOE optics' computed PSFs.
+    pub psfs: Option<PathBuf>,
     pub dcnn: DcnnOptions,
     /// The eye's settings given on the command line over the calibration's.
     pub eye: EyeOverrides,
@@ -54,6 +57,7 @@ impl Default for CommonOptions {
             cache_max_bytes: None,
             doe: None,
             design: None,
+            psfs: None,
             dcnn: DcnnOptions::default(),
             eye: EyeOverrides::default(),
             progress: Arc::new(Silent),
@@ -171,6 +175,20 @@ impl CommonOptions {
             progress: &*self.progress,
             name: name.to_string(),
         }
+    }
+
+    /// `sim` with the measured PSFs of `--psfs` in place of the DOE
+    /// optics' computed ones (docs/calibration.md); `sim` itself without.
+    pub fn measured(
+        &self,
+        sim: nedrt_optics::sim::Simulator,
+    ) -> Result<nedrt_optics::sim::Simulator, AppError> {
+        let Some(path) = &self.psfs else {
+            return Ok(sim);
+        };
+        let bundle = nedrt_optics::bundle::PsfBundle::load(path)
+            .map_err(nedrt_optics::sim::SimError::from)?;
+        Ok(sim.with_measured(std::sync::Arc::new(bundle))?)
     }
 
     pub fn doe_path(&self) -> Option<&Path> {

@@ -9,10 +9,13 @@
 pub mod golden;
 pub mod sim;
 
+pub mod bundle;
 pub mod cache;
 pub mod doe;
 pub mod doe_file;
 pub mod mtf;
+pub mod perturb;
+pub mod pixel;
 pub mod propagate;
 pub mod psf;
 pub mod pupil;

@@ -196,11 +196,11 @@ pub(super) fn prepared_for(
     method: Method,
     prefilter: nedrt_stages::preprocess::Prefilter,
 ) -> Result<nedrt_optics::sim::Prepared, AppError> {
-    let sim = Simulator::new(
+    let sim = common.measured(Simulator::new(
         common.calibration()?,
         common.doe_path_for(&[method]).as_deref(),
         common.cache(),
-    )?;
+    )?)?;
     Ok(sim.prepare(
         &[method],
         &prefilter.depths_d(&sim.calib),

@@ -334,11 +334,11 @@ pub(super) fn ladder_common(common: &CommonOptions, method: Method) -> CommonOpt
 
 /// The hash of the DOE `common` runs on (for the quality table).
 pub(super) fn doe_hash(common: &CommonOptions) -> Result<String, AppError> {
-    let sim = Simulator::new(
+    let sim = common.measured(Simulator::new(
         common.calibration()?,
         common.doe.as_deref(),
         nedrt_optics::cache::PsfCache::disabled(),
-    )?;
+    )?)?;
     Ok(sim.doe_hash)
 }
 
@@ -406,7 +406,11 @@ pub(super) fn prepared_levels(
     if prefilters.is_empty() {
         return Ok(None);
     }
-    let sim = Simulator::new(common.calibration()?, common.doe.as_deref(), common.cache())?;
+    let sim = common.measured(Simulator::new(
+        common.calibration()?,
+        common.doe.as_deref(),
+        common.cache(),
+    )?)?;
     let depths = Prefilter::all_depths_d(&prefilters, &sim.calib);
     Ok(Some(sim.prepare(
         &[Method::DoeWiener],

@@ -119,12 +119,13 @@ pub(crate) fn prepare(
     method: Method,
 ) -> Result<Vec<RunNetwork>, AppError> {
     let sim = |wiener_stages: Vec<Method>| -> Result<Simulator, AppError> {
-        Ok(Simulator::new(
-            common.calibration()?,
-            common.doe_path_for(&[method]).as_deref(),
-            common.cache(),
-        )?
-        .with_wiener_stages(wiener_stages))
+        Ok(common
+            .measured(Simulator::new(
+                common.calibration()?,
+                common.doe_path_for(&[method]).as_deref(),
+                common.cache(),
+            )?)?
+            .with_wiener_stages(wiener_stages))
     };
     let mut optics: Option<Arc<Prepared>> = None;
     networks

@@ -163,12 +163,13 @@ impl FocusScene {
         }
         let methods: Vec<Method> = panels.iter().map(|p| p.method).collect();
         let mut dcnns = common.dcnn.load_for(&methods)?;
-        let sim = Simulator::new(
-            calib.clone(),
-            common.doe_path_for(&methods).as_deref(),
-            common.cache(),
-        )?
-        .with_wiener_stages(nedrt_stages::preprocess::wiener_stages(&dcnns)?);
+        let sim = common
+            .measured(Simulator::new(
+                calib.clone(),
+                common.doe_path_for(&methods).as_deref(),
+                common.cache(),
+            )?)?
+            .with_wiener_stages(nedrt_stages::preprocess::wiener_stages(&dcnns)?);
         // A prefilter's objective depths beside the grid's.
         let prefilters: Vec<Prefilter> = panels.iter().map(|p| p.prefilter).collect();
         let mut psf_depths = psf_depths_d.to_vec();

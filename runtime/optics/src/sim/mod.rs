@@ -30,6 +30,8 @@ pub enum SimError {
     #[error(transparent)]
     Doe(#[from] crate::doe_file::DoeError),
     #[error(transparent)]
+    Bundle(#[from] crate::bundle::BundleError),
+    #[error(transparent)]
     Image(#[from] nedrt_core::image_io::ImageError),
     #[error("{0}")]
     Invalid(String),

@@ -10,6 +10,7 @@ use super::methods::{Method, Optics, psf_terms, target_blur_spec};
 use super::optimal::{DisplayProblem, Objective};
 use super::wiener::{WienerFilter, WienerPrefilter};
 use super::{SimError, convolve::PreparedKernel};
+use crate::bundle::PsfBundle;
 use crate::cache::PsfCache;
 use crate::{HeightMap, Psf, PsfRequest, PsfSet, PsfSpec, SamplingReport, doe_file};
 use nedrt_core::Progress;
@@ -28,6 +29,9 @@ pub struct Simulator {
     /// ([`Prepared::wiener_filter`]): [`Simulator::prepare`] also gives
     /// them the accommodation sweep that filter averages over.
     wiener_stages: Vec<Method>,
+    /// Measured PSFs of the built display ([`Simulator::with_measured`]):
+    /// they stand for the lens + DOE optics' computed ones.
+    measured: Option<Arc<PsfBundle>>,
 }
 
 impl Simulator {
@@ -49,14 +53,47 @@ impl Simulator {
             Some(p) => doe_file::load(p, &calib)?,
             None => HeightMap::three_lens_init(&calib, calib.doe_design_pitch_m),
         };
+        Ok(Self::with_doe(calib, doe, cache))
+    }
+
+    /// A simulator of `doe` (a height map in memory: a built DOE's, a
+    /// perturbed design's).
+    pub fn with_doe(calib: Calibration, doe: HeightMap, cache: PsfCache) -> Self {
         let doe_hash = doe.content_hash();
-        Ok(Self {
+        Self {
             calib,
             doe,
             doe_hash,
             cache,
             wiener_stages: Vec::new(),
-        })
+            measured: None,
+        }
+    }
+
+    /// The same simulator with the lens + DOE optics measured: every
+    /// method through the DOE sees `bundle`'s PSFs, interpolated in
+    /// diopters, in place of the computed ones (the lens-only methods,
+    /// another display, keep theirs). The bundle's channels must be the
+    /// calibration's.
+    pub fn with_measured(mut self, bundle: Arc<PsfBundle>) -> Result<Self, SimError> {
+        let nm: Vec<f64> = self
+            .calib
+            .channels
+            .iter()
+            .map(|c| c.wavelength_m * 1e9)
+            .collect();
+        bundle.check_channels(&nm)?;
+        self.doe_hash = format!(
+            "measured:{}",
+            &bundle.card.psfs_blake3[..16.min(bundle.card.psfs_blake3.len())]
+        );
+        self.measured = Some(bundle);
+        Ok(self)
+    }
+
+    /// The measured PSFs standing for the DOE's, if any.
+    pub fn measured(&self) -> Option<&Arc<PsfBundle>> {
+        self.measured.as_ref()
     }
 
     /// The same simulator, preparing `methods` for a Wiener stage in front
@@ -74,6 +111,7 @@ impl Simulator {
             doe_hash: self.doe_hash.clone(),
             cache: self.cache.clone(),
             wiener_stages: self.wiener_stages.clone(),
+            measured: self.measured.clone(),
         }
     }
 
@@ -115,6 +153,8 @@ impl Simulator {
         for &m in methods {
             let set = match m.optics() {
                 Optics::Lens => &mut lens,
+                // Measured: nothing to compute (`system_psfs` reads the bundle).
+                Optics::Doe if self.measured.is_some() => continue,
                 Optics::Doe => &mut doe,
             };
             let depths = if filters && (m.uses_wiener() || self.wiener_stages.contains(&m)) {
@@ -162,6 +202,7 @@ impl Simulator {
             doe_hash: self.doe_hash.clone(),
             lens,
             doe,
+            measured: self.measured.clone(),
             wiener: HashMap::new(),
             reports,
         };
@@ -255,6 +296,7 @@ pub struct Prepared {
     doe_hash: String,
     lens: Option<PsfTable>,
     doe: Option<PsfTable>,
+    measured: Option<Arc<PsfBundle>>,
     wiener: HashMap<Method, Arc<WienerFilter>>,
     /// What the PSF model chose, per request ("lens", "lens + DOE").
     pub reports: Vec<(String, SamplingReport)>,
@@ -292,6 +334,11 @@ impl Prepared {
 
     /// The retinal PSF of `method` at `accommodation_d`, one per channel.
     pub fn system_psfs(&self, method: Method, accommodation_d: f64) -> Result<Vec<Psf>, SimError> {
+        if let (Optics::Doe, Some(bundle)) = (method.optics(), &self.measured) {
+            return (0..self.calib.channels.len())
+                .map(|ch| Ok(bundle.at(accommodation_d, ch)?))
+                .collect();
+        }
         (0..self.calib.channels.len())
             .map(|ch| {
                 self.mixture(

@@ -227,12 +227,13 @@ pub fn evaluate(
     };
     let mut dcnns = common.dcnn.load_for(&methods)?;
     let dcnn_lines = crate::preprocess::dcnn_lines(&dcnns, &methods);
-    let sim = Simulator::new(
-        common.calibration()?,
-        common.doe_path_for(&methods).as_deref(),
-        common.cache(),
-    )?
-    .with_wiener_stages(crate::preprocess::wiener_stages(&dcnns)?);
+    let sim = common
+        .measured(Simulator::new(
+            common.calibration()?,
+            common.doe_path_for(&methods).as_deref(),
+            common.cache(),
+        )?)?
+        .with_wiener_stages(crate::preprocess::wiener_stages(&dcnns)?);
     let design_sims = extras
         .designs
         .iter()

@@ -102,7 +102,12 @@ pub fn run(common: &CommonOptions, o: &StabilityOptions) -> Result<String, AppEr
         crate::preprocess::DcnnInput::Frame => None,
         crate::preprocess::DcnnInput::WienerRaw { k_reg } => Some(k_reg),
     };
-    let sim = Simulator::new(common.calibration()?, Some(&doe), common.cache())?
+    let sim = common
+        .measured(Simulator::new(
+            common.calibration()?,
+            Some(&doe),
+            common.cache(),
+        )?)?
         .with_wiener_stages(if wiener_k.is_some() {
             vec![Method::Proposed]
         } else {

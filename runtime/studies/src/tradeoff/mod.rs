@@ -248,11 +248,11 @@ pub fn run(common: &CommonOptions, o: &TradeoffOptions) -> Result<String, AppErr
     let host = host_description();
 
     // The baselines, simulated with the first model's DOE (or --doe/--design).
-    let sim = Simulator::new(
+    let sim = common.measured(Simulator::new(
         calib.clone(),
         Some(common.doe.as_deref().unwrap_or(&dcnn_doe)),
         common.cache(),
-    )?;
+    )?)?;
     let baselines = [
         Method::Conventional,
         Method::Ai,
@@ -350,13 +350,13 @@ pub fn run(common: &CommonOptions, o: &TradeoffOptions) -> Result<String, AppErr
             continue;
         }
         let staged = crate::preprocess::dcnn_input(model)? != crate::preprocess::DcnnInput::Frame;
-        let sim = Simulator::new(calib.clone(), Some(&doe), common.cache())?.with_wiener_stages(
-            if staged {
+        let sim = common
+            .measured(Simulator::new(calib.clone(), Some(&doe), common.cache())?)?
+            .with_wiener_stages(if staged {
                 vec![Method::Proposed]
             } else {
                 Vec::new()
-            },
-        );
+            });
         let scorer = Scorer::new(
             &sim,
             &[Method::Proposed],

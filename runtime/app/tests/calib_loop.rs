@@ -1,0 +1,216 @@
+//! The calibration's closed loop at a small size (issue 57): patterns,
+//! synthetic captures through three built displays, PSFs recovered from
+//! them, and the Wiener prefilter from the recovered PSFs scored against
+//! the design's and the oracle's through the built optics.
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use nedrt_app::calib_capture::Camera;
+use nedrt_app::calib_synth::{SynthOptions, TRUTH_DIR};
+use nedrt_app::{CommonOptions, calib_loop, calib_patterns, calib_psfs, calib_synth};
+use nedrt_core::image::Image;
+use nedrt_optics::bundle::PsfBundle;
+use nedrt_optics::perturb::Perturbation;
+use nedrt_optics::pixel::response_distance;
+use nedrt_optics::sim::{Method, Simulator};
+use nedrt_stages::preprocess::Prefilter;
+
+/// The recovered PSFs' largest distance from the true ones (relative L2
+/// of the pixel responses, docs/calibration.md §5 says why this bound).
+const MAX_DISTANCE: f64 = 0.25;
+/// The share of the oracle's gain the recovered PSFs must keep.
+const MIN_RECOVERED_SHARE: f64 = 0.9;
+
+fn repo() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
+}
+
+fn images() -> Vec<Image> {
+    ["airport.png", "coast.png"]
+        .iter()
+        .map(|f| {
+            let img = nedrt_core::image_io::load(&repo().join("data/images/val").join(f))
+                .expect("a validation image")
+                .image;
+            img.crop(120, 120, 96, 96)
+        })
+        .collect()
+}
+
+fn prefilter() -> Prefilter {
+    std::env::var("NEDRT_LOOP_PREFILTER")
+        .unwrap_or("native".into())
+        .parse()
+        .expect("a prefilter")
+}
+
+/// What knowing the built optics earns each prefilter (no captures).
+#[test]
+#[ignore = "an exploration: cargo test --release -p nedrt-app --test calib_loop -- --ignored --nocapture"]
+fn oracle_gains() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let common = CommonOptions {
+        calib: Some(
+            std::env::var("NEDRT_LOOP_CALIB")
+                .map(PathBuf::from)
+                .unwrap_or(repo().join("tests/data/calib-loop.toml")),
+        ),
+        cache_dir: Some(dir.path().join("cache")),
+        ..Default::default()
+    };
+    let design = Simulator::new(common.calibration().expect("calib"), None, common.cache())
+        .expect("the design");
+    let imgs = images();
+    let depths: Vec<f64> = (0..=5).map(|i| i as f64 * 0.5).collect();
+    for p in cases() {
+        let built = Simulator::with_doe(
+            p.1.calibration(&design.calib),
+            p.1.doe(&design.doe),
+            common.cache(),
+        );
+        for step in [0.5, 0.25] {
+            let accs: Vec<f64> = (0..=(3.0 / step) as usize)
+                .map(|k| k as f64 * step)
+                .collect();
+            let prepared = built
+                .prepare(&[Method::DoeOnly], &accs, common.progress())
+                .expect("psfs");
+            let psfs = accs
+                .iter()
+                .flat_map(|d| prepared.system_psfs(Method::DoeOnly, *d).expect("psfs"))
+                .collect();
+            let truth = PsfBundle::new("t", accs.clone(), vec![600.0, 530.0, 450.0], psfs, None)
+                .expect("bundle");
+            let truth = Arc::new(truth);
+            for f in ["native", "refine:10@sharp"] {
+                let s = calib_loop::scores(
+                    &common,
+                    &design,
+                    &built,
+                    Some(truth.clone()),
+                    Method::DoeWiener,
+                    f.parse().expect("f"),
+                    &imgs,
+                    &depths,
+                )
+                .expect("scores");
+                eprintln!(
+                    "{}: {f}: design {:.3}, truth every {step} D {:.3}, oracle {:.3} dB ({:+.3})",
+                    p.0,
+                    s.design,
+                    s.measured.unwrap_or(f64::NAN),
+                    s.oracle,
+                    s.oracle - s.design
+                );
+            }
+        }
+    }
+}
+
+fn cases() -> Vec<(&'static str, Perturbation)> {
+    vec![
+        (
+            "etch +8 %",
+            Perturbation {
+                etch_scale: 1.08,
+                ..Default::default()
+            },
+        ),
+        (
+            "8 levels",
+            Perturbation {
+                levels: 8,
+                ..Default::default()
+            },
+        ),
+        (
+            "decentre 0.1 mm",
+            Perturbation {
+                decentre_mm: [0.1, 0.0],
+                ..Default::default()
+            },
+        ),
+    ]
+}
+
+#[test]
+fn recovered_psfs_keep_the_oracles_gain() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let common = CommonOptions {
+        calib: Some(repo().join("tests/data/calib-loop.toml")),
+        cache_dir: Some(dir.path().join("cache")),
+        ..Default::default()
+    };
+    let patterns = dir.path().join("patterns");
+    calib_patterns::write(&common, &patterns, 1.0, 1).expect("patterns");
+    let design = Simulator::new(common.calibration().expect("calib"), None, common.cache())
+        .expect("the design");
+    let imgs = images();
+    let depths: Vec<f64> = (0..=5).map(|i| i as f64 * 0.5).collect();
+    let cases = cases();
+    let mut failures = Vec::new();
+    for (i, (name, p)) in cases.iter().enumerate() {
+        let captures = dir.path().join(format!("captures-{i}"));
+        let bundle = dir.path().join(format!("bundle-{i}"));
+        calib_synth::write(
+            &common,
+            &SynthOptions {
+                patterns_dir: patterns.clone(),
+                out: captures.clone(),
+                accommodations_d: (0..=6).map(|k| k as f64 * 0.5).collect(),
+                perturbation: *p,
+                camera: match std::env::var("NEDRT_LOOP_CAMERA") {
+                    Ok(f) => Camera::load(Path::new(&f)).expect("a camera"),
+                    Err(_) => Camera::default(),
+                },
+                seed: std::env::var("NEDRT_LOOP_SEED")
+                    .ok()
+                    .and_then(|v| v.parse().ok())
+                    .unwrap_or(11)
+                    + i as u64,
+            },
+        )
+        .expect("captures");
+        calib_psfs::write(&common, &captures, &bundle).expect("PSFs");
+        let recovered = PsfBundle::load(&bundle).expect("the recovered bundle");
+        let truth = PsfBundle::load(&captures.join(TRUTH_DIR)).expect("the truth");
+        let mut worst: f64 = 0.0;
+        for (a, _) in recovered.accommodations_d().iter().enumerate() {
+            for c in 0..3 {
+                worst = worst.max(response_distance(
+                    recovered.measured(a, c),
+                    truth.measured(a, c),
+                ));
+            }
+        }
+        let built = Simulator::with_doe(
+            p.calibration(&design.calib),
+            p.doe(&design.doe),
+            common.cache(),
+        );
+        let s = calib_loop::scores(
+            &common,
+            &design,
+            &built,
+            Some(Arc::new(recovered)),
+            Method::DoeWiener,
+            prefilter(),
+            &imgs,
+            &depths,
+        )
+        .expect("scores");
+        let share = s.recovered_share().expect("a gain");
+        eprintln!(
+            "{name}: worst distance {worst:.4}; vs sharp design {:.3}, recovered {:.3}, oracle {:.3} dB: {:.1} % of the gain",
+            s.design,
+            s.measured.unwrap_or(f64::NAN),
+            s.oracle,
+            100.0 * share
+        );
+        if worst > MAX_DISTANCE || share < MIN_RECOVERED_SHARE {
+            failures.push(format!("{name}: distance {worst:.4}, share {share:.3}"));
+        }
+    }
+    assert!(failures.is_empty(), "{failures:?}");
+}

@@ -1,0 +1,120 @@
+//! `nedrt calib`'s subcommands: the patterns, synthetic captures, the PSFs
+//! from captures, and a bundle shown against the design.
+
+use std::path::PathBuf;
+
+use clap::{Args, Subcommand};
+
+#[derive(Args, Debug)]
+pub struct CalibArgs {
+    #[command(subcommand)]
+    pub action: Option<CalibAction>,
+}
+
+#[derive(Subcommand, Debug)]
+pub enum CalibAction {
+    /// The patterns a lab shows on the built display and photographs: per
+    /// channel, a grid of lit pixels whose PSFs never overlap over the
+    /// calibrated range; a checkerboard to register camera pixels to panel
+    /// pixels; flat and dark fields; patterns.toml naming each.
+    Patterns(CalibPatternsArgs),
+    /// Synthetic captures: what a camera at the eye photographs of the
+    /// patterns through optics perturbed from the design (etch depth,
+    /// levels, decentre, eye relief, panel distance, primaries), with the
+    /// camera's pitch, rotation, distortion, noise and quantisation; the
+    /// true PSFs beside them (truth/, a PSF bundle).
+    Synth(CalibSynthArgs),
+    /// From captures to PSFs: dark and flat fields, camera-to-panel
+    /// registration from the checkerboard, each dot cut at its registered
+    /// place, averaged, deconvolved from its pixel, a noise floor; a PSF
+    /// bundle (psfs.safetensors + bundle.toml) that --psfs reads.
+    Psfs(CalibPsfsArgs),
+    /// A PSF bundle against the design's own PSFs (and another bundle,
+    /// e.g. a synthetic capture's truth): the light in the window, the
+    /// centroid, the distance of the pixel responses.
+    Show(CalibShowArgs),
+}
+
+#[derive(Args, Debug)]
+pub struct CalibShowArgs {
+    /// The PSF bundle's folder.
+    #[arg(long, value_name = "DIR")]
+    pub psfs: PathBuf,
+    /// Another bundle to compare with (`calib synth`'s truth/).
+    #[arg(long, value_name = "DIR")]
+    pub against: Option<PathBuf>,
+}
+
+#[derive(Args, Debug)]
+pub struct CalibSynthArgs {
+    /// The patterns' folder (`calib patterns --out`).
+    #[arg(long, value_name = "DIR")]
+    pub patterns: PathBuf,
+    /// The captures' folder (new, or empty).
+    #[arg(long, value_name = "DIR")]
+    pub out: PathBuf,
+    /// Where the camera is focused, diopters, one set of captures each.
+    #[arg(long, value_delimiter = ',', default_values = ["0", "0.5", "1", "1.5", "2", "2.5", "3"], value_name = "D,...")]
+    pub accommodations: Vec<f64>,
+    /// Etched depth over the designed depth (1.08: 8 % too deep).
+    #[arg(long, default_value_t = 1.0, value_name = "SCALE")]
+    pub etch: f64,
+    /// Height levels of the fabricated profile (0: continuous).
+    #[arg(long, default_value_t = 0, value_name = "N")]
+    pub levels: u32,
+    /// The DOE's centre from the lens's axis, across and down, mm.
+    #[arg(long, value_delimiter = ',', num_args = 2, default_values = ["0", "0"], allow_hyphen_values = true, value_name = "X,Y")]
+    pub decentre_mm: Vec<f64>,
+    /// Added to the eye relief, mm.
+    #[arg(
+        long,
+        default_value_t = 0.0,
+        allow_hyphen_values = true,
+        value_name = "MM"
+    )]
+    pub eye_relief_mm: f64,
+    /// Added to the lens-to-panel distance, mm.
+    #[arg(
+        long,
+        default_value_t = 0.0,
+        allow_hyphen_values = true,
+        value_name = "MM"
+    )]
+    pub panel_distance_mm: f64,
+    /// Added to each primary's wavelength, nm (R,G,B).
+    #[arg(long, value_delimiter = ',', num_args = 3, default_values = ["0", "0", "0"], allow_hyphen_values = true, value_name = "R,G,B")]
+    pub primaries_nm: Vec<f64>,
+    /// The camera (TOML: pitch_cells, rotation_deg, offset_px,
+    /// distortion_k1, full_well_e, read_noise_e, dark_dn, bits, qe,
+    /// flux_e_per_ms, field_margin; what it leaves out is the default).
+    #[arg(long, value_name = "FILE")]
+    pub camera: Option<PathBuf>,
+    /// The noise's seed.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+}
+
+#[derive(Args, Debug)]
+pub struct CalibPsfsArgs {
+    /// The captures' folder, with captures.toml.
+    #[arg(long, value_name = "DIR")]
+    pub captures: PathBuf,
+    /// The PSF bundle's folder (new, or a bundle to replace).
+    #[arg(long, value_name = "DIR")]
+    pub out: PathBuf,
+}
+
+#[derive(Args, Debug)]
+pub struct CalibPatternsArgs {
+    /// The folder the images and patterns.toml go to (made if missing).
+    #[arg(long, value_name = "DIR")]
+    pub out: PathBuf,
+    /// Room for the built optics' blur: dots 2 × margin × the design PSF's
+    /// radius apart (its 99.9 % light), at least 1.
+    #[arg(long, default_value_t = 1.5, value_name = "F")]
+    pub margin: f64,
+    /// Shifted copies of each channel's grid, N across × N down, a
+    /// pattern each, to sample the field more densely (1 to 8).
+    #[arg(long, default_value_t = 2, value_name = "N")]
+    pub shifts: usize,
+}
