@@ -793,6 +793,46 @@ const ROWS: &[Row] = &[
         ],
         "panel holds no dot",
     ),
+    row(
+        "calib psfs: no captures manifest",
+        &["calib", "psfs", "--captures", "{dir}", "--out", "{out}"],
+        "captures.toml: No such file",
+    ),
+    row(
+        "calib synth: an etch scale out of range",
+        &[
+            "calib",
+            "synth",
+            "--patterns",
+            "{dir}",
+            "--out",
+            "{out}",
+            "--etch",
+            "2",
+        ],
+        "etch_scale = 2: must lie in [0.5, 1.5]",
+    ),
+    row(
+        "calib synth: one level",
+        &[
+            "calib",
+            "synth",
+            "--patterns",
+            "{dir}",
+            "--out",
+            "{out}",
+            "--levels",
+            "1",
+        ],
+        "levels = 1: must be 0 (continuous) or 2 to 256",
+    ),
+    row(
+        "--psfs: not a bundle",
+        &[
+            "--psfs", "{dir}", "--sim", "--accom", "1", "--out", "{out}", "--method", "doe-only",
+        ],
+        "bundle.toml: No such file",
+    ),
 ];
 
 /// Rows that take the small-aperture calibration and the `--sim` arguments

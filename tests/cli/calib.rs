@@ -225,3 +225,135 @@ fn sim_sees_through_a_measured_bundle() {
     let o = run(&[&base[..], &["--psfs", path(&bundle)]].concat());
     assert_clean_error(&o, "psfs.safetensors");
 }
+
+/// Captures of one accommodation through the design, on the 960×540
+/// calibration loop panel: the patterns and `calib synth`'s photographs.
+fn one_capture_set(dir: &std::path::Path) -> (std::path::PathBuf, std::path::PathBuf) {
+    let calib = super::repo().join("tests/data/calib-loop.toml");
+    let patterns = dir.join("patterns");
+    let captures = dir.join("captures");
+    let o = run(&[
+        "--calib",
+        path(&calib),
+        "calib",
+        "patterns",
+        "--out",
+        path(&patterns),
+        "--margin",
+        "1",
+        "--shifts",
+        "1",
+    ]);
+    assert!(o.status.success(), "{}", super::stderr(&o));
+    let o = run(&[
+        "--calib",
+        path(&calib),
+        "calib",
+        "synth",
+        "--patterns",
+        path(&patterns),
+        "--out",
+        path(&captures),
+        "--accommodations",
+        "1.5",
+    ]);
+    assert!(o.status.success(), "{}", super::stderr(&o));
+    (calib, captures)
+}
+
+/// Bad captures (catalogue rows in docs/reliability.md): a missing file, a
+/// saturated dot, mixed sizes, a checkerboard with no corners, a manifest
+/// naming no such pattern; each a clear error naming the file, and no
+/// bundle written. The good set makes a bundle whose registration and
+/// dots `calib show` reports.
+#[test]
+fn bad_captures_are_refused_by_name() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let (calib, good) = one_capture_set(dir.path());
+    let psfs = |captures: &std::path::Path, out: &std::path::Path| {
+        run(&[
+            "--calib",
+            path(&calib),
+            "calib",
+            "psfs",
+            "--captures",
+            path(captures),
+            "--out",
+            path(out),
+        ])
+    };
+    let out = dir.path().join("bundle");
+    let o = psfs(&good, &out);
+    assert!(o.status.success(), "{}", super::stderr(&o));
+    assert!(
+        stdout(&o).contains("8/8/8 dots a channel"),
+        "{}",
+        stdout(&o)
+    );
+    let o = run(&[
+        "--calib",
+        path(&calib),
+        "calib",
+        "show",
+        "--psfs",
+        path(&out),
+        "--against",
+        path(&good.join("truth")),
+    ]);
+    assert!(o.status.success(), "{}", super::stderr(&o));
+    assert!(stdout(&o).contains("| 1.5 | 2 |"), "{}", stdout(&o));
+
+    let copy = |name: &str| {
+        let to = dir.path().join(name);
+        std::fs::create_dir_all(to.join("a1.50")).expect("mkdir");
+        for entry in ["captures.toml", "patterns.toml"] {
+            std::fs::copy(good.join(entry), to.join(entry)).expect("copy");
+        }
+        for f in std::fs::read_dir(good.join("a1.50")).expect("dir") {
+            let f = f.expect("entry").path();
+            std::fs::copy(&f, to.join("a1.50").join(f.file_name().expect("name"))).expect("copy");
+        }
+        to
+    };
+    let refused = |captures: &std::path::Path, needle: &str| {
+        let out = dir.path().join("refused");
+        let o = psfs(captures, &out);
+        assert_clean_error(&o, needle);
+        assert!(!out.exists(), "a bundle was written for {needle}");
+    };
+    let grey = |w: u32, h: u32, v: u16| {
+        image::ImageBuffer::<image::Luma<u16>, Vec<u16>>::from_pixel(w, h, image::Luma([v]))
+    };
+    let (w, h) = image::image_dimensions(good.join("a1.50/dark.png")).expect("a capture");
+
+    let missing = copy("missing");
+    std::fs::remove_file(missing.join("a1.50/dots-g.png")).expect("rm");
+    refused(&missing, "a1.50/dots-g.png");
+
+    let saturated = copy("saturated");
+    grey(w, h, 16 * 4095)
+        .save(saturated.join("a1.50/dots-r.png"))
+        .expect("write");
+    refused(&saturated, "is saturated");
+
+    let mixed = copy("mixed");
+    grey(w - 8, h, 900)
+        .save(mixed.join("a1.50/flat-b.png"))
+        .expect("write");
+    refused(&mixed, "every capture comes from one camera");
+
+    let blank = copy("blank");
+    grey(w, h, 16 * 64)
+        .save(blank.join("a1.50/checkerboard.png"))
+        .expect("write");
+    refused(&blank, "registration failed");
+
+    let unnamed = copy("unnamed");
+    let m = std::fs::read_to_string(unnamed.join("captures.toml")).expect("manifest");
+    std::fs::write(
+        unnamed.join("captures.toml"),
+        m.replacen("pattern = \"dots-r.png\"", "pattern = \"dots-x.png\"", 1),
+    )
+    .expect("write");
+    refused(&unnamed, "pattern \"dots-x.png\" is not in");
+}

@@ -16,11 +16,19 @@ use nedrt_optics::pixel::response_distance;
 use nedrt_optics::sim::{Method, Simulator};
 use nedrt_stages::preprocess::Prefilter;
 
-/// The recovered PSFs' largest distance from the true ones (relative L2
-/// of the pixel responses, docs/calibration.md §5 says why this bound).
-const MAX_DISTANCE: f64 = 0.25;
-/// The share of the oracle's gain the recovered PSFs must keep.
+/// The recovered PSFs' largest distance from the true ones, relative L2
+/// of the pixel responses (docs/calibration.md §5): the camera's noise
+/// after 16 frames and 8 dots leaves about 1 %, the decentred core's
+/// asymmetry 2.5 %; interpolating each dot twice (the extraction before
+/// its least-squares fit) gave 6–27 %, so a broken extraction fails.
+const MAX_DISTANCE: f64 = 0.04;
+/// The share of the oracle's gain the recovered PSFs must keep (issue 57).
 const MIN_RECOVERED_SHARE: f64 = 0.9;
+/// A gain of the oracle over the design this small is nothing to keep:
+/// the recovered PSFs' score differs from the oracle's by up to 0.009 dB
+/// either way, the same over noise seeds to 0.001 dB (docs/calibration.md
+/// §5). There the recovered score must lie within this of the oracle's.
+const GAIN_RESOLUTION_DB: f64 = 0.005;
 
 fn repo() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
@@ -36,13 +44,6 @@ fn images() -> Vec<Image> {
             img.crop(120, 120, 96, 96)
         })
         .collect()
-}
-
-fn prefilter() -> Prefilter {
-    std::env::var("NEDRT_LOOP_PREFILTER")
-        .unwrap_or("native".into())
-        .parse()
-        .expect("a prefilter")
 }
 
 /// What knowing the built optics earns each prefilter (no captures).
@@ -160,15 +161,8 @@ fn recovered_psfs_keep_the_oracles_gain() {
                 out: captures.clone(),
                 accommodations_d: (0..=6).map(|k| k as f64 * 0.5).collect(),
                 perturbation: *p,
-                camera: match std::env::var("NEDRT_LOOP_CAMERA") {
-                    Ok(f) => Camera::load(Path::new(&f)).expect("a camera"),
-                    Err(_) => Camera::default(),
-                },
-                seed: std::env::var("NEDRT_LOOP_SEED")
-                    .ok()
-                    .and_then(|v| v.parse().ok())
-                    .unwrap_or(11)
-                    + i as u64,
+                camera: Camera::default(),
+                seed: 11 + i as u64,
             },
         )
         .expect("captures");
@@ -195,12 +189,13 @@ fn recovered_psfs_keep_the_oracles_gain() {
             &built,
             Some(Arc::new(recovered)),
             Method::DoeWiener,
-            prefilter(),
+            Prefilter::Native,
             &imgs,
             &depths,
         )
         .expect("scores");
-        let share = s.recovered_share().expect("a gain");
+        let share = s.recovered_share().unwrap_or(f64::NAN);
+        let measured = s.measured.expect("a measured score");
         eprintln!(
             "{name}: worst distance {worst:.4}; vs sharp design {:.3}, recovered {:.3}, oracle {:.3} dB: {:.1} % of the gain",
             s.design,
@@ -208,8 +203,16 @@ fn recovered_psfs_keep_the_oracles_gain() {
             s.oracle,
             100.0 * share
         );
-        if worst > MAX_DISTANCE || share < MIN_RECOVERED_SHARE {
-            failures.push(format!("{name}: distance {worst:.4}, share {share:.3}"));
+        let kept = if s.oracle - s.design >= GAIN_RESOLUTION_DB {
+            share >= MIN_RECOVERED_SHARE
+        } else {
+            (measured - s.oracle).abs() <= GAIN_RESOLUTION_DB
+        };
+        if worst > MAX_DISTANCE || !kept {
+            failures.push(format!(
+                "{name}: distance {worst:.4}, design {:.4}, recovered {measured:.4}, oracle {:.4} dB",
+                s.design, s.oracle
+            ));
         }
     }
     assert!(failures.is_empty(), "{failures:?}");
