@@ -295,7 +295,7 @@ fn bad_captures_are_refused_by_name() {
         path(&calib),
         "calib",
         "show",
-        "--psfs",
+        "--bundle",
         path(&out),
         "--against",
         path(&good.join("truth")),
@@ -356,4 +356,60 @@ fn bad_captures_are_refused_by_name() {
     )
     .expect("write");
     refused(&unnamed, "pattern \"dots-x.png\" is not in");
+}
+
+mod needs_gpu {
+    use super::super::{path, small_calib, stderr, stdout};
+    use super::{bundle_of, run};
+
+    /// `--psfs` on the device: doe+wiener's Wiener and refine:3's steps made
+    /// from a measured bundle score on `--backend wgpu` what they score on
+    /// the CPU, to 0.01 dB, and the device runs them.
+    #[test]
+    #[ignore = "needs a GPU adapter (run: scripts/test.sh, or cargo test -- --include-ignored)"]
+    fn a_measured_bundle_preprocesses_on_the_device_as_on_the_host() {
+        let dir = tempfile::tempdir().expect("tmp");
+        let input = dir.path().join("in.png");
+        image::RgbImage::from_fn(40, 24, |x, y| {
+            image::Rgb([(x * 6) as u8, (y * 9) as u8, ((x + y) * 3) as u8])
+        })
+        .save(&input)
+        .expect("input");
+        let bundle = bundle_of(
+            dir.path(),
+            &[0.0, 1.5, 3.0],
+            &nedrt_optics::psf::Psf::gaussian(1.5, 0.02),
+        );
+        let out = dir.path().join("p.png");
+        let calib = small_calib();
+        for prefilter in ["native", "refine:3"] {
+            let on = |backend: &str| {
+                let o = run(&[
+                    "--calib",
+                    path(&calib),
+                    "--sim",
+                    "--accom",
+                    "1.0",
+                    "--out",
+                    path(&out),
+                    "--input",
+                    path(&input),
+                    "--method",
+                    "doe+wiener",
+                    "--prefilter",
+                    prefilter,
+                    "--psfs",
+                    path(&bundle),
+                    "--backend",
+                    backend,
+                ]);
+                assert!(o.status.success(), "{prefilter} {backend}: {}", stderr(&o));
+                o
+            };
+            let (cpu, gpu) = (on("cpu"), on("wgpu"));
+            assert!(stdout(&gpu).contains("on the device"), "{}", stdout(&gpu));
+            let (a, b) = (super::vs_sharp_db(&cpu), super::vs_sharp_db(&gpu));
+            assert!((a - b).abs() <= 0.01, "{prefilter}: CPU {a}, device {b}");
+        }
+    }
 }

@@ -39,7 +39,7 @@ pub enum CalibAction {
 pub struct CalibShowArgs {
     /// The PSF bundle's folder.
     #[arg(long, value_name = "DIR")]
-    pub psfs: PathBuf,
+    pub bundle: PathBuf,
     /// Another bundle to compare with (`calib synth`'s truth/).
     #[arg(long, value_name = "DIR")]
     pub against: Option<PathBuf>,
