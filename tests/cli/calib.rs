@@ -1,8 +1,10 @@
-//! `nedrt calib patterns`: the images a lab shows on the built display,
-//! read back as a camera program would, against patterns.toml.
+//! `nedrt calib`: the patterns a lab shows on the built display (read back
+//! as a camera program would, against patterns.toml), captures to a PSF
+//! bundle and bad captures, and `--psfs` in the commands, host and device.
 
 use nedrt_app::calib_patterns::PatternsManifest;
 
+use super::deadline::CommandWithin;
 use super::{assert_clean_error, path, run, small_calib, small_panel, stdout};
 
 /// On the 3 mm-aperture calibration (1920×1080): each dot image lights one
@@ -412,4 +414,112 @@ mod needs_gpu {
             assert!((a - b).abs() <= 0.01, "{prefilter}: CPU {a}, device {b}");
         }
     }
+}
+
+/// `--psfs` reaches every command's optics: eval's doe-only scores, the
+/// prefilter command's display images and `nedrt run`'s frames (the Wiener
+/// made from a bundle) all change with a bundle of perfect PSFs, and a run
+/// through a bundle that misses the Wiener's range stops before it starts.
+#[test]
+fn eval_prefilter_and_run_take_a_bundle() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let imgs = dir.path().join("imgs");
+    std::fs::create_dir(&imgs).expect("dir");
+    super::write_png(&imgs.join("a.png"), 24, 16);
+    let perfect = nedrt_optics::psf::Psf {
+        window: 1,
+        cells: vec![1.0],
+        veil: 0.0,
+    };
+    let bundle = bundle_of(dir.path(), &[0.0, 1.5, 3.0], &perfect);
+    let calib = small_panel();
+    let with = |psfs: bool, args: &[&str], what: &str| {
+        let globals: Vec<&str> = if psfs {
+            vec!["--calib", path(&calib), "--psfs", path(&bundle)]
+        } else {
+            vec!["--calib", path(&calib)]
+        };
+        let o = run(&[&globals[..], args].concat());
+        assert!(o.status.success(), "{what}: {}", super::stderr(&o));
+        o
+    };
+    for (psfs, name) in [(false, "designed"), (true, "measured")] {
+        let out = dir.path().join(format!("eval-{name}"));
+        with(
+            psfs,
+            &[
+                "eval",
+                "--images",
+                path(&imgs),
+                "--out-dir",
+                path(&out),
+                "--methods",
+                "doe-only",
+            ],
+            "eval",
+        );
+        let out = dir.path().join(format!("prefilter-{name}"));
+        with(
+            psfs,
+            &[
+                "prefilter",
+                "--images",
+                path(&imgs),
+                "--out-dir",
+                path(&out),
+                "--method",
+                "doe+wiener",
+            ],
+            "prefilter",
+        );
+    }
+    let read = |p: &str| std::fs::read(dir.path().join(p)).expect(p);
+    assert_ne!(
+        read("eval-designed/eval.json"),
+        read("eval-measured/eval.json")
+    );
+    assert_ne!(
+        read("prefilter-designed/displays.safetensors"),
+        read("prefilter-measured/displays.safetensors")
+    );
+    let frame = dir.path().join("frame.png");
+    super::write_png(&frame, 64, 48);
+    let frames = |psfs: Option<&std::path::Path>, rec: &std::path::Path| {
+        let mut c = super::nedrt();
+        c.current_dir(super::repo())
+            .args([
+                "run",
+                "--calib",
+                path(&calib),
+                "--backend",
+                "cpu",
+                "--preprocess",
+                "doe+wiener",
+            ])
+            .args([
+                "--source",
+                "dir",
+                "--input",
+                path(&frame),
+                "--frames",
+                "1",
+            ])
+            .args(["--sink", "record", "--record-dir", path(rec)]);
+        if let Some(p) = psfs {
+            c.args(["--psfs", path(p)]);
+        }
+        c.output_within(super::deadline::COMMAND, "nedrt run")
+    };
+    let (designed, measured) = (dir.path().join("rec-d"), dir.path().join("rec-m"));
+    for (p, rec) in [(None, &designed), (Some(bundle.as_path()), &measured)] {
+        let o = frames(p, rec);
+        assert!(o.status.success(), "{}", super::stderr(&o));
+    }
+    assert_ne!(
+        std::fs::read(designed.join("frame-00000000.png")).expect("frame"),
+        std::fs::read(measured.join("frame-00000000.png")).expect("frame")
+    );
+    let short = bundle_of(dir.path(), &[0.5, 1.0], &perfect);
+    let o = frames(Some(&short), &dir.path().join("rec-s"));
+    assert_clean_error(&o, "was measured at 0.5–1 D");
 }
