@@ -496,14 +496,7 @@ fn eval_prefilter_and_run_take_a_bundle() {
                 "--preprocess",
                 "doe+wiener",
             ])
-            .args([
-                "--source",
-                "dir",
-                "--input",
-                path(&frame),
-                "--frames",
-                "1",
-            ])
+            .args(["--source", "dir", "--input", path(&frame), "--frames", "1"])
             .args(["--sink", "record", "--record-dir", path(rec)]);
         if let Some(p) = psfs {
             c.args(["--psfs", path(p)]);

@@ -23,6 +23,7 @@ pub mod frames;
 pub mod images;
 pub mod prefilter_batch;
 pub mod sim;
+pub mod tolerance;
 pub mod tune;
 pub mod viewer;
 

@@ -233,6 +233,13 @@ pub enum Command {
     /// Where each method breaks (Wiener K, the D-CNN off its training
     /// distribution, the optics beyond their sampling, f16): docs/stability.md.
     Stability(StabilityArgs),
+    /// The tolerances that matter: each fabrication and assembly error alone
+    /// (etch depth, levels, decentre, eye relief, panel distance,
+    /// primaries) and a realistic combination, for every method without a
+    /// network; nominal, as built without calibration and as built
+    /// calibrated, and the error at which each loses 0.5 dB
+    /// (docs/tolerance.md).
+    Tolerance(crate::calib_args::ToleranceArgs),
 }
 
 /// `nedrt run --preprocess`: a method, or the frame budget's ladder.

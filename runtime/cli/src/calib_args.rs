@@ -118,3 +118,19 @@ pub struct CalibPatternsArgs {
     #[arg(long, default_value_t = 2, value_name = "N")]
     pub shifts: usize,
 }
+
+#[derive(Args, Debug)]
+pub struct ToleranceArgs {
+    /// Folder of images to score (validation images, never the reserved evaluation sets).
+    #[arg(long, default_value = "data/images/val", value_name = "DIR")]
+    pub images: PathBuf,
+    /// How many of them (the first, by name).
+    #[arg(long, default_value_t = 2, value_name = "N")]
+    pub max_images: usize,
+    /// Each image's centre crop, pixels a side.
+    #[arg(long, default_value_t = 96, value_name = "PX")]
+    pub crop: usize,
+    /// The report (Markdown); the JSON and the chart go beside it.
+    #[arg(long, default_value = "out/tolerance.md", value_name = "FILE")]
+    pub out: PathBuf,
+}

@@ -219,6 +219,18 @@ pub fn run(cli: Cli) -> Result<()> {
             let report = nedrt_run::run(&common, &opts, &control)?;
             print!("{}", report.table());
         }
+        Some(Command::Tolerance(t)) => {
+            if t.max_images == 0 || t.crop < 8 {
+                return Err(app::AppError::option(
+                    "--max-images/--crop",
+                    "at least one image, and a crop of at least 8 px",
+                )
+                .into());
+            }
+            let mut images = app::images::list_images(&t.images)?;
+            images.truncate(t.max_images);
+            print!("{}", app::tolerance::run(&common, &images, t.crop, &t.out)?)
+        }
         Some(Command::Calib(a)) => match a.action {
             None => print!("{}", studies::plots::calib_summary(&common)?),
             Some(CalibAction::Patterns(p)) => {

@@ -1,0 +1,394 @@
+//! `nedrt tolerance` (docs/tolerance.md): each fabrication and assembly
+//! error alone, and a realistic combination, for every method at its
+//! shipped preprocessing. Per error and method: PSNR vs sharp and vs
+//! target, mean over the headline depths, of the nominal display, of the
+//! display as built preprocessed for its design (no calibration), and as
+//! built preprocessed from its own PSFs (a perfect calibration); and the
+//! error at which the uncalibrated display loses 0.5 dB.
+
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+
+use serde::Serialize;
+
+use crate::charts::{LinePanel, Panel, Series, series_color, write_figure};
+use crate::{AppError, CommonOptions};
+use nedrt_core::image::Image;
+use nedrt_optics::perturb::Perturbation;
+use nedrt_optics::sim::metrics::psnr;
+use nedrt_optics::sim::{HEADLINE_MAX_D, Method, Prepared, Simulator};
+
+/// The loss (dB, vs sharp) whose error is each method's tolerance.
+pub const LOSS_DB: f64 = 0.5;
+
+/// One error swept alone.
+#[derive(Debug, Clone)]
+pub struct Axis {
+    pub name: &'static str,
+    pub unit: &'static str,
+    pub values: Vec<f64>,
+    pub make: fn(f64) -> Perturbation,
+}
+
+/// The errors of issue 57, each over its range.
+pub fn axes() -> Vec<Axis> {
+    vec![
+        Axis {
+            name: "etch depth",
+            unit: "%",
+            values: vec![-10.0, -5.0, 5.0, 10.0],
+            make: |v| Perturbation {
+                etch_scale: 1.0 + v / 100.0,
+                ..Default::default()
+            },
+        },
+        Axis {
+            name: "levels",
+            unit: "levels",
+            values: vec![2.0, 4.0, 8.0, 16.0],
+            make: |v| Perturbation {
+                levels: v as u32,
+                ..Default::default()
+            },
+        },
+        Axis {
+            name: "decentre",
+            unit: "mm",
+            values: vec![0.1, 0.2, 0.3],
+            make: |v| Perturbation {
+                decentre_mm: [v, 0.0],
+                ..Default::default()
+            },
+        },
+        Axis {
+            name: "eye relief",
+            unit: "mm",
+            values: vec![-3.0, 3.0],
+            make: |v| Perturbation {
+                eye_relief_mm: v,
+                ..Default::default()
+            },
+        },
+        Axis {
+            name: "panel distance",
+            unit: "mm",
+            values: vec![-0.2, 0.2],
+            make: |v| Perturbation {
+                panel_distance_mm: v,
+                ..Default::default()
+            },
+        },
+        Axis {
+            name: "primaries",
+            unit: "nm",
+            values: vec![-5.0, 5.0],
+            make: |v| Perturbation {
+                primaries_nm: [v; 3],
+                ..Default::default()
+            },
+        },
+    ]
+}
+
+/// A realistic build: every error at a fraction of its range.
+pub fn combination() -> Perturbation {
+    Perturbation {
+        etch_scale: 1.04,
+        levels: 16,
+        decentre_mm: [0.05, 0.03],
+        eye_relief_mm: 1.0,
+        panel_distance_mm: 0.05,
+        primaries_nm: [2.0, -2.0, 3.0],
+    }
+}
+
+/// Mean PSNR (dB) vs sharp and vs target.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct Score {
+    pub sharp: f64,
+    pub target: f64,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Row {
+    pub error: String,
+    pub value: f64,
+    pub method: String,
+    pub nominal: Score,
+    pub uncalibrated: Score,
+    pub calibrated: Score,
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct Report {
+    pub calibration: String,
+    pub images: Vec<String>,
+    pub depths_d: Vec<f64>,
+    pub rows: Vec<Row>,
+    /// Per error and method: the error (its unit) at which the
+    /// uncalibrated display first loses [`LOSS_DB`] vs sharp, if it does
+    /// within the range.
+    pub tolerances: Vec<(String, String, Option<f64>)>,
+}
+
+/// The methods the sweep runs: every method whose shipped preprocessing
+/// needs no network.
+pub fn methods() -> Vec<Method> {
+    Method::ALL.into_iter().filter(|m| !m.uses_dcnn()).collect()
+}
+
+fn score(
+    seen: &Prepared,
+    displays: &[Image],
+    sharps: &[Image],
+    targets: &[Vec<Image>],
+    method: Method,
+    depths: &[f64],
+) -> Result<Score, AppError> {
+    let (mut s, mut t, mut n) = (0.0, 0.0, 0.0);
+    for ((display, sharp), targets) in displays.iter().zip(sharps).zip(targets) {
+        for (d, target) in depths.iter().zip(targets) {
+            let p = seen.perceived(method, display, *d)?;
+            s += psnr(&p, sharp);
+            t += psnr(&p, target);
+            n += 1.0;
+        }
+    }
+    Ok(Score {
+        sharp: s / n,
+        target: t / n,
+    })
+}
+
+/// Runs the sweep over `images` (each centre-cropped to `crop`²) and writes
+/// `out` (Markdown), its JSON and its chart beside it.
+pub fn run(
+    common: &CommonOptions,
+    images: &[PathBuf],
+    crop: usize,
+    out: &Path,
+) -> Result<String, AppError> {
+    crate::check_output_folder(out)?;
+    let calib = common.calibration()?;
+    let inputs: Vec<Image> = images
+        .iter()
+        .map(|p| {
+            let img = nedrt_core::image_io::load(p)?.image;
+            let side = crop.min(img.width).min(img.height);
+            Ok(img.crop((img.width - side) / 2, (img.height - side) / 2, side, side))
+        })
+        .collect::<Result<_, AppError>>()?;
+    if inputs.is_empty() {
+        return Err(AppError::Unavailable("no images to sweep over".into()));
+    }
+    let depths: Vec<f64> = calib
+        .evaluation_depths_d()
+        .into_iter()
+        .filter(|d| *d <= HEADLINE_MAX_D + 1e-9)
+        .collect();
+    let methods = methods();
+    let design = Simulator::new(calib.clone(), common.doe_path(), common.cache())?;
+    let nominal = design.prepare(&methods, &depths, common.progress())?;
+    let targets: Vec<Vec<Image>> = inputs
+        .iter()
+        .map(|img| {
+            depths
+                .iter()
+                .map(|d| nominal.target(img, *d))
+                .collect::<Result<_, _>>()
+        })
+        .collect::<Result<_, _>>()?;
+    // The design's display images, the same for every build.
+    let sharps: Vec<Image> = inputs.iter().map(|img| img.up2()).collect();
+    let mut designed: HashMap<Method, Vec<Image>> = HashMap::new();
+    for &m in &methods {
+        let mut pre = nominal.preprocessor(m)?;
+        let shown = inputs
+            .iter()
+            .map(|img| pre.run(img))
+            .collect::<Result<Vec<_>, _>>()?;
+        designed.insert(m, shown);
+    }
+    let mut builds: Vec<(String, f64, Perturbation)> = Vec::new();
+    for axis in axes() {
+        for &v in &axis.values {
+            builds.push((axis.name.to_string(), v, (axis.make)(v)));
+        }
+    }
+    builds.push(("combination".into(), 1.0, combination()));
+    let mut nominal_scores = HashMap::new();
+    for &m in &methods {
+        nominal_scores.insert(
+            m,
+            score(&nominal, &designed[&m], &sharps, &targets, m, &depths)?,
+        );
+    }
+    let mut rows = Vec::new();
+    for (name, value, p) in &builds {
+        let built = Simulator::with_doe(p.calibration(&calib), p.doe(&design.doe), common.cache());
+        let seen = built.prepare(&methods, &depths, common.progress())?;
+        for &m in &methods {
+            let shown = &designed[&m];
+            let mut own = seen.preprocessor(m)?;
+            let calibrated = inputs
+                .iter()
+                .map(|img| own.run(img))
+                .collect::<Result<Vec<_>, _>>()?;
+            let at = |prepared: &Prepared, shown: &[Image]| {
+                score(prepared, shown, &sharps, &targets, m, &depths)
+            };
+            rows.push(Row {
+                error: name.clone(),
+                value: *value,
+                method: m.name().into(),
+                nominal: nominal_scores[&m],
+                uncalibrated: at(&seen, shown)?,
+                calibrated: at(&seen, &calibrated)?,
+            });
+        }
+        tracing::info!("tolerance: {name} {value} done");
+    }
+    let mut tolerances = Vec::new();
+    for axis in axes() {
+        for &m in &methods {
+            let mut pts: Vec<(f64, f64)> = rows
+                .iter()
+                .filter(|r| r.error == axis.name && r.method == m.name())
+                .map(|r| (r.value, r.nominal.sharp - r.uncalibrated.sharp))
+                .collect();
+            pts.sort_by(|a, b| a.0.abs().total_cmp(&b.0.abs()));
+            // Walking outwards from the design (no loss), the first crossing.
+            let mut prev = (0.0, 0.0);
+            let mut found = None;
+            for (x, loss) in pts {
+                if loss >= LOSS_DB {
+                    let t = (LOSS_DB - prev.1) / (loss - prev.1).max(1e-12);
+                    found = Some(prev.0 + t * (x - prev.0));
+                    break;
+                }
+                prev = (x, loss);
+            }
+            tolerances.push((axis.name.to_string(), m.name().to_string(), found));
+        }
+    }
+    let report = Report {
+        calibration: calib.source.clone(),
+        images: images.iter().map(|p| p.display().to_string()).collect(),
+        depths_d: depths.clone(),
+        rows,
+        tolerances,
+    };
+    let text = markdown(&report, crop);
+    crate::write_text(out, &text)?;
+    let json = serde_json::to_string_pretty(&report).map_err(|e| AppError::output(out, e))?;
+    crate::write_text(&out.with_extension("json"), &json)?;
+    let charts = chart(&report, &out.with_extension(""))?;
+    Ok(format!(
+        "{text}\nwrote {}, {} and {}\n",
+        out.display(),
+        out.with_extension("json").display(),
+        charts.join(", ")
+    ))
+}
+
+fn markdown(r: &Report, crop: usize) -> String {
+    let mut s = format!(
+        "Calibration {}; {} image(s) cropped to {crop}²; PSNR mean over {} D.\n\n\
+         | error | value | method | nominal vs sharp | as built, design's preprocessing | as built, calibrated | vs target: nominal / as built / calibrated |\n\
+         | --- | ---: | --- | ---: | ---: | ---: | --- |\n",
+        r.calibration,
+        r.images.len(),
+        r.depths_d
+            .iter()
+            .map(|d| d.to_string())
+            .collect::<Vec<_>>()
+            .join(", ")
+    );
+    for row in &r.rows {
+        s += &format!(
+            "| {} | {} | {} | {:.2} | {:.2} ({:+.2}) | {:.2} ({:+.2}) | {:.2} / {:.2} / {:.2} |\n",
+            row.error,
+            row.value,
+            row.method,
+            row.nominal.sharp,
+            row.uncalibrated.sharp,
+            row.uncalibrated.sharp - row.nominal.sharp,
+            row.calibrated.sharp,
+            row.calibrated.sharp - row.nominal.sharp,
+            row.nominal.target,
+            row.uncalibrated.target,
+            row.calibrated.target
+        );
+    }
+    s += &format!(
+        "\nThe error at which each method, preprocessed for its design, loses {LOSS_DB} dB vs sharp:\n\n| error | method | tolerance |\n| --- | --- | ---: |\n"
+    );
+    for (e, m, t) in &r.tolerances {
+        let unit = axes().iter().find(|a| a.name == e).map_or("", |a| a.unit);
+        s += &format!(
+            "| {e} | {m} | {} |\n",
+            t.map_or("beyond the range".to_string(), |v| format!("{v:.3} {unit}"))
+        );
+    }
+    s
+}
+
+fn chart(r: &Report, stem: &Path) -> Result<Vec<String>, AppError> {
+    let methods: Vec<String> = methods().iter().map(|m| m.name().to_string()).collect();
+    let panels: Vec<Panel> = axes()
+        .iter()
+        .map(|a| {
+            let mut series = Vec::new();
+            let (mut lo, mut hi) = (0.0f64, 0.1f64);
+            for (i, m) in methods.iter().enumerate() {
+                for (dashed, pick) in [(false, 0usize), (true, 1)] {
+                    let mut points: Vec<(f64, f64)> = r
+                        .rows
+                        .iter()
+                        .filter(|row| row.error == a.name && &row.method == m)
+                        .map(|row| {
+                            let after = if pick == 0 {
+                                row.uncalibrated.sharp
+                            } else {
+                                row.calibrated.sharp
+                            };
+                            (row.value, row.nominal.sharp - after)
+                        })
+                        .collect();
+                    if a.name != "levels" {
+                        points.push((0.0, 0.0));
+                    }
+                    points.sort_by(|x, y| x.0.total_cmp(&y.0));
+                    for p in &points {
+                        (lo, hi) = (lo.min(p.1), hi.max(p.1));
+                    }
+                    series.push(Series {
+                        name: if dashed {
+                            format!("{m}, calibrated")
+                        } else {
+                            m.clone()
+                        },
+                        color: series_color(i),
+                        dashed,
+                        points,
+                    });
+                }
+            }
+            let xs: Vec<f64> = a.values.iter().copied().chain([0.0]).collect();
+            let (x0, x1) = (
+                xs.iter().cloned().fold(f64::MAX, f64::min),
+                xs.iter().cloned().fold(f64::MIN, f64::max),
+            );
+            Panel::Lines(LinePanel {
+                title: a.name.to_string(),
+                x_label: a.unit.to_string(),
+                y_label: "loss vs sharp (dB)".into(),
+                x_range: (x0, x1),
+                y_range: (lo - 0.05, hi + 0.05),
+                series,
+                legend: None,
+            })
+        })
+        .collect();
+    write_figure(stem, (2, 3), (1500, 900), &panels, true)
+}
