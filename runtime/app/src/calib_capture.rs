@@ -318,21 +318,18 @@ impl Camera {
     }
 }
 
-/// SplitMix64 with Box–Muller normals: reproducible noise from a seed.
+/// SplitMix64 (nedrt-infer's) with Box–Muller normals: reproducible noise
+/// from a seed.
 #[derive(Debug, Clone)]
-pub struct Noise(u64);
+pub struct Noise(nedrt_infer::synth::SplitMix);
 
 impl Noise {
     pub fn new(seed: u64) -> Self {
-        Self(seed)
+        Self(nedrt_infer::synth::SplitMix::new(seed))
     }
 
     pub fn next_u64(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
+        self.0.next_u64()
     }
 
     /// Uniform in (0, 1].
