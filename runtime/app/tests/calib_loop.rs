@@ -18,9 +18,9 @@ use nedrt_stages::preprocess::Prefilter;
 
 /// The recovered PSFs' largest distance from the true ones, relative L2
 /// of the pixel responses (docs/calibration.md §5): the camera's noise
-/// after 16 frames and 8 dots leaves about 1 %, the decentred core's
-/// asymmetry 2.5 %; interpolating each dot twice (the extraction before
-/// its least-squares fit) gave 6–27 %, so a broken extraction fails.
+/// after 16 frames and 8 dots leaves about 1 %, the decentred cores 2 %;
+/// interpolating each dot twice (the extraction before its least-squares
+/// fit) gave 6–27 %, so a broken extraction fails.
 const MAX_DISTANCE: f64 = 0.04;
 /// The share of the oracle's gain the recovered PSFs must keep (issue 57).
 const MIN_RECOVERED_SHARE: f64 = 0.9;
