@@ -417,9 +417,10 @@ mod needs_gpu {
 }
 
 /// `--psfs` reaches every command's optics: eval's doe-only scores, the
-/// prefilter command's display images and `nedrt run`'s frames (the Wiener
-/// made from a bundle) all change with a bundle of perfect PSFs, and a run
-/// through a bundle that misses the Wiener's range stops before it starts.
+/// prefilter command's display images, `nedrt run`'s frames (the Wiener
+/// made from a bundle) and the viewer's sweep all change with a bundle of
+/// perfect PSFs, and a run through a bundle that misses the Wiener's range
+/// stops before it starts.
 #[test]
 fn eval_prefilter_and_run_take_a_bundle() {
     let dir = tempfile::tempdir().expect("tmp");
@@ -512,6 +513,35 @@ fn eval_prefilter_and_run_take_a_bundle() {
         std::fs::read(designed.join("frame-00000000.png")).expect("frame"),
         std::fs::read(measured.join("frame-00000000.png")).expect("frame")
     );
+    // The viewer's sweep (the scene `nedrt view` draws), on the 3 mm
+    // calibration: its DOE's PSFs are cheap.
+    let small = small_calib();
+    for (psfs, name) in [(false, "designed"), (true, "measured")] {
+        let out = dir.path().join(format!("sweep-{name}.png"));
+        let mut args = vec![
+            "--calib",
+            path(&small),
+            "sweep",
+            "--input",
+            path(&frame),
+            "--methods",
+            "doe-only",
+            "--from",
+            "0.5",
+            "--to",
+            "1.5",
+            "--step",
+            "0.5",
+            "--out",
+            path(&out),
+        ];
+        if psfs {
+            args.extend(["--psfs", path(&bundle)]);
+        }
+        let o = run(&args);
+        assert!(o.status.success(), "sweep: {}", super::stderr(&o));
+    }
+    assert_ne!(read("sweep-designed.png"), read("sweep-measured.png"));
     let short = bundle_of(dir.path(), &[0.5, 1.0], &perfect);
     let o = frames(Some(&short), &dir.path().join("rec-s"));
     assert_clean_error(&o, "was measured at 0.5–1 D");
