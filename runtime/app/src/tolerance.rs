@@ -256,18 +256,7 @@ pub fn run(
                 .filter(|r| r.error == axis.name && r.method == m.name())
                 .map(|r| (r.value, r.nominal.sharp - r.uncalibrated.sharp))
                 .collect();
-            pts.sort_by(|a, b| a.0.abs().total_cmp(&b.0.abs()));
-            // Walking outwards from the design (no loss), the first crossing.
-            let mut prev = (0.0, 0.0);
-            let mut found = None;
-            for (x, loss) in pts {
-                if loss >= LOSS_DB {
-                    let t = (LOSS_DB - prev.1) / (loss - prev.1).max(1e-12);
-                    found = Some(prev.0 + t * (x - prev.0));
-                    break;
-                }
-                prev = (x, loss);
-            }
+            let found = first_crossing(&mut pts, LOSS_DB);
             tolerances.push((axis.name.to_string(), m.name().to_string(), found));
         }
     }
@@ -289,6 +278,32 @@ pub fn run(
         out.with_extension("json").display(),
         charts.join(", ")
     ))
+}
+
+/// Walking outwards from the design (no loss at 0) through `(error, loss)`
+/// points, each side of 0 on its own, where the loss first reaches
+/// `limit` (linear between the points); the nearer of the two sides'
+/// crossings, None if the loss never reaches it.
+pub fn first_crossing(points: &mut [(f64, f64)], limit: f64) -> Option<f64> {
+    points.sort_by(|a, b| a.0.abs().total_cmp(&b.0.abs()));
+    let side = |positive: bool| {
+        let mut prev = (0.0, 0.0);
+        for &(x, loss) in points
+            .iter()
+            .filter(|p| (p.0 > 0.0) == positive && p.0 != 0.0)
+        {
+            if loss >= limit {
+                let t = (limit - prev.1) / (loss - prev.1).max(1e-12);
+                return Some(prev.0 + t * (x - prev.0));
+            }
+            prev = (x, loss);
+        }
+        None
+    };
+    match (side(true), side(false)) {
+        (Some(a), Some(b)) => Some(if a.abs() <= b.abs() { a } else { b }),
+        (a, b) => a.or(b),
+    }
 }
 
 fn markdown(r: &Report, crop: usize) -> String {
@@ -391,4 +406,43 @@ fn chart(r: &Report, stem: &Path) -> Result<Vec<String>, AppError> {
         })
         .collect();
     write_figure(stem, (2, 3), (1500, 900), &panels, true)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_tolerance_is_where_the_loss_first_reaches_the_limit() {
+        // decentre on the 3 mm calibration (docs/tolerance.md): 0.14, 0.40, 0.64 dB.
+        let mut pts = vec![(0.3, 0.64), (0.1, 0.14), (0.2, 0.40)];
+        let t = first_crossing(&mut pts, 0.5).expect("a crossing");
+        assert!((t - (0.2 + 0.1 * 0.1 / 0.24)).abs() < 1e-12, "{t}");
+        // From the design to the first point when that one is already past it.
+        assert!((first_crossing(&mut [(2.0, 1.0)], 0.5).expect("crossing") - 1.0).abs() < 1e-12);
+        // Each side from the design on its own; the nearer crossing wins
+        // (+2.5 between 0 and +10, before −5).
+        assert_eq!(
+            first_crossing(&mut [(10.0, 2.0), (-5.0, 0.5)], 0.5),
+            Some(2.5)
+        );
+        assert_eq!(
+            first_crossing(&mut [(10.0, 0.2), (-5.0, 0.5)], 0.5),
+            Some(-5.0)
+        );
+        assert_eq!(first_crossing(&mut [(0.1, 0.1), (0.2, -0.3)], 0.5), None);
+    }
+
+    #[test]
+    fn every_axis_is_a_valid_perturbation_and_zero_is_the_design() {
+        for a in axes() {
+            for v in &a.values {
+                assert!((a.make)(*v).check().is_ok(), "{} {v}", a.name);
+            }
+            if a.name != "levels" {
+                assert!((a.make)(0.0).is_nominal(), "{}", a.name);
+            }
+        }
+        assert!(combination().check().is_ok() && !combination().is_nominal());
+    }
 }
