@@ -301,9 +301,17 @@ fn bad_captures_are_refused_by_name() {
         path(&out),
         "--against",
         path(&good.join("truth")),
+        "--chart",
+        path(&dir.path().join("show")),
     ]);
     assert!(o.status.success(), "{}", super::stderr(&o));
     assert!(stdout(&o).contains("| 1.5 | 2 |"), "{}", stdout(&o));
+    for ext in ["png", "svg"] {
+        assert!(
+            dir.path().join("show").with_extension(ext).exists(),
+            "the chart's {ext}"
+        );
+    }
 
     let copy = |name: &str| {
         let to = dir.path().join(name);

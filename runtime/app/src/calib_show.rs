@@ -75,17 +75,25 @@ pub fn compare(
     Ok(rows)
 }
 
-/// `calib show`'s table.
+/// `calib show`'s table, and with `chart` (a file stem) its chart: each
+/// channel's PSF through its centre row at the bundle's middle
+/// accommodation (log scale), the bundle's against the design's (and the
+/// other bundle's), and the distance to the design against accommodation.
 pub fn show(
     common: &CommonOptions,
     path: &Path,
     against: Option<&Path>,
+    chart: Option<&Path>,
 ) -> Result<String, AppError> {
     let load = |p: &Path| PsfBundle::load(p).map_err(nedrt_optics::sim::SimError::from);
     let bundle = load(path)?;
     let other = against.map(load).transpose()?;
     let rows = compare(common, &bundle, other.as_ref())?;
     let mut out = String::new();
+    if let Some(stem) = chart {
+        let written = draw(common, &bundle, other.as_ref(), &rows, stem)?;
+        let _ = writeln!(out, "chart: {}", written.join(", "));
+    }
     let _ = writeln!(
         out,
         "PSF bundle {} ({}): {}×{} cells\n\
@@ -127,4 +135,95 @@ pub fn show(
         );
     }
     Ok(out)
+}
+
+/// The centre row of a PSF's pixel response (what a display shows of it,
+/// and what a capture measures: the PSF's Nyquist content, which the 2×2
+/// pixel erases, is left out), log10 of each cell's share of the pixel's
+/// light (floored at 1e-7), against its offset in cells from the pixel's
+/// centre.
+fn centre_row(p: &Psf) -> Vec<(f64, f64)> {
+    let (m, g) = nedrt_optics::pixel::pixel_response(p);
+    let c = m / 2;
+    (0..m)
+        .map(|x| {
+            (
+                x as f64 - c as f64 + 0.5,
+                (g[c * m + x] / 4.0).max(1e-7).log10(),
+            )
+        })
+        .collect()
+}
+
+fn draw(
+    common: &CommonOptions,
+    bundle: &PsfBundle,
+    other: Option<&PsfBundle>,
+    rows: &[Row],
+    stem: &Path,
+) -> Result<Vec<String>, AppError> {
+    use crate::charts::{LinePanel, Panel, Series, series_color, write_figure};
+    let depths = bundle.accommodations_d();
+    let mid = depths.len() / 2;
+    let d = depths[mid];
+    let (design, _) = crate::frames::psfs_at(common, Method::DoeOnly, &[d], "the bundle's")?;
+    let half = (bundle.card.window_cells / 2) as f64;
+    let mut panels = Vec::new();
+    for c in 0..bundle.channels().min(design[0].len()) {
+        let mut series = vec![
+            Series {
+                name: "bundle".into(),
+                color: series_color(0),
+                dashed: false,
+                points: centre_row(bundle.measured(mid, c)),
+            },
+            Series {
+                name: "design".into(),
+                color: series_color(1),
+                dashed: true,
+                points: centre_row(&design[0][c]),
+            },
+        ];
+        if let Some(o) = other {
+            let p = o.at(d, c).map_err(nedrt_optics::sim::SimError::from)?;
+            series.push(Series {
+                name: "other".into(),
+                color: series_color(2),
+                dashed: true,
+                points: centre_row(&p),
+            });
+        }
+        panels.push(Panel::Lines(LinePanel {
+            title: format!("channel {c} at {d} D, pixel response's centre row"),
+            x_label: "retinal cells".into(),
+            y_label: "log10 share of the light".into(),
+            x_range: (-half.min(60.0), half.min(60.0)),
+            y_range: (-7.0, 0.0),
+            series,
+            legend: None,
+        }));
+    }
+    let top = rows.iter().map(|r| r.to_design).fold(0.05, f64::max);
+    let series = (0..bundle.channels())
+        .map(|c| Series {
+            name: format!("channel {c}"),
+            color: series_color(c),
+            dashed: false,
+            points: rows
+                .iter()
+                .filter(|r| r.channel == c)
+                .map(|r| (r.accommodation_d, r.to_design))
+                .collect(),
+        })
+        .collect();
+    panels.push(Panel::Lines(LinePanel {
+        title: "distance to the design".into(),
+        x_label: "accommodation (D)".into(),
+        y_label: "relative L2 of the pixel responses".into(),
+        x_range: (depths[0], depths[depths.len() - 1].max(depths[0] + 0.1)),
+        y_range: (0.0, 1.1 * top),
+        series,
+        legend: None,
+    }));
+    write_figure(stem, (2, 2), (1200, 900), &panels, true)
 }

@@ -43,6 +43,10 @@ pub struct CalibShowArgs {
     /// Another bundle to compare with (`calib synth`'s truth/).
     #[arg(long, value_name = "DIR")]
     pub against: Option<PathBuf>,
+    /// Also chart it: STEM.png and STEM.svg (centre rows against the
+    /// design's, and the distance to the design against accommodation).
+    #[arg(long, value_name = "STEM")]
+    pub chart: Option<PathBuf>,
 }
 
 #[derive(Args, Debug)]

@@ -264,7 +264,12 @@ pub fn run(cli: Cli) -> Result<()> {
             Some(CalibAction::Show(s)) => {
                 print!(
                     "{}",
-                    app::calib_show::show(&common, &s.bundle, s.against.as_deref())?
+                    app::calib_show::show(
+                        &common,
+                        &s.bundle,
+                        s.against.as_deref(),
+                        s.chart.as_deref(),
+                    )?
                 )
             }
             Some(CalibAction::Psfs(p)) => {
