@@ -169,7 +169,7 @@ fn draw(
     let (design, _) = crate::frames::psfs_at(common, Method::DoeOnly, &[d], "the bundle's")?;
     let half = (bundle.card.window_cells / 2) as f64;
     let mut panels = Vec::new();
-    for c in 0..bundle.channels().min(design[0].len()) {
+    for (c, designed) in design[0].iter().enumerate().take(bundle.channels()) {
         let mut series = vec![
             Series {
                 name: "bundle".into(),
@@ -181,7 +181,7 @@ fn draw(
                 name: "design".into(),
                 color: series_color(1),
                 dashed: true,
-                points: centre_row(&design[0][c]),
+                points: centre_row(designed),
             },
         ];
         if let Some(o) = other {
