@@ -58,16 +58,9 @@ pub struct Captures {
 }
 
 fn read_capped(path: &Path, cap: u64) -> Result<String, AppError> {
-    let size = std::fs::metadata(path)
-        .map_err(|e| AppError::input(path.display(), e))?
-        .len();
-    if size > cap {
-        return Err(AppError::input(
-            path.display(),
-            format!("{size} bytes; a manifest is a few KB"),
-        ));
-    }
-    std::fs::read_to_string(path).map_err(|e| AppError::input(path.display(), e))
+    let bytes =
+        nedrt_core::util::read_capped(path, cap).map_err(|e| AppError::input(path.display(), e))?;
+    String::from_utf8(bytes).map_err(|_| AppError::input(path.display(), "not UTF-8 text"))
 }
 
 impl Captures {

@@ -124,7 +124,7 @@ pub fn write(common: &CommonOptions, o: &SynthOptions) -> Result<String, AppErro
             for p in &patterns.pattern {
                 let (plane, fill) = retinal_image(p, &patterns, &truths[a], &o.camera, w, h)?;
                 let (frame, exposure_ms) =
-                    photograph(&plane, retina, sensor, &o.camera, fill, streams.next_u64());
+                    photograph(plane, retina, sensor, &o.camera, fill, streams.next_u64());
                 let file = format!("{folder}/{}", p.file);
                 frame.write(&staging.join(&file))?;
                 captures.push(Capture {
@@ -354,26 +354,22 @@ fn retinal_image(
 /// pixel fills `fill` of the full well (a dark frame: a fixed exposure),
 /// and that exposure (ms, to the microsecond).
 fn photograph(
-    plane: &[f32],
+    plane: Vec<f32>,
     retina: (usize, usize),
     sensor: (usize, usize),
     cam: &Camera,
     fill: f64,
     seed: u64,
 ) -> (Frame, f64) {
+    // The retinal image sampled as a camera frame is (bilinear, 0 outside).
+    let retinal = Frame {
+        width: retina.0,
+        height: retina.1,
+        values: plane,
+    };
     let sample = |u: usize, v: usize| {
         let (x, y) = cam.to_retina(u as f64, v as f64, sensor, retina);
-        let (x0, y0) = (x.floor(), y.floor());
-        let (fx, fy) = (x - x0, y - y0);
-        let at = |i: f64, j: f64| {
-            if i < 0.0 || j < 0.0 || i >= retina.0 as f64 || j >= retina.1 as f64 {
-                0.0
-            } else {
-                plane[j as usize * retina.0 + i as usize] as f64
-            }
-        };
-        (1.0 - fy) * ((1.0 - fx) * at(x0, y0) + fx * at(x0 + 1.0, y0))
-            + fy * ((1.0 - fx) * at(x0, y0 + 1.0) + fx * at(x0 + 1.0, y0 + 1.0))
+        retinal.sample(x, y)
     };
     let irradiance: Vec<f64> = (0..sensor.0 * sensor.1)
         .into_par_iter()

@@ -260,14 +260,14 @@ impl PsfBundle {
     /// Checks the bundle against a calibration's channels: as many (the
     /// bundle measures the built primaries, whatever wavelengths the
     /// calibration names).
-    pub fn check_channels(&self, wavelengths_nm: &[f64]) -> Result<(), BundleError> {
-        if wavelengths_nm.len() != self.channels() {
+    pub fn check_channels(&self, channels: usize) -> Result<(), BundleError> {
+        if channels != self.channels() {
             return Err(invalid(
                 &self.path,
                 format!(
                     "{} channels; the calibration has {}",
                     self.channels(),
-                    wavelengths_nm.len()
+                    channels
                 ),
             ));
         }
@@ -281,16 +281,9 @@ impl PsfBundle {
             path: path.to_path_buf(),
             source,
         };
-        let size = std::fs::metadata(&card_path)
-            .map_err(|e| io(&card_path, e))?
-            .len();
-        if size > MAX_CARD_BYTES {
-            return Err(invalid(
-                &card_path,
-                format!("{size} bytes; a card is a few KB"),
-            ));
-        }
-        let text = std::fs::read_to_string(&card_path).map_err(|e| io(&card_path, e))?;
+        let bytes = nedrt_core::util::read_capped(&card_path, MAX_CARD_BYTES)
+            .map_err(|e| io(&card_path, e))?;
+        let text = String::from_utf8(bytes).map_err(|_| invalid(&card_path, "not UTF-8 text"))?;
         let card: BundleCard =
             toml::from_str(&text).map_err(|e| invalid(&card_path, e.message().to_string()))?;
         let tensor_path = dir.join(PSFS_FILE);
