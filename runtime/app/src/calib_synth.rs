@@ -211,19 +211,7 @@ fn staging_dir(out: &Path) -> Result<PathBuf, AppError> {
             "exists and is not empty; give a new folder",
         ));
     }
-    let parent = match out.parent() {
-        Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
-        _ => PathBuf::from("."),
-    };
-    crate::create_dir(&parent)?;
-    let name = out
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_else(|| "captures".into());
-    let staging = parent.join(format!(".{name}.partial-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&staging);
-    crate::create_dir(&staging)?;
-    Ok(staging)
+    nedrt_core::util::staging_sibling(out).map_err(|e| AppError::output(out, e))
 }
 
 fn check_camera(c: &Camera) -> Result<(), AppError> {

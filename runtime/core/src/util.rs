@@ -92,6 +92,25 @@ pub fn read_capped(path: &Path, max_bytes: u64) -> std::io::Result<Vec<u8>> {
     Ok(bytes)
 }
 
+/// A fresh, empty hidden sibling of folder `dir` (`.NAME.partial-PID`,
+/// its parent made if missing) to write a whole folder into before it
+/// takes `dir`'s place, so that a failure leaves nothing half-written.
+pub fn staging_sibling(dir: &Path) -> std::io::Result<std::path::PathBuf> {
+    let parent = match dir.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
+        _ => std::path::PathBuf::from("."),
+    };
+    std::fs::create_dir_all(&parent)?;
+    let name = dir
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "folder".into());
+    let staging = parent.join(format!(".{name}.partial-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&staging);
+    std::fs::create_dir(&staging)?;
+    Ok(staging)
+}
+
 /// `text` cut to at most `max_chars` characters, with the number left out,
 /// so that a message quoting user input stays a line.
 pub fn bounded(text: &str, max_chars: usize) -> String {

@@ -402,19 +402,8 @@ impl PsfBundle {
         let bytes = safetensors::serialize(tensors, Some(meta)).map_err(tensor_err)?;
         self.card.psfs_blake3 = blake3::hash(&bytes).to_hex().to_string();
         let card = toml::to_string(&self.card).map_err(|e| invalid(dir, e.to_string()))?;
-        let parent = match dir.parent() {
-            Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
-            _ => PathBuf::from("."),
-        };
-        std::fs::create_dir_all(&parent).map_err(|e| io(&parent, e))?;
-        let name = dir
-            .file_name()
-            .map(|n| n.to_string_lossy().into_owned())
-            .unwrap_or_else(|| "bundle".into());
-        let staging = parent.join(format!(".{name}.partial-{}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&staging);
+        let staging = nedrt_core::util::staging_sibling(dir).map_err(|e| io(dir, e))?;
         let result = (|| {
-            std::fs::create_dir(&staging).map_err(|e| io(&staging, e))?;
             let write = |file: &str, data: &[u8]| {
                 let p = staging.join(file);
                 std::fs::write(&p, data).map_err(|e| io(&p, e))
