@@ -554,3 +554,88 @@ fn eval_prefilter_and_run_take_a_bundle() {
     let o = frames(Some(&short), &dir.path().join("rec-s"));
     assert_clean_error(&o, "was measured at 0.5–1 D");
 }
+
+/// The studies through a bundle: in `tradeoff` a bundle of perfect PSFs
+/// is what doe-only is seen through (its rows score far above the lens
+/// alone's, which keeps its computed optics), and `stability` refuses a
+/// bundle short of the range its Wiener needs before any work.
+#[test]
+fn tradeoff_and_stability_take_a_bundle() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let imgs = dir.path().join("imgs");
+    std::fs::create_dir(&imgs).expect("dir");
+    super::write_png(&imgs.join("a.png"), 24, 16);
+    let perfect = nedrt_optics::psf::Psf {
+        window: 1,
+        cells: vec![1.0],
+        veil: 0.0,
+    };
+    let bundle = bundle_of(dir.path(), &[0.0, 1.5, 3.0], &perfect);
+    let calib = small_panel();
+    let out = dir.path().join("tradeoff");
+    let (design, model) = (
+        super::repo().join("designs/multifocal.toml"),
+        super::dcnn_model(),
+    );
+    let o = run(&[
+        "--calib",
+        path(&calib),
+        "--psfs",
+        path(&bundle),
+        "tradeoff",
+        "--designs",
+        path(&design),
+        "--prefilter",
+        "native",
+        "--images",
+        path(&imgs),
+        "--out-dir",
+        path(&out),
+        "--size",
+        "32x24",
+        "--backends",
+        "cpu",
+        "--repeat",
+        "1",
+        "--no-fidelity",
+        "--models",
+        path(&model),
+    ]);
+    assert!(o.status.success(), "tradeoff: {}", super::stderr(&o));
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("tradeoff.json")).expect("json"))
+            .expect("parse");
+    let db = |name: &str| {
+        json["records"]
+            .as_array()
+            .expect("records")
+            .iter()
+            .find(|r| r["name"] == name)
+            .and_then(|r| r["mean_psnr_db"].as_f64())
+            .unwrap_or_else(|| panic!("no {name} row"))
+    };
+    assert!(
+        db("doe-only") > db("conventional") + 10.0,
+        "doe-only {} dB, conventional {} dB",
+        db("doe-only"),
+        db("conventional")
+    );
+    let short = bundle_of(dir.path(), &[0.5, 1.0], &perfect);
+    let report = dir.path().join("stability.md");
+    let o = run(&[
+        "--calib",
+        path(&calib),
+        "--psfs",
+        path(&short),
+        "--dcnn",
+        path(&model),
+        "stability",
+        "--images",
+        path(&imgs),
+        "--no-gpu",
+        "--out",
+        path(&report),
+    ]);
+    assert_clean_error(&o, "was measured at 0.5–1 D");
+    assert!(!report.exists());
+}

@@ -13,11 +13,10 @@ use crate::calib_capture::{Camera, Capture, CapturesManifest, Frame, MANIFEST, N
 use crate::calib_patterns::{Pattern, PatternsManifest};
 use crate::{AppError, CommonOptions};
 use nedrt_core::image::Image;
-use nedrt_optics::bundle::PsfBundle;
 use nedrt_optics::perturb::Perturbation;
 use nedrt_optics::pixel::pixel_response;
 use nedrt_optics::psf::Psf;
-use nedrt_optics::sim::{Method, Simulator, perceive};
+use nedrt_optics::sim::perceive;
 
 /// The folder of the true PSFs, inside the output.
 pub const TRUTH_DIR: &str = "truth";
@@ -75,38 +74,17 @@ pub fn write(common: &CommonOptions, o: &SynthOptions) -> Result<String, AppErro
             ),
         ));
     }
-    let design_sim = Simulator::new(
-        design.clone(),
-        common.doe_path_for(&[Method::DoeOnly]).as_deref(),
-        common.cache(),
-    )?;
-    let built = Simulator::with_doe(
-        o.perturbation.calibration(&design),
-        o.perturbation.doe(&design_sim.doe),
-        common.cache(),
+    let truth = crate::calib_truth::true_psfs(common, &o.perturbation, &o.accommodations_d)?;
+    let truths: Vec<Vec<Psf>> = truth
+        .psfs
+        .chunks(truth.channels())
+        .map(<[Psf]>::to_vec)
+        .collect();
+    let mut truth = truth;
+    truth.card.made_by = format!(
+        "nedrt calib synth: the true PSFs ({})",
+        o.perturbation.describe()
     );
-    let prepared = built.prepare(&[Method::DoeOnly], &o.accommodations_d, common.progress())?;
-    let truths = o
-        .accommodations_d
-        .iter()
-        .map(|&d| prepared.system_psfs(Method::DoeOnly, d))
-        .collect::<Result<Vec<_>, _>>()?;
-    let mut truth = PsfBundle::new(
-        &format!(
-            "nedrt calib synth: the true PSFs ({})",
-            o.perturbation.describe()
-        ),
-        o.accommodations_d.clone(),
-        built
-            .calib
-            .channels
-            .iter()
-            .map(|c| c.wavelength_m * 1e9)
-            .collect(),
-        truths.iter().flatten().cloned().collect(),
-        None,
-    )
-    .map_err(|e| AppError::Internal(e.to_string()))?;
 
     let staging = staging_dir(&o.out)?;
     let result = (|| -> Result<Vec<Capture>, AppError> {

@@ -18,6 +18,7 @@ pub mod calib_psfs;
 pub mod calib_register;
 pub mod calib_show;
 pub mod calib_synth;
+pub mod calib_truth;
 pub mod charts;
 pub mod frames;
 pub mod images;
@@ -29,8 +30,9 @@ pub mod viewer;
 
 pub use nedrt_command::design;
 pub use nedrt_command::{
-    AppError, CommonOptions, DcnnOptions, MAX_ACCOMMODATION_D, Phase, check_accommodation,
-    check_accommodation_as, check_output_folder, create_dir, gpu_for, write_text,
+    AppError, CommonOptions, DcnnOptions, MAX_ACCOMMODATION_D, MeasuredPsfs, Phase,
+    check_accommodation, check_accommodation_as, check_output_folder, create_dir, gpu_for,
+    write_text,
 };
 
 /// Deadlines for the unit tests (shared with the integration tests).

@@ -31,6 +31,9 @@ pub struct PrefilterOptions {
     pub operator_sizes: Vec<(usize, usize)>,
     /// The native Wiener prefilter's output before the panel's clamp.
     pub unclamped: bool,
+    /// `--psfs`'s bundle averaged with its mirror images
+    /// ([`nedrt_optics::bundle::PsfBundle::mirrored`]).
+    pub mirror_psfs: bool,
 }
 
 /// The objective of a prefilter (the default one for `native`).
@@ -56,11 +59,38 @@ pub fn run(common: &CommonOptions, o: &PrefilterOptions) -> Result<String, AppEr
     }
     let files = list_images(&o.images)?;
     let images = load_all(&files, common.panel_px()?)?;
-    let sim = common.measured(Simulator::new(
+    let sim = Simulator::new(
         common.calibration()?,
         common.doe_path_for(&[o.method]).as_deref(),
         common.cache(),
-    )?)?;
+    )?;
+    // What optics the outputs were made for: the design's, a bundle's, or
+    // a bundle's mirror average (and the share of a PSF that removed).
+    let (sim, psfs) = match (common.bundle()?, o.mirror_psfs) {
+        (None, true) => {
+            return Err(AppError::option(
+                "--mirror-psfs",
+                "averages a measured bundle's PSFs: give the bundle with --psfs",
+            ));
+        }
+        (None, false) => (sim, serde_json::Value::Null),
+        (Some(bundle), mirror) => {
+            let (used, asymmetry) = if mirror {
+                let (m, a) = bundle.mirrored();
+                (std::sync::Arc::new(m), Some(a))
+            } else {
+                (bundle.clone(), None)
+            };
+            let record = serde_json::json!({
+                "bundle": bundle.path.display().to_string(),
+                "psfs_blake3": bundle.card.psfs_blake3,
+                "made_by": bundle.card.made_by,
+                "mirrored": mirror,
+                "asymmetry": asymmetry,
+            });
+            (sim.with_measured(used)?, record)
+        }
+    };
     let depths = nedrt_optics::sim::objective_depths_d(&sim.calib);
     let prepared = sim.prepare(&[o.method], &depths, common.progress())?;
     create_dir(&o.out_dir)?;
@@ -71,8 +101,13 @@ pub fn run(common: &CommonOptions, o: &PrefilterOptions) -> Result<String, AppEr
         let kernels = problem.mirrored_kernels(w, h).ok_or_else(|| {
             AppError::input(
                 o.method,
-                "its PSFs are not mirror-symmetric, so the objective has no kernel form \
-                 (--operator needs a rotationally symmetric system)",
+                if psfs.is_null() {
+                    "its PSFs are not mirror-symmetric, so the objective has no kernel form \
+                     (--operator needs a rotationally symmetric system)"
+                } else {
+                    "the measured PSFs (--psfs) are not mirror-symmetric, so the objective has \
+                     no kernel form: add --mirror-psfs to train on their mirror average"
+                },
             )
         })?;
         let per_depth = problem
@@ -161,6 +196,7 @@ pub fn run(common: &CommonOptions, o: &PrefilterOptions) -> Result<String, AppEr
         "wiener_k": wiener.map(|f| f.k_reg),
         "calibration": sim.calib.source,
         "doe": sim.doe_hash,
+        "psfs": psfs,
         "images": files.iter().map(|f| f.display().to_string()).collect::<Vec<_>>(),
         "operators": operators.iter().map(|p| p.display().to_string()).collect::<Vec<_>>(),
         "seconds": start.elapsed().as_secs_f64(),
@@ -182,6 +218,21 @@ pub fn run(common: &CommonOptions, o: &PrefilterOptions) -> Result<String, AppEr
         written.len(),
         o.out_dir.display()
     );
+    if let Some(bundle) = psfs["bundle"].as_str() {
+        let _ = match psfs["asymmetry"].as_f64() {
+            Some(a) => writeln!(
+                t,
+                "psfs      {bundle}, mirror-averaged: {:.1} % of its least symmetric PSF dropped{}",
+                100.0 * a,
+                if a > 0.05 {
+                    " (the outputs are for optics that differ from the measured ones by that much)"
+                } else {
+                    ""
+                }
+            ),
+            None => writeln!(t, "psfs      {bundle}"),
+        };
+    }
     for p in &operators {
         let _ = writeln!(t, "operator  {}", p.display());
     }

@@ -99,6 +99,7 @@ pub fn combination() -> Perturbation {
         eye_relief_mm: 1.0,
         panel_distance_mm: 0.05,
         primaries_nm: [2.0, -2.0, 3.0],
+        bandwidths_nm: [0.0; 3],
     }
 }
 
@@ -122,6 +123,7 @@ pub struct Row {
 #[derive(Debug, Clone, Serialize)]
 pub struct Report {
     pub calibration: String,
+    pub methods: Vec<String>,
     pub images: Vec<String>,
     pub depths_d: Vec<f64>,
     pub rows: Vec<Row>,
@@ -131,10 +133,34 @@ pub struct Report {
     pub tolerances: Vec<(String, String, Option<f64>)>,
 }
 
-/// The methods the sweep runs: every method whose shipped preprocessing
-/// needs no network.
-pub fn methods() -> Vec<Method> {
-    Method::ALL.into_iter().filter(|m| !m.uses_dcnn()).collect()
+/// The methods the sweep runs when none are named: the built-in displays
+/// and, where its model is there, the D-CNN (`proposed`, whose companion
+/// DOE then serves every DOE method, as in `nedrt eval`).
+pub fn default_methods(common: &CommonOptions) -> Vec<Method> {
+    let mut methods = Method::BUILT_IN.to_vec();
+    if common.dcnn.path.is_file() {
+        methods.push(Method::Proposed);
+    }
+    methods
+}
+
+/// `method`'s shipped preprocessing on `prepared`'s optics: its Wiener
+/// (or none), or its network (behind the Wiener of those optics where the
+/// network was trained on one; the network itself stays the design's).
+fn preprocessor(
+    common: &CommonOptions,
+    prepared: &Prepared,
+    method: Method,
+) -> Result<Box<dyn nedrt_core::Preprocess>, AppError> {
+    if !method.uses_dcnn() {
+        return Ok(prepared.preprocessor(method)?);
+    }
+    let network = common
+        .dcnn
+        .load_for(&[method])?
+        .remove(&method)
+        .ok_or_else(|| AppError::Internal(format!("no network for {method}")))?;
+    Ok(network.into_preprocess(method, prepared)?)
 }
 
 fn score(
@@ -164,6 +190,7 @@ fn score(
 /// `out` (Markdown), its JSON and its chart beside it.
 pub fn run(
     common: &CommonOptions,
+    methods: &[Method],
     images: &[PathBuf],
     crop: usize,
     out: &Path,
@@ -186,8 +213,18 @@ pub fn run(
         .into_iter()
         .filter(|d| *d <= HEADLINE_MAX_D + 1e-9)
         .collect();
-    let methods = methods();
-    let design = Simulator::new(calib.clone(), common.doe_path(), common.cache())?;
+    let methods = if methods.is_empty() {
+        default_methods(common)
+    } else {
+        methods.to_vec()
+    };
+    let stages = nedrt_stages::network::wiener_stages(&common.dcnn.load_for(&methods)?)?;
+    let design = Simulator::new(
+        calib.clone(),
+        common.doe_path_for(&methods).as_deref(),
+        common.cache(),
+    )?
+    .with_wiener_stages(stages.clone());
     let nominal = design.prepare(&methods, &depths, common.progress())?;
     let targets: Vec<Vec<Image>> = inputs
         .iter()
@@ -202,7 +239,7 @@ pub fn run(
     let sharps: Vec<Image> = inputs.iter().map(|img| img.up2()).collect();
     let mut designed: HashMap<Method, Vec<Image>> = HashMap::new();
     for &m in &methods {
-        let mut pre = nominal.preprocessor(m)?;
+        let mut pre = preprocessor(common, &nominal, m)?;
         let shown = inputs
             .iter()
             .map(|img| pre.run(img))
@@ -225,11 +262,12 @@ pub fn run(
     }
     let mut rows = Vec::new();
     for (name, value, p) in &builds {
-        let built = Simulator::with_doe(p.calibration(&calib), p.doe(&design.doe), common.cache());
+        let built = Simulator::with_doe(p.calibration(&calib), p.doe(&design.doe), common.cache())
+            .with_wiener_stages(stages.clone());
         let seen = built.prepare(&methods, &depths, common.progress())?;
         for &m in &methods {
             let shown = &designed[&m];
-            let mut own = seen.preprocessor(m)?;
+            let mut own = preprocessor(common, &seen, m)?;
             let calibrated = inputs
                 .iter()
                 .map(|img| own.run(img))
@@ -262,6 +300,7 @@ pub fn run(
     }
     let report = Report {
         calibration: calib.source.clone(),
+        methods: methods.iter().map(|m| m.name().to_string()).collect(),
         images: images.iter().map(|p| p.display().to_string()).collect(),
         depths_d: depths.clone(),
         rows,
@@ -349,7 +388,7 @@ fn markdown(r: &Report, crop: usize) -> String {
 }
 
 fn chart(r: &Report, stem: &Path) -> Result<Vec<String>, AppError> {
-    let methods: Vec<String> = methods().iter().map(|m| m.name().to_string()).collect();
+    let methods = &r.methods;
     let panels: Vec<Panel> = axes()
         .iter()
         .map(|a| {

@@ -420,6 +420,12 @@ pub struct PrefilterArgs {
     /// Wiener's clamp (docs/training.md).
     #[arg(long)]
     pub unclamped: bool,
+    /// With --psfs: average each measured PSF with its mirror images
+    /// first, for every output of the run (the objective's kernels exist
+    /// only for mirror-symmetric PSFs; the trainer's fine-tune on a bundle,
+    /// docs/calibration.md). prefilter.json records the asymmetry removed.
+    #[arg(long)]
+    pub mirror_psfs: bool,
 }
 
 #[derive(Args, Debug)]

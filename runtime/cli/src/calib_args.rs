@@ -24,6 +24,10 @@ pub enum CalibAction {
     /// camera's pitch, rotation, distortion, noise and quantisation; the
     /// true PSFs beside them (truth/, a PSF bundle).
     Synth(CalibSynthArgs),
+    /// The true PSFs of a display as built, computed, no camera: what
+    /// `calib synth` writes as truth/, alone (an oracle to judge a
+    /// measured bundle by, or a bundle to try --psfs with).
+    Truth(CalibTruthArgs),
     /// From captures to PSFs: dark and flat fields, camera-to-panel
     /// registration from the checkerboard, each dot cut at its registered
     /// place, averaged, deconvolved from its pixel, a noise floor; a PSF
@@ -60,34 +64,8 @@ pub struct CalibSynthArgs {
     /// Where the camera is focused, diopters, one set of captures each.
     #[arg(long, value_delimiter = ',', default_values = ["0", "0.5", "1", "1.5", "2", "2.5", "3"], value_name = "D,...")]
     pub accommodations: Vec<f64>,
-    /// Etched depth over the designed depth (1.08: 8 % too deep).
-    #[arg(long, default_value_t = 1.0, value_name = "SCALE")]
-    pub etch: f64,
-    /// Height levels of the fabricated profile (0: continuous).
-    #[arg(long, default_value_t = 0, value_name = "N")]
-    pub levels: u32,
-    /// The DOE's centre from the lens's axis, across and down, mm.
-    #[arg(long, value_delimiter = ',', num_args = 2, default_values = ["0", "0"], allow_hyphen_values = true, value_name = "X,Y")]
-    pub decentre_mm: Vec<f64>,
-    /// Added to the eye relief, mm.
-    #[arg(
-        long,
-        default_value_t = 0.0,
-        allow_hyphen_values = true,
-        value_name = "MM"
-    )]
-    pub eye_relief_mm: f64,
-    /// Added to the lens-to-panel distance, mm.
-    #[arg(
-        long,
-        default_value_t = 0.0,
-        allow_hyphen_values = true,
-        value_name = "MM"
-    )]
-    pub panel_distance_mm: f64,
-    /// Added to each primary's wavelength, nm (R,G,B).
-    #[arg(long, value_delimiter = ',', num_args = 3, default_values = ["0", "0", "0"], allow_hyphen_values = true, value_name = "R,G,B")]
-    pub primaries_nm: Vec<f64>,
+    #[command(flatten)]
+    pub built: PerturbArgs,
     /// The camera (TOML: pitch_cells, rotation_deg, offset_px,
     /// distortion_k1, full_well_e, read_noise_e, dark_dn, bits, qe,
     /// flux_e_per_ms, field_margin; what it leaves out is the default).
@@ -137,4 +115,83 @@ pub struct ToleranceArgs {
     /// The report (Markdown); the JSON and the chart go beside it.
     #[arg(long, default_value = "out/tolerance.md", value_name = "FILE")]
     pub out: PathBuf,
+    /// The methods to sweep (default: conventional, ai, doe-only,
+    /// doe+wiener, and proposed where its D-CNN is there, whose DOE then
+    /// serves every DOE method).
+    #[arg(long, value_delimiter = ',', value_parser = crate::args::named::<nedrt_optics::sim::Method>(), value_name = "METHOD,...")]
+    pub methods: Vec<nedrt_optics::sim::Method>,
+}
+
+/// How the display as built differs from the design (`calib synth`,
+/// `calib truth`).
+#[derive(Args, Debug)]
+pub struct PerturbArgs {
+    /// Etched depth over the designed depth (1.08: 8 % too deep).
+    #[arg(long, default_value_t = 1.0, value_name = "SCALE")]
+    pub etch: f64,
+    /// Height levels of the fabricated profile (0: continuous).
+    #[arg(long, default_value_t = 0, value_name = "N")]
+    pub levels: u32,
+    /// The DOE's centre from the lens's axis, across and down, mm.
+    #[arg(long, default_value = "0,0", value_parser = numbers::<2>, allow_hyphen_values = true, value_name = "X,Y")]
+    pub decentre_mm: [f64; 2],
+    /// Added to the eye relief, mm.
+    #[arg(
+        long,
+        default_value_t = 0.0,
+        allow_hyphen_values = true,
+        value_name = "MM"
+    )]
+    pub eye_relief_mm: f64,
+    /// Added to the lens-to-panel distance, mm.
+    #[arg(
+        long,
+        default_value_t = 0.0,
+        allow_hyphen_values = true,
+        value_name = "MM"
+    )]
+    pub panel_distance_mm: f64,
+    /// Added to each primary's wavelength, nm (R,G,B).
+    #[arg(long, default_value = "0,0,0", value_parser = numbers::<3>, allow_hyphen_values = true, value_name = "R,G,B")]
+    pub primaries_nm: [f64; 3],
+    /// Each primary's spectral width, nm FWHM (R,G,B; 0: one wavelength).
+    #[arg(long, default_value = "0,0,0", value_parser = numbers::<3>, value_name = "R,G,B")]
+    pub bandwidths_nm: [f64; 3],
+}
+
+impl PerturbArgs {
+    pub fn perturbation(&self) -> nedrt_optics::perturb::Perturbation {
+        nedrt_optics::perturb::Perturbation {
+            etch_scale: self.etch,
+            levels: self.levels,
+            decentre_mm: self.decentre_mm,
+            eye_relief_mm: self.eye_relief_mm,
+            panel_distance_mm: self.panel_distance_mm,
+            primaries_nm: self.primaries_nm,
+            bandwidths_nm: self.bandwidths_nm,
+        }
+    }
+}
+
+#[derive(Args, Debug)]
+pub struct CalibTruthArgs {
+    /// The bundle's folder (new, or a bundle to replace).
+    #[arg(long, value_name = "DIR")]
+    pub out: PathBuf,
+    /// Accommodations, diopters.
+    #[arg(long, value_delimiter = ',', default_values = ["0", "0.5", "1", "1.5", "2", "2.5", "3"], value_name = "D,...")]
+    pub accommodations: Vec<f64>,
+    #[command(flatten)]
+    pub built: PerturbArgs,
+}
+
+/// `N` comma-separated numbers ("0.1,0": a decentre across and down).
+fn numbers<const N: usize>(text: &str) -> Result<[f64; N], String> {
+    let values = text
+        .split(',')
+        .map(|t| t.trim().parse::<f64>().map_err(|e| format!("{t:?}: {e}")))
+        .collect::<Result<Vec<_>, _>>()?;
+    values
+        .try_into()
+        .map_err(|v: Vec<f64>| format!("{} numbers; give {N}, comma-separated", v.len()))
 }

@@ -49,7 +49,7 @@ pub fn run(cli: Cli) -> Result<()> {
             .map(|d| d.doe.clone())
             .or_else(|| g.doe.clone()),
         design,
-        psfs: g.psfs.clone(),
+        psfs: g.psfs.clone().map(app::MeasuredPsfs::new),
         dcnn: app::DcnnOptions {
             path: g.dcnn.clone(),
             lens_path: g.dcnn_lens.clone(),
@@ -229,7 +229,10 @@ pub fn run(cli: Cli) -> Result<()> {
             }
             let mut images = app::images::list_images(&t.images)?;
             images.truncate(t.max_images);
-            print!("{}", app::tolerance::run(&common, &images, t.crop, &t.out)?)
+            print!(
+                "{}",
+                app::tolerance::run(&common, &t.methods, &images, t.crop, &t.out)?
+            )
         }
         Some(Command::Calib(a)) => match a.action {
             None => print!("{}", studies::plots::calib_summary(&common)?),
@@ -248,18 +251,22 @@ pub fn run(cli: Cli) -> Result<()> {
                     patterns_dir: s.patterns,
                     out: s.out,
                     accommodations_d: s.accommodations,
-                    perturbation: nedrt_optics::perturb::Perturbation {
-                        etch_scale: s.etch,
-                        levels: s.levels,
-                        decentre_mm: [s.decentre_mm[0], s.decentre_mm[1]],
-                        eye_relief_mm: s.eye_relief_mm,
-                        panel_distance_mm: s.panel_distance_mm,
-                        primaries_nm: [s.primaries_nm[0], s.primaries_nm[1], s.primaries_nm[2]],
-                    },
+                    perturbation: s.built.perturbation(),
                     camera,
                     seed: s.seed,
                 };
                 print!("{}", app::calib_synth::write(&common, &opts)?)
+            }
+            Some(CalibAction::Truth(t)) => {
+                print!(
+                    "{}",
+                    app::calib_truth::write(
+                        &common,
+                        &t.built.perturbation(),
+                        &t.accommodations,
+                        &t.out
+                    )?
+                )
             }
             Some(CalibAction::Show(s)) => {
                 print!(
@@ -425,6 +432,7 @@ pub fn run(cli: Cli) -> Result<()> {
                 prefilter: a.prefilter,
                 operator_sizes: a.operator,
                 unclamped: a.unclamped,
+                mirror_psfs: a.mirror_psfs,
             };
             println!("{}", app::prefilter_batch::run(&common, &opts)?);
         }

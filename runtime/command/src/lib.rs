@@ -21,6 +21,7 @@ use std::collections::HashMap;
 
 use nedrt_core::calib::{CalibError, Calibration, EyeOverrides};
 use nedrt_infer::{BackendKind, BackendOptions, InferenceError};
+use nedrt_optics::bundle::PsfBundle;
 use nedrt_optics::cache::PsfCache;
 use nedrt_optics::sim::Method;
 use nedrt_stages::Network;
@@ -41,7 +42,7 @@ pub struct CommonOptions {
     pub design: Option<design::Design>,
     /// A measured PSF bundle (`--psfs`, `calib psfs`) standing for the
     /// lens + DOE optics' computed PSFs.
-    pub psfs: Option<PathBuf>,
+    pub psfs: Option<MeasuredPsfs>,
     pub dcnn: DcnnOptions,
     /// The eye's settings given on the command line over the calibration's.
     pub eye: EyeOverrides,
@@ -177,18 +178,29 @@ impl CommonOptions {
         }
     }
 
+    /// The bundle of `--psfs`, read and checked once however many
+    /// simulators a command builds; `None` without.
+    pub fn bundle(&self) -> Result<Option<Arc<PsfBundle>>, AppError> {
+        let Some(m) = &self.psfs else {
+            return Ok(None);
+        };
+        if let Some(b) = m.loaded.get() {
+            return Ok(Some(b.clone()));
+        }
+        let bundle = Arc::new(PsfBundle::load(&m.path).map_err(nedrt_optics::sim::SimError::from)?);
+        Ok(Some(m.loaded.get_or_init(|| bundle).clone()))
+    }
+
     /// `sim` with the measured PSFs of `--psfs` in place of the DOE
     /// optics' computed ones (docs/calibration.md); `sim` itself without.
     pub fn measured(
         &self,
         sim: nedrt_optics::sim::Simulator,
     ) -> Result<nedrt_optics::sim::Simulator, AppError> {
-        let Some(path) = &self.psfs else {
-            return Ok(sim);
-        };
-        let bundle = nedrt_optics::bundle::PsfBundle::load(path)
-            .map_err(nedrt_optics::sim::SimError::from)?;
-        Ok(sim.with_measured(std::sync::Arc::new(bundle))?)
+        match self.bundle()? {
+            Some(bundle) => Ok(sim.with_measured(bundle)?),
+            None => Ok(sim),
+        }
     }
 
     pub fn doe_path(&self) -> Option<&Path> {
@@ -205,6 +217,23 @@ impl CommonOptions {
         }
         let companion = self.dcnn.companion_doe();
         (methods.contains(&Method::Proposed) && companion.exists()).then_some(companion)
+    }
+}
+
+/// `--psfs`: a bundle's folder, read on first use and shared by every
+/// clone of the options.
+#[derive(Debug, Clone)]
+pub struct MeasuredPsfs {
+    pub path: PathBuf,
+    loaded: Arc<std::sync::OnceLock<Arc<PsfBundle>>>,
+}
+
+impl MeasuredPsfs {
+    pub fn new(path: PathBuf) -> Self {
+        Self {
+            path,
+            loaded: Default::default(),
+        }
     }
 }
 

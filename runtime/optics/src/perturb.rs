@@ -35,7 +35,34 @@ pub struct Perturbation {
     pub panel_distance_mm: f64,
     /// Added to each primary's wavelength, nm (the calibration's order).
     pub primaries_nm: [f64; 3],
+    /// Each primary's spectral width, nm (full width at half maximum of
+    /// a Gaussian line; 0: one wavelength, as the design assumes).
+    #[serde(default)]
+    pub bandwidths_nm: [f64; 3],
 }
+
+/// Gauss–Hermite nodes and weights (5 points, weights over √π): the mean
+/// over a Gaussian spectrum, exact for a PSF polynomial of degree 9 in the
+/// wavelength.
+const HERMITE_NODES: [(f64, f64); 5] = [
+    (
+        -2.020_182_870_456_086,
+        0.019_953_242_059_045_9 / 1.772_453_850_905_516,
+    ),
+    (
+        -0.958_572_464_613_819,
+        0.393_619_323_152_241 / 1.772_453_850_905_516,
+    ),
+    (0.0, 0.945_308_720_482_942 / 1.772_453_850_905_516),
+    (
+        0.958_572_464_613_819,
+        0.393_619_323_152_241 / 1.772_453_850_905_516,
+    ),
+    (
+        2.020_182_870_456_086,
+        0.019_953_242_059_045_9 / 1.772_453_850_905_516,
+    ),
+];
 
 impl Default for Perturbation {
     fn default() -> Self {
@@ -46,6 +73,7 @@ impl Default for Perturbation {
             eye_relief_mm: 0.0,
             panel_distance_mm: 0.0,
             primaries_nm: [0.0; 3],
+            bandwidths_nm: [0.0; 3],
         }
     }
 }
@@ -114,7 +142,43 @@ impl Perturbation {
                 "each must lie in [−50, 50] nm",
             );
         }
+        if self
+            .bandwidths_nm
+            .iter()
+            .any(|w| !(w.is_finite() && (0.0..=60.0).contains(w)))
+        {
+            return bad(
+                "bandwidths_nm",
+                format!("{:?}", self.bandwidths_nm),
+                "each must lie in [0, 60] nm (FWHM)",
+            );
+        }
         Ok(())
+    }
+
+    /// The spectrum as single-wavelength displays to average: (weight,
+    /// the same perturbation with each primary moved to a node of its
+    /// Gaussian line and no bandwidth). One node, weight 1, for lines.
+    pub fn spectral_nodes(&self) -> Vec<(f64, Perturbation)> {
+        let line = Perturbation {
+            bandwidths_nm: [0.0; 3],
+            ..*self
+        };
+        if self.bandwidths_nm == [0.0; 3] {
+            return vec![(1.0, line)];
+        }
+        HERMITE_NODES
+            .iter()
+            .map(|&(t, w)| {
+                let mut p = line;
+                for (shift, fwhm) in p.primaries_nm.iter_mut().zip(self.bandwidths_nm) {
+                    // σ = FWHM / (2√(2 ln 2)); the node at √2·σ·t.
+                    *shift +=
+                        std::f64::consts::SQRT_2 * fwhm / (2.0 * (2.0 * 2f64.ln()).sqrt()) * t;
+                }
+                (w, p)
+            })
+            .collect()
     }
 
     /// One line naming what differs from the design.
@@ -140,6 +204,9 @@ impl Perturbation {
         }
         if self.primaries_nm != [0.0; 3] {
             parts.push(format!("primaries {:+?} nm", self.primaries_nm));
+        }
+        if self.bandwidths_nm != [0.0; 3] {
+            parts.push(format!("bandwidths {:?} nm FWHM", self.bandwidths_nm));
         }
         if parts.is_empty() {
             "as designed".into()
@@ -308,6 +375,34 @@ mod tests {
         assert!(moved.channels[0].index < c.channels[0].index);
         assert_eq!(moved.channels[1], c.channels[1]);
         assert!((moved.lens_distance_m - c.lens_distance_m - 1e-4).abs() < 1e-12);
+        let wide = Perturbation {
+            bandwidths_nm: [20.0, 0.0, 30.0],
+            ..Default::default()
+        };
+        let nodes = wide.spectral_nodes();
+        assert_eq!(nodes.len(), 5);
+        let total: f64 = nodes.iter().map(|(w, _)| w).sum();
+        assert!((total - 1.0).abs() < 1e-12, "{total}");
+        // The nodes' spread is the line's: variance σ² = (FWHM/2.3548)².
+        let var: f64 = nodes
+            .iter()
+            .map(|(w, p)| w * p.primaries_nm[0].powi(2))
+            .sum();
+        assert!((var.sqrt() - 20.0 / 2.354_820_045).abs() < 1e-9, "{var}");
+        assert!(
+            nodes
+                .iter()
+                .all(|(_, p)| p.primaries_nm[1] == 0.0 && p.bandwidths_nm == [0.0; 3])
+        );
+        assert_eq!(Perturbation::default().spectral_nodes().len(), 1);
+        assert!(
+            Perturbation {
+                bandwidths_nm: [0.0, -1.0, 0.0],
+                ..Default::default()
+            }
+            .check()
+            .is_err_and(|e| e.field == "bandwidths_nm")
+        );
         assert!(
             Perturbation {
                 levels: 1,

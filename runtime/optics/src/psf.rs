@@ -71,6 +71,51 @@ impl Psf {
         }
     }
 
+    /// The same PSF centred in a `window`-wide window (at least its own).
+    pub fn padded(&self, window: usize) -> Psf {
+        Psf::weighted_sum([(self, 1.0), (&Psf::zero(window.max(self.window)), 0.0)])
+            .unwrap_or_else(|| self.clone())
+    }
+
+    /// The smallest centred window (odd) outside which at most `max_lost`
+    /// of the light falls, that light added to the veil (which the
+    /// simulator spreads uniformly, as it does for light past any window).
+    pub fn trimmed(&self, max_lost: f64) -> Psf {
+        let n = self.window;
+        let c = n / 2;
+        // Light in each ring (Chebyshev distance r from the centre cell).
+        let mut ring = vec![0.0; c + 1];
+        for (i, v) in self.cells.iter().enumerate() {
+            let (x, y) = ((i % n).abs_diff(c), (i / n).abs_diff(c));
+            ring[x.max(y)] += v;
+        }
+        let mut outside = 0.0;
+        let mut half = c;
+        while half > 0 && (outside + ring[half]).abs() <= max_lost {
+            outside += ring[half];
+            half -= 1;
+        }
+        let w = 2 * half + 1;
+        let off = c - half;
+        let cells = (0..w * w)
+            .map(|i| self.cells[(i / w + off) * n + i % w + off])
+            .collect();
+        Psf {
+            window: w,
+            cells,
+            veil: self.veil + outside,
+        }
+    }
+
+    /// No light in a `window`-wide window.
+    fn zero(window: usize) -> Psf {
+        Psf {
+            window,
+            cells: vec![0.0; window * window],
+            veil: 0.0,
+        }
+    }
+
     /// Σ wᵢ·PSFᵢ, cells and veil alike, each PSF centred in the widest
     /// window: the time-weighted mixture of a display's planes, the mean
     /// over an accommodation sweep, a spectrum's mix of wavelengths. The

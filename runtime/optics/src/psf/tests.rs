@@ -230,3 +230,28 @@ fn the_weighted_sum_centres_smaller_windows_and_weights_the_veil() {
     assert_eq!(sum.veil, 0.125);
     assert!(Psf::weighted_sum(std::iter::empty::<(&Psf, f64)>()).is_none());
 }
+
+#[test]
+fn trimming_moves_only_the_far_light_to_the_veil_and_padding_undoes_it() {
+    let p = Psf::gaussian(2.0, 0.01).padded(41);
+    assert_eq!(p.window, 41);
+    let far: f64 = (0..41 * 41)
+        .filter(|i: &usize| (i % 41).abs_diff(20).max((i / 41).abs_diff(20)) > 6)
+        .map(|i| p.cells[i])
+        .sum();
+    let t = p.trimmed(1e-9);
+    // ±3σ is the Gaussian's own window: nothing lies beyond it.
+    assert_eq!(t.window, 13);
+    assert!(far == 0.0 && t.veil == p.veil);
+    assert_eq!(t.padded(41), p);
+    // A looser bound drops the outer ring, whose light joins the veil.
+    let ring: f64 = (0..13 * 13)
+        .filter(|i: &usize| (i % 13).abs_diff(6).max((i / 13).abs_diff(6)) == 6)
+        .map(|i| t.cells[i])
+        .sum();
+    let loose = t.trimmed(ring * 1.0001);
+    assert_eq!(loose.window, 11);
+    assert!((loose.veil - t.veil - ring).abs() < 1e-15);
+    let total = |q: &Psf| q.cells.iter().sum::<f64>() + q.veil;
+    assert!((total(&loose) - total(&t)).abs() < 1e-15);
+}

@@ -237,14 +237,20 @@ pub struct SizeRow {
 /// The D-CNN on frame sizes it never saw: crops of an image (the
 /// network's input: for a network behind a Wiener stage, the Wiener's
 /// output of the whole image) against the same region of the whole
-/// image's output.
+/// image's output. Crops start at (200, 200), nearer the origin where the
+/// image is too small for that; sizes larger than the image are left out.
 pub fn sizes(dcnn: &mut Dcnn, image: &Image) -> Result<Vec<SizeRow>, AppError> {
     let whole = dcnn.run_frame(image)?;
     let mut rows = Vec::new();
-    for (w, h) in [(1, 1), (7, 5), (8, 8), (36, 20), (100, 75), (160, 160)] {
-        let crop = image.crop(200, 200, w, h);
+    let sizes = [(1, 1), (7, 5), (8, 8), (36, 20), (100, 75), (160, 160)];
+    for (w, h) in sizes
+        .into_iter()
+        .filter(|&(w, h)| w <= image.width && h <= image.height)
+    {
+        let (x0, y0) = (200.min(image.width - w), 200.min(image.height - h));
+        let crop = image.crop(x0, y0, w, h);
         let out = dcnn.run_frame(&crop)?;
-        let reference = whole.crop(200, 200, w, h);
+        let reference = whole.crop(x0, y0, w, h);
         let (mut max, mut sum, mut inner) = (0.0f32, 0.0f64, None::<f32>);
         for c in 0..3 {
             for y in 0..h {
