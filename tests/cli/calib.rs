@@ -369,6 +369,7 @@ fn bad_captures_are_refused_by_name() {
 }
 
 mod needs_gpu {
+    use super::super::deadline::CommandWithin;
     use super::super::{path, small_calib, stderr, stdout};
     use super::{bundle_of, run};
 
@@ -421,6 +422,93 @@ mod needs_gpu {
             let (a, b) = (super::vs_sharp_db(&cpu), super::vs_sharp_db(&gpu));
             assert!((a - b).abs() <= 0.01, "{prefilter}: CPU {a}, device {b}");
         }
+    }
+
+    /// `--psfs` in `nedrt run` and `nedrt prefilter` on the device: the
+    /// frame `run` records through doe+wiener made from a bundle, and
+    /// `prefilter`'s refine:3 display images, are the CPU's (a code of the
+    /// 8-bit frame; 1e-3 of the display values).
+    #[test]
+    #[ignore = "needs a GPU adapter (run: scripts/test.sh, or cargo test -- --include-ignored)"]
+    fn a_measured_bundle_runs_and_prefilters_on_the_device_as_on_the_host() {
+        let dir = tempfile::tempdir().expect("tmp");
+        let bundle = bundle_of(
+            dir.path(),
+            &[0.0, 1.5, 3.0],
+            &nedrt_optics::psf::Psf::gaussian(1.5, 0.02),
+        );
+        let frame = dir.path().join("frame.png");
+        super::super::write_png(&frame, 64, 48);
+        let imgs = dir.path().join("imgs");
+        std::fs::create_dir(&imgs).expect("dir");
+        super::super::write_png(&imgs.join("a.png"), 24, 16);
+        let calib = super::super::small_panel();
+        let mut frames = Vec::new();
+        let mut displays = Vec::new();
+        for backend in ["cpu", "wgpu"] {
+            let rec = dir.path().join(format!("rec-{backend}"));
+            let o = super::super::nedrt()
+                .current_dir(super::super::repo())
+                .args(["run", "--calib", path(&calib), "--backend", backend])
+                .args(["--preprocess", "doe+wiener", "--psfs", path(&bundle)])
+                .args(["--source", "dir", "--input", path(&frame), "--frames", "1"])
+                .args(["--sink", "record", "--record-dir", path(&rec)])
+                .output_within(super::super::deadline::COMMAND, "nedrt run");
+            assert!(o.status.success(), "run {backend}: {}", stderr(&o));
+            frames.push(
+                image::open(rec.join("frame-00000000.png"))
+                    .expect("frame")
+                    .to_rgb8(),
+            );
+            let out = dir.path().join(format!("pre-{backend}"));
+            let o = run(&[
+                "--calib",
+                path(&calib),
+                "--psfs",
+                path(&bundle),
+                "--backend",
+                backend,
+                "prefilter",
+                "--images",
+                path(&imgs),
+                "--out-dir",
+                path(&out),
+                "--prefilter",
+                "refine:3",
+            ]);
+            assert!(o.status.success(), "prefilter {backend}: {}", stderr(&o));
+            let bytes = std::fs::read(out.join("displays.safetensors")).expect("displays");
+            let t = safetensors::SafeTensors::deserialize(&bytes).expect("safetensors");
+            displays.push(
+                t.tensor("a")
+                    .expect("a")
+                    .data()
+                    .chunks_exact(4)
+                    .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+                    .collect::<Vec<_>>(),
+            );
+            if backend == "wgpu" {
+                let manifest = std::fs::read_to_string(out.join("prefilter.json")).expect("json");
+                assert!(manifest.contains("device"), "{manifest}");
+            }
+        }
+        let worst = frames[0]
+            .as_raw()
+            .iter()
+            .zip(frames[1].as_raw())
+            .map(|(a, b)| a.abs_diff(*b))
+            .max()
+            .expect("pixels");
+        assert!(
+            worst <= 1,
+            "run: CPU and device frames differ by {worst} codes"
+        );
+        let worst = displays[0]
+            .iter()
+            .zip(&displays[1])
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0f32, f32::max);
+        assert!(worst <= 1e-3, "prefilter: CPU and device differ by {worst}");
     }
 }
 
