@@ -833,6 +833,44 @@ const ROWS: &[Row] = &[
         ],
         "bundle.toml: No such file",
     ),
+    row(
+        "calib truth: a bandwidth out of range",
+        &[
+            "calib",
+            "truth",
+            "--out",
+            "{out}",
+            "--bandwidths-nm",
+            "0,-1,0",
+        ],
+        "bandwidths_nm = [0.0, -1.0, 0.0]: each must lie in [0, 60] nm (FWHM)",
+    ),
+    row(
+        "calib synth: a decentre of one number",
+        &[
+            "calib",
+            "synth",
+            "--patterns",
+            "{dir}",
+            "--out",
+            "{out}",
+            "--decentre-mm",
+            "0.1",
+        ],
+        "1 numbers; give 2, comma-separated",
+    ),
+    row(
+        "prefilter --mirror-psfs without --psfs",
+        &[
+            "prefilter",
+            "--images",
+            "{dir}",
+            "--out-dir",
+            "{out}",
+            "--mirror-psfs",
+        ],
+        "give the bundle with --psfs",
+    ),
 ];
 
 /// Rows that take the small-aperture calibration and the `--sim` arguments

@@ -57,6 +57,12 @@ pub fn run(common: &CommonOptions, o: &PrefilterOptions) -> Result<String, AppEr
             o.method, o.prefilter
         )));
     }
+    if o.mirror_psfs && common.psfs.is_none() {
+        return Err(AppError::option(
+            "--mirror-psfs",
+            "averages a measured bundle's PSFs: give the bundle with --psfs",
+        ));
+    }
     let files = list_images(&o.images)?;
     let images = load_all(&files, common.panel_px()?)?;
     let sim = Simulator::new(
@@ -67,13 +73,7 @@ pub fn run(common: &CommonOptions, o: &PrefilterOptions) -> Result<String, AppEr
     // What optics the outputs were made for: the design's, a bundle's, or
     // a bundle's mirror average (and the share of a PSF that removed).
     let (sim, psfs) = match (common.bundle()?, o.mirror_psfs) {
-        (None, true) => {
-            return Err(AppError::option(
-                "--mirror-psfs",
-                "averages a measured bundle's PSFs: give the bundle with --psfs",
-            ));
-        }
-        (None, false) => (sim, serde_json::Value::Null),
+        (None, _) => (sim, serde_json::Value::Null),
         (Some(bundle), mirror) => {
             let (used, asymmetry) = if mirror {
                 let (m, a) = bundle.mirrored();

@@ -218,9 +218,12 @@ impl Perturbation {
     /// The fabricated DOE: the design's profile quantised to `levels` (a
     /// height of a whole wave is none), etched `etch_scale` deep, and
     /// shifted by the decentre (flat substrate, height 0, where the shifted
-    /// map leaves the aperture uncovered). A radial profile becomes a map.
+    /// map leaves the aperture uncovered). A radial profile stays radial
+    /// (its PSFs come from the Hankel transform, a small fraction of a 2-D
+    /// map's time and memory) unless decentred, when it becomes a map.
     pub fn doe(&self, design: &HeightMap) -> HeightMap {
-        let mut map = if design.profile == Profile::Radial {
+        let decentred = self.decentre_mm != [0.0; 2];
+        let mut map = if design.profile == Profile::Radial && decentred {
             let grid = design.grid();
             HeightMap {
                 profile: Profile::Map,
@@ -244,7 +247,7 @@ impl Perturbation {
             map.height_m.iter_mut().for_each(|h| *h *= self.etch_scale);
             map.max_height_m *= self.etch_scale;
         }
-        if self.decentre_mm != [0.0; 2] {
+        if decentred {
             map.height_m = shifted(&map, self.decentre_mm[0] * 1e-3, self.decentre_mm[1] * 1e-3);
         }
         map.description = format!("{} as built ({})", design.description, self.describe());
@@ -322,6 +325,35 @@ mod tests {
         let c = Calibration::default_embedded().expect("calib");
         let m = HeightMap::three_lens_init(&c, 60e-6);
         (c, m)
+    }
+
+    #[test]
+    fn a_radial_profile_stays_radial_unless_decentred() {
+        let (_, m) = design();
+        let radial = HeightMap {
+            profile: Profile::Radial,
+            samples: 50,
+            height_m: (0..50).map(|i| m.max_height_m * i as f64 / 50.0).collect(),
+            ..m.clone()
+        };
+        let built = Perturbation {
+            levels: 4,
+            etch_scale: 1.05,
+            ..Default::default()
+        }
+        .doe(&radial);
+        assert_eq!((built.profile, built.samples), (Profile::Radial, 50));
+        let step = radial.max_height_m / 4.0 * 1.05;
+        for h in &built.height_m {
+            let q = h / step;
+            assert!((q - q.round()).abs() < 1e-9 && q.round() < 4.0, "{h}");
+        }
+        let moved = Perturbation {
+            decentre_mm: [0.01, 0.0],
+            ..Default::default()
+        }
+        .doe(&radial);
+        assert_eq!(moved.profile, Profile::Map);
     }
 
     #[test]
