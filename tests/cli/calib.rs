@@ -512,6 +512,23 @@ mod needs_gpu {
     }
 }
 
+/// A folder holding one 24×16 image.
+fn one_image(dir: &std::path::Path) -> std::path::PathBuf {
+    let imgs = dir.join("imgs");
+    std::fs::create_dir(&imgs).expect("dir");
+    super::write_png(&imgs.join("a.png"), 24, 16);
+    imgs
+}
+
+/// All the light in one cell: the perceived image is the display image.
+fn perfect_psf() -> nedrt_optics::psf::Psf {
+    nedrt_optics::psf::Psf {
+        window: 1,
+        cells: vec![1.0],
+        veil: 0.0,
+    }
+}
+
 /// `--psfs` reaches every command's optics: eval's doe-only scores, the
 /// prefilter command's display images, `nedrt run`'s frames (the Wiener
 /// made from a bundle) and the viewer's sweep all change with a bundle of
@@ -520,14 +537,7 @@ mod needs_gpu {
 #[test]
 fn eval_prefilter_and_run_take_a_bundle() {
     let dir = tempfile::tempdir().expect("tmp");
-    let imgs = dir.path().join("imgs");
-    std::fs::create_dir(&imgs).expect("dir");
-    super::write_png(&imgs.join("a.png"), 24, 16);
-    let perfect = nedrt_optics::psf::Psf {
-        window: 1,
-        cells: vec![1.0],
-        veil: 0.0,
-    };
+    let (imgs, perfect) = (one_image(dir.path()), perfect_psf());
     let bundle = bundle_of(dir.path(), &[0.0, 1.5, 3.0], &perfect);
     let calib = small_panel();
     let with = |psfs: bool, args: &[&str], what: &str| {
@@ -650,14 +660,7 @@ fn eval_prefilter_and_run_take_a_bundle() {
 #[test]
 fn tradeoff_and_stability_take_a_bundle() {
     let dir = tempfile::tempdir().expect("tmp");
-    let imgs = dir.path().join("imgs");
-    std::fs::create_dir(&imgs).expect("dir");
-    super::write_png(&imgs.join("a.png"), 24, 16);
-    let perfect = nedrt_optics::psf::Psf {
-        window: 1,
-        cells: vec![1.0],
-        veil: 0.0,
-    };
+    let (imgs, perfect) = (one_image(dir.path()), perfect_psf());
     let bundle = bundle_of(dir.path(), &[0.0, 1.5, 3.0], &perfect);
     let calib = small_panel();
     let out = dir.path().join("tradeoff");
