@@ -74,17 +74,17 @@ pub fn write(common: &CommonOptions, o: &SynthOptions) -> Result<String, AppErro
             ),
         ));
     }
-    let truth = crate::calib_truth::true_psfs(common, &o.perturbation, &o.accommodations_d)?;
+    let mut truth = crate::calib_truth::true_psfs(
+        common,
+        &o.perturbation,
+        &o.accommodations_d,
+        "nedrt calib synth",
+    )?;
     let truths: Vec<Vec<Psf>> = truth
         .psfs
         .chunks(truth.channels())
         .map(<[Psf]>::to_vec)
         .collect();
-    let mut truth = truth;
-    truth.card.made_by = format!(
-        "nedrt calib synth: the true PSFs ({})",
-        o.perturbation.describe()
-    );
 
     let staging = staging_dir(&o.out)?;
     let result = (|| -> Result<Vec<Capture>, AppError> {

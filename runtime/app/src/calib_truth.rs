@@ -21,11 +21,13 @@ const TRIM_LOST: f64 = 1e-6;
 
 /// The PSFs (lens + DOE, with the veil) of the display `p` builds from
 /// `common`'s design, at each of `accommodations_d`: a bundle, not yet
-/// saved. Its wavelengths are the built primaries' centres.
+/// saved, its card naming the command that made it (`made_by`). Its
+/// wavelengths are the built primaries' centres.
 pub fn true_psfs(
     common: &CommonOptions,
     p: &Perturbation,
     accommodations_d: &[f64],
+    made_by: &str,
 ) -> Result<PsfBundle, AppError> {
     p.check()
         .map_err(|e| AppError::option("the perturbation", e))?;
@@ -72,7 +74,7 @@ pub fn true_psfs(
     let psfs = mixed.iter().map(|p| p.padded(widest)).collect();
     let centre = p.calibration(&design);
     PsfBundle::new(
-        &format!("nedrt calib truth: the true PSFs ({})", p.describe()),
+        &format!("{made_by}: the true PSFs ({})", p.describe()),
         accommodations_d.to_vec(),
         centre
             .channels
@@ -96,7 +98,7 @@ pub fn write(
     if accommodations_d.is_empty() {
         return Err(AppError::option("--accommodations", "give at least one"));
     }
-    let mut bundle = true_psfs(common, p, accommodations_d)?;
+    let mut bundle = true_psfs(common, p, accommodations_d, "nedrt calib truth")?;
     bundle.save(out).map_err(|e| AppError::output(out, e))?;
     Ok(format!(
         "the true PSFs of the display as built ({}) at {} D, {}×{} cells, in {}\n",

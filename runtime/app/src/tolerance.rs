@@ -133,17 +133,6 @@ pub struct Report {
     pub tolerances: Vec<(String, String, Option<f64>)>,
 }
 
-/// The methods the sweep runs when none are named: the built-in displays
-/// and, where its model is there, the D-CNN (`proposed`, whose companion
-/// DOE then serves every DOE method, as in `nedrt eval`).
-pub fn default_methods(common: &CommonOptions) -> Vec<Method> {
-    let mut methods = Method::BUILT_IN.to_vec();
-    if common.dcnn.path.is_file() {
-        methods.push(Method::Proposed);
-    }
-    methods
-}
-
 /// `method`'s shipped preprocessing on `prepared`'s optics: its Wiener
 /// (or none), or its network (behind the Wiener of those optics where the
 /// network was trained on one; the network itself stays the design's).
@@ -214,7 +203,7 @@ pub fn run(
         .filter(|d| *d <= HEADLINE_MAX_D + 1e-9)
         .collect();
     let methods = if methods.is_empty() {
-        default_methods(common)
+        common.default_methods()
     } else {
         methods.to_vec()
     };

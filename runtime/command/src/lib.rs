@@ -203,6 +203,24 @@ impl CommonOptions {
         }
     }
 
+    /// The methods a study runs when none are named (`eval`,
+    /// `tolerance`): the built-in displays and, where its model is there
+    /// (`models/dcnn.onnx` is relative to the working folder), the D-CNN
+    /// (`proposed`, whose DOE then serves every DOE method of the run, so
+    /// doe-only and doe+wiener show that DOE without and with the Wiener).
+    pub fn default_methods(&self) -> Vec<Method> {
+        let mut methods = Method::BUILT_IN.to_vec();
+        if self.dcnn.path.is_file() {
+            methods.push(Method::Proposed);
+        } else {
+            tracing::warn!(
+                "{}: no D-CNN here, so proposed is left out (give --dcnn FILE or --methods)",
+                self.dcnn.path.display()
+            );
+        }
+        methods
+    }
+
     pub fn doe_path(&self) -> Option<&Path> {
         self.doe.as_deref()
     }

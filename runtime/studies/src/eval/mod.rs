@@ -23,24 +23,6 @@ use nedrt_optics::sim::{Image, Method, Optics, Prepared, Simulator};
 /// Upper end of the headline depth range (docs/model.md §17: 0–2.5 D).
 pub const HEADLINE_MAX_D: f64 = nedrt_optics::sim::HEADLINE_MAX_D;
 
-/// `eval`'s methods when none are named: the built-in displays and, where
-/// its model is there (`models/dcnn.onnx` is relative to the working
-/// folder), the D-CNN (`proposed`, whose DOE then serves every DOE method
-/// of the run, so doe-only and doe+wiener show that DOE without and with
-/// the Wiener).
-fn default_methods(common: &CommonOptions) -> Vec<Method> {
-    let mut methods = Method::BUILT_IN.to_vec();
-    if common.dcnn.path.is_file() {
-        methods.push(Method::Proposed);
-    } else {
-        tracing::warn!(
-            "{}: no D-CNN here, so proposed is left out (give --dcnn FILE or --methods)",
-            common.dcnn.path.display()
-        );
-    }
-    methods
-}
-
 #[derive(Debug, Clone, Serialize)]
 pub struct ImageScore {
     pub image: String,
@@ -221,7 +203,7 @@ pub fn evaluate(
         create_dir(dir)?;
     }
     let methods: Vec<Method> = if methods.is_empty() {
-        default_methods(common)
+        common.default_methods()
     } else {
         methods.to_vec()
     };
