@@ -871,6 +871,25 @@ const ROWS: &[Row] = &[
         ],
         "give the bundle with --psfs",
     ),
+    row(
+        "calib psfs: field zones left to auto",
+        &[
+            "calib",
+            "psfs",
+            "--captures",
+            "{dir}",
+            "--out",
+            "{out}",
+            "--field-zones",
+            "auto",
+        ],
+        "give N or NxM (auto is for the simulator's own zones)",
+    ),
+    row(
+        "calib truth: more field zones than the simulator renders",
+        &["calib", "truth", "--out", "{out}", "--field-zones", "9x1"],
+        "give N or NxM with 1 ≤ N, M ≤ 8 (e.g. 2 or 2x1)",
+    ),
 ];
 
 /// Rows that take the small-aperture calibration and the `--sim` arguments

@@ -212,6 +212,34 @@ fn sim_sees_through_a_measured_bundle() {
     assert!(measured.status.success(), "{}", super::stderr(&measured));
     assert!(vs_sharp_db(&designed) < 30.0, "{}", stdout(&designed));
     assert!(vs_sharp_db(&measured) > 60.0, "{}", stdout(&measured));
+    // A bundle measured in 2×1 field zones, the left a point, the right a
+    // blur: sim renders by its zones.
+    let blur = nedrt_optics::psf::Psf::gaussian(2.0, 0.0);
+    let zoned = dir.path().join("zoned");
+    let n = blur.window;
+    let per_zone = |p: &nedrt_optics::psf::Psf| vec![p.padded(n); 9];
+    nedrt_optics::bundle::PsfBundle::new(
+        "test",
+        vec![0.0, 1.5, 3.0],
+        vec![600.0, 530.0, 450.0],
+        per_zone(&perfect),
+        None,
+    )
+    .and_then(|b| b.with_zones(2, 1, [per_zone(&perfect), per_zone(&blur)].concat()))
+    .expect("a zoned bundle")
+    .save(&zoned)
+    .expect("saved");
+    let by_zones = run(&[&base[..], &["--psfs", path(&zoned)]].concat());
+    assert!(by_zones.status.success(), "{}", super::stderr(&by_zones));
+    assert!(
+        stdout(&by_zones).contains("2×1 (the PSF bundle's measured zones)"),
+        "{}",
+        stdout(&by_zones)
+    );
+    // The whole field's PSFs are points (as `measured`'s, 144 dB): its
+    // right zone's blur must show (51 dB).
+    let db = vs_sharp_db(&by_zones);
+    assert!(db < vs_sharp_db(&measured) - 40.0, "{}", stdout(&by_zones));
     // doe+wiener averages its filter over 0–3 D: a bundle of 0.5–1 D is refused.
     let short = bundle_of(dir.path(), &[0.5, 1.0], &perfect);
     let mut wiener = base.to_vec();

@@ -139,6 +139,23 @@ pub struct Frame {
 }
 
 impl Frame {
+    /// The mean of a (2r+1)² window around (u, v).
+    pub fn local_mean(&self, u: f64, v: f64, r: isize) -> f64 {
+        let f = self;
+        let (cu, cv) = (u.round() as isize, v.round() as isize);
+        let mut s = 0.0;
+        let mut n = 0.0f64;
+        for y in cv - r..=cv + r {
+            for x in cu - r..=cu + r {
+                if x >= 0 && y >= 0 && (x as usize) < f.width && (y as usize) < f.height {
+                    s += f.values[y as usize * f.width + x as usize] as f64;
+                    n += 1.0;
+                }
+            }
+        }
+        s / n.max(1.0)
+    }
+
     pub fn new(width: usize, height: usize) -> Self {
         Self {
             width,

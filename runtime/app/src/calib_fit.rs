@@ -47,6 +47,22 @@ impl Samples {
             dots: 0,
         }
     }
+
+    /// How many dots were gathered.
+    pub fn dots(&self) -> usize {
+        self.dots
+    }
+
+    /// Adds `other`'s dots (gathered for responses of the same size).
+    pub fn absorb(&mut self, other: &Samples) {
+        self.at.extend_from_slice(&other.at);
+        self.value.extend_from_slice(&other.value);
+        self.outer
+            .iter_mut()
+            .zip(&other.outer)
+            .for_each(|(a, b)| *a += b);
+        self.dots += other.dots;
+    }
 }
 
 /// Adds the dot at panel pixel (px, py) to `samples`. Its background is

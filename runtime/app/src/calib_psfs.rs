@@ -5,7 +5,9 @@
 //! light is measured against the whole pixel's), every dot cut out at the
 //! place the camera-to-panel registration gives it (not its own centroid:
 //! the DOE's orders keep their offsets), its background removed, the dots
-//! averaged, a noise floor, and the 2×2 pixel divided out.
+//! averaged, a noise floor, and the 2×2 pixel divided out. With field
+//! zones, the dots of each zone (by their place on the panel) make that
+//! zone's PSFs as well, and all of them the whole field's.
 
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -23,6 +25,8 @@ pub const MAX_REGISTRATION_RMS_PX: f64 = 0.25;
 /// A pixel whose mean over the summed frames reaches this share of the
 /// full scale is taken as saturated.
 pub const SATURATED_SHARE: f32 = 0.98;
+/// Most field zones (the simulator's 8 × 8).
+pub const MAX_ZONES: usize = 64;
 
 /// A frame minus the dark frame, per ms of exposure.
 fn rate(frame: &Frame, dark: &Frame, exposure_ms: f64) -> Frame {
@@ -62,8 +66,23 @@ impl Reader<'_> {
     }
 }
 
-/// Turns the captures in `dir` into a PSF bundle at `out`; says what it did.
-pub fn write(common: &CommonOptions, dir: &Path, out: &Path) -> Result<String, AppError> {
+/// Turns the captures in `dir` into a PSF bundle at `out`, with
+/// `zones` (columns, rows) of the field besides the whole field's PSFs
+/// where that is not (1, 1); says what it did.
+pub fn write(
+    common: &CommonOptions,
+    dir: &Path,
+    out: &Path,
+    zones: (usize, usize),
+) -> Result<String, AppError> {
+    let (nx, ny) = zones;
+    if nx == 0 || ny == 0 || nx * ny > MAX_ZONES {
+        return Err(AppError::option(
+            "--field-zones",
+            format!("{nx}×{ny}: give 1 to {MAX_ZONES} zones in all"),
+        ));
+    }
+    let zoned = (nx, ny) != (1, 1);
     let caps = Captures::load(dir)?;
     let calib = common.calibration()?;
     let manifest_path = dir.join(crate::calib_capture::MANIFEST);
@@ -135,6 +154,13 @@ pub fn write(common: &CommonOptions, dir: &Path, out: &Path) -> Result<String, A
     // has clipped in some.
     let saturated = SATURATED_SHARE * ((1u32 << caps.manifest.bits) - 1) as f32;
     let mut psfs = Vec::new();
+    // [zone][accommodation × channel], as the bundle's zone_psfs.
+    let mut zone_psfs: Vec<Vec<nedrt_optics::psf::Psf>> = vec![Vec::new(); nx * ny];
+    let zone_of = |px: f64, py: f64| -> usize {
+        let i = ((px * nx as f64 / w as f64) as usize).min(nx - 1);
+        let j = ((py * ny as f64 / h as f64) as usize).min(ny - 1);
+        j * nx + i
+    };
     let mut floors = Vec::new();
     let mut dots_per_channel = vec![0usize; channels];
     common
@@ -164,7 +190,7 @@ pub fn write(common: &CommonOptions, dir: &Path, out: &Path) -> Result<String, A
                 })?;
             let fc = cap(&flat_pattern.file);
             let flat = rate(&reader.read(fc)?, &dark, fc.exposure_ms);
-            let mut samples = Samples::new(half);
+            let mut samples: Vec<Samples> = (0..nx * ny).map(|_| Samples::new(half)).collect();
             let mut count = 0usize;
             for p in needed
                 .iter()
@@ -210,7 +236,7 @@ pub fn write(common: &CommonOptions, dir: &Path, out: &Path) -> Result<String, A
                                 ),
                             ));
                         }
-                        let level = local_mean(&flat, u, v, 3);
+                        let level = flat.local_mean(u, v, 3);
                         if level.is_nan() || level <= 0.0 {
                             return Err(AppError::input(
                                 caps.dir.join(&fc.file).display().to_string(),
@@ -219,14 +245,38 @@ pub fn write(common: &CommonOptions, dir: &Path, out: &Path) -> Result<String, A
                                 ),
                             ));
                         }
-                        gather(&frame, &reg, &inverse, (px, py), level, &mut samples);
+                        gather(
+                            &frame,
+                            &reg,
+                            &inverse,
+                            (px, py),
+                            level,
+                            &mut samples[zone_of(px, py)],
+                        );
                         count += 1;
                     }
                 }
             }
             dots_per_channel[c] = count;
-            let mean = fit_response(&samples);
-            let (cells, floor) = response_to_psf(m, mean);
+            if zoned {
+                for (z, s) in samples.iter().enumerate() {
+                    if s.dots() == 0 {
+                        return Err(AppError::option(
+                            "--field-zones",
+                            format!(
+                                "{nx}×{ny}: zone ({}, {}) holds no dot of channel {c}; give fewer \
+                                 zones, or patterns with more dots (calib patterns --margin)",
+                                z % nx,
+                                z / nx
+                            ),
+                        ));
+                    }
+                    zone_psfs[z].push(response_to_psf(m, fit_response(s)).0);
+                }
+            }
+            let mut whole = samples.swap_remove(0);
+            samples.iter().for_each(|s| whole.absorb(s));
+            let (cells, floor) = response_to_psf(m, fit_response(&whole));
             floor_row.push(floor);
             psfs.push(cells);
             common.progress().advance(1);
@@ -273,10 +323,14 @@ pub fn write(common: &CommonOptions, dir: &Path, out: &Path) -> Result<String, A
         psfs,
         Some(measurement),
     )
+    .and_then(|b| match zoned {
+        true => b.with_zones(nx, ny, zone_psfs.concat()),
+        false => Ok(b),
+    })
     .map_err(|e| AppError::Internal(e.to_string()))?;
     bundle.save(out).map_err(|e| AppError::output(out, e))?;
     Ok(format!(
-        "PSF bundle {}: {} accommodations ({} D) × {channels} channels, {}×{} cells; {} dots a channel; \
+        "PSF bundle {}: {} accommodations ({} D) × {channels} channels, {}×{} cells{}; {} dots a channel; \
          registration from {}: {} corners, residual {:.3} px RMS, {:.3} px at most\n",
         out.display(),
         accommodations.len(),
@@ -287,6 +341,11 @@ pub fn write(common: &CommonOptions, dir: &Path, out: &Path) -> Result<String, A
             .join(", "),
         2 * half + 1,
         2 * half + 1,
+        if zoned {
+            format!(", and in {nx}×{ny} field zones")
+        } else {
+            String::new()
+        },
         dots_per_channel
             .iter()
             .map(|n| n.to_string())
@@ -473,20 +532,4 @@ fn sharpness(f: &Frame) -> f64 {
         }
     }
     grad / level.max(1e-30)
-}
-
-/// The mean of a (2r+1)² window around (u, v).
-fn local_mean(f: &Frame, u: f64, v: f64, r: isize) -> f64 {
-    let (cu, cv) = (u.round() as isize, v.round() as isize);
-    let mut s = 0.0;
-    let mut n = 0.0f64;
-    for y in cv - r..=cv + r {
-        for x in cu - r..=cu + r {
-            if x >= 0 && y >= 0 && (x as usize) < f.width && (y as usize) < f.height {
-                s += f.values[y as usize * f.width + x as usize] as f64;
-                n += 1.0;
-            }
-        }
-    }
-    s / n.max(1.0)
 }

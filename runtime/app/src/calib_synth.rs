@@ -3,6 +3,11 @@
 //! in the capture format (docs/calibration.md §4). A camera nobody fooled:
 //! the captures go through `calib psfs` like a lab's, and the true PSFs
 //! they were made from (`truth/`, a PSF bundle) say how close it came.
+//!
+//! With field zones, each dot is seen through the true PSFs of its zone
+//! (piecewise constant over the field); the flat fields and the
+//! checkerboard, which only normalise and register, through the whole
+//! field's.
 
 use std::path::{Path, PathBuf};
 
@@ -28,6 +33,13 @@ pub struct SynthRecord {
     pub perturbation: Perturbation,
     pub camera: Camera,
     pub seed: u64,
+    /// Field zones, columns × rows: each dot seen through its zone's PSFs.
+    #[serde(default = "one_zone")]
+    pub field_zones: [usize; 2],
+}
+
+fn one_zone() -> [usize; 2] {
+    [1, 1]
 }
 
 /// What to photograph and how.
@@ -39,6 +51,8 @@ pub struct SynthOptions {
     pub perturbation: Perturbation,
     pub camera: Camera,
     pub seed: u64,
+    /// Field zones (columns, rows); (1, 1): one PSF for the whole field.
+    pub field_zones: (usize, usize),
 }
 
 /// Each capture's share of the sensor's full well at its brightest pixel.
@@ -79,12 +93,10 @@ pub fn write(common: &CommonOptions, o: &SynthOptions) -> Result<String, AppErro
         &o.perturbation,
         &o.accommodations_d,
         "nedrt calib synth",
+        o.field_zones,
     )?;
-    let truths: Vec<Vec<Psf>> = truth
-        .psfs
-        .chunks(truth.channels())
-        .map(<[Psf]>::to_vec)
-        .collect();
+    let channels = truth.channels();
+    let per_zone = truth.psfs.len();
 
     let staging = staging_dir(&o.out)?;
     let result = (|| -> Result<Vec<Capture>, AppError> {
@@ -100,7 +112,18 @@ pub fn write(common: &CommonOptions, o: &SynthOptions) -> Result<String, AppErro
             let folder = format!("a{d:.2}");
             crate::create_dir(&staging.join(&folder))?;
             for p in &patterns.pattern {
-                let (plane, fill) = retinal_image(p, &patterns, &truths[a], &o.camera, w, h)?;
+                let seen = Truth {
+                    whole: &truth.psfs[a * channels..(a + 1) * channels],
+                    zones: (0..truth.zone_psfs.len() / per_zone.max(1))
+                        .map(|z| {
+                            let at = z * per_zone + a * channels;
+                            &truth.zone_psfs[at..at + channels]
+                        })
+                        .collect(),
+                    columns: o.field_zones.0,
+                    rows: o.field_zones.1,
+                };
+                let (plane, fill) = retinal_image(p, &patterns, &seen, &o.camera, w, h)?;
                 let (frame, exposure_ms) =
                     photograph(plane, retina, sensor, &o.camera, fill, streams.next_u64());
                 let file = format!("{folder}/{}", p.file);
@@ -129,6 +152,7 @@ pub fn write(common: &CommonOptions, o: &SynthOptions) -> Result<String, AppErro
             perturbation: o.perturbation,
             camera: o.camera,
             seed: o.seed,
+            field_zones: [o.field_zones.0, o.field_zones.1],
         };
         let ser = |e: toml::ser::Error| AppError::Internal(format!("the capture records: {e}"));
         crate::write_text(
@@ -231,17 +255,39 @@ fn check_camera(c: &Camera) -> Result<(), AppError> {
     Ok(())
 }
 
+/// The true PSFs at one accommodation, per channel: the whole field's,
+/// and each field zone's (row by row; none without zones).
+struct Truth<'a> {
+    whole: &'a [Psf],
+    zones: Vec<&'a [Psf]>,
+    columns: usize,
+    rows: usize,
+}
+
+impl Truth<'_> {
+    /// The zone of panel pixel (`x`, `y`) of a `w`×`h` panel (0 without zones).
+    fn zone(&self, x: usize, y: usize, w: usize, h: usize) -> usize {
+        if self.zones.is_empty() {
+            return 0;
+        }
+        let i = (x * self.columns / w).min(self.columns - 1);
+        let j = (y * self.rows / h).min(self.rows - 1);
+        j * self.columns + i
+    }
+}
+
 /// The retinal irradiance of a pattern (a full-white pixel of one primary
 /// is 1 on each of its cells), weighted by the camera's QE for each
 /// primary, and how full the brightest pixel is to be.
 fn retinal_image(
     p: &Pattern,
     patterns: &PatternsManifest,
-    psfs: &[Psf],
+    truth: &Truth,
     camera: &Camera,
     w: usize,
     h: usize,
 ) -> Result<(Vec<f32>, f64), AppError> {
+    let psfs = truth.whole;
     let (rw, rh) = (2 * w, 2 * h);
     let channel = |c: Option<usize>| {
         c.filter(|c| *c < psfs.len().min(3))
@@ -255,13 +301,20 @@ fn retinal_image(
                 _ => return Err(AppError::input(&p.file, "a dot pattern without its grid")),
             };
             let spacing = patterns.dots.spacing_px;
-            let (m, g) = pixel_response(&psfs[c]);
+            // Each zone's pixel response, once (the whole field's without zones).
+            let responses: Vec<(usize, Vec<f64>)> = if truth.zones.is_empty() {
+                vec![pixel_response(&psfs[c])]
+            } else {
+                truth.zones.iter().map(|z| pixel_response(&z[c])).collect()
+            };
             let r = (psfs[c].window / 2) as isize;
             let veil = psfs[c].veil * (cols * rows) as f64 / (w * h) as f64;
             let mut plane = vec![(veil * camera.qe[c]) as f32; rw * rh];
             for j in 0..rows {
                 for i in 0..cols {
                     let (px, py) = (origin[0] + i * spacing, origin[1] + j * spacing);
+                    let (m, g) = &responses[truth.zone(px, py, w, h)];
+                    let m = *m;
                     for ky in 0..m {
                         let y = 2 * py as isize + ky as isize - r;
                         if y < 0 || y >= rh as isize {

@@ -7,6 +7,10 @@
 //! A primary with a spectral width is the mean of its line PSFs over the
 //! Gaussian line (five Gauss–Hermite nodes, [`Perturbation::spectral_nodes`]):
 //! a camera behind a colour filter integrates the same spectrum.
+//!
+//! With field zones each zone's PSFs are those at its centre's field angle
+//! (they differ where the eye's pupil is the stop), and the whole field's
+//! are their mean: what averaging every dot of equal zones measures.
 
 use std::path::Path;
 
@@ -14,20 +18,23 @@ use crate::{AppError, CommonOptions};
 use nedrt_optics::bundle::PsfBundle;
 use nedrt_optics::perturb::Perturbation;
 use nedrt_optics::psf::Psf;
+use nedrt_optics::sim::zones::{FieldGeometry, ZonePlan};
 use nedrt_optics::sim::{Method, Simulator};
 
 /// Most of a PSF's light a bundle's window may leave to the veil.
 const TRIM_LOST: f64 = 1e-6;
 
 /// The PSFs (lens + DOE, with the veil) of the display `p` builds from
-/// `common`'s design, at each of `accommodations_d`: a bundle, not yet
-/// saved, its card naming the command that made it (`made_by`). Its
-/// wavelengths are the built primaries' centres.
+/// `common`'s design, at each of `accommodations_d`, for the whole field
+/// and, where `zones` (columns, rows) is not (1, 1), each field zone's: a
+/// bundle, not yet saved, its card naming the command that made it
+/// (`made_by`). Its wavelengths are the built primaries' centres.
 pub fn true_psfs(
     common: &CommonOptions,
     p: &Perturbation,
     accommodations_d: &[f64],
     made_by: &str,
+    zones: (usize, usize),
 ) -> Result<PsfBundle, AppError> {
     p.check()
         .map_err(|e| AppError::option("the perturbation", e))?;
@@ -41,12 +48,104 @@ pub fn true_psfs(
         common.cache(),
     )?;
     let doe = p.doe(&design_sim.doe);
+    let (nx, ny) = zones;
+    if nx == 0 || ny == 0 || nx * ny > crate::calib_psfs::MAX_ZONES {
+        return Err(AppError::option(
+            "--field-zones",
+            format!(
+                "{nx}×{ny}: give 1 to {} zones in all",
+                crate::calib_psfs::MAX_ZONES
+            ),
+        ));
+    }
+    let (w, h) = (design.panel.width_px, design.panel.height_px);
+    let plan = ZonePlan {
+        nx,
+        ny,
+        field: FieldGeometry::of(&design, w, h),
+        note: String::new(),
+    };
+    let at = |field: Option<(f64, f64)>| {
+        let mut psfs = line_mixture(common, p, &design, &doe, accommodations_d, field)?;
+        Ok::<_, AppError>(
+            psfs.drain(..)
+                .map(|p| p.trimmed(TRIM_LOST))
+                .collect::<Vec<_>>(),
+        )
+    };
+    let (whole, zone_psfs) = if (nx, ny) == (1, 1) {
+        (at(None)?, Vec::new())
+    } else {
+        let mut each = Vec::with_capacity(nx * ny);
+        for j in 0..ny {
+            for i in 0..nx {
+                each.push(at(Some(plan.tan_at_zone(i, j)))?);
+            }
+        }
+        let weight = 1.0 / each.len() as f64;
+        let whole = (0..each[0].len())
+            .map(|k| {
+                let widest = each.iter().map(|z| z[k].window).max().unwrap_or(1);
+                let padded: Vec<Psf> = each.iter().map(|z| z[k].padded(widest)).collect();
+                Psf::weighted_sum(padded.iter().map(|p| (p, weight)))
+                    .ok_or_else(|| AppError::Internal("no zone".into()))
+            })
+            .collect::<Result<Vec<_>, _>>()?;
+        (whole, each.concat())
+    };
+    // One window for the bundle: the widest that holds all but
+    // TRIM_LOST of each PSF's light (a 2-D DOE's PSFs come a whole period
+    // wide, hundreds of cells of nothing), the others centred in it.
+    let widest = whole
+        .iter()
+        .chain(&zone_psfs)
+        .map(|p| p.window)
+        .max()
+        .unwrap_or(1);
+    let pad = |v: Vec<Psf>| v.iter().map(|p| p.padded(widest)).collect::<Vec<_>>();
+    let centre = p.calibration(&design);
+    let suffix = match zones {
+        (1, 1) => String::new(),
+        _ => format!(", {nx}×{ny} field zones"),
+    };
+    PsfBundle::new(
+        &format!("{made_by}: the true PSFs ({}{suffix})", p.describe()),
+        accommodations_d.to_vec(),
+        centre
+            .channels
+            .iter()
+            .map(|c| c.wavelength_m * 1e9)
+            .collect(),
+        pad(whole),
+        None,
+    )
+    .and_then(|b| match zones {
+        (1, 1) => Ok(b),
+        _ => b.with_zones(nx, ny, pad(zone_psfs)),
+    })
+    .map_err(|e| AppError::Internal(e.to_string()))
+}
+
+/// The built display's PSFs at each of `accommodations_d` (accommodation-
+/// major), its primaries' spectra mixed, at the design's field or at
+/// `field` (tangents, horizontal and vertical).
+fn line_mixture(
+    common: &CommonOptions,
+    p: &Perturbation,
+    design: &nedrt_core::calib::Calibration,
+    doe: &nedrt_optics::doe::HeightMap,
+    accommodations_d: &[f64],
+    field: Option<(f64, f64)>,
+) -> Result<Vec<Psf>, AppError> {
     let channels = design.channels.len();
     // [accommodation][channel]: each node's PSFs with its weight.
     let mut terms: Vec<Vec<Vec<(Psf, f64)>>> =
         vec![vec![Vec::new(); channels]; accommodations_d.len()];
     for (weight, line) in p.spectral_nodes() {
-        let built = Simulator::with_doe(line.calibration(&design), doe.clone(), common.cache());
+        let mut built = Simulator::with_doe(line.calibration(design), doe.clone(), common.cache());
+        if let Some((tx, ty)) = field {
+            built = built.at_field(tx, ty);
+        }
         let prepared = built.prepare(&[Method::DoeOnly], accommodations_d, common.progress())?;
         for (a, &d) in accommodations_d.iter().enumerate() {
             for (c, psf) in prepared
@@ -58,33 +157,14 @@ pub fn true_psfs(
             }
         }
     }
-    let mixed: Vec<Psf> = terms
+    terms
         .iter()
         .flatten()
         .map(|t| {
             Psf::weighted_sum(t.iter().map(|(p, w)| (p, *w)))
                 .ok_or_else(|| AppError::Internal("a PSF with no spectral node".into()))
         })
-        .collect::<Result<_, _>>()?;
-    // One window for the bundle: the widest that holds all but
-    // TRIM_LOST of each PSF's light (a 2-D DOE's PSFs come a whole period
-    // wide, hundreds of cells of nothing), the others centred in it.
-    let mixed: Vec<Psf> = mixed.iter().map(|p| p.trimmed(TRIM_LOST)).collect();
-    let widest = mixed.iter().map(|p| p.window).max().unwrap_or(1);
-    let psfs = mixed.iter().map(|p| p.padded(widest)).collect();
-    let centre = p.calibration(&design);
-    PsfBundle::new(
-        &format!("{made_by}: the true PSFs ({})", p.describe()),
-        accommodations_d.to_vec(),
-        centre
-            .channels
-            .iter()
-            .map(|c| c.wavelength_m * 1e9)
-            .collect(),
-        psfs,
-        None,
-    )
-    .map_err(|e| AppError::Internal(e.to_string()))
+        .collect()
 }
 
 /// `nedrt calib truth`: the true PSFs saved as a bundle at `out` (a new
@@ -93,15 +173,16 @@ pub fn write(
     common: &CommonOptions,
     p: &Perturbation,
     accommodations_d: &[f64],
+    zones: (usize, usize),
     out: &Path,
 ) -> Result<String, AppError> {
     if accommodations_d.is_empty() {
         return Err(AppError::option("--accommodations", "give at least one"));
     }
-    let mut bundle = true_psfs(common, p, accommodations_d, "nedrt calib truth")?;
+    let mut bundle = true_psfs(common, p, accommodations_d, "nedrt calib truth", zones)?;
     bundle.save(out).map_err(|e| AppError::output(out, e))?;
     Ok(format!(
-        "the true PSFs of the display as built ({}) at {} D, {}×{} cells, in {}\n",
+        "the true PSFs of the display as built ({}) at {} D, {}×{} cells{}, in {}\n",
         p.describe(),
         accommodations_d
             .iter()
@@ -110,6 +191,10 @@ pub fn write(
             .join(", "),
         bundle.card.window_cells,
         bundle.card.window_cells,
+        match zones {
+            (1, 1) => String::new(),
+            (x, y) => format!(", the whole field and {x}×{y} zones"),
+        },
         out.display()
     ))
 }

@@ -65,7 +65,8 @@ pub struct Simulated {
     pub network_line: Option<String>,
     /// Where the prefilter ran, where the method has one.
     pub engine_line: Option<String>,
-    /// The field zones' summary, where the eye's pupil is the stop.
+    /// The field zones' summary, where the eye's pupil is the stop or a
+    /// measured bundle has zones.
     pub zones_line: Option<String>,
     /// Each PSF model's sampling report.
     pub models: Vec<(String, String)>,
@@ -182,12 +183,11 @@ pub fn simulate(common: &CommonOptions, req: &FrameRequest<'_>) -> Result<Simula
     let sharp = input.up2();
     let vs_sharp = Score::of(&perceived, &sharp);
     let vs_target = Score::of(&perceived, &target);
-    let zones_line = sim
-        .calib
-        .eye
-        .pupil_diameter_m
-        .is_some()
-        .then(|| zoned.summary());
+    let zones_line = (sim.calib.eye.pupil_diameter_m.is_some()
+        || sim
+            .measured_bundle()
+            .is_some_and(|b| b.card.zones.is_some()))
+    .then(|| zoned.summary());
     let models = prepared
         .reports
         .iter()

@@ -74,6 +74,11 @@ pub struct CalibSynthArgs {
     /// The noise's seed.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
+    /// Field zones, N or NxM (columns × rows of equal rectangles over the
+    /// panel): PSFs for each besides the whole field's, for a display whose
+    /// PSF changes across the field (docs/calibration.md, "Field zones").
+    #[arg(long, default_value = "1", value_name = "N|NxM")]
+    pub field_zones: ZoneGrid,
 }
 
 #[derive(Args, Debug)]
@@ -84,6 +89,11 @@ pub struct CalibPsfsArgs {
     /// The PSF bundle's folder (new, or a bundle to replace).
     #[arg(long, value_name = "DIR")]
     pub out: PathBuf,
+    /// Field zones, N or NxM (columns × rows of equal rectangles over the
+    /// panel): PSFs for each besides the whole field's, for a display whose
+    /// PSF changes across the field (docs/calibration.md, "Field zones").
+    #[arg(long, default_value = "1", value_name = "N|NxM")]
+    pub field_zones: ZoneGrid,
 }
 
 #[derive(Args, Debug)]
@@ -183,6 +193,32 @@ pub struct CalibTruthArgs {
     pub accommodations: Vec<f64>,
     #[command(flatten)]
     pub built: PerturbArgs,
+    /// Field zones, N or NxM (columns × rows of equal rectangles over the
+    /// panel): PSFs for each besides the whole field's, for a display whose
+    /// PSF changes across the field (docs/calibration.md, "Field zones").
+    #[arg(long, default_value = "1", value_name = "N|NxM")]
+    pub field_zones: ZoneGrid,
+}
+
+/// `--field-zones`: columns × rows, parsed as the simulator's zone
+/// requests are, without `auto` (a measurement's zones are chosen).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ZoneGrid(pub (usize, usize));
+
+impl std::str::FromStr for ZoneGrid {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        use nedrt_optics::sim::{ZoneRequest, zones::MAX_ZONES_PER_AXIS};
+        match s.parse::<ZoneRequest>() {
+            Ok(ZoneRequest::Fixed(x, y)) => Ok(Self((x, y))),
+            Ok(ZoneRequest::Auto { .. }) => Err(format!(
+                "{s:?}: give N or NxM (auto is for the simulator's own zones)"
+            )),
+            Err(_) => Err(format!(
+                "{s:?}: give N or NxM with 1 ≤ N, M ≤ {MAX_ZONES_PER_AXIS} (e.g. 2 or 2x1)"
+            )),
+        }
+    }
 }
 
 /// `N` comma-separated numbers ("0.1,0": a decentre across and down).

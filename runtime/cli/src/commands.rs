@@ -254,6 +254,7 @@ pub fn run(cli: Cli) -> Result<()> {
                     perturbation: s.built.perturbation(),
                     camera,
                     seed: s.seed,
+                    field_zones: s.field_zones.0,
                 };
                 print!("{}", app::calib_synth::write(&common, &opts)?)
             }
@@ -264,6 +265,7 @@ pub fn run(cli: Cli) -> Result<()> {
                         &common,
                         &t.built.perturbation(),
                         &t.accommodations,
+                        t.field_zones.0,
                         &t.out
                     )?
                 )
@@ -280,7 +282,10 @@ pub fn run(cli: Cli) -> Result<()> {
                 )
             }
             Some(CalibAction::Psfs(p)) => {
-                print!("{}", app::calib_psfs::write(&common, &p.captures, &p.out)?)
+                print!(
+                    "{}",
+                    app::calib_psfs::write(&common, &p.captures, &p.out, p.field_zones.0)?
+                )
             }
         },
         Some(Command::Bench(a)) => match a.what {

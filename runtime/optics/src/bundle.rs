@@ -7,15 +7,23 @@
 //! `bundle.toml`, its card: the accommodations, wavelengths, the tensor
 //! file's hash, and how it was measured.
 //!
+//! A bundle may also hold field zones (`zones = [columns, rows]` in the
+//! card; tensors `zone_psfs`, zone × accommodation × channel × N × N, and
+//! `zone_veil`): the PSFs measured from the dots in each of equal
+//! rectangles over the panel, row by row, for a display whose PSF changes
+//! across the field. `psfs` is then the whole field's, every dot alike.
+//!
 //! Between the measured accommodations a PSF is interpolated linearly in
 //! diopters; outside them it is an error, never an extrapolation.
 
 use std::path::{Path, PathBuf};
 
-use safetensors::{Dtype, SafeTensors, tensor::TensorView};
 use serde::{Deserialize, Serialize};
 
 use crate::psf::Psf;
+
+mod io;
+mod mirror;
 
 /// The card's `format`.
 pub const FORMAT: &str = "nedrt psf bundle 1";
@@ -25,6 +33,8 @@ pub const PSFS_FILE: &str = "psfs.safetensors";
 const MAX_CARD_BYTES: u64 = 1 << 20;
 /// Accommodations closer than this are the same (diopters).
 const DEPTH_TOLERANCE_D: f64 = 1e-6;
+/// Most field zones a bundle holds (the simulator's 8 × 8).
+const MAX_ZONES: usize = 64;
 
 /// A bundle that cannot be read, written or used, naming the file.
 #[derive(Debug, thiserror::Error)]
@@ -85,6 +95,10 @@ pub struct BundleCard {
     /// N: each PSF is N×N retinal cells (half a panel pixel each way).
     pub window_cells: usize,
     pub psfs_blake3: String,
+    /// Field zones, columns × rows over the panel (absent: one, the
+    /// whole field).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub zones: Option<[usize; 2]>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub measurement: Option<Measurement>,
 }
@@ -97,6 +111,33 @@ pub struct PsfBundle {
     pub card: BundleCard,
     /// Accommodation-major: `psfs[a * channels + c]`.
     pub psfs: Vec<Psf>,
+    /// With zones, zone-major (row by row), then as `psfs`:
+    /// `zone_psfs[(z * accommodations + a) * channels + c]`; else empty.
+    pub zone_psfs: Vec<Psf>,
+}
+
+/// The BLAKE3 hash of PSFs' values (cells, then veil, little-endian): the
+/// identity of a bundle made in memory, not saved.
+pub(crate) fn psfs_hash<'a>(psfs: impl IntoIterator<Item = &'a Psf>) -> String {
+    let mut hasher = blake3::Hasher::new();
+    for p in psfs {
+        for v in p.cells.iter().chain(std::iter::once(&p.veil)) {
+            hasher.update(&v.to_le_bytes());
+        }
+    }
+    hasher.finalize().to_hex().to_string()
+}
+
+/// How many field zones the card names (0 without), checked.
+fn zone_count(card: &BundleCard, path: &Path) -> Result<usize, BundleError> {
+    match card.zones {
+        None => Ok(0),
+        Some([x, y]) if x == 0 || y == 0 || x.saturating_mul(y) > MAX_ZONES => Err(invalid(
+            path,
+            format!("zones [{x}, {y}]: give 1 to {MAX_ZONES} zones in all"),
+        )),
+        Some([x, y]) => Ok(x * y),
+    }
 }
 
 fn invalid(path: &Path, reason: impl Into<String>) -> BundleError {
@@ -126,12 +167,55 @@ impl PsfBundle {
                 wavelengths_nm,
                 window_cells: window,
                 psfs_blake3: String::new(),
+                zones: None,
                 measurement,
             },
             psfs,
+            zone_psfs: Vec::new(),
         };
         bundle.check()?;
         Ok(bundle)
+    }
+
+    /// The bundle with field zones: `columns` × `rows` of them, their PSFs
+    /// ordered as [`PsfBundle::zone_psfs`], in the bundle's window.
+    pub fn with_zones(
+        mut self,
+        columns: usize,
+        rows: usize,
+        zone_psfs: Vec<Psf>,
+    ) -> Result<Self, BundleError> {
+        self.card.zones = Some([columns, rows]);
+        self.zone_psfs = zone_psfs;
+        self.check()?;
+        Ok(self)
+    }
+
+    /// Columns × rows of field zones (1 × 1: the whole field alone).
+    pub fn zones(&self) -> (usize, usize) {
+        self.card.zones.map_or((1, 1), |[x, y]| (x, y))
+    }
+
+    /// Zone (`column`, `row`)'s PSFs as a bundle of one zone, named by a
+    /// hash of its own; `None` where the bundle has no such zone.
+    pub fn zone(&self, column: usize, row: usize) -> Option<Self> {
+        let (nx, ny) = self.zones();
+        if self.card.zones.is_none() || column >= nx || row >= ny {
+            return None;
+        }
+        let per_zone = self.psfs.len();
+        let z = row * nx + column;
+        let psfs = self.zone_psfs[z * per_zone..(z + 1) * per_zone].to_vec();
+        let mut card = self.card.clone();
+        card.zones = None;
+        card.made_by = format!("{}, field zone ({column}, {row})", card.made_by);
+        card.psfs_blake3 = psfs_hash(&psfs);
+        Some(Self {
+            path: self.path.clone(),
+            card,
+            psfs,
+            zone_psfs: Vec::new(),
+        })
     }
 
     pub fn channels(&self) -> usize {
@@ -196,9 +280,32 @@ impl PsfBundle {
                 ),
             ));
         }
-        for (i, psf) in self.psfs.iter().enumerate() {
+        if c.zones.is_none() && !self.zone_psfs.is_empty() {
+            return Err(invalid(p, "zone PSFs without the card's zones"));
+        }
+        let zones = zone_count(c, p)?;
+        if self.zone_psfs.len() != zones * self.psfs.len() {
+            return Err(invalid(
+                p,
+                format!(
+                    "{} zone PSFs for {zones} zones × {} PSFs",
+                    self.zone_psfs.len(),
+                    self.psfs.len()
+                ),
+            ));
+        }
+        let per_zone = self.psfs.len().max(1);
+        for (i, psf) in self.psfs.iter().chain(&self.zone_psfs).enumerate() {
+            let (zone, i) = (i / per_zone, i % per_zone);
             let (a, ch) = (i / c.wavelengths_nm.len(), i % c.wavelengths_nm.len());
-            let at = format!("the PSF at {} D, channel {ch}", c.accommodations_d[a]);
+            let at = match zone {
+                0 => format!("the PSF at {} D, channel {ch}", c.accommodations_d[a]),
+                z => format!(
+                    "zone {}'s PSF at {} D, channel {ch}",
+                    z - 1,
+                    c.accommodations_d[a]
+                ),
+            };
             if psf.window != n || psf.cells.len() != n * n {
                 return Err(invalid(p, format!("{at}: not {n}×{n} cells")));
             }
@@ -257,66 +364,6 @@ impl PsfBundle {
         .ok_or_else(|| invalid(&self.path, "no PSF"))
     }
 
-    /// The bundle with each PSF averaged with its mirror images in x and
-    /// in y (cells and veil; the light and its centroid on the axis kept),
-    /// and the largest share of a PSF that this removed (relative L2 of
-    /// the cells). The objective's kernel form (`nedrt prefilter
-    /// --operator`, the trainer's loss) exists only for mirror-symmetric
-    /// PSFs; a built display's are not quite (noise, decentre).
-    pub fn mirrored(&self) -> (Self, f64) {
-        let mut worst = 0.0f64;
-        let psfs = self
-            .psfs
-            .iter()
-            .map(|p| {
-                let n = p.window;
-                let at = |x: usize, y: usize| p.cells[y * n + x];
-                let cells: Vec<f64> = (0..n * n)
-                    .map(|i| {
-                        let (x, y) = (i % n, i / n);
-                        let (mx, my) = (n - 1 - x, n - 1 - y);
-                        0.25 * (at(x, y) + at(mx, y) + at(x, my) + at(mx, my))
-                    })
-                    .collect();
-                let norm = p.cells.iter().map(|v| v * v).sum::<f64>().sqrt();
-                let off = p
-                    .cells
-                    .iter()
-                    .zip(&cells)
-                    .map(|(a, b)| (a - b) * (a - b))
-                    .sum::<f64>()
-                    .sqrt();
-                if norm > 0.0 {
-                    worst = worst.max(off / norm);
-                }
-                Psf {
-                    window: n,
-                    cells,
-                    veil: p.veil,
-                }
-            })
-            .collect::<Vec<Psf>>();
-        let mut card = self.card.clone();
-        card.made_by = format!("{} (mirror-averaged)", card.made_by);
-        // Not the file's hash (it was not saved) but the PSFs' own, so that
-        // what is keyed by a bundle's hash never mistakes one for the other.
-        let mut hasher = blake3::Hasher::new();
-        for p in &psfs {
-            for v in p.cells.iter().chain(std::iter::once(&p.veil)) {
-                hasher.update(&v.to_le_bytes());
-            }
-        }
-        card.psfs_blake3 = hasher.finalize().to_hex().to_string();
-        (
-            Self {
-                path: self.path.clone(),
-                card,
-                psfs,
-            },
-            worst,
-        )
-    }
-
     /// Checks the bundle against a calibration's channels: as many (the
     /// bundle measures the built primaries, whatever wavelengths the
     /// calibration names).
@@ -332,154 +379,6 @@ impl PsfBundle {
             ));
         }
         Ok(())
-    }
-
-    /// Reads and checks a bundle folder.
-    pub fn load(dir: &Path) -> Result<Self, BundleError> {
-        let card_path = dir.join(CARD_FILE);
-        let io = |path: &Path, source| BundleError::Io {
-            path: path.to_path_buf(),
-            source,
-        };
-        let bytes = nedrt_core::util::read_capped(&card_path, MAX_CARD_BYTES)
-            .map_err(|e| io(&card_path, e))?;
-        let text = String::from_utf8(bytes).map_err(|_| invalid(&card_path, "not UTF-8 text"))?;
-        let card: BundleCard =
-            toml::from_str(&text).map_err(|e| invalid(&card_path, e.message().to_string()))?;
-        let tensor_path = dir.join(PSFS_FILE);
-        let bytes = std::fs::read(&tensor_path).map_err(|e| io(&tensor_path, e))?;
-        let hash = blake3::hash(&bytes).to_hex().to_string();
-        if hash != card.psfs_blake3 {
-            return Err(invalid(
-                &tensor_path,
-                format!(
-                    "its BLAKE3 hash {hash} is not the card's {} ({CARD_FILE}): the file was changed or \
-                     belongs to another bundle",
-                    card.psfs_blake3
-                ),
-            ));
-        }
-        let bad = |r: String| invalid(&tensor_path, r);
-        let t = SafeTensors::deserialize(&bytes)
-            .map_err(|e| bad(format!("not a safetensors file ({e})")))?;
-        let (na, nc, n) = (
-            card.accommodations_d.len(),
-            card.wavelengths_nm.len(),
-            card.window_cells,
-        );
-        let f64s = |name: &str, shape: &[usize]| -> Result<Vec<f64>, BundleError> {
-            let v = t
-                .tensor(name)
-                .map_err(|e| bad(format!("tensor {name}: {e}")))?;
-            if v.dtype() != Dtype::F64 || v.shape() != shape {
-                return Err(bad(format!(
-                    "tensor {name} is {:?} {:?}; the card asks F64 {shape:?}",
-                    v.dtype(),
-                    v.shape()
-                )));
-            }
-            Ok(v.data()
-                .chunks_exact(8)
-                .map(|b| f64::from_le_bytes(b.try_into().unwrap_or([0; 8])))
-                .collect())
-        };
-        let cells = f64s("psfs", &[na, nc, n, n])?;
-        let veils = f64s("veil", &[na, nc])?;
-        let psfs = cells
-            .chunks_exact(n * n.max(1))
-            .zip(veils)
-            .map(|(c, veil)| Psf {
-                window: n,
-                cells: c.to_vec(),
-                veil,
-            })
-            .collect();
-        let bundle = Self {
-            path: dir.to_path_buf(),
-            card,
-            psfs,
-        };
-        bundle.check()?;
-        Ok(bundle)
-    }
-
-    /// Writes the bundle into `dir`: both files into a fresh sibling
-    /// folder first, which then takes `dir`'s place, so that a failure
-    /// leaves no half-written bundle. An existing `dir` is replaced only
-    /// if it is a bundle (holds `bundle.toml` and nothing but bundle files).
-    pub fn save(&mut self, dir: &Path) -> Result<(), BundleError> {
-        let io = |path: &Path, source| BundleError::Io {
-            path: path.to_path_buf(),
-            source,
-        };
-        if dir.exists() {
-            let entries: Vec<String> = std::fs::read_dir(dir)
-                .map_err(|e| io(dir, e))?
-                .filter_map(|e| e.ok())
-                .map(|e| e.file_name().to_string_lossy().into_owned())
-                .collect();
-            let ours = entries.iter().all(|e| e == CARD_FILE || e == PSFS_FILE);
-            if !(entries.is_empty() || (ours && entries.iter().any(|e| e == CARD_FILE))) {
-                return Err(invalid(
-                    dir,
-                    "exists and is not a PSF bundle (it holds other files); give a new folder",
-                ));
-            }
-        }
-        let (na, nc, n) = (
-            self.card.accommodations_d.len(),
-            self.channels(),
-            self.card.window_cells,
-        );
-        let cells: Vec<u8> = self
-            .psfs
-            .iter()
-            .flat_map(|p| p.cells.iter().flat_map(|v| v.to_le_bytes()))
-            .collect();
-        let veils: Vec<u8> = self
-            .psfs
-            .iter()
-            .flat_map(|p| p.veil.to_le_bytes())
-            .collect();
-        let tensor_err = |e: safetensors::SafeTensorError| invalid(dir, e.to_string());
-        let tensors = vec![
-            (
-                "psfs",
-                TensorView::new(Dtype::F64, vec![na, nc, n, n], &cells).map_err(tensor_err)?,
-            ),
-            (
-                "veil",
-                TensorView::new(Dtype::F64, vec![na, nc], &veils).map_err(tensor_err)?,
-            ),
-        ];
-        let meta = std::collections::HashMap::from([(
-            "definition".to_string(),
-            "psfs[a, c, y, x]: the fraction of channel c's light in retinal cell (x, y) with the eye \
-             accommodated at bundle.toml's accommodations_d[a], the axis at the centre cell; \
-             veil[a, c]: the fraction outside the window"
-                .to_string(),
-        )]);
-        let bytes = safetensors::serialize(tensors, Some(meta)).map_err(tensor_err)?;
-        self.card.psfs_blake3 = blake3::hash(&bytes).to_hex().to_string();
-        let card = toml::to_string(&self.card).map_err(|e| invalid(dir, e.to_string()))?;
-        let staging = nedrt_core::util::staging_sibling(dir).map_err(|e| io(dir, e))?;
-        let result = (|| {
-            let write = |file: &str, data: &[u8]| {
-                let p = staging.join(file);
-                std::fs::write(&p, data).map_err(|e| io(&p, e))
-            };
-            write(PSFS_FILE, &bytes)?;
-            write(CARD_FILE, card.as_bytes())?;
-            if dir.exists() {
-                std::fs::remove_dir_all(dir).map_err(|e| io(dir, e))?;
-            }
-            std::fs::rename(&staging, dir).map_err(|e| io(dir, e))
-        })();
-        if result.is_err() {
-            let _ = std::fs::remove_dir_all(&staging);
-        }
-        self.path = dir.to_path_buf();
-        result
     }
 }
 

@@ -85,6 +85,11 @@ impl Simulator {
         Ok(self)
     }
 
+    /// The measured bundle in place of the DOE optics, if any.
+    pub fn measured_bundle(&self) -> Option<&Arc<PsfBundle>> {
+        self.measured.as_ref()
+    }
+
     /// The same simulator, preparing `methods` for a Wiener stage in front
     /// of their network (the sweep's PSFs, which only such a stage needs).
     pub fn with_wiener_stages(mut self, methods: Vec<Method>) -> Self {

@@ -204,7 +204,10 @@ impl Simulator {
     /// `accommodation_d`, and prepares each zone's PSFs at that depth.
     /// `centre` is the preparation at the image's centre (the display
     /// image's own). Without an eye pupil the PSF does not change with the
-    /// field: one zone, nothing computed.
+    /// field: one zone, nothing computed. A measured bundle with field
+    /// zones decides alone: its zones, each seen through its own PSFs
+    /// (the methods through the DOE) and the eye at its centre (the
+    /// others).
     pub fn field_zones(
         &self,
         centre: &Prepared,
@@ -226,7 +229,11 @@ impl Simulator {
             rendered: Vec::new(),
             neighbours_db: None,
         };
-        if self.calib.eye.pupil_diameter_m.is_none() {
+        let measured_zones = self
+            .measured_bundle()
+            .filter(|b| b.card.zones.is_some())
+            .map(|b| (b.zones(), b.clone()));
+        if measured_zones.is_none() && self.calib.eye.pupil_diameter_m.is_none() {
             return Ok(single(
                 "1 (the eyepiece's aperture is the stop: the PSF is the same across the field)"
                     .into(),
@@ -237,9 +244,24 @@ impl Simulator {
             let img = p.perceived(method, display, accommodation_d)?;
             Ok((p, img))
         };
-        let (nx, ny, note) = match request {
-            ZoneRequest::Fixed(nx, ny) => (nx, ny, format!("{nx}×{ny} (as asked)")),
-            ZoneRequest::Auto { tolerance_db } => {
+        let (nx, ny, note) = match (request, &measured_zones) {
+            (_, Some(((nx, ny), bundle))) => {
+                if let ZoneRequest::Fixed(x, y) = request
+                    && (x, y) != (*nx, *ny)
+                {
+                    tracing::warn!(
+                        "{x}×{y} zones asked; the PSF bundle {} was measured in {nx}×{ny}, which are rendered",
+                        bundle.path.display()
+                    );
+                }
+                (
+                    *nx,
+                    *ny,
+                    format!("{nx}×{ny} (the PSF bundle's measured zones)"),
+                )
+            }
+            (ZoneRequest::Fixed(nx, ny), None) => (nx, ny, format!("{nx}×{ny} (as asked)")),
+            (ZoneRequest::Auto { tolerance_db }, None) => {
                 let here = centre.perceived(method, display, accommodation_d)?;
                 // The far edges: the horizontal one farther from the axis,
                 // and the top one (the bottom mirrors it).
@@ -268,7 +290,7 @@ impl Simulator {
                 )
             }
         };
-        if (nx, ny) == (1, 1) {
+        if (nx, ny) == (1, 1) && measured_zones.is_none() {
             return Ok(single(note));
         }
         let plan = ZonePlan {
@@ -282,7 +304,14 @@ impl Simulator {
         for j in 0..ny {
             for i in 0..nx {
                 let (tx, ty) = plan.tan_at_zone(i, j);
-                let (p, img) = seen(&self.at_field(tx, ty))?;
+                let mut sim = self.at_field(tx, ty);
+                if let Some((_, bundle)) = &measured_zones {
+                    let zone = bundle.zone(i, j).ok_or_else(|| {
+                        SimError::Invalid(format!("the PSF bundle has no zone ({i}, {j})"))
+                    })?;
+                    sim = sim.with_measured(std::sync::Arc::new(zone))?;
+                }
+                let (p, img) = seen(&sim)?;
                 zones.push(Some(p));
                 rendered.push(img);
             }

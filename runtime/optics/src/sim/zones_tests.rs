@@ -1,4 +1,5 @@
 use super::*;
+use crate::psf::Psf;
 
 fn plan(nx: usize, ny: usize, w: usize, h: usize) -> ZonePlan {
     ZonePlan {
@@ -222,4 +223,113 @@ fn without_a_pupil_or_with_no_relief_the_field_is_one_zone() {
         .expect("zones");
     assert_eq!((z.plan.nx, z.plan.ny), (1, 1), "{}", z.plan.note);
     assert!(z.plan.note.contains("∞ dB (horizontal)"), "{}", z.plan.note);
+}
+
+/// A bundle measured in 2 × 1 zones, on the paper's eye (no pupil, so
+/// only the bundle makes zones): the left zone a point, the right a blur,
+/// the whole field between them.
+fn zoned_bundle() -> crate::bundle::PsfBundle {
+    let n = Psf::gaussian(2.0, 0.0).window;
+    let three = |p: Psf| -> Vec<Psf> { (0..6).map(|_| p.padded(n)).collect() };
+    let point = Psf {
+        window: 1,
+        cells: vec![1.0],
+        veil: 0.0,
+    };
+    let zones = [three(point), three(Psf::gaussian(2.0, 0.0))].concat();
+    crate::bundle::PsfBundle::new(
+        "test",
+        vec![1.0, 2.0],
+        vec![610.0, 530.0, 460.0],
+        three(Psf::gaussian(1.0, 0.0)),
+        None,
+    )
+    .and_then(|b| b.with_zones(2, 1, zones))
+    .expect("a zoned bundle")
+}
+
+#[test]
+fn a_measured_bundle_with_zones_renders_each_zone_through_its_own_psfs() {
+    let quiet = nedrt_core::progress::Silent;
+    let bundle = std::sync::Arc::new(zoned_bundle());
+    let sim = Simulator::new(
+        Calibration::default_embedded().expect("calib"),
+        None,
+        Default::default(),
+    )
+    .and_then(|s| s.with_measured(bundle.clone()))
+    .expect("simulator");
+    let (method, d) = (Method::DoeOnly, 1.5);
+    let display = ramp(24, 8);
+    let centre = sim.prepare(&[method], &[d], &quiet).expect("prepare");
+    // The bundle's zones, whatever was asked.
+    for request in [ZoneRequest::default(), ZoneRequest::Fixed(3, 3)] {
+        let zoned = sim
+            .field_zones(&centre, method, &display, d, request, &quiet)
+            .expect("zones");
+        assert_eq!((zoned.plan.nx, zoned.plan.ny), (2, 1), "{request:?}");
+        assert!(
+            zoned.plan.note.contains("measured zones"),
+            "{}",
+            zoned.plan.note
+        );
+        let seen = zoned
+            .perceived(&centre, method, &display, d)
+            .expect("perceived");
+        // Beyond the zone centres each zone's PSFs alone, and those are
+        // the zone's, not the whole field's.
+        let whole = centre.perceived(method, &display, d).expect("whole");
+        for (i, columns) in [(0, 0..12), (1, 36..48)] {
+            let own = Simulator::new(
+                Calibration::default_embedded().expect("calib"),
+                None,
+                Default::default(),
+            )
+            .and_then(|s| s.with_measured(std::sync::Arc::new(bundle.zone(i, 0).expect("zone"))))
+            .expect("zone simulator");
+            let alone = own
+                .prepare_seen(method, d, &quiet)
+                .and_then(|p| p.perceived(method, &display, d))
+                .expect("one zone");
+            let mut differs = false;
+            for c in 0..3 {
+                for y in 0..16 {
+                    for x in columns.clone() {
+                        let k = y * 48 + x;
+                        assert_eq!(seen.plane(c)[k], alone.plane(c)[k], "zone {i} ({x}, {y})");
+                        differs |= (seen.plane(c)[k] - whole.plane(c)[k]).abs() > 1e-3;
+                    }
+                }
+            }
+            assert!(differs, "zone {i} renders as the whole field");
+        }
+    }
+    // No zone beyond the grid.
+    assert!(bundle.zone(2, 0).is_none() && bundle.zone(0, 1).is_none());
+}
+
+#[test]
+fn a_zoned_bundle_saves_and_loads_and_a_wrong_zone_count_is_refused() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let mut b = zoned_bundle();
+    b.save(&dir.path().join("b")).expect("save");
+    let back = crate::bundle::PsfBundle::load(&dir.path().join("b")).expect("load");
+    assert_eq!(back.zones(), (2, 1));
+    assert_eq!(back.zone_psfs, b.zone_psfs);
+    assert_eq!(back.psfs, b.psfs);
+    let short = b.zone_psfs[..6].to_vec();
+    let e = zoned_bundle()
+        .with_zones(2, 1, short)
+        .expect_err("6 zone PSFs for 2 zones");
+    assert!(e.to_string().contains("6 zone PSFs for 2 zones"), "{e}");
+    let e = zoned_bundle()
+        .with_zones(0, 1, Vec::new())
+        .expect_err("no zones");
+    assert!(e.to_string().contains("zones [0, 1]"), "{e}");
+    // The mirrored bundle keeps its zones, and a zone its own hash.
+    let (m, _) = b.mirrored();
+    assert_eq!(m.zones(), (2, 1));
+    let (z0, z1) = (b.zone(0, 0).expect("z0"), b.zone(1, 0).expect("z1"));
+    assert_ne!(z0.card.psfs_blake3, z1.card.psfs_blake3);
+    assert_ne!(z0.card.psfs_blake3[..16], b.card.psfs_blake3[..16]);
 }
