@@ -13,20 +13,18 @@
 
 use std::time::Instant;
 
-use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use super::OpticsError;
 use super::doe::{HeightMap, Profile};
-use super::propagate::{centred_window_energies, crop_centred, exact_period_cells};
-use super::pupil::{PupilGrid, pupil_field, pupil_field_through, stop_square};
+use super::propagate::{centred_window_energies, crop_centred};
 use super::sampling::{
-    ChannelSampling, PsfSpec, StepRule, channel_sampling, max_pupil_step,
-    predicted_half_width_cells,
+    PsfSpec, StepRule, channel_sampling, max_pupil_step, predicted_half_width_cells,
 };
 use nedrt_core::calib::{Calibration, PropagatorSetting};
 
 mod radial_plan;
+mod two_d;
 
 /// Times the pupil step is halved to fit the window in the period (lens only).
 const MAX_REFINEMENTS: usize = 3;
@@ -273,12 +271,6 @@ pub struct PsfSet {
     pub report: SamplingReport,
 }
 
-/// Full-period PSF.
-struct PeriodPsf {
-    cells: Vec<f64>,
-    period: usize,
-}
-
 /// Computes the PSFs of `request`, calling `tick` once per finished PSF.
 pub fn compute_psfs(
     calib: &Calibration,
@@ -296,7 +288,7 @@ pub fn compute_psfs(
     }
     match propagator_for(calib, request.doe) {
         Propagator::Radial => radial_plan::compute(calib, request, tick, start),
-        Propagator::TwoD => compute_2d(calib, request, tick, start),
+        Propagator::TwoD => two_d::compute(calib, request, tick, start),
     }
 }
 
@@ -334,180 +326,6 @@ fn predicted_min_period(calib: &Calibration, request: &PsfRequest) -> usize {
         .map(|s| predicted_half_width_cells(calib, *s))
         .fold(0.0, f64::max);
     2 * predicted.ceil() as usize + 1
-}
-
-/// The 2-D path: exact cells over one period per PSF, the pupil step
-/// refined (lens alone) until the window fits in the period.
-fn compute_2d(
-    calib: &Calibration,
-    request: &PsfRequest,
-    tick: &(dyn Fn() + Sync),
-    start: Instant,
-) -> Result<PsfSet, OpticsError> {
-    let (mut step_cap, step_rule) = step_cap(calib, request)?;
-    let mut min_period = predicted_min_period(calib, request);
-    let channels = request_channels(request);
-    let target = calib.simulation.window_energy;
-
-    for refinement in 0..=MAX_REFINEMENTS {
-        let sampling: Vec<ChannelSampling> = channels
-            .iter()
-            .map(|&ch| channel_sampling(calib, ch, step_cap, min_period))
-            .collect::<Result<_, _>>()?;
-        let dtheta = calib.retinal_step_rad();
-        let window_limited = refinement > 0
-            || channels.iter().any(|&ch| {
-                calib.channels[ch].wavelength_m / (step_cap * dtheta) < min_period as f64
-            });
-        let rule = if window_limited {
-            StepRule::Window
-        } else {
-            step_rule
-        };
-        let periods = compute_periods(calib, request, &sampling, tick)?;
-
-        // Smallest odd window holding the target energy for every PSF.
-        let mut half_needed = 0usize;
-        let mut fits = true;
-        let mut energies = Vec::with_capacity(periods.len());
-        for p in &periods {
-            let e = centred_window_energies(&p.cells, p.period);
-            match e.iter().position(|&v| v >= target) {
-                Some(k) => half_needed = half_needed.max(k),
-                None => fits = false,
-            }
-            energies.push(e);
-        }
-        let half_cap = periods
-            .iter()
-            .map(|p| (p.period - 1) / 2)
-            .min()
-            .unwrap_or(0);
-        // The period caps the window below the energy target.
-        let capped = !fits || half_needed > half_cap;
-        if capped {
-            let can_refine = request.doe.is_none() && calib.simulation.pupil_step_m.is_none();
-            if can_refine && refinement < MAX_REFINEMENTS {
-                // Lens only: the blur outgrew the period; halve the step.
-                step_cap = sampling
-                    .iter()
-                    .map(|s| s.grid.step_m)
-                    .fold(f64::MAX, f64::min)
-                    / 2.0;
-                min_period *= 2;
-                tracing::debug!(
-                    "window outgrew the period; refining the pupil step to {:.3} µm",
-                    step_cap * 1e6
-                );
-                continue;
-            }
-            if request.doe.is_none() {
-                return Err(OpticsError::RuleViolated(format!(
-                    "no window within one period holds {:.3}% of the light (rules 3 and 5); \
-                     allow a finer pupil step or a lower simulation.window_energy",
-                    100.0 * target
-                )));
-            }
-        }
-        let half = if capped { half_cap } else { half_needed };
-        let window = 2 * half + 1;
-        let psfs: Vec<Psf> = periods
-            .iter()
-            .zip(&energies)
-            .map(|(p, e)| {
-                let cells = crop_centred(&p.cells, p.period, window);
-                Psf {
-                    window,
-                    veil: (1.0 - e[half]).max(0.0),
-                    cells,
-                }
-            })
-            .collect();
-        let report = SamplingReport {
-            propagator: Propagator::TwoD,
-            annuli_per_cell: 0,
-            channels: sampling
-                .iter()
-                .map(|s| ChannelReport {
-                    name: calib.channels[s.channel].name.clone(),
-                    pupil_step_um: s.grid.step_m * 1e6,
-                    // Through an eye stop only its square is computed.
-                    pupil_samples: calib.eye_stop(s.channel).map_or(s.grid.samples, |stop| {
-                        stop_square(s.grid.step_m, stop).samples
-                    }),
-                    period_cells: s.period_cells,
-                })
-                .collect(),
-            step_rule: rule,
-            window_cells: window,
-            min_window_energy: energies.iter().map(|e| e[half]).fold(f64::MAX, f64::min),
-            max_veil: psfs.iter().map(|p| p.veil).fold(0.0, f64::max),
-            window_capped: capped,
-            refinements: refinement,
-            psf_count: psfs.len(),
-            compute_s: start.elapsed().as_secs_f64(),
-            from_cache: false,
-        };
-        return Ok(PsfSet { psfs, report });
-    }
-    unreachable!("the refinement loop returns or errs on its last pass")
-}
-
-/// Full-period PSFs of every spec, each cell integrated exactly.
-fn compute_periods(
-    calib: &Calibration,
-    request: &PsfRequest,
-    sampling: &[ChannelSampling],
-    tick: &(dyn Fn() + Sync),
-) -> Result<Vec<PeriodPsf>, OpticsError> {
-    // The DOE's phase depends only on the channel's grid: once per channel.
-    let phases: Vec<Option<Vec<f64>>> = sampling
-        .iter()
-        .map(|s| {
-            request
-                .doe
-                .map(|d| d.phase_on(s.grid.into(), calib, s.channel))
-        })
-        .collect();
-    request
-        .specs
-        .par_iter()
-        .map(|spec| {
-            let i = sampling
-                .iter()
-                .position(|s| s.channel == spec.channel)
-                .ok_or_else(|| OpticsError::BadSpec(format!("{spec:?}")))?;
-            let s = &sampling[i];
-            let full: PupilGrid = s.grid.into();
-            let (q, grid) = match calib.eye_stop(s.channel) {
-                Some(stop) => pupil_field_through(
-                    full,
-                    calib.aperture_radius_m,
-                    spec.psi_rad,
-                    phases[i].as_deref(),
-                    stop,
-                ),
-                None => (
-                    pupil_field(
-                        full,
-                        calib.aperture_radius_m,
-                        spec.psi_rad,
-                        phases[i].as_deref(),
-                    ),
-                    full,
-                ),
-            };
-            let lambda = calib.channels[s.channel].wavelength_m;
-            let cells = exact_period_cells(&q, grid, lambda, calib.retinal_step_rad()).ok_or_else(
-                || OpticsError::BadSpec("period is not a whole number of cells".into()),
-            )?;
-            tick();
-            Ok(PeriodPsf {
-                cells,
-                period: s.period_cells,
-            })
-        })
-        .collect()
 }
 
 /// Largest |a − b| over the common (smaller) window of each pair, as a

@@ -3,7 +3,7 @@
 
 use super::*;
 use crate::propagate::fft_period_cells;
-use crate::pupil::pupil_field;
+use crate::pupil::{PupilGrid, pupil_field};
 
 fn calib() -> Calibration {
     Calibration::default_embedded().expect("default calibration")
@@ -254,4 +254,59 @@ fn trimming_moves_only_the_far_light_to_the_veil_and_padding_undoes_it() {
     assert!((loose.veil - t.veil - ring).abs() < 1e-15);
     let total = |q: &Psf| q.cells.iter().sum::<f64>() + q.veil;
     assert!((total(&loose) - total(&t)).abs() < 1e-15);
+}
+
+#[test]
+fn a_request_over_the_memory_budget_gives_the_same_psfs_in_two_passes() {
+    // The lens alone (the window inside the period) and the three-lens DOE
+    // (the window capped by the period): held whole and in two passes.
+    let c = calib_2d();
+    let doe = HeightMap::three_lens_init(&c, 6e-6);
+    for doe in [None, Some(&doe)] {
+        let specs: Vec<PsfSpec> = [(0, 0.0), (1, 1.0), (2, 2.5)]
+            .iter()
+            .map(|&(ch, d)| PsfSpec {
+                channel: ch,
+                psi_rad: c.psi_rad(ch, d),
+            })
+            .collect();
+        let request = PsfRequest { specs, doe };
+        let counted = |budget: usize| {
+            let ticks = std::sync::atomic::AtomicUsize::new(0);
+            let tick = || {
+                ticks.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+            };
+            let set = two_d::compute_within(&c, &request, &tick, std::time::Instant::now(), budget)
+                .expect("psfs");
+            (set, ticks.into_inner())
+        };
+        let (whole, whole_ticks) = counted(usize::MAX);
+        let (passes, passes_ticks) = counted(0);
+        // The same PSFs, to the rounding of parallel sums (whose order the
+        // threads' timing decides).
+        assert_eq!(whole.psfs.len(), passes.psfs.len());
+        for (p, q) in whole.psfs.iter().zip(&passes.psfs) {
+            assert_eq!(p.window, q.window);
+            let worst = p
+                .cells
+                .iter()
+                .zip(&q.cells)
+                .chain(std::iter::once((&p.veil, &q.veil)))
+                .map(|(a, b)| (a - b).abs())
+                .fold(0.0, f64::max);
+            assert!(
+                worst < 1e-14,
+                "doe: {}: cells {worst:e} apart",
+                doe.is_some()
+            );
+        }
+        let (a, b) = (&whole.report, &passes.report);
+        assert_eq!(
+            (a.window_cells, a.window_capped, a.refinements),
+            (b.window_cells, b.window_capped, b.refinements)
+        );
+        // One tick per PSF made (the silent first pass makes none).
+        assert_eq!(whole_ticks, request.specs.len() * (1 + a.refinements));
+        assert_eq!(passes_ticks, request.specs.len());
+    }
 }
