@@ -758,3 +758,42 @@ fn tradeoff_and_stability_take_a_bundle() {
     assert_clean_error(&o, "was measured at 0.5–1 D");
     assert!(!report.exists());
 }
+
+/// `calib truth` on a calibration whose eye pupil is the stop, through the
+/// command line: the zones' truths differ (the decentred pupil sees the
+/// DOE's rings off centre), and the perturbation's relief error leaves the
+/// calibration's relief alone. (Its flag once shared the global
+/// --eye-relief-mm's name, and clap then set the relief to 0: every zone
+/// came out the same.)
+#[test]
+fn calib_truth_keeps_the_eye_and_its_zones_differ() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let text = std::fs::read_to_string(super::repo().join("tests/data/calib-loop.toml"))
+        .expect("the loop calibration");
+    let calib = dir.path().join("eye.toml");
+    std::fs::write(
+        &calib,
+        format!("{text}\n[eye]\npupil_diameter_mm = 2.0\nrelief_mm = 5.0\n"),
+    )
+    .expect("write");
+    let out = dir.path().join("truth");
+    let o = run(&[
+        "--calib",
+        path(&calib),
+        "--no-cache",
+        "calib",
+        "truth",
+        "--out",
+        path(&out),
+        "--accommodations",
+        "1.5",
+        "--field-zones",
+        "2x1",
+    ]);
+    assert!(o.status.success(), "{}", super::stderr(&o));
+    let b = nedrt_optics::bundle::PsfBundle::load(&out).expect("the truth");
+    let (z0, z1) = (b.zone(0, 0).expect("zone 0"), b.zone(1, 0).expect("zone 1"));
+    // Red, out of focus at 1.5 D: the two zones' PSFs lie 65 % apart.
+    let apart = nedrt_optics::pixel::response_distance(z0.measured(0, 0), z1.measured(0, 0));
+    assert!(apart > 0.3, "the zones' red PSFs are {apart} apart");
+}

@@ -122,6 +122,7 @@ pub fn show(
             r.to_other.map_or(String::new(), |v| format!(" {v:.4} |"))
         );
     }
+    zones_table(&mut out, &bundle, other.as_ref(), against);
     if let Some(m) = &bundle.card.measurement {
         let _ = writeln!(
             out,
@@ -135,6 +136,54 @@ pub fn show(
         );
     }
     Ok(out)
+}
+
+/// A zoned bundle's zones: each one's largest distance (over the
+/// accommodations and channels) from the whole field's PSFs, and from the
+/// same zone of `other` where it has the same zones.
+fn zones_table(
+    out: &mut String,
+    bundle: &PsfBundle,
+    other: Option<&PsfBundle>,
+    against: Option<&Path>,
+) {
+    let (nx, ny) = bundle.zones();
+    if bundle.card.zones.is_none() {
+        return;
+    }
+    let other = other.filter(|o| o.zones() == (nx, ny) && o.card.zones.is_some());
+    let other_head = match (other, against) {
+        (Some(_), Some(p)) => format!(" | to {}'s zone |", p.display()),
+        _ => " |".into(),
+    };
+    let _ = writeln!(
+        out,
+        "\n{nx}×{ny} field zones (largest distance over accommodations and channels)\n\
+         | zone | from the whole field{other_head}\n| --- | ---: |{}",
+        if other.is_some() { " ---: |" } else { "" }
+    );
+    let worst = |a: &PsfBundle, b: &PsfBundle| {
+        (0..a.accommodations_d().len())
+            .flat_map(|i| (0..a.channels()).map(move |c| (i, c)))
+            .map(|(i, c)| response_distance(a.measured(i, c), b.measured(i, c)))
+            .fold(0.0, f64::max)
+    };
+    for j in 0..ny {
+        for i in 0..nx {
+            let Some(zone) = bundle.zone(i, j) else {
+                continue;
+            };
+            let to_other = other
+                .and_then(|o| o.zone(i, j))
+                .filter(|o| o.accommodations_d() == zone.accommodations_d())
+                .map_or(String::new(), |o| format!(" {:.4} |", worst(&zone, &o)));
+            let _ = writeln!(
+                out,
+                "| ({i}, {j}) | {:.4} |{to_other}",
+                worst(&zone, bundle)
+            );
+        }
+    }
 }
 
 /// The centre row of a PSF's pixel response (what a display shows of it,

@@ -145,14 +145,16 @@ pub struct PerturbArgs {
     /// The DOE's centre from the lens's axis, across and down, mm.
     #[arg(long, default_value = "0,0", value_parser = numbers::<2>, allow_hyphen_values = true, value_name = "X,Y")]
     pub decentre_mm: [f64; 2],
-    /// Added to the eye relief, mm.
+    /// Added to the eye relief, mm (not the global --eye-relief-mm, the
+    /// relief itself, whose name this must not share: clap would set the
+    /// global one to this default).
     #[arg(
-        long,
+        long = "eye-relief-error-mm",
         default_value_t = 0.0,
         allow_hyphen_values = true,
         value_name = "MM"
     )]
-    pub eye_relief_mm: f64,
+    pub eye_relief_error_mm: f64,
     /// Added to the lens-to-panel distance, mm.
     #[arg(
         long,
@@ -175,7 +177,7 @@ impl PerturbArgs {
             etch_scale: self.etch,
             levels: self.levels,
             decentre_mm: self.decentre_mm,
-            eye_relief_mm: self.eye_relief_mm,
+            eye_relief_mm: self.eye_relief_error_mm,
             panel_distance_mm: self.panel_distance_mm,
             primaries_nm: self.primaries_nm,
             bandwidths_nm: self.bandwidths_nm,
