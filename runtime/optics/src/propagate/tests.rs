@@ -196,3 +196,18 @@ fn exact_cells_are_the_limit_of_the_midpoint_rule() {
         "MFT and FFT midpoint sums are the same samples"
     );
 }
+
+#[test]
+fn the_in_place_transpose_is_the_copying_one() {
+    // Sizes on, off and across the blocks' edges.
+    for n in [1, 5, 32, 33, 70] {
+        let data: Vec<c64> = (0..n * n)
+            .map(|k| c64::new(k as f64, -(k as f64) / 3.0))
+            .collect();
+        let mut inplace = data.clone();
+        transpose_in_place(&mut inplace, n);
+        assert_eq!(inplace, transpose(&data, n), "n = {n}");
+        transpose_in_place(&mut inplace, n);
+        assert_eq!(inplace, data, "twice is the identity, n = {n}");
+    }
+}
