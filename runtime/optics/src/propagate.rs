@@ -177,8 +177,8 @@ pub fn exact_period_cells(
     }
     // Rows beyond N are zero: transform only the first N rows.
     fft_rows(&mut field[..n * l], l, &fwd);
-    // In place: one (2N)² buffer per PSF, 2.8 GB at a 10 mm aperture's
-    // 1.5 µm step, where a copy per transpose held three.
+    // In place: one (2N)² buffer per PSF, where a copy per transpose held
+    // three (the largest allocation of a wide aperture's PSF).
     transpose_in_place(&mut field, l);
     let mut spectrum = field;
     fft_rows(&mut spectrum, l, &fwd);

@@ -246,9 +246,8 @@ fn compute_periods<T: Send>(
         }))
     };
     // As many PSFs in flight as threads: a thread waiting inside one PSF's
-    // parallel transforms would otherwise steal and start another, and
-    // each holds a few (2N)² pupil transforms (0.6 GB apiece at a 10 mm
-    // aperture): 20 GB resident on 2 cores before this bound.
+    // parallel transforms would otherwise steal and start another, each
+    // holding its (2N)² transform (docs/model.md §6, the 2-D path).
     let mut out = Vec::with_capacity(request.specs.len());
     for chunk in request.specs.chunks(rayon::current_num_threads().max(1)) {
         out.extend(chunk.par_iter().map(one).collect::<Result<Vec<T>, _>>()?);
