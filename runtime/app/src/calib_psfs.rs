@@ -25,8 +25,20 @@ pub const MAX_REGISTRATION_RMS_PX: f64 = 0.25;
 /// A pixel whose mean over the summed frames reaches this share of the
 /// full scale is taken as saturated.
 pub const SATURATED_SHARE: f32 = 0.98;
-/// Most field zones (the simulator's 8 × 8).
-pub const MAX_ZONES: usize = 64;
+
+/// `--field-zones` checked: a grid a bundle can hold.
+pub(crate) fn check_zones((nx, ny): (usize, usize)) -> Result<(), AppError> {
+    if nedrt_optics::bundle::zones_valid(nx, ny) {
+        return Ok(());
+    }
+    Err(AppError::option(
+        "--field-zones",
+        format!(
+            "{nx}×{ny}: give 1 to {} zones in all",
+            nedrt_optics::bundle::MAX_ZONES
+        ),
+    ))
+}
 
 /// A frame minus the dark frame, per ms of exposure.
 fn rate(frame: &Frame, dark: &Frame, exposure_ms: f64) -> Frame {
@@ -75,13 +87,8 @@ pub fn write(
     out: &Path,
     zones: (usize, usize),
 ) -> Result<String, AppError> {
+    check_zones(zones)?;
     let (nx, ny) = zones;
-    if nx == 0 || ny == 0 || nx * ny > MAX_ZONES {
-        return Err(AppError::option(
-            "--field-zones",
-            format!("{nx}×{ny}: give 1 to {MAX_ZONES} zones in all"),
-        ));
-    }
     let zoned = (nx, ny) != (1, 1);
     let caps = Captures::load(dir)?;
     let calib = common.calibration()?;
@@ -156,11 +163,6 @@ pub fn write(
     let mut psfs = Vec::new();
     // [zone][accommodation × channel], as the bundle's zone_psfs.
     let mut zone_psfs: Vec<Vec<nedrt_optics::psf::Psf>> = vec![Vec::new(); nx * ny];
-    let zone_of = |px: f64, py: f64| -> usize {
-        let i = ((px * nx as f64 / w as f64) as usize).min(nx - 1);
-        let j = ((py * ny as f64 / h as f64) as usize).min(ny - 1);
-        j * nx + i
-    };
     let mut floors = Vec::new();
     let mut dots_per_channel = vec![0usize; channels];
     common
@@ -251,7 +253,7 @@ pub fn write(
                             &inverse,
                             (px, py),
                             level,
-                            &mut samples[zone_of(px, py)],
+                            &mut samples[nedrt_optics::bundle::zone_at(zones, (w, h), px, py)],
                         );
                         count += 1;
                     }

@@ -120,8 +120,7 @@ pub fn write(common: &CommonOptions, o: &SynthOptions) -> Result<String, AppErro
                             &truth.zone_psfs[at..at + channels]
                         })
                         .collect(),
-                    columns: o.field_zones.0,
-                    rows: o.field_zones.1,
+                    grid: o.field_zones,
                 };
                 let (plane, fill) = retinal_image(p, &patterns, &seen, &o.camera, w, h)?;
                 let (frame, exposure_ms) =
@@ -260,8 +259,7 @@ fn check_camera(c: &Camera) -> Result<(), AppError> {
 struct Truth<'a> {
     whole: &'a [Psf],
     zones: Vec<&'a [Psf]>,
-    columns: usize,
-    rows: usize,
+    grid: (usize, usize),
 }
 
 impl Truth<'_> {
@@ -270,9 +268,7 @@ impl Truth<'_> {
         if self.zones.is_empty() {
             return 0;
         }
-        let i = (x * self.columns / w).min(self.columns - 1);
-        let j = (y * self.rows / h).min(self.rows - 1);
-        j * self.columns + i
+        nedrt_optics::bundle::zone_at(self.grid, (w, h), x as f64, y as f64)
     }
 }
 

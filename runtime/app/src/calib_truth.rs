@@ -48,16 +48,8 @@ pub fn true_psfs(
         common.cache(),
     )?;
     let doe = p.doe(&design_sim.doe);
+    crate::calib_psfs::check_zones(zones)?;
     let (nx, ny) = zones;
-    if nx == 0 || ny == 0 || nx * ny > crate::calib_psfs::MAX_ZONES {
-        return Err(AppError::option(
-            "--field-zones",
-            format!(
-                "{nx}×{ny}: give 1 to {} zones in all",
-                crate::calib_psfs::MAX_ZONES
-            ),
-        ));
-    }
     let (w, h) = (design.panel.width_px, design.panel.height_px);
     let plan = ZonePlan {
         nx,
@@ -66,9 +58,9 @@ pub fn true_psfs(
         note: String::new(),
     };
     let at = |field: Option<(f64, f64)>| {
-        let mut psfs = line_mixture(common, p, &design, &doe, accommodations_d, field)?;
+        let psfs = line_mixture(common, p, &design, &doe, accommodations_d, field)?;
         Ok::<_, AppError>(
-            psfs.drain(..)
+            psfs.iter()
                 .map(|p| p.trimmed(TRIM_LOST))
                 .collect::<Vec<_>>(),
         )

@@ -34,7 +34,25 @@ const MAX_CARD_BYTES: u64 = 1 << 20;
 /// Accommodations closer than this are the same (diopters).
 const DEPTH_TOLERANCE_D: f64 = 1e-6;
 /// Most field zones a bundle holds (the simulator's 8 × 8).
-const MAX_ZONES: usize = 64;
+pub const MAX_ZONES: usize = 64;
+
+/// Whether `columns` × `rows` field zones are a grid a bundle can hold.
+pub fn zones_valid(columns: usize, rows: usize) -> bool {
+    columns > 0 && rows > 0 && columns.saturating_mul(rows) <= MAX_ZONES
+}
+
+/// The field zone (row by row) of panel position (`x`, `y`), pixels, on a
+/// `width` × `height` panel cut in `columns` × `rows` equal rectangles.
+pub fn zone_at(
+    (columns, rows): (usize, usize),
+    (width, height): (usize, usize),
+    x: f64,
+    y: f64,
+) -> usize {
+    let i = ((x * columns as f64 / width as f64) as usize).min(columns - 1);
+    let j = ((y * rows as f64 / height as f64) as usize).min(rows - 1);
+    j * columns + i
+}
 
 /// A bundle that cannot be read, written or used, naming the file.
 #[derive(Debug, thiserror::Error)]
@@ -132,7 +150,7 @@ pub(crate) fn psfs_hash<'a>(psfs: impl IntoIterator<Item = &'a Psf>) -> String {
 fn zone_count(card: &BundleCard, path: &Path) -> Result<usize, BundleError> {
     match card.zones {
         None => Ok(0),
-        Some([x, y]) if x == 0 || y == 0 || x.saturating_mul(y) > MAX_ZONES => Err(invalid(
+        Some([x, y]) if !zones_valid(x, y) => Err(invalid(
             path,
             format!("zones [{x}, {y}]: give 1 to {MAX_ZONES} zones in all"),
         )),
