@@ -250,6 +250,118 @@ fn tradeoff_writes_the_chart_and_the_picker_reads_it() {
 mod needs_gpu {
     use super::*;
 
+    /// `bench tune` writes this adapter's table (the heuristics' tile and
+    /// one other per conv shape: each tile is a kernel lavapipe compiles
+    /// for seconds), the wgpu backend then reads it, and a broken table
+    /// stops it with an error naming the file.
+    #[test]
+    #[ignore = "needs a GPU adapter (run: scripts/test.sh, or cargo test -- --include-ignored)"]
+    fn bench_tune_writes_the_table_the_backend_then_reads() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let tuning = dir.path().join("tuning");
+        let tune = |tiles: &str| {
+            run(&[
+                "--tuning",
+                path(&tuning),
+                "bench",
+                "tune",
+                "--networks",
+                "half",
+                "--sizes",
+                "16x16",
+                "--tiles",
+                tiles,
+                "--repeat",
+                "1",
+            ])
+        };
+        let o = tune("8x4");
+        assert!(o.status.success(), "{}", stderr(&o));
+        let out = stdout(&o);
+        assert!(
+            out.contains("| conv | layer input | heuristic tile | µs | tuned tile | µs |"),
+            "{out}"
+        );
+        assert!(out.contains("| 3×3 16→16 | 16×16 | 16×16 |"), "{out}");
+        let tables: Vec<PathBuf> = std::fs::read_dir(&tuning)
+            .expect("the folder is made")
+            .map(|e| e.expect("entry").path())
+            .collect();
+        assert_eq!(tables.len(), 1, "{tables:?}");
+        let text = std::fs::read_to_string(&tables[0]).expect("reads");
+        let table: toml::Value = toml::from_str(&text).expect("toml");
+        let convs = table["conv"].as_array().expect("conv entries");
+        // The half network's 3×3 shapes at 16, 8, 4 and 2 pixels, and its 1×1.
+        assert_eq!(convs.len(), 12, "{text}");
+        for c in convs {
+            let tile = (c["px"].as_integer(), c["threads_y"].as_integer());
+            let (w, h) = (
+                c["width"].as_integer().expect("w"),
+                c["height"].as_integer().expect("h"),
+            );
+            let heuristic = nedrt_infer::gpu::codegen::ConvTile::for_layer(
+                w as u32,
+                h as u32,
+                c["kernel"].as_integer().expect("k") as usize,
+                nedrt_infer::gpu::codegen::Dtype::F32,
+            );
+            assert!(
+                tile == (Some(1), Some(4))
+                    || tile
+                        == (
+                            Some(i64::from(heuristic.px)),
+                            Some(i64::from(heuristic.threads_y))
+                        ),
+                "{c}"
+            );
+            assert!(
+                c["tuned_ns"].as_integer() <= c["heuristic_ns"].as_integer(),
+                "{c}"
+            );
+        }
+        assert_eq!(
+            table["adapter"]["driver"].as_str(),
+            Some("llvmpipe"),
+            "{text}"
+        );
+        // The backend finds it for this adapter.
+        let infer = || {
+            let mut c = nedrt();
+            c.env("NEDRT_LOG", "info").args([
+                "--tuning",
+                path(&tuning),
+                "bench",
+                "inference",
+                "--backends",
+                "wgpu",
+                "--sizes",
+                "16x16",
+                "--repeat",
+                "1",
+            ]);
+            c.output_within(deadline::COMMAND, "nedrt")
+        };
+        let o = infer();
+        assert!(o.status.success(), "{}", stderr(&o));
+        assert!(
+            stderr(&o).contains(&format!("conv tiles of {}", tables[0].display())),
+            "{}",
+            stderr(&o)
+        );
+        // A tile the template does not build is refused by name.
+        assert_clean_error(&tune("12x4"), "a conv tile is 8, 16 or 32 pixels wide");
+        // A broken table stops the backend, naming it (the bench reports
+        // each case it could not run).
+        std::fs::write(&tables[0], text.replace("threads_y = ", "threads_y = 3 + "))
+            .expect("writes");
+        let o = infer();
+        let said = format!("{}{}", stdout(&o), stderr(&o));
+        assert!(
+            said.contains(&format!("skipped: tuning table {}", tables[0].display())),
+            "{said}"
+        );
+    }
+
     /// `bench inference` names the adapter with its cooperative-matrix
     /// shapes (a record and the header) and gives each case's GPU time
     /// beside its wall time; `--per-layer` the whole frame's two times and

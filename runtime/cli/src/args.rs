@@ -43,6 +43,9 @@ pub enum BenchKind {
     Pipeline,
     /// The prefilters' transform on the device against the CPU's (docs/gpu-fft.md).
     Fft,
+    /// Each tiled convolution's tile tuned on this adapter, written into
+    /// its table under --tuning (docs/tuning.md).
+    Tune,
 }
 
 #[derive(Parser, Debug)]
@@ -114,6 +117,11 @@ pub struct GlobalArgs {
     /// f32 on a CPU adapter), f16 or f32 (on f16 storage).
     #[arg(long, global = true, value_parser = named::<F16Math>(), default_value = "auto")]
     pub f16_math: F16Math,
+    /// Folder of the wgpu backend's tuned conv tiles, one table per adapter
+    /// and driver (`nedrt bench tune` writes them; docs/tuning.md). An
+    /// adapter without a table, or a missing folder, takes the heuristics'.
+    #[arg(long, global = true, value_name = "DIR", default_value = "tuning")]
+    pub tuning: PathBuf,
     /// Execution provider of the ort backend.
     #[arg(long, global = true, value_parser = named::<OrtProvider>(), default_value = "cpu")]
     pub ort_provider: OrtProvider,
@@ -171,6 +179,21 @@ pub struct SimArgs {
     pub level: Option<String>,
     #[command(flatten)]
     pub zones: crate::eye_args::ZoneArgs,
+}
+
+/// `--tiles`: a conv tile as its output pixels, WIDTHxHEIGHT (8, 16 or
+/// 32 wide; 1, 2, 4, 8 or 16 tall).
+pub(crate) fn parse_tile(s: &str) -> Result<nedrt_infer::gpu::codegen::ConvTile, String> {
+    let (w, h) = parse_size(s)?;
+    if ![8, 16, 32].contains(&w) || !h.is_power_of_two() || h > 16 {
+        return Err(format!(
+            "{s:?}: a conv tile is 8, 16 or 32 pixels wide and 1, 2, 4, 8 or 16 tall"
+        ));
+    }
+    Ok(nedrt_infer::gpu::codegen::ConvTile {
+        px: (w / 8) as u32,
+        threads_y: h as u32,
+    })
 }
 
 pub(crate) fn parse_size(s: &str) -> Result<(usize, usize), String> {
@@ -443,7 +466,8 @@ pub struct BenchArgs {
     /// pipeline: stop a case after this long.
     #[arg(long, default_value_t = 120.0)]
     pub max_seconds: f64,
-    /// pipeline: networks to run.
+    /// pipeline: networks to run; tune: networks to tune (half, full,
+    /// model; the others have no convolutions and are passed over).
     #[arg(long, value_delimiter = ',', value_parser = named::<PipelineNetwork>(), default_values = ["none", "half", "full", "model"])]
     pub networks: Vec<PipelineNetwork>,
     /// pipeline: frame paths to run each network on.
@@ -489,6 +513,11 @@ pub struct BenchArgs {
     /// (inference: default the best any layer reaches in the run; fft: no floor).
     #[arg(long, value_name = "GB/S")]
     pub peak_gbps: Option<f64>,
+    /// tune: only these conv tiles besides each layer's heuristic one,
+    /// WIDTHxHEIGHT in output pixels (default: every tile; each is a
+    /// kernel to compile, seconds apiece on a software adapter).
+    #[arg(long, value_delimiter = ',', value_parser = parse_tile, value_name = "WxH")]
+    pub tiles: Vec<nedrt_infer::gpu::codegen::ConvTile>,
     /// fft: the device FFT paths to time side by side.
     #[arg(long, value_delimiter = ',', value_enum, default_values = ["auto", "multipass"])]
     pub fft_paths: Vec<FftPathArg>,

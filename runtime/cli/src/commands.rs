@@ -59,6 +59,7 @@ pub fn run(cli: Cli) -> Result<()> {
                 precision: g.precision,
                 conv_path: g.conv_path,
                 f16_math: g.f16_math,
+                tuning_dir: Some(g.tuning.clone()),
                 ort_provider: g.ort_provider,
                 gpu: env.gpu.clone(),
                 ort_library: if may_use_ort {
@@ -343,6 +344,35 @@ pub fn run(cli: Cli) -> Result<()> {
                 };
                 let table = studies::bench_fft::run(&bench, &mut |r| println!("{r}"))?;
                 print!("{table}");
+            }
+            BenchKind::Tune => {
+                use studies::bench_pipeline::PipelineNetwork as N;
+                let mut networks = Vec::new();
+                for n in &a.networks {
+                    match n {
+                        N::Half => networks.push((
+                            "half".to_string(),
+                            studies::bench_inference::synth_model("half", 16)?,
+                        )),
+                        N::Full => networks.push((
+                            "full".to_string(),
+                            studies::bench_inference::synth_model("full", 32)?,
+                        )),
+                        N::Model => networks.push((
+                            common.dcnn.path.display().to_string(),
+                            nedrt_infer::ModelFile::read(&common.dcnn.path)?,
+                        )),
+                        _ => {}
+                    }
+                }
+                let bench = studies::bench_tune::TuneBench {
+                    networks,
+                    sizes: a.sizes,
+                    repeat: a.repeat,
+                    dir: g.tuning.clone(),
+                    tiles: (!a.tiles.is_empty()).then_some(a.tiles),
+                };
+                print!("{}", studies::bench_tune::run(&bench, &common)?.report);
             }
             BenchKind::Ceilings => {
                 let (gflops, gbps) = studies::bench::ceilings();

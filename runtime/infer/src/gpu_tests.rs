@@ -92,7 +92,7 @@ fn kernel_networks() -> Vec<(&'static str, Network)> {
 /// conv, max pool, transposed conv, concat(`skip`, upsampled), 1×1 conv with
 /// residual; channel counts that are not multiples of the tiles' 4/8/16.
 /// `skip` is the first conv's output (value 1) or the frame (0).
-fn pool_upsample_net(skip: usize) -> Network {
+pub(crate) fn pool_upsample_net(skip: usize) -> Network {
     let mut rng = SplitMix::new(9);
     let mut a = conv(&mut rng, 0, 1, 3, 10, 3);
     a.relu = true;

@@ -61,6 +61,9 @@ pub enum InferenceError {
     },
     #[error("wgpu backend: {0}")]
     Gpu(#[from] nedrt_gpu::GpuError),
+    /// A tuning table (`tuning/*.toml`) that cannot be read or used.
+    #[error("tuning table {path}: {reason}")]
+    Tuning { path: PathBuf, reason: String },
     #[error(
         "{engine}: the network's output holds {count} non-finite values (NaN or ±inf) for a \
          {width}×{height} frame"
@@ -323,6 +326,8 @@ pub struct BackendOptions {
     pub conv_path: ConvPath,
     /// How its tiled kernels sum at f16.
     pub f16_math: F16Math,
+    /// The wgpu backend's tuned conv tiles (docs/tuning.md); None: heuristics.
+    pub tuning_dir: Option<PathBuf>,
 }
 
 /// The D-CNN ready to preprocess frames of any size.
@@ -545,5 +550,7 @@ pub fn flat_field_warning(model: &str, shift: f32) -> Option<String> {
 
 #[cfg(test)]
 pub(crate) mod gpu_tests;
+#[cfg(test)]
+mod gpu_tuning_tests;
 #[cfg(test)]
 mod tests;

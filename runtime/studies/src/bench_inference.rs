@@ -69,7 +69,7 @@ impl Peaks {
 }
 
 /// The trainer's 4-level U-Net of first-level `width`, random weights.
-pub(crate) fn synth_model(name: &str, width: i64) -> Result<ModelFile, AppError> {
+pub fn synth_model(name: &str, width: i64) -> Result<ModelFile, AppError> {
     Ok(ModelFile::from_bytes(
         std::path::Path::new(&format!("synth-{name}.onnx")),
         synth::encode(&synth::unet(width, 4, 1)),

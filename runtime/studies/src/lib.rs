@@ -15,6 +15,7 @@ pub mod bench_fft;
 pub mod bench_inference;
 pub mod bench_layers;
 pub mod bench_pipeline;
+pub mod bench_tune;
 pub mod eval;
 pub mod focus_cues;
 pub mod plots;

@@ -152,6 +152,8 @@ pub struct KernelKey {
 pub const MAX_CONV_KERNEL: usize = 5;
 
 const CONV: &str = include_str!("../../../../shaders/conv.wgsl");
+/// The register-tiled conv template, whose hash a tuning table records.
+pub(super) const CONV_TEMPLATE: &str = CONV;
 const CONV_TRANSPOSE: &str = include_str!("../../../../shaders/conv_transpose.wgsl");
 const MAX_POOL: &str = include_str!("../../../../shaders/max_pool.wgsl");
 const CONV_COOP: &str = include_str!("../../../../shaders/conv_coop.wgsl");

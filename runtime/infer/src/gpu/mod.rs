@@ -27,11 +27,15 @@ pub mod params;
 mod plan;
 mod profile;
 mod resident;
+mod tuner;
+pub mod tuning;
 
 pub use choose::{ConvSupport, cooperative_against_tiled};
 pub use resident::DeviceDcnn;
+pub use tuner::TuneResult;
 
 use std::collections::HashMap;
+use std::sync::Arc;
 
 use codegen::{Dtype, KernelKey};
 use nedrt_gpu::PassTimer;
@@ -123,6 +127,10 @@ pub struct GpuBackend {
     resident: Option<resident::ResidentPlan>,
     /// Each convolution's kernel and why (`conv_paths`).
     conv_paths: Vec<String>,
+    /// Conv tiles tuned for this adapter (`nedrt bench tune`), if any.
+    tuning: Option<Arc<tuning::TuningTable>>,
+    /// Tiles the tuner forces on layers, over the table and heuristics.
+    forced_tiles: HashMap<usize, codegen::ConvTile>,
 }
 
 impl GpuBackend {
@@ -147,14 +155,19 @@ impl GpuBackend {
         options: &BackendOptions,
     ) -> Result<Self, InferenceError> {
         let support = ConvSupport::of_options(device, options);
-        Self::new_with(
+        let tuning = match &options.tuning_dir {
+            Some(dir) => tuning::table_for(dir, &device.adapter_info())?,
+            None => None,
+        };
+        Ok(Self::new_with(
             device,
             queue,
             adapter_name,
             network,
             options.precision,
             support,
-        )
+        )?
+        .with_tuning(tuning))
     }
 
     /// Prepares `network` on a given device, each convolution on the
@@ -341,7 +354,30 @@ impl GpuBackend {
             window: resident::WindowKernel::new(device),
             resident: None,
             conv_paths,
+            tuning: None,
+            forced_tiles: HashMap::new(),
         })
+    }
+
+    /// Uses `table`'s conv tiles where it has the layer's shape.
+    pub fn with_tuning(mut self, table: Option<Arc<tuning::TuningTable>>) -> Self {
+        self.set_tuning(table);
+        self
+    }
+
+    /// The tuning table in use, if any.
+    pub fn tuning(&self) -> Option<&tuning::TuningTable> {
+        self.tuning.as_deref()
+    }
+
+    /// Forces `tiles` (layer index → tile) over the table and the
+    /// heuristics, for the tuner; an empty map lifts them.
+    pub fn force_conv_tiles(&mut self, tiles: HashMap<usize, codegen::ConvTile>) {
+        if tiles != self.forced_tiles {
+            self.forced_tiles = tiles;
+            self.plan = None;
+            self.resident = None;
+        }
     }
 
     /// Caps each activation buffer at `bytes` (at most the adapter's own

@@ -44,27 +44,76 @@ pub(super) struct SizedPlan {
 }
 
 impl GpuBackend {
-    /// Each layer's kernel for a `width`×`height` frame: every conv gets
-    /// the tile its own size fills.
-    fn sized_keys(&self, width: usize, height: usize) -> Vec<Option<KernelKey>> {
+    /// Each register-tiled conv layer's tile for a `width`×`height` frame
+    /// (a band's window where the frame runs in bands): the tuner's forced
+    /// tile, else the adapter's table's, else the heuristics'.
+    pub fn conv_tiles(&self, width: usize, height: usize) -> Vec<super::tuning::LayerTile> {
+        use super::tuning::{ConvShape, LayerTile, TileSource};
         let net = &self.network;
-        net.layers
+        let mut out = Vec::new();
+        for (li, (layer, key)) in net.layers.iter().zip(&self.layer_keys).enumerate() {
+            let (Layer::Conv(c), Some(key)) = (layer, key) else {
+                continue;
+            };
+            if !matches!(key.kind, KernelKind::Conv { .. }) {
+                continue;
+            }
+            let level = net.values[c.input].level;
+            let (w, h) = ((width >> level) as u32, (height >> level) as u32);
+            let shape = ConvShape {
+                kernel: c.kernel,
+                cin: c.cin,
+                cout: c.cout,
+                width: w,
+                height: h,
+                weights: key.weights.into(),
+                arith: key.arith.into(),
+            };
+            let (tile, source) = if let Some(t) = self.forced_tiles.get(&li) {
+                (*t, TileSource::Forced)
+            } else if let Some(t) = self.tuning.as_ref().and_then(|t| t.tile_for(&shape)) {
+                (t, TileSource::Tuned)
+            } else {
+                (
+                    codegen::ConvTile::for_layer(w, h, c.kernel, key.arith),
+                    TileSource::Heuristic,
+                )
+            };
+            out.push(LayerTile {
+                layer: li,
+                shape,
+                tile,
+                source,
+            });
+        }
+        out
+    }
+
+    /// Each layer's kernel for a `width`×`height` frame: every conv gets
+    /// its tile from [`Self::conv_tiles`].
+    fn sized_keys(&self, width: usize, height: usize) -> Vec<Option<KernelKey>> {
+        let mut keys = self.layer_keys.clone();
+        let tiles = self.conv_tiles(width, height);
+        let tuned = tiles
             .iter()
-            .zip(&self.layer_keys)
-            .map(|(layer, key)| {
-                let mut key = (*key)?;
-                if let (Layer::Conv(c), KernelKind::Conv { tile, .. }) = (layer, &mut key.kind) {
-                    let level = net.values[c.input].level;
-                    *tile = codegen::ConvTile::for_layer(
-                        (width >> level) as u32,
-                        (height >> level) as u32,
-                        c.kernel,
-                        key.arith,
-                    );
-                }
-                Some(key)
-            })
-            .collect()
+            .filter(|t| t.source == super::tuning::TileSource::Tuned)
+            .count();
+        if tuned > 0 {
+            tracing::debug!(
+                "{width}×{height}: {tuned} of {} conv tiles tuned",
+                tiles.len()
+            );
+        }
+        for t in tiles {
+            if let Some(KernelKey {
+                kind: KernelKind::Conv { tile, .. },
+                ..
+            }) = &mut keys[t.layer]
+            {
+                *tile = t.tile;
+            }
+        }
+        keys
     }
 
     /// Buffers, params and bind groups for a `width`×`height` frame.

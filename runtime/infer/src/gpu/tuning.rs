@@ -1,0 +1,525 @@
+//! Tuned conv tiles per adapter (issue 56 item 4, docs/tuning.md).
+//! `nedrt bench tune` times every register-tiled convolution at each tile
+//! on the adapter it runs on and writes the fastest per layer shape into a
+//! table, one TOML file per adapter and driver under `tuning/`. The
+//! backend reads the table matching its adapter and driver when it is
+//! made (`BackendOptions::tuning_dir`); a layer shape the table lacks, or
+//! an adapter without a table, gets [`ConvTile::for_layer`], the
+//! heuristics. A tile changes only how the output is cut among
+//! workgroups, never the order a pixel's products are summed in, so a
+//! tuned network computes the heuristics' output bit for bit (the tuner
+//! checks it before writing).
+
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+
+use serde::{Deserialize, Serialize};
+
+use super::codegen::{ConvTile, Dtype, WORKGROUP_BYTES};
+use crate::InferenceError;
+
+/// The largest table read (a table holds a few hundred short entries).
+const MAX_TABLE_BYTES: u64 = 1 << 20;
+
+/// Which adapter and driver a table was measured on: a table is used only
+/// where all of these match.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct AdapterKey {
+    pub name: String,
+    pub vendor: u32,
+    pub device: u32,
+    pub driver: String,
+    pub driver_info: String,
+    /// wgpu's backend (Vulkan, Metal, Dx12, Gl).
+    pub backend: String,
+}
+
+impl AdapterKey {
+    pub fn of(info: &wgpu::AdapterInfo) -> Self {
+        Self {
+            name: info.name.clone(),
+            vendor: info.vendor,
+            device: info.device,
+            driver: info.driver.clone(),
+            driver_info: info.driver_info.clone(),
+            backend: format!("{:?}", info.backend),
+        }
+    }
+
+    /// The table's file name: the adapter and driver, lower case, runs of
+    /// other characters as one `-`.
+    pub fn file_name(&self) -> String {
+        let mut slug = String::new();
+        for c in format!("{} {} {}", self.name, self.driver, self.driver_info).chars() {
+            if c.is_ascii_alphanumeric() {
+                slug.push(c.to_ascii_lowercase());
+            } else if !slug.ends_with('-') {
+                slug.push('-');
+            }
+        }
+        let slug = slug.trim_matches('-');
+        let slug: String = slug.chars().take(96).collect();
+        format!("{}.toml", if slug.is_empty() { "adapter" } else { &slug })
+    }
+}
+
+/// A register-tiled convolution as the tuner and the backend see it: its
+/// taps, channels, input size (the layer's, not the frame's), storage and
+/// arithmetic types.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ConvShape {
+    pub kernel: usize,
+    pub cin: usize,
+    pub cout: usize,
+    pub width: u32,
+    pub height: u32,
+    /// "f32" or "f16".
+    pub weights: DtypeName,
+    pub arith: DtypeName,
+}
+
+/// A [`Dtype`] as the table spells it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum DtypeName {
+    F32,
+    F16,
+}
+
+impl From<Dtype> for DtypeName {
+    fn from(d: Dtype) -> Self {
+        match d {
+            Dtype::F32 => Self::F32,
+            Dtype::F16 => Self::F16,
+        }
+    }
+}
+
+impl From<DtypeName> for Dtype {
+    fn from(d: DtypeName) -> Self {
+        match d {
+            DtypeName::F32 => Self::F32,
+            DtypeName::F16 => Self::F16,
+        }
+    }
+}
+
+/// One shape's tile, with what the tuner measured.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TunedConv {
+    #[serde(flatten)]
+    pub shape: ConvShape,
+    /// Output pixels per thread along x (a tile `8 × px` wide).
+    pub px: u32,
+    /// Threads (output rows) along y.
+    pub threads_y: u32,
+    /// The layers of this shape at this tile, summed: the best of the
+    /// tuner's repetitions, nanoseconds of device time.
+    pub tuned_ns: u64,
+    /// The same at the heuristics' tile.
+    pub heuristic_ns: u64,
+}
+
+impl TunedConv {
+    pub fn tile(&self) -> ConvTile {
+        ConvTile {
+            px: self.px,
+            threads_y: self.threads_y,
+        }
+    }
+}
+
+/// Every tile the template builds for a `kernel`×`kernel` conv summing in
+/// `arith`: 8, 16 or 32 pixels wide, 1 to 16 rows, one quad's staging
+/// within [`WORKGROUP_BYTES`].
+pub fn tile_is_valid(tile: ConvTile, kernel: usize, arith: Dtype) -> bool {
+    [1, 2, 4].contains(&tile.px)
+        && tile.threads_y.is_power_of_two()
+        && tile.threads_y <= ConvTile::LARGE.threads_y
+        && tile.workgroup_bytes(kernel, 1, arith) <= WORKGROUP_BYTES
+}
+
+/// The tiles worth timing for a layer of `width`×`height`: the valid ones
+/// no wider than the layer needs (8 pixels, or the power of two at least
+/// its width) nor taller.
+pub fn candidate_tiles(width: u32, height: u32, kernel: usize, arith: Dtype) -> Vec<ConvTile> {
+    let (max_w, max_h) = (
+        width.max(1).next_power_of_two().max(ConvTile::THREADS_X),
+        height.max(1).next_power_of_two(),
+    );
+    let mut out = Vec::new();
+    for px in [4, 2, 1] {
+        for threads_y in [16, 8, 4, 2, 1] {
+            let tile = ConvTile { px, threads_y };
+            let (w, h) = tile.pixels();
+            if w <= max_w && h <= max_h && tile_is_valid(tile, kernel, arith) {
+                out.push(tile);
+            }
+        }
+    }
+    out
+}
+
+/// One adapter's table.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TuningTable {
+    pub adapter: AdapterKey,
+    /// The nedrt that measured it.
+    pub nedrt: String,
+    /// blake3 of the conv template the tiles were timed on (16 hex
+    /// digits): a table from another template still computes the same
+    /// output, but its times may no longer rank the tiles.
+    pub template: String,
+    #[serde(default, rename = "conv")]
+    pub convs: Vec<TunedConv>,
+}
+
+/// The conv template's hash, as tables record it.
+pub fn template_hash() -> String {
+    blake3::hash(super::codegen::CONV_TEMPLATE.as_bytes()).to_hex()[..16].to_string()
+}
+
+fn bad(path: &Path, reason: impl std::fmt::Display) -> InferenceError {
+    InferenceError::Tuning {
+        path: path.to_path_buf(),
+        reason: reason.to_string(),
+    }
+}
+
+impl TuningTable {
+    /// Parses and checks a table: every tile one the template builds, no
+    /// shape twice.
+    pub fn parse(text: &str, path: &Path) -> Result<Self, InferenceError> {
+        let table: Self = toml::from_str(text).map_err(|e| bad(path, e.message()))?;
+        let mut seen = HashMap::new();
+        for (i, c) in table.convs.iter().enumerate() {
+            let at = format!(
+                "conv entry {} ({}×{} {}→{} at {}×{})",
+                i + 1,
+                c.shape.kernel,
+                c.shape.kernel,
+                c.shape.cin,
+                c.shape.cout,
+                c.shape.width,
+                c.shape.height
+            );
+            if c.shape.kernel == 0 || c.shape.kernel > super::codegen::MAX_CONV_KERNEL {
+                return Err(bad(
+                    path,
+                    format!(
+                        "{at}: kernel must be 1 to {}",
+                        super::codegen::MAX_CONV_KERNEL
+                    ),
+                ));
+            }
+            if !tile_is_valid(c.tile(), c.shape.kernel, c.shape.arith.into()) {
+                return Err(bad(
+                    path,
+                    format!(
+                        "{at}: px = {}, threads_y = {} is not a tile the conv kernel builds \
+                     (px 1, 2 or 4; threads_y a power of two up to 16; within {WORKGROUP_BYTES} \
+                     bytes of workgroup memory)",
+                        c.px, c.threads_y
+                    ),
+                ));
+            }
+            if let Some(j) = seen.insert(c.shape, i) {
+                return Err(bad(
+                    path,
+                    format!("{at}: the same shape as conv entry {}", j + 1),
+                ));
+            }
+        }
+        Ok(table)
+    }
+
+    /// Reads one table file.
+    pub fn read(path: &Path) -> Result<Self, InferenceError> {
+        let bytes =
+            nedrt_core::util::read_capped(path, MAX_TABLE_BYTES).map_err(|e| bad(path, e))?;
+        let text = String::from_utf8(bytes).map_err(|_| bad(path, "not UTF-8 text"))?;
+        Self::parse(&text, path)
+    }
+
+    /// The table in `dir` for `adapter`, with its path; None where `dir`
+    /// does not exist or holds none for it. Every `*.toml` in `dir` is
+    /// read, so a broken one is reported whichever adapter it is for.
+    pub fn find(
+        dir: &Path,
+        adapter: &AdapterKey,
+    ) -> Result<Option<(PathBuf, Self)>, InferenceError> {
+        let entries = match std::fs::read_dir(dir) {
+            Ok(e) => e,
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
+            Err(e) => return Err(bad(dir, e)),
+        };
+        let mut paths: Vec<PathBuf> = entries
+            .filter_map(|e| e.ok().map(|e| e.path()))
+            .filter(|p| p.extension().is_some_and(|x| x == "toml") && p.is_file())
+            .collect();
+        paths.sort();
+        let mut found: Option<(PathBuf, Self)> = None;
+        for path in paths {
+            let table = Self::read(&path)?;
+            if &table.adapter == adapter {
+                if let Some((first, _)) = &found {
+                    return Err(bad(
+                        &path,
+                        format!(
+                            "a second table for {} (driver {}), beside {}; keep one",
+                            adapter.name,
+                            adapter.driver_info,
+                            first.display()
+                        ),
+                    ));
+                }
+                found = Some((path, table));
+            }
+        }
+        Ok(found)
+    }
+
+    /// The tuned tile for `shape`, if the table has it.
+    pub fn tile_for(&self, shape: &ConvShape) -> Option<ConvTile> {
+        self.convs
+            .iter()
+            .find(|c| &c.shape == shape)
+            .map(TunedConv::tile)
+    }
+
+    /// Writes the table into `dir` under its adapter's file name (made if
+    /// missing), atomically: an existing table stays whole until the new
+    /// one replaces it.
+    pub fn save(&self, dir: &Path) -> Result<PathBuf, InferenceError> {
+        std::fs::create_dir_all(dir).map_err(|e| bad(dir, e))?;
+        let path = dir.join(self.adapter.file_name());
+        let text = toml::to_string(self).map_err(|e| bad(&path, e))?;
+        let header = "# Conv tiles tuned on this adapter by `nedrt bench tune` (docs/tuning.md).\n";
+        nedrt_core::util::write_atomic(&path, format!("{header}{text}").as_bytes())
+            .map_err(|e| bad(&path, e))?;
+        Ok(path)
+    }
+
+    /// Merges `other`'s entries in, a shape in both taking `other`'s.
+    pub fn merge(&mut self, other: Vec<TunedConv>) {
+        for c in other {
+            match self.convs.iter_mut().find(|e| e.shape == c.shape) {
+                Some(e) => *e = c,
+                None => self.convs.push(c),
+            }
+        }
+    }
+}
+
+/// The table in `dir` for the adapter of `info`, said in the log either
+/// way; a broken table in `dir` is an error naming it.
+pub fn table_for(
+    dir: &Path,
+    info: &wgpu::AdapterInfo,
+) -> Result<Option<std::sync::Arc<TuningTable>>, InferenceError> {
+    let key = AdapterKey::of(info);
+    match TuningTable::find(dir, &key)? {
+        Some((path, table)) => {
+            tracing::info!(
+                "conv tiles of {} ({} shapes) tuned for {}",
+                path.display(),
+                table.convs.len(),
+                key.name
+            );
+            if table.template != template_hash() {
+                tracing::warn!(
+                    "{} was tuned on another conv template ({}, this one is {}): its tiles \
+                     compute the same output, but may no longer be the fastest; run \
+                     `nedrt bench tune` again",
+                    path.display(),
+                    table.template,
+                    template_hash()
+                );
+            }
+            Ok(Some(std::sync::Arc::new(table)))
+        }
+        None => {
+            tracing::info!(
+                "no conv tiles tuned for {} (driver {}) in {}: the heuristics' tiles \
+                 (`nedrt bench tune` tunes them)",
+                key.name,
+                key.driver_info,
+                dir.display()
+            );
+            Ok(None)
+        }
+    }
+}
+
+/// Where a layer's tile came from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum TileSource {
+    /// Forced by the tuner.
+    Forced,
+    /// The adapter's table.
+    Tuned,
+    /// [`ConvTile::for_layer`].
+    Heuristic,
+}
+
+/// A register-tiled conv layer's tile at one frame size.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct LayerTile {
+    pub layer: usize,
+    pub shape: ConvShape,
+    pub tile: ConvTile,
+    pub source: TileSource,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn key() -> AdapterKey {
+        AdapterKey {
+            name: "llvmpipe (LLVM 15.0.6, 256 bits)".into(),
+            vendor: 0x10005,
+            device: 0,
+            driver: "llvmpipe".into(),
+            driver_info: "Mesa 22.3.6 (LLVM 15.0.6)".into(),
+            backend: "Vulkan".into(),
+        }
+    }
+
+    fn shape() -> ConvShape {
+        ConvShape {
+            kernel: 3,
+            cin: 16,
+            cout: 16,
+            width: 64,
+            height: 32,
+            weights: DtypeName::F32,
+            arith: DtypeName::F32,
+        }
+    }
+
+    fn table() -> TuningTable {
+        TuningTable {
+            adapter: key(),
+            nedrt: "0.1.0".into(),
+            template: template_hash(),
+            convs: vec![TunedConv {
+                shape: shape(),
+                px: 2,
+                threads_y: 4,
+                tuned_ns: 1000,
+                heuristic_ns: 1500,
+            }],
+        }
+    }
+
+    #[test]
+    fn a_table_saves_and_reads_back_and_is_found_by_its_adapter_only() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let path = table().save(dir.path()).expect("saves");
+        assert_eq!(
+            path.file_name().and_then(|n| n.to_str()),
+            Some("llvmpipe-llvm-15-0-6-256-bits-llvmpipe-mesa-22-3-6-llvm-15-0-6.toml")
+        );
+        let (found, t) = TuningTable::find(dir.path(), &key())
+            .expect("reads")
+            .expect("found");
+        assert_eq!(found, path);
+        assert_eq!(t, table());
+        assert_eq!(
+            t.tile_for(&shape()),
+            Some(ConvTile {
+                px: 2,
+                threads_y: 4
+            })
+        );
+        let other = ConvShape {
+            width: 65,
+            ..shape()
+        };
+        assert_eq!(t.tile_for(&other), None);
+        let newer = AdapterKey {
+            driver_info: "Mesa 24.0".into(),
+            ..key()
+        };
+        assert!(
+            TuningTable::find(dir.path(), &newer)
+                .expect("reads")
+                .is_none()
+        );
+        assert!(
+            TuningTable::find(&dir.path().join("absent"), &key())
+                .expect("none")
+                .is_none()
+        );
+    }
+
+    #[test]
+    fn a_bad_table_is_refused_naming_the_file_and_the_entry() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let path = table().save(dir.path()).expect("saves");
+        let text = std::fs::read_to_string(&path).expect("reads");
+        for (from, to, says) in [
+            ("threads_y = 4", "threads_y = 3", "not a tile"),
+            ("px = 2", "px = 8", "not a tile"),
+            ("kernel = 3", "kernel = 9", "kernel must be"),
+            ("cout = 16", "cout = \"x\"", "invalid type"),
+            ("px = 2", "px = 2\nsurprise = 1", "unknown field"),
+        ] {
+            std::fs::write(&path, text.replace(from, to)).expect("writes");
+            let e = TuningTable::find(dir.path(), &key())
+                .expect_err(to)
+                .to_string();
+            assert!(e.contains(&path.display().to_string()), "{e}");
+            assert!(e.contains(says), "{to}: {e}");
+        }
+        let mut twice = table();
+        twice.convs.push(twice.convs[0].clone());
+        std::fs::write(&path, toml::to_string(&twice).expect("toml")).expect("writes");
+        let e = TuningTable::find(dir.path(), &key())
+            .expect_err("twice")
+            .to_string();
+        assert!(
+            e.contains("conv entry 2") && e.contains("same shape as conv entry 1"),
+            "{e}"
+        );
+        // Two files for one adapter: which one counts is not guessed.
+        std::fs::write(&path, text.clone()).expect("writes");
+        std::fs::write(dir.path().join("copy.toml"), &text).expect("writes");
+        let e = TuningTable::find(dir.path(), &key())
+            .expect_err("two")
+            .to_string();
+        assert!(e.contains("a second table"), "{e}");
+    }
+
+    #[test]
+    fn the_candidates_are_the_valid_tiles_the_layer_fills_and_include_the_heuristics() {
+        for (w, h, kernel, arith) in [
+            (64, 64, 3, Dtype::F32),
+            (5, 3, 3, Dtype::F32),
+            (240, 135, 5, Dtype::F32),
+            (240, 135, 5, Dtype::F16),
+            (1, 1, 1, Dtype::F16),
+        ] {
+            let c = candidate_tiles(w, h, kernel, arith);
+            assert!(c.iter().all(|t| tile_is_valid(*t, kernel, arith)));
+            let heuristic = ConvTile::for_layer(w, h, kernel, arith);
+            assert!(
+                c.contains(&heuristic),
+                "{w}×{h} k{kernel}: {heuristic:?} not in {c:?}"
+            );
+        }
+        assert_eq!(candidate_tiles(64, 64, 3, Dtype::F32).len(), 15);
+        assert_eq!(
+            candidate_tiles(5, 1, 3, Dtype::F32),
+            vec![ConvTile {
+                px: 1,
+                threads_y: 1
+            }]
+        );
+    }
+}

@@ -1,0 +1,187 @@
+//! `nedrt bench tune` (docs/tuning.md): the register-tiled convolutions of
+//! each network tuned on this adapter at each frame size and precision,
+//! merged into the adapter's table under `--tuning DIR`, which the wgpu
+//! backend then reads. Prints, per case, each conv shape's tile and time
+//! at the heuristics' tile and at the tuned one.
+
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+use super::AppError;
+use super::bench_inference::{adapter, adapter_line, bench_frame};
+use crate::CommonOptions;
+use nedrt_infer::BackendOptions;
+use nedrt_infer::gpu::GpuBackend;
+use nedrt_infer::gpu::tuning::{AdapterKey, TunedConv, TuningTable, template_hash};
+use nedrt_infer::model_file::ModelFile;
+
+/// What to tune.
+#[derive(Debug, Clone)]
+pub struct TuneBench {
+    /// (name, model) of each network.
+    pub networks: Vec<(String, ModelFile)>,
+    /// Frame sizes, (width, height).
+    pub sizes: Vec<(usize, usize)>,
+    /// Timed repetitions per tile after a warm-up (the best is kept).
+    pub repeat: usize,
+    /// The folder of tables (the runtime's `--tuning`).
+    pub dir: PathBuf,
+    /// Only these tiles besides each layer's heuristic one (None: all).
+    pub tiles: Option<Vec<nedrt_infer::gpu::codegen::ConvTile>>,
+}
+
+/// What a run wrote, and its report.
+#[derive(Debug, Clone)]
+pub struct TuneOutcome {
+    pub table: PathBuf,
+    pub shapes: usize,
+    pub report: String,
+}
+
+fn us(ns: u64) -> String {
+    format!("{:.1}", ns as f64 * 1e-3)
+}
+
+fn tile(px: u32, threads_y: u32) -> String {
+    format!("{}×{}", 8 * px, threads_y)
+}
+
+/// One case's table: each shape, the heuristics' tile against the tuned.
+fn case_table(title: &str, convs: &[TunedConv], tiles_timed: usize) -> String {
+    let mut md = format!(
+        "\n### {title}\n\n{tiles_timed} tiles timed.\n\n| conv | layer input | heuristic tile | µs | tuned tile | µs | heuristic / tuned |\n| --- | --- | --- | ---: | --- | ---: | ---: |\n"
+    );
+    let (mut h_sum, mut t_sum) = (0u64, 0u64);
+    for c in convs {
+        let s = c.shape;
+        let heuristic = nedrt_infer::gpu::codegen::ConvTile::for_layer(
+            s.width,
+            s.height,
+            s.kernel,
+            s.arith.into(),
+        );
+        h_sum = h_sum.saturating_add(c.heuristic_ns);
+        t_sum = t_sum.saturating_add(c.tuned_ns);
+        let _ = writeln!(
+            md,
+            "| {0}×{0} {1}→{2} | {3}×{4} | {5} | {6} | {7} | {8} | {9:.2} |",
+            s.kernel,
+            s.cin,
+            s.cout,
+            s.width,
+            s.height,
+            tile(heuristic.px, heuristic.threads_y),
+            us(c.heuristic_ns),
+            tile(c.px, c.threads_y),
+            us(c.tuned_ns),
+            c.heuristic_ns as f64 / c.tuned_ns.max(1) as f64
+        );
+    }
+    let _ = writeln!(
+        md,
+        "| all tiled convs | | | {} | | {} | {:.2} |",
+        us(h_sum),
+        us(t_sum),
+        h_sum as f64 / t_sum.max(1) as f64
+    );
+    md
+}
+
+/// Tunes every network at every size, at the precision the backend is
+/// asked for (`--precision`; tiles are tuned per storage and arithmetic
+/// type),
+/// merges the result into the adapter's table in `b.dir` (a shape tuned
+/// again takes the new tile) and writes it.
+pub fn run(b: &TuneBench, common: &CommonOptions) -> Result<TuneOutcome, AppError> {
+    if b.networks.is_empty() || b.sizes.is_empty() {
+        return Err(AppError::input(
+            "bench tune",
+            "no network or no size to tune",
+        ));
+    }
+    let mut md = adapter_line(&adapter(common), common);
+    let mut found: Vec<TunedConv> = Vec::new();
+    let mut key: Option<AdapterKey> = None;
+    let precision = common.dcnn.backend_options.precision;
+    let options = BackendOptions {
+        // The tuner times against the heuristics, not an old table.
+        tuning_dir: None,
+        ..common.dcnn.backend_options.clone()
+    };
+    let networks = b
+        .networks
+        .iter()
+        .map(|(name, model)| Ok((name, model.lower()?)))
+        .collect::<Result<Vec<_>, AppError>>()?;
+    // Every size checked before minutes of tuning.
+    for (name, network) in &networks {
+        let m = network.multiple.max(1);
+        if let Some((w, h)) = b
+            .sizes
+            .iter()
+            .find(|(w, h)| !w.is_multiple_of(m) || !h.is_multiple_of(m))
+        {
+            return Err(AppError::input(
+                format!("--sizes {w}x{h}"),
+                format!("the sides must be multiples of {m} for {name}"),
+            ));
+        }
+    }
+    for (name, network) in &networks {
+        let mut gpu = GpuBackend::new_default(network, &options)?;
+        key.get_or_insert_with(|| AdapterKey::of(&gpu.adapter_info()));
+        for &(w, h) in &b.sizes {
+            tracing::info!("tuning {name} at {precision:?}, {w}×{h}");
+            let result = gpu.tune(&bench_frame(w, h), b.repeat, b.tiles.as_deref())?;
+            md += &case_table(
+                &format!("{name}, {precision:?}, {w}×{h}"),
+                &result.convs,
+                result.tiles_timed,
+            );
+            // A shape met again (another network, the same layer) keeps
+            // its latest tuning.
+            found.retain(|c| !result.convs.iter().any(|n| n.shape == c.shape));
+            found.extend(result.convs);
+        }
+    }
+    let Some(key) = key else {
+        return Err(AppError::input(
+            "bench tune",
+            "no network could be prepared on the adapter",
+        ));
+    };
+    let table = write_table(&b.dir, key, found)?;
+    let _ = writeln!(
+        md,
+        "\nWrote {} ({} conv shapes).",
+        table.0.display(),
+        table.1
+    );
+    Ok(TuneOutcome {
+        table: table.0,
+        shapes: table.1,
+        report: md,
+    })
+}
+
+/// The adapter's table in `dir` with `found` merged in, written.
+fn write_table(
+    dir: &Path,
+    adapter: AdapterKey,
+    found: Vec<TunedConv>,
+) -> Result<(PathBuf, usize), AppError> {
+    let mut table = match TuningTable::find(dir, &adapter)? {
+        Some((_, t)) => t,
+        None => TuningTable {
+            adapter,
+            nedrt: String::new(),
+            template: String::new(),
+            convs: Vec::new(),
+        },
+    };
+    table.nedrt = env!("CARGO_PKG_VERSION").to_string();
+    table.template = template_hash();
+    table.merge(found);
+    let shapes = table.convs.len();
+    Ok((table.save(dir)?, shapes))
+}
