@@ -62,7 +62,7 @@ def test_the_caps_fit_the_envelopes_and_leave_time_to_train():
     # One tool call is at most 600 s, with a minute for its start and $OUT.
     assert check_runner.ENVELOPE_S <= 540 and check_runner.ENVELOPE2_S <= 540
     second = check_steps.caps(2)
-    assert [n for n, _, _ in second] == ["setup", "openxr", "tradeoff"]
+    assert [n for n, _, _ in second] == ["setup", "openxr", "tune", "tradeoff"]
     assert sum(c for _, _, c in second) <= check_runner.ENVELOPE2_S
     # Both calls and a machine's start within a task's device time.
     assert check_runner.START_S + check_runner.ENVELOPE_S + check_runner.ENVELOPE2_S < check_runner.DEVICE_TIME_S
@@ -127,6 +127,8 @@ def test_the_report_shows_wall_and_gpu_time_refine_and_the_tradeoff():
                                       "width": 8, "height": 8, "presented": 5, "dropped": 0, "gpu_p50_ms": 1.75,
                                       "e2e_p50_ms": 9.5})
     steps["tradeoff"].text = "| configuration | latency ms |\n| --- | --- |\n| refine:10 wgpu | 3.3 |"
+    steps["tune"].text = "| 3×3 16→16 | 1920×1080 | 32×16 | 90.0 | 16×8 | 80.0 | 1.12 |"
+    steps["tune"].records.append({"kind": "tuning_table", "file": "nvidia-h200.toml"})
     md = check_report.report(steps, {"mode": "device", "date": "today", "commit": "abc", "device": "GPU",
                                      "call_flag": " --call 2"})
     # wall 4 ms and GPU 2 ms against PyTorch's 1 ms.
@@ -135,6 +137,8 @@ def test_the_report_shows_wall_and_gpu_time_refine_and_the_tradeoff():
     # admm:3, issue 55's time line, in its own section.
     assert "## admm:3 per frame" in md and "GPU p50 1.8 ms a frame" in md
     assert "| refine:10 wgpu | 3.3 |" in md
+    assert "## The conv tiles tuned" in md and "commit it as tuning/nvidia-h200.toml" in md
+    assert "| 3×3 16→16 | 1920×1080 | 32×16 | 90.0 | 16×8 | 80.0 | 1.12 |" in md
     assert "device-check.sh --call 2`" in md
 
 

@@ -29,7 +29,8 @@ docs/benchmarks.md), log.txt (every command's output); from call 1 also
 metrics.csv (the training's per-step log), checkpoint/ (the continued
 carried checkpoint: card.json and its tensors file, docs/training.md) and
 the trained network as the runtime's model: dcnn-full.onnx and its card;
-from call 2 tradeoff.md, .json, .svg and .png.
+from call 2 tradeoff.md, .json, .svg and .png, and the adapter's conv
+tiles table (`nedrt bench tune`, to commit under tuning/, docs/tuning.md).
 """
 import argparse
 import json
@@ -46,7 +47,7 @@ from check_report import report  # noqa: E402
 from check_runner import (CARRY, ENVELOPE2_S, ENVELOPE_S, REPO, Runner, Step, git_commit, git_dirty,  # noqa: E402
                           missing_modules, no_venv_message)
 from check_steps import (STEPS, calls, sizes, step_ceilings, step_fft, step_per_layer, step_pipeline,  # noqa: E402
-                         step_setup, step_torch, step_tradeoff, step_wgsl)
+                         step_setup, step_torch, step_tradeoff, step_tune, step_wgsl)
 from check_openxr import step_openxr  # noqa: E402
 from check_train import step_export, step_teacher, step_train  # noqa: E402
 from check_travel import plan, prepare  # noqa: E402
@@ -68,6 +69,7 @@ def bodies(r: Runner, z: dict, steps: dict, device: str) -> dict:
         "train": (lambda s: step_train(r, s, z, device), [steps.get("teacher") or Step("teacher", "", 0)]),
         "export": (lambda s: step_export(r, s, z), [steps.get("train") or Step("train", "", 0)]),
         "openxr": (lambda s: step_openxr(r, s, z), setup),
+        "tune": (lambda s: step_tune(r, s, z), setup),
         "tradeoff": (lambda s: step_tradeoff(r, s, z), setup),
     }
 

@@ -63,6 +63,12 @@ def report(steps: dict, meta: dict) -> str:
         md += ["", f"## The OpenXR runtime ({head})", "", "The openxr crate's client through libnedrt_openxr.so "
                "into nedrt run --stereo --sink headless (docs/openxr.md): the copy-out of each view on the "
                "application's queue, its send to the service, and how the display times held.", "", text("openxr")]
+    if text("tune"):
+        table = next((x["file"] for x in records("tune", "tuning_table")), None)
+        md += ["", f"## The conv tiles tuned ({head})", "", "nedrt bench tune on the shipped model (docs/tuning.md): "
+               "each tiled conv shape at the heuristics' tile and at the fastest, GPU time per layer."
+               + (f" The table, {table}, is beside this report: commit it as tuning/{table}." if table else ""),
+               text("tune")]
     if text("tradeoff"):
         md += ["", f"## Speed against accuracy with the GPU's rows ({head})", "",
                "tradeoff.md, .json, .svg and .png beside this report; the table:", "", text("tradeoff")]

@@ -70,6 +70,7 @@ class Step:
 #: log.txt, and its figures in summary.json and report.md).
 STEP_FILES = {"train": ["metrics.csv", "checkpoint/card.json", "checkpoint/tensors-<sha256[:16]>.safetensors"],
               "export": ["dcnn-full.onnx", "dcnn-full.card.json"],
+              "tune": ["<adapter-driver>.toml"],
               "tradeoff": ["tradeoff.md", "tradeoff.json", "tradeoff.svg", "tradeoff.png"]}
 
 

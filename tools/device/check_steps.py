@@ -18,13 +18,15 @@ def sizes(smoke: bool) -> dict:
                 "patch": 32, "width": 4, "levels": 2, "teacher_steps": 5,
                 "steps": 4, "seed_steps": 2, "validate_every": 2, "max_batch": 2, "budget_s": 60, "copy_mb": 16,
                 "gemm": 256,
-                "tradeoff_size": "64x64", "tradeoff_prefilters": "lsq,refine:1", "tradeoff_designs": "multifocal"}
+                "tradeoff_size": "64x64", "tradeoff_prefilters": "lsq,refine:1", "tradeoff_designs": "multifocal",
+                "tune_frame": "32x32", "tune_tiles": ["--tiles", "8x4"]}
     return {"frame": "1920x1080", "layer_frame": "1920x1080", "panel": "1920x1080", "frames": 200, "repeat": 10,
             "torch_repeat": 20, "pipeline_s": 8, "train_images": None, "val_images": None, "crop": None,
             "val_crop": None, "patch": 128, "width": 32, "levels": 4, "teacher_steps": 1000,
             "steps": 1_000_000, "seed_steps": None, "validate_every": 500, "max_batch": 64, "budget_s": TRAIN_BUDGET_S,
             "copy_mb": 2048, "gemm": 8192, "tradeoff_size": "1920x1080",
-            "tradeoff_prefilters": "admm:3,refine:10,lsq", "tradeoff_designs": "multifocal"}
+            "tradeoff_prefilters": "admm:3,refine:10,lsq", "tradeoff_designs": "multifocal",
+            "tune_frame": "1920x1080", "tune_tiles": []}
 
 
 #: Seconds of the tradeoff step's cap kept after its --time-budget: the
@@ -59,8 +61,11 @@ STEPS = [
     ("openxr", "the OpenXR runtime (docs/openxr.md): the openxr crate's client through libnedrt_openxr.so into "
                "nedrt run --stereo --sink headless at 1920×1080: the copy-out per view on the GPU, the send, "
                "xrEndFrame, the frames shown at their display time", 20, 2),
+    ("tune", "nedrt bench tune (issue 56, docs/tuning.md): every tile of the shipped model's tiled convolutions "
+             "at 1920×1080, f32 and f16, the heuristics' against the fastest; the adapter's table comes back",
+     40, 2),
     ("tradeoff", "the speed-against-accuracy chart with the GPU's rows: nedrt tradeoff with the wgpu "
-                 "configurations at 1920×1080", ENVELOPE2_S - 20 - 20 - 20, 2),
+                 "configurations at 1920×1080", ENVELOPE2_S - 20 - 20 - 40 - 20, 2),
 ]
 
 
@@ -227,6 +232,29 @@ def frame_log(path: Path) -> dict:
             **{k: log[k] for k in ("network", "frame_path", "views", "refresh_hz", "precision")},
             "levels": log.get("levels"),
             "frames": columns(log["frames"]), "refreshes": columns(log["refreshes"])}
+
+
+def step_tune(r: Runner, s: Step, z: dict):
+    """The tuner on the shipped model at the panel's size, at both
+    precisions, into a fresh folder: its report (each conv shape's
+    heuristic tile against the fastest) and the adapter's table, which
+    comes back to be committed under tuning/ (docs/tuning.md). On the
+    smoke, one tile besides the heuristics' (each is a kernel lavapipe
+    compiles for seconds)."""
+    r.need_gpu_adapter()
+    out = r.work / "tuning"
+    texts = []
+    for precision in ("f32", "f16"):
+        text = r.sh([r.nedrt, "--tuning", out, "--precision", precision, "bench", "tune", "--networks", "model",
+                     "--sizes", z["tune_frame"], "--repeat", z["repeat"], *z["tune_tiles"]], s.cap_s,
+                    parse_json=False)
+        texts.append(f"\n**--precision {precision}**\n\n{text.strip()}\n")
+    s.text = "".join(texts)
+    tables = sorted(out.glob("*.toml"))
+    if len(tables) != 1:
+        raise Failed(f"{out}: {len(tables)} tables written, one expected")
+    shutil.copyfile(tables[0], r.out / tables[0].name)
+    s.records.append({"kind": "tuning_table", "file": tables[0].name})
 
 
 def step_tradeoff(r: Runner, s: Step, z: dict):
