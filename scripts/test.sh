@@ -59,13 +59,16 @@ if [ -z "${DISPLAY:-}" ] && command -v Xvfb >/dev/null 2>&1; then
     done
 fi
 
-echo "== cargo fmt --check"
+# Each step says how long the run has taken so far: a CI log shows where
+# its time goes.
+step() { echo "== $* (at ${SECONDS} s)"; }
+step "cargo fmt --check"
 cargo fmt --all --check
-echo "== cargo clippy --all-targets -- -D warnings"
+step "cargo clippy --all-targets -- -D warnings"
 cargo clippy --all-targets -- -D warnings
-echo "== layers (docs/ARCHITECTURE.md)"
+step "layers (docs/ARCHITECTURE.md)"
 bash scripts/check-layers.sh
-echo "== cargo test --release"
+step "cargo test --release"
 # The Python package's extension (nedrt-python) has no Rust tests: maturin
 # builds it below, with its own pyo3 settings, reusing every library built
 # here, so that no crate is compiled twice.
@@ -114,7 +117,7 @@ if [ "$(id -u)" = 0 ]; then is_root=1; fi
 hw_part root "$is_root" "${NEDRT_REQUIRE_ROOT:-}" \
     "root, to mount a small tmpfs (the full-disk recording test)"
 if [ "${#hw_run[@]}" -gt 0 ]; then
-    echo "== cargo test --release -- --ignored needs_ (the hardware tests: ${hw_run[*]})"
+    step "cargo test --release -- --ignored needs_ (the hardware tests: ${hw_run[*]})"
     # One at a time: a software adapter (lavapipe) spreads each test over every
     # core, and the window and soak tests then miss their deadlines when two
     # run at once (seen on the 2-core machine; each passes alone).
@@ -122,10 +125,10 @@ if [ "${#hw_run[@]}" -gt 0 ]; then
     cargo build --release -p nedrt-openxr --lib --examples
     cargo test --release --workspace --exclude nedrt-python --tests -- --ignored --test-threads=1 "${hw_filter[@]}"
 fi
-echo "== the Python package (runtime/python) into .venv"
+step "the Python package (runtime/python) into .venv"
 # maturin builds it with the workspace's target folder and release profile:
 # the libraries compiled above are reused.
 VIRTUAL_ENV="$PWD/.venv" .venv/bin/maturin develop --release --quiet -m runtime/python/Cargo.toml
-echo "== pytest tests/python models/tests"
+step "pytest tests/python models/tests"
 # One thread: OpenMP busy-waiting makes two threads slower on a shared 2-core machine.
 OMP_NUM_THREADS=1 .venv/bin/python -m pytest -q -W ignore::DeprecationWarning tests/python models/tests
