@@ -250,6 +250,18 @@ fn tradeoff_writes_the_chart_and_the_picker_reads_it() {
 mod needs_gpu {
     use super::*;
 
+    /// `bench inference` of the wgpu backend once at 16×16.
+    const INFER_16: [&str; 8] = [
+        "bench",
+        "inference",
+        "--backends",
+        "wgpu",
+        "--sizes",
+        "16x16",
+        "--repeat",
+        "1",
+    ];
+
     /// `bench tune` writes this adapter's table (the heuristics' tile and
     /// one other per conv shape: each tile is a kernel lavapipe compiles
     /// for seconds), the wgpu backend then reads it, and a broken table
@@ -327,18 +339,9 @@ mod needs_gpu {
         // The backend finds it for this adapter.
         let infer = || {
             let mut c = nedrt();
-            c.env("NEDRT_LOG", "info").args([
-                "--tuning",
-                path(&tuning),
-                "bench",
-                "inference",
-                "--backends",
-                "wgpu",
-                "--sizes",
-                "16x16",
-                "--repeat",
-                "1",
-            ]);
+            c.env("NEDRT_LOG", "info")
+                .args(["--tuning", path(&tuning)])
+                .args(INFER_16);
             c.output_within(deadline::COMMAND, "nedrt")
         };
         let o = infer();
@@ -369,16 +372,7 @@ mod needs_gpu {
     #[test]
     #[ignore = "needs a GPU adapter (run: scripts/test.sh, or cargo test -- --include-ignored)"]
     fn bench_inference_tells_gpu_time_from_wall_time() {
-        let o = run(&[
-            "bench",
-            "inference",
-            "--backends",
-            "wgpu",
-            "--sizes",
-            "16x16",
-            "--repeat",
-            "1",
-        ]);
+        let o = run(&INFER_16);
         assert!(o.status.success(), "{}", stderr(&o));
         let out = stdout(&o);
         let records: Vec<serde_json::Value> = out
