@@ -890,6 +890,16 @@ const ROWS: &[Row] = &[
         &["calib", "truth", "--out", "{out}", "--field-zones", "9x1"],
         "give N or NxM with 1 ≤ N, M ≤ 8 (e.g. 2 or 2x1)",
     ),
+    row(
+        "tolerance --replot without a sweep's report",
+        &["tolerance", "--replot", "--out", "{out}"],
+        "--replot reads the JSON a sweep wrote beside --out",
+    ),
+    row(
+        "bench tune: a tile the conv kernel does not build",
+        &["bench", "tune", "--tiles", "12x4"],
+        "a conv tile is 8, 16 or 32 pixels wide and 1, 2, 4, 8 or 16 tall",
+    ),
 ];
 
 /// Rows that take the small-aperture calibration and the `--sim` arguments
@@ -907,6 +917,7 @@ fn command_line(r: &Row, dir: &Path, out: &Path) -> Vec<String> {
             "bench",
             "psf",
             "calib",
+            "tolerance",
         ]
         .contains(a)
     });

@@ -9,7 +9,7 @@
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use crate::charts::{LinePanel, Panel, Series, series_color, write_figure};
 use crate::{AppError, CommonOptions};
@@ -28,6 +28,10 @@ pub struct Axis {
     pub unit: &'static str,
     pub values: Vec<f64>,
     pub make: fn(f64) -> Perturbation,
+    /// The design lies at infinity (levels: the continuous profile), so
+    /// the loss is walked outwards in 1/value (the quantisation step): 16,
+    /// then 8, 4, 2 levels.
+    pub reciprocal: bool,
 }
 
 /// The errors of issue 57, each over its range.
@@ -41,6 +45,7 @@ pub fn axes() -> Vec<Axis> {
                 etch_scale: 1.0 + v / 100.0,
                 ..Default::default()
             },
+            reciprocal: false,
         },
         Axis {
             name: "levels",
@@ -50,6 +55,7 @@ pub fn axes() -> Vec<Axis> {
                 levels: v as u32,
                 ..Default::default()
             },
+            reciprocal: true,
         },
         Axis {
             name: "decentre",
@@ -59,6 +65,7 @@ pub fn axes() -> Vec<Axis> {
                 decentre_mm: [v, 0.0],
                 ..Default::default()
             },
+            reciprocal: false,
         },
         Axis {
             name: "eye relief",
@@ -68,6 +75,7 @@ pub fn axes() -> Vec<Axis> {
                 eye_relief_mm: v,
                 ..Default::default()
             },
+            reciprocal: false,
         },
         Axis {
             name: "panel distance",
@@ -77,6 +85,7 @@ pub fn axes() -> Vec<Axis> {
                 panel_distance_mm: v,
                 ..Default::default()
             },
+            reciprocal: false,
         },
         Axis {
             name: "primaries",
@@ -86,6 +95,7 @@ pub fn axes() -> Vec<Axis> {
                 primaries_nm: [v; 3],
                 ..Default::default()
             },
+            reciprocal: false,
         },
     ]
 }
@@ -104,13 +114,13 @@ pub fn combination() -> Perturbation {
 }
 
 /// Mean PSNR (dB) vs sharp and vs target.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct Score {
     pub sharp: f64,
     pub target: f64,
 }
 
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Row {
     pub error: String,
     pub value: f64,
@@ -120,9 +130,13 @@ pub struct Row {
     pub calibrated: Score,
 }
 
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct Report {
     pub calibration: String,
+    /// Each image's centre crop, pixels a side (absent in reports from
+    /// before it was recorded).
+    #[serde(default)]
+    pub crop_px: Option<usize>,
     pub methods: Vec<String>,
     pub images: Vec<String>,
     pub depths_d: Vec<f64>,
@@ -275,37 +289,72 @@ pub fn run(
         }
         tracing::info!("tolerance: {name} {value} done");
     }
-    let mut tolerances = Vec::new();
-    for axis in axes() {
-        for &m in &methods {
-            let mut pts: Vec<(f64, f64)> = rows
-                .iter()
-                .filter(|r| r.error == axis.name && r.method == m.name())
-                .map(|r| (r.value, r.nominal.sharp - r.uncalibrated.sharp))
-                .collect();
-            let found = first_crossing(&mut pts, LOSS_DB);
-            tolerances.push((axis.name.to_string(), m.name().to_string(), found));
-        }
-    }
+    let method_names: Vec<String> = methods.iter().map(|m| m.name().to_string()).collect();
+    let tolerances = tolerances(&rows, &method_names);
     let report = Report {
         calibration: calib.source.clone(),
-        methods: methods.iter().map(|m| m.name().to_string()).collect(),
+        crop_px: Some(crop),
+        methods: method_names,
         images: images.iter().map(|p| p.display().to_string()).collect(),
         depths_d: depths.clone(),
         rows,
         tolerances,
     };
-    let text = markdown(&report, crop);
+    write_report(&report, crop, out)
+}
+
+/// The report's Markdown, JSON and chart, written beside `out`.
+fn write_report(report: &Report, crop: usize, out: &Path) -> Result<String, AppError> {
+    let text = markdown(report, crop);
     crate::write_text(out, &text)?;
-    let json = serde_json::to_string_pretty(&report).map_err(|e| AppError::output(out, e))?;
+    let json = serde_json::to_string_pretty(report).map_err(|e| AppError::output(out, e))?;
     crate::write_text(&out.with_extension("json"), &json)?;
-    let charts = chart(&report, &out.with_extension(""))?;
+    let charts = chart(report, &out.with_extension(""))?;
     Ok(format!(
         "{text}\nwrote {}, {} and {}\n",
         out.display(),
         out.with_extension("json").display(),
         charts.join(", ")
     ))
+}
+
+/// `--replot`: the report, its tolerances and its chart made again from
+/// `out`'s JSON, without sweeping (after a change to how they are summed
+/// or drawn); `crop` where the JSON does not record its own.
+pub fn replot(out: &Path, crop: usize) -> Result<String, AppError> {
+    let path = out.with_extension("json");
+    let bytes = nedrt_core::util::read_capped(&path, 64 << 20).map_err(|e| {
+        AppError::input(
+            path.display(),
+            format!("{e} (--replot reads the JSON a sweep wrote beside --out)"),
+        )
+    })?;
+    let mut report: Report = serde_json::from_slice(&bytes)
+        .map_err(|e| AppError::input(path.display(), format!("not a tolerance report: {e}")))?;
+    report.tolerances = tolerances(&report.rows, &report.methods);
+    let crop = report.crop_px.unwrap_or(crop);
+    report.crop_px = Some(crop);
+    write_report(&report, crop, out)
+}
+
+/// Per error and method, where the uncalibrated display first loses
+/// [`LOSS_DB`] vs sharp ([`first_crossing`]; a reciprocal axis walked in
+/// 1/value).
+pub fn tolerances(rows: &[Row], methods: &[String]) -> Vec<(String, String, Option<f64>)> {
+    let mut out = Vec::new();
+    for axis in axes() {
+        let x = |v: f64| if axis.reciprocal { 1.0 / v } else { v };
+        for m in methods {
+            let mut pts: Vec<(f64, f64)> = rows
+                .iter()
+                .filter(|r| r.error == axis.name && &r.method == m)
+                .map(|r| (x(r.value), r.nominal.sharp - r.uncalibrated.sharp))
+                .collect();
+            let found = first_crossing(&mut pts, LOSS_DB).map(x);
+            out.push((axis.name.to_string(), m.clone(), found));
+        }
+    }
+    out
 }
 
 /// Walking outwards from the design (no loss at 0) through `(error, loss)`
@@ -367,10 +416,16 @@ fn markdown(r: &Report, crop: usize) -> String {
         "\nThe error at which each method, preprocessed for its design, loses {LOSS_DB} dB vs sharp:\n\n| error | method | tolerance |\n| --- | --- | ---: |\n"
     );
     for (e, m, t) in &r.tolerances {
-        let unit = axes().iter().find(|a| a.name == e).map_or("", |a| a.unit);
+        let axis = axes().into_iter().find(|a| a.name == e);
+        let unit = axis.as_ref().map_or("", |a| a.unit);
+        let reciprocal = axis.is_some_and(|a| a.reciprocal);
         s += &format!(
             "| {e} | {m} | {} |\n",
-            t.map_or("beyond the range".to_string(), |v| format!("{v:.3} {unit}"))
+            t.map_or("beyond the range".to_string(), |v| if reciprocal {
+                format!("{v:.1} {unit} (fewer lose more)")
+            } else {
+                format!("{v:.3} {unit}")
+            })
         );
     }
     s
@@ -459,6 +514,46 @@ mod tests {
             Some(-5.0)
         );
         assert_eq!(first_crossing(&mut [(0.1, 0.1), (0.2, -0.3)], 0.5), None);
+    }
+
+    #[test]
+    fn levels_are_walked_from_the_continuous_profile_towards_fewer() {
+        // The shipped calibration's doe+wiener (docs/tolerance.md): 0.25 dB
+        // at 16 levels, 0.65 at 8, 0.45 at 4, 0.78 at 2. The loss first
+        // reaches 0.5 dB between 16 and 8 levels, linear in 1/levels.
+        let row = |value: f64, loss: f64| Row {
+            error: "levels".into(),
+            value,
+            method: "doe+wiener".into(),
+            nominal: Score {
+                sharp: 20.0,
+                target: 20.0,
+            },
+            uncalibrated: Score {
+                sharp: 20.0 - loss,
+                target: 20.0,
+            },
+            calibrated: Score {
+                sharp: 20.0,
+                target: 20.0,
+            },
+        };
+        let rows = [
+            row(2.0, 0.78),
+            row(4.0, 0.45),
+            row(8.0, 0.65),
+            row(16.0, 0.25),
+        ];
+        let t = tolerances(&rows, &["doe+wiener".to_string()]);
+        let (_, _, found) = t.iter().find(|(e, ..)| e == "levels").expect("levels");
+        let x = 1.0 / 16.0 + (0.5 - 0.25) / (0.65 - 0.25) * (1.0 / 8.0 - 1.0 / 16.0);
+        let levels = found.expect("a crossing");
+        assert!((levels - 1.0 / x).abs() < 1e-9, "{levels}");
+        assert!(levels > 8.0 && levels < 16.0, "{levels}");
+        // Already past the limit at 16 levels: from the continuous profile.
+        let t = tolerances(&[row(16.0, 1.0)], &["doe+wiener".to_string()]);
+        let found = t.iter().find(|(e, ..)| e == "levels").and_then(|r| r.2);
+        assert!((found.expect("crossing") - 32.0).abs() < 1e-9);
     }
 
     #[test]

@@ -130,6 +130,10 @@ pub struct ToleranceArgs {
     /// serves every DOE method).
     #[arg(long, value_delimiter = ',', value_parser = crate::args::named::<nedrt_optics::sim::Method>(), value_name = "METHOD,...")]
     pub methods: Vec<nedrt_optics::sim::Method>,
+    /// Rewrite --out, its tolerances and its chart from the JSON a sweep
+    /// wrote beside it, without sweeping.
+    #[arg(long)]
+    pub replot: bool,
 }
 
 /// How the display as built differs from the design (`calib synth`,

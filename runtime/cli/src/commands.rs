@@ -220,6 +220,9 @@ pub fn run(cli: Cli) -> Result<()> {
             let report = nedrt_run::run(&common, &opts, &control)?;
             print!("{}", report.table());
         }
+        Some(Command::Tolerance(t)) if t.replot => {
+            print!("{}", app::tolerance::replot(&t.out, t.crop)?)
+        }
         Some(Command::Tolerance(t)) => {
             if t.max_images == 0 || t.crop < 8 {
                 return Err(app::AppError::option(
