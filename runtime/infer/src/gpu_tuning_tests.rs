@@ -73,6 +73,7 @@ mod needs_gpu {
             let heuristic = gpu.conv_tiles(w, h);
             assert!(heuristic.iter().all(|t| t.source == TileSource::Heuristic));
             let want = gpu.run_tensor(frame.data(), w, h).expect("runs");
+            let heuristic_kernels = gpu.kernels_built();
             let table = other_tiles(&gpu, w, h);
             let mut gpu = gpu.with_tuning(Some(Arc::new(table.clone())));
             let tuned = gpu.conv_tiles(w, h);
@@ -84,6 +85,9 @@ mod needs_gpu {
             }
             assert_eq!(changed, tuned.len(), "every tile is the table's");
             let got = gpu.run_tensor(frame.data(), w, h).expect("runs");
+            // The frame ran on a plan made again: the table's tiles are
+            // kernels of their own (each of the two conv kinds at OTHER).
+            assert_eq!(gpu.kernels_built(), heuristic_kernels + 2, "{precision:?}");
             assert_eq!(got.len(), want.len());
             let differ = got
                 .iter()
@@ -109,6 +113,8 @@ mod needs_gpu {
         let result = gpu
             .tune(&random_frame(w, h, 3), 1, Some(&[OTHER]))
             .expect("tunes");
+        // Both conv kinds at both tiles, the pool and the transposed conv.
+        assert_eq!(gpu.kernels_built(), 2 * 2 + 2);
         let shapes: HashSet<_> = gpu.conv_tiles(w, h).iter().map(|t| t.shape).collect();
         assert_eq!(result.convs.len(), shapes.len());
         // The heuristics' tile (32×16 at both shapes) and the other.

@@ -129,7 +129,12 @@ pub fn run(b: &TuneBench, common: &CommonOptions) -> Result<TuneOutcome, AppErro
     }
     for (name, network) in &networks {
         let mut gpu = GpuBackend::new_default(network, &options)?;
-        key.get_or_insert_with(|| AdapterKey::of(&gpu.adapter_info()));
+        if key.is_none() {
+            let k = AdapterKey::of(&gpu.adapter_info());
+            // A broken table to merge into is found before minutes of tuning.
+            TuningTable::find(&b.dir, &k)?;
+            key = Some(k);
+        }
         for &(w, h) in &b.sizes {
             tracing::info!("tuning {name} at {precision:?}, {w}×{h}");
             let result = gpu.tune(&bench_frame(w, h), b.repeat, b.tiles.as_deref())?;

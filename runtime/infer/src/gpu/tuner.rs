@@ -75,28 +75,10 @@ impl GpuBackend {
             }
         }
         // times[(layer, tile)]: the best device time of the layer at the tile.
-        let mut times: HashMap<(usize, ConvTile), u64> = HashMap::new();
-        for tile in &tiles {
-            let forced: HashMap<usize, ConvTile> = base
-                .iter()
-                .zip(&candidates)
-                .filter(|(_, c)| c.contains(tile))
-                .map(|(b, _)| (b.layer, *tile))
-                .collect();
-            self.force_conv_tiles(forced.clone());
-            let mut best = self.layer_timings(frame)?;
-            for _ in 0..repeat.max(1) {
-                for (b, n) in best.iter_mut().zip(self.layer_timings(frame)?) {
-                    b.gpu_ns = b.gpu_ns.min(n.gpu_ns);
-                }
-            }
-            for row in best {
-                if forced.contains_key(&row.layer) {
-                    times.insert((row.layer, *tile), row.gpu_ns);
-                }
-            }
-        }
+        let timed = self.time_tiles(frame, repeat, &base, &candidates, &tiles);
+        // Whatever happened, the tuner's tiles do not outlive it.
         self.force_conv_tiles(HashMap::new());
+        let times = timed?;
         // Per shape, in the network's order: the summed time of each tile.
         let mut order: Vec<ConvShape> = Vec::new();
         let mut sums: HashMap<ConvShape, BTreeMap<usize, u64>> = HashMap::new();
@@ -167,5 +149,46 @@ impl GpuBackend {
             convs,
             tiles_timed: tiles.len(),
         })
+    }
+
+    /// Each tile forced in turn on every layer whose candidates hold it,
+    /// each layer's best time of `repeat` timings after a warm-up one.
+    fn time_tiles(
+        &mut self,
+        frame: &Image,
+        repeat: usize,
+        base: &[super::tuning::LayerTile],
+        candidates: &[Vec<ConvTile>],
+        tiles: &[ConvTile],
+    ) -> Result<HashMap<(usize, ConvTile), u64>, InferenceError> {
+        let mut times = HashMap::new();
+        for tile in tiles {
+            let forced: HashMap<usize, ConvTile> = base
+                .iter()
+                .zip(candidates)
+                .filter(|(_, c)| c.contains(tile))
+                .map(|(b, _)| (b.layer, *tile))
+                .collect();
+            self.force_conv_tiles(forced.clone());
+            // The warm-up builds the plan and its kernels; it is not timed.
+            let mut best = self.layer_timings(frame)?;
+            best.iter_mut().for_each(|b| b.gpu_ns = u64::MAX);
+            for _ in 0..repeat.max(1) {
+                for (b, n) in best.iter_mut().zip(self.layer_timings(frame)?) {
+                    b.gpu_ns = b.gpu_ns.min(n.gpu_ns);
+                }
+            }
+            for row in best {
+                if forced.contains_key(&row.layer) {
+                    times.insert((row.layer, *tile), row.gpu_ns);
+                }
+            }
+        }
+        Ok(times)
+    }
+
+    /// Kernel variants built so far (each tile of each kernel is one).
+    pub fn kernels_built(&self) -> usize {
+        self.pipelines.len()
     }
 }

@@ -47,20 +47,28 @@ impl AdapterKey {
         }
     }
 
-    /// The table's file name: the adapter and driver, lower case, runs of
-    /// other characters as one `-`.
+    /// The table's file name: the adapter's name and driver version, lower
+    /// case, runs of other characters as one `-`, then its PCI vendor and
+    /// device and wgpu's backend (so that two adapters of one name do not
+    /// share a file).
     pub fn file_name(&self) -> String {
         let mut slug = String::new();
-        for c in format!("{} {} {}", self.name, self.driver, self.driver_info).chars() {
+        for c in format!("{} {}", self.name, self.driver_info).chars() {
             if c.is_ascii_alphanumeric() {
                 slug.push(c.to_ascii_lowercase());
             } else if !slug.ends_with('-') {
                 slug.push('-');
             }
         }
-        let slug = slug.trim_matches('-');
-        let slug: String = slug.chars().take(96).collect();
-        format!("{}.toml", if slug.is_empty() { "adapter" } else { &slug })
+        let slug: String = slug.trim_matches('-').chars().take(80).collect();
+        let slug = slug.trim_end_matches('-');
+        format!(
+            "{}-{:04x}-{:04x}-{}.toml",
+            if slug.is_empty() { "adapter" } else { slug },
+            self.vendor,
+            self.device,
+            self.backend.to_ascii_lowercase()
+        )
     }
 }
 
@@ -194,7 +202,16 @@ impl TuningTable {
     /// Parses and checks a table: every tile one the template builds, no
     /// shape twice.
     pub fn parse(text: &str, path: &Path) -> Result<Self, InferenceError> {
-        let table: Self = toml::from_str(text).map_err(|e| bad(path, e.message()))?;
+        let table: Self = toml::from_str(text).map_err(|e| {
+            let line = e.span().map_or(0, |r| {
+                text[..r.start.min(text.len())].matches('\n').count() + 1
+            });
+            if line > 0 {
+                bad(path, format!("line {line}: {}", e.message()))
+            } else {
+                bad(path, e.message())
+            }
+        })?;
         let mut seen = HashMap::new();
         for (i, c) in table.convs.iter().enumerate() {
             let at = format!(
@@ -245,42 +262,29 @@ impl TuningTable {
         Self::parse(&text, path)
     }
 
-    /// The table in `dir` for `adapter`, with its path; None where `dir`
-    /// does not exist or holds none for it. Every `*.toml` in `dir` is
-    /// read, so a broken one is reported whichever adapter it is for.
+    /// The table in `dir` for `adapter`, with its path: the file of its
+    /// [`AdapterKey::file_name`], if there is one and its `[adapter]` is
+    /// this adapter. A broken file of that name is an error naming it;
+    /// other files in `dir` are not read.
     pub fn find(
         dir: &Path,
         adapter: &AdapterKey,
     ) -> Result<Option<(PathBuf, Self)>, InferenceError> {
-        let entries = match std::fs::read_dir(dir) {
-            Ok(e) => e,
-            Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
-            Err(e) => return Err(bad(dir, e)),
-        };
-        let mut paths: Vec<PathBuf> = entries
-            .filter_map(|e| e.ok().map(|e| e.path()))
-            .filter(|p| p.extension().is_some_and(|x| x == "toml") && p.is_file())
-            .collect();
-        paths.sort();
-        let mut found: Option<(PathBuf, Self)> = None;
-        for path in paths {
-            let table = Self::read(&path)?;
-            if &table.adapter == adapter {
-                if let Some((first, _)) = &found {
-                    return Err(bad(
-                        &path,
-                        format!(
-                            "a second table for {} (driver {}), beside {}; keep one",
-                            adapter.name,
-                            adapter.driver_info,
-                            first.display()
-                        ),
-                    ));
-                }
-                found = Some((path, table));
-            }
+        let path = dir.join(adapter.file_name());
+        if !path.is_file() {
+            return Ok(None);
         }
-        Ok(found)
+        let table = Self::read(&path)?;
+        if &table.adapter != adapter {
+            tracing::warn!(
+                "{} is the table of another adapter ({}, driver {}): not used",
+                path.display(),
+                table.adapter.name,
+                table.adapter.driver_info
+            );
+            return Ok(None);
+        }
+        Ok(Some((path, table)))
     }
 
     /// The tuned tile for `shape`, if the table has it.
@@ -293,10 +297,23 @@ impl TuningTable {
 
     /// Writes the table into `dir` under its adapter's file name (made if
     /// missing), atomically: an existing table stays whole until the new
-    /// one replaces it.
+    /// one replaces it. A file of that name holding another adapter's
+    /// table is not overwritten.
     pub fn save(&self, dir: &Path) -> Result<PathBuf, InferenceError> {
         std::fs::create_dir_all(dir).map_err(|e| bad(dir, e))?;
         let path = dir.join(self.adapter.file_name());
+        if let Some(other) = path.is_file().then(|| Self::read(&path).ok()).flatten()
+            && other.adapter != self.adapter
+        {
+            return Err(bad(
+                &path,
+                format!(
+                    "holds the table of another adapter ({}, driver {}); move it before \
+                     tuning {}",
+                    other.adapter.name, other.adapter.driver_info, self.adapter.name
+                ),
+            ));
+        }
         let text = toml::to_string(self).map_err(|e| bad(&path, e))?;
         let header = "# Conv tiles tuned on this adapter by `nedrt bench tune` (docs/tuning.md).\n";
         nedrt_core::util::write_atomic(&path, format!("{header}{text}").as_bytes())
@@ -423,7 +440,7 @@ mod tests {
         let path = table().save(dir.path()).expect("saves");
         assert_eq!(
             path.file_name().and_then(|n| n.to_str()),
-            Some("llvmpipe-llvm-15-0-6-256-bits-llvmpipe-mesa-22-3-6-llvm-15-0-6.toml")
+            Some("llvmpipe-llvm-15-0-6-256-bits-mesa-22-3-6-llvm-15-0-6-10005-0000-vulkan.toml")
         );
         let (found, t) = TuningTable::find(dir.path(), &key())
             .expect("reads")
@@ -467,7 +484,7 @@ mod tests {
             ("threads_y = 4", "threads_y = 3", "not a tile"),
             ("px = 2", "px = 8", "not a tile"),
             ("kernel = 3", "kernel = 9", "kernel must be"),
-            ("cout = 16", "cout = \"x\"", "invalid type"),
+            ("cout = 16", "cout = \"x\"", "line 13: invalid type"),
             ("px = 2", "px = 2\nsurprise = 1", "unknown field"),
         ] {
             std::fs::write(&path, text.replace(from, to)).expect("writes");
@@ -487,13 +504,30 @@ mod tests {
             e.contains("conv entry 2") && e.contains("same shape as conv entry 1"),
             "{e}"
         );
-        // Two files for one adapter: which one counts is not guessed.
+        // Only the adapter's own file is read: a broken other file (a
+        // table from a newer nedrt, an unrelated TOML) stops nothing.
         std::fs::write(&path, text.clone()).expect("writes");
-        std::fs::write(dir.path().join("copy.toml"), &text).expect("writes");
-        let e = TuningTable::find(dir.path(), &key())
-            .expect_err("two")
+        std::fs::write(dir.path().join("notes.toml"), "not = [a table").expect("writes");
+        assert!(
+            TuningTable::find(dir.path(), &key())
+                .expect("reads")
+                .is_some()
+        );
+        // Another adapter's table under this adapter's name is not used,
+        // nor overwritten by this adapter's tuning.
+        let mut other = table();
+        other.adapter.name = "another".into();
+        std::fs::write(&path, toml::to_string(&other).expect("toml")).expect("writes");
+        assert!(
+            TuningTable::find(dir.path(), &key())
+                .expect("reads")
+                .is_none()
+        );
+        let e = table()
+            .save(dir.path())
+            .expect_err("another's file")
             .to_string();
-        assert!(e.contains("a second table"), "{e}");
+        assert!(e.contains("holds the table of another adapter"), "{e}");
     }
 
     #[test]
