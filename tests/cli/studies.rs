@@ -434,20 +434,7 @@ mod needs_gpu {
             ("f32", "f32 arithmetic on f16 storage"),
             ("f16", "f16 arithmetic"),
         ] {
-            let o = run(&[
-                "--precision",
-                "f16",
-                "--f16-math",
-                math,
-                "bench",
-                "inference",
-                "--backends",
-                "wgpu",
-                "--sizes",
-                "16x16",
-                "--repeat",
-                "1",
-            ]);
+            let o = run(&[&["--precision", "f16", "--f16-math", math][..], &INFER_16].concat());
             if stderr(&o).contains("shader-f16") {
                 continue; // an adapter without f16 shaders: nothing to sum in f16
             }
