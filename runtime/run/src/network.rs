@@ -156,14 +156,10 @@ pub(crate) fn prepare(
                     }
                 };
                 // Every check of a load (DOE, split, each step's planes)
-                // now, on the CPU: a model that cannot run fails before
+                // now, without preparing the networks (the engine loads
+                // them once, later): a model that cannot run fails before
                 // anything opens.
-                Unrolled::load(
-                    manifest.clone(),
-                    &prepared,
-                    nedrt_infer::BackendKind::Cpu,
-                    &nedrt_infer::BackendOptions::default(),
-                )?;
+                Unrolled::check(&manifest, &prepared)?;
                 Ok(RunNetwork::Unrolled {
                     manifest,
                     prepared: Some(prepared),

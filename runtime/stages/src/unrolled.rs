@@ -241,18 +241,7 @@ impl Unrolled {
                 None => None,
                 Some(model) => {
                     let dcnn = Dcnn::from_model(model.clone(), kind, options)?;
-                    if dcnn.input_channels() != 3 * problem.channels() {
-                        return Err(EngineError::input(
-                            model.path.display(),
-                            format!(
-                                "a step correction of {} input planes; it takes {} (point, \
-                                 dual and gradient of each of {} channels)",
-                                dcnn.input_channels(),
-                                3 * problem.channels(),
-                                problem.channels()
-                            ),
-                        ));
-                    }
+                    check_planes(model, dcnn.input_channels(), &problem)?;
                     Some(dcnn)
                 }
             });
@@ -268,6 +257,26 @@ impl Unrolled {
             networks,
             engine,
         })
+    }
+
+    /// Every check [`Unrolled::load`] makes (the DOE, the split, each
+    /// step's planes), without preparing a network to run: what a caller
+    /// that loads the model later, on another engine, checks first.
+    pub fn check(manifest: &Manifest, prepared: &Prepared) -> Result<(), EngineError> {
+        Self::check_with_problem(manifest, &problem_for(manifest, prepared)?)
+    }
+
+    /// [`Unrolled::check`] through `problem` as given.
+    pub fn check_with_problem(
+        manifest: &Manifest,
+        problem: &DisplayProblem,
+    ) -> Result<(), EngineError> {
+        check_split(manifest, problem)?;
+        for model in manifest.steps.iter().filter_map(|s| s.network.as_ref()) {
+            let network = model.lower()?;
+            check_planes(model, network.values[0].channels, problem)?;
+        }
+        Ok(())
     }
 
     /// K.
@@ -455,4 +464,25 @@ impl Preprocess for Unrolled {
         }
         all
     }
+}
+
+/// A step correction takes the point, dual and gradient planes of each of
+/// the problem's channels.
+fn check_planes(
+    model: &nedrt_infer::ModelFile,
+    planes: usize,
+    problem: &DisplayProblem,
+) -> Result<(), EngineError> {
+    if planes != 3 * problem.channels() {
+        return Err(EngineError::input(
+            model.path.display(),
+            format!(
+                "a step correction of {planes} input planes; it takes {} (point, dual and \
+                 gradient of each of {} channels)",
+                3 * problem.channels(),
+                problem.channels()
+            ),
+        ));
+    }
+    Ok(())
 }

@@ -225,6 +225,9 @@ fn bad_manifests_are_refused_with_the_file_and_the_reason() {
     }
     // A correction of the wrong shape is refused at load, naming its file.
     let (dir, path) = edited(|t| t.to_string());
+    let (problem, _) = golden_problem();
+    Unrolled::check_with_problem(&Manifest::read(&path).expect("sound"), &problem)
+        .expect("the sound model passes the check");
     let wrong = nedrt_infer::synth::encode(&nedrt_infer::synth::step_correction(6, 4, 2, 1));
     std::fs::write(dir.path().join("golden.step1.onnx"), &wrong).expect("write");
     let text = std::fs::read_to_string(&path).expect("manifest");
@@ -244,7 +247,15 @@ fn bad_manifests_are_refused_with_the_file_and_the_reason() {
     )
     .expect("write");
     let manifest = Manifest::read(&path).expect("the manifest itself is sound");
-    let (problem, _) = golden_problem();
+    // The check without a network prepared (nedrt run's, before anything
+    // opens) refuses it as the load does.
+    let e = Unrolled::check_with_problem(&manifest, &problem)
+        .expect_err("6 planes for 9")
+        .to_string();
+    assert!(
+        e.contains("golden.step1.onnx") && e.contains("6 input planes"),
+        "{e}"
+    );
     let e = Unrolled::with_problem(
         manifest,
         problem,
