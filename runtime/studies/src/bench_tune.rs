@@ -5,14 +5,14 @@
 //! at the heuristics' tile and at the tuned one.
 
 use std::fmt::Write as _;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 use super::AppError;
 use super::bench_inference::{adapter, adapter_line, bench_frame};
 use crate::CommonOptions;
 use nedrt_infer::BackendOptions;
 use nedrt_infer::gpu::GpuBackend;
-use nedrt_infer::gpu::tuning::{AdapterKey, TunedConv, TuningTable, template_hash};
+use nedrt_infer::gpu::tuning::{AdapterKey, TunedConv, TuningTable};
 use nedrt_infer::model_file::ModelFile;
 
 /// What to tune.
@@ -100,8 +100,9 @@ pub fn run(b: &TuneBench, common: &CommonOptions) -> Result<TuneOutcome, AppErro
         ));
     }
     let mut md = adapter_line(&adapter(common), common);
-    let mut found: Vec<TunedConv> = Vec::new();
-    let mut key: Option<AdapterKey> = None;
+    // The adapter's table, read once the adapter is known (before minutes
+    // of tuning, so a broken one costs none), each result merged in.
+    let mut table: Option<TuningTable> = None;
     let precision = common.dcnn.backend_options.precision;
     let options = BackendOptions {
         // The tuner times against the heuristics, not an old table.
@@ -129,11 +130,12 @@ pub fn run(b: &TuneBench, common: &CommonOptions) -> Result<TuneOutcome, AppErro
     }
     for (name, network) in &networks {
         let mut gpu = GpuBackend::new_default(network, &options)?;
-        if key.is_none() {
-            let k = AdapterKey::of(&gpu.adapter_info());
-            // A broken table to merge into is found before minutes of tuning.
-            TuningTable::find(&b.dir, &k)?;
-            key = Some(k);
+        if table.is_none() {
+            let key = AdapterKey::of(&gpu.adapter_info());
+            table = Some(match TuningTable::find(&b.dir, &key)? {
+                Some((_, t)) => t,
+                None => TuningTable::new(key, Vec::new()),
+            });
         }
         for &(w, h) in &b.sizes {
             tracing::info!("tuning {name} at {precision:?}, {w}×{h}");
@@ -145,48 +147,25 @@ pub fn run(b: &TuneBench, common: &CommonOptions) -> Result<TuneOutcome, AppErro
             );
             // A shape met again (another network, the same layer) keeps
             // its latest tuning.
-            found.retain(|c| !result.convs.iter().any(|n| n.shape == c.shape));
-            found.extend(result.convs);
+            if let Some(t) = &mut table {
+                t.merge(result.convs);
+            }
         }
     }
-    let Some(key) = key else {
+    let Some(mut table) = table else {
         return Err(AppError::input(
             "bench tune",
             "no network could be prepared on the adapter",
         ));
     };
-    let table = write_table(&b.dir, key, found)?;
-    let _ = writeln!(
-        md,
-        "\nWrote {} ({} conv shapes).",
-        table.0.display(),
-        table.1
-    );
+    // Stamped with this nedrt and template, whatever the old table said.
+    table = TuningTable::new(table.adapter, table.convs);
+    let shapes = table.convs.len();
+    let path = table.save(&b.dir)?;
+    let _ = writeln!(md, "\nWrote {} ({shapes} conv shapes).", path.display());
     Ok(TuneOutcome {
-        table: table.0,
-        shapes: table.1,
+        table: path,
+        shapes,
         report: md,
     })
-}
-
-/// The adapter's table in `dir` with `found` merged in, written.
-fn write_table(
-    dir: &Path,
-    adapter: AdapterKey,
-    found: Vec<TunedConv>,
-) -> Result<(PathBuf, usize), AppError> {
-    let mut table = match TuningTable::find(dir, &adapter)? {
-        Some((_, t)) => t,
-        None => TuningTable {
-            adapter,
-            nedrt: String::new(),
-            template: String::new(),
-            convs: Vec::new(),
-        },
-    };
-    table.nedrt = env!("CARGO_PKG_VERSION").to_string();
-    table.template = template_hash();
-    table.merge(found);
-    let shapes = table.convs.len();
-    Ok((table.save(dir)?, shapes))
 }

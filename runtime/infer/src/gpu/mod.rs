@@ -365,6 +365,13 @@ impl GpuBackend {
         self
     }
 
+    /// [`Self::with_tuning`] in place (None: the heuristics' tiles).
+    pub fn set_tuning(&mut self, table: Option<Arc<tuning::TuningTable>>) {
+        self.tuning = table;
+        self.plan = None;
+        self.resident = None;
+    }
+
     /// The tuning table in use, if any.
     pub fn tuning(&self) -> Option<&tuning::TuningTable> {
         self.tuning.as_deref()

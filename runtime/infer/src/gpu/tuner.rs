@@ -3,7 +3,7 @@
 //! fastest per layer shape kept, and the tuned network checked against the
 //! heuristics' bit for bit before its tiles are offered for a table.
 
-use std::collections::{BTreeMap, HashMap};
+use std::collections::HashMap;
 use std::sync::Arc;
 
 use super::codegen::ConvTile;
@@ -25,14 +25,6 @@ impl GpuBackend {
     /// The adapter the backend runs on.
     pub fn adapter_info(&self) -> wgpu::AdapterInfo {
         self.device.adapter_info()
-    }
-
-    /// Uses `table`'s conv tiles where it has the layer's shape (None: the
-    /// heuristics').
-    pub fn set_tuning(&mut self, table: Option<Arc<TuningTable>>) {
-        self.tuning = table;
-        self.plan = None;
-        self.resident = None;
     }
 
     /// Tunes the network's register-tiled convolutions on `frame` (sides a
@@ -79,55 +71,53 @@ impl GpuBackend {
         // Whatever happened, the tuner's tiles do not outlive it.
         self.force_conv_tiles(HashMap::new());
         let times = timed?;
-        // Per shape, in the network's order: the summed time of each tile.
-        let mut order: Vec<ConvShape> = Vec::new();
-        let mut sums: HashMap<ConvShape, BTreeMap<usize, u64>> = HashMap::new();
-        let mut heuristic: HashMap<ConvShape, ConvTile> = HashMap::new();
+        // Per shape, in the network's order: its heuristic tile and each
+        // candidate's time summed over the layers of that shape (a shape's
+        // candidates are the same for each of its layers).
+        type ShapeTimes = (ConvShape, ConvTile, Vec<(ConvTile, u64)>);
+        let mut shapes: Vec<ShapeTimes> = Vec::new();
         for (b, c) in base.iter().zip(&candidates) {
             debug_assert_eq!(b.source, TileSource::Heuristic);
-            if !order.contains(&b.shape) {
-                order.push(b.shape);
-            }
-            heuristic.insert(b.shape, b.tile);
-            let per_tile = sums.entry(b.shape).or_default();
-            for tile in c {
-                let i = tiles.iter().position(|t| t == tile).unwrap_or(0);
+            let i = match shapes.iter().position(|s| s.0 == b.shape) {
+                Some(i) => i,
+                None => {
+                    shapes.push((b.shape, b.tile, c.iter().map(|t| (*t, 0)).collect()));
+                    shapes.len() - 1
+                }
+            };
+            for (tile, sum) in &mut shapes[i].2 {
                 let ns = times.get(&(b.layer, *tile)).copied().unwrap_or(u64::MAX);
-                let sum = per_tile.entry(i).or_insert(0);
                 *sum = sum.saturating_add(ns);
             }
         }
-        let mut convs = Vec::with_capacity(order.len());
-        for shape in order {
-            let per_tile = &sums[&shape];
-            let h_tile = heuristic[&shape];
-            let h_index = tiles.iter().position(|t| *t == h_tile);
-            let h_ns = h_index
-                .and_then(|i| per_tile.get(&i).copied())
-                .unwrap_or(u64::MAX);
-            let (best_i, best_ns) = per_tile
-                .iter()
-                .map(|(&i, &ns)| (i, ns))
-                // The heuristics' tile wins a tie.
-                .min_by_key(|&(i, ns)| (ns, Some(i) != h_index))
-                .ok_or_else(|| err("a conv layer without a candidate tile"))?;
-            let tile = tiles[best_i];
-            convs.push(TunedConv {
-                shape,
-                px: tile.px,
-                threads_y: tile.threads_y,
-                tuned_ns: best_ns,
-                heuristic_ns: h_ns,
-            });
-        }
+        let convs = shapes
+            .into_iter()
+            .map(|(shape, heuristic, per_tile)| {
+                let heuristic_ns = per_tile
+                    .iter()
+                    .find(|(t, _)| *t == heuristic)
+                    .map_or(u64::MAX, |p| p.1);
+                let (tile, tuned_ns) = per_tile
+                    .iter()
+                    .copied()
+                    // The heuristics' tile wins a tie.
+                    .min_by_key(|&(t, ns)| (ns, t != heuristic))
+                    .ok_or_else(|| err("a conv layer without a candidate tile"))?;
+                Ok(TunedConv {
+                    shape,
+                    px: tile.px,
+                    threads_y: tile.threads_y,
+                    tuned_ns,
+                    heuristic_ns,
+                })
+            })
+            .collect::<Result<Vec<_>, InferenceError>>()?;
         // The tuned network against the heuristics', bit for bit.
         let reference = self.run_tensor(frame.data(), w, h)?;
-        let table = TuningTable {
-            adapter: super::tuning::AdapterKey::of(&self.adapter_info()),
-            nedrt: env!("CARGO_PKG_VERSION").to_string(),
-            template: super::tuning::template_hash(),
-            convs: convs.clone(),
-        };
+        let table = TuningTable::new(
+            super::tuning::AdapterKey::of(&self.adapter_info()),
+            convs.clone(),
+        );
         self.set_tuning(Some(Arc::new(table)));
         let tuned = self.run_tensor(frame.data(), w, h);
         self.set_tuning(None);

@@ -199,6 +199,17 @@ fn bad(path: &Path, reason: impl std::fmt::Display) -> InferenceError {
 }
 
 impl TuningTable {
+    /// A table of `convs` for `adapter`, stamped with this nedrt and the
+    /// conv template's hash.
+    pub fn new(adapter: AdapterKey, convs: Vec<TunedConv>) -> Self {
+        Self {
+            adapter,
+            nedrt: env!("CARGO_PKG_VERSION").to_string(),
+            template: template_hash(),
+            convs,
+        }
+    }
+
     /// Parses and checks a table: every tile one the template builds, no
     /// shape twice.
     pub fn parse(text: &str, path: &Path) -> Result<Self, InferenceError> {
