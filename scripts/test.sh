@@ -59,9 +59,11 @@ if [ -z "${DISPLAY:-}" ] && command -v Xvfb >/dev/null 2>&1; then
     done
 fi
 
-# Each step says how long the run has taken so far: a CI log shows where
-# its time goes.
-step() { echo "== $* (at ${SECONDS} s)"; }
+# Each step says how long the run has taken so far and the disk left: a CI
+# log shows where its time goes, and what filled the disk (a CI run ran out).
+step() {
+    echo "== $* (at ${SECONDS} s, $(df -Pm . 2>/dev/null | awk 'NR == 2 { print $4 }') MB free)"
+}
 step "cargo fmt --check"
 cargo fmt --all --check
 step "cargo clippy --all-targets -- -D warnings"

@@ -25,6 +25,10 @@ use std::process::{Command, Output};
 
 use deadline::CommandWithin;
 
+/// The tests' shared PSF cache's bound, in GB (`NEDRT_CACHE_MAX_GB`, which
+/// overrides it): a few of the largest entries.
+const TEST_CACHE_MAX_GB: &str = "2";
+
 fn nedrt() -> Command {
     let mut c = Command::new(env!("CARGO_BIN_EXE_nedrt"));
     // One shared cache for the whole test run, inside the build folder.
@@ -32,6 +36,10 @@ fn nedrt() -> Command {
         "NEDRT_CACHE_DIR",
         Path::new(env!("CARGO_TARGET_TMPDIR")).join("psf-cache"),
     );
+    // Bounded, as CI's disk is limited: unbounded, the run's PSFs took 5.3 GB.
+    if std::env::var_os("NEDRT_CACHE_MAX_GB").is_none() {
+        c.env("NEDRT_CACHE_MAX_GB", TEST_CACHE_MAX_GB);
+    }
     c.env_remove("NEDRT_LOG");
     c
 }

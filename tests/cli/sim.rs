@@ -8,8 +8,11 @@ fn readme_main_command_runs_on_shipped_defaults() {
     let out = dir.path().join("perceived.png");
     // From the repository root, as the README runs it (models/ is there).
     let readme = || {
+        // Its own cache: the shared one's bound may evict an entry
+        // between the two runs.
         nedrt()
             .current_dir(repo())
+            .env("NEDRT_CACHE_DIR", dir.path().join("cache"))
             .args(["--sim", "--accom", "1.0", "--out", path(&out)])
             .output_within(deadline::COMMAND, "nedrt")
     };

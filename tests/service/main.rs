@@ -34,6 +34,10 @@ use nedrt_service::present::transfer::Transfer;
 const W: usize = 64;
 const H: usize = 48;
 
+/// The tests' shared PSF cache's bound, in GB (`NEDRT_CACHE_MAX_GB`, which
+/// overrides it): a few of the largest entries.
+const TEST_CACHE_MAX_GB: &str = "2";
+
 /// `nedrt`, with the PSF cache of the whole test run inside the build
 /// folder: the tests never fill the user's own cache.
 fn nedrt() -> Command {
@@ -42,6 +46,10 @@ fn nedrt() -> Command {
         "NEDRT_CACHE_DIR",
         Path::new(env!("CARGO_TARGET_TMPDIR")).join("psf-cache"),
     );
+    // Bounded, as CI's disk is limited: unbounded, the run's PSFs took 5.3 GB.
+    if std::env::var_os("NEDRT_CACHE_MAX_GB").is_none() {
+        c.env("NEDRT_CACHE_MAX_GB", TEST_CACHE_MAX_GB);
+    }
     c
 }
 
