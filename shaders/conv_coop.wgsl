@@ -6,19 +6,23 @@
 // A template filled by runtime/infer/src/gpu/codegen/coop.rs; chosen only
 // where the adapter lists the 16×16×16 f16 shape (docs/inference.md).
 //
-// A workgroup is SUBGROUPS subgroups of SG invocations (the adapter's one
-// subgroup size; the builtins say which subgroup an invocation is in, so
-// nothing assumes how invocations are grouped). Per 16-channel
-// chunk it stages its input tile (ROWS + K − 1 rows of 16 + K − 1 pixels,
-// 16 channels each, channels innermost so that a row of 16 pixels is a
-// row-major 16×16 matrix with stride 16) in workgroup memory once; each
-// subgroup then multiplies it by its own block of output columns, whose
-// weights were packed at load as one row-major 16×16 matrix per block,
-// chunk and tap (`codegen::pack_coop`), read straight from the weight
-// buffer (every workgroup reads the same few KiB: they stay in cache).
-// Each subgroup holds ROWS accumulators (ROWS × 16 pixels × 16 columns);
-// the epilogue goes through workgroup memory, one matrix at a time, so
-// that it can address pixels and channels.
+// A workgroup is SG_ROWS × SG_COLS subgroups of SG invocations (the
+// adapter's one subgroup size; the builtins say which subgroup an
+// invocation is in, so nothing assumes how invocations are grouped),
+// covering 16 pixels × ROWS·SG_ROWS rows × BLOCKS·SG_COLS blocks of 16
+// output columns (the tile, chosen per layer: `CoopTile`). Per 16-channel
+// chunk it stages its input tile (ROWS·SG_ROWS + K − 1 rows of 16 + K − 1
+// pixels, 16 channels each, channels innermost so that a row of 16 pixels
+// is a row-major 16×16 matrix with stride 16) in workgroup memory once;
+// each subgroup then multiplies its ROWS rows of it by its own BLOCKS
+// blocks of output columns, whose weights were packed at load as one
+// row-major 16×16 matrix per block, chunk and tap (`codegen::pack_coop`),
+// read straight from the weight buffer (every workgroup reads the same few
+// KiB: they stay in cache). Each subgroup holds ROWS × BLOCKS accumulators
+// (16 pixels × 16 columns each); the epilogue goes through workgroup
+// memory, one matrix at a time, so that it can address pixels and
+// channels. A tile changes which invocations compute an output, never the
+// order of its sum.
 enable f16;
 enable wgpu_cooperative_matrix;
 
@@ -27,11 +31,14 @@ enable wgpu_cooperative_matrix;
 const K: u32 = {{K}}u;
 const R: u32 = K / 2u;
 const SG: u32 = {{SG}}u;
-const SUBGROUPS: u32 = {{SUBGROUPS}}u;
-const THREADS: u32 = SG * SUBGROUPS;
 const ROWS: u32 = {{ROWS}}u;
+const BLOCKS: u32 = {{BLOCKS}}u;
+const SG_ROWS: u32 = {{SG_ROWS}}u;
+const SG_COLS: u32 = {{SG_COLS}}u;
+const SUBGROUPS: u32 = SG_ROWS * SG_COLS;
+const THREADS: u32 = SG * SUBGROUPS;
 const IN_W: u32 = 16u + K - 1u;
-const IN_H: u32 = ROWS + K - 1u;
+const IN_H: u32 = ROWS * SG_ROWS + K - 1u;
 const TRANSPOSED: bool = {{TRANSPOSED}};
 const RELU: bool = {{RELU}};
 const RESIDUAL: bool = {{RESIDUAL}};
@@ -50,9 +57,11 @@ fn main(
     @builtin(subgroup_invocation_id) lane: u32,
 ) {
     let x0 = wg.x * 16u;
-    let y0 = wg.y * ROWS;
-    // This subgroup's block of 16 output columns.
-    let blk = wg.z * SUBGROUPS + sg;
+    let y0 = wg.y * ROWS * SG_ROWS;
+    // This subgroup's first pixel row in the tile and first block of 16
+    // output columns.
+    let row0 = (sg / SG_COLS) * ROWS;
+    let blk0 = (wg.z * SG_COLS + sg % SG_COLS) * BLOCKS;
     let plane = p.width * p.height;
     let chunks = (p.cin + 15u) / 16u;
 {{ACC_DECL}}
@@ -76,8 +85,6 @@ fn main(
         for (var tap = 0u; tap < K * K; tap++) {
             let ky = tap / K;
             let kx = tap % K;
-            let b = coopLoadT<coop_mat16x16<f16, B>>(
-                &weights[p.w_offset + ((blk * chunks + chunk) * K * K + tap) * 256u], 16u);
 {{TAPS}}
         }
         workgroupBarrier();

@@ -66,7 +66,8 @@ def report(steps: dict, meta: dict) -> str:
     if text("tune"):
         table = next((x["file"] for x in records("tune", "tuning_table")), None)
         md += ["", f"## The conv tiles tuned ({head})", "", "nedrt bench tune on the shipped model (docs/tuning.md): "
-               "each tiled conv shape at the heuristics' tile and at the fastest, GPU time per layer."
+               "each conv shape (register-tiled, and on cooperative matrices where the GPU has them) at the "
+               "heuristics' tile and at the fastest, GPU time per layer."
                + (f" The table, {table}, is beside this report: commit it as tuning/{table}." if table else ""),
                text("tune")]
     if text("tradeoff"):

@@ -19,14 +19,14 @@ def sizes(smoke: bool) -> dict:
                 "steps": 4, "seed_steps": 2, "validate_every": 2, "max_batch": 2, "budget_s": 60, "copy_mb": 16,
                 "gemm": 256,
                 "tradeoff_size": "64x64", "tradeoff_prefilters": "lsq,refine:1", "tradeoff_designs": "multifocal",
-                "tune_frame": "32x32", "tune_tiles": ["--tiles", "8x4"]}
+                "tune_frame": "32x32", "tune_tiles": ["--tiles", "8x4"], "tune_coop_tiles": ["--tiles", "8x4"]}
     return {"frame": "1920x1080", "layer_frame": "1920x1080", "panel": "1920x1080", "frames": 200, "repeat": 10,
             "torch_repeat": 20, "pipeline_s": 8, "train_images": None, "val_images": None, "crop": None,
             "val_crop": None, "patch": 128, "width": 32, "levels": 4, "teacher_steps": 1000,
             "steps": 1_000_000, "seed_steps": None, "validate_every": 500, "max_batch": 64, "budget_s": TRAIN_BUDGET_S,
             "copy_mb": 2048, "gemm": 8192, "tradeoff_size": "1920x1080",
             "tradeoff_prefilters": "admm:3,refine:10,lsq", "tradeoff_designs": "multifocal",
-            "tune_frame": "1920x1080", "tune_tiles": []}
+            "tune_frame": "1920x1080", "tune_tiles": [], "tune_coop_tiles": ["--tiles", "32x16"]}
 
 
 #: Seconds of the tradeoff step's cap kept after its --time-budget: the
@@ -62,10 +62,11 @@ STEPS = [
                "nedrt run --stereo --sink headless at 1920×1080: the copy-out per view on the GPU, the send, "
                "xrEndFrame, the frames shown at their display time", 20, 2),
     ("tune", "nedrt bench tune (issue 56, docs/tuning.md): every tile of the shipped model's tiled convolutions "
-             "at 1920×1080, f32 and f16, the heuristics' against the fastest; the adapter's table comes back",
-     30, 2),
+             "at 1920×1080, f32 and f16, and of its convolutions on cooperative matrices (f16), the heuristics' "
+             "against the fastest; the adapter's table comes back",
+     45, 2),
     ("tradeoff", "the speed-against-accuracy chart with the GPU's rows: nedrt tradeoff with the wgpu "
-                 "configurations at 1920×1080", ENVELOPE2_S - 20 - 20 - 30 - 20, 2),
+                 "configurations at 1920×1080", ENVELOPE2_S - 20 - 20 - 45 - 20, 2),
 ]
 
 
@@ -236,20 +237,25 @@ def frame_log(path: Path) -> dict:
 
 def step_tune(r: Runner, s: Step, z: dict):
     """The tuner on the shipped model at the panel's size, at both
-    precisions, into a fresh folder: its report (each conv shape's
-    heuristic tile against the fastest) and the adapter's table, which
+    precisions and on cooperative matrices, into a fresh folder: its report
+    (each conv shape's heuristic tile against the fastest) and the
+    adapter's table, which
     comes back to be committed under tuning/ (docs/tuning.md). On the
     smoke, one tile besides the heuristics' (each is a kernel lavapipe
     compiles for seconds)."""
     r.need_gpu_adapter()
     out = r.work / "tuning"
     texts = []
-    # f16 with the tiled kernels everywhere: a table is keyed by layer
-    # shape, so this covers the layers `auto` leaves tiled too.
-    for precision, path in (("f32", "auto"), ("f16", "tiled")):
+    # f16 on `auto` tunes the layers on cooperative matrices (where the
+    # adapter has them), its tiled layers only against one other tile; then
+    # f16 with the tiled kernels everywhere, which a table keys by layer
+    # shape, so its full tuning of every tiled layer replaces those entries.
+    passes = (("f32", "auto", z["tune_tiles"]), ("f16", "auto", z["tune_coop_tiles"]),
+              ("f16", "tiled", z["tune_tiles"]))
+    for precision, path, tiles in passes:
         text = r.sh([r.nedrt, "--tuning", out, "--precision", precision, "--conv-path", path, "bench", "tune",
-                     "--networks", "model", "--sizes", z["tune_frame"], "--repeat", z["repeat"], *z["tune_tiles"]],
-                    s.cap_s / 2, parse_json=False)
+                     "--networks", "model", "--sizes", z["tune_frame"], "--repeat", z["repeat"], *tiles],
+                    s.cap_s / len(passes), parse_json=False)
         texts.append(f"\n**--precision {precision} --conv-path {path}**\n\n{text.strip()}\n")
         s.text = "".join(texts)
         # After each: a table from the first comes back even if the second fails.

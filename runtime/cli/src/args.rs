@@ -513,9 +513,10 @@ pub struct BenchArgs {
     /// (inference: default the best any layer reaches in the run; fft: no floor).
     #[arg(long, value_name = "GB/S")]
     pub peak_gbps: Option<f64>,
-    /// tune: only these conv tiles besides each layer's heuristic one,
-    /// WIDTHxHEIGHT in output pixels (default: every tile; each is a
-    /// kernel to compile, seconds apiece on a software adapter).
+    /// tune: only these register-tiled conv tiles besides each layer's
+    /// heuristic one, WIDTHxHEIGHT in output pixels (default: every tile;
+    /// each is a kernel to compile, seconds apiece on a software adapter).
+    /// The layers on cooperative matrices are tuned over all their tiles.
     #[arg(long, value_delimiter = ',', value_parser = parse_tile, value_name = "WxH")]
     pub tiles: Vec<nedrt_infer::gpu::codegen::ConvTile>,
     /// fft: the device FFT paths to time side by side.

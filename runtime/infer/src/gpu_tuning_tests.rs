@@ -56,6 +56,7 @@ mod needs_gpu {
             nedrt: "test".into(),
             template: crate::gpu::tuning::template_hash(),
             convs,
+            coops: Vec::new(),
         }
     }
 

@@ -12,7 +12,8 @@ use super::bench_inference::{adapter, adapter_line, bench_frame};
 use crate::CommonOptions;
 use nedrt_infer::BackendOptions;
 use nedrt_infer::gpu::GpuBackend;
-use nedrt_infer::gpu::tuning::{AdapterKey, TunedConv, TuningTable};
+use nedrt_infer::gpu::codegen::coop::CoopTile;
+use nedrt_infer::gpu::tuning::{AdapterKey, TunedConv, TunedCoop, TuningTable};
 use nedrt_infer::model_file::ModelFile;
 
 /// What to tune.
@@ -77,14 +78,57 @@ fn case_table(title: &str, convs: &[TunedConv], tiles_timed: usize) -> String {
             c.heuristic_ns as f64 / c.tuned_ns.max(1) as f64
         );
     }
-    let _ = writeln!(
-        md,
-        "| all tiled convs | | | {} | | {} | {:.2} |",
-        us(h_sum),
-        us(t_sum),
-        h_sum as f64 / t_sum.max(1) as f64
-    );
-    md
+    md + &sum_row("all tiled convs", h_sum, t_sum)
+}
+
+/// A case table's last row: the shapes' times summed, at the heuristics'
+/// tiles and at the tuned.
+fn sum_row(label: &str, heuristic_ns: u64, tuned_ns: u64) -> String {
+    format!(
+        "| {label} | | | {} | | {} | {:.2} |\n",
+        us(heuristic_ns),
+        us(tuned_ns),
+        heuristic_ns as f64 / tuned_ns.max(1) as f64
+    )
+}
+
+fn coop_tile(t: CoopTile) -> String {
+    format!("{}×{} of {}×{}", t.sg_rows, t.sg_cols, t.rows, t.blocks)
+}
+
+/// The cooperative-matrix shapes of a case, if any: each tile as
+/// subgroups (over rows × over columns) of accumulators (pixel rows ×
+/// column blocks).
+fn coop_table(coops: &[TunedCoop]) -> String {
+    if coops.is_empty() {
+        return String::new();
+    }
+    let mut md = "\n| cooperative conv | layer input | heuristic tile | µs | tuned tile | µs | heuristic / tuned |\n| --- | --- | --- | ---: | --- | ---: | ---: |\n".to_string();
+    let (mut h_sum, mut t_sum) = (0u64, 0u64);
+    for c in coops {
+        let s = c.shape;
+        h_sum = h_sum.saturating_add(c.heuristic_ns);
+        t_sum = t_sum.saturating_add(c.tuned_ns);
+        let _ = writeln!(
+            md,
+            "| {} {}→{} | {}×{} | {} | {} | {} | {} | {:.2} |",
+            if s.transposed {
+                "2×2 transposed".to_string()
+            } else {
+                format!("{0}×{0}", s.kernel)
+            },
+            s.cin,
+            s.cout,
+            s.width,
+            s.height,
+            coop_tile(CoopTile::for_layer(s.columns())),
+            us(c.heuristic_ns),
+            coop_tile(c.tile()),
+            us(c.tuned_ns),
+            c.heuristic_ns as f64 / c.tuned_ns.max(1) as f64
+        );
+    }
+    md + &sum_row("all cooperative convs", h_sum, t_sum)
 }
 
 /// Tunes every network at every size, at the precision the backend is
@@ -134,7 +178,7 @@ pub fn run(b: &TuneBench, common: &CommonOptions) -> Result<TuneOutcome, AppErro
             let key = AdapterKey::of(&gpu.adapter_info());
             table = Some(match TuningTable::find(&b.dir, &key)? {
                 Some((_, t)) => t,
-                None => TuningTable::new(key, Vec::new()),
+                None => TuningTable::new(key, Vec::new(), Vec::new()),
             });
         }
         for &(w, h) in &b.sizes {
@@ -145,10 +189,11 @@ pub fn run(b: &TuneBench, common: &CommonOptions) -> Result<TuneOutcome, AppErro
                 &result.convs,
                 result.tiles_timed,
             );
+            md += &coop_table(&result.coops);
             // A shape met again (another network, the same layer) keeps
             // its latest tuning.
             if let Some(t) = &mut table {
-                t.merge(result.convs);
+                t.merge(result.convs, result.coops);
             }
         }
     }
@@ -159,10 +204,16 @@ pub fn run(b: &TuneBench, common: &CommonOptions) -> Result<TuneOutcome, AppErro
         ));
     };
     // Stamped with this nedrt and template, whatever the old table said.
-    table = TuningTable::new(table.adapter, table.convs);
-    let shapes = table.convs.len();
+    table = TuningTable::new(table.adapter, table.convs, table.coops);
+    let shapes = table.convs.len() + table.coops.len();
     let path = table.save(&b.dir)?;
-    let _ = writeln!(md, "\nWrote {} ({shapes} conv shapes).", path.display());
+    let _ = writeln!(
+        md,
+        "\nWrote {} ({} conv shapes, {} on cooperative matrices).",
+        path.display(),
+        shapes,
+        table.coops.len()
+    );
     Ok(TuneOutcome {
         table: path,
         shapes,

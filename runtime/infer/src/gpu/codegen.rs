@@ -130,6 +130,7 @@ pub enum KernelKind {
         clamp: bool,
         transposed: bool,
         subgroup_size: u32,
+        tile: coop::CoopTile,
     },
 }
 
@@ -157,6 +158,8 @@ pub(super) const CONV_TEMPLATE: &str = CONV;
 const CONV_TRANSPOSE: &str = include_str!("../../../../shaders/conv_transpose.wgsl");
 const MAX_POOL: &str = include_str!("../../../../shaders/max_pool.wgsl");
 const CONV_COOP: &str = include_str!("../../../../shaders/conv_coop.wgsl");
+/// The cooperative conv template, whose hash a tuning table records.
+pub(super) const COOP_TEMPLATE: &str = CONV_COOP;
 const LAYER_BINDINGS: &str = include_str!("../../../../shaders/layer_bindings.wgsl");
 const CONV_EPILOGUE: &str = include_str!("../../../../shaders/conv_epilogue.wgsl");
 
@@ -232,21 +235,24 @@ impl KernelKey {
                 clamp,
                 transposed,
                 subgroup_size,
+                tile,
             } => (
                 CONV_COOP,
                 vec![
                     ("K", kernel.to_string()),
                     ("SG", subgroup_size.to_string()),
-                    ("SUBGROUPS", coop::SUBGROUPS.to_string()),
-                    ("THREADS", (coop::SUBGROUPS * subgroup_size).to_string()),
-                    ("ROWS", coop::ROWS.to_string()),
+                    ("THREADS", (tile.subgroups() * subgroup_size).to_string()),
+                    ("ROWS", tile.rows.to_string()),
+                    ("BLOCKS", tile.blocks.to_string()),
+                    ("SG_ROWS", tile.sg_rows.to_string()),
+                    ("SG_COLS", tile.sg_cols.to_string()),
                     ("TRANSPOSED", transposed.to_string()),
                     ("RELU", relu.to_string()),
                     ("RESIDUAL", residual.to_string()),
                     ("CLAMP", clamp.to_string()),
-                    ("ACC_DECL", coop::accumulators()),
-                    ("TAPS", coop::taps()),
-                    ("STORES", coop::stores()),
+                    ("ACC_DECL", coop::accumulators(tile)),
+                    ("TAPS", coop::taps(tile)),
+                    ("STORES", coop::stores(tile)),
                 ],
             ),
         };
@@ -383,7 +389,18 @@ mod tests {
     /// transposed conv, for subgroups of 32 (NVIDIA) and 64 (AMD).
     fn coop_keys() -> Vec<KernelKey> {
         let mut keys = Vec::new();
-        for subgroup_size in [32, 64] {
+        // The default tile, and the most matrices a subgroup and the most
+        // subgroups a workgroup hold.
+        let tiles = [
+            coop::CoopTile::DEFAULT,
+            coop::CoopTile {
+                rows: 4,
+                blocks: 2,
+                sg_rows: 2,
+                sg_cols: 4,
+            },
+        ];
+        for (subgroup_size, tile) in [32, 64].into_iter().flat_map(|s| tiles.map(|t| (s, t))) {
             for (kernel, relu, residual, clamp, transposed) in [
                 (3, true, false, false, false),
                 (3, false, true, true, false),
@@ -398,6 +415,7 @@ mod tests {
                         clamp,
                         transposed,
                         subgroup_size,
+                        tile,
                     },
                     src: Dtype::F16,
                     dst: Dtype::F16,

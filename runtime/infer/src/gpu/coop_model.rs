@@ -6,14 +6,15 @@
 //! cannot show is the driver's own matrix instructions: the device check
 //! compares the cooperative network with the tiled one on a GPU.
 
-use super::codegen::coop::{ROWS, SUBGROUPS};
+use super::codegen::coop::CoopTile;
 use super::pack;
 use crate::network::{Conv, ConvTranspose};
 use crate::reference::{self, Epilogue};
 use crate::synth::SplitMix;
 
-/// The kernel's output for an input of `cin`×`h`×`w`: a "same" `k`×`k`
-/// conv, or (`transposed`) the 2×2 stride-2 one; no ReLU.
+/// The kernel's output at `tile` for an input of `cin`×`h`×`w`: a "same"
+/// `k`×`k` conv, or (`transposed`) the 2×2 stride-2 one; no ReLU.
+#[allow(clippy::too_many_arguments)]
 fn model(
     input: &[f32],
     (w, h): (usize, usize),
@@ -21,19 +22,29 @@ fn model(
     packed: &[f32],
     bias: &[f32],
     transposed: bool,
+    tile: CoopTile,
 ) -> Vec<f32> {
-    let (rows, sgs) = (ROWS as usize, SUBGROUPS as usize);
-    let (in_w, in_h, r) = (16 + k - 1, rows + k - 1, (k / 2) as isize);
+    let (rows, blocks) = (tile.rows as usize, tile.blocks as usize);
+    let (sg_rows, sg_cols) = (tile.sg_rows as usize, tile.sg_cols as usize);
+    let (pixel_rows, column_blocks) = (tile.pixel_rows() as usize, tile.column_blocks() as usize);
+    let (in_w, in_h, r) = (16 + k - 1, pixel_rows + k - 1, (k / 2) as isize);
     let columns = if transposed { 4 * cout } else { cout };
     let chunks = cin.div_ceil(16);
     let plane = w * h;
     let mut out = vec![0f32; if transposed { 4 } else { 1 } * cout * plane];
-    for gz in 0..columns.div_ceil(16).div_ceil(sgs) {
-        for gy in 0..h.div_ceil(rows) {
+    // Each output must be written exactly once: a tile that overlaps or
+    // leaves a gap is a bug even where the values happen to agree.
+    let mut written = vec![0u8; out.len()];
+    // The dispatch plan.rs makes, and each subgroup's first row and block.
+    let sgs = sg_rows * sg_cols;
+    let row0 = |sg: usize| (sg / sg_cols) * rows;
+    let blk0 = |gz: usize, sg: usize| (gz * sg_cols + sg % sg_cols) * blocks;
+    for gz in 0..columns.div_ceil(16).div_ceil(column_blocks) {
+        for gy in 0..h.div_ceil(pixel_rows) {
             for gx in 0..w.div_ceil(16) {
-                let (x0, y0) = (gx * 16, gy * rows);
-                // acc[sg][row][pixel][column]
-                let mut acc = vec![[[0f32; 16]; 16]; sgs * rows];
+                let (x0, y0) = (gx * 16, gy * pixel_rows);
+                // acc[sg][row][block][pixel][column]
+                let mut acc = vec![[[0f32; 16]; 16]; sgs * rows * blocks];
                 for chunk in 0..chunks {
                     let mut a_tile = vec![0f32; in_h * in_w * 16];
                     for i in 0..16 * in_h * in_w {
@@ -54,15 +65,19 @@ fn model(
                     for tap in 0..k * k {
                         let (ky, kx) = (tap / k, tap % k);
                         for sg in 0..sgs {
-                            let blk = gz * sgs + sg;
-                            let b = ((blk * chunks + chunk) * k * k + tap) * 256;
-                            for row in 0..rows {
-                                let a = ((row + ky) * in_w + kx) * 16;
-                                let c = &mut acc[sg * rows + row];
-                                for (m, c_row) in c.iter_mut().enumerate() {
-                                    for (n, v) in c_row.iter_mut().enumerate() {
-                                        for kk in 0..16 {
-                                            *v += a_tile[a + m * 16 + kk] * packed[b + kk * 16 + n];
+                            for nb in 0..blocks {
+                                let blk = blk0(gz, sg) + nb;
+                                let b = ((blk * chunks + chunk) * k * k + tap) * 256;
+                                assert!(b + 256 <= packed.len(), "a read past the weights");
+                                for row in 0..rows {
+                                    let a = ((row0(sg) + row + ky) * in_w + kx) * 16;
+                                    let c = &mut acc[(sg * rows + row) * blocks + nb];
+                                    for (m, c_row) in c.iter_mut().enumerate() {
+                                        for (n, v) in c_row.iter_mut().enumerate() {
+                                            for kk in 0..16 {
+                                                *v += a_tile[a + m * 16 + kk]
+                                                    * packed[b + kk * 16 + n];
+                                            }
                                         }
                                     }
                                 }
@@ -71,12 +86,12 @@ fn model(
                     }
                 }
                 for sg in 0..sgs {
-                    let blk = gz * sgs + sg;
-                    for row in 0..rows {
+                    for (row, nb) in (0..rows).flat_map(|r| (0..blocks).map(move |n| (r, n))) {
+                        let blk = blk0(gz, sg) + nb;
                         for i in 0..256 {
                             let (px, col) = (i % 16, i / 16);
-                            let sum = acc[sg * rows + row][px][col];
-                            let (x, y, n) = (x0 + px, y0 + row, blk * 16 + col);
+                            let sum = acc[(sg * rows + row) * blocks + nb][px][col];
+                            let (x, y, n) = (x0 + px, y0 + row0(sg) + row, blk * 16 + col);
                             if x >= w || y >= h {
                                 continue;
                             }
@@ -88,9 +103,11 @@ fn model(
                                         + 2 * x
                                         + tap % 2;
                                     out[at] = sum + bias[oc];
+                                    written[at] += 1;
                                 }
                             } else if n < cout {
                                 out[n * plane + y * w + x] = sum + bias[n];
+                                written[n * plane + y * w + x] += 1;
                             }
                         }
                     }
@@ -98,7 +115,23 @@ fn model(
             }
         }
     }
+    assert!(
+        written.iter().all(|&n| n == 1),
+        "{tile:?}: outputs written other than once"
+    );
     out
+}
+
+/// The tiles to hold to the CPU twin for a layer: the default, the
+/// heuristics' and every candidate the tuner would time.
+fn tiles_for(columns: usize, h: usize, k: usize) -> Vec<CoopTile> {
+    let mut tiles = CoopTile::candidates(columns, h as u32, k);
+    for t in [CoopTile::DEFAULT, CoopTile::for_layer(columns)] {
+        if !tiles.contains(&t) {
+            tiles.push(t);
+        }
+    }
+    tiles
 }
 
 fn max_abs_diff(a: &[f32], b: &[f32]) -> f32 {
@@ -115,7 +148,7 @@ fn the_cooperative_kernels_addressing_computes_the_convolution() {
     // tile divides, 3×3 and 1×1.
     let mut rng = SplitMix::new(38);
     let (w, h) = (37, 11);
-    for (cin, cout, k) in [(20, 10, 3), (16, 70, 3), (33, 5, 1)] {
+    for (cin, cout, k) in [(20, 10, 3), (16, 70, 3), (33, 5, 1), (32, 32, 3)] {
         let input: Vec<f32> = (0..cin * w * h).map(|_| rng.symmetric(1.0)).collect();
         let conv = Conv {
             input: 0,
@@ -142,9 +175,19 @@ fn the_cooperative_kernels_addressing_computes_the_convolution() {
             },
         );
         let packed = pack::coop_conv(&conv.weight, cin, cout, k);
-        let got = model(&input, (w, h), (cin, cout, k), &packed, &conv.bias, false);
-        let d = max_abs_diff(&want, &got);
-        assert!(d < 1e-4, "conv {k}×{k} {cin}→{cout}: {d}");
+        for tile in tiles_for(cout, h, k) {
+            let got = model(
+                &input,
+                (w, h),
+                (cin, cout, k),
+                &packed,
+                &conv.bias,
+                false,
+                tile,
+            );
+            let d = max_abs_diff(&want, &got);
+            assert!(d < 1e-4, "conv {k}×{k} {cin}→{cout} at {tile:?}: {d}");
+        }
     }
     for (cin, cout) in [(20, 10), (64, 32)] {
         let input: Vec<f32> = (0..cin * w * h).map(|_| rng.symmetric(1.0)).collect();
@@ -159,8 +202,18 @@ fn the_cooperative_kernels_addressing_computes_the_convolution() {
         };
         let want = reference::conv_transpose2(&input, h, w, &ct);
         let packed = pack::coop_conv_transpose(&ct.weight, cin, cout);
-        let got = model(&input, (w, h), (cin, cout, 1), &packed, &ct.bias, true);
-        let d = max_abs_diff(&want, &got);
-        assert!(d < 1e-4, "transposed {cin}→{cout}: {d}");
+        for tile in tiles_for(4 * cout, h, 1) {
+            let got = model(
+                &input,
+                (w, h),
+                (cin, cout, 1),
+                &packed,
+                &ct.bias,
+                true,
+                tile,
+            );
+            let d = max_abs_diff(&want, &got);
+            assert!(d < 1e-4, "transposed {cin}→{cout} at {tile:?}: {d}");
+        }
     }
 }

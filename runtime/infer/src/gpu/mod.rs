@@ -131,6 +131,8 @@ pub struct GpuBackend {
     tuning: Option<Arc<tuning::TuningTable>>,
     /// Tiles the tuner forces on layers, over the table and heuristics.
     forced_tiles: HashMap<usize, codegen::ConvTile>,
+    /// The same for the cooperative-matrix layers.
+    forced_coop: HashMap<usize, codegen::coop::CoopTile>,
 }
 
 impl GpuBackend {
@@ -356,6 +358,7 @@ impl GpuBackend {
             conv_paths,
             tuning: None,
             forced_tiles: HashMap::new(),
+            forced_coop: HashMap::new(),
         })
     }
 
@@ -382,6 +385,15 @@ impl GpuBackend {
     pub fn force_conv_tiles(&mut self, tiles: HashMap<usize, codegen::ConvTile>) {
         if tiles != self.forced_tiles {
             self.forced_tiles = tiles;
+            self.plan = None;
+            self.resident = None;
+        }
+    }
+
+    /// [`Self::force_conv_tiles`] for the cooperative-matrix layers.
+    pub fn force_coop_tiles(&mut self, tiles: HashMap<usize, codegen::coop::CoopTile>) {
+        if tiles != self.forced_coop {
+            self.forced_coop = tiles;
             self.plan = None;
             self.resident = None;
         }

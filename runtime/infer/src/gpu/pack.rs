@@ -61,10 +61,11 @@ pub(super) fn conv_transpose(weight: &[f32], cin: usize, cout: usize) -> Vec<f32
 }
 
 /// Blocks of 16 output columns the cooperative kernel reads for `columns`
-/// columns: whole workgroups' worth (zero blocks past the last), so no
-/// subgroup reads past its layer's weights.
-fn coop_blocks(columns: usize) -> usize {
-    let s = coop::SUBGROUPS as usize;
+/// columns: whole workgroups' worth at any tile (zero blocks past the
+/// last; a tile covers 1 to [`coop::MAX_COLUMN_BLOCKS`] blocks, a power of
+/// two), so no subgroup reads past its layer's weights.
+pub(super) fn coop_blocks(columns: usize) -> usize {
+    let s = coop::MAX_COLUMN_BLOCKS as usize;
     columns.div_ceil(16).div_ceil(s) * s
 }
 
@@ -180,8 +181,9 @@ mod tests {
         let (cin, cout, k) = (20, 10, 3);
         let w: Vec<f32> = (0..cout * cin * k * k).map(|i| i as f32 + 1.0).collect();
         let p = coop_conv(&w, cin, cout, k);
-        // One block of 16 channels, padded to a workgroup's four; two chunks.
-        assert_eq!(p.len(), 4 * 2 * 9 * 256);
+        // One block of 16 channels, padded to the widest tile's eight; two
+        // chunks.
+        assert_eq!(p.len(), coop::MAX_COLUMN_BLOCKS as usize * 2 * 9 * 256);
         for o in 0..cout {
             for c in 0..cin {
                 for tap in 0..9 {
@@ -197,7 +199,7 @@ mod tests {
 
         let w: Vec<f32> = (0..cin * cout * 4).map(|i| i as f32 + 1.0).collect();
         let p = coop_conv_transpose(&w, cin, cout);
-        assert_eq!(p.len(), 4 * 2 * 256);
+        assert_eq!(p.len(), coop::MAX_COLUMN_BLOCKS as usize * 2 * 256);
         for c in 0..cin {
             for o in 0..cout {
                 for tap in 0..4 {

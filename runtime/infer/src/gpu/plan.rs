@@ -89,20 +89,84 @@ impl GpuBackend {
         out
     }
 
+    /// Each cooperative-matrix conv layer's tile for a `width`×`height`
+    /// frame: the tuner's forced tile, else the adapter's table's, else the
+    /// heuristics'.
+    pub fn coop_tiles(&self, width: usize, height: usize) -> Vec<super::tuning::LayerCoopTile> {
+        use super::tuning::{CoopShape, LayerCoopTile, TileSource};
+        let net = &self.network;
+        let mut out = Vec::new();
+        for (li, (layer, key)) in net.layers.iter().zip(&self.layer_keys).enumerate() {
+            let Some(KernelKey {
+                kind:
+                    KernelKind::CoopConv {
+                        kernel, transposed, ..
+                    },
+                ..
+            }) = key
+            else {
+                continue;
+            };
+            let (input, cin, cout) = match layer {
+                Layer::Conv(c) => (c.input, c.cin, c.cout),
+                Layer::ConvTranspose(c) => (c.input, c.cin, c.cout),
+                _ => continue,
+            };
+            let level = net.values[input].level;
+            let shape = CoopShape {
+                kernel: *kernel,
+                cin,
+                cout,
+                width: (width >> level) as u32,
+                height: (height >> level) as u32,
+                transposed: *transposed,
+            };
+            let (tile, source) = if let Some(t) = self.forced_coop.get(&li) {
+                (*t, TileSource::Forced)
+            } else if let Some(t) = self.tuning.as_ref().and_then(|t| t.coop_tile_for(&shape)) {
+                (t, TileSource::Tuned)
+            } else {
+                (
+                    codegen::coop::CoopTile::for_layer(shape.columns()),
+                    TileSource::Heuristic,
+                )
+            };
+            out.push(LayerCoopTile {
+                layer: li,
+                shape,
+                tile,
+                source,
+            });
+        }
+        out
+    }
+
     /// Each layer's kernel for a `width`×`height` frame: every conv gets
-    /// its tile from [`Self::conv_tiles`].
+    /// its tile from [`Self::conv_tiles`] or [`Self::coop_tiles`].
     fn sized_keys(&self, width: usize, height: usize) -> Vec<Option<KernelKey>> {
         let mut keys = self.layer_keys.clone();
         let tiles = self.conv_tiles(width, height);
+        let coop = self.coop_tiles(width, height);
         let tuned = tiles
             .iter()
-            .filter(|t| t.source == super::tuning::TileSource::Tuned)
+            .map(|t| t.source)
+            .chain(coop.iter().map(|t| t.source))
+            .filter(|s| *s == super::tuning::TileSource::Tuned)
             .count();
         if tuned > 0 {
             tracing::debug!(
                 "{width}×{height}: {tuned} of {} conv tiles tuned",
-                tiles.len()
+                tiles.len() + coop.len()
             );
+        }
+        for t in coop {
+            if let Some(KernelKey {
+                kind: KernelKind::CoopConv { tile, .. },
+                ..
+            }) = &mut keys[t.layer]
+            {
+                *tile = t.tile;
+            }
         }
         for t in tiles {
             if let Some(KernelKey {
@@ -284,13 +348,15 @@ impl GpuBackend {
                     let (t, oc) = codegen::CONV_TRANSPOSE_TILE;
                     [lw.div_ceil(t), lh.div_ceil(t), cout.div_ceil(oc)]
                 }
-                KernelKind::CoopConv { transposed, .. } => {
+                KernelKind::CoopConv {
+                    transposed, tile, ..
+                } => {
                     use codegen::coop;
                     let columns = if transposed { 4 * cout } else { cout };
                     [
                         lw.div_ceil(coop::SIZE),
-                        lh.div_ceil(coop::ROWS),
-                        columns.div_ceil(coop::SIZE).div_ceil(coop::SUBGROUPS),
+                        lh.div_ceil(tile.pixel_rows()),
+                        columns.div_ceil(coop::SIZE).div_ceil(tile.column_blocks()),
                     ]
                 }
                 KernelKind::MaxPool => {

@@ -1,13 +1,15 @@
 //! The tuner behind `nedrt bench tune` (docs/tuning.md): every candidate
-//! tile of every register-tiled convolution timed on the adapter, the
+//! tile of every convolution (register-tiled or cooperative) timed on the adapter, the
 //! fastest per layer shape kept, and the tuned network checked against the
 //! heuristics' bit for bit before its tiles are offered for a table.
 
 use std::collections::HashMap;
+use std::hash::Hash;
 use std::sync::Arc;
 
 use super::codegen::ConvTile;
-use super::tuning::{ConvShape, TileSource, TunedConv, TuningTable, candidate_tiles};
+use super::codegen::coop::CoopTile;
+use super::tuning::{TunedConv, TunedCoop, TuningTable, candidate_tiles};
 use super::{GpuBackend, err};
 use crate::InferenceError;
 use nedrt_core::Image;
@@ -15,10 +17,59 @@ use nedrt_core::Image;
 /// What tuning one network at one frame size found.
 #[derive(Debug, Clone)]
 pub struct TuneResult {
-    /// One entry per conv shape, in the network's order.
+    /// One entry per register-tiled conv shape, in the network's order.
     pub convs: Vec<TunedConv>,
+    /// One entry per cooperative-matrix conv shape (none on an adapter
+    /// without cooperative matrices).
+    pub coops: Vec<TunedCoop>,
     /// Tiles timed (each for every layer it fits, in one frame).
     pub tiles_timed: usize,
+}
+
+/// The best device time of a layer at a tile: (layer, tile) → ns.
+type Times<T> = HashMap<(usize, T), u64>;
+
+/// Per shape, in the layers' order: the heuristics' tile and time, and the
+/// fastest tile and its time, each summed over the layers of that shape
+/// (a shape's candidates are the same for each of its layers); the
+/// heuristics' tile wins a tie.
+type Best<S, T> = (S, T, u64, T, u64);
+
+fn best_per_shape<S: Copy + PartialEq, T: Copy + Eq + Hash>(
+    layers: &[(usize, S, T)],
+    candidates: &[Vec<T>],
+    times: &Times<T>,
+) -> Result<Vec<Best<S, T>>, InferenceError> {
+    type ShapeTimes<S, T> = (S, T, Vec<(T, u64)>);
+    let mut shapes: Vec<ShapeTimes<S, T>> = Vec::new();
+    for (&(layer, shape, heuristic), c) in layers.iter().zip(candidates) {
+        let i = match shapes.iter().position(|s| s.0 == shape) {
+            Some(i) => i,
+            None => {
+                shapes.push((shape, heuristic, c.iter().map(|t| (*t, 0)).collect()));
+                shapes.len() - 1
+            }
+        };
+        for (tile, sum) in &mut shapes[i].2 {
+            let ns = times.get(&(layer, *tile)).copied().unwrap_or(u64::MAX);
+            *sum = sum.saturating_add(ns);
+        }
+    }
+    shapes
+        .into_iter()
+        .map(|(shape, heuristic, per_tile)| {
+            let heuristic_ns = per_tile
+                .iter()
+                .find(|(t, _)| *t == heuristic)
+                .map_or(u64::MAX, |p| p.1);
+            let (tile, tuned_ns) = per_tile
+                .iter()
+                .copied()
+                .min_by_key(|&(t, ns)| (ns, t != heuristic))
+                .ok_or_else(|| err("a conv layer without a candidate tile"))?;
+            Ok((shape, heuristic, heuristic_ns, tile, tuned_ns))
+        })
+        .collect()
 }
 
 impl GpuBackend {
@@ -27,18 +78,20 @@ impl GpuBackend {
         self.device.adapter_info()
     }
 
-    /// Tunes the network's register-tiled convolutions on `frame` (sides a
-    /// multiple of the network's, small enough to run unbanded): each
-    /// candidate tile in turn on every layer it fits, timed per layer
-    /// (timestamp queries) `repeat` times after a warm-up, the best kept;
-    /// per shape the tile with the least summed time, the heuristics' on a
-    /// tie. `only` restricts the candidates to those tiles (the
-    /// heuristics' always stays: every shape is timed against it); each
-    /// tile is a kernel to compile, which a software adapter takes seconds
-    /// over. Before returning, the network on the tuned tiles must compute
-    /// the heuristics' output bit for bit (a tile only cuts the output
-    /// among workgroups), else the result is an error. The backend is left
-    /// on the heuristics' tiles, without a table.
+    /// Tunes the network's convolutions on `frame` (sides a multiple of
+    /// the network's, small enough to run unbanded): each candidate tile in
+    /// turn on every layer it fits, timed per layer (timestamp queries)
+    /// `repeat` times after a warm-up, the best kept; per shape the tile
+    /// with the least summed time, the heuristics' on a tie. The
+    /// register-tiled layers first, then the cooperative-matrix ones, each
+    /// kind with the other at its heuristics' tiles. `only` restricts the
+    /// register-tiled candidates to those tiles (the heuristics' always
+    /// stays: every shape is timed against it); each tile is a kernel to
+    /// compile, which a software adapter takes seconds over. Before
+    /// returning, the network on the tuned tiles must compute the
+    /// heuristics' output bit for bit (a tile only cuts the output among
+    /// workgroups), else the result is an error. The backend is left on
+    /// the heuristics' tiles, without a table.
     pub fn tune(
         &mut self,
         frame: &Image,
@@ -48,75 +101,72 @@ impl GpuBackend {
         let (w, h) = (frame.width, frame.height);
         self.set_tuning(None);
         self.force_conv_tiles(HashMap::new());
-        let base = self.conv_tiles(w, h);
-        let candidates: Vec<Vec<ConvTile>> = base
+        self.force_coop_tiles(HashMap::new());
+        let tiled: Vec<_> = self
+            .conv_tiles(w, h)
             .iter()
-            .map(|t| {
-                let s = t.shape;
+            .map(|t| (t.layer, t.shape, t.tile))
+            .collect();
+        let candidates: Vec<Vec<ConvTile>> = tiled
+            .iter()
+            .map(|&(_, s, heuristic)| {
                 candidate_tiles(s.width, s.height, s.kernel, s.arith.into())
                     .into_iter()
-                    .filter(|c| *c == t.tile || only.is_none_or(|o| o.contains(c)))
+                    .filter(|c| *c == heuristic || only.is_none_or(|o| o.contains(c)))
                     .collect()
             })
             .collect();
-        // Every tile any layer may take, in a fixed order.
-        let mut tiles: Vec<ConvTile> = Vec::new();
-        for c in candidates.iter().flatten() {
-            if !tiles.contains(c) {
-                tiles.push(*c);
-            }
-        }
-        // times[(layer, tile)]: the best device time of the layer at the tile.
-        let timed = self.time_tiles(frame, repeat, &base, &candidates, &tiles);
+        let coop: Vec<_> = self
+            .coop_tiles(w, h)
+            .iter()
+            .map(|t| (t.layer, t.shape, t.tile))
+            .collect();
+        let coop_candidates: Vec<Vec<CoopTile>> =
+            coop.iter().map(|(_, s, _)| s.candidates()).collect();
+        let timed = self
+            .time_tiles(frame, repeat, &tiled, &candidates, Self::force_conv_tiles)
+            .and_then(|t| {
+                let c = self.time_tiles(
+                    frame,
+                    repeat,
+                    &coop,
+                    &coop_candidates,
+                    Self::force_coop_tiles,
+                )?;
+                Ok((t, c))
+            });
         // Whatever happened, the tuner's tiles do not outlive it.
         self.force_conv_tiles(HashMap::new());
-        let times = timed?;
-        // Per shape, in the network's order: its heuristic tile and each
-        // candidate's time summed over the layers of that shape (a shape's
-        // candidates are the same for each of its layers).
-        type ShapeTimes = (ConvShape, ConvTile, Vec<(ConvTile, u64)>);
-        let mut shapes: Vec<ShapeTimes> = Vec::new();
-        for (b, c) in base.iter().zip(&candidates) {
-            debug_assert_eq!(b.source, TileSource::Heuristic);
-            let i = match shapes.iter().position(|s| s.0 == b.shape) {
-                Some(i) => i,
-                None => {
-                    shapes.push((b.shape, b.tile, c.iter().map(|t| (*t, 0)).collect()));
-                    shapes.len() - 1
-                }
-            };
-            for (tile, sum) in &mut shapes[i].2 {
-                let ns = times.get(&(b.layer, *tile)).copied().unwrap_or(u64::MAX);
-                *sum = sum.saturating_add(ns);
-            }
-        }
-        let convs = shapes
+        self.force_coop_tiles(HashMap::new());
+        let ((times, n_tiled), (coop_times, n_coop)) = timed?;
+        let convs: Vec<TunedConv> = best_per_shape(&tiled, &candidates, &times)?
             .into_iter()
-            .map(|(shape, heuristic, per_tile)| {
-                let heuristic_ns = per_tile
-                    .iter()
-                    .find(|(t, _)| *t == heuristic)
-                    .map_or(u64::MAX, |p| p.1);
-                let (tile, tuned_ns) = per_tile
-                    .iter()
-                    .copied()
-                    // The heuristics' tile wins a tie.
-                    .min_by_key(|&(t, ns)| (ns, t != heuristic))
-                    .ok_or_else(|| err("a conv layer without a candidate tile"))?;
-                Ok(TunedConv {
-                    shape,
-                    px: tile.px,
-                    threads_y: tile.threads_y,
-                    tuned_ns,
-                    heuristic_ns,
-                })
+            .map(|(shape, _, heuristic_ns, tile, tuned_ns)| TunedConv {
+                shape,
+                px: tile.px,
+                threads_y: tile.threads_y,
+                tuned_ns,
+                heuristic_ns,
             })
-            .collect::<Result<Vec<_>, InferenceError>>()?;
+            .collect();
+        let coops: Vec<TunedCoop> = best_per_shape(&coop, &coop_candidates, &coop_times)?
+            .into_iter()
+            .map(|(shape, _, heuristic_ns, tile, tuned_ns)| TunedCoop {
+                shape,
+                rows: tile.rows,
+                blocks: tile.blocks,
+                sg_rows: tile.sg_rows,
+                sg_cols: tile.sg_cols,
+                tuned_ns,
+                heuristic_ns,
+            })
+            .collect();
         // The tuned network against the heuristics', bit for bit.
         let reference = self.run_tensor(frame.data(), w, h)?;
         let table = TuningTable::new(
             super::tuning::AdapterKey::of(&self.adapter_info()),
             convs.clone(),
+            coops.clone(),
         );
         self.set_tuning(Some(Arc::new(table)));
         let tuned = self.run_tensor(frame.data(), w, h);
@@ -137,29 +187,38 @@ impl GpuBackend {
         }
         Ok(TuneResult {
             convs,
-            tiles_timed: tiles.len(),
+            coops,
+            tiles_timed: n_tiled + n_coop,
         })
     }
 
-    /// Each tile forced in turn on every layer whose candidates hold it,
-    /// each layer's best time of `repeat` timings after a warm-up one.
-    fn time_tiles(
+    /// Each tile forced in turn (by `force`) on every layer whose
+    /// candidates hold it, each layer's best time of `repeat` timings after
+    /// a warm-up one; with the number of distinct tiles timed.
+    fn time_tiles<S, T: Copy + Eq + Hash>(
         &mut self,
         frame: &Image,
         repeat: usize,
-        base: &[super::tuning::LayerTile],
-        candidates: &[Vec<ConvTile>],
-        tiles: &[ConvTile],
-    ) -> Result<HashMap<(usize, ConvTile), u64>, InferenceError> {
+        layers: &[(usize, S, T)],
+        candidates: &[Vec<T>],
+        force: fn(&mut Self, HashMap<usize, T>),
+    ) -> Result<(Times<T>, usize), InferenceError> {
+        // Every tile any layer may take, in a fixed order.
+        let mut tiles: Vec<T> = Vec::new();
+        for c in candidates.iter().flatten() {
+            if !tiles.contains(c) {
+                tiles.push(*c);
+            }
+        }
         let mut times = HashMap::new();
-        for tile in tiles {
-            let forced: HashMap<usize, ConvTile> = base
+        for tile in &tiles {
+            let forced: HashMap<usize, T> = layers
                 .iter()
                 .zip(candidates)
                 .filter(|(_, c)| c.contains(tile))
-                .map(|(b, _)| (b.layer, *tile))
+                .map(|(l, _)| (l.0, *tile))
                 .collect();
-            self.force_conv_tiles(forced.clone());
+            force(self, forced.clone());
             // The warm-up builds the plan and its kernels; it is not timed.
             let mut best = self.layer_timings(frame)?;
             best.iter_mut().for_each(|b| b.gpu_ns = u64::MAX);
@@ -174,7 +233,7 @@ impl GpuBackend {
                 }
             }
         }
-        Ok(times)
+        Ok((times, tiles.len()))
     }
 
     /// Kernel variants built so far (each tile of each kernel is one).

@@ -1,20 +1,23 @@
 //! Tuned conv tiles per adapter (issue 56 item 4, docs/tuning.md).
-//! `nedrt bench tune` times every register-tiled convolution at each tile
-//! on the adapter it runs on and writes the fastest per layer shape into a
-//! table, one TOML file per adapter and driver under `tuning/`. The
-//! backend reads the table matching its adapter and driver when it is
-//! made (`BackendOptions::tuning_dir`); a layer shape the table lacks, or
-//! an adapter without a table, gets [`ConvTile::for_layer`], the
-//! heuristics. A tile changes only how the output is cut among
-//! workgroups, never the order a pixel's products are summed in, so a
-//! tuned network computes the heuristics' output bit for bit (the tuner
-//! checks it before writing).
+//! `nedrt bench tune` times every convolution at each tile on the adapter
+//! it runs on (the register-tiled kernel's [`ConvTile`]s; on an adapter
+//! with cooperative matrices, their kernel's [`CoopTile`]s) and writes the
+//! fastest per layer shape into a table, one TOML file per adapter and
+//! driver under `tuning/`. The backend reads the table matching its
+//! adapter and driver when it is made (`BackendOptions::tuning_dir`); a
+//! layer shape the table lacks, or an adapter without a table, gets
+//! [`ConvTile::for_layer`] or [`CoopTile::for_layer`], the heuristics. A
+//! tile changes only how the output is cut among workgroups and
+//! subgroups, never the order a pixel's products are summed in, so a tuned
+//! network computes the heuristics' output bit for bit (the tuner checks
+//! it before writing).
 
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
+use super::codegen::coop::CoopTile;
 use super::codegen::{ConvTile, Dtype, WORKGROUP_BYTES};
 use crate::InferenceError;
 
@@ -140,6 +143,65 @@ impl TunedConv {
     }
 }
 
+/// A convolution on cooperative matrices as the tuner and the backend see
+/// it: its taps (1 for the 2×2 transposed conv), channels and input size.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CoopShape {
+    pub kernel: usize,
+    pub cin: usize,
+    pub cout: usize,
+    pub width: u32,
+    pub height: u32,
+    /// The 2×2 stride-2 transposed conv.
+    pub transposed: bool,
+}
+
+impl CoopShape {
+    /// The GEMM's columns: output channels, 4 each for the transposed conv.
+    pub fn columns(&self) -> usize {
+        if self.transposed {
+            4 * self.cout
+        } else {
+            self.cout
+        }
+    }
+
+    /// The tiles worth timing for this shape ([`CoopTile::candidates`]).
+    pub fn candidates(&self) -> Vec<CoopTile> {
+        CoopTile::candidates(self.columns(), self.height, self.kernel)
+    }
+}
+
+/// One cooperative-matrix shape's tile, with what the tuner measured.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TunedCoop {
+    #[serde(flatten)]
+    pub shape: CoopShape,
+    /// Pixel rows of 16 and blocks of 16 columns a subgroup accumulates.
+    pub rows: u32,
+    pub blocks: u32,
+    /// Subgroups of a workgroup stacked over rows and side by side over
+    /// columns.
+    pub sg_rows: u32,
+    pub sg_cols: u32,
+    /// As [`TunedConv`]'s.
+    pub tuned_ns: u64,
+    pub heuristic_ns: u64,
+}
+
+impl TunedCoop {
+    pub fn tile(&self) -> CoopTile {
+        CoopTile {
+            rows: self.rows,
+            blocks: self.blocks,
+            sg_rows: self.sg_rows,
+            sg_cols: self.sg_cols,
+        }
+    }
+}
+
 /// Every tile the template builds for a `kernel`×`kernel` conv summing in
 /// `arith`: 8, 16 or 32 pixels wide, 1 to 16 rows, one quad's staging
 /// within [`WORKGROUP_BYTES`].
@@ -184,11 +246,17 @@ pub struct TuningTable {
     pub template: String,
     #[serde(default, rename = "conv")]
     pub convs: Vec<TunedConv>,
+    #[serde(default, rename = "coop", skip_serializing_if = "Vec::is_empty")]
+    pub coops: Vec<TunedCoop>,
 }
 
-/// The conv template's hash, as tables record it.
+/// The conv templates' hash (register-tiled and cooperative), as tables
+/// record it.
 pub fn template_hash() -> String {
-    blake3::hash(super::codegen::CONV_TEMPLATE.as_bytes()).to_hex()[..16].to_string()
+    let mut h = blake3::Hasher::new();
+    h.update(super::codegen::CONV_TEMPLATE.as_bytes());
+    h.update(super::codegen::COOP_TEMPLATE.as_bytes());
+    h.finalize().to_hex()[..16].to_string()
 }
 
 fn bad(path: &Path, reason: impl std::fmt::Display) -> InferenceError {
@@ -199,14 +267,15 @@ fn bad(path: &Path, reason: impl std::fmt::Display) -> InferenceError {
 }
 
 impl TuningTable {
-    /// A table of `convs` for `adapter`, stamped with this nedrt and the
-    /// conv template's hash.
-    pub fn new(adapter: AdapterKey, convs: Vec<TunedConv>) -> Self {
+    /// A table of `convs` and `coops` for `adapter`, stamped with this
+    /// nedrt and the conv templates' hash.
+    pub fn new(adapter: AdapterKey, convs: Vec<TunedConv>, coops: Vec<TunedCoop>) -> Self {
         Self {
             adapter,
             nedrt: env!("CARGO_PKG_VERSION").to_string(),
             template: template_hash(),
             convs,
+            coops,
         }
     }
 
@@ -262,6 +331,56 @@ impl TuningTable {
                 ));
             }
         }
+        let mut seen = HashMap::new();
+        for (i, c) in table.coops.iter().enumerate() {
+            let s = c.shape;
+            let at = format!(
+                "coop entry {} ({}×{} {}→{}{} at {}×{})",
+                i + 1,
+                s.kernel,
+                s.kernel,
+                s.cin,
+                s.cout,
+                if s.transposed { " transposed" } else { "" },
+                s.width,
+                s.height
+            );
+            if s.kernel == 0 || s.kernel > super::codegen::MAX_CONV_KERNEL {
+                return Err(bad(
+                    path,
+                    format!(
+                        "{at}: kernel must be 1 to {}",
+                        super::codegen::MAX_CONV_KERNEL
+                    ),
+                ));
+            }
+            if !c.tile().is_valid(s.kernel) {
+                return Err(bad(
+                    path,
+                    format!(
+                        "{at}: rows = {}, blocks = {}, sg_rows = {}, sg_cols = {} is not a tile \
+                         the cooperative kernel builds (powers of two; rows × blocks at most \
+                         {}, sg_rows × sg_cols at most {}, blocks × sg_cols at most {}, \
+                         rows × sg_rows at most {}; within {WORKGROUP_BYTES} bytes of \
+                         workgroup memory)",
+                        c.rows,
+                        c.blocks,
+                        c.sg_rows,
+                        c.sg_cols,
+                        super::codegen::coop::MAX_ACCUMULATORS,
+                        super::codegen::coop::MAX_SUBGROUPS,
+                        super::codegen::coop::MAX_COLUMN_BLOCKS,
+                        super::codegen::coop::MAX_PIXEL_ROWS,
+                    ),
+                ));
+            }
+            if let Some(j) = seen.insert(s, i) {
+                return Err(bad(
+                    path,
+                    format!("{at}: the same shape as coop entry {}", j + 1),
+                ));
+            }
+        }
         Ok(table)
     }
 
@@ -306,6 +425,14 @@ impl TuningTable {
             .map(TunedConv::tile)
     }
 
+    /// The tuned cooperative tile for `shape`, if the table has it.
+    pub fn coop_tile_for(&self, shape: &CoopShape) -> Option<CoopTile> {
+        self.coops
+            .iter()
+            .find(|c| &c.shape == shape)
+            .map(TunedCoop::tile)
+    }
+
     /// Writes the table into `dir` under its adapter's file name (made if
     /// missing), atomically: an existing table stays whole until the new
     /// one replaces it. A file of that name holding another adapter's
@@ -332,12 +459,18 @@ impl TuningTable {
         Ok(path)
     }
 
-    /// Merges `other`'s entries in, a shape in both taking `other`'s.
-    pub fn merge(&mut self, other: Vec<TunedConv>) {
-        for c in other {
+    /// Merges `convs` and `coops` in, a shape in both taking the new entry.
+    pub fn merge(&mut self, convs: Vec<TunedConv>, coops: Vec<TunedCoop>) {
+        for c in convs {
             match self.convs.iter_mut().find(|e| e.shape == c.shape) {
                 Some(e) => *e = c,
                 None => self.convs.push(c),
+            }
+        }
+        for c in coops {
+            match self.coops.iter_mut().find(|e| e.shape == c.shape) {
+                Some(e) => *e = c,
+                None => self.coops.push(c),
             }
         }
     }
@@ -355,7 +488,7 @@ pub fn table_for(
             tracing::info!(
                 "conv tiles of {} ({} shapes) tuned for {}",
                 path.display(),
-                table.convs.len(),
+                table.convs.len() + table.coops.len(),
                 key.name
             );
             if table.template != template_hash() {
@@ -403,6 +536,15 @@ pub struct LayerTile {
     pub source: TileSource,
 }
 
+/// A cooperative-matrix conv layer's tile at one frame size.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct LayerCoopTile {
+    pub layer: usize,
+    pub shape: CoopShape,
+    pub tile: CoopTile,
+    pub source: TileSource,
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -442,6 +584,26 @@ mod tests {
                 tuned_ns: 1000,
                 heuristic_ns: 1500,
             }],
+            coops: vec![TunedCoop {
+                shape: coop_shape(),
+                rows: 4,
+                blocks: 1,
+                sg_rows: 2,
+                sg_cols: 2,
+                tuned_ns: 2000,
+                heuristic_ns: 2500,
+            }],
+        }
+    }
+
+    fn coop_shape() -> CoopShape {
+        CoopShape {
+            kernel: 3,
+            cin: 48,
+            cout: 32,
+            width: 960,
+            height: 540,
+            transposed: false,
         }
     }
 
@@ -470,6 +632,12 @@ mod tests {
             ..shape()
         };
         assert_eq!(t.tile_for(&other), None);
+        assert_eq!(t.coop_tile_for(&coop_shape()), Some(t.coops[0].tile()));
+        let transposed = CoopShape {
+            transposed: true,
+            ..coop_shape()
+        };
+        assert_eq!(t.coop_tile_for(&transposed), None);
         let newer = AdapterKey {
             driver_info: "Mesa 24.0".into(),
             ..key()
@@ -497,6 +665,17 @@ mod tests {
             ("kernel = 3", "kernel = 9", "kernel must be"),
             ("cout = 16", "cout = \"x\"", "line 13: invalid type"),
             ("px = 2", "px = 2\nsurprise = 1", "unknown field"),
+            (
+                "sg_rows = 2",
+                "sg_rows = 3",
+                "coop entry 1 (3×3 48→32 at 960×540)",
+            ),
+            (
+                "sg_cols = 2",
+                "sg_cols = 8",
+                "is not a tile the cooperative kernel builds",
+            ),
+            ("transposed = false", "transposed = 1", "invalid type"),
         ] {
             std::fs::write(&path, text.replace(from, to)).expect("writes");
             let e = TuningTable::find(dir.path(), &key())
@@ -515,6 +694,13 @@ mod tests {
             e.contains("conv entry 2") && e.contains("same shape as conv entry 1"),
             "{e}"
         );
+        let mut twice = table();
+        twice.coops.push(twice.coops[0].clone());
+        std::fs::write(&path, toml::to_string(&twice).expect("toml")).expect("writes");
+        let e = TuningTable::find(dir.path(), &key())
+            .expect_err("twice")
+            .to_string();
+        assert!(e.contains("same shape as coop entry 1"), "{e}");
         // Only the adapter's own file is read: a broken other file (a
         // table from a newer nedrt, an unrelated TOML) stops nothing.
         std::fs::write(&path, text.clone()).expect("writes");

@@ -3,13 +3,136 @@
 
 use super::Dtype;
 
-/// Pixel rows of 16 a subgroup accumulates (one 16×16 f32 matrix each).
-pub const ROWS: u32 = 4;
-/// Subgroups in a workgroup, each its own block of 16 output columns,
-/// sharing the staged input tile.
-pub const SUBGROUPS: u32 = 4;
 /// The one matrix shape the template uses: M = N = K = 16.
 pub const SIZE: u32 = 16;
+/// Blocks of 16 output columns the packed weights are padded to a
+/// multiple of: the most a workgroup covers, so none reads past its
+/// layer's weights.
+pub const MAX_COLUMN_BLOCKS: u32 = 8;
+/// The most accumulators (16×16 f32 matrices) a subgroup holds.
+pub const MAX_ACCUMULATORS: u32 = 8;
+/// The most subgroups in a workgroup.
+pub const MAX_SUBGROUPS: u32 = 8;
+/// The most pixel rows of 16 a workgroup covers.
+pub const MAX_PIXEL_ROWS: u32 = 16;
+
+/// How the cooperative kernel cuts a layer among workgroups and subgroups:
+/// a workgroup of `sg_rows` × `sg_cols` subgroups, each accumulating `rows`
+/// pixel rows of 16 × `blocks` blocks of 16 output columns (`rows` ×
+/// `blocks` matrices). A workgroup covers 16 pixels × `rows`·`sg_rows`
+/// rows × `blocks`·`sg_cols` blocks and stages its input tile once per
+/// 16-channel chunk for all its subgroups; a subgroup reuses each staged
+/// input matrix over its `blocks` and each weight matrix over its `rows`.
+/// Every output is the same sum of the same products in the same order
+/// whatever the tile: a tile changes the speed, never a bit of the output.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub struct CoopTile {
+    pub rows: u32,
+    pub blocks: u32,
+    pub sg_rows: u32,
+    pub sg_cols: u32,
+}
+
+impl CoopTile {
+    /// The tile every layer had before tiles were chosen per layer (the
+    /// H200's figures of 2026-11-27/28): four subgroups side by side over
+    /// four column blocks, four rows each.
+    pub const DEFAULT: CoopTile = CoopTile {
+        rows: 4,
+        blocks: 1,
+        sg_rows: 1,
+        sg_cols: 4,
+    };
+
+    /// The heuristics' tile for a layer of `columns` GEMM columns (output
+    /// channels; for the transposed conv 4 per channel): four subgroups of
+    /// four rows and one block, side by side over as many blocks as the
+    /// layer has (up to four), the rest stacked over rows. [`Self::DEFAULT`]
+    /// for 64 or more columns; with 32 (two blocks) it leaves no subgroup
+    /// computing columns past the layer, where the default idles half.
+    pub fn for_layer(columns: usize) -> Self {
+        let needed = (columns.div_ceil(SIZE as usize) as u32).max(1);
+        let sg_cols = needed.next_power_of_two().min(4);
+        CoopTile {
+            rows: 4,
+            blocks: 1,
+            sg_rows: 4 / sg_cols,
+            sg_cols,
+        }
+    }
+
+    pub fn subgroups(&self) -> u32 {
+        self.sg_rows * self.sg_cols
+    }
+
+    /// Pixel rows of 16 a workgroup covers.
+    pub fn pixel_rows(&self) -> u32 {
+        self.rows * self.sg_rows
+    }
+
+    /// Blocks of 16 columns a workgroup covers.
+    pub fn column_blocks(&self) -> u32 {
+        self.blocks * self.sg_cols
+    }
+
+    /// Workgroup memory: the staged input tile (f16, 16 channels a pixel)
+    /// and one 16×16 f32 matrix per subgroup for the epilogue.
+    pub fn workgroup_bytes(&self, kernel: usize) -> u32 {
+        let k = kernel as u32;
+        (self.pixel_rows() + k - 1) * (SIZE + k - 1) * 16 * 2 + self.subgroups() * 256 * 4
+    }
+
+    /// Whether the template builds this tile for a `kernel`×`kernel` conv:
+    /// powers of two, at most [`MAX_ACCUMULATORS`] matrices a subgroup,
+    /// [`MAX_SUBGROUPS`], [`MAX_COLUMN_BLOCKS`] and [`MAX_PIXEL_ROWS`] a
+    /// workgroup, within [`super::WORKGROUP_BYTES`].
+    pub fn is_valid(&self, kernel: usize) -> bool {
+        let p2 = |v: u32| v.is_power_of_two();
+        p2(self.rows)
+            && p2(self.blocks)
+            && p2(self.sg_rows)
+            && p2(self.sg_cols)
+            && self.rows * self.blocks <= MAX_ACCUMULATORS
+            && self.subgroups() <= MAX_SUBGROUPS
+            && self.column_blocks() <= MAX_COLUMN_BLOCKS
+            && self.pixel_rows() <= MAX_PIXEL_ROWS
+            && self.workgroup_bytes(kernel) <= super::WORKGROUP_BYTES
+    }
+
+    /// The tiles worth timing for a layer of `columns` GEMM columns and
+    /// `height` rows: 2 to 8 rows and 1 or 2 blocks a subgroup, 4 or 8
+    /// subgroups, no block of columns wholly past the layer nor a row of
+    /// tiles wholly below it, valid; the heuristics' tile always among them.
+    pub fn candidates(columns: usize, height: u32, kernel: usize) -> Vec<CoopTile> {
+        let needed = (columns.div_ceil(SIZE as usize) as u32).max(1);
+        let (max_blocks, max_rows) = (
+            needed.next_power_of_two(),
+            height.max(1).next_power_of_two(),
+        );
+        let heuristic = Self::for_layer(columns);
+        let mut out = vec![heuristic];
+        for rows in [2, 4, 8] {
+            for blocks in [1, 2] {
+                for (sg_rows, sg_cols) in [(1, 4), (2, 2), (4, 1), (1, 8), (2, 4), (4, 2), (8, 1)] {
+                    let t = CoopTile {
+                        rows,
+                        blocks,
+                        sg_rows,
+                        sg_cols,
+                    };
+                    if t.is_valid(kernel)
+                        && t.column_blocks() <= max_blocks
+                        && t.pixel_rows() <= max_rows
+                        && !out.contains(&t)
+                    {
+                        out.push(t);
+                    }
+                }
+            }
+        }
+        out
+    }
+}
 
 /// Where the adapter can run the template: its subgroup size.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -96,39 +219,108 @@ pub fn layer_fits(cin: usize, cout: usize, weights: Dtype, transposed: bool) -> 
     Ok(())
 }
 
-/// The accumulators: `c{r}`, one 16×16 f32 matrix per pixel row.
-pub(super) fn accumulators() -> String {
-    (0..ROWS)
-        .map(|r| format!("    var c{r} = coop_mat16x16<f32, C>();\n"))
-        .collect()
+/// The accumulators: `c{r}_{n}`, one 16×16 f32 matrix per pixel row and
+/// block of columns.
+pub(super) fn accumulators(tile: CoopTile) -> String {
+    let mut s = String::new();
+    for r in 0..tile.rows {
+        for n in 0..tile.blocks {
+            s += &format!("    var c{r}_{n} = coop_mat16x16<f32, C>();\n");
+        }
+    }
+    s
 }
 
-/// One tap's products: per pixel row, its 16 pixels × 16 channels from
-/// the staged tile times the tap's weights.
-pub(super) fn taps() -> String {
-    (0..ROWS)
-        .map(|r| {
-            format!(
-                "            let a{r} = coopLoadT<coop_mat16x16<f16, A>>(&a_tile[(({r}u + ky) * IN_W + kx) * 16u], 16u);\n            c{r} = coopMultiplyAdd(a{r}, b, c{r});\n"
-            )
-        })
-        .collect()
+/// One tap's products: the tap's weights of each of the subgroup's column
+/// blocks, then per pixel row its 16 pixels × 16 channels from the staged
+/// tile times each of them.
+pub(super) fn taps(tile: CoopTile) -> String {
+    let mut s = String::new();
+    for n in 0..tile.blocks {
+        s += &format!(
+            "            let b{n} = coopLoadT<coop_mat16x16<f16, B>>(\n                &weights[p.w_offset + (((blk0 + {n}u) * chunks + chunk) * K * K + tap) * 256u], 16u);\n"
+        );
+    }
+    for r in 0..tile.rows {
+        s += &format!(
+            "            let a{r} = coopLoadT<coop_mat16x16<f16, A>>(&a_tile[((row0 + {r}u + ky) * IN_W + kx) * 16u], 16u);\n"
+        );
+        for n in 0..tile.blocks {
+            s += &format!("            c{r}_{n} = coopMultiplyAdd(a{r}, b{n}, c{r}_{n});\n");
+        }
+    }
+    s
 }
 
 /// Each accumulator out through workgroup memory and the epilogue.
-pub(super) fn stores() -> String {
-    (0..ROWS)
-        .map(|r| {
-            format!(
-                "    coopStoreT(c{r}, &c_tile[sg * 256u], 16u);\n    workgroupBarrier();\n    drain(sg, lane, blk, x0, y0 + {r}u);\n    workgroupBarrier();\n"
-            )
-        })
-        .collect()
+pub(super) fn stores(tile: CoopTile) -> String {
+    let mut s = String::new();
+    for r in 0..tile.rows {
+        for n in 0..tile.blocks {
+            s += &format!(
+                "    coopStoreT(c{r}_{n}, &c_tile[sg * 256u], 16u);\n    workgroupBarrier();\n    drain(sg, lane, blk0 + {n}u, x0, y0 + row0 + {r}u);\n    workgroupBarrier();\n"
+            );
+        }
+    }
+    s
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn tiles_cover_the_layer_without_idle_subgroups() {
+        // 64 columns and more: the tile the H200 measured.
+        assert_eq!(CoopTile::for_layer(64), CoopTile::DEFAULT);
+        assert_eq!(CoopTile::for_layer(4 * 128), CoopTile::DEFAULT);
+        // 32 columns: two blocks side by side, two stacked over rows, where
+        // the default gave two of its four subgroups columns past the layer.
+        let t = CoopTile::for_layer(32);
+        assert_eq!((t.sg_cols, t.sg_rows, t.subgroups()), (2, 2, 4));
+        assert_eq!(t.column_blocks(), 2);
+        for (columns, height, kernel) in [(32, 540, 3), (64, 1080, 3), (512, 68, 1), (48, 3, 3)] {
+            let c = CoopTile::candidates(columns, height, kernel);
+            assert_eq!(c[0], CoopTile::for_layer(columns));
+            let needed = columns.div_ceil(16) as u32;
+            for t in &c {
+                assert!(t.is_valid(kernel), "{t:?}");
+                assert!(t.column_blocks() <= needed.next_power_of_two(), "{t:?}");
+            }
+            let unique: std::collections::HashSet<_> = c.iter().collect();
+            assert_eq!(unique.len(), c.len());
+            assert!(c.len() > 1, "{columns} columns: {c:?}");
+        }
+        // What the template cannot build.
+        let ok = CoopTile::DEFAULT;
+        for bad in [
+            CoopTile { rows: 3, ..ok },
+            CoopTile {
+                rows: 8,
+                blocks: 2,
+                ..ok
+            },
+            CoopTile {
+                sg_rows: 4,
+                sg_cols: 4,
+                ..ok
+            },
+            CoopTile {
+                blocks: 4,
+                sg_cols: 4,
+                ..ok
+            },
+            CoopTile {
+                rows: 8,
+                sg_rows: 4,
+                sg_cols: 1,
+                ..ok
+            },
+            CoopTile { rows: 0, ..ok },
+        ] {
+            assert!(!bad.is_valid(3), "{bad:?}");
+        }
+    }
 
     #[test]
     fn the_path_is_taken_only_where_device_and_layer_allow_it() {
