@@ -441,3 +441,13 @@ def test_a_cases_frame_timelines_become_one_record_column_by_column(tmp_path):
     # A case that showed nothing has empty columns, not an error.
     path.write_text(json.dumps({**log, "frames": [], "refreshes": []}))
     assert check_steps.frame_log(path)["frames"] == {}
+
+
+def test_clock_samples_are_parsed_and_summed_up():
+    import check_steps
+    text = "1980, 97\n345, 3\n[N/A], 0\nnot a line\n1755, 40\n"
+    samples = check_steps.parse_clocks(text)
+    assert samples == [[1980.0, 97.0], [345.0, 3.0], [1755.0, 40.0]]
+    line = check_steps.clocks_line("the f16 cases", samples)
+    assert "3 samples" in line and "min 345" in line and "median 1755" in line and "max 1980" in line
+    assert check_steps.clocks_line("x", []) == ""

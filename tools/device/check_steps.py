@@ -217,11 +217,73 @@ def step_pipeline(r: Runner, s: Step, z: dict):
                    "auto,model", *common], s.cap_s)
     # The networks at f16 (the tensor cores where the adapter lists their
     # shape): whether f16 should be the runtime's default on such GPUs.
-    half = r.sh([r.nedrt, "--precision", "f16", "--design", "multifocal", "bench", "pipeline", "--networks",
-                 "model,full", *common], s.cap_s)
-    text = out + "\n" + stereo + "\n\nAt `--precision f16` (`--conv-path auto`):\n\n" + half
+    with ClockSampler(r.work / "clocks-f16.csv") as clocks:
+        half = r.sh([r.nedrt, "--precision", "f16", "--design", "multifocal", "bench", "pipeline", "--networks",
+                     "model,full", *common], s.cap_s)
+    samples = clocks.samples()
+    text = (out + "\n" + stereo + "\n\nAt `--precision f16` (`--conv-path auto`):\n\n" + half
+            + clocks_line("the f16 cases", samples))
     s.text = "\n".join(line for line in text.splitlines() if not line.startswith("{"))
     s.records += [frame_log(p) for p in sorted(log.glob("frames-*.json"))]
+    if samples:
+        s.records.append({"kind": "gpu_clocks", "case": "f16 model,full", "mhz_util": samples})
+
+
+class ClockSampler:
+    """The GPU's SM clock and utilisation from nvidia-smi every 200 ms while
+    a command runs (issue 56 item 6: at b239a3e the shipped model's f16
+    stage went from 7 to 29 ms, and the present from 0.8 to 2.6 ms, while
+    the pacing left the GPU idle for hundreds of ms between frames: whether
+    its clocks fell). Nothing where nvidia-smi is missing (the smoke)."""
+
+    def __init__(self, path: Path):
+        self.path = path
+        self.proc = None
+
+    def __enter__(self):
+        if shutil.which("nvidia-smi"):
+            self.out = self.path.open("w")
+            self.proc = subprocess.Popen(
+                ["nvidia-smi", "--query-gpu=clocks.sm,utilization.gpu", "--format=csv,noheader,nounits",
+                 "-lms", "200"], stdout=self.out, stderr=subprocess.DEVNULL)
+        return self
+
+    def __exit__(self, *exc):
+        if self.proc is not None:
+            self.proc.terminate()
+            try:
+                self.proc.wait(timeout=5)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+            self.out.close()
+        return False
+
+    def samples(self) -> list:
+        """[SM MHz, utilisation %] per sample."""
+        return parse_clocks(self.path.read_text()) if self.proc is not None else []
+
+
+def parse_clocks(text: str) -> list:
+    """nvidia-smi's `clocks.sm,utilization.gpu` CSV lines (no header, no
+    units) as [MHz, %] pairs; lines that are not two numbers are left out."""
+    out = []
+    for line in text.splitlines():
+        parts = [p.strip() for p in line.split(",")]
+        try:
+            mhz, util = (float(p) for p in parts)
+        except ValueError:
+            continue
+        out.append([mhz, util])
+    return out
+
+
+def clocks_line(what: str, samples: list) -> str:
+    """The samples' SM clock range and median, for the step's text."""
+    if not samples:
+        return ""
+    mhz = sorted(m for m, _ in samples)
+    return (f"\nSM clock during {what} (nvidia-smi, {len(mhz)} samples 200 ms apart): min {mhz[0]:.0f}, "
+            f"median {mhz[len(mhz) // 2]:.0f}, max {mhz[-1]:.0f} MHz.\n")
 
 
 def frame_log(path: Path) -> dict:
