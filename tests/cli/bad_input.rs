@@ -900,6 +900,11 @@ const ROWS: &[Row] = &[
         &["bench", "tune", "--tiles", "12x4"],
         "a conv tile is 8, 16 or 32 pixels wide and 1, 2, 4, 8 or 16 tall",
     ),
+    row(
+        "bench fft: a workgroup shape the kernels do not take",
+        &["bench", "fft", "--fft-variants", "256x3"],
+        "not THREADSxPAIRS (threads 1 to 1024, pairs 1, 2, 4 or 8; e.g. 256x4)",
+    ),
 ];
 
 /// Rows that take the small-aperture calibration and the `--sim` arguments

@@ -344,6 +344,7 @@ pub fn run(cli: Cli) -> Result<()> {
                     gpu: common.dcnn.backend_options.gpu.clone(),
                     per_pass: a.per_layer,
                     paths: a.fft_paths.iter().map(|p| (*p).into()).collect(),
+                    variants: a.fft_variants.clone(),
                 };
                 let table = studies::bench_fft::run(&bench, &mut |r| println!("{r}"))?;
                 print!("{table}");

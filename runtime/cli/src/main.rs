@@ -4,6 +4,7 @@
 //! ([`commands`]); errors are printed on one line with a non-zero exit.
 
 mod args;
+mod bench_args;
 mod calib_args;
 mod commands;
 mod console;

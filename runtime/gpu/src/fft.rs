@@ -36,7 +36,7 @@ mod wgsl;
 pub use complex::ComplexFft2d;
 pub use filter::DctFilter;
 pub use fused::fits_workgroup;
-pub use kernels::FftKernels;
+pub use kernels::{FftKernels, FusedVariant};
 pub use spectral::{GainsFor, SpectralStage, TermsError};
 
 #[cfg(test)]
@@ -544,9 +544,41 @@ mod tests {
             channels: usize,
             path: FftPath,
         ) -> (f32, bool) {
+            let (frame, gains, got, fused) = filter_output(
+                device,
+                queue,
+                (w, h, channels),
+                path,
+                FusedVariant::default(),
+            );
+            let mut worst = 0.0f32;
+            for c in 0..channels {
+                let plane = &frame[c * w * h..(c + 1) * w * h];
+                let want = cpu_mirrored_filter(plane, &gains[c], w, h);
+                let peak = want.iter().map(|v| v.abs()).fold(0.0f32, f32::max);
+                for (g, v) in got[c * w * h..(c + 1) * w * h].iter().zip(&want) {
+                    let e = (g - v).abs();
+                    worst = worst.max(if e.is_nan() { f32::INFINITY } else { e / peak });
+                }
+            }
+            (worst, fused)
+        }
+
+        /// The DCT filter by `path` and `variant` on a test frame: the
+        /// frame, the gains, the output, and whether it ran in workgroup
+        /// memory.
+        #[allow(clippy::type_complexity)]
+        fn filter_output(
+            device: &wgpu::Device,
+            queue: &wgpu::Queue,
+            (w, h, channels): (usize, usize, usize),
+            path: FftPath,
+            variant: FusedVariant,
+        ) -> (Vec<f32>, Vec<Vec<f32>>, Vec<f32>, bool) {
             let (device, queue) = (device.clone(), queue.clone());
             let mut kernels = FftKernels::new(&device).expect("kernels");
             kernels.set_path(path);
+            kernels.set_fused_variant(variant);
             let frame = signal(channels * w * h, (w * 7 + h) as u64);
             // A smooth low-pass with a sharpening bump, different per channel.
             let gains: Vec<Vec<f32>> = (0..channels)
@@ -571,17 +603,63 @@ mod tests {
             filter.record(&mut enc, &input, &output).expect("record");
             queue.submit([enc.finish()]);
             let got = read(&device, &queue, &output, output.size());
-            let mut worst = 0.0f32;
-            for c in 0..channels {
-                let plane = &frame[c * w * h..(c + 1) * w * h];
-                let want = cpu_mirrored_filter(plane, &gains[c], w, h);
-                let peak = want.iter().map(|v| v.abs()).fold(0.0f32, f32::max);
-                for (g, v) in got[c * w * h..(c + 1) * w * h].iter().zip(&want) {
-                    let e = (g - v).abs();
-                    worst = worst.max(if e.is_nan() { f32::INFINITY } else { e / peak });
+            let fused = filter.in_workgroup_memory();
+            (frame, gains, got, fused)
+        }
+
+        #[test]
+        #[ignore = "needs a GPU adapter (run: scripts/test.sh, or cargo test -- --include-ignored)"]
+        fn every_workgroup_variant_computes_the_heuristics_filter_bit_for_bit() {
+            // Threads and sequences a workgroup only move butterflies
+            // between threads: odd sides, ragged pairs, one channel and
+            // three, threads not dividing the butterflies.
+            let (device, queue) = crate::test_device(false);
+            for (w, h, c) in [(40, 27, 3), (15, 9, 1), (98, 6, 3)] {
+                let (_, _, want, fused) = filter_output(
+                    &device,
+                    &queue,
+                    (w, h, c),
+                    FftPath::Auto,
+                    FusedVariant::default(),
+                );
+                assert!(fused);
+                for (threads, max_seqs) in [
+                    (Some(32), Some(1)),
+                    (Some(96), Some(2)),
+                    (Some(256), Some(8)),
+                    (None, Some(8)),
+                    (Some(64), None),
+                ] {
+                    let variant = FusedVariant { threads, max_seqs };
+                    let (_, _, got, _) =
+                        filter_output(&device, &queue, (w, h, c), FftPath::Auto, variant);
+                    let differ = want
+                        .iter()
+                        .zip(&got)
+                        .filter(|(a, b)| a.to_bits() != b.to_bits())
+                        .count();
+                    assert_eq!(
+                        differ, 0,
+                        "{w}×{h}×{c} at {variant:?}: {differ} values differ"
+                    );
+                    // The variant was built: its threads (a multiple of the
+                    // workgroup's sequences) and no more sequences than asked.
+                    let mut kernels = FftKernels::new(&device).expect("kernels");
+                    kernels.set_fused_variant(variant);
+                    let gains = vec![vec![1.0; w * h]; c];
+                    DctFilter::new(&mut kernels, w, h, &gains).expect("filter");
+                    assert!(!kernels.fused_modules.is_empty());
+                    for &(_, seqs, t) in kernels.fused_modules.keys() {
+                        assert!(
+                            seqs <= max_seqs.unwrap_or(4),
+                            "{variant:?}: {seqs} a workgroup"
+                        );
+                        if let Some(want) = threads {
+                            assert_eq!(t, (want - want % seqs).max(seqs), "{variant:?}");
+                        }
+                    }
                 }
             }
-            (worst, filter.in_workgroup_memory())
         }
 
         #[test]

@@ -14,7 +14,7 @@ use serde_json::json;
 use super::AppError;
 use super::bench::median;
 use super::bench_inference::bench_frame;
-use nedrt_gpu::fft::{DctFilter, FftKernels, FftPath};
+use nedrt_gpu::fft::{DctFilter, FftKernels, FftPath, FusedVariant};
 use nedrt_optics::Psf;
 use nedrt_optics::sim::wiener::WienerFilter;
 
@@ -34,6 +34,23 @@ pub struct FftBench {
     /// The device paths to time, side by side (the multi-pass fallback
     /// against the workgroup-memory kernels).
     pub paths: Vec<FftPath>,
+    /// Shapes of the workgroup-memory kernels to time beside them (issue
+    /// 56 item 3: threads and sequences a workgroup).
+    pub variants: Vec<FusedVariant>,
+}
+
+/// A variant's row label.
+fn variant_label(v: &FusedVariant) -> String {
+    let threads = v
+        .threads
+        .map_or("the heuristics' threads".into(), |t| format!("{t} threads"));
+    let seqs = v
+        .max_seqs
+        .map_or("the heuristics' pairs".into(), |p| match p {
+            1 => "1 pair".to_string(),
+            p => format!("at most {p} pairs"),
+        });
+    format!("workgroup memory, {threads}, {seqs} a workgroup")
 }
 
 /// One PSF per channel (the filter's cost does not depend on the kernel;
@@ -96,10 +113,32 @@ pub fn run(
         });
         let timer = nedrt_gpu::PassTimer::new(&device, &queue, 1);
         let mut filters = Vec::new();
+        let mut labels = Vec::new();
         for &path in &b.paths {
             kernels.set_path(path);
             let mut dct = DctFilter::new(&mut kernels, w, h, &gains)?;
             frame(&device, &queue, &mut dct, &src, &dst, timer.as_ref())?;
+            labels.push(
+                if dct.in_workgroup_memory() {
+                    "workgroup memory"
+                } else {
+                    "multi-pass"
+                }
+                .to_string(),
+            );
+            filters.push(dct);
+        }
+        for v in &b.variants {
+            kernels.set_path(FftPath::Auto);
+            kernels.set_fused_variant(*v);
+            let mut dct = DctFilter::new(&mut kernels, w, h, &gains)?;
+            kernels.set_fused_variant(FusedVariant::default());
+            frame(&device, &queue, &mut dct, &src, &dst, timer.as_ref())?;
+            labels.push(if dct.in_workgroup_memory() {
+                variant_label(v)
+            } else {
+                "multi-pass (the sides do not fit workgroup memory)".into()
+            });
             filters.push(dct);
         }
         // Interleaved: each repetition one CPU frame, then one frame per
@@ -116,7 +155,7 @@ pub fn run(
             }
         }
         let c = median(cpu.clone());
-        for (dct, t) in filters.iter_mut().zip(&times) {
+        for ((dct, t), kind) in filters.iter_mut().zip(&times).zip(&labels) {
             let wall = median(t.iter().map(|x| x.0).collect());
             let gpus: Vec<f64> = t.iter().filter_map(|x| x.1).collect();
             let gpu = (gpus.len() == t.len()).then(|| median(gpus));
@@ -132,11 +171,6 @@ pub fn run(
             let gpu_ratio = ratio(&|x| x.1);
             let bytes = dct.bytes_per_frame();
             let floor = b.peak_gbps.map(|bw| bytes as f64 / (bw * 1e9));
-            let kind = if dct.in_workgroup_memory() {
-                "workgroup memory"
-            } else {
-                "multi-pass"
-            };
             let ms = |v: Option<f64>| v.map_or("–".into(), |v| format!("{:.2}", v * 1e3));
             let _ = writeln!(
                 md,

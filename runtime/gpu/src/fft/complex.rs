@@ -137,7 +137,7 @@ impl ComplexFft2d {
                 (&col_q, rows, &col_tables, b, a, "columns", true),
             ] {
                 let params = init_buffer(&device, "fft_fused axis", bytemuck::bytes_of(q));
-                let seqs = fused::seqs_for(&device, n, q.count, strided);
+                let seqs = fused::seqs_for(kernels, n, q.count, strided);
                 ops.push(Op {
                     pipeline: kernels.fused_pipeline(n, seqs, entry_point)?,
                     bind: fused::bind(

@@ -17,16 +17,20 @@ pub fn fits_workgroup(device: &wgpu::Device, n: usize) -> bool {
         && limits.max_compute_workgroup_size_x >= 64
 }
 
-/// Sequences (or pairs) of length `n` a workgroup holds on `device`, for
-/// `count` of them, `strided` where they are columns
-/// ([`wgsl::seqs_per_workgroup`]).
-pub(super) fn seqs_for(device: &wgpu::Device, n: usize, count: u32, strided: bool) -> u32 {
-    wgsl::seqs_per_workgroup(
-        n,
-        count,
-        strided,
-        device.limits().max_compute_workgroup_storage_size,
-    )
+/// Sequences (or pairs) of length `n` a workgroup holds on the kernels'
+/// device, for `count` of them, `strided` where they are columns: the
+/// heuristics' ([`wgsl::seqs_per_workgroup`]), or under a variant's
+/// `max_seqs` the most of 8, 4, 2 or 1 within it, the count and the
+/// adapter's workgroup memory.
+pub(super) fn seqs_for(kernels: &FftKernels, n: usize, count: u32, strided: bool) -> u32 {
+    let memory = kernels.device.limits().max_compute_workgroup_storage_size;
+    match kernels.variant.max_seqs {
+        None => wgsl::seqs_per_workgroup(n, count, strided, memory),
+        Some(max) => [8u32, 4, 2]
+            .into_iter()
+            .find(|&p| p <= max && p <= count && (n as u64) * 8 * u64::from(p) <= u64::from(memory))
+            .unwrap_or(1),
+    }
 }
 
 impl FftKernels {
@@ -39,31 +43,32 @@ impl FftKernels {
         seqs: u32,
         entry_point: &'static str,
     ) -> Result<wgpu::ComputePipeline, FftError> {
-        if let Some(p) = self.fused.get(&(n, seqs, entry_point)) {
+        let device = self.device.clone();
+        let limits = device.limits();
+        let most = limits
+            .max_compute_invocations_per_workgroup
+            .min(limits.max_compute_workgroup_size_x);
+        let threads = match self.variant.threads {
+            Some(t) => t.clamp(1, most),
+            None => wgsl::workgroup_threads(n * seqs as usize, most.min(self.max_threads)),
+        };
+        // The kernels take a thread's sequence as lid % P: a multiple of P.
+        let threads = (threads - threads % seqs).max(seqs);
+        if let Some(p) = self.fused.get(&(n, seqs, threads, entry_point)) {
             return Ok(p.clone());
         }
-        let device = self.device.clone();
-        if !self.fused_modules.contains_key(&(n, seqs)) {
-            let limits = device.limits();
-            let threads = wgsl::workgroup_threads(
-                n * seqs as usize,
-                limits
-                    .max_compute_invocations_per_workgroup
-                    .min(limits.max_compute_workgroup_size_x)
-                    .min(self.max_threads),
-            );
-            // The kernels take a thread's sequence as lid % P: a multiple of P.
-            let threads = (threads - threads % seqs).max(seqs);
-            let source = wgsl::module_source(n, &wgsl::fused_radices(n)?, threads, seqs);
-            let module = checked(&device, || {
-                device.create_shader_module(wgpu::ShaderModuleDescriptor {
-                    label: Some("fft_fused"),
-                    source: wgpu::ShaderSource::Wgsl(source.into()),
-                })
-            })?;
-            self.fused_modules.insert((n, seqs), module);
-        }
-        let module = &self.fused_modules[&(n, seqs)];
+        let module = match self.fused_modules.entry((n, seqs, threads)) {
+            std::collections::hash_map::Entry::Occupied(e) => e.into_mut(),
+            std::collections::hash_map::Entry::Vacant(e) => {
+                let source = wgsl::module_source(n, &wgsl::fused_radices(n)?, threads, seqs);
+                e.insert(checked(&device, || {
+                    device.create_shader_module(wgpu::ShaderModuleDescriptor {
+                        label: Some("fft_fused"),
+                        source: wgpu::ShaderSource::Wgsl(source.into()),
+                    })
+                })?)
+            }
+        };
         let p = checked(&device, || {
             device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
                 label: Some(entry_point),
@@ -74,7 +79,8 @@ impl FftKernels {
                 cache: None,
             })
         })?;
-        self.fused.insert((n, seqs, entry_point), p.clone());
+        self.fused
+            .insert((n, seqs, threads, entry_point), p.clone());
         Ok(p)
     }
 }
@@ -144,7 +150,7 @@ impl FusedFilter {
         // The column kernel applies the gain itself, before its DCT-III (no use_gain).
         let cols_q = axis(width, height, channels, true, false);
         let kernel = |kernels: &mut FftKernels, n, strided, entry_point, q: &SeqParams, bytes| {
-            let seqs = seqs_for(&device, n, q.pairs, strided);
+            let seqs = seqs_for(kernels, n, q.pairs, strided);
             Ok::<_, FftError>(Kernel {
                 pipeline: kernels.fused_pipeline(n, seqs, entry_point)?,
                 params: init_buffer(&device, "fft_fused axis", bytemuck::bytes_of(q)),

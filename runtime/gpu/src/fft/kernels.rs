@@ -73,12 +73,28 @@ pub struct FftKernels {
     /// its pipelines per entry point, made on first use.
     pub(super) fused_layout: wgpu::BindGroupLayout,
     pub(super) fused_pipeline_layout: wgpu::PipelineLayout,
-    /// By (length, sequences a workgroup).
-    pub(super) fused_modules: HashMap<(usize, u32), wgpu::ShaderModule>,
-    pub(super) fused: HashMap<(usize, u32, &'static str), wgpu::ComputePipeline>,
+    /// By (length, sequences a workgroup, threads a workgroup).
+    pub(super) fused_modules: HashMap<(usize, u32, u32), wgpu::ShaderModule>,
+    pub(super) fused: HashMap<(usize, u32, u32, &'static str), wgpu::ComputePipeline>,
     pub(super) path: FftPath,
     /// Threads a workgroup of the generated kernels at most.
     pub(super) max_threads: u32,
+    /// The workgroup-memory kernels' shape, where not the heuristics'.
+    pub(super) variant: FusedVariant,
+}
+
+/// How the workgroup-memory kernels are cut, where not by the heuristics
+/// (`nedrt bench fft --fft-variants`, issue 56 item 3): `threads` a
+/// workgroup (made a multiple of its sequences, at most the adapter's
+/// limit), and at most `max_seqs` sequences (pairs of real ones) a
+/// workgroup, rows and columns alike, as many as fit its memory (the
+/// heuristics: rows 1, columns up to 4). A variant changes which thread
+/// computes a butterfly, never its arithmetic: the output is the same bit
+/// for bit.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Hash)]
+pub struct FusedVariant {
+    pub threads: Option<u32>,
+    pub max_seqs: Option<u32>,
 }
 
 impl FftKernels {
@@ -152,6 +168,7 @@ impl FftKernels {
                 fused_modules: HashMap::new(),
                 fused: HashMap::new(),
                 path: FftPath::Auto,
+                variant: FusedVariant::default(),
                 // lavapipe runs a workgroup's lanes as coroutines that switch
                 // at every barrier: fewer of them is faster there.
                 max_threads: if device.adapter_info().device_type == wgpu::DeviceType::Cpu {
@@ -177,6 +194,16 @@ impl FftKernels {
     /// Which kernels the filters and transforms made from now on use.
     pub fn set_path(&mut self, path: FftPath) {
         self.path = path;
+    }
+
+    /// The workgroup-memory kernels' shape for the filters made from now
+    /// on ([`FusedVariant`]; the default: the heuristics').
+    pub fn set_fused_variant(&mut self, variant: FusedVariant) {
+        self.variant = variant;
+    }
+
+    pub fn fused_variant(&self) -> FusedVariant {
+        self.variant
     }
 
     pub fn path(&self) -> FftPath {
