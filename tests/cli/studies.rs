@@ -351,6 +351,27 @@ mod needs_gpu {
             "{}",
             stderr(&o)
         );
+        // --coop-only tunes the layers on cooperative matrices alone
+        // (lavapipe has none): the table's tiled entries stay as they were.
+        let o = run(&[
+            "--tuning",
+            path(&tuning),
+            "bench",
+            "tune",
+            "--coop-only",
+            "--networks",
+            "half",
+            "--sizes",
+            "16x16",
+            "--repeat",
+            "1",
+        ]);
+        assert!(o.status.success(), "{}", stderr(&o));
+        assert!(stdout(&o).contains("0 tiles timed"), "{}", stdout(&o));
+        let again = std::fs::read_to_string(&tables[0]).expect("reads");
+        let again: toml::Value = toml::from_str(&again).expect("toml");
+        assert_eq!(again["conv"], table["conv"], "the tiled entries changed");
+        assert!(again.get("coop").is_none(), "{again}");
         // A tile the template does not build is refused by name.
         assert_clean_error(&tune("12x4"), "a conv tile is 8, 16 or 32 pixels wide");
         // A broken table stops the backend, naming it (the bench reports

@@ -19,14 +19,14 @@ def sizes(smoke: bool) -> dict:
                 "steps": 4, "seed_steps": 2, "validate_every": 2, "max_batch": 2, "budget_s": 60, "copy_mb": 16,
                 "gemm": 256,
                 "tradeoff_size": "64x64", "tradeoff_prefilters": "lsq,refine:1", "tradeoff_designs": "multifocal",
-                "tune_frame": "32x32", "tune_tiles": ["--tiles", "8x4"], "tune_coop_tiles": ["--tiles", "8x4"]}
+                "tune_frame": "32x32", "tune_tiles": ["--tiles", "8x4"]}
     return {"frame": "1920x1080", "layer_frame": "1920x1080", "panel": "1920x1080", "frames": 200, "repeat": 10,
             "torch_repeat": 20, "pipeline_s": 8, "train_images": None, "val_images": None, "crop": None,
             "val_crop": None, "patch": 128, "width": 32, "levels": 4, "teacher_steps": 1000,
             "steps": 1_000_000, "seed_steps": None, "validate_every": 500, "max_batch": 64, "budget_s": TRAIN_BUDGET_S,
             "copy_mb": 2048, "gemm": 8192, "tradeoff_size": "1920x1080",
             "tradeoff_prefilters": "admm:3,refine:10,lsq", "tradeoff_designs": "multifocal",
-            "tune_frame": "1920x1080", "tune_tiles": [], "tune_coop_tiles": ["--tiles", "32x16"]}
+            "tune_frame": "1920x1080", "tune_tiles": []}
 
 
 #: Seconds of the tradeoff step's cap kept after its --time-budget: the
@@ -311,16 +311,17 @@ def step_tune(r: Runner, s: Step, z: dict):
     r.need_gpu_adapter()
     out = r.work / "tuning"
     texts = []
-    # f16 on `auto` tunes the layers on cooperative matrices (where the
-    # adapter has them), its tiled layers only against one other tile; then
-    # f16 with the tiled kernels everywhere, which a table keys by layer
-    # shape, so its full tuning of every tiled layer replaces those entries.
-    passes = (("f32", "auto", z["tune_tiles"]), ("f16", "auto", z["tune_coop_tiles"]),
-              ("f16", "tiled", z["tune_tiles"]))
-    for precision, path, tiles in passes:
+    # f16 with the tiled kernels everywhere: a table keys a tiled entry by
+    # layer shape, so this covers the layers `auto` leaves tiled too. Last,
+    # the layers on cooperative matrices alone (f16 on `auto`, where the
+    # adapter has them; the table's tiled entries stay): the most kernels to
+    # build, so the longest cap, and a timeout there loses only them.
+    passes = (("f32", "auto", z["tune_tiles"], 0.3), ("f16", "tiled", z["tune_tiles"], 0.3),
+              ("f16", "auto", ["--coop-only"], 0.4))
+    for precision, path, extra, share in passes:
         text = r.sh([r.nedrt, "--tuning", out, "--precision", precision, "--conv-path", path, "bench", "tune",
-                     "--networks", "model", "--sizes", z["tune_frame"], "--repeat", z["repeat"], *tiles],
-                    s.cap_s / len(passes), parse_json=False)
+                     "--networks", "model", "--sizes", z["tune_frame"], "--repeat", z["repeat"], *extra],
+                    s.cap_s * share, parse_json=False)
         texts.append(f"\n**--precision {precision} --conv-path {path}**\n\n{text.strip()}\n")
         s.text = "".join(texts)
         # After each: a table from the first comes back even if the second fails.

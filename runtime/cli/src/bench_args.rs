@@ -115,6 +115,10 @@ pub struct BenchArgs {
     /// The layers on cooperative matrices are tuned over all their tiles.
     #[arg(long, value_delimiter = ',', value_parser = parse_tile, value_name = "WxH")]
     pub tiles: Vec<nedrt_infer::gpu::codegen::ConvTile>,
+    /// tune: only the layers on cooperative matrices (at --precision f16 on
+    /// an adapter that has them); the table's tiled entries stay as they are.
+    #[arg(long)]
+    pub coop_only: bool,
     /// fft: the device FFT paths to time side by side.
     #[arg(long, value_delimiter = ',', value_enum, default_values = ["auto", "multipass"])]
     pub fft_paths: Vec<FftPathArg>,

@@ -375,6 +375,7 @@ pub fn run(cli: Cli) -> Result<()> {
                     repeat: a.repeat,
                     dir: g.tuning.clone(),
                     tiles: (!a.tiles.is_empty()).then_some(a.tiles),
+                    coop_only: a.coop_only,
                 };
                 print!("{}", studies::bench_tune::run(&bench, &common)?.report);
             }

@@ -29,6 +29,9 @@ pub struct TuneBench {
     pub dir: PathBuf,
     /// Only these tiles besides each layer's heuristic one (None: all).
     pub tiles: Option<Vec<nedrt_infer::gpu::codegen::ConvTile>>,
+    /// Only the layers on cooperative matrices (the tiled layers' entries
+    /// of the table stay as they are).
+    pub coop_only: bool,
 }
 
 /// What a run wrote, and its report.
@@ -183,7 +186,11 @@ pub fn run(b: &TuneBench, common: &CommonOptions) -> Result<TuneOutcome, AppErro
         }
         for &(w, h) in &b.sizes {
             tracing::info!("tuning {name} at {precision:?}, {w}×{h}");
-            let result = gpu.tune(&bench_frame(w, h), b.repeat, b.tiles.as_deref())?;
+            let kinds = nedrt_infer::gpu::TuneKinds {
+                tiled: !b.coop_only,
+                coop: true,
+            };
+            let result = gpu.tune_kinds(&bench_frame(w, h), b.repeat, b.tiles.as_deref(), kinds)?;
             md += &case_table(
                 &format!("{name}, {precision:?}, {w}×{h}"),
                 &result.convs,

@@ -32,7 +32,7 @@ pub mod tuning;
 
 pub use choose::{ConvSupport, cooperative_against_tiled};
 pub use resident::DeviceDcnn;
-pub use tuner::TuneResult;
+pub use tuner::{TuneKinds, TuneResult};
 
 use std::collections::HashMap;
 use std::sync::Arc;

@@ -29,6 +29,21 @@ pub struct TuneResult {
 /// The best device time of a layer at a tile: (layer, tile) → ns.
 type Times<T> = HashMap<(usize, T), u64>;
 
+/// Which layers a tuning run times: the register-tiled ones, the ones on
+/// cooperative matrices, or both ([`GpuBackend::tune_kinds`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct TuneKinds {
+    pub tiled: bool,
+    pub coop: bool,
+}
+
+impl TuneKinds {
+    pub const ALL: TuneKinds = TuneKinds {
+        tiled: true,
+        coop: true,
+    };
+}
+
 /// Per shape, in the layers' order: the heuristics' tile and time, and the
 /// fastest tile and its time, each summed over the layers of that shape
 /// (a shape's candidates are the same for each of its layers); the
@@ -98,6 +113,18 @@ impl GpuBackend {
         repeat: usize,
         only: Option<&[ConvTile]>,
     ) -> Result<TuneResult, InferenceError> {
+        self.tune_kinds(frame, repeat, only, TuneKinds::ALL)
+    }
+
+    /// [`Self::tune`] over the layers of `kinds` only: the others keep
+    /// their heuristics' tiles and have no entry in the result.
+    pub fn tune_kinds(
+        &mut self,
+        frame: &Image,
+        repeat: usize,
+        only: Option<&[ConvTile]>,
+        kinds: TuneKinds,
+    ) -> Result<TuneResult, InferenceError> {
         let (w, h) = (frame.width, frame.height);
         self.set_tuning(None);
         self.force_conv_tiles(HashMap::new());
@@ -105,6 +132,7 @@ impl GpuBackend {
         let tiled: Vec<_> = self
             .conv_tiles(w, h)
             .iter()
+            .filter(|_| kinds.tiled)
             .map(|t| (t.layer, t.shape, t.tile))
             .collect();
         let candidates: Vec<Vec<ConvTile>> = tiled
@@ -119,6 +147,7 @@ impl GpuBackend {
         let coop: Vec<_> = self
             .coop_tiles(w, h)
             .iter()
+            .filter(|_| kinds.coop)
             .map(|t| (t.layer, t.shape, t.tile))
             .collect();
         let coop_candidates: Vec<Vec<CoopTile>> =
