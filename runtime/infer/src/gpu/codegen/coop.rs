@@ -102,7 +102,9 @@ impl CoopTile {
     /// The tiles worth timing for a layer of `columns` GEMM columns and
     /// `height` rows: 2 to 8 rows and 1 or 2 blocks a subgroup, 4 or 8
     /// subgroups, no block of columns wholly past the layer nor a row of
-    /// tiles wholly below it, valid; the heuristics' tile always among them.
+    /// tiles wholly below it, valid; the heuristics' tile first, and
+    /// [`Self::DEFAULT`] always (the tile earlier GPU runs measured, so
+    /// that a run compares against it).
     pub fn candidates(columns: usize, height: u32, kernel: usize) -> Vec<CoopTile> {
         let needed = (columns.div_ceil(SIZE as usize) as u32).max(1);
         let (max_blocks, max_rows) = (
@@ -111,6 +113,9 @@ impl CoopTile {
         );
         let heuristic = Self::for_layer(columns);
         let mut out = vec![heuristic];
+        if heuristic != Self::DEFAULT {
+            out.push(Self::DEFAULT);
+        }
         for rows in [2, 4, 8] {
             for blocks in [1, 2] {
                 for (sg_rows, sg_cols) in [(1, 4), (2, 2), (4, 1), (1, 8), (2, 4), (4, 2), (8, 1)] {
@@ -282,8 +287,9 @@ mod tests {
         for (columns, height, kernel) in [(32, 540, 3), (64, 1080, 3), (512, 68, 1), (48, 3, 3)] {
             let c = CoopTile::candidates(columns, height, kernel);
             assert_eq!(c[0], CoopTile::for_layer(columns));
+            assert!(c.contains(&CoopTile::DEFAULT));
             let needed = columns.div_ceil(16) as u32;
-            for t in &c {
+            for t in c.iter().filter(|t| **t != CoopTile::DEFAULT) {
                 assert!(t.is_valid(kernel), "{t:?}");
                 assert!(t.column_blocks() <= needed.next_power_of_two(), "{t:?}");
             }
