@@ -903,7 +903,7 @@ const ROWS: &[Row] = &[
     row(
         "bench fft: a workgroup shape the kernels do not take",
         &["bench", "fft", "--fft-variants", "256x3"],
-        "not THREADSxPAIRS (threads 1 to 1024, pairs 1, 2, 4 or 8; e.g. 256x4)",
+        "not THREADSxPAIRS (threads 32 to 1024, pairs 1, 2, 4 or 8; e.g. 256x4)",
     ),
 ];
 

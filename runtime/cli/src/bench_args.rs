@@ -123,7 +123,7 @@ pub struct BenchArgs {
     #[arg(long, value_delimiter = ',', value_enum, default_values = ["auto", "multipass"])]
     pub fft_paths: Vec<FftPathArg>,
     /// fft: shapes of the workgroup-memory kernels to time beside the
-    /// paths, THREADSxPAIRS: threads a workgroup (1 to 1024) and at most
+    /// paths, THREADSxPAIRS: threads a workgroup (32 to 1024) and at most
     /// that many sequence pairs a workgroup (1, 2, 4 or 8), rows and
     /// columns alike, as many as fit the adapter's workgroup memory.
     #[arg(long, value_delimiter = ',', value_parser = parse_fft_variant, value_name = "TxP")]
@@ -133,11 +133,13 @@ pub struct BenchArgs {
 /// `--fft-variants` THREADSxPAIRS.
 pub(crate) fn parse_fft_variant(s: &str) -> Result<nedrt_gpu::fft::FusedVariant, String> {
     let bad =
-        || format!("{s:?}: not THREADSxPAIRS (threads 1 to 1024, pairs 1, 2, 4 or 8; e.g. 256x4)");
+        || format!("{s:?}: not THREADSxPAIRS (threads 32 to 1024, pairs 1, 2, 4 or 8; e.g. 256x4)");
     let (t, p) = s.split_once(['x', 'X']).ok_or_else(bad)?;
     let threads: u32 = t.trim().parse().map_err(|_| bad())?;
     let pairs: u32 = p.trim().parse().map_err(|_| bad())?;
-    if !(1..=1024).contains(&threads) || ![1, 2, 4, 8].contains(&pairs) {
+    // Fewer threads unroll a whole length's butterflies into each one:
+    // a kernel of hundreds of thousands of lines.
+    if !(32..=1024).contains(&threads) || ![1, 2, 4, 8].contains(&pairs) {
         return Err(bad());
     }
     Ok(nedrt_gpu::fft::FusedVariant {

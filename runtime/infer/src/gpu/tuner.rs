@@ -155,6 +155,9 @@ impl GpuBackend {
         let timed = self
             .time_tiles(frame, repeat, &tiled, &candidates, Self::force_conv_tiles)
             .and_then(|t| {
+                // The tiled layers back on their heuristics' tiles while
+                // the cooperative ones are timed.
+                self.force_conv_tiles(HashMap::new());
                 let c = self.time_tiles(
                     frame,
                     repeat,
