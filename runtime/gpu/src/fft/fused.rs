@@ -26,10 +26,7 @@ pub(super) fn seqs_for(kernels: &FftKernels, n: usize, count: u32, strided: bool
     let memory = kernels.device.limits().max_compute_workgroup_storage_size;
     match kernels.variant.max_seqs {
         None => wgsl::seqs_per_workgroup(n, count, strided, memory),
-        Some(max) => [8u32, 4, 2]
-            .into_iter()
-            .find(|&p| p <= max && p <= count && (n as u64) * 8 * u64::from(p) <= u64::from(memory))
-            .unwrap_or(1),
+        Some(max) => wgsl::most_seqs(n, count, memory, max),
     }
 }
 

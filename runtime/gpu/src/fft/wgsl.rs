@@ -89,12 +89,17 @@ pub(super) fn module_source(n: usize, radices: &[u32], threads: u32, seqs: u32) 
 /// the adapter's workgroup memory holds them (32 bytes of a row per load,
 /// one memory sector), else 2, else 1; rows take 1 (already contiguous).
 pub(super) fn seqs_per_workgroup(n: usize, count: u32, strided: bool, memory_bytes: u32) -> u32 {
-    if !strided {
-        return 1;
-    }
-    [4u32, 2]
+    most_seqs(n, count, memory_bytes, if strided { 4 } else { 1 })
+}
+
+/// The most of 8, 4, 2 or 1 sequences (or pairs) of length `n` a workgroup
+/// holds, at most `max`, `count` and what `memory_bytes` holds.
+pub(super) fn most_seqs(n: usize, count: u32, memory_bytes: u32, max: u32) -> u32 {
+    [8u32, 4, 2]
         .into_iter()
-        .find(|&p| p <= count && (n as u64) * 8 * u64::from(p) <= u64::from(memory_bytes))
+        .find(|&p| {
+            p <= max && p <= count && (n as u64) * 8 * u64::from(p) <= u64::from(memory_bytes)
+        })
         .unwrap_or(1)
 }
 

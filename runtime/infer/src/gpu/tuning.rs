@@ -259,6 +259,20 @@ pub fn template_hash() -> String {
     h.finalize().to_hex()[..16].to_string()
 }
 
+/// A table entry's taps: 1 to [`super::codegen::MAX_CONV_KERNEL`].
+fn check_kernel(path: &Path, at: &str, kernel: usize) -> Result<(), InferenceError> {
+    if kernel == 0 || kernel > super::codegen::MAX_CONV_KERNEL {
+        return Err(bad(
+            path,
+            format!(
+                "{at}: kernel must be 1 to {}",
+                super::codegen::MAX_CONV_KERNEL
+            ),
+        ));
+    }
+    Ok(())
+}
+
 fn bad(path: &Path, reason: impl std::fmt::Display) -> InferenceError {
     InferenceError::Tuning {
         path: path.to_path_buf(),
@@ -304,15 +318,7 @@ impl TuningTable {
                 c.shape.width,
                 c.shape.height
             );
-            if c.shape.kernel == 0 || c.shape.kernel > super::codegen::MAX_CONV_KERNEL {
-                return Err(bad(
-                    path,
-                    format!(
-                        "{at}: kernel must be 1 to {}",
-                        super::codegen::MAX_CONV_KERNEL
-                    ),
-                ));
-            }
+            check_kernel(path, &at, c.shape.kernel)?;
             if !tile_is_valid(c.tile(), c.shape.kernel, c.shape.arith.into()) {
                 return Err(bad(
                     path,
@@ -345,15 +351,7 @@ impl TuningTable {
                 s.width,
                 s.height
             );
-            if s.kernel == 0 || s.kernel > super::codegen::MAX_CONV_KERNEL {
-                return Err(bad(
-                    path,
-                    format!(
-                        "{at}: kernel must be 1 to {}",
-                        super::codegen::MAX_CONV_KERNEL
-                    ),
-                ));
-            }
+            check_kernel(path, &at, s.kernel)?;
             if !c.tile().is_valid(s.kernel) {
                 return Err(bad(
                     path,
