@@ -10,10 +10,11 @@
 // adapter's one subgroup size; the builtins say which subgroup an
 // invocation is in, so nothing assumes how invocations are grouped),
 // covering 16 pixels × ROWS·SG_ROWS rows × BLOCKS·SG_COLS blocks of 16
-// output columns (the tile, chosen per layer: `CoopTile`). Per 16-channel
-// chunk it stages its input tile (ROWS·SG_ROWS + K − 1 rows of 16 + K − 1
-// pixels, 16 channels each, channels innermost so that a row of 16 pixels
-// is a row-major 16×16 matrix with stride 16) in workgroup memory once;
+// output columns (the tile, chosen per layer: `CoopTile`). Per CHUNKS
+// 16-channel chunks (the K-slice) it stages their input tiles (ROWS·SG_ROWS
+// + K − 1 rows of 16 + K − 1 pixels, 16 channels each, channels innermost so
+// that a row of 16 pixels is a row-major 16×16 matrix with stride 16) in
+// workgroup memory once, between two barriers;
 // each subgroup then multiplies its ROWS rows of it by its own BLOCKS
 // blocks of output columns, whose weights were packed at load as one
 // row-major 16×16 matrix per block, chunk and tap (`codegen::pack_coop`),
@@ -35,17 +36,20 @@ const ROWS: u32 = {{ROWS}}u;
 const BLOCKS: u32 = {{BLOCKS}}u;
 const SG_ROWS: u32 = {{SG_ROWS}}u;
 const SG_COLS: u32 = {{SG_COLS}}u;
+const CHUNKS: u32 = {{CHUNKS}}u;
 const SUBGROUPS: u32 = SG_ROWS * SG_COLS;
 const THREADS: u32 = SG * SUBGROUPS;
 const IN_W: u32 = 16u + K - 1u;
 const IN_H: u32 = ROWS * SG_ROWS + K - 1u;
+// One chunk's staged tile.
+const STAGE: u32 = IN_H * IN_W * 16u;
 const TRANSPOSED: bool = {{TRANSPOSED}};
 const RELU: bool = {{RELU}};
 const RESIDUAL: bool = {{RESIDUAL}};
 const CLAMP: bool = {{CLAMP}};
 
-// [row][column][channel of the chunk].
-var<workgroup> a_tile: array<f16, IN_H * IN_W * 16u>;
+// [chunk of the stage][row][column][channel of the chunk].
+var<workgroup> a_tile: array<f16, CHUNKS * STAGE>;
 // Each subgroup's accumulator on its way out: [pixel][column].
 var<workgroup> c_tile: array<f32, SUBGROUPS * 256u>;
 
@@ -66,26 +70,36 @@ fn main(
     let chunks = (p.cin + 15u) / 16u;
 {{ACC_DECL}}
 
-    for (var chunk = 0u; chunk < chunks; chunk++) {
+    for (var first = 0u; first < chunks; first += CHUNKS) {
         // Pixels innermost in the loop, so neighbouring invocations read
-        // neighbouring pixels of one plane.
-        for (var i = li; i < 16u * IN_H * IN_W; i += THREADS) {
-            let ci = i / (IN_H * IN_W);
+        // neighbouring pixels of one plane; channels past the layer (of a
+        // chunk past its last, too) are zero.
+        for (var i = li; i < CHUNKS * STAGE; i += THREADS) {
+            let s = i / STAGE;
+            let ci = (i % STAGE) / (IN_H * IN_W);
             let pix = i % (IN_H * IN_W);
             let gx = i32(x0 + pix % IN_W) - i32(R);
             let gy = i32(y0 + pix / IN_W) - i32(R);
-            let c = chunk * 16u + ci;
+            let c = (first + s) * 16u + ci;
             var v = f16(0.0);
             if (c < p.cin && gx >= 0 && gx < i32(p.width) && gy >= 0 && gy < i32(p.height)) {
                 v = f16(src[p.in_offset + c * plane + u32(gy) * p.width + u32(gx)]);
             }
-            a_tile[pix * 16u + ci] = v;
+            a_tile[s * STAGE + pix * 16u + ci] = v;
         }
         workgroupBarrier();
-        for (var tap = 0u; tap < K * K; tap++) {
-            let ky = tap / K;
-            let kx = tap % K;
+        // The same products in the same order as one chunk a stage: chunk
+        // by chunk, tap by tap. (The stage's chunks past the layer bound
+        // the loop rather than a branch: naga takes a loop's bound, not an
+        // `if` on the parameters, as uniform around cooperative loads.)
+        for (var s = 0u; s < min(CHUNKS, chunks - first); s++) {
+            let chunk = first + s;
+            let abase = s * STAGE;
+            for (var tap = 0u; tap < K * K; tap++) {
+                let ky = tap / K;
+                let kx = tap % K;
 {{TAPS}}
+            }
         }
         workgroupBarrier();
     }

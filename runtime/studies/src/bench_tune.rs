@@ -96,12 +96,19 @@ fn sum_row(label: &str, heuristic_ns: u64, tuned_ns: u64) -> String {
 }
 
 fn coop_tile(t: CoopTile) -> String {
-    format!("{}×{} of {}×{}", t.sg_rows, t.sg_cols, t.rows, t.blocks)
+    format!(
+        "{}×{} of {}×{}, {} channels a stage",
+        t.sg_rows,
+        t.sg_cols,
+        t.rows,
+        t.blocks,
+        16 * t.chunks
+    )
 }
 
 /// The cooperative-matrix shapes of a case, if any: each tile as
 /// subgroups (over rows × over columns) of accumulators (pixel rows ×
-/// column blocks).
+/// column blocks), and the input channels staged between two barriers.
 fn coop_table(coops: &[TunedCoop]) -> String {
     if coops.is_empty() {
         return String::new();

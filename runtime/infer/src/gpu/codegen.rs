@@ -246,6 +246,7 @@ impl KernelKey {
                     ("BLOCKS", tile.blocks.to_string()),
                     ("SG_ROWS", tile.sg_rows.to_string()),
                     ("SG_COLS", tile.sg_cols.to_string()),
+                    ("CHUNKS", tile.chunks.to_string()),
                     ("TRANSPOSED", transposed.to_string()),
                     ("RELU", relu.to_string()),
                     ("RESIDUAL", residual.to_string()),
@@ -389,8 +390,8 @@ mod tests {
     /// transposed conv, for subgroups of 32 (NVIDIA) and 64 (AMD).
     fn coop_keys() -> Vec<KernelKey> {
         let mut keys = Vec::new();
-        // The default tile, and the most matrices a subgroup and the most
-        // subgroups a workgroup hold.
+        // The default tile, the most matrices a subgroup and the most
+        // subgroups a workgroup hold, and the largest K-slice.
         let tiles = [
             coop::CoopTile::DEFAULT,
             coop::CoopTile {
@@ -398,7 +399,9 @@ mod tests {
                 blocks: 2,
                 sg_rows: 2,
                 sg_cols: 4,
+                chunks: 1,
             },
+            coop::CoopTile::DEFAULT.with_chunks(coop::MAX_CHUNKS),
         ];
         for (subgroup_size, tile) in [32, 64].into_iter().flat_map(|s| tiles.map(|t| (s, t))) {
             for (kernel, relu, residual, clamp, transposed) in [

@@ -6,7 +6,7 @@
 //! cannot show is the driver's own matrix instructions: the device check
 //! compares the cooperative network with the tiled one on a GPU.
 
-use super::codegen::coop::CoopTile;
+use super::codegen::coop::{CoopLimits, CoopTile};
 use super::pack;
 use crate::network::{Conv, ConvTranspose};
 use crate::reference::{self, Epilogue};
@@ -30,6 +30,7 @@ fn model(
     let (in_w, in_h, r) = (16 + k - 1, pixel_rows + k - 1, (k / 2) as isize);
     let columns = if transposed { 4 * cout } else { cout };
     let chunks = cin.div_ceil(16);
+    let slice = tile.chunks as usize;
     let plane = w * h;
     let mut out = vec![0f32; if transposed { 4 } else { 1 } * cout * plane];
     // Each output must be written exactly once: a tile that overlaps or
@@ -45,38 +46,44 @@ fn model(
                 let (x0, y0) = (gx * 16, gy * pixel_rows);
                 // acc[sg][row][block][pixel][column]
                 let mut acc = vec![[[0f32; 16]; 16]; sgs * rows * blocks];
-                for chunk in 0..chunks {
-                    let mut a_tile = vec![0f32; in_h * in_w * 16];
-                    for i in 0..16 * in_h * in_w {
-                        let (ci, pix) = (i / (in_h * in_w), i % (in_h * in_w));
+                for first in (0..chunks).step_by(slice) {
+                    let stage = in_h * in_w * 16;
+                    let mut a_tile = vec![0f32; slice * stage];
+                    for i in 0..slice * stage {
+                        let (s, ci, pix) =
+                            (i / stage, (i % stage) / (in_h * in_w), i % (in_h * in_w));
                         let gxx = (x0 + pix % in_w) as isize - r;
                         let gyy = (y0 + pix / in_w) as isize - r;
-                        let c = chunk * 16 + ci;
+                        let c = (first + s) * 16 + ci;
                         if c < cin
                             && gxx >= 0
                             && (gxx as usize) < w
                             && gyy >= 0
                             && (gyy as usize) < h
                         {
-                            a_tile[pix * 16 + ci] =
+                            a_tile[s * stage + pix * 16 + ci] =
                                 input[c * plane + gyy as usize * w + gxx as usize];
                         }
                     }
-                    for tap in 0..k * k {
-                        let (ky, kx) = (tap / k, tap % k);
-                        for sg in 0..sgs {
-                            for nb in 0..blocks {
-                                let blk = blk0(gz, sg) + nb;
-                                let b = ((blk * chunks + chunk) * k * k + tap) * 256;
-                                assert!(b + 256 <= packed.len(), "a read past the weights");
-                                for row in 0..rows {
-                                    let a = ((row0(sg) + row + ky) * in_w + kx) * 16;
-                                    let c = &mut acc[(sg * rows + row) * blocks + nb];
-                                    for (m, c_row) in c.iter_mut().enumerate() {
-                                        for (n, v) in c_row.iter_mut().enumerate() {
-                                            for kk in 0..16 {
-                                                *v += a_tile[a + m * 16 + kk]
-                                                    * packed[b + kk * 16 + n];
+                    for (chunk, abase) in
+                        (first..chunks.min(first + slice)).zip((0..).step_by(stage))
+                    {
+                        for tap in 0..k * k {
+                            let (ky, kx) = (tap / k, tap % k);
+                            for sg in 0..sgs {
+                                for nb in 0..blocks {
+                                    let blk = blk0(gz, sg) + nb;
+                                    let b = ((blk * chunks + chunk) * k * k + tap) * 256;
+                                    assert!(b + 256 <= packed.len(), "a read past the weights");
+                                    for row in 0..rows {
+                                        let a = abase + ((row0(sg) + row + ky) * in_w + kx) * 16;
+                                        let c = &mut acc[(sg * rows + row) * blocks + nb];
+                                        for (m, c_row) in c.iter_mut().enumerate() {
+                                            for (n, v) in c_row.iter_mut().enumerate() {
+                                                for kk in 0..16 {
+                                                    *v += a_tile[a + m * 16 + kk]
+                                                        * packed[b + kk * 16 + n];
+                                                }
                                             }
                                         }
                                     }
@@ -122,15 +129,25 @@ fn model(
     out
 }
 
-/// The tiles to hold to the CPU twin for a layer: the default, the
-/// heuristics' and every candidate the tuner would time.
-fn tiles_for(columns: usize, h: usize, k: usize) -> Vec<CoopTile> {
-    let mut tiles = CoopTile::candidates(columns, h as u32, k);
+/// The tiles to hold to the CPU twin for a layer of `cin` input channels:
+/// the default, the heuristics', every candidate the tuner would time on
+/// the largest adapter a table allows, and each one's K-slices.
+fn tiles_for(columns: usize, h: usize, k: usize, cin: usize) -> Vec<CoopTile> {
+    let largest = CoopLimits {
+        workgroup_bytes: super::codegen::coop::MAX_TABLE_WORKGROUP_BYTES,
+        invocations: 1024,
+    };
+    let mut tiles = CoopTile::candidates(columns, h as u32, k, 32, &largest);
     for t in [CoopTile::DEFAULT, CoopTile::for_layer(columns)] {
         if !tiles.contains(&t) {
             tiles.push(t);
         }
     }
+    let slices: Vec<CoopTile> = tiles
+        .iter()
+        .flat_map(|t| t.slices(cin, k, 32, &largest))
+        .collect();
+    tiles.extend(slices);
     tiles
 }
 
@@ -148,7 +165,13 @@ fn the_cooperative_kernels_addressing_computes_the_convolution() {
     // tile divides, 3×3 and 1×1.
     let mut rng = SplitMix::new(38);
     let (w, h) = (37, 11);
-    for (cin, cout, k) in [(20, 10, 3), (16, 70, 3), (33, 5, 1), (32, 32, 3)] {
+    for (cin, cout, k) in [
+        (20, 10, 3),
+        (16, 70, 3),
+        (33, 5, 1),
+        (32, 32, 3),
+        (80, 32, 3),
+    ] {
         let input: Vec<f32> = (0..cin * w * h).map(|_| rng.symmetric(1.0)).collect();
         let conv = Conv {
             input: 0,
@@ -175,7 +198,7 @@ fn the_cooperative_kernels_addressing_computes_the_convolution() {
             },
         );
         let packed = pack::coop_conv(&conv.weight, cin, cout, k);
-        for tile in tiles_for(cout, h, k) {
+        for tile in tiles_for(cout, h, k, cin) {
             let got = model(
                 &input,
                 (w, h),
@@ -202,7 +225,7 @@ fn the_cooperative_kernels_addressing_computes_the_convolution() {
         };
         let want = reference::conv_transpose2(&input, h, w, &ct);
         let packed = pack::coop_conv_transpose(&ct.weight, cin, cout);
-        for tile in tiles_for(4 * cout, h, 1) {
+        for tile in tiles_for(4 * cout, h, 1, cin) {
             let got = model(
                 &input,
                 (w, h),

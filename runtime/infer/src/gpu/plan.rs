@@ -95,12 +95,16 @@ impl GpuBackend {
     pub fn coop_tiles(&self, width: usize, height: usize) -> Vec<super::tuning::LayerCoopTile> {
         use super::tuning::{CoopShape, LayerCoopTile, TileSource};
         let net = &self.network;
+        let limits = codegen::coop::CoopLimits::of(&self.device.limits());
         let mut out = Vec::new();
         for (li, (layer, key)) in net.layers.iter().zip(&self.layer_keys).enumerate() {
             let Some(KernelKey {
                 kind:
                     KernelKind::CoopConv {
-                        kernel, transposed, ..
+                        kernel,
+                        transposed,
+                        subgroup_size,
+                        ..
                     },
                 ..
             }) = key
@@ -121,9 +125,26 @@ impl GpuBackend {
                 height: (height >> level) as u32,
                 transposed: *transposed,
             };
+            // A table's tile this device cannot run (a table carried to an
+            // adapter with less workgroup memory under the same name) is
+            // passed over for the heuristics'.
+            let tuned = self
+                .tuning
+                .as_ref()
+                .and_then(|t| t.coop_tile_for(&shape))
+                .filter(|t| {
+                    let fits = t.fits(*kernel, *subgroup_size, &limits);
+                    if !fits {
+                        tracing::warn!(
+                            "D-CNN layer {li}: the tuning table's tile {t:?} does not fit this \
+                             device ({limits:?}); the heuristics' tile is used"
+                        );
+                    }
+                    fits
+                });
             let (tile, source) = if let Some(t) = self.forced_coop.get(&li) {
                 (*t, TileSource::Forced)
-            } else if let Some(t) = self.tuning.as_ref().and_then(|t| t.coop_tile_for(&shape)) {
+            } else if let Some(t) = tuned {
                 (t, TileSource::Tuned)
             } else {
                 (
@@ -136,6 +157,7 @@ impl GpuBackend {
                 shape,
                 tile,
                 source,
+                subgroup_size: *subgroup_size,
             });
         }
         out

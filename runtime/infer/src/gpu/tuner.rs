@@ -8,8 +8,8 @@ use std::hash::Hash;
 use std::sync::Arc;
 
 use super::codegen::ConvTile;
-use super::codegen::coop::CoopTile;
-use super::tuning::{TunedConv, TunedCoop, TuningTable, candidate_tiles};
+use super::codegen::coop::{CoopLimits, CoopTile};
+use super::tuning::{CoopShape, LayerCoopTile, TunedConv, TunedCoop, TuningTable, candidate_tiles};
 use super::{GpuBackend, err};
 use crate::InferenceError;
 use nedrt_core::Image;
@@ -22,7 +22,8 @@ pub struct TuneResult {
     /// One entry per cooperative-matrix conv shape (none on an adapter
     /// without cooperative matrices).
     pub coops: Vec<TunedCoop>,
-    /// Tiles timed (each for every layer it fits, in one frame).
+    /// Frames of tiles timed: each tile once, for every layer it fits,
+    /// and each round of K-slices once.
     pub tiles_timed: usize,
 }
 
@@ -87,6 +88,35 @@ fn best_per_shape<S: Copy + PartialEq, T: Copy + Eq + Hash>(
         .collect()
 }
 
+/// A round of K-slices: each cooperative layer at its shape's fastest
+/// tile (`best`) with `chunks` chunks a stage, where the layer takes that
+/// slice (layer → tile); each such tile joins its layer's `candidates`.
+fn slice_round(
+    layers: &[LayerCoopTile],
+    candidates: &mut [Vec<CoopTile>],
+    best: &[Best<CoopShape, CoopTile>],
+    chunks: u32,
+    limits: &CoopLimits,
+) -> HashMap<usize, CoopTile> {
+    let mut forced = HashMap::new();
+    for (l, c) in layers.iter().zip(candidates.iter_mut()) {
+        let Some(b) = best.iter().find(|b| b.0 == l.shape) else {
+            continue;
+        };
+        let slice = b.3.with_chunks(chunks);
+        if b.3
+            .slices(l.shape.cin, l.shape.kernel, l.subgroup_size, limits)
+            .contains(&slice)
+        {
+            forced.insert(l.layer, slice);
+            if !c.contains(&slice) {
+                c.push(slice);
+            }
+        }
+    }
+    forced
+}
+
 impl GpuBackend {
     /// The adapter the backend runs on.
     pub fn adapter_info(&self) -> wgpu::AdapterInfo {
@@ -144,27 +174,28 @@ impl GpuBackend {
                     .collect()
             })
             .collect();
-        let coop: Vec<_> = self
+        let coop_layers: Vec<_> = self
             .coop_tiles(w, h)
-            .iter()
+            .into_iter()
             .filter(|_| kinds.coop)
+            .collect();
+        let coop: Vec<_> = coop_layers
+            .iter()
             .map(|t| (t.layer, t.shape, t.tile))
             .collect();
-        let coop_candidates: Vec<Vec<CoopTile>> =
-            coop.iter().map(|(_, s, _)| s.candidates()).collect();
+        let limits = CoopLimits::of(&self.device.limits());
+        let mut coop_candidates: Vec<Vec<CoopTile>> = coop_layers
+            .iter()
+            .map(|t| t.shape.candidates(t.subgroup_size, &limits))
+            .collect();
         let timed = self
             .time_tiles(frame, repeat, &tiled, &candidates, Self::force_conv_tiles)
             .and_then(|t| {
                 // The tiled layers back on their heuristics' tiles while
                 // the cooperative ones are timed.
                 self.force_conv_tiles(HashMap::new());
-                let c = self.time_tiles(
-                    frame,
-                    repeat,
-                    &coop,
-                    &coop_candidates,
-                    Self::force_coop_tiles,
-                )?;
+                let c =
+                    self.time_coop(frame, repeat, &coop_layers, &mut coop_candidates, &limits)?;
                 Ok((t, c))
             });
         // Whatever happened, the tuner's tiles do not outlive it.
@@ -189,6 +220,7 @@ impl GpuBackend {
                 blocks: tile.blocks,
                 sg_rows: tile.sg_rows,
                 sg_cols: tile.sg_cols,
+                chunks: tile.chunks,
                 tuned_ns,
                 heuristic_ns,
             })
@@ -250,26 +282,136 @@ impl GpuBackend {
                 .filter(|(_, c)| c.contains(tile))
                 .map(|(l, _)| (l.0, *tile))
                 .collect();
-            force(self, forced.clone());
-            // The warm-up builds the plan and its kernels; it is not timed.
-            let mut best = self.layer_timings(frame)?;
-            best.iter_mut().for_each(|b| b.gpu_ns = u64::MAX);
-            for _ in 0..repeat.max(1) {
-                for (b, n) in best.iter_mut().zip(self.layer_timings(frame)?) {
-                    b.gpu_ns = b.gpu_ns.min(n.gpu_ns);
-                }
-            }
-            for row in best {
-                if forced.contains_key(&row.layer) {
-                    times.insert((row.layer, *tile), row.gpu_ns);
-                }
-            }
+            times.extend(self.time_forced(frame, repeat, forced, force)?);
         }
         Ok((times, tiles.len()))
+    }
+
+    /// One frame's layers at `forced` tiles (layer → tile): each forced
+    /// layer's best time of `repeat` timings after a warm-up one.
+    fn time_forced<T: Copy + Eq + Hash>(
+        &mut self,
+        frame: &Image,
+        repeat: usize,
+        forced: HashMap<usize, T>,
+        force: fn(&mut Self, HashMap<usize, T>),
+    ) -> Result<Times<T>, InferenceError> {
+        force(self, forced.clone());
+        // The warm-up builds the plan and its kernels; it is not timed.
+        let mut best = self.layer_timings(frame)?;
+        best.iter_mut().for_each(|b| b.gpu_ns = u64::MAX);
+        for _ in 0..repeat.max(1) {
+            for (b, n) in best.iter_mut().zip(self.layer_timings(frame)?) {
+                b.gpu_ns = b.gpu_ns.min(n.gpu_ns);
+            }
+        }
+        Ok(best
+            .into_iter()
+            .filter_map(|row| {
+                let tile = forced.get(&row.layer)?;
+                Some(((row.layer, *tile), row.gpu_ns))
+            })
+            .collect())
+    }
+
+    /// The cooperative layers' tiles timed in two rounds: every candidate
+    /// at one chunk a stage, then each shape's fastest of those with the
+    /// K-slices it takes (2 and 4 chunks a stage, one frame each, every
+    /// layer at its shape's slice), which join the layers' `candidates`.
+    /// A slice only stages more channels between two barriers, so it is
+    /// timed on the tile already best at one chunk, not on every tile.
+    fn time_coop(
+        &mut self,
+        frame: &Image,
+        repeat: usize,
+        layers: &[LayerCoopTile],
+        candidates: &mut [Vec<CoopTile>],
+        limits: &CoopLimits,
+    ) -> Result<(Times<CoopTile>, usize), InferenceError> {
+        let keyed: Vec<_> = layers.iter().map(|t| (t.layer, t.shape, t.tile)).collect();
+        let (mut times, mut timed) =
+            self.time_tiles(frame, repeat, &keyed, candidates, Self::force_coop_tiles)?;
+        let best = best_per_shape(&keyed, candidates, &times)?;
+        for chunks in [2, 4] {
+            let forced = slice_round(layers, candidates, &best, chunks, limits);
+            if !forced.is_empty() {
+                times.extend(self.time_forced(frame, repeat, forced, Self::force_coop_tiles)?);
+                timed += 1;
+            }
+        }
+        Ok((times, timed))
     }
 
     /// Kernel variants built so far (each tile of each kernel is one).
     pub fn kernels_built(&self) -> usize {
         self.pipelines.len()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::gpu::tuning::TileSource;
+
+    fn layer(layer: usize, cin: usize, height: u32) -> LayerCoopTile {
+        LayerCoopTile {
+            layer,
+            shape: CoopShape {
+                kernel: 3,
+                cin,
+                cout: 64,
+                width: 64,
+                height,
+                transposed: false,
+            },
+            tile: CoopTile::DEFAULT,
+            source: TileSource::Heuristic,
+            subgroup_size: 32,
+        }
+    }
+
+    #[test]
+    fn k_slices_are_timed_on_each_shapes_fastest_tile_and_join_its_candidates() {
+        let limits = CoopLimits {
+            workgroup_bytes: 49152,
+            invocations: 1024,
+        };
+        // Two layers of one 64-channel shape, one of 16 input channels.
+        let layers = [layer(3, 64, 32), layer(7, 64, 32), layer(9, 16, 8)];
+        let mut candidates: Vec<Vec<CoopTile>> = layers
+            .iter()
+            .map(|l| l.shape.candidates(32, &limits))
+            .collect();
+        let keyed: Vec<_> = layers.iter().map(|t| (t.layer, t.shape, t.tile)).collect();
+        let fastest = candidates[0][2];
+        assert_ne!(fastest, CoopTile::DEFAULT);
+        // The fastest at one chunk a stage: candidate 2 of the first shape
+        // on both its layers, the default on the other.
+        let mut times = Times::new();
+        for (l, c) in layers.iter().zip(&candidates) {
+            for t in c {
+                let ns = if *t == fastest { 10 } else { 20 };
+                times.insert((l.layer, *t), ns);
+            }
+        }
+        let best = best_per_shape(&keyed, &candidates, &times).expect("best");
+        for chunks in [2, 4] {
+            let forced = slice_round(&layers, &mut candidates, &best, chunks, &limits);
+            let slice = fastest.with_chunks(chunks);
+            assert_eq!(forced.get(&3), Some(&slice));
+            assert_eq!(forced.get(&7), Some(&slice));
+            // One chunk of input channels: nothing to slice.
+            assert_eq!(forced.get(&9), None);
+            assert!(candidates[0].contains(&slice) && candidates[1].contains(&slice));
+            for (l, ns) in [(3, 11 - chunks as u64), (7, 12 - chunks as u64)] {
+                times.insert((l, slice), ns);
+            }
+        }
+        assert!(candidates[2].iter().all(|t| t.chunks == 1));
+        // The slices now compete: 4 chunks (7 + 8 ns) beat 2 (9 + 10) and
+        // the tile alone (10 + 10).
+        let best = best_per_shape(&keyed, &candidates, &times).expect("best");
+        assert_eq!(best[0].3, fastest.with_chunks(4));
+        assert_eq!(best[0].4, 15);
     }
 }

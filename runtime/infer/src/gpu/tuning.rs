@@ -17,7 +17,7 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
-use super::codegen::coop::CoopTile;
+use super::codegen::coop::{self, CoopLimits, CoopTile};
 use super::codegen::{ConvTile, Dtype, WORKGROUP_BYTES};
 use crate::InferenceError;
 
@@ -167,9 +167,16 @@ impl CoopShape {
         }
     }
 
-    /// The tiles worth timing for this shape ([`CoopTile::candidates`]).
-    pub fn candidates(&self) -> Vec<CoopTile> {
-        CoopTile::candidates(self.columns(), self.height, self.kernel)
+    /// The tiles worth timing for this shape on a device with `limits`
+    /// and subgroups of `subgroup_size` ([`CoopTile::candidates`]).
+    pub fn candidates(&self, subgroup_size: u32, limits: &CoopLimits) -> Vec<CoopTile> {
+        CoopTile::candidates(
+            self.columns(),
+            self.height,
+            self.kernel,
+            subgroup_size,
+            limits,
+        )
     }
 }
 
@@ -186,6 +193,10 @@ pub struct TunedCoop {
     /// columns.
     pub sg_rows: u32,
     pub sg_cols: u32,
+    /// 16-channel chunks staged at once (the K-slice); 1 in tables
+    /// written before it was tuned.
+    #[serde(default = "one_chunk")]
+    pub chunks: u32,
     /// As [`TunedConv`]'s.
     pub tuned_ns: u64,
     pub heuristic_ns: u64,
@@ -198,8 +209,13 @@ impl TunedCoop {
             blocks: self.blocks,
             sg_rows: self.sg_rows,
             sg_cols: self.sg_cols,
+            chunks: self.chunks,
         }
     }
+}
+
+fn one_chunk() -> u32 {
+    1
 }
 
 /// Every tile the template builds for a `kernel`×`kernel` conv summing in
@@ -356,19 +372,22 @@ impl TuningTable {
                 return Err(bad(
                     path,
                     format!(
-                        "{at}: rows = {}, blocks = {}, sg_rows = {}, sg_cols = {} is not a tile \
-                         the cooperative kernel builds (powers of two; rows × blocks at most \
-                         {}, sg_rows × sg_cols at most {}, blocks × sg_cols at most {}, \
-                         rows × sg_rows at most {}; within {WORKGROUP_BYTES} bytes of \
-                         workgroup memory)",
+                        "{at}: rows = {}, blocks = {}, sg_rows = {}, sg_cols = {}, chunks = {} \
+                         is not a tile the cooperative kernel builds (powers of two; rows × \
+                         blocks at most {}, sg_rows × sg_cols at most {}, blocks × sg_cols at \
+                         most {}, rows × sg_rows at most {}, chunks at most {}; within {} \
+                         bytes of workgroup memory)",
                         c.rows,
                         c.blocks,
                         c.sg_rows,
                         c.sg_cols,
-                        super::codegen::coop::MAX_ACCUMULATORS,
-                        super::codegen::coop::MAX_SUBGROUPS,
-                        super::codegen::coop::MAX_COLUMN_BLOCKS,
-                        super::codegen::coop::MAX_PIXEL_ROWS,
+                        c.chunks,
+                        coop::MAX_ACCUMULATORS,
+                        coop::MAX_SUBGROUPS,
+                        coop::MAX_COLUMN_BLOCKS,
+                        coop::MAX_PIXEL_ROWS,
+                        coop::MAX_CHUNKS,
+                        coop::MAX_TABLE_WORKGROUP_BYTES,
                     ),
                 ));
             }
@@ -541,6 +560,8 @@ pub struct LayerCoopTile {
     pub shape: CoopShape,
     pub tile: CoopTile,
     pub source: TileSource,
+    /// The adapter's subgroup size, which the kernel is built for.
+    pub subgroup_size: u32,
 }
 
 #[cfg(test)]
@@ -588,6 +609,7 @@ mod tests {
                 blocks: 1,
                 sg_rows: 2,
                 sg_cols: 2,
+                chunks: 2,
                 tuned_ns: 2000,
                 heuristic_ns: 2500,
             }],
@@ -653,6 +675,22 @@ mod tests {
     }
 
     #[test]
+    fn a_table_from_before_the_k_slices_reads_as_one_chunk_a_stage() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let path = table().save(dir.path()).expect("saves");
+        let text = std::fs::read_to_string(&path).expect("reads");
+        assert!(text.contains("chunks = 2\n"), "{text}");
+        std::fs::write(&path, text.replace("chunks = 2\n", "")).expect("writes");
+        let (_, t) = TuningTable::find(dir.path(), &key())
+            .expect("reads")
+            .expect("found");
+        assert_eq!(
+            t.coop_tile_for(&coop_shape()),
+            Some(table().coops[0].tile().with_chunks(1))
+        );
+    }
+
+    #[test]
     fn a_bad_table_is_refused_naming_the_file_and_the_entry() {
         let dir = tempfile::tempdir().expect("tempdir");
         let path = table().save(dir.path()).expect("saves");
@@ -674,6 +712,12 @@ mod tests {
                 "is not a tile the cooperative kernel builds",
             ),
             ("transposed = false", "transposed = 1", "invalid type"),
+            ("chunks = 2", "chunks = 8", "chunks at most 4"),
+            (
+                "chunks = 2",
+                "chunks = 0",
+                "is not a tile the cooperative kernel builds",
+            ),
         ] {
             std::fs::write(&path, text.replace(from, to)).expect("writes");
             let e = TuningTable::find(dir.path(), &key())

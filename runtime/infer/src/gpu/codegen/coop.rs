@@ -15,6 +15,13 @@ pub const MAX_ACCUMULATORS: u32 = 8;
 pub const MAX_SUBGROUPS: u32 = 8;
 /// The most pixel rows of 16 a workgroup covers.
 pub const MAX_PIXEL_ROWS: u32 = 16;
+/// The most 16-channel chunks staged at once (a K-slice of 64 channels).
+pub const MAX_CHUNKS: u32 = 4;
+/// The most workgroup memory a tile may ask for in a tuning table: what
+/// the largest desktop adapters offer (AMD's 64 KiB; NVIDIA's Vulkan
+/// drivers 48 KiB). Whether a tile fits the adapter at hand is
+/// [`CoopTile::fits`].
+pub const MAX_TABLE_WORKGROUP_BYTES: u32 = 65536;
 
 /// How the cooperative kernel cuts a layer among workgroups and subgroups:
 /// a workgroup of `sg_rows` × `sg_cols` subgroups, each accumulating `rows`
@@ -23,14 +30,19 @@ pub const MAX_PIXEL_ROWS: u32 = 16;
 /// rows × `blocks`·`sg_cols` blocks and stages its input tile once per
 /// 16-channel chunk for all its subgroups; a subgroup reuses each staged
 /// input matrix over its `blocks` and each weight matrix over its `rows`.
-/// Every output is the same sum of the same products in the same order
-/// whatever the tile: a tile changes the speed, never a bit of the output.
+/// `chunks` is the K-slice: the 16-channel chunks of input staged between
+/// two barriers (1, 2 or 4), so that a workgroup waits at fewer barriers
+/// and has more loads in flight at once, for that many times the staging
+/// memory. Every output is the same sum of the same products in the same
+/// order whatever the tile: a tile changes the speed, never a bit of the
+/// output.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
 pub struct CoopTile {
     pub rows: u32,
     pub blocks: u32,
     pub sg_rows: u32,
     pub sg_cols: u32,
+    pub chunks: u32,
 }
 
 impl CoopTile {
@@ -42,6 +54,7 @@ impl CoopTile {
         blocks: 1,
         sg_rows: 1,
         sg_cols: 4,
+        chunks: 1,
     };
 
     /// The heuristics' tile for a layer of `columns` GEMM columns (output
@@ -58,6 +71,7 @@ impl CoopTile {
             blocks: 1,
             sg_rows: 4 / sg_cols,
             sg_cols,
+            chunks: 1,
         }
     }
 
@@ -75,37 +89,64 @@ impl CoopTile {
         self.blocks * self.sg_cols
     }
 
-    /// Workgroup memory: the staged input tile (f16, 16 channels a pixel)
-    /// and one 16×16 f32 matrix per subgroup for the epilogue.
+    /// Workgroup memory: the staged input tiles (f16, 16 channels a
+    /// pixel, one per chunk of the K-slice) and one 16×16 f32 matrix per
+    /// subgroup for the epilogue.
     pub fn workgroup_bytes(&self, kernel: usize) -> u32 {
         let k = kernel as u32;
-        (self.pixel_rows() + k - 1) * (SIZE + k - 1) * 16 * 2 + self.subgroups() * 256 * 4
+        self.chunks * (self.pixel_rows() + k - 1) * (SIZE + k - 1) * 16 * 2
+            + self.subgroups() * 256 * 4
     }
 
     /// Whether the template builds this tile for a `kernel`×`kernel` conv:
     /// powers of two, at most [`MAX_ACCUMULATORS`] matrices a subgroup,
     /// [`MAX_SUBGROUPS`], [`MAX_COLUMN_BLOCKS`] and [`MAX_PIXEL_ROWS`] a
-    /// workgroup, within [`super::WORKGROUP_BYTES`].
+    /// workgroup, [`MAX_CHUNKS`] a stage, within
+    /// [`MAX_TABLE_WORKGROUP_BYTES`]. Whether an adapter runs it is
+    /// [`Self::fits`].
     pub fn is_valid(&self, kernel: usize) -> bool {
         let p2 = |v: u32| v.is_power_of_two();
         p2(self.rows)
             && p2(self.blocks)
             && p2(self.sg_rows)
             && p2(self.sg_cols)
+            && p2(self.chunks)
+            && self.chunks <= MAX_CHUNKS
             && self.rows * self.blocks <= MAX_ACCUMULATORS
             && self.subgroups() <= MAX_SUBGROUPS
             && self.column_blocks() <= MAX_COLUMN_BLOCKS
             && self.pixel_rows() <= MAX_PIXEL_ROWS
-            && self.workgroup_bytes(kernel) <= super::WORKGROUP_BYTES
+            && self.workgroup_bytes(kernel) <= MAX_TABLE_WORKGROUP_BYTES
+    }
+
+    /// Whether a device with `limits` and subgroups of `subgroup_size`
+    /// runs this tile: valid, within its workgroup memory and its
+    /// invocations a workgroup.
+    pub fn fits(&self, kernel: usize, subgroup_size: u32, limits: &CoopLimits) -> bool {
+        self.is_valid(kernel)
+            && self.workgroup_bytes(kernel) <= limits.workgroup_bytes
+            && self.subgroups() * subgroup_size <= limits.invocations
+    }
+
+    /// This tile with a K-slice of `chunks`.
+    pub fn with_chunks(self, chunks: u32) -> Self {
+        CoopTile { chunks, ..self }
     }
 
     /// The tiles worth timing for a layer of `columns` GEMM columns and
-    /// `height` rows: 2 to 8 rows and 1 or 2 blocks a subgroup, 4 or 8
-    /// subgroups, no block of columns wholly past the layer nor a row of
-    /// tiles wholly below it, valid; the heuristics' tile first, and
-    /// [`Self::DEFAULT`] always (the tile earlier GPU runs measured, so
-    /// that a run compares against it).
-    pub fn candidates(columns: usize, height: u32, kernel: usize) -> Vec<CoopTile> {
+    /// `height` rows, one chunk a stage: 2 to 8 rows and 1 or 2 blocks a
+    /// subgroup, 4 or 8 subgroups, no block of columns wholly past the
+    /// layer nor a row of tiles wholly below it, fitting the device; the
+    /// heuristics' tile first, and [`Self::DEFAULT`] always (the tile
+    /// earlier GPU runs measured, so that a run compares against it). The
+    /// K-slices are [`Self::slices`] of the best of these.
+    pub fn candidates(
+        columns: usize,
+        height: u32,
+        kernel: usize,
+        subgroup_size: u32,
+        limits: &CoopLimits,
+    ) -> Vec<CoopTile> {
         let needed = (columns.div_ceil(SIZE as usize) as u32).max(1);
         let (max_blocks, max_rows) = (
             needed.next_power_of_two(),
@@ -124,8 +165,9 @@ impl CoopTile {
                         blocks,
                         sg_rows,
                         sg_cols,
+                        chunks: 1,
                     };
-                    if t.is_valid(kernel)
+                    if t.fits(kernel, subgroup_size, limits)
                         && t.column_blocks() <= max_blocks
                         && t.pixel_rows() <= max_rows
                         && !out.contains(&t)
@@ -136,6 +178,51 @@ impl CoopTile {
             }
         }
         out
+    }
+
+    /// The K-slices worth timing beside this tile for a layer of `cin`
+    /// input channels: 2 and 4 chunks a stage where the layer has that
+    /// many chunks and the device the memory.
+    pub fn slices(
+        self,
+        cin: usize,
+        kernel: usize,
+        subgroup_size: u32,
+        limits: &CoopLimits,
+    ) -> Vec<CoopTile> {
+        let chunks = cin.div_ceil(SIZE as usize) as u32;
+        [2, 4]
+            .into_iter()
+            .filter(|&c| c <= chunks)
+            .map(|c| self.with_chunks(c))
+            .filter(|t| t.fits(kernel, subgroup_size, limits))
+            .collect()
+    }
+}
+
+/// What a device allows one workgroup, as the cooperative tiles need it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct CoopLimits {
+    /// Bytes of workgroup memory.
+    pub workgroup_bytes: u32,
+    /// Invocations.
+    pub invocations: u32,
+}
+
+impl CoopLimits {
+    /// What every WebGPU adapter offers.
+    pub const PORTABLE: CoopLimits = CoopLimits {
+        workgroup_bytes: super::WORKGROUP_BYTES,
+        invocations: 256,
+    };
+
+    /// A device's limits (as opened: `nedrt_gpu::open_device` asks for
+    /// the adapter's own).
+    pub fn of(limits: &wgpu::Limits) -> Self {
+        CoopLimits {
+            workgroup_bytes: limits.max_compute_workgroup_storage_size,
+            invocations: limits.max_compute_invocations_per_workgroup,
+        }
     }
 }
 
@@ -241,17 +328,18 @@ pub(super) fn accumulators(tile: CoopTile) -> String {
 /// tile times each of them.
 pub(super) fn taps(tile: CoopTile) -> String {
     let mut s = String::new();
+    let pad = "                ";
     for n in 0..tile.blocks {
         s += &format!(
-            "            let b{n} = coopLoadT<coop_mat16x16<f16, B>>(\n                &weights[p.w_offset + (((blk0 + {n}u) * chunks + chunk) * K * K + tap) * 256u], 16u);\n"
+            "{pad}let b{n} = coopLoadT<coop_mat16x16<f16, B>>(\n{pad}    &weights[p.w_offset + (((blk0 + {n}u) * chunks + chunk) * K * K + tap) * 256u], 16u);\n"
         );
     }
     for r in 0..tile.rows {
         s += &format!(
-            "            let a{r} = coopLoadT<coop_mat16x16<f16, A>>(&a_tile[((row0 + {r}u + ky) * IN_W + kx) * 16u], 16u);\n"
+            "{pad}let a{r} = coopLoadT<coop_mat16x16<f16, A>>(&a_tile[abase + ((row0 + {r}u + ky) * IN_W + kx) * 16u], 16u);\n"
         );
         for n in 0..tile.blocks {
-            s += &format!("            c{r}_{n} = coopMultiplyAdd(a{r}, b{n}, c{r}_{n});\n");
+            s += &format!("{pad}c{r}_{n} = coopMultiplyAdd(a{r}, b{n}, c{r}_{n});\n");
         }
     }
     s
@@ -284,13 +372,16 @@ mod tests {
         let t = CoopTile::for_layer(32);
         assert_eq!((t.sg_cols, t.sg_rows, t.subgroups()), (2, 2, 4));
         assert_eq!(t.column_blocks(), 2);
+        let portable = CoopLimits::PORTABLE;
         for (columns, height, kernel) in [(32, 540, 3), (64, 1080, 3), (512, 68, 1), (48, 3, 3)] {
-            let c = CoopTile::candidates(columns, height, kernel);
+            let c = CoopTile::candidates(columns, height, kernel, 32, &portable);
             assert_eq!(c[0], CoopTile::for_layer(columns));
             assert!(c.contains(&CoopTile::DEFAULT));
             let needed = columns.div_ceil(16) as u32;
             for t in c.iter().filter(|t| **t != CoopTile::DEFAULT) {
-                assert!(t.is_valid(kernel), "{t:?}");
+                assert!(t.fits(kernel, 32, &portable), "{t:?}");
+                assert!(t.workgroup_bytes(kernel) <= super::super::WORKGROUP_BYTES);
+                assert_eq!(t.chunks, 1, "{t:?}");
                 assert!(t.column_blocks() <= needed.next_power_of_two(), "{t:?}");
             }
             let unique: std::collections::HashSet<_> = c.iter().collect();
@@ -326,6 +417,44 @@ mod tests {
         ] {
             assert!(!bad.is_valid(3), "{bad:?}");
         }
+    }
+
+    #[test]
+    fn an_adapter_with_more_workgroup_memory_gets_larger_tiles_and_k_slices() {
+        let portable = CoopLimits::PORTABLE;
+        // NVIDIA's Vulkan drivers: 48 KiB, 1024 invocations.
+        let nvidia = CoopLimits {
+            workgroup_bytes: 49152,
+            invocations: 1024,
+        };
+        let small = CoopTile::candidates(64, 1080, 3, 32, &portable);
+        let large = CoopTile::candidates(64, 1080, 3, 32, &nvidia);
+        assert!(small.iter().all(|t| large.contains(t)));
+        // 8 subgroups over 16 rows of 16 pixels: 18.1 KiB.
+        let tall = CoopTile {
+            rows: 8,
+            blocks: 1,
+            sg_rows: 2,
+            sg_cols: 4,
+            chunks: 1,
+        };
+        assert!(!small.contains(&tall) && large.contains(&tall), "{large:?}");
+        assert!(tall.fits(3, 32, &nvidia) && !tall.fits(3, 32, &portable));
+        // Eight subgroups of 64 are 512 invocations, over 256.
+        assert!(!tall.fits(3, 64, &portable) && tall.fits(3, 64, &nvidia));
+        // K-slices: as many chunks as the layer has, and the memory allows.
+        let d = CoopTile::DEFAULT;
+        assert_eq!(d.slices(16, 3, 32, &nvidia), vec![]);
+        assert_eq!(d.slices(48, 3, 32, &nvidia), vec![d.with_chunks(2)]);
+        assert_eq!(
+            d.slices(64, 3, 32, &nvidia),
+            vec![d.with_chunks(2), d.with_chunks(4)]
+        );
+        // 4 chunks of the default's 6×18 pixels are 13.5 KiB, with its
+        // 4 KiB of epilogue over 16 KiB.
+        assert_eq!(d.slices(64, 3, 32, &portable), vec![d.with_chunks(2)]);
+        assert!(!d.with_chunks(3).is_valid(3) && !d.with_chunks(8).is_valid(3));
+        assert!(!d.with_chunks(0).is_valid(3));
     }
 
     #[test]
