@@ -17,7 +17,7 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
-use super::codegen::coop::{self, CoopLimits, CoopTile};
+use super::codegen::coop::{self, CoopTile};
 use super::codegen::{ConvTile, Dtype, WORKGROUP_BYTES};
 use crate::InferenceError;
 
@@ -75,148 +75,8 @@ impl AdapterKey {
     }
 }
 
-/// A register-tiled convolution as the tuner and the backend see it: its
-/// taps, channels, input size (the layer's, not the frame's), storage and
-/// arithmetic types.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct ConvShape {
-    pub kernel: usize,
-    pub cin: usize,
-    pub cout: usize,
-    pub width: u32,
-    pub height: u32,
-    /// "f32" or "f16".
-    pub weights: DtypeName,
-    pub arith: DtypeName,
-}
-
-/// A [`Dtype`] as the table spells it.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum DtypeName {
-    F32,
-    F16,
-}
-
-impl From<Dtype> for DtypeName {
-    fn from(d: Dtype) -> Self {
-        match d {
-            Dtype::F32 => Self::F32,
-            Dtype::F16 => Self::F16,
-        }
-    }
-}
-
-impl From<DtypeName> for Dtype {
-    fn from(d: DtypeName) -> Self {
-        match d {
-            DtypeName::F32 => Self::F32,
-            DtypeName::F16 => Self::F16,
-        }
-    }
-}
-
-/// One shape's tile, with what the tuner measured.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct TunedConv {
-    #[serde(flatten)]
-    pub shape: ConvShape,
-    /// Output pixels per thread along x (a tile `8 × px` wide).
-    pub px: u32,
-    /// Threads (output rows) along y.
-    pub threads_y: u32,
-    /// The layers of this shape at this tile, summed: the best of the
-    /// tuner's repetitions, nanoseconds of device time.
-    pub tuned_ns: u64,
-    /// The same at the heuristics' tile.
-    pub heuristic_ns: u64,
-}
-
-impl TunedConv {
-    pub fn tile(&self) -> ConvTile {
-        ConvTile {
-            px: self.px,
-            threads_y: self.threads_y,
-        }
-    }
-}
-
-/// A convolution on cooperative matrices as the tuner and the backend see
-/// it: its taps (1 for the 2×2 transposed conv), channels and input size.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct CoopShape {
-    pub kernel: usize,
-    pub cin: usize,
-    pub cout: usize,
-    pub width: u32,
-    pub height: u32,
-    /// The 2×2 stride-2 transposed conv.
-    pub transposed: bool,
-}
-
-impl CoopShape {
-    /// The GEMM's columns: output channels, 4 each for the transposed conv.
-    pub fn columns(&self) -> usize {
-        if self.transposed {
-            4 * self.cout
-        } else {
-            self.cout
-        }
-    }
-
-    /// The tiles worth timing for this shape on a device with `limits`
-    /// and subgroups of `subgroup_size` ([`CoopTile::candidates`]).
-    pub fn candidates(&self, subgroup_size: u32, limits: &CoopLimits) -> Vec<CoopTile> {
-        CoopTile::candidates(
-            self.columns(),
-            self.height,
-            self.kernel,
-            subgroup_size,
-            limits,
-        )
-    }
-}
-
-/// One cooperative-matrix shape's tile, with what the tuner measured.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct TunedCoop {
-    #[serde(flatten)]
-    pub shape: CoopShape,
-    /// Pixel rows of 16 and blocks of 16 columns a subgroup accumulates.
-    pub rows: u32,
-    pub blocks: u32,
-    /// Subgroups of a workgroup stacked over rows and side by side over
-    /// columns.
-    pub sg_rows: u32,
-    pub sg_cols: u32,
-    /// 16-channel chunks staged at once (the K-slice); 1 in tables
-    /// written before it was tuned.
-    #[serde(default = "one_chunk")]
-    pub chunks: u32,
-    /// As [`TunedConv`]'s.
-    pub tuned_ns: u64,
-    pub heuristic_ns: u64,
-}
-
-impl TunedCoop {
-    pub fn tile(&self) -> CoopTile {
-        CoopTile {
-            rows: self.rows,
-            blocks: self.blocks,
-            sg_rows: self.sg_rows,
-            sg_cols: self.sg_cols,
-            chunks: self.chunks,
-        }
-    }
-}
-
-fn one_chunk() -> u32 {
-    1
-}
+mod entries;
+pub use entries::{ConvShape, CoopShape, DtypeName, TunedConv, TunedCoop};
 
 /// Every tile the template builds for a `kernel`×`kernel` conv summing in
 /// `arith`: 8, 16 or 32 pixels wide, 1 to 16 rows, one quad's staging
