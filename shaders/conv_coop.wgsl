@@ -43,6 +43,9 @@ const IN_W: u32 = 16u + K - 1u;
 const IN_H: u32 = ROWS * SG_ROWS + K - 1u;
 // One chunk's staged tile.
 const STAGE: u32 = IN_H * IN_W * 16u;
+const PREFETCH: bool = {{PREFETCH}};
+// Each invocation's share of a stage.
+const PER_THREAD: u32 = (CHUNKS * STAGE + THREADS - 1u) / THREADS;
 const TRANSPOSED: bool = {{TRANSPOSED}};
 const RELU: bool = {{RELU}};
 const RESIDUAL: bool = {{RESIDUAL}};
@@ -66,28 +69,37 @@ fn main(
     // output columns.
     let row0 = (sg / SG_COLS) * ROWS;
     let blk0 = (wg.z * SG_COLS + sg % SG_COLS) * BLOCKS;
-    let plane = p.width * p.height;
     let chunks = (p.cin + 15u) / 16u;
 {{ACC_DECL}}
 
+    // With PREFETCH each invocation holds its share of the next stage in
+    // registers, loaded before the current stage's products and stored
+    // after them: the loads' latency hides behind the tensor cores.
+    var pre: array<f16, PER_THREAD>;
+    if (PREFETCH) {
+        for (var j = 0u; j < PER_THREAD; j++) {
+            pre[j] = staged(0u, li + j * THREADS, x0, y0);
+        }
+    }
     for (var first = 0u; first < chunks; first += CHUNKS) {
-        // Pixels innermost in the loop, so neighbouring invocations read
-        // neighbouring pixels of one plane; channels past the layer (of a
-        // chunk past its last, too) are zero.
-        for (var i = li; i < CHUNKS * STAGE; i += THREADS) {
-            let s = i / STAGE;
-            let ci = (i % STAGE) / (IN_H * IN_W);
-            let pix = i % (IN_H * IN_W);
-            let gx = i32(x0 + pix % IN_W) - i32(R);
-            let gy = i32(y0 + pix / IN_W) - i32(R);
-            let c = (first + s) * 16u + ci;
-            var v = f16(0.0);
-            if (c < p.cin && gx >= 0 && gx < i32(p.width) && gy >= 0 && gy < i32(p.height)) {
-                v = f16(src[p.in_offset + c * plane + u32(gy) * p.width + u32(gx)]);
+        if (PREFETCH) {
+            for (var j = 0u; j < PER_THREAD; j++) {
+                let i = li + j * THREADS;
+                if (i < CHUNKS * STAGE) {
+                    a_tile[tile_index(i)] = pre[j];
+                }
             }
-            a_tile[s * STAGE + pix * 16u + ci] = v;
+        } else {
+            for (var i = li; i < CHUNKS * STAGE; i += THREADS) {
+                a_tile[tile_index(i)] = staged(first, i, x0, y0);
+            }
         }
         workgroupBarrier();
+        if (PREFETCH && first + CHUNKS < chunks) {
+            for (var j = 0u; j < PER_THREAD; j++) {
+                pre[j] = staged(first + CHUNKS, li + j * THREADS, x0, y0);
+            }
+        }
         // The same products in the same order as one chunk a stage: chunk
         // by chunk, tap by tap. (The stage's chunks past the layer bound
         // the loop rather than a branch: naga takes a loop's bound, not an
@@ -105,6 +117,32 @@ fn main(
     }
 
 {{STORES}}
+}
+
+// Value `i` of the stage whose first chunk is `first` (the workgroup's
+// tile at `x0`, `y0`): pixels innermost, so that neighbouring invocations
+// read neighbouring pixels of one plane; zero outside the layer, in
+// channels past it (of a chunk past its last, too) and past the stage.
+fn staged(first: u32, i: u32, x0: u32, y0: u32) -> f16 {
+    let s = i / STAGE;
+    let ci = (i % STAGE) / (IN_H * IN_W);
+    let pix = i % (IN_H * IN_W);
+    let gx = i32(x0 + pix % IN_W) - i32(R);
+    let gy = i32(y0 + pix / IN_W) - i32(R);
+    let c = (first + s) * 16u + ci;
+    var v = f16(0.0);
+    if (i < CHUNKS * STAGE && c < p.cin && gx >= 0 && gx < i32(p.width) && gy >= 0 && gy < i32(p.height)) {
+        v = f16(src[p.in_offset + c * p.width * p.height + u32(gy) * p.width + u32(gx)]);
+    }
+    return v;
+}
+
+// Where value `i` of a stage lies in `a_tile`: channels innermost.
+fn tile_index(i: u32) -> u32 {
+    let s = i / STAGE;
+    let ci = (i % STAGE) / (IN_H * IN_W);
+    let pix = i % (IN_H * IN_W);
+    return s * STAGE + pix * 16u + ci;
 }
 
 // Accumulator `row` of this subgroup out through workgroup memory, each

@@ -247,6 +247,7 @@ impl KernelKey {
                     ("SG_ROWS", tile.sg_rows.to_string()),
                     ("SG_COLS", tile.sg_cols.to_string()),
                     ("CHUNKS", tile.chunks.to_string()),
+                    ("PREFETCH", tile.prefetch.to_string()),
                     ("TRANSPOSED", transposed.to_string()),
                     ("RELU", relu.to_string()),
                     ("RESIDUAL", residual.to_string()),
@@ -391,7 +392,7 @@ mod tests {
     fn coop_keys() -> Vec<KernelKey> {
         let mut keys = Vec::new();
         // The default tile, the most matrices a subgroup and the most
-        // subgroups a workgroup hold, and the largest K-slice.
+        // subgroups a workgroup hold, the largest K-slice, and a prefetch.
         let tiles = [
             coop::CoopTile::DEFAULT,
             coop::CoopTile {
@@ -400,8 +401,13 @@ mod tests {
                 sg_rows: 2,
                 sg_cols: 4,
                 chunks: 1,
+                prefetch: false,
             },
             coop::CoopTile::DEFAULT.with_chunks(coop::MAX_CHUNKS),
+            coop::CoopTile::DEFAULT
+                .with_chunks(2)
+                .prefetched(3, 32)
+                .expect("prefetched"),
         ];
         for (subgroup_size, tile) in [32, 64].into_iter().flat_map(|s| tiles.map(|t| (s, t))) {
             for (kernel, relu, residual, clamp, transposed) in [

@@ -46,24 +46,57 @@ fn model(
                 let (x0, y0) = (gx * 16, gy * pixel_rows);
                 // acc[sg][row][block][pixel][column]
                 let mut acc = vec![[[0f32; 16]; 16]; sgs * rows * blocks];
+                // Value `i` of the stage at chunk `first`, as `staged`.
+                let stage = in_h * in_w * 16;
+                let staged = |first: usize, i: usize| -> f32 {
+                    let (s, ci, pix) = (i / stage, (i % stage) / (in_h * in_w), i % (in_h * in_w));
+                    let gxx = (x0 + pix % in_w) as isize - r;
+                    let gyy = (y0 + pix / in_w) as isize - r;
+                    let c = (first + s) * 16 + ci;
+                    if i < slice * stage
+                        && c < cin
+                        && gxx >= 0
+                        && (gxx as usize) < w
+                        && gyy >= 0
+                        && (gyy as usize) < h
+                    {
+                        input[c * plane + gyy as usize * w + gxx as usize]
+                    } else {
+                        0.0
+                    }
+                };
+                let tile_index = |i: usize| {
+                    let (s, ci, pix) = (i / stage, (i % stage) / (in_h * in_w), i % (in_h * in_w));
+                    s * stage + pix * 16 + ci
+                };
+                // The prefetch registers: [invocation][value], loaded for
+                // the next stage while the current one is multiplied.
+                let threads = sgs * SUBGROUP;
+                let per = (slice * stage).div_ceil(threads);
+                let load = |first: usize| -> Vec<Vec<f32>> {
+                    (0..threads)
+                        .map(|li| (0..per).map(|j| staged(first, li + j * threads)).collect())
+                        .collect()
+                };
+                let mut pre = if tile.prefetch { load(0) } else { Vec::new() };
                 for first in (0..chunks).step_by(slice) {
-                    let stage = in_h * in_w * 16;
                     let mut a_tile = vec![0f32; slice * stage];
-                    for i in 0..slice * stage {
-                        let (s, ci, pix) =
-                            (i / stage, (i % stage) / (in_h * in_w), i % (in_h * in_w));
-                        let gxx = (x0 + pix % in_w) as isize - r;
-                        let gyy = (y0 + pix / in_w) as isize - r;
-                        let c = (first + s) * 16 + ci;
-                        if c < cin
-                            && gxx >= 0
-                            && (gxx as usize) < w
-                            && gyy >= 0
-                            && (gyy as usize) < h
-                        {
-                            a_tile[s * stage + pix * 16 + ci] =
-                                input[c * plane + gyy as usize * w + gxx as usize];
+                    if tile.prefetch {
+                        for (li, regs) in pre.iter().enumerate() {
+                            for (j, v) in regs.iter().enumerate() {
+                                let i = li + j * threads;
+                                if i < slice * stage {
+                                    a_tile[tile_index(i)] = *v;
+                                }
+                            }
                         }
+                    } else {
+                        for i in 0..slice * stage {
+                            a_tile[tile_index(i)] = staged(first, i);
+                        }
+                    }
+                    if tile.prefetch && first + slice < chunks {
+                        pre = load(first + slice);
                     }
                     for (chunk, abase) in
                         (first..chunks.min(first + slice)).zip((0..).step_by(stage))
@@ -131,7 +164,8 @@ fn model(
 
 /// The tiles to hold to the CPU twin for a layer of `cin` input channels:
 /// the default, the heuristics', every candidate the tuner would time on
-/// the largest adapter a table allows, and each one's K-slices.
+/// the largest adapter a table allows, each one's K-slices, and each of
+/// those prefetched where it can be.
 fn tiles_for(columns: usize, h: usize, k: usize, cin: usize) -> Vec<CoopTile> {
     let largest = CoopLimits {
         workgroup_bytes: super::codegen::coop::MAX_TABLE_WORKGROUP_BYTES,
@@ -148,8 +182,13 @@ fn tiles_for(columns: usize, h: usize, k: usize, cin: usize) -> Vec<CoopTile> {
         .flat_map(|t| t.slices(cin, k, 32, &largest))
         .collect();
     tiles.extend(slices);
+    let prefetched: Vec<CoopTile> = tiles.iter().filter_map(|t| t.prefetched(k, 32)).collect();
+    tiles.extend(prefetched);
     tiles
 }
+
+/// The subgroup size the model's invocations are counted in.
+const SUBGROUP: usize = 32;
 
 fn max_abs_diff(a: &[f32], b: &[f32]) -> f32 {
     assert_eq!(a.len(), b.len());

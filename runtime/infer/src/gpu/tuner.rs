@@ -88,33 +88,36 @@ fn best_per_shape<S: Copy + PartialEq, T: Copy + Eq + Hash>(
         .collect()
 }
 
-/// A round of K-slices: each cooperative layer at its shape's fastest
-/// tile (`best`) with `chunks` chunks a stage, where the layer takes that
-/// slice (layer → tile); each such tile joins its layer's `candidates`.
-fn slice_round(
+/// A round of variants: each cooperative layer at `variant` of its
+/// shape's fastest tile (`best`), where the layer takes one (layer →
+/// tile); each such tile joins its layer's `candidates`.
+fn variant_round(
     layers: &[LayerCoopTile],
     candidates: &mut [Vec<CoopTile>],
     best: &[Best<CoopShape, CoopTile>],
-    chunks: u32,
-    limits: &CoopLimits,
+    variant: impl Fn(&LayerCoopTile, CoopTile) -> Option<CoopTile>,
 ) -> HashMap<usize, CoopTile> {
     let mut forced = HashMap::new();
     for (l, c) in layers.iter().zip(candidates.iter_mut()) {
         let Some(b) = best.iter().find(|b| b.0 == l.shape) else {
             continue;
         };
-        let slice = b.3.with_chunks(chunks);
-        if b.3
-            .slices(l.shape.cin, l.shape.kernel, l.subgroup_size, limits)
-            .contains(&slice)
-        {
-            forced.insert(l.layer, slice);
-            if !c.contains(&slice) {
-                c.push(slice);
+        if let Some(t) = variant(l, b.3) {
+            forced.insert(l.layer, t);
+            if !c.contains(&t) {
+                c.push(t);
             }
         }
     }
     forced
+}
+
+/// The K-slice of `chunks` of a layer's tile, if the layer takes it.
+fn slice(l: &LayerCoopTile, tile: CoopTile, chunks: u32, limits: &CoopLimits) -> Option<CoopTile> {
+    let s = tile.with_chunks(chunks);
+    tile.slices(l.shape.cin, l.shape.kernel, l.subgroup_size, limits)
+        .contains(&s)
+        .then_some(s)
 }
 
 impl GpuBackend {
@@ -221,6 +224,7 @@ impl GpuBackend {
                 sg_rows: tile.sg_rows,
                 sg_cols: tile.sg_cols,
                 chunks: tile.chunks,
+                prefetch: tile.prefetch,
                 tuned_ns,
                 heuristic_ns,
             })
@@ -314,12 +318,13 @@ impl GpuBackend {
             .collect())
     }
 
-    /// The cooperative layers' tiles timed in two rounds: every candidate
-    /// at one chunk a stage, then each shape's fastest of those with the
+    /// The cooperative layers' tiles timed in rounds: every candidate at
+    /// one chunk a stage; then each shape's fastest of those with the
     /// K-slices it takes (2 and 4 chunks a stage, one frame each, every
-    /// layer at its shape's slice), which join the layers' `candidates`.
-    /// A slice only stages more channels between two barriers, so it is
-    /// timed on the tile already best at one chunk, not on every tile.
+    /// layer at its shape's slice); then the fastest so far with its next
+    /// stage prefetched (one frame). Each joins the layers' `candidates`.
+    /// A slice or a prefetch only changes how the input is staged, so it
+    /// is timed on the tile already best, not on every tile.
     fn time_coop(
         &mut self,
         frame: &Image,
@@ -332,12 +337,24 @@ impl GpuBackend {
         let (mut times, mut timed) =
             self.time_tiles(frame, repeat, &keyed, candidates, Self::force_coop_tiles)?;
         let best = best_per_shape(&keyed, candidates, &times)?;
+        let mut rounds = Vec::new();
         for chunks in [2, 4] {
-            let forced = slice_round(layers, candidates, &best, chunks, limits);
-            if !forced.is_empty() {
-                times.extend(self.time_forced(frame, repeat, forced, Self::force_coop_tiles)?);
-                timed += 1;
-            }
+            rounds.push(variant_round(layers, candidates, &best, |l, t| {
+                slice(l, t, chunks, limits)
+            }));
+        }
+        for forced in rounds.into_iter().filter(|f| !f.is_empty()) {
+            times.extend(self.time_forced(frame, repeat, forced, Self::force_coop_tiles)?);
+            timed += 1;
+        }
+        // Then the fastest so far with its next stage prefetched.
+        let best = best_per_shape(&keyed, candidates, &times)?;
+        let forced = variant_round(layers, candidates, &best, |l, t| {
+            t.prefetched(l.shape.kernel, l.subgroup_size)
+        });
+        if !forced.is_empty() {
+            times.extend(self.time_forced(frame, repeat, forced, Self::force_coop_tiles)?);
+            timed += 1;
         }
         Ok((times, timed))
     }
@@ -371,7 +388,7 @@ mod tests {
     }
 
     #[test]
-    fn k_slices_are_timed_on_each_shapes_fastest_tile_and_join_its_candidates() {
+    fn slices_and_prefetch_are_timed_on_each_shapes_fastest_tile_and_join_its_candidates() {
         let limits = CoopLimits {
             workgroup_bytes: 49152,
             invocations: 1024,
@@ -396,7 +413,9 @@ mod tests {
         }
         let best = best_per_shape(&keyed, &candidates, &times).expect("best");
         for chunks in [2, 4] {
-            let forced = slice_round(&layers, &mut candidates, &best, chunks, &limits);
+            let forced = variant_round(&layers, &mut candidates, &best, |l, t| {
+                slice(l, t, chunks, &limits)
+            });
             let slice = fastest.with_chunks(chunks);
             assert_eq!(forced.get(&3), Some(&slice));
             assert_eq!(forced.get(&7), Some(&slice));
@@ -413,5 +432,17 @@ mod tests {
         let best = best_per_shape(&keyed, &candidates, &times).expect("best");
         assert_eq!(best[0].3, fastest.with_chunks(4));
         assert_eq!(best[0].4, 15);
+        // The prefetch round on that: every layer whose registers allow.
+        let forced = variant_round(&layers, &mut candidates, &best, |l, t| {
+            t.prefetched(l.shape.kernel, l.subgroup_size)
+        });
+        for (l, f) in &forced {
+            assert!(
+                f.prefetch && candidates.iter().any(|c| c.contains(f)),
+                "{l}: {f:?}"
+            );
+        }
+        assert_eq!(forced.get(&9), best[1].3.prefetched(3, 32).as_ref());
+        assert!(forced.contains_key(&9));
     }
 }

@@ -470,6 +470,7 @@ mod tests {
                 sg_rows: 2,
                 sg_cols: 2,
                 chunks: 2,
+                prefetch: true,
                 tuned_ns: 2000,
                 heuristic_ns: 2500,
             }],
@@ -535,18 +536,24 @@ mod tests {
     }
 
     #[test]
-    fn a_table_from_before_the_k_slices_reads_as_one_chunk_a_stage() {
+    fn a_table_from_before_the_k_slices_reads_as_one_chunk_a_stage_unprefetched() {
         let dir = tempfile::tempdir().expect("tempdir");
         let path = table().save(dir.path()).expect("saves");
         let text = std::fs::read_to_string(&path).expect("reads");
         assert!(text.contains("chunks = 2\n"), "{text}");
-        std::fs::write(&path, text.replace("chunks = 2\n", "")).expect("writes");
+        let old = text
+            .replace("chunks = 2\n", "")
+            .replace("prefetch = true\n", "");
+        std::fs::write(&path, old).expect("writes");
         let (_, t) = TuningTable::find(dir.path(), &key())
             .expect("reads")
             .expect("found");
         assert_eq!(
             t.coop_tile_for(&coop_shape()),
-            Some(table().coops[0].tile().with_chunks(1))
+            Some(CoopTile {
+                prefetch: false,
+                ..table().coops[0].tile().with_chunks(1)
+            })
         );
     }
 

@@ -17,6 +17,9 @@ pub const MAX_SUBGROUPS: u32 = 8;
 pub const MAX_PIXEL_ROWS: u32 = 16;
 /// The most 16-channel chunks staged at once (a K-slice of 64 channels).
 pub const MAX_CHUNKS: u32 = 4;
+/// The most values of the next stage an invocation prefetches into
+/// registers (f16s: 16 32-bit registers at most, beside the accumulators).
+pub const MAX_PREFETCH: u32 = 32;
 /// The most workgroup memory a tile may ask for in a tuning table: what
 /// the largest desktop adapters offer (AMD's 64 KiB; NVIDIA's Vulkan
 /// drivers 48 KiB). Whether a tile fits the adapter at hand is
@@ -35,7 +38,9 @@ pub const MAX_TABLE_WORKGROUP_BYTES: u32 = 65536;
 /// and has more loads in flight at once, for that many times the staging
 /// memory. Every output is the same sum of the same products in the same
 /// order whatever the tile: a tile changes the speed, never a bit of the
-/// output.
+/// output. With `prefetch` each invocation loads its share of the next
+/// stage into registers before the current stage's products and stores it
+/// after them (double buffering through registers).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
 pub struct CoopTile {
     pub rows: u32,
@@ -43,6 +48,7 @@ pub struct CoopTile {
     pub sg_rows: u32,
     pub sg_cols: u32,
     pub chunks: u32,
+    pub prefetch: bool,
 }
 
 impl CoopTile {
@@ -55,6 +61,7 @@ impl CoopTile {
         sg_rows: 1,
         sg_cols: 4,
         chunks: 1,
+        prefetch: false,
     };
 
     /// The heuristics' tile for a layer of `columns` GEMM columns (output
@@ -72,6 +79,7 @@ impl CoopTile {
             sg_rows: 4 / sg_cols,
             sg_cols,
             chunks: 1,
+            prefetch: false,
         }
     }
 
@@ -133,6 +141,24 @@ impl CoopTile {
         CoopTile { chunks, ..self }
     }
 
+    /// Values of a stage each invocation stages (and with `prefetch`
+    /// holds in registers) for subgroups of `subgroup_size`.
+    pub fn staged_per_invocation(&self, kernel: usize, subgroup_size: u32) -> u32 {
+        let k = kernel as u32;
+        let stage = self.chunks * (self.pixel_rows() + k - 1) * (SIZE + k - 1) * 16;
+        stage.div_ceil(self.subgroups() * subgroup_size)
+    }
+
+    /// This tile with its next stage prefetched through registers, where
+    /// the registers it takes are at most [`MAX_PREFETCH`] f16s an
+    /// invocation (more would spill them to memory).
+    pub fn prefetched(self, kernel: usize, subgroup_size: u32) -> Option<Self> {
+        (self.staged_per_invocation(kernel, subgroup_size) <= MAX_PREFETCH).then_some(CoopTile {
+            prefetch: true,
+            ..self
+        })
+    }
+
     /// The tiles worth timing for a layer of `columns` GEMM columns and
     /// `height` rows, one chunk a stage: 2 to 8 rows and 1 or 2 blocks a
     /// subgroup, 4 or 8 subgroups, no block of columns wholly past the
@@ -166,6 +192,7 @@ impl CoopTile {
                         sg_rows,
                         sg_cols,
                         chunks: 1,
+                        prefetch: false,
                     };
                     if t.fits(kernel, subgroup_size, limits)
                         && t.column_blocks() <= max_blocks
@@ -437,6 +464,7 @@ mod tests {
             sg_rows: 2,
             sg_cols: 4,
             chunks: 1,
+            prefetch: false,
         };
         assert!(!small.contains(&tall) && large.contains(&tall), "{large:?}");
         assert!(tall.fits(3, 32, &nvidia) && !tall.fits(3, 32, &portable));
@@ -455,6 +483,17 @@ mod tests {
         assert_eq!(d.slices(64, 3, 32, &portable), vec![d.with_chunks(2)]);
         assert!(!d.with_chunks(3).is_valid(3) && !d.with_chunks(8).is_valid(3));
         assert!(!d.with_chunks(0).is_valid(3));
+        // Prefetch: the default's 6 × 18 × 16 staged values over 128
+        // invocations are 14 each; 4 chunks of it 54, over the registers.
+        assert_eq!(d.staged_per_invocation(3, 32), 14);
+        assert_eq!(d.with_chunks(4).staged_per_invocation(3, 32), 54);
+        assert_eq!(d.prefetched(3, 32).map(|t| t.prefetch), Some(true));
+        assert_eq!(d.with_chunks(4).prefetched(3, 32), None);
+        assert!(
+            CoopTile::candidates(64, 1080, 3, 32, &nvidia)
+                .iter()
+                .all(|t| !t.prefetch)
+        );
     }
 
     #[test]

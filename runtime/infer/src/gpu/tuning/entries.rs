@@ -128,6 +128,10 @@ pub struct TunedCoop {
     /// written before it was tuned.
     #[serde(default = "one_chunk")]
     pub chunks: u32,
+    /// The next stage prefetched through registers; false in tables
+    /// written before it was tuned.
+    #[serde(default)]
+    pub prefetch: bool,
     /// As [`TunedConv`]'s.
     pub tuned_ns: u64,
     pub heuristic_ns: u64,
@@ -141,6 +145,7 @@ impl TunedCoop {
             sg_rows: self.sg_rows,
             sg_cols: self.sg_cols,
             chunks: self.chunks,
+            prefetch: self.prefetch,
         }
     }
 }
