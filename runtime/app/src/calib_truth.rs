@@ -47,7 +47,7 @@ pub fn true_psfs(
         common.doe_path_for(&[Method::DoeOnly]).as_deref(),
         common.cache(),
     )?;
-    let doe = p.doe(&design_sim.doe);
+    let doe = p.doe(&design_sim.doe, design.doe_wave_height_m());
     crate::calib_psfs::check_zones(zones)?;
     let (nx, ny) = zones;
     let (w, h) = (design.panel.width_px, design.panel.height_px);

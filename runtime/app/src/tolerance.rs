@@ -265,8 +265,12 @@ pub fn run(
     }
     let mut rows = Vec::new();
     for (name, value, p) in &builds {
-        let built = Simulator::with_doe(p.calibration(&calib), p.doe(&design.doe), common.cache())
-            .with_wiener_stages(stages.clone());
+        let built = Simulator::with_doe(
+            p.calibration(&calib),
+            p.doe(&design.doe, design.calib.doe_wave_height_m()),
+            common.cache(),
+        )
+        .with_wiener_stages(stages.clone());
         let seen = built.prepare(&methods, &depths, common.progress())?;
         for &m in &methods {
             let shown = &designed[&m];

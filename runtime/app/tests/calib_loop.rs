@@ -67,7 +67,7 @@ fn oracle_gains() {
     for p in cases() {
         let built = Simulator::with_doe(
             p.1.calibration(&design.calib),
-            p.1.doe(&design.doe),
+            p.1.doe(&design.doe, design.calib.doe_wave_height_m()),
             common.cache(),
         );
         for step in [0.5, 0.25] {
@@ -191,7 +191,7 @@ fn recovered_psfs_keep_the_oracles_gain() {
         }
         let built = Simulator::with_doe(
             p.calibration(&design.calib),
-            p.doe(&design.doe),
+            p.doe(&design.doe, design.calib.doe_wave_height_m()),
             common.cache(),
         );
         let s = calib_loop::scores(

@@ -215,13 +215,18 @@ impl Perturbation {
         }
     }
 
-    /// The fabricated DOE: the design's profile quantised to `levels` (a
-    /// height of a whole wave is none), etched `etch_scale` deep, and
+    /// The fabricated DOE: the design's profile quantised to `levels` per
+    /// wave (`wave_height_m`, the height of one wave at the design
+    /// wavelength: the profile is first wrapped to one wave, which changes
+    /// nothing at that wavelength, then rounded to `levels` equal steps of
+    /// it, a whole wave being none: a multilevel element one wave deep, as
+    /// it is fabricated, whatever the depth the design's optimiser was
+    /// allowed), etched `etch_scale` deep, and
     /// shifted by the decentre (flat substrate, height 0, where the shifted
     /// map leaves the aperture uncovered). A radial profile stays radial
     /// (its PSFs come from the Hankel transform, a small fraction of a 2-D
     /// map's time and memory) unless decentred, when it becomes a map.
-    pub fn doe(&self, design: &HeightMap) -> HeightMap {
+    pub fn doe(&self, design: &HeightMap, wave_height_m: f64) -> HeightMap {
         let decentred = self.decentre_mm != [0.0; 2];
         let mut map = if design.profile == Profile::Radial && decentred {
             let grid = design.grid();
@@ -235,13 +240,16 @@ impl Perturbation {
             design.clone()
         };
         if self.levels >= 2 {
-            let step = map.max_height_m / self.levels as f64;
+            let step = wave_height_m / self.levels as f64;
             let levels = self.levels as f64;
             map.height_m.iter_mut().for_each(|h| {
-                let q = (*h / step).round();
+                let q = (h.rem_euclid(wave_height_m) / step).round();
                 *h = if q >= levels { 0.0 } else { q * step };
             });
             map.levels = self.levels;
+            // The format's levels run from 0 to the depth inclusive
+            // (docs/doe-format.md): the top one is a step short of a wave.
+            map.max_height_m = wave_height_m * (levels - 1.0) / levels;
         }
         if self.etch_scale != 1.0 {
             map.height_m.iter_mut().for_each(|h| *h *= self.etch_scale);
@@ -341,7 +349,7 @@ mod tests {
             etch_scale: 1.05,
             ..Default::default()
         }
-        .doe(&radial);
+        .doe(&radial, radial.max_height_m);
         assert_eq!((built.profile, built.samples), (Profile::Radial, 50));
         let step = radial.max_height_m / 4.0 * 1.05;
         for h in &built.height_m {
@@ -352,8 +360,42 @@ mod tests {
             decentre_mm: [0.01, 0.0],
             ..Default::default()
         }
-        .doe(&radial);
+        .doe(&radial, radial.max_height_m);
         assert_eq!(moved.profile, Profile::Map);
+    }
+
+    #[test]
+    fn levels_are_steps_of_one_wave_whatever_depth_the_design_was_allowed() {
+        // The shipped companion DOE: a profile 1.24 waves deep in an element
+        // allowed 3 µm (2.6 waves). Its 8 levels are eighths of a wave, not
+        // of 3 µm, and heights a whole wave apart are the same level.
+        let (c, m) = design();
+        let wave = c.doe_wave_height_m();
+        let deep = HeightMap {
+            profile: Profile::Radial,
+            samples: 6,
+            height_m: [0.0, 0.3, 0.6, 1.0, 1.1, 1.24].map(|w| w * wave).to_vec(),
+            max_height_m: 2.6 * wave,
+            ..m
+        };
+        let built = Perturbation {
+            levels: 8,
+            ..Default::default()
+        }
+        .doe(&deep, wave);
+        let eighths: Vec<f64> = built.height_m.iter().map(|h| h / wave * 8.0).collect();
+        let want = [0.0, 2.0, 5.0, 0.0, 1.0, 2.0];
+        for (got, want) in eighths.iter().zip(want) {
+            assert!((got - want).abs() < 1e-9, "{eighths:?}");
+        }
+        assert_eq!(built.levels, 8);
+        assert!((built.max_height_m - 7.0 / 8.0 * wave).abs() < 1e-18);
+        // At the design wavelength the phase of each sample moves by at
+        // most half a step.
+        for (a, b) in deep.height_m.iter().zip(&built.height_m) {
+            let d = ((a - b) / wave).rem_euclid(1.0);
+            assert!(d.min(1.0 - d) <= 0.5 / 8.0 + 1e-12, "{a} → {b}");
+        }
     }
 
     #[test]
@@ -361,7 +403,7 @@ mod tests {
         let (c, m) = design();
         let p = Perturbation::default();
         assert!(p.check().is_ok());
-        assert_eq!(p.doe(&m).height_m, m.height_m);
+        assert_eq!(p.doe(&m, c.doe_wave_height_m()).height_m, m.height_m);
         assert_eq!(p.calibration(&c), c);
     }
 
@@ -373,19 +415,20 @@ mod tests {
             etch_scale: 1.1,
             ..Default::default()
         };
-        let built = p.doe(&m);
+        let built = p.doe(&m, c.doe_wave_height_m());
         let step = m.max_height_m / 4.0 * 1.1;
         for h in &built.height_m {
             let q = h / step;
             assert!((q - q.round()).abs() < 1e-9 && q.round() < 4.0, "{h}");
         }
-        assert!((built.max_height_m - 1.1 * m.max_height_m).abs() < 1e-15);
+        // 4 levels from 0 to ¾ of a wave, etched 1.1 deep.
+        assert!((built.max_height_m - 1.1 * 0.75 * m.max_height_m).abs() < 1e-15);
         // A decentre of whole samples moves the map by as many samples.
         let shift = Perturbation {
             decentre_mm: [3.0 * m.pitch_m * 1e3, 0.0],
             ..Default::default()
         }
-        .doe(&m);
+        .doe(&m, c.doe_wave_height_m());
         let n = m.samples;
         let mid = n / 2;
         for j in 3..n {
