@@ -23,7 +23,7 @@ pub struct TuneResult {
     /// without cooperative matrices).
     pub coops: Vec<TunedCoop>,
     /// Frames of tiles timed: each tile once, for every layer it fits,
-    /// and each round of K-slices once.
+    /// and each round of variants (K-slices, prefetch) once.
     pub tiles_timed: usize,
 }
 
