@@ -101,9 +101,14 @@ impl CoopTile {
     /// pixel, one per chunk of the K-slice) and one 16×16 f32 matrix per
     /// subgroup for the epilogue.
     pub fn workgroup_bytes(&self, kernel: usize) -> u32 {
+        self.stage_values(kernel) * 2 + self.subgroups() * 256 * 4
+    }
+
+    /// f16 values of one stage: the K-slice's input tiles, each
+    /// `pixel_rows` + K − 1 rows of 16 + K − 1 pixels, 16 channels.
+    fn stage_values(&self, kernel: usize) -> u32 {
         let k = kernel as u32;
-        self.chunks * (self.pixel_rows() + k - 1) * (SIZE + k - 1) * 16 * 2
-            + self.subgroups() * 256 * 4
+        self.chunks * (self.pixel_rows() + k - 1) * (SIZE + k - 1) * 16
     }
 
     /// Whether the template builds this tile for a `kernel`×`kernel` conv:
@@ -144,9 +149,8 @@ impl CoopTile {
     /// Values of a stage each invocation stages (and with `prefetch`
     /// holds in registers) for subgroups of `subgroup_size`.
     pub fn staged_per_invocation(&self, kernel: usize, subgroup_size: u32) -> u32 {
-        let k = kernel as u32;
-        let stage = self.chunks * (self.pixel_rows() + k - 1) * (SIZE + k - 1) * 16;
-        stage.div_ceil(self.subgroups() * subgroup_size)
+        self.stage_values(kernel)
+            .div_ceil(self.subgroups() * subgroup_size)
     }
 
     /// This tile with its next stage prefetched through registers, where
