@@ -303,6 +303,41 @@ def test_the_timelines_give_each_case_s_stage_holds_and_bounds(tmp_path, capsys)
     assert "no case's timelines have every column" in capsys.readouterr().err
 
 
+def test_the_stage_s_own_time_splits_into_record_device_and_fence(tmp_path, capsys):
+    # 30 frames, each preprocess stage 9 ms of which 1 ms held: 8 ms own,
+    # 1.5 ms recorded, 5.5 ms on the device of which 4 ms its stages; the
+    # rest, 1 ms, the submission's and the fence's latency.
+    n = 30
+    frames = {"id": list(range(n)), "outcome": ["shown"] * n, "held_ms": [1.0] * n,
+              "submitted_ms": [11.0 * i for i in range(n)], "predicted_ms": [11.0 * i + 20 for i in range(n)],
+              "stages_ms": [[[11.0 * i, 11.0 * i + 1], [11.0 * i + 1, 11.0 * i + 10], [0, 0]] for i in range(n)],
+              "ready_ms": [11.0 * i + 10 for i in range(n)], "taken_ms": [11.0 * i + 12 for i in range(n)],
+              "shown_ms": [11.0 * i + 20 for i in range(n)], "replaced_ms": [None] * n,
+              "gpu_ms": [4.0] * n, "record_ms": [1.5] * n, "frame_gpu_ms": [5.5] * n}
+    log = {"kind": "frame_log", "network": "model", "views": 1, "precision": "f16", "frames": frames,
+           "refreshes": {}}
+    # No network: no stage on the device, the whole submission its overhead.
+    none = {**log, "network": "none", "frames": {**frames, "gpu_ms": [None] * n}}
+    rows = timelines.overhead([log, none])
+    assert rows[2] == "| model 1 f16 | 8.00 | 4.00 | 1.50 | 1.50 | 1.00 | 10 |"
+    assert rows[3] == "| none 1 f16 | 8.00 | 0.00 | 1.50 | 5.50 | 1.00 | 10 |"
+    # A log from before the whole submission was timed is left out.
+    old = {**log, "frames": {k: v for k, v in frames.items() if k != "frame_gpu_ms"}}
+    assert timelines.overhead([old]) == []
+    # A short case (the smoke's): no frame after the 20th, every figure "–".
+    short = {**log, "frames": {k: v[:20] for k, v in frames.items()}}
+    assert timelines.overhead([short])[2] == "| model 1 f16 | – | – | – | – | – | 0 |"
+    summary = tmp_path / "summary.json"
+    summary.write_text(json.dumps({"steps": [{"name": "pipeline", "records": [log]}]}))
+    assert timelines.main(["timelines.py", str(summary)]) == 0
+    assert rows[2] in capsys.readouterr().out
+    steps = steps_of_a_run()
+    steps["pipeline"].records += [log]
+    steps["pipeline"].text = "| network |"
+    md = check_report.report(steps, {"mode": "device", "date": "today", "commit": "abc", "device": "GPU"})
+    assert "Where the preprocess stage's own time goes beyond its stages (GPU, commit abc" in md and rows[2] in md
+
+
 def test_a_bad_only_or_call_is_refused(capsys):
     assert check.main(["--only", "setup,warp"]) == 2
     assert "no step warp" in capsys.readouterr().err

@@ -162,16 +162,18 @@ mod needs_gpu {
                 assert_eq!(n(&dcnn, "uploads"), frames, "{r}");
                 assert_eq!(n(&dcnn, "to_device_bytes"), frames * rgba8, "{r}");
                 // Only the 4-byte non-finite count and, where the adapter
-                // has timestamps (lavapipe has), the network's 16 bytes of
-                // them come back, with the fence the stage waits on anyway:
-                // no read-back.
-                let gpu_rows = r["stages"]
-                    .as_array()
-                    .expect("stages")
-                    .iter()
-                    .filter(|s| s["stage"] == "preprocess-gpu" && s["count"].as_u64() > Some(0))
-                    .count();
-                let stamps = if gpu_rows > 0 { 16 } else { 0 };
+                // has timestamps (lavapipe has), 16 bytes of them for the
+                // network and 16 for the whole frame come back, with the
+                // fence the stage waits on anyway: no read-back.
+                let timed = |name: &str| {
+                    r["stages"]
+                        .as_array()
+                        .expect("stages")
+                        .iter()
+                        .any(|s| s["stage"] == name && s["count"].as_u64() > Some(0))
+                };
+                let stamps = if timed("preprocess-frame-gpu") { 32 } else { 0 };
+                assert_eq!(timed("preprocess-gpu"), stamps > 0, "{r}");
                 assert_eq!(
                     (n(&dcnn, "read_backs"), n(&dcnn, "to_host_bytes")),
                     (0, (4 + stamps) * frames),

@@ -59,6 +59,11 @@ def report(steps: dict, meta: dict) -> str:
         if steady:
             md += ["", f"The steady state ({head}): each case's frames after its 20th, from the frame logs "
                    "(tools/device/timelines.py; docs/benchmarks.md says what each column is).", "", *steady]
+        split = timelines.overhead(records("pipeline", "frame_log"))
+        if split:
+            md += ["", f"Where the preprocess stage's own time goes beyond its stages ({head}; issue 56, "
+                   "item 5): the host's recording, the device's work beyond the stages (uploads' copies, "
+                   "unpacks, layers, encodes), and the submission's and the fence's latency, p50 ms.", "", *split]
     if text("openxr"):
         md += ["", f"## The OpenXR runtime ({head})", "", "The openxr crate's client through libnedrt_openxr.so "
                "into nedrt run --stereo --sink headless (docs/openxr.md): the copy-out of each view on the "

@@ -36,6 +36,11 @@ For each `frame_log` record of the pipeline step, over the frames after the
   when it is quicker than its bound); set beside the refresh, this says
   whether a case can meet issue 39's line (p50 within one refresh) once the
   estimate has settled.
+Then, where the logs have the device path's record and whole-submission
+times (since issue 56's item 5), the stage's own time split p50 into its
+stages on the device, the host's recording, the device's work beyond the
+stages (the uploads' copies, unpacks, layers, encodes) and the rest (the
+submission's and the fence's latency).
 Percentiles are the sorted values' element at p·(n − 1), rounded down."""
 
 import json
@@ -166,6 +171,40 @@ def table(logs: list) -> list:
     return rows if len(rows) > 2 else []
 
 
+# The columns overhead() reads besides NEEDS: the device path's record and
+# device times (frame_gpu_ms since issue 56's item 5).
+OVERHEAD = ("gpu_ms", "record_ms", "frame_gpu_ms")
+
+
+def overhead(logs: list) -> list:
+    """Where the preprocess stage's own time goes beyond its stages' device
+    time (issue 56, item 5), p50 over the frames after the 20th that have
+    every part, as a Markdown table: the host's recording up to the
+    submission (the uploads' copies into staging memory and the passes'
+    recording), the whole submission on the device less its stages (the
+    uploads' copies, unpacks, layers and encodes), and the rest, the
+    submission's and the fence's latency (own time less the record and the
+    whole submission)."""
+    ms = lambda v: "–" if v is None else f"{v:.2f}"
+    rows = ["| case | own p50 ms | stages on GPU | record (host) | device beyond the stages "
+            "| submission and fence | frames |",
+            "| --- | --- | --- | --- | --- | --- | --- |"]
+    for r in logs:
+        f = r.get("frames", {})
+        if not all(k in f for k in NEEDS + OVERHEAD):
+            continue
+        later = [i for i in range(SKIP, len(f["id"]))
+                 if f["record_ms"][i] is not None and f["frame_gpu_ms"][i] is not None]
+        own = {i: f["stages_ms"][i][1][1] - f["stages_ms"][i][1][0] - f["held_ms"][i] for i in later}
+        stages = {i: f["gpu_ms"][i] or 0.0 for i in later}
+        p50 = lambda g: pct([g(i) for i in later], 0.5)
+        rows.append(f"| {r['network']} {r['views']} {r['precision']} | {ms(p50(lambda i: own[i]))} | "
+                    f"{ms(p50(lambda i: stages[i]))} | {ms(p50(lambda i: f['record_ms'][i]))} | "
+                    f"{ms(p50(lambda i: f['frame_gpu_ms'][i] - stages[i]))} | "
+                    f"{ms(p50(lambda i: own[i] - f['record_ms'][i] - f['frame_gpu_ms'][i]))} | {len(later)} |")
+    return rows if len(rows) > 2 else []
+
+
 def frames(record: dict, first: int, count: int) -> list:
     """One case's frames as table rows, from the `first`-th on."""
     f, r = record["frames"], record.get("refreshes") or {}
@@ -238,6 +277,10 @@ def main(argv: list) -> int:
         print(f"timelines.py: {path}: no case's timelines have every column ({', '.join(NEEDS)})", file=sys.stderr)
         return 1
     print("\n".join(rows))
+    split = overhead(logs)
+    if split:
+        print("\nWhere the preprocess stage's own time goes beyond its stages (p50 ms):\n")
+        print("\n".join(split))
     return 0
 
 

@@ -150,15 +150,16 @@ pub fn run(
          shown on its predicted refresh, before or after it, or replaced in the present slot by a \
          newer frame; frames evicted from a queue before it have no timeline; to preprocess: \
          submission to the preprocess stage; held: waiting for a present; preprocess: its own \
-         time less the hold; of it GPU: the device's own time (timestamps); of it recorded: the \
-         host's before the submission; to ready: its end to the present slot; ready before take: the \
+         time less the hold; of it GPU: the stages' own time on the device (timestamps); of it \
+         recorded: the host's before the submission; of it frame on GPU: the whole submission on \
+         the device (uploads' copies, unpacks, layers, stages, encodes); to ready: its end to the present slot; ready before take: the \
          present loop's wake for the frame's predicted refresh less its ready time, negative \
          when it missed it; present: the take to the present's end, of the frames shown; \
          first/last s: when the first and last of them were submitted)\n\n\
          | network | frame path | frames | count | to preprocess ms | held ms | preprocess ms | \
-         of it GPU ms | of it recorded ms | to ready ms | ready before take ms | present ms | \
-         first s | last s |\n\
-         | --- | --- | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |\n",
+         of it GPU ms | of it recorded ms | of it frame on GPU ms | to ready ms | \
+         ready before take ms | present ms | first s | last s |\n\
+         | --- | --- | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |\n",
     );
     let views = if b.stereo {
         format!("two views of {eye_w}×{h} (each eye its frames and engine), ")
@@ -302,7 +303,7 @@ pub fn run(
             for r in &timeline {
                 let _ = writeln!(
                     why,
-                    "| {} | {} | {} | {} | {:.2} | {:.2} | {:.2} | {} | {} | {:.2} | {} | {} | {:.2} | {:.2} |",
+                    "| {} | {} | {} | {} | {:.2} | {:.2} | {:.2} | {} | {} | {} | {:.2} | {} | {} | {:.2} | {:.2} |",
                     network.name(),
                     path.name(),
                     r.frames,
@@ -312,6 +313,7 @@ pub fn run(
                     r.preprocess_ms,
                     ms2(r.gpu_ms),
                     ms2(r.record_ms),
+                    ms2(r.frame_gpu_ms),
                     r.to_ready_ms,
                     ms2(r.ready_before_take_ms),
                     ms2(r.present_ms),

@@ -60,11 +60,16 @@ pub struct DeviceFrames {
     views: Vec<ViewOnDevice>,
     /// Panel codes buffers; one is reused once no frame holds it.
     codes: Vec<Arc<wgpu::Buffer>>,
-    /// A timestamp pair per view around its stage, where the device has
-    /// them and a view has a stage: 16 bytes a view come back with the
-    /// fence the frame waits on anyway, as the non-finite counts do.
+    /// The uploads' staging memory, mapped and reused frame after frame.
+    belt: wgpu::util::StagingBelt,
+    /// Where the device has timestamps: a pair per view around its stage,
+    /// and one around the whole frame (its last), from before the uploads'
+    /// copies to after the last encode. Their 16 bytes a pair come back
+    /// with the fence the frame waits on anyway, as the non-finite counts
+    /// do.
     timer: Option<PassTimer>,
     last_view_ns: Vec<Option<u64>>,
+    last_frame_gpu_ns: Option<u64>,
     last_ran: Vec<bool>,
     last_blended: bool,
     /// The last frame's host time up to its submission, ns.
@@ -156,7 +161,8 @@ impl DeviceFrames {
             view.warm_up(device, v);
         }
         let n = prepared.len();
-        let staged = prepared.iter().any(|v| v.stage.is_some());
+        // One chunk holds the largest single upload, a view's f32 planes.
+        let largest = prepared.iter().map(|v| v.frame.size()).max().unwrap_or(0);
         Ok(Self {
             device: device.clone(),
             queue: queue.clone(),
@@ -166,8 +172,10 @@ impl DeviceFrames {
             unpack,
             views: prepared,
             codes: Vec::new(),
-            timer: staged.then(|| PassTimer::new(device, queue, n)).flatten(),
+            belt: wgpu::util::StagingBelt::new(device.clone(), largest),
+            timer: PassTimer::new(device, queue, n + 1),
             last_view_ns: vec![None; n],
+            last_frame_gpu_ns: None,
             last_ran: vec![false; n],
             last_blended: false,
             last_record_ns: 0,
@@ -199,12 +207,20 @@ impl DeviceFrames {
 
     /// The last frame's host time up to its submission, ns: the uploads'
     /// copies into the device's staging memory and the recording of every
-    /// pass. With [`DeviceFrames::last_view_ns`] it says where a frame's
-    /// time went that the device's own time does not show (the shipped
-    /// model's stage took 8.8 ms at p50 on the H200 less the gate's hold,
-    /// its timestamps 7.1 ms).
+    /// pass. With [`DeviceFrames::last_view_ns`] and
+    /// [`DeviceFrames::last_frame_gpu_ns`] it says where a frame's time
+    /// went that its stages' device time does not show (issue 56, item 5).
     pub fn last_record_ns(&self) -> u64 {
         self.last_record_ns
+    }
+
+    /// The last frame's whole submission on the device, ns (timestamps,
+    /// where the device has them): the uploads' copies, unpacks, layers,
+    /// stages and encodes. Less the stages' time it is the device's part
+    /// of a frame's overhead; the frame's wall time less this and the
+    /// record time is the submission's and the fence's latency.
+    pub fn last_frame_gpu_ns(&self) -> Option<u64> {
+        self.last_frame_gpu_ns
     }
 
     /// Whether each view ran its stage in the last frame (its frame changed).
@@ -336,6 +352,10 @@ impl DeviceFrames {
         // Which views were encoded into this submission (their non-finite
         // counts come back with it).
         let mut encoded = vec![false; self.views.len()];
+        let n = self.views.len();
+        if let Some(t) = &self.timer {
+            mark(&mut encoder, t.start(n));
+        }
         for (v, (f, view)) in frames.iter().zip(&mut self.views).enumerate() {
             self.last_ran[v] = false;
             // No frame for this view yet: its region stays black.
@@ -343,8 +363,10 @@ impl DeviceFrames {
                 continue;
             }
             if f.generation != view.generation {
+                // A failed frame leaves its staged bytes in the belt's
+                // active chunk; the next frame's finish closes it.
                 let (bytes, layers, blended) =
-                    view.upload(&self.queue, &self.unpack, &mut encoder, &f.content);
+                    view.upload(&mut self.belt, &self.unpack, &mut encoder, &f.content)?;
                 traffic.to_device_bytes += bytes as u64;
                 traffic.uploads += 1;
                 traffic.add(layers);
@@ -375,16 +397,22 @@ impl DeviceFrames {
             view.encoder.record(&mut encoder, shown, &codes)?;
             encoded[v] = true;
         }
+        if let Some(t) = &self.timer {
+            mark(&mut encoder, t.end(n));
+        }
         // The views whose stage recorded its work and timestamps this
-        // frame: timestamps are resolved only where one did (the frame
-        // budget's lowest level passes the frame through).
+        // frame (the frame budget's lowest level passes the frame through).
         let staged: Vec<bool> = (self.views.iter().enumerate())
             .map(|(v, view)| self.last_ran[v] && view.stage.is_some() && !view.passed)
             .collect();
-        let timer = self.timer.as_ref().filter(|_| staged.contains(&true));
+        let timer = self.timer.as_ref();
         let timer_bytes = timer.map_or(0, |t| t.resolve(&mut encoder));
+        self.belt.finish();
         let submission = self.queue.submit([encoder.finish()]);
         self.last_record_ns = started.elapsed().as_nanos() as u64;
+        // Each chunk is mapped again once the device has copied from it:
+        // within the fence wait below, ready for the next frame.
+        self.belt.recall();
         for (view, _) in self.views.iter().zip(&encoded).filter(|(_, e)| **e) {
             view.encoder.map_non_finite();
         }
@@ -403,6 +431,7 @@ impl DeviceFrames {
                 .filter(|_| staged)
                 .and_then(|s| s.get(v).copied());
         }
+        self.last_frame_gpu_ns = spans.as_ref().and_then(|s| s.get(n).copied());
         traffic.to_host_bytes += timer_bytes;
         // Every count read (and its buffer unmapped) before any is judged.
         let mut counts = Vec::new();

@@ -61,7 +61,8 @@ mod needs_gpu {
             let mut frames =
                 DeviceFrames::single(&device, &queue, (w, h), &transfer, stage).expect("frames");
             let stamps = device.features().contains(wgpu::Features::TIMESTAMP_QUERY);
-            let timed = if with_stage && stamps { 16 } else { 0 };
+            // The stage's pair and the frame's, with or without a stage.
+            let timed = if stamps { 32 } else { 0 };
             let formats = [
                 PixelFormat::Rgba8Linear,
                 PixelFormat::Rgba8Srgb,
@@ -91,15 +92,16 @@ mod needs_gpu {
                         HostTraffic {
                             to_device_bytes: up,
                             uploads: 1,
-                            // The non-finite count, and the stage's
-                            // timestamps where it has them, back with
-                            // the fence.
+                            // The non-finite count, and the timestamps
+                            // where the device has them, back with the
+                            // fence.
                             to_host_bytes: 4 + timed,
                             read_backs: 0
                         },
                         "{format:?}"
                     );
-                    assert_eq!(frames.last_view_ns()[0].is_some(), timed > 0);
+                    assert_eq!(frames.last_view_ns()[0].is_some(), with_stage && stamps);
+                    assert_eq!(frames.last_frame_gpu_ns().is_some(), stamps);
                     assert_eq!(
                         sink.present(PanelCodes::Device(&frame)).expect("shown"),
                         Presented::Shown
@@ -216,6 +218,43 @@ mod needs_gpu {
             e.contains("a 4×4 frame of 3 planes for view 0 of 8×4"),
             "{e}"
         );
+    }
+
+    /// The uploads go through staging memory kept from frame to frame: a
+    /// frame whose bytes do not fill whole words of its buffer is refused,
+    /// and the frames after it (which reuse that memory) are shown as
+    /// they came.
+    #[test]
+    #[ignore = "needs a GPU adapter (run: scripts/test.sh, or cargo test -- --include-ignored)"]
+    fn a_frame_the_staging_memory_cannot_take_is_refused_and_the_next_shown() {
+        let (device, queue) = test_device(false);
+        let (w, h) = (8usize, 4usize);
+        let transfer = Transfer::from_gamma([2.2; 3]);
+        let mut frames =
+            DeviceFrames::single(&device, &queue, (w, h), &transfer, None).expect("frames");
+        let mut short = client_frame(0, w, h, PixelFormat::Rgba8Linear);
+        short.payload.pop();
+        let e = frames
+            .run(0, &[client(1, short)])
+            .expect_err("a short payload")
+            .to_string();
+        assert!(
+            e.contains("a frame of 127 bytes for a buffer of 128"),
+            "{e}"
+        );
+        for (id, format) in [PixelFormat::Rgba8Srgb, PixelFormat::Rgb32fPlanar]
+            .into_iter()
+            .cycle()
+            .take(6)
+            .enumerate()
+        {
+            let sent = client_frame(id as u64, w, h, format);
+            frames
+                .run(id as u64, &[client(id as u64 + 2, sent.clone())])
+                .expect("runs");
+            let display = frames.read_display(0).expect("display");
+            assert!(display.data() == decode(&sent).data(), "frame {id}");
+        }
     }
 }
 

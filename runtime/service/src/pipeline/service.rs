@@ -107,8 +107,10 @@ pub(super) struct StageNotes {
     /// The device's own time for the frame's stages (timestamps; every
     /// view's summed).
     pub(super) gpu_ns: Option<u64>,
-    /// The device path's host time up to the frame's submission.
+    /// The device path's host time up to the frame's submission, and its
+    /// whole submission's time on the device (timestamps).
     pub(super) record_ns: Option<u64>,
+    pub(super) frame_gpu_ns: Option<u64>,
     /// The frame budget's level the frame ran.
     pub(super) level: Option<u8>,
 }
@@ -163,6 +165,7 @@ fn spawn_stage<I: Send + 'static, O: Send + 'static>(
                         behind_hold_ns: t.behind_hold_ns + behind_hold_ns,
                         gpu_ns: notes.gpu_ns.or(t.gpu_ns),
                         record_ns: notes.record_ns.or(t.record_ns),
+                        frame_gpu_ns: notes.frame_gpu_ns.or(t.frame_gpu_ns),
                         level: notes.level.or(t.level),
                         owner: t.owner,
                         submit_ns: t.submit_ns,

@@ -32,6 +32,11 @@ pub enum Stage {
     /// copy to the device's staging memory and the recording of the
     /// frame's passes (part of `Preprocess`).
     PreprocessRecord,
+    /// The device path's whole submission on the device (timestamps): the
+    /// uploads' copies, unpacks, layers, stages and encodes (part of
+    /// `Preprocess`; less `PreprocessGpu` it is the device's share of the
+    /// frame's overhead).
+    PreprocessFrameGpu,
     /// Device work held back until a present was submitted, so that the
     /// present does not queue behind it (`pacing::PresentGate`; part of
     /// `Preprocess`).
@@ -47,11 +52,12 @@ pub enum Stage {
 }
 
 impl Stage {
-    pub const ALL: [Stage; 9] = [
+    pub const ALL: [Stage; 10] = [
         Stage::Upload,
         Stage::Preprocess,
         Stage::PreprocessGpu,
         Stage::PreprocessRecord,
+        Stage::PreprocessFrameGpu,
         Stage::YieldToPresent,
         Stage::Encode,
         Stage::Present,
@@ -69,6 +75,7 @@ impl Stage {
             Stage::Preprocess => "preprocess",
             Stage::PreprocessGpu => "preprocess-gpu",
             Stage::PreprocessRecord => "preprocess-record",
+            Stage::PreprocessFrameGpu => "preprocess-frame-gpu",
             Stage::YieldToPresent => "yield-to-present",
             Stage::Encode => "encode",
             Stage::Present => "present",

@@ -210,30 +210,28 @@ impl ViewOnDevice {
         }
     }
 
-    /// Uploads `content` to the view and records its unpack (a frame as it
-    /// came) and quad layers; the bytes sent, and the layers' traffic.
+    /// Stages `content` in `belt` and records its copy to the view, its
+    /// unpack (a frame as it came) and its quad layers; the bytes sent, the
+    /// layers' traffic and whether any were blended.
     pub(super) fn upload(
         &mut self,
-        queue: &wgpu::Queue,
+        belt: &mut wgpu::util::StagingBelt,
         unpack: &wgpu::ComputePipeline,
         encoder: &mut wgpu::CommandEncoder,
         content: &ViewContent,
-    ) -> (usize, HostTraffic, bool) {
+    ) -> Result<(usize, HostTraffic, bool), PresentError> {
         let view = self;
         let f = match content {
             ViewContent::Planar(im) => {
-                queue.write_buffer(&view.frame, 0, bytemuck::cast_slice(im.data()));
-                return (
-                    std::mem::size_of_val(im.data()),
-                    HostTraffic::default(),
-                    false,
-                );
+                let bytes = bytemuck::cast_slice(im.data());
+                stage_copy(belt, encoder, &view.frame, bytes)?;
+                return Ok((bytes.len(), HostTraffic::default(), false));
             }
             ViewContent::Client(f) => f,
         };
         match f.format {
             PixelFormat::Rgba8Linear | PixelFormat::Rgba8Srgb => {
-                queue.write_buffer(&view.rgba, 0, &f.payload);
+                stage_copy(belt, encoder, &view.rgba, &f.payload)?;
                 let group = if f.format == PixelFormat::Rgba8Srgb {
                     &view.unpack_srgb
                 } else {
@@ -249,25 +247,50 @@ impl ViewOnDevice {
                 pass.dispatch_workgroups(x, y, 1);
             }
             // Planar little-endian f32 is the planes' own layout.
-            PixelFormat::Rgb32fPlanar => queue.write_buffer(&view.frame, 0, &f.payload),
+            PixelFormat::Rgb32fPlanar => stage_copy(belt, encoder, &view.frame, &f.payload)?,
         }
         let Some(layers) = &view.layers else {
-            return (f.payload.len(), HostTraffic::default(), false);
+            return Ok((f.payload.len(), HostTraffic::default(), false));
         };
         let snap = layers.snapshot();
         let r = view.region;
         let dims = (r.width as u32, r.height as u32, (r.width * r.height) as u32);
         // Layers the device cannot hold are left out of the frame (and
         // said so), not a failure of the device path.
-        match view
-            .blender
-            .record(encoder, &view.frame, dims, &snap.quads, snap.generation)
-        {
-            Ok(t) => (f.payload.len(), t, !snap.quads.is_empty()),
-            Err(e) => {
-                tracing::warn!("a frame's quad layers are left out: {e}");
-                (f.payload.len(), HostTraffic::default(), false)
-            }
-        }
+        Ok(
+            match view
+                .blender
+                .record(encoder, &view.frame, dims, &snap.quads, snap.generation)
+            {
+                Ok(t) => (f.payload.len(), t, !snap.quads.is_empty()),
+                Err(e) => {
+                    tracing::warn!("a frame's quad layers are left out: {e}");
+                    (f.payload.len(), HostTraffic::default(), false)
+                }
+            },
+        )
     }
+}
+
+/// Copies `bytes` into `belt`'s mapped staging memory and records their
+/// copy to the start of `target`. The belt's chunks are kept mapped and
+/// reused frame after frame, where `Queue::write_buffer` made (and later
+/// freed) a staging buffer of the frame's size for every write.
+fn stage_copy(
+    belt: &mut wgpu::util::StagingBelt,
+    encoder: &mut wgpu::CommandEncoder,
+    target: &wgpu::Buffer,
+    bytes: &[u8],
+) -> Result<(), PresentError> {
+    let size = bytes.len() as u64;
+    let fits = size <= target.size() && size.is_multiple_of(wgpu::COPY_BUFFER_ALIGNMENT);
+    let Some(size) = wgpu::BufferSize::new(size).filter(|_| fits) else {
+        return Err(err(format!(
+            "a frame of {size} bytes for a buffer of {} (whole 4-byte words, at least one)",
+            target.size()
+        )));
+    };
+    belt.write_buffer(encoder, target, 0, size)
+        .copy_from_slice(bytes);
+    Ok(())
 }

@@ -27,10 +27,12 @@ pub(super) struct Timed<T> {
     /// hold made the wait longer: the same wait passed on, which the
     /// estimate leaves out too.
     pub(super) behind_hold_ns: u64,
-    /// The device's own time for its preprocessing, and the host's before
-    /// that work's submission (the device path; StageNotes).
+    /// The device's own time for its preprocessing, the host's before
+    /// that work's submission and the whole submission's on the device
+    /// (the device path; StageNotes).
     pub(super) gpu_ns: Option<u64>,
     pub(super) record_ns: Option<u64>,
+    pub(super) frame_gpu_ns: Option<u64>,
     /// The frame budget's level it ran (its index in the report's
     /// levels; none without a ladder).
     pub(super) level: Option<u8>,
@@ -62,6 +64,7 @@ impl<T> Timed<T> {
             ready_ns: self.ready_ns,
             gpu_ns: self.gpu_ns,
             record_ns: self.record_ns,
+            frame_gpu_ns: self.frame_gpu_ns,
             level: self.level,
         }
     }
@@ -217,6 +220,7 @@ impl Compositor {
             behind_hold_ns: 0,
             gpu_ns: None,
             record_ns: None,
+            frame_gpu_ns: None,
             level: None,
             owner: self.owner,
             submit_ns: now,

@@ -294,6 +294,10 @@ impl Engine {
                     }
                     stats.record(Stage::PreprocessRecord, frames.last_record_ns());
                     notes.record_ns = Some(frames.last_record_ns());
+                    if let Some(ns) = frames.last_frame_gpu_ns() {
+                        stats.record(Stage::PreprocessFrameGpu, ns);
+                        notes.frame_gpu_ns = Some(ns);
+                    }
                     stats.dcnn_traffic.record(traffic);
                     return Some(Processed::Device(frame));
                 }

@@ -52,6 +52,9 @@ pub struct FrameMarks {
     /// the device path ran it.
     pub gpu_ns: Option<u64>,
     pub record_ns: Option<u64>,
+    /// The device path's whole submission on the device (timestamps): the
+    /// uploads' copies, unpacks, layers, stages and encodes.
+    pub frame_gpu_ns: Option<u64>,
     /// The frame budget's level it ran (the report's `frame_budget`
     /// levels, by index).
     pub level: Option<u8>,
@@ -80,6 +83,8 @@ pub struct FrameTiming {
     /// the host's before the submission (the device path).
     pub gpu_ms: Option<f64>,
     pub record_ms: Option<f64>,
+    /// The device path's whole submission on the device (timestamps).
+    pub frame_gpu_ms: Option<f64>,
     /// The frame budget's level it ran (the report's `frame_budget`
     /// levels, by index; none without a ladder).
     pub level: Option<u8>,
@@ -169,6 +174,7 @@ impl Timeline {
             ready_ms: self.ms(m.ready_ns),
             gpu_ms: m.gpu_ns.map(duration_ms),
             record_ms: m.record_ns.map(duration_ms),
+            frame_gpu_ms: m.frame_gpu_ns.map(duration_ms),
             level: m.level,
             taken_ms: (!replaced).then(|| self.ms(at_ns)),
             shown_ms: shown_ns.map(|ns| self.ms(ns)),
@@ -229,9 +235,11 @@ pub struct TimelineRow {
     /// The preprocess stage's own time, less the hold.
     pub preprocess_ms: f64,
     /// Of it, the device's own time and the host's before the submission
-    /// (`None`: not measured, off the device path or without timestamps).
+    /// (`None`: not measured, off the device path or without timestamps),
+    /// and the whole submission's time on the device.
     pub gpu_ms: Option<f64>,
     pub record_ms: Option<f64>,
+    pub frame_gpu_ms: Option<f64>,
     /// The preprocess stage's end to ready (the queue and the encode).
     pub to_ready_ms: f64,
     /// The present loop's wake for the frame's predicted refresh less the
@@ -312,6 +320,7 @@ pub fn summarize(
                 preprocess_ms: median(&|f| f.stages_ms[1][1] - f.stages_ms[1][0] - f.held_ms),
                 gpu_ms: median_of(&|f| f.gpu_ms),
                 record_ms: median_of(&|f| f.record_ms),
+                frame_gpu_ms: median_of(&|f| f.frame_gpu_ms),
                 to_ready_ms: median(&|f| f.ready_ms - f.stages_ms[1][1]),
                 ready_before_take_ms: median_of(&|f| Some(wake_for(f.predicted_ms)? - f.ready_ms)),
                 present_ms: median_of(&presented),
@@ -342,6 +351,7 @@ mod tests {
             ready_ns: submit_ns + 7 * ms,
             gpu_ns: Some(2 * ms + 1234),
             record_ns: None,
+            frame_gpu_ns: None,
             level: None,
         }
     }
