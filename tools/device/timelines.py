@@ -82,13 +82,18 @@ def pct(values: list, p: float):
     return v[int(p * (len(v) - 1))] if v else None
 
 
+def own_ms(f: dict) -> list:
+    """Each frame's preprocess stage's own time: its span less the gate's hold."""
+    return [s[1][1] - s[1][0] - h for s, h in zip(f["stages_ms"], f["held_ms"])]
+
+
 def case(record: dict) -> dict:
     """The figures of one case's `frame_log` record (columns)."""
     f = record["frames"]
     n = len(f["id"])
     span = [s[1][1] - s[1][0] for s in f["stages_ms"]]
     held = f["held_ms"]
-    own = [span[i] - held[i] for i in range(n)]
+    own = own_ms(f)
     later = range(SKIP, n)
     holds = [held[i] for i in later if held[i] > 0]
     submitted = sorted(f["submitted_ms"])
@@ -195,7 +200,7 @@ def overhead(logs: list) -> list:
             continue
         later = [i for i in range(SKIP, len(f["id"]))
                  if f["record_ms"][i] is not None and f["frame_gpu_ms"][i] is not None]
-        own = {i: f["stages_ms"][i][1][1] - f["stages_ms"][i][1][0] - f["held_ms"][i] for i in later}
+        own = own_ms(f)
         stages = {i: f["gpu_ms"][i] or 0.0 for i in later}
         p50 = lambda g: pct([g(i) for i in later], 0.5)
         rows.append(f"| {r['network']} {r['views']} {r['precision']} | {ms(p50(lambda i: own[i]))} | "
