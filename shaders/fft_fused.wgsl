@@ -124,6 +124,44 @@ fn store_dct3(lid: u32, first: u32) {
     }
 }
 
+// Writes the DCT-II coefficients of the pairs (their FFTs in sm).
+fn store_dct2(lid: u32, first: u32) {
+    let p = lid % P;
+    let b = pair_bases(first + p);
+    for (var t = lid; t < N * P; t += WG) {
+        let k = t / P;
+        if b.w == 1u {
+            let c = dct2_coeffs(p * N, k);
+            put(b.x, k, c.x);
+            if b.z == 1u {
+                put(b.y, k, c.y);
+            }
+        }
+    }
+}
+
+// Loads the DCT-III's FFT input of the pairs from their DCT-II coefficients in src.
+fn load_dct3(lid: u32, first: u32) {
+    let p = lid % P;
+    let b = pair_bases(first + p);
+    for (var t = lid; t < N * P; t += WG) {
+        let k = t / P;
+        var v = vec2<f32>(0.0, 0.0);
+        if b.w == 1u {
+            let has_b = b.z == 1u;
+            let at = k * q.elem_stride;
+            let c = vec2<f32>(src[b.x + at], select(0.0, src[b.y + at], has_b));
+            var c_rev = vec2<f32>(0.0, 0.0);
+            if k != 0u {
+                let rev = (N - k) * q.elem_stride;
+                c_rev = vec2<f32>(src[b.x + rev], select(0.0, src[b.y + rev], has_b));
+            }
+            v = dct3_input(k, c, c_rev);
+        }
+        sm[p * N + k] = v;
+    }
+}
+
 @compute @workgroup_size(WG)
 fn dct2(
     @builtin(local_invocation_index) lid: u32,
@@ -137,18 +175,7 @@ fn dct2(
     load_pairs(lid, first);
     workgroupBarrier();
     fft_fwd(lid);
-    let p = lid % P;
-    let b = pair_bases(first + p);
-    for (var t = lid; t < N * P; t += WG) {
-        let k = t / P;
-        if b.w == 1u {
-            let c = dct2_coeffs(p * N, k);
-            put(b.x, k, c.x);
-            if b.z == 1u {
-                put(b.y, k, c.y);
-            }
-        }
-    }
+    store_dct2(lid, first);
 }
 
 // DCT-II, × gain, DCT-III of the pairs: the filter's second axis in one pass.
@@ -181,24 +208,7 @@ fn dct3(
     if first >= q.pairs {
         return;
     }
-    let p = lid % P;
-    let b = pair_bases(first + p);
-    for (var t = lid; t < N * P; t += WG) {
-        let k = t / P;
-        var v = vec2<f32>(0.0, 0.0);
-        if b.w == 1u {
-            let has_b = b.z == 1u;
-            let at = k * q.elem_stride;
-            let c = vec2<f32>(src[b.x + at], select(0.0, src[b.y + at], has_b));
-            var c_rev = vec2<f32>(0.0, 0.0);
-            if k != 0u {
-                let rev = (N - k) * q.elem_stride;
-                c_rev = vec2<f32>(src[b.x + rev], select(0.0, src[b.y + rev], has_b));
-            }
-            v = dct3_input(k, c, c_rev);
-        }
-        sm[p * N + k] = v;
-    }
+    load_dct3(lid, first);
     workgroupBarrier();
     fft_inv(lid);
     store_dct3(lid, first);

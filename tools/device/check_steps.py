@@ -48,7 +48,8 @@ STEPS = [
                   "auto, and auto with --f16-math f16", 30, 1),
     ("torch", "the same networks in PyTorch: f32 (TF32 off), TF32, f16 channels-last; cuDNN benchmark", 35, 1),
     ("fft", "the prefilters' DCT filter at 1920×1080: nedrt's on the device (its workgroup-memory kernels at "
-            "six shapes beside the heuristics'), the CPU's, torch.fft (cuFFT)", 25, 1),
+            "six shapes beside the heuristics'), the CPU's, torch.fft (cuFFT); refine:10 with its steps fused "
+            "into the rows beside its own kernels", 25, 1),
     ("pipeline", "nedrt bench pipeline at 1920×1080 and the panel's refresh on the device path: the frame "
                  "budget (auto: its levels and the quality delivered), the Wiener, refine:10 and admm:10 "
                  "(their GPU time per frame, side by side), full, the shipped model; then two views (--stereo): "
@@ -191,9 +192,11 @@ def step_fft(r: Runner, s: Step, z: dict, ceilings: Step):
     r.need_gpu_adapter()
     bw = flags({k: v for k, v in peaks(ceilings).items() if k == "--peak-gbps"})
     # Issue 56 item 3: the workgroup-memory kernels' threads and pairs a
-    # workgroup beside the heuristics' (256 threads; rows 1 pair, columns 4).
+    # workgroup beside the heuristics' (256 threads; rows 1 pair, columns 4),
+    # and refine:10 with its steps fused into the rows beside its own kernels.
     out = r.sh([r.nedrt, "bench", "fft", "--sizes", z["frame"], "--repeat", z["torch_repeat"], "--per-layer",
-                "--fft-variants", "128x4,512x4,1024x4,256x2,512x2,256x1", *bw], s.cap_s)
+                "--fft-variants", "128x4,512x4,1024x4,256x2,512x2,256x1", "--refine-steps", "10", *bw],
+               s.cap_s)
     s.text = "\n".join(line for line in out.splitlines() if not line.startswith("{"))
     r.sh([r.python, REPO / "tools/bench/torch_dcnn.py", "--fft", "--sizes", z["frame"], "--repeat",
           z["torch_repeat"]], s.cap_s)

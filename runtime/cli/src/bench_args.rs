@@ -128,6 +128,10 @@ pub struct BenchArgs {
     /// columns alike, as many as fit the adapter's workgroup memory.
     #[arg(long, value_delimiter = ',', value_parser = parse_fft_variant, value_name = "TxP")]
     pub fft_variants: Vec<nedrt_gpu::fft::FusedVariant>,
+    /// fft: also `refine:K` per frame at each size, its steps fused into the
+    /// filter's rows beside their own kernels (issue 56, item 3).
+    #[arg(long, value_name = "K", value_parser = clap::value_parser!(u16).range(1..=1000))]
+    pub refine_steps: Option<u16>,
 }
 
 /// `--fft-variants` THREADSxPAIRS.

@@ -345,6 +345,7 @@ pub fn run(cli: Cli) -> Result<()> {
                     per_pass: a.per_layer,
                     paths: a.fft_paths.iter().map(|p| (*p).into()).collect(),
                     variants: a.fft_variants.clone(),
+                    refine_steps: a.refine_steps.map(usize::from),
                 };
                 let table = studies::bench_fft::run(&bench, &mut |r| println!("{r}"))?;
                 print!("{table}");

@@ -35,7 +35,7 @@ mod wgsl;
 
 pub use complex::ComplexFft2d;
 pub use filter::DctFilter;
-pub use fused::fits_workgroup;
+pub use fused::{RowEnds, RowEndsSpec, fits_workgroup};
 pub use kernels::{FftKernels, FusedVariant};
 pub use spectral::{GainsFor, SpectralStage, TermsError};
 
@@ -649,7 +649,7 @@ mod tests {
                     let gains = vec![vec![1.0; w * h]; c];
                     DctFilter::new(&mut kernels, w, h, &gains).expect("filter");
                     assert!(!kernels.fused_modules.is_empty());
-                    for &(_, seqs, t) in kernels.fused_modules.keys() {
+                    for &(_, seqs, t, _) in kernels.fused_modules.keys() {
                         assert!(
                             seqs <= max_seqs.unwrap_or(4),
                             "{variant:?}: {seqs} a workgroup"

@@ -10,6 +10,7 @@
 pub mod adapter;
 pub mod fft;
 pub mod refine;
+mod solver;
 pub mod split;
 pub mod unrolled;
 

@@ -11,7 +11,7 @@
 
 use crate::GpuError;
 use crate::fft::{DctFilter, FftError, FftKernels, TermsError, init_buffer};
-use crate::refine::{GroupCache, StillPipelines, bind, pipelines};
+use crate::solver::{GroupCache, StillPipelines, bind, pipelines};
 
 const SHADER: &str = include_str!("../../../shaders/admm.wgsl");
 
@@ -288,7 +288,7 @@ impl crate::DeviceStage for SplitStage {
         };
         let [frame, z, u, v, ax, c, start, state] = &plan.buffers;
         let need = z.size();
-        crate::refine::check_frame_buffers("the split solver", input, output, need)?;
+        crate::solver::check_frame_buffers("the split solver", input, output, need)?;
         let emit = plan.emits.get(output, || {
             bind(
                 &self.device,
@@ -319,7 +319,7 @@ impl crate::DeviceStage for SplitStage {
         let dispatch = |encoder: &mut wgpu::CommandEncoder,
                         pipeline: &wgpu::ComputePipeline,
                         group: &wgpu::BindGroup| {
-            crate::refine::dispatch(encoder, "admm", pipeline, group, groups)
+            crate::solver::dispatch(encoder, "admm", pipeline, group, groups)
         };
         let p = &self.pipelines;
         dispatch(encoder, &p.start, &plan.main);

@@ -11,7 +11,7 @@
 //! own term b made once).
 
 use crate::fft::{DctFilter, FftError, FftKernels, TermsError, init_buffer};
-use crate::refine::{GroupCache, bind, pipelines};
+use crate::solver::{GroupCache, bind, pipelines};
 use crate::{DeviceStage, GpuError};
 
 const SHADER: &str = include_str!("../../../shaders/unrolled.wgsl");
@@ -301,7 +301,7 @@ impl DeviceStage for UnrolledStage {
         };
         let [work, v, r, ax, c, planes, correction, _] = &plan.buffers;
         let need = v.size();
-        crate::refine::check_frame_buffers("the unrolled model", input, output, need)?;
+        crate::solver::check_frame_buffers("the unrolled model", input, output, need)?;
         let emit = plan.emits.get(output, || {
             bind(
                 &self.device,
@@ -314,7 +314,7 @@ impl DeviceStage for UnrolledStage {
         let dispatch = |encoder: &mut wgpu::CommandEncoder,
                         pipeline: &wgpu::ComputePipeline,
                         group: &wgpu::BindGroup| {
-            crate::refine::dispatch(encoder, "unrolled", pipeline, group, groups)
+            crate::solver::dispatch(encoder, "unrolled", pipeline, group, groups)
         };
         let p = &self.pipelines;
         plan.filter

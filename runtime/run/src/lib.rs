@@ -489,6 +489,9 @@ mod tests {
             )
         }
 
+        /// refine:K on the device shows the host's codes. On lavapipe every
+        /// size here runs the steps fused into the filter's rows (issue 56);
+        /// 63×45 puts a row pair across two channels.
         #[test]
         #[ignore = "needs a GPU adapter (run: scripts/test.sh, or cargo test -- --include-ignored)"]
         fn refine_on_the_device_shows_the_codes_of_the_host_refine() {
@@ -496,7 +499,7 @@ mod tests {
             let (device, queue) = nedrt_gpu::test_device(false);
             let transfer = Transfer::from_gamma([2.2, 2.2, 2.2]);
             let problem = three_depths();
-            for (w, h, steps) in [(150, 98, 10), (64, 40, 0), (64, 40, 3)] {
+            for (w, h, steps) in [(150, 98, 10), (64, 40, 0), (64, 40, 3), (63, 45, 25)] {
                 let input = frame(w, h);
                 let mut cpu =
                     SolvedPrefilter::new("test", problem.clone(), SolveMode::Refine(steps));

@@ -3,8 +3,10 @@
 //! (DCT-II · gain · DCT-III of the three planes, what the device Wiener and
 //! each refinement step run) against nedrt-optics' Wiener plan on the CPU
 //! (realfft and rustfft on the mirrored 2w×2h frame), and the filter's
-//! bytes over the adapter's bandwidth (its floor). Performance is measured
-//! here, never asserted in tests.
+//! bytes over the adapter's bandwidth (its floor); with `refine_steps`,
+//! `refine:K` per frame with its steps fused into the filter's rows and
+//! as kernels of their own, side by side. Performance is measured here,
+//! never asserted in tests.
 
 use std::fmt::Write as _;
 use std::time::Instant;
@@ -37,6 +39,8 @@ pub struct FftBench {
     /// Shapes of the workgroup-memory kernels to time beside them (issue
     /// 56 item 3: threads and sequences a workgroup).
     pub variants: Vec<FusedVariant>,
+    /// `refine:K` with K steps, fused and not, at each size (none: not timed).
+    pub refine_steps: Option<usize>,
 }
 
 /// A variant's row label.
@@ -90,6 +94,7 @@ pub fn run(
         b.repeat.max(1),
         rayon::current_num_threads()
     );
+    let mut refine_md = String::new();
     for &(w, h) in &b.sizes {
         let input = bench_frame(w, h);
         // The CPU: the plan made once, then each frame (mirror, realfft,
@@ -199,6 +204,129 @@ pub fn run(
                 "bytes_per_frame": bytes, "floor_s": floor, "repeat": b.repeat,
             }));
         }
+        if let Some(steps) = b.refine_steps {
+            let k = Refine {
+                steps,
+                gains: &gains,
+                size: (w, h),
+                repeat: b.repeat.max(1),
+            };
+            refine_md += &refine(&device, &queue, &k, &src, &dst, timer.as_ref(), on_record)?;
+        }
+    }
+    if let Some(steps) = b.refine_steps {
+        let _ = write!(
+            md,
+            "
+`refine:{steps}` per frame (the two opening filters, {steps} steps, emit), its \
+             steps fused into the filter's rows (issue 56, item 3) and as kernels of their own, \
+             interleaved, median of {}; ratios: medians of each repetition's\n\n\
+             | frame | steps | dispatches a step | wall ms | GPU ms | wall ÷ own kernels' | GPU ÷ own kernels' |\n\
+             | --- | --- | --- | --- | --- | --- | --- |\n{refine_md}",
+            b.repeat.max(1)
+        );
+    }
+    Ok(md)
+}
+
+/// What [`refine`] times.
+struct Refine<'a> {
+    steps: usize,
+    /// The Wiener's DCT gains per channel: the terms' stand-in (the cost
+    /// does not depend on them).
+    gains: &'a [Vec<f32>],
+    size: (usize, usize),
+    repeat: usize,
+}
+
+/// `refine:K` with its steps fused into the filter's rows and with kernels
+/// of their own, interleaved: the table's rows.
+fn refine(
+    device: &wgpu::Device,
+    queue: &wgpu::Queue,
+    k: &Refine,
+    src: &wgpu::Buffer,
+    dst: &wgpu::Buffer,
+    timer: Option<&nedrt_gpu::PassTimer>,
+    on_record: &mut dyn FnMut(&serde_json::Value),
+) -> Result<String, AppError> {
+    use nedrt_gpu::DeviceStage;
+    use nedrt_gpu::refine::{RefineStage, RefineTerms};
+    let (w, h) = k.size;
+    let mut stages = Vec::new();
+    for fuse in [true, false] {
+        let gains = k.gains.to_vec();
+        let terms = move |_: usize, _: usize| {
+            let normal: Vec<Vec<f32>> = gains
+                .iter()
+                .map(|g| g.iter().map(|v| v * v).collect())
+                .collect();
+            Ok(RefineTerms {
+                step: normal
+                    .iter()
+                    .map(|n| 1.0 / n.iter().copied().fold(f32::MIN_POSITIVE, f32::max))
+                    .collect(),
+                linear: gains.clone(),
+                adjoint_target: gains.clone(),
+                normal,
+            })
+        };
+        let mut stage = RefineStage::new(device, "refine".into(), k.steps, Box::new(terms))?
+            .with_fused_steps(fuse);
+        stage.prepare(w, h)?;
+        stages.push(stage);
+    }
+    let mut times: Vec<Vec<FrameTimes>> = vec![Vec::new(); stages.len()];
+    for rep in 0..=k.repeat {
+        for (stage, out) in stages.iter_mut().zip(&mut times) {
+            let t = timed(device, queue, timer, &mut |enc| {
+                stage.record(enc, src, dst, w, h).map_err(AppError::from)
+            })?;
+            // The first: compiles and warms up.
+            if rep > 0 {
+                out.push(t);
+            }
+        }
+    }
+    let mut md = String::new();
+    for (i, (stage, t)) in stages.iter().zip(&times).enumerate() {
+        let fused = stage.steps_fused() == Some(true);
+        let wall = median(t.iter().map(|x| x.0).collect());
+        let gpus: Vec<f64> = t.iter().filter_map(|x| x.1).collect();
+        let gpu = (gpus.len() == t.len()).then(|| median(gpus));
+        let ratio = |f: &dyn Fn(&FrameTimes) -> Option<f64>| -> Option<f64> {
+            let r: Option<Vec<f64>> = t
+                .iter()
+                .zip(&times[1])
+                .map(|(a, b)| f(a).zip(f(b)).map(|(a, b)| a / b))
+                .collect();
+            r.map(median)
+        };
+        let (wall_ratio, gpu_ratio) = (ratio(&|x| Some(x.0)), ratio(&|x| x.1));
+        let show =
+            |v: Option<f64>, scale: f64| v.map_or("–".into(), |v| format!("{:.2}", v * scale));
+        let dispatches = stage.dispatches_per_step().unwrap_or(0);
+        let _ = writeln!(
+            md,
+            "| {w}×{h} | {} | {dispatches} | {:.2} | {} | {} | {} |",
+            if fused {
+                "fused into the rows"
+            } else if i == 0 {
+                "kernels of their own (the filter runs by passes)"
+            } else {
+                "kernels of their own"
+            },
+            wall * 1e3,
+            show(gpu, 1e3),
+            show(wall_ratio, 1.0),
+            show(gpu_ratio, 1.0),
+        );
+        on_record(&json!({
+            "kind": "refine_steps", "width": w, "height": h, "steps": k.steps, "fused": fused,
+            "dispatches_per_step": dispatches, "device_median_s": wall, "gpu_median_s": gpu,
+            "over_own_kernels_wall": wall_ratio, "over_own_kernels_gpu": gpu_ratio,
+            "repeat": k.repeat,
+        }));
     }
     Ok(md)
 }
@@ -213,6 +341,19 @@ fn frame(
     dst: &wgpu::Buffer,
     timer: Option<&nedrt_gpu::PassTimer>,
 ) -> Result<FrameTimes, AppError> {
+    timed(device, queue, timer, &mut |enc| {
+        dct.record(enc, src, dst).map_err(AppError::from)
+    })
+}
+
+/// One submission of what `record` records: its wall time (record, submit,
+/// wait) and its GPU time (timestamps around it, where the adapter has them).
+fn timed(
+    device: &wgpu::Device,
+    queue: &wgpu::Queue,
+    timer: Option<&nedrt_gpu::PassTimer>,
+    record: &mut dyn FnMut(&mut wgpu::CommandEncoder) -> Result<(), AppError>,
+) -> Result<FrameTimes, AppError> {
     let t = Instant::now();
     let mut enc = device.create_command_encoder(&Default::default());
     // Empty passes carry the timestamps: the filter records its own.
@@ -222,7 +363,7 @@ fn frame(
             timestamp_writes: Some(timer.start(0)),
         }));
     }
-    dct.record(&mut enc, src, dst)?;
+    record(&mut enc)?;
     if let Some(timer) = timer {
         drop(enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
             label: Some("bench end"),

@@ -5,7 +5,7 @@
 //! (`spectral`).
 
 use super::dct::MultiPassFilter;
-use super::fused::{FusedFilter, fits_workgroup};
+use super::fused::{FusedFilter, RowEnds, RowEndsSpec, fits_workgroup};
 use super::kernels::{FftKernels, check_binding};
 use super::{FftError, FftPath};
 
@@ -179,6 +179,56 @@ impl DctFilter {
                     pass.dispatch_workgroups(groups[0], groups[1], 1);
                 }
             }
+        }
+        Ok(())
+    }
+
+    /// `spec`'s kernels for this filter's rows (see [`RowEndsSpec`]), or
+    /// none on the multi-pass path, where the caller keeps kernels of its
+    /// own after and before the filter.
+    pub fn row_ends(
+        &self,
+        kernels: &mut FftKernels,
+        spec: &RowEndsSpec,
+    ) -> Result<Option<RowEnds>, FftError> {
+        match &self.imp {
+            Imp::Fused(f) => f.row_ends(kernels, spec).map(Some),
+            Imp::MultiPass(_) => Ok(None),
+        }
+    }
+
+    /// The filter with gain set `set` from `input` to `output`, its rows'
+    /// last dispatch `ends`' store and, where `load`, its first `ends'`
+    /// load; `group` is their bind group 1 (of the spec's layout).
+    #[allow(clippy::too_many_arguments)]
+    pub fn record_with_ends(
+        &mut self,
+        encoder: &mut wgpu::CommandEncoder,
+        ends: &RowEnds,
+        group: &wgpu::BindGroup,
+        input: &wgpu::Buffer,
+        output: &wgpu::Buffer,
+        set: usize,
+        load: bool,
+    ) -> Result<(), FftError> {
+        self.check_buffers(input, &[(output, set)])?;
+        let Imp::Fused(f) = &mut self.imp else {
+            return Err(FftError::Device(
+                "row ends need the workgroup-memory filter; this one runs by passes".into(),
+            ));
+        };
+        let steps = f.steps_with_ends(ends, input, output, set, load);
+        let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+            label: Some("dct filter with row ends"),
+            timestamp_writes: None,
+        });
+        for (pipeline, bind, groups, end) in &steps {
+            pass.set_pipeline(pipeline);
+            pass.set_bind_group(0, bind, &[]);
+            if *end {
+                pass.set_bind_group(1, group, &[]);
+            }
+            pass.dispatch_workgroups(groups[0], groups[1], 1);
         }
         Ok(())
     }

@@ -30,6 +30,29 @@ pub(super) fn seqs_for(kernels: &FftKernels, n: usize, count: u32, strided: bool
     }
 }
 
+/// Kernels of a caller's own run in place of the filter's row passes (the
+/// refinement's steps fused into them, issue 56 item 3): `source` is
+/// appended to the rows' generated module (it sees `q`, `src`, `dst`, `sm`
+/// and the helpers of `shaders/fft_fused.wgsl`) and defines `load`, run in
+/// place of the rows' DCT-II (the same `src` and `dst`), and `store`, in
+/// place of the rows' DCT-III; its own buffers are bind group 1, of
+/// `layout`. `name` keys the compiled modules.
+#[derive(Debug, Clone)]
+pub struct RowEndsSpec {
+    pub name: &'static str,
+    pub source: &'static str,
+    pub load: &'static str,
+    pub store: &'static str,
+    pub layout: wgpu::BindGroupLayout,
+}
+
+/// A [`RowEndsSpec`]'s pipelines for one filter.
+#[derive(Debug, Clone)]
+pub struct RowEnds {
+    pub(super) load: wgpu::ComputePipeline,
+    pub(super) store: wgpu::ComputePipeline,
+}
+
 impl FftKernels {
     /// The generated pipeline of length `n`, `seqs` sequences a workgroup
     /// ([`seqs_for`]), `entry_point`, compiled on first use; the caller
@@ -39,6 +62,18 @@ impl FftKernels {
         n: usize,
         seqs: u32,
         entry_point: &'static str,
+    ) -> Result<wgpu::ComputePipeline, FftError> {
+        self.fused_pipeline_in(n, seqs, entry_point, None)
+    }
+
+    /// As [`FftKernels::fused_pipeline`], from the module with `ends`'
+    /// source appended where given (its entry points over two bind groups).
+    pub(super) fn fused_pipeline_in(
+        &mut self,
+        n: usize,
+        seqs: u32,
+        entry_point: &'static str,
+        ends: Option<&RowEndsSpec>,
     ) -> Result<wgpu::ComputePipeline, FftError> {
         let device = self.device.clone();
         let limits = device.limits();
@@ -51,13 +86,17 @@ impl FftKernels {
         };
         // The kernels take a thread's sequence as lid % P: a multiple of P.
         let threads = (threads - threads % seqs).max(seqs);
-        if let Some(p) = self.fused.get(&(n, seqs, threads, entry_point)) {
+        let name = ends.map_or("", |e| e.name);
+        if let Some(p) = self.fused.get(&(n, seqs, threads, name, entry_point)) {
             return Ok(p.clone());
         }
-        let module = match self.fused_modules.entry((n, seqs, threads)) {
+        let module = match self.fused_modules.entry((n, seqs, threads, name)) {
             std::collections::hash_map::Entry::Occupied(e) => e.into_mut(),
             std::collections::hash_map::Entry::Vacant(e) => {
-                let source = wgsl::module_source(n, &wgsl::fused_radices(n)?, threads, seqs);
+                let mut source = wgsl::module_source(n, &wgsl::fused_radices(n)?, threads, seqs);
+                if let Some(ends) = ends {
+                    source += ends.source;
+                }
                 e.insert(checked(&device, || {
                     device.create_shader_module(wgpu::ShaderModuleDescriptor {
                         label: Some("fft_fused"),
@@ -66,10 +105,17 @@ impl FftKernels {
                 })?)
             }
         };
+        let two_groups = ends.map(|e| {
+            device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+                label: Some(e.name),
+                bind_group_layouts: &[Some(&self.fused_layout), Some(&e.layout)],
+                immediate_size: 0,
+            })
+        });
         let p = checked(&device, || {
             device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
                 label: Some(entry_point),
-                layout: Some(&self.fused_pipeline_layout),
+                layout: Some(two_groups.as_ref().unwrap_or(&self.fused_pipeline_layout)),
                 module,
                 entry_point: Some(entry_point),
                 compilation_options: Default::default(),
@@ -77,7 +123,7 @@ impl FftKernels {
             })
         })?;
         self.fused
-            .insert((n, seqs, threads, entry_point), p.clone());
+            .insert((n, seqs, threads, name, entry_point), p.clone());
         Ok(p)
     }
 }
@@ -278,6 +324,50 @@ impl FusedFilter {
             steps.push((self.rows_inv.pipeline.clone(), last, self.rows_inv.groups));
         }
         steps
+    }
+
+    /// `ends`' pipelines for this filter's rows.
+    pub(super) fn row_ends(
+        &self,
+        kernels: &mut FftKernels,
+        spec: &RowEndsSpec,
+    ) -> Result<RowEnds, FftError> {
+        let n = self.rows.n;
+        Ok(RowEnds {
+            load: kernels.fused_pipeline_in(n, self.rows_fwd.seqs, spec.load, Some(spec))?,
+            store: kernels.fused_pipeline_in(n, self.rows_inv.seqs, spec.store, Some(spec))?,
+        })
+    }
+
+    /// The dispatches of one filter with gain set `set` from `input` to
+    /// `output`, `ends`' store in place of the rows' DCT-III and, where
+    /// `load`, its load in place of the rows' DCT-II: each with whether it
+    /// is one of the ends (they take bind group 1).
+    pub(super) fn steps_with_ends(
+        &mut self,
+        ends: &RowEnds,
+        input: &wgpu::Buffer,
+        output: &wgpu::Buffer,
+        set: usize,
+        load: bool,
+    ) -> Vec<(wgpu::ComputePipeline, wgpu::BindGroup, [u32; 2], bool)> {
+        let first = self.input_bind(input);
+        let last = self.output_bind(output);
+        let load_pipeline = if load {
+            ends.load.clone()
+        } else {
+            self.rows_fwd.pipeline.clone()
+        };
+        vec![
+            (load_pipeline, first, self.rows_fwd.groups, load),
+            (
+                self.cols.pipeline.clone(),
+                self.col_binds[set].clone(),
+                self.cols.groups,
+                false,
+            ),
+            (ends.store.clone(), last, self.rows_inv.groups, true),
+        ]
     }
 
     fn input_bind(&mut self, input: &wgpu::Buffer) -> wgpu::BindGroup {

@@ -73,9 +73,11 @@ pub struct FftKernels {
     /// its pipelines per entry point, made on first use.
     pub(super) fused_layout: wgpu::BindGroupLayout,
     pub(super) fused_pipeline_layout: wgpu::PipelineLayout,
-    /// By (length, sequences a workgroup, threads a workgroup).
-    pub(super) fused_modules: HashMap<(usize, u32, u32), wgpu::ShaderModule>,
-    pub(super) fused: HashMap<(usize, u32, u32, &'static str), wgpu::ComputePipeline>,
+    /// By (length, sequences a workgroup, threads a workgroup, the
+    /// appended kernels' name: "" for none, [`super::fused::RowEndsSpec`]).
+    pub(super) fused_modules: HashMap<(usize, u32, u32, &'static str), wgpu::ShaderModule>,
+    /// By the module's key and the entry point.
+    pub(super) fused: HashMap<(usize, u32, u32, &'static str, &'static str), wgpu::ComputePipeline>,
     pub(super) path: FftPath,
     /// Threads a workgroup of the generated kernels at most.
     pub(super) max_threads: u32,
