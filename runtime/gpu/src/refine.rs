@@ -417,39 +417,49 @@ impl crate::DeviceStage for RefineStage {
             }
         };
         dispatch(encoder, &[(&p.start, [gx, gy, c])], &plan.main);
-        if let Some((ends, group)) = &plan.ends {
-            // Step k: (advance of step k − 1 and) the rows' DCT-II, the
-            // columns, the rows' DCT-III and project, then reduce; the last
-            // step's advance runs alone, since a warm start goes on from
-            // its y and x.
-            for k in 0..self.steps {
-                let (input, load) = if k == 0 {
-                    (&plan.y, false)
-                } else {
-                    (&plan.xn, true)
-                };
-                plan.filter
-                    .record_with_ends(encoder, ends, group, input, &plan.xn, 2, load)?;
-                dispatch(encoder, &[(&p.reduce, [1, 1, c])], &plan.main);
+        let warm = plan.last.is_some();
+        match &plan.ends {
+            Some((ends, group)) if self.steps > 0 => {
+                // Step k: (advance of step k − 1 and) the rows' DCT-II, the
+                // columns, the rows' DCT-III and project, then reduce. The
+                // last step projects straight into the output, so no emit;
+                // its advance runs only warm-started, where the next frame
+                // goes on from its y and x (the emit group's x⁺ is the output).
+                for k in 0..self.steps {
+                    let (input, load) = if k == 0 {
+                        (&plan.y, false)
+                    } else {
+                        (&plan.xn, true)
+                    };
+                    let to = if k + 1 == self.steps {
+                        output
+                    } else {
+                        &plan.xn
+                    };
+                    plan.filter
+                        .record_with_ends(encoder, ends, group, input, to, 2, load)?;
+                    dispatch(encoder, &[(&p.reduce, [1, 1, c])], &plan.main);
+                }
+                if warm {
+                    dispatch(encoder, &[(&p.advance, [gx, gy, c])], &emit);
+                }
             }
-            if self.steps > 0 {
-                dispatch(encoder, &[(&p.advance, [gx, gy, c])], &plan.main);
-            }
-        } else {
-            for _ in 0..self.steps {
-                plan.filter.record_set(encoder, &plan.y, &plan.ay, 2)?;
-                dispatch(
-                    encoder,
-                    &[
-                        (&p.project, [gx, gy, c]),
-                        (&p.reduce, [1, 1, c]),
-                        (&p.advance, [gx, gy, c]),
-                    ],
-                    &plan.main,
-                );
+            _ => {
+                for _ in 0..self.steps {
+                    plan.filter.record_set(encoder, &plan.y, &plan.ay, 2)?;
+                    dispatch(
+                        encoder,
+                        &[
+                            (&p.project, [gx, gy, c]),
+                            (&p.reduce, [1, 1, c]),
+                            (&p.advance, [gx, gy, c]),
+                        ],
+                        &plan.main,
+                    );
+                }
+                dispatch(encoder, &[(&p.emit, [gx, gy, c])], &emit);
             }
         }
-        dispatch(encoder, &[(&p.emit, [gx, gy, c])], &emit);
         Ok(())
     }
 }

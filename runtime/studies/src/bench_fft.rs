@@ -218,7 +218,7 @@ pub fn run(
         let _ = write!(
             md,
             "
-`refine:{steps}` per frame (the two opening filters, {steps} steps, emit), its \
+`refine:{steps}` per frame (the two opening filters, {steps} steps, the output written), its \
              steps fused into the filter's rows (issue 56, item 3) and as kernels of their own, \
              interleaved, median of {}; ratios: medians of each repetition's\n\n\
              | frame | steps | dispatches a step | wall ms | GPU ms | wall ÷ own kernels' | GPU ÷ own kernels' |\n\
