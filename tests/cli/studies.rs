@@ -264,8 +264,9 @@ mod needs_gpu {
 
     /// `bench tune` writes this adapter's table (the heuristics' tile and
     /// one other per conv shape: each tile is a kernel lavapipe compiles
-    /// for seconds), the wgpu backend then reads it, and a broken table
-    /// stops it with an error naming the file.
+    /// for seconds; the DCT filter's shape at the size), the wgpu backend
+    /// and the device prefilters then read it, and a broken table stops
+    /// the backend with an error naming the file.
     #[test]
     #[ignore = "needs a GPU adapter (run: scripts/test.sh, or cargo test -- --include-ignored)"]
     fn bench_tune_writes_the_table_the_backend_then_reads() {
@@ -336,6 +337,53 @@ mod needs_gpu {
             Some("llvmpipe"),
             "{text}"
         );
+        // The DCT filter at the size: one entry, no slower than the heuristics.
+        assert!(out.contains("### The DCT filter (three planes)"), "{out}");
+        let ffts = table["fft"].as_array().expect("fft entries");
+        assert_eq!(ffts.len(), 1, "{text}");
+        assert_eq!(
+            (
+                ffts[0]["width"].as_integer(),
+                ffts[0]["height"].as_integer()
+            ),
+            (Some(16), Some(16))
+        );
+        assert!(
+            ffts[0]["tuned_ns"].as_integer() <= ffts[0]["heuristic_ns"].as_integer(),
+            "{text}"
+        );
+        // A device prefilter's kernels ask for the table: `bench fft` says
+        // so and times the tuned shape beside the heuristics'.
+        let o = {
+            let mut c = nedrt();
+            c.env("NEDRT_LOG", "info").args([
+                "--tuning",
+                path(&tuning),
+                "bench",
+                "fft",
+                "--sizes",
+                "16x16",
+                "--repeat",
+                "1",
+                "--fft-paths",
+                "auto",
+            ]);
+            c.output_within(deadline::COMMAND, "nedrt")
+        };
+        assert!(o.status.success(), "{}", stderr(&o));
+        assert!(
+            stderr(&o).contains(&format!(
+                "DCT filter shapes of {} tuned for ",
+                tables[0].display()
+            )) && stderr(&o).contains(" at 16×16"),
+            "{}",
+            stderr(&o)
+        );
+        assert!(
+            stdout(&o).contains("| 16×16 | the adapter's tuned shape: "),
+            "{}",
+            stdout(&o)
+        );
         // The backend finds it for this adapter.
         let infer = || {
             let mut c = nedrt();
@@ -371,6 +419,10 @@ mod needs_gpu {
         let again = std::fs::read_to_string(&tables[0]).expect("reads");
         let again: toml::Value = toml::from_str(&again).expect("toml");
         assert_eq!(again["conv"], table["conv"], "the tiled entries changed");
+        assert_eq!(
+            again["fft"], table["fft"],
+            "the DCT filter's entries changed"
+        );
         assert!(again.get("coop").is_none(), "{again}");
         // A tile the template does not build is refused by name.
         assert_clean_error(&tune("12x4"), "a conv tile is 8, 16 or 32 pixels wide");

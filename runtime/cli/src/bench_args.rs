@@ -119,6 +119,10 @@ pub struct BenchArgs {
     /// an adapter that has them); the table's tiled entries stay as they are.
     #[arg(long)]
     pub coop_only: bool,
+    /// tune: leave the DCT filter's entries as they are (by default each
+    /// size's filter is tuned too, unless --coop-only).
+    #[arg(long)]
+    pub no_fft: bool,
     /// fft: the device FFT paths to time side by side.
     #[arg(long, value_delimiter = ',', value_enum, default_values = ["auto", "multipass"])]
     pub fft_paths: Vec<FftPathArg>,

@@ -72,6 +72,12 @@ pub fn run(cli: Cli) -> Result<()> {
         eye: g.eye.overrides(),
         progress: Arc::new(Console::default()),
     };
+    // The DCT filter's tuned shapes (issue 56, item 4): every device
+    // prefilter asks for its adapter's table in --tuning once.
+    let tuning = g.tuning.clone();
+    nedrt_gpu::fft::tuned::install(Box::new(move |info| {
+        nedrt_infer::gpu::tuning::fft_shapes_for(&tuning, info)
+    }));
     match cli.command {
         Some(Command::Psf(a)) => match a.at {
             Some(d) => print!(
@@ -377,6 +383,7 @@ pub fn run(cli: Cli) -> Result<()> {
                     dir: g.tuning.clone(),
                     tiles: (!a.tiles.is_empty()).then_some(a.tiles),
                     coop_only: a.coop_only,
+                    fft: !a.no_fft,
                 };
                 print!("{}", studies::bench_tune::run(&bench, &common)?.report);
             }

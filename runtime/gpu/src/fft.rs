@@ -31,6 +31,7 @@ mod filter;
 mod fused;
 mod kernels;
 mod spectral;
+pub mod tuned;
 mod wgsl;
 
 pub use complex::ComplexFft2d;
@@ -660,6 +661,90 @@ mod tests {
                     }
                 }
             }
+        }
+
+        /// The adapter's tuned shape (issue 56, item 4) is followed at its
+        /// size alone, computes the heuristics' output bit for bit, yields
+        /// to a shape set explicitly, and an adapter the source does not
+        /// know runs the heuristics. (The source is process-wide; no other
+        /// test filters a 50×30 frame.)
+        #[test]
+        #[ignore = "needs a GPU adapter (run: scripts/test.sh, or cargo test -- --include-ignored)"]
+        fn a_tuned_shape_is_followed_and_an_unknown_adapter_falls_back() {
+            let (device, queue) = crate::test_device(false);
+            let here = device.adapter_info().name;
+            let shape = FusedVariant {
+                threads: Some(128),
+                max_seqs: Some(2),
+            };
+            let install = |adapter: String| {
+                tuned::install(Box::new(move |info| {
+                    std::sync::Arc::new(if info.name == adapter {
+                        vec![((50, 30), shape)]
+                    } else {
+                        Vec::new()
+                    })
+                }))
+            };
+            let (w, h, c) = (50, 30, 3);
+            let frame = signal(c * w * h, 5);
+            let gains: Vec<Vec<f32>> = (0..c)
+                .map(|k| {
+                    (0..w * h)
+                        .map(|i| 1.0 / (1.0 + (i + k) as f32 * 1e-3))
+                        .collect()
+                })
+                .collect();
+            let input = data_buffer(&device, &frame, wgpu::BufferUsages::empty());
+            let output = data_buffer(&device, &frame, wgpu::BufferUsages::empty());
+            let run = |kernels: &mut FftKernels, (w, h): (usize, usize)| {
+                let g: Vec<Vec<f32>> = gains.iter().map(|p| p[..w * h].to_vec()).collect();
+                let mut filter = DctFilter::new(kernels, w, h, &g).expect("filter");
+                let mut enc = device.create_command_encoder(&Default::default());
+                filter.record(&mut enc, &input, &output).expect("record");
+                queue.submit([enc.finish()]);
+                let got = read(&device, &queue, &output, (c * w * h * 4) as u64);
+                (got, filter.variant(), filter.tuned())
+            };
+            install(here.clone());
+            let mut kernels = FftKernels::new(&device).expect("kernels");
+            assert_eq!(kernels.tuned_variant(w, h), Some(shape));
+            let (tuned_out, variant, tuned) = run(&mut kernels, (w, h));
+            assert_eq!((variant, tuned), (shape, true), "followed");
+            let other = run(&mut kernels, (40, 30));
+            assert_eq!(
+                (other.1, other.2),
+                (FusedVariant::default(), false),
+                "its size alone"
+            );
+            let mut plain = FftKernels::new(&device).expect("kernels");
+            plain.clear_tuned();
+            let (heuristic_out, variant, tuned) = run(&mut plain, (w, h));
+            assert_eq!((variant, tuned), (FusedVariant::default(), false));
+            assert!(
+                tuned_out
+                    .iter()
+                    .zip(&heuristic_out)
+                    .all(|(a, b)| a.to_bits() == b.to_bits()),
+                "the tuned shape's output is the heuristics' bit for bit"
+            );
+            let explicit = FusedVariant {
+                threads: Some(64),
+                max_seqs: Some(1),
+            };
+            kernels.set_fused_variant(explicit);
+            let (_, variant, tuned) = run(&mut kernels, (w, h));
+            assert_eq!(
+                (variant, tuned),
+                (explicit, false),
+                "an explicit shape wins"
+            );
+            // Another adapter's table: this one runs the heuristics.
+            install(format!("not {here}"));
+            let mut unknown = FftKernels::new(&device).expect("kernels");
+            assert_eq!(unknown.tuned_variant(w, h), None);
+            let (_, variant, tuned) = run(&mut unknown, (w, h));
+            assert_eq!((variant, tuned), (FusedVariant::default(), false));
         }
 
         #[test]

@@ -59,7 +59,7 @@ fn variant_label(v: &FusedVariant) -> String {
 
 /// One PSF per channel (the filter's cost does not depend on the kernel;
 /// its values are only realistic).
-fn psfs() -> Vec<Psf> {
+pub(crate) fn psfs() -> Vec<Psf> {
     [1.5, 2.0, 2.5]
         .iter()
         .map(|s| Psf::gaussian(*s, 0.0))
@@ -83,6 +83,10 @@ pub fn run(
     let (adapter, device, queue) = nedrt_gpu::open_device(&b.gpu, false)?;
     let adapter = adapter.get_info().name;
     let mut kernels = FftKernels::new(&device)?;
+    // The paths' rows run the heuristics' shapes; the adapter's tuned
+    // shape at a size (`nedrt bench tune`) gets a row of its own.
+    let tuned = kernels.tuned_shapes();
+    kernels.clear_tuned();
     let filter = WienerFilter::new(&psfs(), 1e-2);
     let mut md = format!(
         "`nedrt bench fft`: the Wiener prefilter of three planes, median of {} after a warm-up, \
@@ -133,16 +137,24 @@ pub fn run(
             );
             filters.push(dct);
         }
-        for v in &b.variants {
+        let tuned_here = tuned
+            .iter()
+            .find(|(size, _)| *size == (w, h))
+            .map(|(_, v)| *v);
+        for (v, is_tuned) in tuned_here
+            .iter()
+            .map(|v| (v, true))
+            .chain(b.variants.iter().map(|v| (v, false)))
+        {
             kernels.set_path(FftPath::Auto);
             kernels.set_fused_variant(*v);
             let mut dct = DctFilter::new(&mut kernels, w, h, &gains)?;
             kernels.set_fused_variant(FusedVariant::default());
             frame(&device, &queue, &mut dct, &src, &dst, timer.as_ref())?;
-            labels.push(if dct.in_workgroup_memory() {
-                variant_label(v)
-            } else {
-                "multi-pass (the sides do not fit workgroup memory)".into()
+            labels.push(match (dct.in_workgroup_memory(), is_tuned) {
+                (true, true) => format!("the adapter's tuned shape: {}", variant_label(v)),
+                (true, false) => variant_label(v),
+                (false, _) => "multi-pass (the sides do not fit workgroup memory)".into(),
             });
             filters.push(dct);
         }
@@ -333,7 +345,7 @@ fn refine(
 
 /// One frame of the filter: its wall time (record, submit, wait) and its
 /// GPU time (timestamps around its passes, where the adapter has them).
-fn frame(
+pub(crate) fn frame(
     device: &wgpu::Device,
     queue: &wgpu::Queue,
     dct: &mut DctFilter,

@@ -2,7 +2,8 @@
 //! each network tuned on this adapter at each frame size and precision,
 //! merged into the adapter's table under `--tuning DIR`, which the wgpu
 //! backend then reads. Prints, per case, each conv shape's tile and time
-//! at the heuristics' tile and at the tuned one.
+//! at the heuristics' tile and at the tuned one; then the DCT filter's
+//! workgroup shape at each size (`bench_tune_fft.rs`).
 
 use std::fmt::Write as _;
 use std::path::PathBuf;
@@ -32,6 +33,8 @@ pub struct TuneBench {
     /// Only the layers on cooperative matrices (the tiled layers' entries
     /// of the table stay as they are).
     pub coop_only: bool,
+    /// Also the DCT filter's shape at each size (not with `coop_only`).
+    pub fft: bool,
 }
 
 /// What a run wrote, and its report.
@@ -219,16 +222,33 @@ pub fn run(b: &TuneBench, common: &CommonOptions) -> Result<TuneOutcome, AppErro
             "no network could be prepared on the adapter",
         ));
     };
+    if b.fft && !b.coop_only {
+        let (adapter, device, queue) = nedrt_gpu::open_device(&options.gpu, false)?;
+        if AdapterKey::of(&adapter.get_info()) != table.adapter {
+            return Err(AppError::Internal(format!(
+                "the DCT filter's adapter ({}) is not the networks' ({})",
+                adapter.get_info().name,
+                table.adapter.name
+            )));
+        }
+        tracing::info!("tuning the DCT filter at {} sizes", b.sizes.len());
+        let fft = super::bench_tune_fft::tune(&device, &queue, &b.sizes, b.repeat)?;
+        md += &fft.report;
+        table.merge_ffts(fft.entries);
+    }
     // Stamped with this nedrt and template, whatever the old table said.
+    let ffts = std::mem::take(&mut table.ffts);
     table = TuningTable::new(table.adapter, table.convs, table.coops);
+    table.ffts = ffts;
     let shapes = table.convs.len() + table.coops.len();
     let path = table.save(&b.dir)?;
     let _ = writeln!(
         md,
-        "\nWrote {} ({} conv shapes, {} on cooperative matrices).",
+        "\nWrote {} ({} conv shapes, {} on cooperative matrices; the DCT filter's shape at {} frame size(s)).",
         path.display(),
         shapes,
-        table.coops.len()
+        table.coops.len(),
+        table.ffts.len()
     );
     Ok(TuneOutcome {
         table: path,

@@ -16,6 +16,7 @@ pub mod bench_inference;
 pub mod bench_layers;
 pub mod bench_pipeline;
 pub mod bench_tune;
+pub mod bench_tune_fft;
 pub mod eval;
 pub mod focus_cues;
 pub mod plots;

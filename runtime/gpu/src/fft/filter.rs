@@ -6,7 +6,7 @@
 
 use super::dct::MultiPassFilter;
 use super::fused::{FusedFilter, RowEnds, RowEndsSpec, fits_workgroup};
-use super::kernels::{FftKernels, check_binding};
+use super::kernels::{FftKernels, FusedVariant, check_binding};
 use super::{FftError, FftPath};
 
 /// A real, even spectrum applied to `channels` planes of one frame size:
@@ -21,6 +21,10 @@ pub struct DctFilter {
     pub height: usize,
     pub channels: usize,
     imp: Imp,
+    /// The workgroup-memory kernels' shape it was made with (the default:
+    /// the heuristics'), and whether it is the adapter's tuned one.
+    variant: FusedVariant,
+    tuned: bool,
 }
 
 #[derive(Debug)]
@@ -60,21 +64,51 @@ impl DctFilter {
         let fused = kernels.path == FftPath::Auto
             && fits_workgroup(&device, width)
             && fits_workgroup(&device, height);
+        // The adapter's tuned shape for this size, unless one was set.
+        let explicit = kernels.variant;
+        let tuned = match kernels.tuned_variant(width, height) {
+            Some(v) if explicit == FusedVariant::default() && fused => {
+                kernels.variant = v;
+                true
+            }
+            _ => false,
+        };
+        let variant = kernels.variant;
         // A driver that refuses the generated kernels (a limit wgpu does not
         // report) still gets a filter: the fallback's.
-        let imp = match fused.then(|| FusedFilter::new(kernels, width, height, sets)) {
+        let made = fused.then(|| FusedFilter::new(kernels, width, height, sets));
+        kernels.variant = explicit;
+        let imp = match made {
             Some(Ok(f)) => Imp::Fused(f),
             Some(Err(e)) if !matches!(e, FftError::Device(_)) => return Err(e),
             _ => Imp::MultiPass(MultiPassFilter::with_gain_sets(
                 kernels, width, height, sets,
             )?),
         };
+        let in_memory = matches!(imp, Imp::Fused(_));
         Ok(Self {
             width,
             height,
             channels,
             imp,
+            variant: if in_memory {
+                variant
+            } else {
+                FusedVariant::default()
+            },
+            tuned: tuned && in_memory,
         })
+    }
+
+    /// The workgroup-memory kernels' shape the filter runs (the default:
+    /// the heuristics'; the multi-pass filter has none).
+    pub fn variant(&self) -> FusedVariant {
+        self.variant
+    }
+
+    /// Whether that shape is the adapter's tuned one for this size.
+    pub fn tuned(&self) -> bool {
+        self.tuned
     }
 
     /// Whether the filter runs in workgroup memory (three dispatches) or

@@ -83,6 +83,8 @@ pub struct FftKernels {
     pub(super) max_threads: u32,
     /// The workgroup-memory kernels' shape, where not the heuristics'.
     pub(super) variant: FusedVariant,
+    /// The adapter's tuned shapes by frame size ([`super::tuned`]).
+    pub(super) tuned: super::tuned::TunedSizes,
 }
 
 /// How the workgroup-memory kernels are cut, where not by the heuristics
@@ -171,6 +173,7 @@ impl FftKernels {
                 fused: HashMap::new(),
                 path: FftPath::Auto,
                 variant: FusedVariant::default(),
+                tuned: super::tuned::for_adapter(&device.adapter_info()),
                 // lavapipe runs a workgroup's lanes as coroutines that switch
                 // at every barrier: fewer of them is faster there.
                 max_threads: if device.adapter_info().device_type == wgpu::DeviceType::Cpu {
@@ -206,6 +209,27 @@ impl FftKernels {
 
     pub fn fused_variant(&self) -> FusedVariant {
         self.variant
+    }
+
+    /// The adapter's tuned shape for `width`×`height` filters, if its
+    /// table has one ([`super::tuned`]); a filter of that size made
+    /// without a [`FftKernels::set_fused_variant`] runs it.
+    pub fn tuned_variant(&self, width: usize, height: usize) -> Option<FusedVariant> {
+        self.tuned
+            .iter()
+            .find(|(size, _)| *size == (width, height))
+            .map(|(_, v)| *v)
+    }
+
+    /// The adapter's tuned shapes: ((width, height), shape).
+    pub fn tuned_shapes(&self) -> super::tuned::TunedSizes {
+        self.tuned.clone()
+    }
+
+    /// Forgets the adapter's tuned shapes: the filters made from now on
+    /// run the heuristics' (the benchmarks' and the tuner's baseline).
+    pub fn clear_tuned(&mut self) {
+        self.tuned = Default::default();
     }
 
     pub fn path(&self) -> FftPath {

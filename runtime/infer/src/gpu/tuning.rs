@@ -76,7 +76,7 @@ impl AdapterKey {
 }
 
 mod entries;
-pub use entries::{ConvShape, CoopShape, DtypeName, TunedConv, TunedCoop};
+pub use entries::{ConvShape, CoopShape, DtypeName, TunedConv, TunedCoop, TunedFft};
 
 /// Every tile the template builds for a `kernel`×`kernel` conv summing in
 /// `arith`: 8, 16 or 32 pixels wide, 1 to 16 rows, one quad's staging
@@ -124,6 +124,9 @@ pub struct TuningTable {
     pub convs: Vec<TunedConv>,
     #[serde(default, rename = "coop", skip_serializing_if = "Vec::is_empty")]
     pub coops: Vec<TunedCoop>,
+    /// The DCT filter's shape per frame size (docs/tuning.md).
+    #[serde(default, rename = "fft", skip_serializing_if = "Vec::is_empty")]
+    pub ffts: Vec<TunedFft>,
 }
 
 /// The conv templates' hash (register-tiled and cooperative), as tables
@@ -166,6 +169,7 @@ impl TuningTable {
             template: template_hash(),
             convs,
             coops,
+            ffts: Vec::new(),
         }
     }
 
@@ -258,6 +262,19 @@ impl TuningTable {
                 ));
             }
         }
+        let mut seen = HashMap::new();
+        for (i, f) in table.ffts.iter().enumerate() {
+            let at = format!("fft entry {} ({}×{})", i + 1, f.width, f.height);
+            if let Some(why) = f.invalid() {
+                return Err(bad(path, format!("{at}: {why}")));
+            }
+            if let Some(j) = seen.insert((f.width, f.height), i) {
+                return Err(bad(
+                    path,
+                    format!("{at}: the same frame size as fft entry {}", j + 1),
+                ));
+            }
+        }
         Ok(table)
     }
 
@@ -330,10 +347,33 @@ impl TuningTable {
             ));
         }
         let text = toml::to_string(self).map_err(|e| bad(&path, e))?;
-        let header = "# Conv tiles tuned on this adapter by `nedrt bench tune` (docs/tuning.md).\n";
+        let header = "# Conv tiles and DCT filter shapes tuned on this adapter by `nedrt bench tune` \
+                      (docs/tuning.md).\n";
         nedrt_core::util::write_atomic(&path, format!("{header}{text}").as_bytes())
             .map_err(|e| bad(&path, e))?;
         Ok(path)
+    }
+
+    /// The DCT filter's tuned shapes: ((width, height), shape).
+    pub fn fft_shapes(&self) -> Vec<((usize, usize), nedrt_gpu::fft::FusedVariant)> {
+        self.ffts
+            .iter()
+            .map(|f| ((f.width, f.height), f.variant()))
+            .collect()
+    }
+
+    /// Merges `ffts` in, a frame size in both taking the new entry.
+    pub fn merge_ffts(&mut self, ffts: Vec<TunedFft>) {
+        for f in ffts {
+            match self
+                .ffts
+                .iter_mut()
+                .find(|e| (e.width, e.height) == (f.width, f.height))
+            {
+                Some(e) => *e = f,
+                None => self.ffts.push(f),
+            }
+        }
     }
 
     /// Merges `convs` and `coops` in, a shape in both taking the new entry.
@@ -389,6 +429,35 @@ pub fn table_for(
                 dir.display()
             );
             Ok(None)
+        }
+    }
+}
+
+/// The DCT filter's tuned shapes in `dir` for the adapter of `info`
+/// (nedrt-gpu's [`nedrt_gpu::fft::tuned`] source, installed by the
+/// binary): none without a table; a broken table is said in the log (the
+/// D-CNN's backend stops on it by name) and gives none.
+pub fn fft_shapes_for(dir: &Path, info: &wgpu::AdapterInfo) -> nedrt_gpu::fft::tuned::TunedSizes {
+    let key = AdapterKey::of(info);
+    match TuningTable::find(dir, &key) {
+        Ok(Some((path, table))) if !table.ffts.is_empty() => {
+            let sizes: Vec<String> = table
+                .ffts
+                .iter()
+                .map(|f| format!("{}×{}", f.width, f.height))
+                .collect();
+            tracing::info!(
+                "DCT filter shapes of {} tuned for {} at {}",
+                path.display(),
+                key.name,
+                sizes.join(", ")
+            );
+            std::sync::Arc::new(table.fft_shapes())
+        }
+        Ok(_) => Default::default(),
+        Err(e) => {
+            tracing::warn!("{e}: the DCT filter runs the heuristics' shapes");
+            Default::default()
         }
     }
 }
@@ -474,6 +543,24 @@ mod tests {
                 tuned_ns: 2000,
                 heuristic_ns: 2500,
             }],
+            ffts: vec![
+                TunedFft {
+                    width: 1920,
+                    height: 1080,
+                    threads: Some(512),
+                    pairs: Some(4),
+                    tuned_ns: 900,
+                    heuristic_ns: 1000,
+                },
+                TunedFft {
+                    width: 64,
+                    height: 48,
+                    threads: None,
+                    pairs: Some(2),
+                    tuned_ns: 10,
+                    heuristic_ns: 10,
+                },
+            ],
         }
     }
 
@@ -519,6 +606,25 @@ mod tests {
             ..coop_shape()
         };
         assert_eq!(t.coop_tile_for(&transposed), None);
+        assert_eq!(
+            t.fft_shapes(),
+            vec![
+                (
+                    (1920, 1080),
+                    nedrt_gpu::fft::FusedVariant {
+                        threads: Some(512),
+                        max_seqs: Some(4)
+                    }
+                ),
+                (
+                    (64, 48),
+                    nedrt_gpu::fft::FusedVariant {
+                        threads: None,
+                        max_seqs: Some(2)
+                    }
+                )
+            ]
+        );
         let newer = AdapterKey {
             driver_info: "Mesa 24.0".into(),
             ..key()
@@ -581,6 +687,17 @@ mod tests {
             ("transposed = false", "transposed = 1", "invalid type"),
             ("chunks = 2", "chunks = 8", "chunks at most 4"),
             (
+                "pairs = 4",
+                "pairs = 3",
+                "fft entry 1 (1920×1080): pairs = 3: must be 1, 2, 4 or 8",
+            ),
+            (
+                "threads = 512",
+                "threads = 2000",
+                "threads = 2000: must be 32 to 1024",
+            ),
+            ("width = 1920", "width = 0", "a 0×1080 frame"),
+            (
                 "chunks = 2",
                 "chunks = 0",
                 "is not a tile the cooperative kernel builds",
@@ -610,6 +727,16 @@ mod tests {
             .expect_err("twice")
             .to_string();
         assert!(e.contains("same shape as coop entry 1"), "{e}");
+        let mut twice = table();
+        twice.ffts.push(twice.ffts[1].clone());
+        std::fs::write(&path, toml::to_string(&twice).expect("toml")).expect("writes");
+        let e = TuningTable::find(dir.path(), &key())
+            .expect_err("twice")
+            .to_string();
+        assert!(
+            e.contains("fft entry 3 (64×48): the same frame size as fft entry 2"),
+            "{e}"
+        );
         // Only the adapter's own file is read: a broken other file (a
         // table from a newer nedrt, an unrelated TOML) stops nothing.
         std::fs::write(&path, text.clone()).expect("writes");

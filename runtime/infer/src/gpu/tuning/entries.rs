@@ -1,5 +1,6 @@
 //! A tuning table's entries: the layer shapes it keys and the tiles it
-//! gives them (`[[conv]]` and `[[coop]]`).
+//! gives them (`[[conv]]` and `[[coop]]`), and the DCT filter's shape per
+//! frame size (`[[fft]]`).
 
 use serde::{Deserialize, Serialize};
 
@@ -152,4 +153,52 @@ impl TunedCoop {
 
 fn one_chunk() -> u32 {
     1
+}
+
+/// The DCT filter's workgroup-memory kernels at one frame size (issue 56,
+/// item 4): threads a workgroup and at most that many sequence pairs a
+/// workgroup ([`nedrt_gpu::fft::FusedVariant`]); either left out is the
+/// heuristics' choice.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TunedFft {
+    pub width: usize,
+    pub height: usize,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub threads: Option<u32>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub pairs: Option<u32>,
+    /// The filter of three planes at this shape and at the heuristics':
+    /// the best of the tuner's repetitions, nanoseconds of device time.
+    pub tuned_ns: u64,
+    pub heuristic_ns: u64,
+}
+
+impl TunedFft {
+    pub fn variant(&self) -> nedrt_gpu::fft::FusedVariant {
+        nedrt_gpu::fft::FusedVariant {
+            threads: self.threads,
+            max_seqs: self.pairs,
+        }
+    }
+
+    /// Why the entry is not one the kernels build, if it is not: threads
+    /// 32 to 1024, pairs 1, 2, 4 or 8 (`nedrt bench fft --fft-variants`'
+    /// range), sides of at least 1.
+    pub fn invalid(&self) -> Option<String> {
+        if self.width == 0 || self.height == 0 {
+            return Some(format!("a {}×{} frame", self.width, self.height));
+        }
+        if let Some(t) = self.threads
+            && !(32..=1024).contains(&t)
+        {
+            return Some(format!("threads = {t}: must be 32 to 1024"));
+        }
+        if let Some(p) = self.pairs
+            && ![1, 2, 4, 8].contains(&p)
+        {
+            return Some(format!("pairs = {p}: must be 1, 2, 4 or 8"));
+        }
+        None
+    }
 }
