@@ -472,7 +472,7 @@ impl crate::DeviceStage for RefineStage {
 mod tests {
     use super::*;
     use crate::DeviceStage;
-    use crate::fft::FftPath;
+    use crate::fft::{FftPath, FusedVariant};
     use wgpu::util::DeviceExt;
 
     /// A three-channel problem: a Gaussian-like blur per channel (wider in
@@ -622,6 +622,21 @@ mod tests {
                 assert_eq!(s.steps_fused(), Some(false), "{w}×{h} {path:?}");
                 twins.push(run(&device, &queue, &mut s, (w, h), &frames));
             }
+            // Two row pairs a workgroup on 32 threads: a row pair's terms
+            // summed over threads holding several pixels each.
+            let mut shaped = stage(&device, steps, true, FftPath::Auto);
+            shaped.kernels_mut().set_fused_variant(FusedVariant {
+                threads: Some(32),
+                max_seqs: Some(2),
+            });
+            let reshaped = run(&device, &queue, &mut shaped, (w, h), &frames);
+            assert!(
+                reshaped[0]
+                    .iter()
+                    .zip(&got[0])
+                    .all(|(a, b)| a.to_bits() == b.to_bits()),
+                "refine:{steps} {w}×{h}: 32 threads, 2 pairs a workgroup"
+            );
             let start = run(
                 &device,
                 &queue,

@@ -285,6 +285,8 @@ fn refine(
         };
         let mut stage = RefineStage::new(device, "refine".into(), k.steps, Box::new(terms))?
             .with_fused_steps(fuse);
+        // The heuristics' shapes, as the filter's rows above.
+        stage.kernels_mut().clear_tuned();
         stage.prepare(w, h)?;
         stages.push(stage);
     }

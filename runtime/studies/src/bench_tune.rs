@@ -222,26 +222,30 @@ pub fn run(b: &TuneBench, common: &CommonOptions) -> Result<TuneOutcome, AppErro
             "no network could be prepared on the adapter",
         ));
     };
+    // Stamped with this nedrt and template, whatever the old table said;
+    // the conv entries written before the filter's tuning, which cannot
+    // then lose them.
+    let ffts = std::mem::take(&mut table.ffts);
+    table = TuningTable::new(table.adapter, table.convs, table.coops);
+    table.ffts = ffts;
+    let mut path = table.save(&b.dir)?;
     if b.fft && !b.coop_only {
         let (adapter, device, queue) = nedrt_gpu::open_device(&options.gpu, false)?;
         if AdapterKey::of(&adapter.get_info()) != table.adapter {
             return Err(AppError::Internal(format!(
-                "the DCT filter's adapter ({}) is not the networks' ({})",
+                "the DCT filter's adapter ({}) is not the networks' ({}); {} holds the conv entries",
                 adapter.get_info().name,
-                table.adapter.name
+                table.adapter.name,
+                path.display()
             )));
         }
         tracing::info!("tuning the DCT filter at {} sizes", b.sizes.len());
         let fft = super::bench_tune_fft::tune(&device, &queue, &b.sizes, b.repeat)?;
         md += &fft.report;
         table.merge_ffts(fft.entries);
+        path = table.save(&b.dir)?;
     }
-    // Stamped with this nedrt and template, whatever the old table said.
-    let ffts = std::mem::take(&mut table.ffts);
-    table = TuningTable::new(table.adapter, table.convs, table.coops);
-    table.ffts = ffts;
     let shapes = table.convs.len() + table.coops.len();
-    let path = table.save(&b.dir)?;
     let _ = writeln!(
         md,
         "\nWrote {} ({} conv shapes, {} on cooperative matrices; the DCT filter's shape at {} frame size(s)).",

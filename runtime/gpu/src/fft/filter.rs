@@ -225,10 +225,15 @@ impl DctFilter {
         kernels: &mut FftKernels,
         spec: &RowEndsSpec,
     ) -> Result<Option<RowEnds>, FftError> {
-        match &self.imp {
-            Imp::Fused(f) => f.row_ends(kernels, spec).map(Some),
-            Imp::MultiPass(_) => Ok(None),
-        }
+        let Imp::Fused(f) = &self.imp else {
+            return Ok(None);
+        };
+        // Built at the filter's own shape (a tuned or explicit one), not
+        // whatever the kernels hold now.
+        let now = std::mem::replace(&mut kernels.variant, self.variant);
+        let ends = f.row_ends(kernels, spec);
+        kernels.variant = now;
+        ends.map(Some)
     }
 
     /// The filter with gain set `set` from `input` to `output`, its rows'
@@ -251,6 +256,13 @@ impl DctFilter {
                 "row ends need the workgroup-memory filter; this one runs by passes".into(),
             ));
         };
+        if !f.fits(ends) {
+            return Err(FftError::Device(format!(
+                "row ends built for another filter's rows (of {}, {:?} pairs a workgroup) \
+                 recorded on rows of {}",
+                ends.n, ends.seqs, self.width
+            )));
+        }
         let steps = f.steps_with_ends(ends, input, output, set, load);
         let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
             label: Some("dct filter with row ends"),

@@ -51,6 +51,9 @@ pub struct RowEndsSpec {
 pub struct RowEnds {
     pub(super) load: wgpu::ComputePipeline,
     pub(super) store: wgpu::ComputePipeline,
+    /// The rows' length and pairs a workgroup they were built for.
+    pub(super) n: usize,
+    pub(super) seqs: (u32, u32),
 }
 
 impl FftKernels {
@@ -336,7 +339,14 @@ impl FusedFilter {
         Ok(RowEnds {
             load: kernels.fused_pipeline_in(n, self.rows_fwd.seqs, spec.load, Some(spec))?,
             store: kernels.fused_pipeline_in(n, self.rows_inv.seqs, spec.store, Some(spec))?,
+            n,
+            seqs: (self.rows_fwd.seqs, self.rows_inv.seqs),
         })
+    }
+
+    /// Whether `ends` were built for this filter's rows.
+    pub(super) fn fits(&self, ends: &RowEnds) -> bool {
+        ends.n == self.rows.n && ends.seqs == (self.rows_fwd.seqs, self.rows_inv.seqs)
     }
 
     /// The dispatches of one filter with gain set `set` from `input` to
