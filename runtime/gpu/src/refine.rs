@@ -591,105 +591,110 @@ mod tests {
             .fold(0.0, f32::max)
     }
 
-    /// The steps fused into the filter's rows (issue 56, item 3) are the
-    /// unfused steps on the same filter bit for bit: every pixel's
-    /// arithmetic is theirs, and the restart test's sum, added in another
-    /// order, is only read for its sign. The multi-pass filter's steps
-    /// agree within rounding. Odd sides put a row pair across two channels
-    /// and leave the last row unpaired; the long runs restart (they fail
-    /// with the rows' sums written as −1, that is never restarting).
-    #[test]
-    #[ignore = "needs a GPU adapter (run: scripts/test.sh, or cargo test -- --include-ignored)"]
-    fn the_steps_fused_into_the_rows_are_the_unfused_steps() {
-        let (device, queue) = crate::test_device(false);
-        for (w, h, steps) in [
-            (63, 45, 6),
-            (40, 27, 1),
-            (16, 9, 10),
-            (64, 40, 3),
-            (40, 27, 40),
-            (63, 45, 25),
-        ] {
-            let frames = [frame(w, h, 0)];
-            let mut fused = stage(&device, steps, true, FftPath::Auto);
-            fused.prepare(w, h).expect("prepare");
-            assert_eq!(fused.steps_fused(), Some(true), "{w}×{h} fused on lavapipe");
-            let got = run(&device, &queue, &mut fused, (w, h), &frames);
-            let mut twins = Vec::new();
-            for (fuse, path) in [(false, FftPath::Auto), (true, FftPath::MultiPass)] {
-                let mut s = stage(&device, steps, fuse, path);
-                s.prepare(w, h).expect("prepare");
-                assert_eq!(s.steps_fused(), Some(false), "{w}×{h} {path:?}");
-                twins.push(run(&device, &queue, &mut s, (w, h), &frames));
-            }
-            // Two row pairs a workgroup on 32 threads: a row pair's terms
-            // summed over threads holding several pixels each.
-            let mut shaped = stage(&device, steps, true, FftPath::Auto);
-            shaped.kernels_mut().set_fused_variant(FusedVariant {
-                threads: Some(32),
-                max_seqs: Some(2),
-            });
-            let reshaped = run(&device, &queue, &mut shaped, (w, h), &frames);
-            assert!(
-                reshaped[0]
-                    .iter()
-                    .zip(&got[0])
-                    .all(|(a, b)| a.to_bits() == b.to_bits()),
-                "refine:{steps} {w}×{h}: 32 threads, 2 pairs a workgroup"
-            );
-            let start = run(
-                &device,
-                &queue,
-                &mut stage(&device, 0, true, FftPath::Auto),
-                (w, h),
-                &frames,
-            );
-            let moved = worst(&got[0], &start[0]);
-            let unfused = worst(&got[0], &twins[0][0]);
-            let passes = worst(&got[0], &twins[1][0]);
-            eprintln!(
-                "refine:{steps} {w}×{h}: fused {unfused:e} from the unfused, {passes:e} from the multi-pass; the steps moved it {moved}"
-            );
-            assert!(
-                got[0]
-                    .iter()
-                    .zip(&twins[0][0])
-                    .all(|(a, b)| a.to_bits() == b.to_bits()),
-                "refine:{steps} {w}×{h}: {unfused} off the unfused steps"
-            );
-            assert!(
-                passes <= 1e-4,
-                "refine:{steps} {w}×{h}: {passes} off the multi-pass"
-            );
-            assert!(moved > 1e-2, "the steps did something: {moved}");
-        }
-    }
+    // Named for the hardware stage's filter (`--ignored needs_`).
+    mod needs_gpu {
+        use super::*;
 
-    /// Warm-started, the fused steps go on over still frames and start
-    /// afresh on a changed one as the unfused steps do: the last step's
-    /// advance leaves the y and x the next frame goes on from.
-    #[test]
-    #[ignore = "needs a GPU adapter (run: scripts/test.sh, or cargo test -- --include-ignored)"]
-    fn warm_fused_steps_go_on_as_the_unfused_steps_do() {
-        let (device, queue) = crate::test_device(false);
-        let (w, h) = (40, 27);
-        let (still, moved) = (frame(w, h, 0), frame(w, h, 3));
-        let frames = [still.clone(), still.clone(), still, moved.clone(), moved];
-        let shown: Vec<Vec<Vec<f32>>> = [true, false]
-            .map(|fuse| {
-                let mut s = stage(&device, 2, fuse, FftPath::Auto)
-                    .warm_started(1e-3)
-                    .expect("warm");
-                run(&device, &queue, &mut s, (w, h), &frames)
-            })
-            .into();
-        for (t, (a, b)) in shown[0].iter().zip(&shown[1]).enumerate() {
-            assert_eq!(worst(a, b), 0.0, "frame {t}");
+        /// The steps fused into the filter's rows (issue 56, item 3) are the
+        /// unfused steps on the same filter bit for bit: every pixel's
+        /// arithmetic is theirs, and the restart test's sum, added in another
+        /// order, is only read for its sign. The multi-pass filter's steps
+        /// agree within rounding. Odd sides put a row pair across two channels
+        /// and leave the last row unpaired; the long runs restart (they fail
+        /// with the rows' sums written as −1, that is never restarting).
+        #[test]
+        #[ignore = "needs a GPU adapter (run: scripts/test.sh, or cargo test -- --include-ignored)"]
+        fn the_steps_fused_into_the_rows_are_the_unfused_steps() {
+            let (device, queue) = crate::test_device(false);
+            for (w, h, steps) in [
+                (63, 45, 6),
+                (40, 27, 1),
+                (16, 9, 10),
+                (64, 40, 3),
+                (40, 27, 40),
+                (63, 45, 25),
+            ] {
+                let frames = [frame(w, h, 0)];
+                let mut fused = stage(&device, steps, true, FftPath::Auto);
+                fused.prepare(w, h).expect("prepare");
+                assert_eq!(fused.steps_fused(), Some(true), "{w}×{h} fused on lavapipe");
+                let got = run(&device, &queue, &mut fused, (w, h), &frames);
+                let mut twins = Vec::new();
+                for (fuse, path) in [(false, FftPath::Auto), (true, FftPath::MultiPass)] {
+                    let mut s = stage(&device, steps, fuse, path);
+                    s.prepare(w, h).expect("prepare");
+                    assert_eq!(s.steps_fused(), Some(false), "{w}×{h} {path:?}");
+                    twins.push(run(&device, &queue, &mut s, (w, h), &frames));
+                }
+                // Two row pairs a workgroup on 32 threads: a row pair's terms
+                // summed over threads holding several pixels each.
+                let mut shaped = stage(&device, steps, true, FftPath::Auto);
+                shaped.kernels_mut().set_fused_variant(FusedVariant {
+                    threads: Some(32),
+                    max_seqs: Some(2),
+                });
+                let reshaped = run(&device, &queue, &mut shaped, (w, h), &frames);
+                assert!(
+                    reshaped[0]
+                        .iter()
+                        .zip(&got[0])
+                        .all(|(a, b)| a.to_bits() == b.to_bits()),
+                    "refine:{steps} {w}×{h}: 32 threads, 2 pairs a workgroup"
+                );
+                let start = run(
+                    &device,
+                    &queue,
+                    &mut stage(&device, 0, true, FftPath::Auto),
+                    (w, h),
+                    &frames,
+                );
+                let moved = worst(&got[0], &start[0]);
+                let unfused = worst(&got[0], &twins[0][0]);
+                let passes = worst(&got[0], &twins[1][0]);
+                eprintln!(
+                    "refine:{steps} {w}×{h}: fused {unfused:e} from the unfused, {passes:e} from the multi-pass; the steps moved it {moved}"
+                );
+                assert!(
+                    got[0]
+                        .iter()
+                        .zip(&twins[0][0])
+                        .all(|(a, b)| a.to_bits() == b.to_bits()),
+                    "refine:{steps} {w}×{h}: {unfused} off the unfused steps"
+                );
+                assert!(
+                    passes <= 1e-4,
+                    "refine:{steps} {w}×{h}: {passes} off the multi-pass"
+                );
+                assert!(moved > 1e-2, "the steps did something: {moved}");
+            }
         }
-        assert!(
-            worst(&shown[0][2], &shown[0][0]) > 1e-3,
-            "still frames went on"
-        );
-        assert!(worst(&shown[0][3], &shown[0][0]) > 1e-3, "a changed frame");
+
+        /// Warm-started, the fused steps go on over still frames and start
+        /// afresh on a changed one as the unfused steps do: the last step's
+        /// advance leaves the y and x the next frame goes on from.
+        #[test]
+        #[ignore = "needs a GPU adapter (run: scripts/test.sh, or cargo test -- --include-ignored)"]
+        fn warm_fused_steps_go_on_as_the_unfused_steps_do() {
+            let (device, queue) = crate::test_device(false);
+            let (w, h) = (40, 27);
+            let (still, moved) = (frame(w, h, 0), frame(w, h, 3));
+            let frames = [still.clone(), still.clone(), still, moved.clone(), moved];
+            let shown: Vec<Vec<Vec<f32>>> = [true, false]
+                .map(|fuse| {
+                    let mut s = stage(&device, 2, fuse, FftPath::Auto)
+                        .warm_started(1e-3)
+                        .expect("warm");
+                    run(&device, &queue, &mut s, (w, h), &frames)
+                })
+                .into();
+            for (t, (a, b)) in shown[0].iter().zip(&shown[1]).enumerate() {
+                assert_eq!(worst(a, b), 0.0, "frame {t}");
+            }
+            assert!(
+                worst(&shown[0][2], &shown[0][0]) > 1e-3,
+                "still frames went on"
+            );
+            assert!(worst(&shown[0][3], &shown[0][0]) > 1e-3, "a changed frame");
+        }
     }
 }

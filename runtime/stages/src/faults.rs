@@ -123,31 +123,36 @@ mod tests {
         }
     }
 
-    /// Warming up is not a frame: the fault comes after as many frames
-    /// however often the stage was made ready.
-    #[test]
-    #[ignore = "needs a GPU adapter (run: scripts/test.sh, or cargo test -- --include-ignored)"]
-    fn a_device_stage_fails_after_its_frames_not_its_warm_ups() {
-        let (device, _queue) = nedrt_gpu::test_device(false);
-        let buffer = device.create_buffer(&wgpu::BufferDescriptor {
-            label: None,
-            size: 4 * 3 * 6,
-            usage: wgpu::BufferUsages::STORAGE,
-            mapped_at_creation: false,
-        });
-        let mut stage = FailsAfter::new(Box::new(Nothing) as Box<dyn DeviceStage>, 2);
-        for _ in 0..3 {
-            stage.warm_up(&buffer, &buffer, 3, 2).expect("warms up");
-        }
-        let mut encoder = device.create_command_encoder(&Default::default());
-        for frame in 0..4 {
-            let recorded = stage.record(&mut encoder, &buffer, &buffer, 3, 2);
-            match frame {
-                0 | 1 => recorded.expect("in time"),
-                _ => assert!(
-                    matches!(recorded, Err(GpuError::DeviceLost(_))),
-                    "{recorded:?}"
-                ),
+    // Named for scripts/test.sh's hardware stage (`--ignored needs_`).
+    mod needs_gpu {
+        use super::*;
+
+        /// Warming up is not a frame: the fault comes after as many frames
+        /// however often the stage was made ready.
+        #[test]
+        #[ignore = "needs a GPU adapter (run: scripts/test.sh, or cargo test -- --include-ignored)"]
+        fn a_device_stage_fails_after_its_frames_not_its_warm_ups() {
+            let (device, _queue) = nedrt_gpu::test_device(false);
+            let buffer = device.create_buffer(&wgpu::BufferDescriptor {
+                label: None,
+                size: 4 * 3 * 6,
+                usage: wgpu::BufferUsages::STORAGE,
+                mapped_at_creation: false,
+            });
+            let mut stage = FailsAfter::new(Box::new(Nothing) as Box<dyn DeviceStage>, 2);
+            for _ in 0..3 {
+                stage.warm_up(&buffer, &buffer, 3, 2).expect("warms up");
+            }
+            let mut encoder = device.create_command_encoder(&Default::default());
+            for frame in 0..4 {
+                let recorded = stage.record(&mut encoder, &buffer, &buffer, 3, 2);
+                match frame {
+                    0 | 1 => recorded.expect("in time"),
+                    _ => assert!(
+                        matches!(recorded, Err(GpuError::DeviceLost(_))),
+                        "{recorded:?}"
+                    ),
+                }
             }
         }
     }

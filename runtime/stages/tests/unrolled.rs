@@ -151,22 +151,6 @@ fn the_corrections_move_the_display_image() {
     );
 }
 
-#[test]
-#[ignore = "needs a GPU adapter (run: scripts/test.sh, or cargo test -- --include-ignored)"]
-fn the_unrolled_golden_is_what_the_wgpu_backend_computes() {
-    let d = step_differences(BackendKind::Wgpu);
-    eprintln!("largest difference after each step: {d:?}");
-    assert!(d.iter().all(|d| *d <= 1e-4), "after each step: {d:?}");
-}
-
-#[test]
-#[ignore = "needs ONNX Runtime (run: scripts/test.sh, or cargo test -- --include-ignored)"]
-fn the_unrolled_golden_is_what_onnx_runtime_computes() {
-    let d = step_differences(BackendKind::Ort);
-    eprintln!("largest difference after each step: {d:?}");
-    assert!(d.iter().all(|d| *d <= 1e-4), "after each step: {d:?}");
-}
-
 /// The golden folder copied into a temporary one, with its manifest edited.
 fn edited(edit: impl Fn(&str) -> String) -> (tempfile::TempDir, PathBuf) {
     let dir = tempfile::tempdir().expect("tempdir");
@@ -277,68 +261,95 @@ fn frame(width: usize, height: usize, seed: u64) -> Image {
     Image::from_data(width, height, 3, data)
 }
 
-#[test]
-#[ignore = "needs a GPU adapter (run: scripts/test.sh, or cargo test -- --include-ignored)"]
-fn the_unrolled_model_as_one_device_stage_is_its_host_twin() {
-    use nedrt_gpu::DeviceStage;
-    let (adapter, device, queue) =
-        nedrt_gpu::open_device(&nedrt_gpu::GpuSettings::default(), false).expect("a GPU adapter");
-    let name = adapter.get_info().name;
-    let manifest = Manifest::read(&manifest_path()).expect("reads");
-    let (problem, _) = golden_problem();
-    let mut host =
-        Unrolled::with_problem(manifest, problem, BackendKind::Cpu, &options()).expect("loads");
-    let mut stage = host
-        .device_stage(&device, &queue, &name, &BackendOptions::default())
-        .expect("builds");
-    assert!(
-        stage
-            .describe()
-            .contains("3 split-solver steps, 2 with a learned correction")
-    );
-    // Odd sides, neither a power of two; twice, the second on the first's plan.
-    for (w, h, seed) in [(21, 13, 1), (21, 13, 2), (24, 16, 3)] {
-        let input = frame(w, h, seed);
-        let want = host.run(&input).expect("host");
-        let usage = wgpu::BufferUsages::STORAGE
-            | wgpu::BufferUsages::COPY_SRC
-            | wgpu::BufferUsages::COPY_DST;
-        let bytes = (3 * w * h * 4) as u64;
-        let make = |label| {
-            device.create_buffer(&wgpu::BufferDescriptor {
-                label: Some(label),
+// Named for scripts/test.sh's hardware stage (`--ignored needs_`).
+mod needs_gpu {
+    use super::*;
+
+    #[test]
+    #[ignore = "needs a GPU adapter (run: scripts/test.sh, or cargo test -- --include-ignored)"]
+    fn the_unrolled_golden_is_what_the_wgpu_backend_computes() {
+        let d = step_differences(BackendKind::Wgpu);
+        eprintln!("largest difference after each step: {d:?}");
+        assert!(d.iter().all(|d| *d <= 1e-4), "after each step: {d:?}");
+    }
+
+    #[test]
+    #[ignore = "needs a GPU adapter (run: scripts/test.sh, or cargo test -- --include-ignored)"]
+    fn the_unrolled_model_as_one_device_stage_is_its_host_twin() {
+        use nedrt_gpu::DeviceStage;
+        let (adapter, device, queue) =
+            nedrt_gpu::open_device(&nedrt_gpu::GpuSettings::default(), false)
+                .expect("a GPU adapter");
+        let name = adapter.get_info().name;
+        let manifest = Manifest::read(&manifest_path()).expect("reads");
+        let (problem, _) = golden_problem();
+        let mut host =
+            Unrolled::with_problem(manifest, problem, BackendKind::Cpu, &options()).expect("loads");
+        let mut stage = host
+            .device_stage(&device, &queue, &name, &BackendOptions::default())
+            .expect("builds");
+        assert!(
+            stage
+                .describe()
+                .contains("3 split-solver steps, 2 with a learned correction")
+        );
+        // Odd sides, neither a power of two; twice, the second on the first's plan.
+        for (w, h, seed) in [(21, 13, 1), (21, 13, 2), (24, 16, 3)] {
+            let input = frame(w, h, seed);
+            let want = host.run(&input).expect("host");
+            let usage = wgpu::BufferUsages::STORAGE
+                | wgpu::BufferUsages::COPY_SRC
+                | wgpu::BufferUsages::COPY_DST;
+            let bytes = (3 * w * h * 4) as u64;
+            let make = |label| {
+                device.create_buffer(&wgpu::BufferDescriptor {
+                    label: Some(label),
+                    size: bytes,
+                    usage,
+                    mapped_at_creation: false,
+                })
+            };
+            let (frame_buf, display) = (make("frame"), make("display"));
+            queue.write_buffer(&frame_buf, 0, bytemuck::cast_slice(input.data()));
+            let readback = device.create_buffer(&wgpu::BufferDescriptor {
+                label: None,
                 size: bytes,
-                usage,
+                usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
                 mapped_at_creation: false,
-            })
-        };
-        let (frame_buf, display) = (make("frame"), make("display"));
-        queue.write_buffer(&frame_buf, 0, bytemuck::cast_slice(input.data()));
-        let readback = device.create_buffer(&wgpu::BufferDescriptor {
-            label: None,
-            size: bytes,
-            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        });
-        let mut encoder = device.create_command_encoder(&Default::default());
-        // The stage records everything into the frame's encoder: no
-        // submission or read-back of its own.
-        stage
-            .record(&mut encoder, &frame_buf, &display, w, h)
-            .expect("records");
-        encoder.copy_buffer_to_buffer(&display, 0, &readback, 0, bytes);
-        queue.submit([encoder.finish()]);
-        nedrt_gpu::map_and_wait(&device, &readback).expect("reads back");
-        let got: Vec<f32> =
-            bytemuck::cast_slice(&readback.slice(..).get_mapped_range().expect("view")).to_vec();
-        readback.unmap();
-        let d = want
-            .data()
-            .iter()
-            .zip(&got)
-            .map(|(a, b)| (a - b).abs())
-            .fold(0.0f32, f32::max);
-        eprintln!("{w}×{h}: device against host {d}");
-        assert!(d <= 1e-4, "{w}×{h}: {d}");
+            });
+            let mut encoder = device.create_command_encoder(&Default::default());
+            // The stage records everything into the frame's encoder: no
+            // submission or read-back of its own.
+            stage
+                .record(&mut encoder, &frame_buf, &display, w, h)
+                .expect("records");
+            encoder.copy_buffer_to_buffer(&display, 0, &readback, 0, bytes);
+            queue.submit([encoder.finish()]);
+            nedrt_gpu::map_and_wait(&device, &readback).expect("reads back");
+            let got: Vec<f32> =
+                bytemuck::cast_slice(&readback.slice(..).get_mapped_range().expect("view"))
+                    .to_vec();
+            readback.unmap();
+            let d = want
+                .data()
+                .iter()
+                .zip(&got)
+                .map(|(a, b)| (a - b).abs())
+                .fold(0.0f32, f32::max);
+            eprintln!("{w}×{h}: device against host {d}");
+            assert!(d <= 1e-4, "{w}×{h}: {d}");
+        }
+    }
+}
+
+mod needs_ort {
+    use super::*;
+
+    #[test]
+    #[ignore = "needs ONNX Runtime (run: scripts/test.sh, or cargo test -- --include-ignored)"]
+    fn the_unrolled_golden_is_what_onnx_runtime_computes() {
+        let d = step_differences(BackendKind::Ort);
+        eprintln!("largest difference after each step: {d:?}");
+        assert!(d.iter().all(|d| *d <= 1e-4), "after each step: {d:?}");
     }
 }
