@@ -85,7 +85,11 @@ pub fn run(
     let mut kernels = FftKernels::new(&device)?;
     // The paths' rows run the heuristics' shapes; the adapter's tuned
     // shape at a size (`nedrt bench tune`) gets a row of its own.
-    let tuned = kernels.tuned_shapes();
+    let tuned: Vec<Option<FusedVariant>> = b
+        .sizes
+        .iter()
+        .map(|&(w, h)| kernels.tuned_variant(w, h))
+        .collect();
     kernels.clear_tuned();
     let filter = WienerFilter::new(&psfs(), 1e-2);
     let mut md = format!(
@@ -99,7 +103,7 @@ pub fn run(
         rayon::current_num_threads()
     );
     let mut refine_md = String::new();
-    for &(w, h) in &b.sizes {
+    for (&(w, h), tuned_here) in b.sizes.iter().zip(tuned) {
         let input = bench_frame(w, h);
         // The CPU: the plan made once, then each frame (mirror, realfft,
         // gains, inverse, crop).
@@ -137,10 +141,6 @@ pub fn run(
             );
             filters.push(dct);
         }
-        let tuned_here = tuned
-            .iter()
-            .find(|(size, _)| *size == (w, h))
-            .map(|(_, v)| *v);
         for (v, is_tuned) in tuned_here
             .iter()
             .map(|v| (v, true))
@@ -173,9 +173,7 @@ pub fn run(
         }
         let c = median(cpu.clone());
         for ((dct, t), kind) in filters.iter_mut().zip(&times).zip(&labels) {
-            let wall = median(t.iter().map(|x| x.0).collect());
-            let gpus: Vec<f64> = t.iter().filter_map(|x| x.1).collect();
-            let gpu = (gpus.len() == t.len()).then(|| median(gpus));
+            let (wall, gpu) = medians(t);
             let ratio = |f: &dyn Fn(&FrameTimes) -> Option<f64>| {
                 let r: Option<Vec<f64>> = t
                     .iter()
@@ -239,6 +237,16 @@ pub fn run(
         );
     }
     Ok(md)
+}
+
+/// The frames' median wall time, and their median GPU time where every
+/// frame has one.
+fn medians(t: &[FrameTimes]) -> (f64, Option<f64>) {
+    let gpus: Vec<f64> = t.iter().filter_map(|x| x.1).collect();
+    (
+        median(t.iter().map(|x| x.0).collect()),
+        (gpus.len() == t.len()).then(|| median(gpus)),
+    )
 }
 
 /// What [`refine`] times.
@@ -305,9 +313,7 @@ fn refine(
     let mut md = String::new();
     for (i, (stage, t)) in stages.iter().zip(&times).enumerate() {
         let fused = stage.steps_fused() == Some(true);
-        let wall = median(t.iter().map(|x| x.0).collect());
-        let gpus: Vec<f64> = t.iter().filter_map(|x| x.1).collect();
-        let gpu = (gpus.len() == t.len()).then(|| median(gpus));
+        let (wall, gpu) = medians(t);
         let ratio = |f: &dyn Fn(&FrameTimes) -> Option<f64>| -> Option<f64> {
             let r: Option<Vec<f64>> = t
                 .iter()

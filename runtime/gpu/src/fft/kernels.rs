@@ -221,11 +221,6 @@ impl FftKernels {
             .map(|(_, v)| *v)
     }
 
-    /// The adapter's tuned shapes: ((width, height), shape).
-    pub fn tuned_shapes(&self) -> super::tuned::TunedSizes {
-        self.tuned.clone()
-    }
-
     /// Forgets the adapter's tuned shapes: the filters made from now on
     /// run the heuristics' (the benchmarks' and the tuner's baseline).
     pub fn clear_tuned(&mut self) {
