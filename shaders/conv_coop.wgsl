@@ -23,7 +23,11 @@
 // (16 pixels × 16 columns each); the epilogue goes through workgroup
 // memory, one matrix at a time, so that it can address pixels and
 // channels. A tile changes which invocations compute an output, never the
-// order of its sum.
+// order of its sum. The stage is gathered flat (each value's index split
+// into chunk, channel, row and column) or, with PLANE_GATHER, plane by
+// plane: each invocation finds where its pixels of the tile lie once, then
+// loads those pixels of each channel plane, one add and one compare a
+// value. Either fills the same staged tile.
 enable f16;
 enable wgpu_cooperative_matrix;
 
@@ -44,8 +48,18 @@ const IN_H: u32 = ROWS * SG_ROWS + K - 1u;
 // One chunk's staged tile.
 const STAGE: u32 = IN_H * IN_W * 16u;
 const PREFETCH: bool = {{PREFETCH}};
-// Each invocation's share of a stage.
-const PER_THREAD: u32 = (CHUNKS * STAGE + THREADS - 1u) / THREADS;
+const PLANE_GATHER: bool = {{PLANE_GATHER}};
+// Pixels of a chunk's staged tile, and how many each invocation gathers
+// plane by plane.
+const PIXELS: u32 = IN_H * IN_W;
+const SLOTS: u32 = (PIXELS + THREADS - 1u) / THREADS;
+// Each invocation's share of a stage: flat, its values; plane by plane,
+// its pixels of each of the stage's planes (CoopTile::staged_per_invocation).
+const PER_THREAD: u32 = {{PER_THREAD}}u;
+// A plane offset for a pixel past the tile (staged nowhere), and for one
+// of the tile outside the layer (staged as zero).
+const PAST: u32 = 0xffffffffu;
+const OUTSIDE: u32 = 0xfffffffeu;
 const TRANSPOSED: bool = {{TRANSPOSED}};
 const RELU: bool = {{RELU}};
 const RESIDUAL: bool = {{RESIDUAL}};
@@ -72,32 +86,38 @@ fn main(
     let chunks = (p.cin + 15u) / 16u;
 {{ACC_DECL}}
 
+    // With PLANE_GATHER, where this invocation's pixels of the staged tile
+    // lie in a plane, found once.
+    var pix_at: array<u32, SLOTS>;
+    if (PLANE_GATHER) {
+        for (var j = 0u; j < SLOTS; j++) {
+            pix_at[j] = pixel_at(li + j * THREADS, x0, y0);
+        }
+    }
     // With PREFETCH each invocation holds its share of the next stage in
     // registers, loaded before the current stage's products and stored
     // after them: the loads' latency hides behind the tensor cores.
     var pre: array<f16, PER_THREAD>;
     if (PREFETCH) {
         for (var j = 0u; j < PER_THREAD; j++) {
-            pre[j] = staged(0u, li + j * THREADS, x0, y0);
+            pre[j] = share(0u, li, j, &pix_at, x0, y0);
         }
     }
     for (var first = 0u; first < chunks; first += CHUNKS) {
-        if (PREFETCH) {
-            for (var j = 0u; j < PER_THREAD; j++) {
-                let i = li + j * THREADS;
-                if (i < CHUNKS * STAGE) {
-                    a_tile[tile_index(i)] = pre[j];
+        for (var j = 0u; j < PER_THREAD; j++) {
+            let t = share_index(li, j);
+            if (t != PAST) {
+                if (PREFETCH) {
+                    a_tile[t] = pre[j];
+                } else {
+                    a_tile[t] = share(first, li, j, &pix_at, x0, y0);
                 }
-            }
-        } else {
-            for (var i = li; i < CHUNKS * STAGE; i += THREADS) {
-                a_tile[tile_index(i)] = staged(first, i, x0, y0);
             }
         }
         workgroupBarrier();
         if (PREFETCH && first + CHUNKS < chunks) {
             for (var j = 0u; j < PER_THREAD; j++) {
-                pre[j] = staged(first + CHUNKS, li + j * THREADS, x0, y0);
+                pre[j] = share(first + CHUNKS, li, j, &pix_at, x0, y0);
             }
         }
         // The same products in the same order as one chunk a stage: chunk
@@ -143,6 +163,54 @@ fn tile_index(i: u32) -> u32 {
     let ci = (i % STAGE) / (IN_H * IN_W);
     let pix = i % (IN_H * IN_W);
     return s * STAGE + pix * 16u + ci;
+}
+
+// Where pixel `pix` of the staged tile (at `x0`, `y0`) lies in a plane:
+// PAST past the tile, OUTSIDE outside the layer.
+fn pixel_at(pix: u32, x0: u32, y0: u32) -> u32 {
+    if (pix >= PIXELS) {
+        return PAST;
+    }
+    let gx = i32(x0 + pix % IN_W) - i32(R);
+    let gy = i32(y0 + pix / IN_W) - i32(R);
+    if (gx < 0 || gx >= i32(p.width) || gy < 0 || gy >= i32(p.height)) {
+        return OUTSIDE;
+    }
+    return u32(gy) * p.width + u32(gx);
+}
+
+// Value `j` of invocation `li`'s share of the stage whose first chunk is
+// `first`. Plane by plane, value j is pixel slot j % SLOTS of the stage's
+// plane j / SLOTS (chunk, then channel).
+fn share(first: u32, li: u32, j: u32, pix_at: ptr<function, array<u32, SLOTS>>, x0: u32, y0: u32) -> f16 {
+    if (!PLANE_GATHER) {
+        return staged(first, li + j * THREADS, x0, y0);
+    }
+    let q = j / SLOTS;
+    let c = first * 16u + q;
+    let off = (*pix_at)[j % SLOTS];
+    var v = f16(0.0);
+    if (off < OUTSIDE && c < p.cin) {
+        v = f16(src[p.in_offset + c * p.width * p.height + off]);
+    }
+    return v;
+}
+
+// Where value `j` of invocation `li`'s share lies in `a_tile`, or PAST.
+fn share_index(li: u32, j: u32) -> u32 {
+    if (!PLANE_GATHER) {
+        let i = li + j * THREADS;
+        if (i >= CHUNKS * STAGE) {
+            return PAST;
+        }
+        return tile_index(i);
+    }
+    let q = j / SLOTS;
+    let pix = li + (j % SLOTS) * THREADS;
+    if (pix >= PIXELS) {
+        return PAST;
+    }
+    return (q / 16u) * STAGE + pix * 16u + q % 16u;
 }
 
 // Accumulator `row` of this subgroup out through workgroup memory, each

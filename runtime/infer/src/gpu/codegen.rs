@@ -248,6 +248,12 @@ impl KernelKey {
                     ("SG_COLS", tile.sg_cols.to_string()),
                     ("CHUNKS", tile.chunks.to_string()),
                     ("PREFETCH", tile.prefetch.to_string()),
+                    ("PLANE_GATHER", tile.plane_gather.to_string()),
+                    (
+                        "PER_THREAD",
+                        tile.staged_per_invocation(kernel, subgroup_size)
+                            .to_string(),
+                    ),
                     ("TRANSPOSED", transposed.to_string()),
                     ("RELU", relu.to_string()),
                     ("RESIDUAL", residual.to_string()),
@@ -392,7 +398,8 @@ mod tests {
     fn coop_keys() -> Vec<KernelKey> {
         let mut keys = Vec::new();
         // The default tile, the most matrices a subgroup and the most
-        // subgroups a workgroup hold, the largest K-slice, and a prefetch.
+        // subgroups a workgroup hold, the largest K-slice, a prefetch, and
+        // the plane gather (prefetched, and of the largest slice).
         let tiles = [
             coop::CoopTile::DEFAULT,
             coop::CoopTile {
@@ -402,12 +409,20 @@ mod tests {
                 sg_cols: 4,
                 chunks: 1,
                 prefetch: false,
+                plane_gather: false,
             },
             coop::CoopTile::DEFAULT.with_chunks(coop::MAX_CHUNKS),
             coop::CoopTile::DEFAULT
                 .with_chunks(2)
                 .prefetched(3, 32)
                 .expect("prefetched"),
+            coop::CoopTile::DEFAULT
+                .plane_gathered()
+                .prefetched(3, 32)
+                .expect("prefetched"),
+            coop::CoopTile::DEFAULT
+                .with_chunks(coop::MAX_CHUNKS)
+                .plane_gathered(),
         ];
         for (subgroup_size, tile) in [32, 64].into_iter().flat_map(|s| tiles.map(|t| (s, t))) {
             for (kernel, relu, residual, clamp, transposed) in [

@@ -69,30 +69,69 @@ fn model(
                     let (s, ci, pix) = (i / stage, (i % stage) / (in_h * in_w), i % (in_h * in_w));
                     s * stage + pix * 16 + ci
                 };
+                let threads = sgs * SUBGROUP;
+                let per = tile.staged_per_invocation(k, SUBGROUP as u32) as usize;
+                // The plane gather: pixel slot j of invocation li, as
+                // `pixel_at` (None past the tile, Some(None) outside the
+                // layer), found once a workgroup.
+                let pixels = in_h * in_w;
+                let slots = tile.gather_slots(k, SUBGROUP as u32) as usize;
+                let pixel_at = |pix: usize| -> Option<Option<usize>> {
+                    if pix >= pixels {
+                        return None;
+                    }
+                    let gxx = (x0 + pix % in_w) as isize - r;
+                    let gyy = (y0 + pix / in_w) as isize - r;
+                    let inside = gxx >= 0 && (gxx as usize) < w && gyy >= 0 && (gyy as usize) < h;
+                    Some(inside.then(|| gyy as usize * w + gxx as usize))
+                };
+                let at: Vec<Vec<Option<Option<usize>>>> = (0..threads)
+                    .map(|li| (0..slots).map(|j| pixel_at(li + j * threads)).collect())
+                    .collect();
+                // Value j of invocation li's share of the stage at `first`,
+                // and where it goes in the staged tile, as `share` and
+                // `share_index`.
+                let share = |first: usize, li: usize, j: usize| -> f32 {
+                    if !tile.plane_gather {
+                        return staged(first, li + j * threads);
+                    }
+                    let c = first * 16 + j / slots;
+                    match at[li][j % slots] {
+                        Some(Some(off)) if c < cin => input[c * plane + off],
+                        _ => 0.0,
+                    }
+                };
+                let share_index = |li: usize, j: usize| -> Option<usize> {
+                    if !tile.plane_gather {
+                        let i = li + j * threads;
+                        return (i < slice * stage).then(|| tile_index(i));
+                    }
+                    let (q, pix) = (j / slots, li + (j % slots) * threads);
+                    (pix < pixels).then_some((q / 16) * stage + pix * 16 + q % 16)
+                };
                 // The prefetch registers: [invocation][value], loaded for
                 // the next stage while the current one is multiplied.
-                let threads = sgs * SUBGROUP;
-                let per = (slice * stage).div_ceil(threads);
                 let load = |first: usize| -> Vec<Vec<f32>> {
                     (0..threads)
-                        .map(|li| (0..per).map(|j| staged(first, li + j * threads)).collect())
+                        .map(|li| (0..per).map(|j| share(first, li, j)).collect())
                         .collect()
                 };
                 let mut pre = if tile.prefetch { load(0) } else { Vec::new() };
                 for first in (0..chunks).step_by(slice) {
-                    let mut a_tile = vec![0f32; slice * stage];
-                    if tile.prefetch {
-                        for (li, regs) in pre.iter().enumerate() {
-                            for (j, v) in regs.iter().enumerate() {
-                                let i = li + j * threads;
-                                if i < slice * stage {
-                                    a_tile[tile_index(i)] = *v;
-                                }
-                            }
-                        }
+                    // NaN where no invocation stages a value: a gap in the
+                    // gather reaches the output.
+                    let mut a_tile = vec![f32::NAN; slice * stage];
+                    // Without a prefetch, the shares loaded now.
+                    let shares = if tile.prefetch {
+                        None
                     } else {
-                        for i in 0..slice * stage {
-                            a_tile[tile_index(i)] = staged(first, i);
+                        Some(load(first))
+                    };
+                    for (li, regs) in shares.as_ref().unwrap_or(&pre).iter().enumerate() {
+                        for (j, v) in regs.iter().enumerate() {
+                            if let Some(t) = share_index(li, j) {
+                                a_tile[t] = *v;
+                            }
                         }
                     }
                     if tile.prefetch && first + slice < chunks {
@@ -182,6 +221,8 @@ fn tiles_for(columns: usize, h: usize, k: usize, cin: usize) -> Vec<CoopTile> {
         .flat_map(|t| t.slices(cin, k, 32, &largest))
         .collect();
     tiles.extend(slices);
+    let gathered: Vec<CoopTile> = tiles.iter().map(|t| t.plane_gathered()).collect();
+    tiles.extend(gathered);
     let prefetched: Vec<CoopTile> = tiles.iter().filter_map(|t| t.prefetched(k, 32)).collect();
     tiles.extend(prefetched);
     tiles
@@ -194,7 +235,12 @@ fn max_abs_diff(a: &[f32], b: &[f32]) -> f32 {
     assert_eq!(a.len(), b.len());
     a.iter()
         .zip(b)
-        .map(|(x, y)| (x - y).abs())
+        // NaN (a staged value no invocation wrote) counts as the largest
+        // difference: f32::max would pass over it.
+        .map(|(x, y)| {
+            let d = (x - y).abs();
+            if d.is_nan() { f32::INFINITY } else { d }
+        })
         .fold(0.0, f32::max)
 }
 

@@ -112,6 +112,19 @@ fn variant_round(
     forced
 }
 
+/// A variant of a layer's tile to time beside it, if the layer takes one.
+type Round = fn(&LayerCoopTile, CoopTile) -> Option<CoopTile>;
+
+/// A layer's tile gathered plane by plane, if it is not already.
+fn plane_gathered(_: &LayerCoopTile, tile: CoopTile) -> Option<CoopTile> {
+    (!tile.plane_gather).then(|| tile.plane_gathered())
+}
+
+/// A layer's tile with its next stage prefetched, if its registers allow.
+fn prefetched(l: &LayerCoopTile, tile: CoopTile) -> Option<CoopTile> {
+    tile.prefetched(l.shape.kernel, l.subgroup_size)
+}
+
 /// The K-slice of `chunks` of a layer's tile, if the layer takes it.
 fn slice(l: &LayerCoopTile, tile: CoopTile, chunks: u32, limits: &CoopLimits) -> Option<CoopTile> {
     let s = tile.with_chunks(chunks);
@@ -225,6 +238,7 @@ impl GpuBackend {
                 sg_cols: tile.sg_cols,
                 chunks: tile.chunks,
                 prefetch: tile.prefetch,
+                plane_gather: tile.plane_gather,
                 tuned_ns,
                 heuristic_ns,
             })
@@ -321,10 +335,11 @@ impl GpuBackend {
     /// The cooperative layers' tiles timed in rounds: every candidate at
     /// one chunk a stage; then each shape's fastest of those with the
     /// K-slices it takes (2 and 4 chunks a stage, one frame each, every
-    /// layer at its shape's slice); then the fastest so far with its next
-    /// stage prefetched (one frame). Each joins the layers' `candidates`.
-    /// A slice or a prefetch only changes how the input is staged, so it
-    /// is timed on the tile already best, not on every tile.
+    /// layer at its shape's slice); then the fastest so far gathered plane
+    /// by plane (one frame); then the fastest so far with its next stage
+    /// prefetched (one frame). Each joins the layers' `candidates`. A
+    /// slice, a gather or a prefetch only changes how the input is staged,
+    /// so it is timed on the tile already best, not on every tile.
     fn time_coop(
         &mut self,
         frame: &Image,
@@ -347,14 +362,16 @@ impl GpuBackend {
             times.extend(self.time_forced(frame, repeat, forced, Self::force_coop_tiles)?);
             timed += 1;
         }
-        // Then the fastest so far with its next stage prefetched.
-        let best = best_per_shape(&keyed, candidates, &times)?;
-        let forced = variant_round(layers, candidates, &best, |l, t| {
-            t.prefetched(l.shape.kernel, l.subgroup_size)
-        });
-        if !forced.is_empty() {
-            times.extend(self.time_forced(frame, repeat, forced, Self::force_coop_tiles)?);
-            timed += 1;
+        // Then the fastest so far gathered plane by plane, then the
+        // fastest so far with its next stage prefetched.
+        let rounds: [Round; 2] = [plane_gathered, prefetched];
+        for round in rounds {
+            let best = best_per_shape(&keyed, candidates, &times)?;
+            let forced = variant_round(layers, candidates, &best, round);
+            if !forced.is_empty() {
+                times.extend(self.time_forced(frame, repeat, forced, Self::force_coop_tiles)?);
+                timed += 1;
+            }
         }
         Ok((times, timed))
     }
@@ -388,7 +405,7 @@ mod tests {
     }
 
     #[test]
-    fn slices_and_prefetch_are_timed_on_each_shapes_fastest_tile_and_join_its_candidates() {
+    fn slices_gathers_and_prefetch_are_timed_on_each_shapes_fastest_tile_and_join_its_candidates() {
         let limits = CoopLimits {
             workgroup_bytes: 49152,
             invocations: 1024,
@@ -432,10 +449,23 @@ mod tests {
         let best = best_per_shape(&keyed, &candidates, &times).expect("best");
         assert_eq!(best[0].3, fastest.with_chunks(4));
         assert_eq!(best[0].4, 15);
+        // The gather round on that: every layer, each at its shape's best.
+        let forced = variant_round(&layers, &mut candidates, &best, plane_gathered);
+        let gathered = fastest.with_chunks(4).plane_gathered();
+        assert_eq!(forced.get(&3), Some(&gathered));
+        assert_eq!(forced.get(&9), Some(&best[1].3.plane_gathered()));
+        // Plane by plane wins on the first shape (6 + 6 ns), not the other.
+        for (l, ns) in [(3, 6), (7, 6)] {
+            times.insert((l, gathered), ns);
+        }
+        times.insert((9, best[1].3.plane_gathered()), 30);
+        let best = best_per_shape(&keyed, &candidates, &times).expect("best");
+        assert_eq!(best[0].3, gathered);
+        assert!(!best[1].3.plane_gather);
+        // Already gathered: no second round of it.
+        assert_eq!(plane_gathered(&layers[0], gathered), None);
         // The prefetch round on that: every layer whose registers allow.
-        let forced = variant_round(&layers, &mut candidates, &best, |l, t| {
-            t.prefetched(l.shape.kernel, l.subgroup_size)
-        });
+        let forced = variant_round(&layers, &mut candidates, &best, prefetched);
         for (l, f) in &forced {
             assert!(
                 f.prefetch && candidates.iter().any(|c| c.contains(f)),

@@ -540,6 +540,7 @@ mod tests {
                 sg_cols: 2,
                 chunks: 2,
                 prefetch: true,
+                plane_gather: true,
                 tuned_ns: 2000,
                 heuristic_ns: 2500,
             }],
@@ -642,14 +643,16 @@ mod tests {
     }
 
     #[test]
-    fn a_table_from_before_the_k_slices_reads_as_one_chunk_a_stage_unprefetched() {
+    fn a_table_from_before_the_k_slices_reads_as_one_chunk_a_stage_unprefetched_gathered_flat() {
         let dir = tempfile::tempdir().expect("tempdir");
         let path = table().save(dir.path()).expect("saves");
         let text = std::fs::read_to_string(&path).expect("reads");
         assert!(text.contains("chunks = 2\n"), "{text}");
+        assert!(text.contains("plane_gather = true\n"), "{text}");
         let old = text
             .replace("chunks = 2\n", "")
-            .replace("prefetch = true\n", "");
+            .replace("prefetch = true\n", "")
+            .replace("plane_gather = true\n", "");
         std::fs::write(&path, old).expect("writes");
         let (_, t) = TuningTable::find(dir.path(), &key())
             .expect("reads")
@@ -658,6 +661,7 @@ mod tests {
             t.coop_tile_for(&coop_shape()),
             Some(CoopTile {
                 prefetch: false,
+                plane_gather: false,
                 ..table().coops[0].tile().with_chunks(1)
             })
         );

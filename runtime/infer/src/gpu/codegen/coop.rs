@@ -40,7 +40,11 @@ pub const MAX_TABLE_WORKGROUP_BYTES: u32 = 65536;
 /// order whatever the tile: a tile changes the speed, never a bit of the
 /// output. With `prefetch` each invocation loads its share of the next
 /// stage into registers before the current stage's products and stores it
-/// after them (double buffering through registers).
+/// after them (double buffering through registers). With `plane_gather`
+/// each invocation finds where its pixels of the staged tile lie once a
+/// workgroup, then stages those pixels of every channel plane of a stage,
+/// where the flat gather splits each staged value's index into chunk,
+/// channel, row and column (the staged tile is the same either way).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
 pub struct CoopTile {
     pub rows: u32,
@@ -49,6 +53,7 @@ pub struct CoopTile {
     pub sg_cols: u32,
     pub chunks: u32,
     pub prefetch: bool,
+    pub plane_gather: bool,
 }
 
 impl CoopTile {
@@ -62,6 +67,7 @@ impl CoopTile {
         sg_cols: 4,
         chunks: 1,
         prefetch: false,
+        plane_gather: false,
     };
 
     /// The heuristics' tile for a layer of `columns` GEMM columns (output
@@ -80,6 +86,7 @@ impl CoopTile {
             sg_cols,
             chunks: 1,
             prefetch: false,
+            plane_gather: false,
         }
     }
 
@@ -147,10 +154,31 @@ impl CoopTile {
     }
 
     /// Values of a stage each invocation stages (and with `prefetch`
-    /// holds in registers) for subgroups of `subgroup_size`.
+    /// holds in registers) for subgroups of `subgroup_size`: its share of
+    /// the stage, or with `plane_gather` its pixels of the tile times the
+    /// stage's channels (an invocation without a last pixel idles there).
     pub fn staged_per_invocation(&self, kernel: usize, subgroup_size: u32) -> u32 {
-        self.stage_values(kernel)
-            .div_ceil(self.subgroups() * subgroup_size)
+        let threads = self.subgroups() * subgroup_size;
+        if self.plane_gather {
+            self.chunks * 16 * self.gather_slots(kernel, subgroup_size)
+        } else {
+            self.stage_values(kernel).div_ceil(threads)
+        }
+    }
+
+    /// Pixels of the staged tile (`pixel_rows` + K − 1 rows of 16 + K − 1)
+    /// each invocation gathers with `plane_gather`.
+    pub fn gather_slots(&self, kernel: usize, subgroup_size: u32) -> u32 {
+        let k = kernel as u32;
+        ((self.pixel_rows() + k - 1) * (SIZE + k - 1)).div_ceil(self.subgroups() * subgroup_size)
+    }
+
+    /// This tile staged plane by plane.
+    pub fn plane_gathered(self) -> Self {
+        CoopTile {
+            plane_gather: true,
+            ..self
+        }
     }
 
     /// This tile with its next stage prefetched through registers, where
@@ -197,6 +225,7 @@ impl CoopTile {
                         sg_cols,
                         chunks: 1,
                         prefetch: false,
+                        plane_gather: false,
                     };
                     if t.fits(kernel, subgroup_size, limits)
                         && t.column_blocks() <= max_blocks
@@ -469,6 +498,7 @@ mod tests {
             sg_cols: 4,
             chunks: 1,
             prefetch: false,
+            plane_gather: false,
         };
         assert!(!small.contains(&tall) && large.contains(&tall), "{large:?}");
         assert!(tall.fits(3, 32, &nvidia) && !tall.fits(3, 32, &portable));

@@ -133,6 +133,10 @@ pub struct TunedCoop {
     /// written before it was tuned.
     #[serde(default)]
     pub prefetch: bool,
+    /// The stage gathered plane by plane; false in tables written before
+    /// it was tuned.
+    #[serde(default)]
+    pub plane_gather: bool,
     /// As [`TunedConv`]'s.
     pub tuned_ns: u64,
     pub heuristic_ns: u64,
@@ -147,6 +151,7 @@ impl TunedCoop {
             sg_cols: self.sg_cols,
             chunks: self.chunks,
             prefetch: self.prefetch,
+            plane_gather: self.plane_gather,
         }
     }
 }
