@@ -100,13 +100,18 @@ fn sum_row(label: &str, heuristic_ns: u64, tuned_ns: u64) -> String {
 
 fn coop_tile(t: CoopTile) -> String {
     format!(
-        "{}×{} of {}×{}, {} channels a stage{}{}",
+        "{}×{} of {}×{}, {} channels a stage{}{}{}",
         t.sg_rows,
         t.sg_cols,
         t.rows,
         t.blocks,
         16 * t.chunks,
         if t.plane_gather { ", by plane" } else { "" },
+        if t.stage_weights {
+            ", weights staged"
+        } else {
+            ""
+        },
         if t.prefetch { ", prefetched" } else { "" }
     )
 }
@@ -114,8 +119,9 @@ fn coop_tile(t: CoopTile) -> String {
 /// The cooperative-matrix shapes of a case, if any: each tile as
 /// subgroups (over rows × over columns) of accumulators (pixel rows ×
 /// column blocks), the input channels staged between two barriers,
-/// whether they are gathered plane by plane, and whether the next stage is
-/// prefetched through registers.
+/// whether they are gathered plane by plane, whether the weights are
+/// staged in workgroup memory, and whether the next stage is prefetched
+/// through registers.
 fn coop_table(coops: &[TunedCoop]) -> String {
     if coops.is_empty() {
         return String::new();

@@ -249,6 +249,8 @@ impl KernelKey {
                     ("CHUNKS", tile.chunks.to_string()),
                     ("PREFETCH", tile.prefetch.to_string()),
                     ("PLANE_GATHER", tile.plane_gather.to_string()),
+                    ("STAGE_WEIGHTS", tile.stage_weights.to_string()),
+                    ("B_VALUES", tile.staged_weights(kernel).max(1).to_string()),
                     (
                         "PER_THREAD",
                         tile.staged_per_invocation(kernel, subgroup_size)
@@ -398,8 +400,9 @@ mod tests {
     fn coop_keys() -> Vec<KernelKey> {
         let mut keys = Vec::new();
         // The default tile, the most matrices a subgroup and the most
-        // subgroups a workgroup hold, the largest K-slice, a prefetch, and
-        // the plane gather (prefetched, and of the largest slice).
+        // subgroups a workgroup hold, the largest K-slice, a prefetch, the
+        // plane gather (prefetched, and of the largest slice), and staged
+        // weights (alone, and with all of those).
         let tiles = [
             coop::CoopTile::DEFAULT,
             coop::CoopTile {
@@ -410,6 +413,7 @@ mod tests {
                 chunks: 1,
                 prefetch: false,
                 plane_gather: false,
+                stage_weights: false,
             },
             coop::CoopTile::DEFAULT.with_chunks(coop::MAX_CHUNKS),
             coop::CoopTile::DEFAULT
@@ -423,6 +427,18 @@ mod tests {
             coop::CoopTile::DEFAULT
                 .with_chunks(coop::MAX_CHUNKS)
                 .plane_gathered(),
+            coop::CoopTile {
+                stage_weights: true,
+                ..coop::CoopTile::DEFAULT
+            },
+            coop::CoopTile {
+                stage_weights: true,
+                ..coop::CoopTile::DEFAULT
+                    .with_chunks(2)
+                    .plane_gathered()
+                    .prefetched(3, 32)
+                    .expect("prefetched")
+            },
         ];
         for (subgroup_size, tile) in [32, 64].into_iter().flat_map(|s| tiles.map(|t| (s, t))) {
             for (kernel, relu, residual, clamp, transposed) in [

@@ -134,19 +134,37 @@ fn model(
                             }
                         }
                     }
+                    // With stage_weights, the workgroup's column blocks'
+                    // weights of the stage, as the kernel copies them.
+                    let per_block = slice * k * k * 256;
+                    let wbase = (gz * column_blocks * chunks + first) * k * k * 256;
+                    let b_tile: Vec<f32> = (0..tile.staged_weights(k) as usize)
+                        .map(|i| {
+                            let (nb, rest) = (i / per_block, i % per_block);
+                            if first + rest / (k * k * 256) < chunks {
+                                packed[wbase + nb * chunks * k * k * 256 + rest]
+                            } else {
+                                0.0
+                            }
+                        })
+                        .collect();
                     if tile.prefetch && first + slice < chunks {
                         pre = load(first + slice);
                     }
-                    for (chunk, abase) in
-                        (first..chunks.min(first + slice)).zip((0..).step_by(stage))
-                    {
+                    for (s, chunk) in (first..chunks.min(first + slice)).enumerate() {
+                        let abase = s * stage;
                         for tap in 0..k * k {
                             let (ky, kx) = (tap / k, tap % k);
                             for sg in 0..sgs {
                                 for nb in 0..blocks {
                                     let blk = blk0(gz, sg) + nb;
-                                    let b = ((blk * chunks + chunk) * k * k + tap) * 256;
-                                    assert!(b + 256 <= packed.len(), "a read past the weights");
+                                    let (weights, b) = if tile.stage_weights {
+                                        let local = (sg % sg_cols) * blocks + nb;
+                                        (&b_tile[..], ((local * slice + s) * k * k + tap) * 256)
+                                    } else {
+                                        (packed, ((blk * chunks + chunk) * k * k + tap) * 256)
+                                    };
+                                    assert!(b + 256 <= weights.len(), "a read past the weights");
                                     for row in 0..rows {
                                         let a = abase + ((row0(sg) + row + ky) * in_w + kx) * 16;
                                         let c = &mut acc[(sg * rows + row) * blocks + nb];
@@ -154,7 +172,7 @@ fn model(
                                             for (n, v) in c_row.iter_mut().enumerate() {
                                                 for kk in 0..16 {
                                                     *v += a_tile[a + m * 16 + kk]
-                                                        * packed[b + kk * 16 + n];
+                                                        * weights[b + kk * 16 + n];
                                                 }
                                             }
                                         }
@@ -223,6 +241,11 @@ fn tiles_for(columns: usize, h: usize, k: usize, cin: usize) -> Vec<CoopTile> {
     tiles.extend(slices);
     let gathered: Vec<CoopTile> = tiles.iter().map(|t| t.plane_gathered()).collect();
     tiles.extend(gathered);
+    let staged: Vec<CoopTile> = tiles
+        .iter()
+        .filter_map(|t| t.weights_staged(k, 32, &largest))
+        .collect();
+    tiles.extend(staged);
     let prefetched: Vec<CoopTile> = tiles.iter().filter_map(|t| t.prefetched(k, 32)).collect();
     tiles.extend(prefetched);
     tiles

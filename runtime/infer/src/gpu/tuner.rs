@@ -112,17 +112,30 @@ fn variant_round(
     forced
 }
 
-/// A variant of a layer's tile to time beside it, if the layer takes one.
-type Round = fn(&LayerCoopTile, CoopTile) -> Option<CoopTile>;
-
-/// A layer's tile gathered plane by plane, if it is not already.
-fn plane_gathered(_: &LayerCoopTile, tile: CoopTile) -> Option<CoopTile> {
-    (!tile.plane_gather).then(|| tile.plane_gathered())
+/// The variants timed on each shape's fastest tile after the K-slices,
+/// in this order, each on the fastest so far.
+#[derive(Debug, Clone, Copy)]
+enum Round {
+    PlaneGather,
+    StageWeights,
+    Prefetch,
 }
 
-/// A layer's tile with its next stage prefetched, if its registers allow.
-fn prefetched(l: &LayerCoopTile, tile: CoopTile) -> Option<CoopTile> {
-    tile.prefetched(l.shape.kernel, l.subgroup_size)
+impl Round {
+    /// `tile` of layer `l` with this round's variant, if the layer takes
+    /// it and does not have it already.
+    fn of(self, l: &LayerCoopTile, tile: CoopTile, limits: &CoopLimits) -> Option<CoopTile> {
+        let (kernel, sg) = (l.shape.kernel, l.subgroup_size);
+        match self {
+            Round::PlaneGather => (!tile.plane_gather).then(|| tile.plane_gathered()),
+            Round::StageWeights => (!tile.stage_weights)
+                .then(|| tile.weights_staged(kernel, sg, limits))
+                .flatten(),
+            Round::Prefetch => (!tile.prefetch)
+                .then(|| tile.prefetched(kernel, sg))
+                .flatten(),
+        }
+    }
 }
 
 /// The K-slice of `chunks` of a layer's tile, if the layer takes it.
@@ -239,6 +252,7 @@ impl GpuBackend {
                 chunks: tile.chunks,
                 prefetch: tile.prefetch,
                 plane_gather: tile.plane_gather,
+                stage_weights: tile.stage_weights,
                 tuned_ns,
                 heuristic_ns,
             })
@@ -336,10 +350,11 @@ impl GpuBackend {
     /// one chunk a stage; then each shape's fastest of those with the
     /// K-slices it takes (2 and 4 chunks a stage, one frame each, every
     /// layer at its shape's slice); then the fastest so far gathered plane
-    /// by plane (one frame); then the fastest so far with its next stage
-    /// prefetched (one frame). Each joins the layers' `candidates`. A
-    /// slice, a gather or a prefetch only changes how the input is staged,
-    /// so it is timed on the tile already best, not on every tile.
+    /// by plane, with its weights staged in workgroup memory, and with its
+    /// next stage prefetched (one frame each, [`Round`]). Each joins the
+    /// layers' `candidates`. A slice, a gather, staged weights or a
+    /// prefetch only change how the operands are staged, so each is timed
+    /// on the tile already best, not on every tile.
     fn time_coop(
         &mut self,
         frame: &Image,
@@ -362,12 +377,11 @@ impl GpuBackend {
             times.extend(self.time_forced(frame, repeat, forced, Self::force_coop_tiles)?);
             timed += 1;
         }
-        // Then the fastest so far gathered plane by plane, then the
-        // fastest so far with its next stage prefetched.
-        let rounds: [Round; 2] = [plane_gathered, prefetched];
-        for round in rounds {
+        // Then the fastest so far gathered plane by plane, with its weights
+        // staged, with its next stage prefetched.
+        for round in [Round::PlaneGather, Round::StageWeights, Round::Prefetch] {
             let best = best_per_shape(&keyed, candidates, &times)?;
-            let forced = variant_round(layers, candidates, &best, round);
+            let forced = variant_round(layers, candidates, &best, |l, t| round.of(l, t, limits));
             if !forced.is_empty() {
                 times.extend(self.time_forced(frame, repeat, forced, Self::force_coop_tiles)?);
                 timed += 1;
@@ -405,7 +419,7 @@ mod tests {
     }
 
     #[test]
-    fn slices_gathers_and_prefetch_are_timed_on_each_shapes_fastest_tile_and_join_its_candidates() {
+    fn slices_gathers_staged_weights_and_prefetch_are_timed_on_each_shapes_fastest_tile() {
         let limits = CoopLimits {
             workgroup_bytes: 49152,
             invocations: 1024,
@@ -450,7 +464,8 @@ mod tests {
         assert_eq!(best[0].3, fastest.with_chunks(4));
         assert_eq!(best[0].4, 15);
         // The gather round on that: every layer, each at its shape's best.
-        let forced = variant_round(&layers, &mut candidates, &best, plane_gathered);
+        let round = |r: Round| move |l: &LayerCoopTile, t: CoopTile| r.of(l, t, &limits);
+        let forced = variant_round(&layers, &mut candidates, &best, round(Round::PlaneGather));
         let gathered = fastest.with_chunks(4).plane_gathered();
         assert_eq!(forced.get(&3), Some(&gathered));
         assert_eq!(forced.get(&9), Some(&best[1].3.plane_gathered()));
@@ -463,9 +478,19 @@ mod tests {
         assert_eq!(best[0].3, gathered);
         assert!(!best[1].3.plane_gather);
         // Already gathered: no second round of it.
-        assert_eq!(plane_gathered(&layers[0], gathered), None);
+        assert_eq!(Round::PlaneGather.of(&layers[0], gathered, &limits), None);
+        // Staged weights: where the memory allows (4 chunks of 4 blocks'
+        // 3×3 weights are 72 KiB, over 48), so on the 16-channel layer
+        // alone; they lose there (40 ns).
+        let forced = variant_round(&layers, &mut candidates, &best, round(Round::StageWeights));
+        assert_eq!(forced.get(&3), None);
+        let staged = best[1].3.weights_staged(3, 32, &limits).expect("fits");
+        assert_eq!(forced.get(&9), Some(&staged));
+        times.insert((9, staged), 40);
+        let best = best_per_shape(&keyed, &candidates, &times).expect("best");
+        assert!(!best[1].3.stage_weights);
         // The prefetch round on that: every layer whose registers allow.
-        let forced = variant_round(&layers, &mut candidates, &best, prefetched);
+        let forced = variant_round(&layers, &mut candidates, &best, round(Round::Prefetch));
         for (l, f) in &forced {
             assert!(
                 f.prefetch && candidates.iter().any(|c| c.contains(f)),

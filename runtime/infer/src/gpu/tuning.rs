@@ -541,6 +541,7 @@ mod tests {
                 chunks: 2,
                 prefetch: true,
                 plane_gather: true,
+                stage_weights: true,
                 tuned_ns: 2000,
                 heuristic_ns: 2500,
             }],
@@ -643,16 +644,18 @@ mod tests {
     }
 
     #[test]
-    fn a_table_from_before_the_k_slices_reads_as_one_chunk_a_stage_unprefetched_gathered_flat() {
+    fn a_table_from_before_the_k_slices_reads_as_one_chunk_a_stage_flat_unstaged_unprefetched() {
         let dir = tempfile::tempdir().expect("tempdir");
         let path = table().save(dir.path()).expect("saves");
         let text = std::fs::read_to_string(&path).expect("reads");
         assert!(text.contains("chunks = 2\n"), "{text}");
         assert!(text.contains("plane_gather = true\n"), "{text}");
+        assert!(text.contains("stage_weights = true\n"), "{text}");
         let old = text
             .replace("chunks = 2\n", "")
             .replace("prefetch = true\n", "")
-            .replace("plane_gather = true\n", "");
+            .replace("plane_gather = true\n", "")
+            .replace("stage_weights = true\n", "");
         std::fs::write(&path, old).expect("writes");
         let (_, t) = TuningTable::find(dir.path(), &key())
             .expect("reads")
@@ -662,6 +665,7 @@ mod tests {
             Some(CoopTile {
                 prefetch: false,
                 plane_gather: false,
+                stage_weights: false,
                 ..table().coops[0].tile().with_chunks(1)
             })
         );

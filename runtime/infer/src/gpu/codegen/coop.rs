@@ -44,7 +44,11 @@ pub const MAX_TABLE_WORKGROUP_BYTES: u32 = 65536;
 /// each invocation finds where its pixels of the staged tile lie once a
 /// workgroup, then stages those pixels of every channel plane of a stage,
 /// where the flat gather splits each staged value's index into chunk,
-/// channel, row and column (the staged tile is the same either way).
+/// channel, row and column (the staged tile is the same either way). With
+/// `stage_weights` the workgroup also copies its column blocks' weights of
+/// each K-slice into workgroup memory beside the input, and its subgroups
+/// load their weight matrices from there, not from the weight buffer:
+/// subgroups stacked over rows then share one copy.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
 pub struct CoopTile {
     pub rows: u32,
@@ -54,6 +58,7 @@ pub struct CoopTile {
     pub chunks: u32,
     pub prefetch: bool,
     pub plane_gather: bool,
+    pub stage_weights: bool,
 }
 
 impl CoopTile {
@@ -68,6 +73,7 @@ impl CoopTile {
         chunks: 1,
         prefetch: false,
         plane_gather: false,
+        stage_weights: false,
     };
 
     /// The heuristics' tile for a layer of `columns` GEMM columns (output
@@ -87,6 +93,7 @@ impl CoopTile {
             chunks: 1,
             prefetch: false,
             plane_gather: false,
+            stage_weights: false,
         }
     }
 
@@ -105,10 +112,37 @@ impl CoopTile {
     }
 
     /// Workgroup memory: the staged input tiles (f16, 16 channels a
-    /// pixel, one per chunk of the K-slice) and one 16×16 f32 matrix per
-    /// subgroup for the epilogue.
+    /// pixel, one per chunk of the K-slice), with `stage_weights` the
+    /// K-slice's weights, and one 16×16 f32 matrix per subgroup for the
+    /// epilogue.
     pub fn workgroup_bytes(&self, kernel: usize) -> u32 {
-        self.stage_values(kernel) * 2 + self.subgroups() * 256 * 4
+        (self.stage_values(kernel) + self.staged_weights(kernel)) * 2 + self.subgroups() * 256 * 4
+    }
+
+    /// f16 weights a workgroup stages a K-slice with `stage_weights`:
+    /// one 16×16 matrix per column block, chunk and tap; else none.
+    pub fn staged_weights(&self, kernel: usize) -> u32 {
+        let taps = (kernel * kernel) as u32;
+        if self.stage_weights {
+            self.column_blocks() * self.chunks * taps * 256
+        } else {
+            0
+        }
+    }
+
+    /// This tile with its weights staged in workgroup memory, where the
+    /// device with `limits` has the memory for them.
+    pub fn weights_staged(
+        self,
+        kernel: usize,
+        subgroup_size: u32,
+        limits: &CoopLimits,
+    ) -> Option<Self> {
+        let t = CoopTile {
+            stage_weights: true,
+            ..self
+        };
+        t.fits(kernel, subgroup_size, limits).then_some(t)
     }
 
     /// f16 values of one stage: the K-slice's input tiles, each
@@ -226,6 +260,7 @@ impl CoopTile {
                         chunks: 1,
                         prefetch: false,
                         plane_gather: false,
+                        stage_weights: false,
                     };
                     if t.fits(kernel, subgroup_size, limits)
                         && t.column_blocks() <= max_blocks
@@ -384,15 +419,23 @@ pub(super) fn accumulators(tile: CoopTile) -> String {
 }
 
 /// One tap's products: the tap's weights of each of the subgroup's column
-/// blocks, then per pixel row its 16 pixels × 16 channels from the staged
-/// tile times each of them.
+/// blocks (from the weight buffer, or with `stage_weights` from the
+/// workgroup's copy of the K-slice's), then per pixel row its 16 pixels ×
+/// 16 channels from the staged tile times each of them.
 pub(super) fn taps(tile: CoopTile) -> String {
     let mut s = String::new();
     let pad = "                ";
     for n in 0..tile.blocks {
-        s += &format!(
-            "{pad}let b{n} = coopLoadT<coop_mat16x16<f16, B>>(\n{pad}    &weights[p.w_offset + (((blk0 + {n}u) * chunks + chunk) * K * K + tap) * 256u], 16u);\n"
-        );
+        let at = if tile.stage_weights {
+            format!(
+                "&b_tile[((((sg % SG_COLS) * BLOCKS + {n}u) * CHUNKS + s) * K * K + tap) * 256u]"
+            )
+        } else {
+            format!(
+                "&weights[p.w_offset + (((blk0 + {n}u) * chunks + chunk) * K * K + tap) * 256u]"
+            )
+        };
+        s += &format!("{pad}let b{n} = coopLoadT<coop_mat16x16<f16, B>>(\n{pad}    {at}, 16u);\n");
     }
     for r in 0..tile.rows {
         s += &format!(
@@ -499,6 +542,7 @@ mod tests {
             chunks: 1,
             prefetch: false,
             plane_gather: false,
+            stage_weights: false,
         };
         assert!(!small.contains(&tall) && large.contains(&tall), "{large:?}");
         assert!(tall.fits(3, 32, &nvidia) && !tall.fits(3, 32, &portable));

@@ -137,6 +137,10 @@ pub struct TunedCoop {
     /// it was tuned.
     #[serde(default)]
     pub plane_gather: bool,
+    /// The K-slice's weights staged in workgroup memory; false in tables
+    /// written before it was tuned.
+    #[serde(default)]
+    pub stage_weights: bool,
     /// As [`TunedConv`]'s.
     pub tuned_ns: u64,
     pub heuristic_ns: u64,
@@ -152,6 +156,7 @@ impl TunedCoop {
             chunks: self.chunks,
             prefetch: self.prefetch,
             plane_gather: self.plane_gather,
+            stage_weights: self.stage_weights,
         }
     }
 }
