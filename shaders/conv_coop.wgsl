@@ -27,7 +27,7 @@
 // into chunk, channel, row and column) or, with PLANE_GATHER, plane by
 // plane: each invocation finds where its pixels of the tile lie once, then
 // loads those pixels of each channel plane, one add and one compare a
-// value. Either fills the same staged tile. With STAGE_WEIGHTS the
+// value. Either fills the same staged tile. With staged weights the
 // workgroup also copies its column blocks' weights of the K-slice into
 // workgroup memory (contiguous in the packed weights, so a coalesced
 // copy), and the subgroups load their weight matrices from there.
@@ -63,13 +63,9 @@ const PER_THREAD: u32 = {{PER_THREAD}}u;
 // of the tile outside the layer (staged as zero).
 const PAST: u32 = 0xffffffffu;
 const OUTSIDE: u32 = 0xfffffffeu;
-const STAGE_WEIGHTS: bool = {{STAGE_WEIGHTS}};
 // A column block's weights of a K-slice: one 16×16 matrix per chunk and
 // tap, as packed.
 const BLOCK_WEIGHTS: u32 = CHUNKS * K * K * 256u;
-// The staged weights' length (1 where they are not staged: an array has
-// at least one element; CoopTile::staged_weights).
-const B_VALUES: u32 = {{B_VALUES}}u;
 const TRANSPOSED: bool = {{TRANSPOSED}};
 const RELU: bool = {{RELU}};
 const RESIDUAL: bool = {{RESIDUAL}};
@@ -79,9 +75,7 @@ const CLAMP: bool = {{CLAMP}};
 var<workgroup> a_tile: array<f16, CHUNKS * STAGE>;
 // Each subgroup's accumulator on its way out: [pixel][column].
 var<workgroup> c_tile: array<f32, SUBGROUPS * 256u>;
-// With STAGE_WEIGHTS: [column block of the workgroup][chunk of the
-// stage][tap][row][column].
-var<workgroup> b_tile: array<f16, B_VALUES>;
+{{B_TILE}}
 
 @compute @workgroup_size({{THREADS}}, 1, 1)
 fn main(
@@ -110,7 +104,8 @@ fn main(
     // With PREFETCH each invocation holds its share of the next stage in
     // registers, loaded before the current stage's products and stored
     // after them: the loads' latency hides behind the tensor cores.
-    var pre: array<f16, PER_THREAD>;
+    // (One element without a prefetch: never read then.)
+    var pre: array<f16, {{PRE_LEN}}u>;
     if (PREFETCH) {
         for (var j = 0u; j < PER_THREAD; j++) {
             pre[j] = share(0u, li, j, &pix_at, x0, y0);
@@ -127,22 +122,7 @@ fn main(
                 }
             }
         }
-        if (STAGE_WEIGHTS) {
-            // The workgroup's first column block's weights of chunk
-            // `first`, and from there the stage's; chunks past the layer
-            // are never read.
-            let wbase = p.w_offset + (wg.z * SG_COLS * BLOCKS * chunks + first) * K * K * 256u;
-            for (var i = li; i < B_VALUES; i += THREADS) {
-                let nb = i / BLOCK_WEIGHTS;
-                let rest = i % BLOCK_WEIGHTS;
-                var v = f16(0.0);
-                if (first + rest / (K * K * 256u) < chunks) {
-                    v = weights[wbase + nb * chunks * K * K * 256u + rest];
-                }
-                b_tile[i] = v;
-            }
-        }
-        workgroupBarrier();
+{{COPY_WEIGHTS}}        workgroupBarrier();
         if (PREFETCH && first + CHUNKS < chunks) {
             for (var j = 0u; j < PER_THREAD; j++) {
                 pre[j] = share(first + CHUNKS, li, j, &pix_at, x0, y0);

@@ -121,6 +121,8 @@ mod needs_gpu {
         assert_eq!(result.convs.len(), shapes.len());
         // The heuristics' tile (32×16 at both shapes) and the other.
         assert_eq!(result.tiles_timed, 2);
+        // Each tile's frame computed the heuristics' output.
+        assert!(result.passed_over.is_empty(), "{:?}", result.passed_over);
         for c in &result.convs {
             let s = c.shape;
             let heuristic = ConvTile::for_layer(s.width, s.height, s.kernel, s.arith.into());
@@ -136,6 +138,29 @@ mod needs_gpu {
             gpu.conv_tiles(w, h)
                 .iter()
                 .all(|t| t.source == TileSource::Heuristic)
+        );
+        // A tile whose output differs (a kernel bug, injected) is tried
+        // layer by layer, named for each, and taken by no shape; the
+        // others are tuned as before.
+        gpu.fault_tile = Some(OTHER);
+        let result = gpu
+            .tune(&random_frame(w, h, 3), 1, Some(&[OTHER]))
+            .expect("tunes, passing over the tile");
+        assert!(!result.passed_over.is_empty());
+        for line in &result.passed_over {
+            assert!(
+                line.starts_with("layer ")
+                    && !line.contains("together")
+                    && line.contains(": 1 of ")
+                    && line.ends_with("passed over"),
+                "{line}"
+            );
+        }
+        assert_eq!(result.convs.len(), shapes.len());
+        assert!(
+            result.convs.iter().all(|c| c.tile() != OTHER),
+            "{:?}",
+            result.convs
         );
     }
 

@@ -217,6 +217,13 @@ pub fn run(b: &TuneBench, common: &CommonOptions) -> Result<TuneOutcome, AppErro
                 result.tiles_timed,
             );
             md += &coop_table(&result.coops);
+            if !result.passed_over.is_empty() {
+                md += "\nPassed over, their output not the heuristics' bit for bit (a kernel bug on \
+                       this adapter):\n\n";
+                for line in &result.passed_over {
+                    md += &format!("- {line}\n");
+                }
+            }
             // A shape met again (another network, the same layer) keeps
             // its latest tuning.
             if let Some(t) = &mut table {

@@ -249,8 +249,17 @@ impl KernelKey {
                     ("CHUNKS", tile.chunks.to_string()),
                     ("PREFETCH", tile.prefetch.to_string()),
                     ("PLANE_GATHER", tile.plane_gather.to_string()),
-                    ("STAGE_WEIGHTS", tile.stage_weights.to_string()),
-                    ("B_VALUES", tile.staged_weights(kernel).max(1).to_string()),
+                    (
+                        "PRE_LEN",
+                        if tile.prefetch {
+                            tile.staged_per_invocation(kernel, subgroup_size)
+                        } else {
+                            1
+                        }
+                        .to_string(),
+                    ),
+                    ("B_TILE", coop::b_tile(tile, kernel)),
+                    ("COPY_WEIGHTS", coop::copy_weights(tile)),
                     (
                         "PER_THREAD",
                         tile.staged_per_invocation(kernel, subgroup_size)

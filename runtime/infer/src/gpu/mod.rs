@@ -133,6 +133,10 @@ pub struct GpuBackend {
     forced_tiles: HashMap<usize, codegen::ConvTile>,
     /// The same for the cooperative-matrix layers.
     forced_coop: HashMap<usize, codegen::coop::CoopTile>,
+    /// A tile whose output the tests corrupt where it is forced (a kernel
+    /// bug for the tuner to pass over).
+    #[cfg(test)]
+    pub(crate) fault_tile: Option<codegen::ConvTile>,
 }
 
 impl GpuBackend {
@@ -359,6 +363,8 @@ impl GpuBackend {
             tuning: None,
             forced_tiles: HashMap::new(),
             forced_coop: HashMap::new(),
+            #[cfg(test)]
+            fault_tile: None,
         })
     }
 

@@ -23,8 +23,42 @@ pub struct TuneResult {
     /// without cooperative matrices).
     pub coops: Vec<TunedCoop>,
     /// Frames of tiles timed: each tile once, for every layer it fits,
-    /// and each round of variants (K-slices, prefetch) once.
+    /// and each round of variants (K-slices, gather, staged weights,
+    /// prefetch) once.
     pub tiles_timed: usize,
+    /// The frames whose output was not the heuristics' bit for bit, each
+    /// described (its layers and tiles, how many values differed): their
+    /// tiles were passed over (a kernel bug on this adapter).
+    pub passed_over: Vec<String>,
+}
+
+/// The heuristics' output of the frame being tuned, which every timed
+/// frame's output must equal bit for bit, and the frames that did not.
+struct Check {
+    reference: Vec<f32>,
+    passed_over: Vec<String>,
+}
+
+impl Check {
+    /// Names a tile (or a frame's tiles) whose output values differ.
+    fn pass_over(&mut self, what: String) {
+        let line = format!("{what} output values differ from the heuristics' tiles'; passed over");
+        tracing::warn!("tuning: {line}");
+        self.passed_over.push(line);
+    }
+}
+
+/// How many values of `got` are not `reference`'s bit for bit (every one
+/// where the lengths differ).
+fn values_differing(reference: &[f32], got: &[f32]) -> usize {
+    if reference.len() != got.len() {
+        return reference.len().max(got.len());
+    }
+    reference
+        .iter()
+        .zip(got)
+        .filter(|(a, b)| a.to_bits() != b.to_bits())
+        .count()
 }
 
 /// The best device time of a layer at a tile: (layer, tile) → ns.
@@ -86,6 +120,13 @@ fn best_per_shape<S: Copy + PartialEq, T: Copy + Eq + Hash>(
             Ok((shape, heuristic, heuristic_ns, tile, tuned_ns))
         })
         .collect()
+}
+
+/// Whether a shape's heuristics' and fastest tiles both have a time: a
+/// shape whose frames were all passed over gets no entry (the runtime
+/// keeps the heuristics' there).
+fn has_times<S, T>(best: &Best<S, T>) -> bool {
+    best.2 != u64::MAX && best.4 != u64::MAX
 }
 
 /// A round of variants: each cooperative layer at `variant` of its
@@ -217,14 +258,32 @@ impl GpuBackend {
             .iter()
             .map(|t| t.shape.candidates(t.subgroup_size, &limits))
             .collect();
+        // The heuristics' output, which every timed frame must compute.
+        let mut check = Check {
+            reference: self.run_tensor(frame.data(), w, h)?,
+            passed_over: Vec::new(),
+        };
         let timed = self
-            .time_tiles(frame, repeat, &tiled, &candidates, Self::force_conv_tiles)
+            .time_tiles(
+                frame,
+                repeat,
+                &tiled,
+                &candidates,
+                Self::force_conv_tiles,
+                &mut check,
+            )
             .and_then(|t| {
                 // The tiled layers back on their heuristics' tiles while
                 // the cooperative ones are timed.
                 self.force_conv_tiles(HashMap::new());
-                let c =
-                    self.time_coop(frame, repeat, &coop_layers, &mut coop_candidates, &limits)?;
+                let c = self.time_coop(
+                    frame,
+                    repeat,
+                    &coop_layers,
+                    &mut coop_candidates,
+                    &limits,
+                    &mut check,
+                )?;
                 Ok((t, c))
             });
         // Whatever happened, the tuner's tiles do not outlive it.
@@ -233,6 +292,7 @@ impl GpuBackend {
         let ((times, n_tiled), (coop_times, n_coop)) = timed?;
         let convs: Vec<TunedConv> = best_per_shape(&tiled, &candidates, &times)?
             .into_iter()
+            .filter(has_times)
             .map(|(shape, _, heuristic_ns, tile, tuned_ns)| TunedConv {
                 shape,
                 px: tile.px,
@@ -243,6 +303,7 @@ impl GpuBackend {
             .collect();
         let coops: Vec<TunedCoop> = best_per_shape(&coop, &coop_candidates, &coop_times)?
             .into_iter()
+            .filter(has_times)
             .map(|(shape, _, heuristic_ns, tile, tuned_ns)| TunedCoop {
                 shape,
                 rows: tile.rows,
@@ -257,8 +318,12 @@ impl GpuBackend {
                 heuristic_ns,
             })
             .collect();
-        // The tuned network against the heuristics', bit for bit.
-        let reference = self.run_tensor(frame.data(), w, h)?;
+        // The tuned network against the heuristics', bit for bit: each
+        // tile computed them in its own frame; this checks them together.
+        let Check {
+            reference,
+            passed_over,
+        } = check;
         let table = TuningTable::new(
             super::tuning::AdapterKey::of(&self.adapter_info()),
             convs.clone(),
@@ -267,13 +332,8 @@ impl GpuBackend {
         self.set_tuning(Some(Arc::new(table)));
         let tuned = self.run_tensor(frame.data(), w, h);
         self.set_tuning(None);
-        let tuned = tuned?;
-        let differ = reference
-            .iter()
-            .zip(&tuned)
-            .filter(|(a, b)| a.to_bits() != b.to_bits())
-            .count();
-        if differ > 0 || reference.len() != tuned.len() {
+        let differ = values_differing(&reference, &tuned?);
+        if differ > 0 {
             return Err(err(format!(
                 "the tuned tiles change {differ} of {} output values of a {w}×{h} frame; a \
                  tile must only cut the output among workgroups (a kernel bug: no table \
@@ -285,19 +345,21 @@ impl GpuBackend {
             convs,
             coops,
             tiles_timed: n_tiled + n_coop,
+            passed_over,
         })
     }
 
     /// Each tile forced in turn (by `force`) on every layer whose
     /// candidates hold it, each layer's best time of `repeat` timings after
     /// a warm-up one; with the number of distinct tiles timed.
-    fn time_tiles<S, T: Copy + Eq + Hash>(
+    fn time_tiles<S, T: Copy + Eq + Hash + std::fmt::Debug>(
         &mut self,
         frame: &Image,
         repeat: usize,
         layers: &[(usize, S, T)],
         candidates: &[Vec<T>],
         force: fn(&mut Self, HashMap<usize, T>),
+        check: &mut Check,
     ) -> Result<(Times<T>, usize), InferenceError> {
         // Every tile any layer may take, in a fixed order.
         let mut tiles: Vec<T> = Vec::new();
@@ -314,21 +376,57 @@ impl GpuBackend {
                 .filter(|(_, c)| c.contains(tile))
                 .map(|(l, _)| (l.0, *tile))
                 .collect();
-            times.extend(self.time_forced(frame, repeat, forced, force)?);
+            times.extend(self.time_forced(frame, repeat, forced, force, check)?);
         }
         Ok((times, tiles.len()))
     }
 
     /// One frame's layers at `forced` tiles (layer → tile): each forced
-    /// layer's best time of `repeat` timings after a warm-up one.
-    fn time_forced<T: Copy + Eq + Hash>(
+    /// layer's best time of `repeat` timings after a warm-up one. First
+    /// the frame's output must be the heuristics' bit for bit; where it is
+    /// not, each forced layer's tile is tried alone, those that change the
+    /// output are named in `check` and get no time (a tile without a time
+    /// is never a shape's fastest), and the others are timed; where no
+    /// tile alone does, the frame's tiles are named together and none is
+    /// timed.
+    fn time_forced<T: Copy + Eq + Hash + std::fmt::Debug>(
         &mut self,
         frame: &Image,
         repeat: usize,
         forced: HashMap<usize, T>,
         force: fn(&mut Self, HashMap<usize, T>),
+        check: &mut Check,
     ) -> Result<Times<T>, InferenceError> {
         force(self, forced.clone());
+        let got = self.run_tensor(frame.data(), frame.width, frame.height)?;
+        let differ = values_differing(&check.reference, &got);
+        if differ > 0 {
+            // Which layers' tiles change it, each alone (the others at the
+            // heuristics'): those are passed over, the rest timed.
+            let mut layers: Vec<(usize, T)> = forced.iter().map(|(l, t)| (*l, *t)).collect();
+            layers.sort_by_key(|(l, _)| *l);
+            let n = check.reference.len();
+            let mut good = forced.clone();
+            for &(layer, tile) in &layers {
+                force(self, HashMap::from([(layer, tile)]));
+                let alone = self.run_tensor(frame.data(), frame.width, frame.height)?;
+                let d = values_differing(&check.reference, &alone);
+                if d > 0 {
+                    good.remove(&layer);
+                    check.pass_over(format!("layer {layer} at {tile:?}: {d} of {n}"));
+                }
+            }
+            if good.len() == forced.len() {
+                // No tile alone, only the frame's together: none is timed.
+                let at: Vec<String> = layers
+                    .iter()
+                    .map(|(l, t)| format!("layer {l} at {t:?}"))
+                    .collect();
+                check.pass_over(format!("{} together: {differ} of {n}", at.join(", ")));
+                return Ok(Times::new());
+            }
+            return self.time_forced(frame, repeat, good, force, check);
+        }
         // The warm-up builds the plan and its kernels; it is not timed.
         let mut best = self.layer_timings(frame)?;
         best.iter_mut().for_each(|b| b.gpu_ns = u64::MAX);
@@ -362,10 +460,17 @@ impl GpuBackend {
         layers: &[LayerCoopTile],
         candidates: &mut [Vec<CoopTile>],
         limits: &CoopLimits,
+        check: &mut Check,
     ) -> Result<(Times<CoopTile>, usize), InferenceError> {
         let keyed: Vec<_> = layers.iter().map(|t| (t.layer, t.shape, t.tile)).collect();
-        let (mut times, mut timed) =
-            self.time_tiles(frame, repeat, &keyed, candidates, Self::force_coop_tiles)?;
+        let (mut times, mut timed) = self.time_tiles(
+            frame,
+            repeat,
+            &keyed,
+            candidates,
+            Self::force_coop_tiles,
+            check,
+        )?;
         let best = best_per_shape(&keyed, candidates, &times)?;
         let mut rounds = Vec::new();
         for chunks in [2, 4] {
@@ -374,7 +479,7 @@ impl GpuBackend {
             }));
         }
         for forced in rounds.into_iter().filter(|f| !f.is_empty()) {
-            times.extend(self.time_forced(frame, repeat, forced, Self::force_coop_tiles)?);
+            times.extend(self.time_forced(frame, repeat, forced, Self::force_coop_tiles, check)?);
             timed += 1;
         }
         // Then the fastest so far gathered plane by plane, with its weights
@@ -383,7 +488,13 @@ impl GpuBackend {
             let best = best_per_shape(&keyed, candidates, &times)?;
             let forced = variant_round(layers, candidates, &best, |l, t| round.of(l, t, limits));
             if !forced.is_empty() {
-                times.extend(self.time_forced(frame, repeat, forced, Self::force_coop_tiles)?);
+                times.extend(self.time_forced(
+                    frame,
+                    repeat,
+                    forced,
+                    Self::force_coop_tiles,
+                    check,
+                )?);
                 timed += 1;
             }
         }
@@ -416,6 +527,26 @@ mod tests {
             source: TileSource::Heuristic,
             subgroup_size: 32,
         }
+    }
+
+    #[test]
+    fn a_shape_without_times_gets_no_entry() {
+        let layers = [(0usize, 'a', 1u8), (1, 'b', 1)];
+        let candidates = [vec![1u8, 2], vec![1, 2]];
+        // Shape b's frames were all passed over: no time for either tile.
+        let times = Times::from([((0, 1), 5), ((0, 2), 3)]);
+        let best = best_per_shape(&layers, &candidates, &times).expect("best");
+        assert_eq!((best[0].3, best[0].4), (2, 3));
+        assert!(has_times(&best[0]) && !has_times(&best[1]));
+    }
+
+    #[test]
+    fn a_frame_differs_by_any_bit_or_length() {
+        let a = [1.0f32, 0.0, f32::NAN];
+        assert_eq!(values_differing(&a, &a), 0);
+        // -0.0 == 0.0, but not bit for bit.
+        assert_eq!(values_differing(&a, &[1.0, -0.0, f32::NAN]), 1);
+        assert_eq!(values_differing(&a, &[1.0, 0.0]), 3);
     }
 
     #[test]

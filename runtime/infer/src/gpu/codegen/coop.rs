@@ -448,6 +448,44 @@ pub(super) fn taps(tile: CoopTile) -> String {
     s
 }
 
+/// With `stage_weights`, the staged weights' declaration (declared only
+/// then: a declared array takes workgroup memory even where unread).
+pub(super) fn b_tile(tile: CoopTile, kernel: usize) -> String {
+    if !tile.stage_weights {
+        return String::new();
+    }
+    format!(
+        "// The staged weights: [column block of the workgroup][chunk of the
+// stage][tap][row][column] (CoopTile::staged_weights).
+const B_VALUES: u32 = {}u;
+var<workgroup> b_tile: array<f16, B_VALUES>;",
+        tile.staged_weights(kernel)
+    )
+}
+
+/// With `stage_weights`, the copy of the workgroup's column blocks' weights
+/// of the stage at chunk `first` into `b_tile`, before the stage's barrier.
+pub(super) fn copy_weights(tile: CoopTile) -> String {
+    if !tile.stage_weights {
+        return String::new();
+    }
+    "        // The workgroup's first column block's weights of chunk `first`,
+        // and from there the stage's (contiguous as packed); chunks past
+        // the layer are never read.
+        let wbase = p.w_offset + (wg.z * SG_COLS * BLOCKS * chunks + first) * K * K * 256u;
+        for (var i = li; i < B_VALUES; i += THREADS) {
+            let nb = i / BLOCK_WEIGHTS;
+            let rest = i % BLOCK_WEIGHTS;
+            var v = f16(0.0);
+            if (first + rest / (K * K * 256u) < chunks) {
+                v = weights[wbase + nb * chunks * K * K * 256u + rest];
+            }
+            b_tile[i] = v;
+        }
+"
+    .into()
+}
+
 /// Each accumulator out through workgroup memory and the epilogue.
 pub(super) fn stores(tile: CoopTile) -> String {
     let mut s = String::new();
