@@ -73,8 +73,11 @@ const CLAMP: bool = {{CLAMP}};
 
 // [chunk of the stage][row][column][channel of the chunk].
 var<workgroup> a_tile: array<f16, CHUNKS * STAGE>;
-// Each subgroup's accumulator on its way out: [pixel][column].
-var<workgroup> c_tile: array<f32, SUBGROUPS * 256u>;
+// Each subgroup's accumulators on their way out: [subgroup][matrix]
+// [pixel][column], one matrix a subgroup (drained one at a time, two
+// barriers each) or, drained at once, all of them (one barrier in all).
+const DRAIN_MATS: u32 = {{DRAIN_MATS}}u;
+var<workgroup> c_tile: array<f32, SUBGROUPS * DRAIN_MATS * 256u>;
 {{B_TILE}}
 
 @compute @workgroup_size({{THREADS}}, 1, 1)
@@ -221,14 +224,14 @@ fn share_index(li: u32, j: u32) -> u32 {
     return (q / 16u) * STAGE + pix * 16u + q % 16u;
 }
 
-// Accumulator `row` of this subgroup out through workgroup memory, each
-// value through the epilogue.
-fn drain(sg: u32, lane: u32, blk: u32, x0: u32, y: u32) {
+// Matrix `m` of `c_tile` (a subgroup's accumulator of pixel row `y` and
+// column block `blk`) out, each value through the epilogue.
+fn drain(m: u32, lane: u32, blk: u32, x0: u32, y: u32) {
     for (var i = lane; i < 256u; i += SG) {
         // Pixels innermost: neighbouring invocations write neighbours.
         let px = i % 16u;
         let col = i / 16u;
-        let sum = c_tile[sg * 256u + px * 16u + col];
+        let sum = c_tile[m * 256u + px * 16u + col];
         emit(x0 + px, y, blk * 16u + col, sum);
     }
 }

@@ -99,20 +99,24 @@ fn sum_row(label: &str, heuristic_ns: u64, tuned_ns: u64) -> String {
 }
 
 fn coop_tile(t: CoopTile) -> String {
+    let flags = [
+        (t.plane_gather, ", by plane"),
+        (t.stage_weights, ", weights staged"),
+        (t.drain_once, ", drained at once"),
+        (t.prefetch, ", prefetched"),
+    ];
     format!(
-        "{}×{} of {}×{}, {} channels a stage{}{}{}",
+        "{}×{} of {}×{}, {} channels a stage{}",
         t.sg_rows,
         t.sg_cols,
         t.rows,
         t.blocks,
         16 * t.chunks,
-        if t.plane_gather { ", by plane" } else { "" },
-        if t.stage_weights {
-            ", weights staged"
-        } else {
-            ""
-        },
-        if t.prefetch { ", prefetched" } else { "" }
+        flags
+            .iter()
+            .filter(|f| f.0)
+            .map(|f| f.1)
+            .collect::<String>()
     )
 }
 
@@ -120,8 +124,8 @@ fn coop_tile(t: CoopTile) -> String {
 /// subgroups (over rows × over columns) of accumulators (pixel rows ×
 /// column blocks), the input channels staged between two barriers,
 /// whether they are gathered plane by plane, whether the weights are
-/// staged in workgroup memory, and whether the next stage is prefetched
-/// through registers.
+/// staged in workgroup memory, whether the accumulators are drained at
+/// once, and whether the next stage is prefetched through registers.
 fn coop_table(coops: &[TunedCoop]) -> String {
     if coops.is_empty() {
         return String::new();

@@ -259,6 +259,7 @@ impl KernelKey {
                         .to_string(),
                     ),
                     ("B_TILE", coop::b_tile(tile, kernel)),
+                    ("DRAIN_MATS", tile.drain_matrices().to_string()),
                     ("COPY_WEIGHTS", coop::copy_weights(tile)),
                     (
                         "PER_THREAD",
@@ -410,8 +411,9 @@ mod tests {
         let mut keys = Vec::new();
         // The default tile, the most matrices a subgroup and the most
         // subgroups a workgroup hold, the largest K-slice, a prefetch, the
-        // plane gather (prefetched, and of the largest slice), and staged
-        // weights (alone, and with all of those).
+        // plane gather (prefetched, and of the largest slice), staged
+        // weights (alone, and with all of those), and drained at once
+        // (alone, and 8 matrices a subgroup with staged weights).
         let tiles = [
             coop::CoopTile::DEFAULT,
             coop::CoopTile {
@@ -423,6 +425,7 @@ mod tests {
                 prefetch: false,
                 plane_gather: false,
                 stage_weights: false,
+                drain_once: false,
             },
             coop::CoopTile::DEFAULT.with_chunks(coop::MAX_CHUNKS),
             coop::CoopTile::DEFAULT
@@ -447,6 +450,22 @@ mod tests {
                     .plane_gathered()
                     .prefetched(3, 32)
                     .expect("prefetched")
+            },
+            coop::CoopTile {
+                drain_once: true,
+                ..coop::CoopTile::DEFAULT
+            },
+            coop::CoopTile {
+                drain_once: true,
+                stage_weights: true,
+                ..coop::CoopTile {
+                    rows: 4,
+                    blocks: 2,
+                    sg_rows: 2,
+                    sg_cols: 2,
+                    ..coop::CoopTile::DEFAULT
+                }
+                .plane_gathered()
             },
         ];
         for (subgroup_size, tile) in [32, 64].into_iter().flat_map(|s| tiles.map(|t| (s, t))) {

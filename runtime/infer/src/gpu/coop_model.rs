@@ -182,29 +182,64 @@ fn model(
                         }
                     }
                 }
-                for sg in 0..sgs {
-                    for (row, nb) in (0..rows).flat_map(|r| (0..blocks).map(move |n| (r, n))) {
-                        let blk = blk0(gz, sg) + nb;
-                        for i in 0..256 {
-                            let (px, col) = (i % 16, i / 16);
-                            let sum = acc[(sg * rows + row) * blocks + nb][px][col];
-                            let (x, y, n) = (x0 + px, y0 + row0(sg) + row, blk * 16 + col);
-                            if x >= w || y >= h {
-                                continue;
+                // The epilogue through workgroup memory, as `stores` and
+                // `drain`: every subgroup stores a matrix, a barrier, every
+                // subgroup drains it (one matrix a subgroup, slot sg), or
+                // with drain_once all matrices, then all drained (slot
+                // sg·mats + row·blocks + block). NaN where none stored.
+                let mats = tile.drain_matrices() as usize;
+                let mut c_tile = vec![f32::NAN; sgs * mats * 256];
+                let order: Vec<(usize, usize)> = (0..rows)
+                    .flat_map(|r| (0..blocks).map(move |n| (r, n)))
+                    .collect();
+                let slot = |sg: usize, row: usize, nb: usize| {
+                    if tile.drain_once {
+                        sg * mats + row * blocks + nb
+                    } else {
+                        sg
+                    }
+                };
+                let phases: Vec<Vec<(usize, usize)>> = if tile.drain_once {
+                    vec![order]
+                } else {
+                    order.into_iter().map(|m| vec![m]).collect()
+                };
+                for phase in &phases {
+                    for sg in 0..sgs {
+                        for &(row, nb) in phase {
+                            let m = slot(sg, row, nb);
+                            for (px, c_row) in
+                                acc[(sg * rows + row) * blocks + nb].iter().enumerate()
+                            {
+                                c_tile[m * 256 + px * 16..m * 256 + px * 16 + 16]
+                                    .copy_from_slice(c_row);
                             }
-                            if transposed {
-                                let (oc, tap) = (n / 4, n % 4);
-                                if oc < cout {
-                                    let at = oc * 4 * plane
-                                        + (2 * y + tap / 2) * 2 * w
-                                        + 2 * x
-                                        + tap % 2;
-                                    out[at] = sum + bias[oc];
-                                    written[at] += 1;
+                        }
+                    }
+                    for sg in 0..sgs {
+                        for &(row, nb) in phase {
+                            let (m, blk) = (slot(sg, row, nb), blk0(gz, sg) + nb);
+                            for i in 0..256 {
+                                let (px, col) = (i % 16, i / 16);
+                                let sum = c_tile[m * 256 + px * 16 + col];
+                                let (x, y, n) = (x0 + px, y0 + row0(sg) + row, blk * 16 + col);
+                                if x >= w || y >= h {
+                                    continue;
                                 }
-                            } else if n < cout {
-                                out[n * plane + y * w + x] = sum + bias[n];
-                                written[n * plane + y * w + x] += 1;
+                                if transposed {
+                                    let (oc, tap) = (n / 4, n % 4);
+                                    if oc < cout {
+                                        let at = oc * 4 * plane
+                                            + (2 * y + tap / 2) * 2 * w
+                                            + 2 * x
+                                            + tap % 2;
+                                        out[at] = sum + bias[oc];
+                                        written[at] += 1;
+                                    }
+                                } else if n < cout {
+                                    out[n * plane + y * w + x] = sum + bias[n];
+                                    written[n * plane + y * w + x] += 1;
+                                }
                             }
                         }
                     }
@@ -246,6 +281,11 @@ fn tiles_for(columns: usize, h: usize, k: usize, cin: usize) -> Vec<CoopTile> {
         .filter_map(|t| t.weights_staged(k, 32, &largest))
         .collect();
     tiles.extend(staged);
+    let drained: Vec<CoopTile> = tiles
+        .iter()
+        .filter_map(|t| t.drained_once(k, 32, &largest))
+        .collect();
+    tiles.extend(drained);
     let prefetched: Vec<CoopTile> = tiles.iter().filter_map(|t| t.prefetched(k, 32)).collect();
     tiles.extend(prefetched);
     tiles

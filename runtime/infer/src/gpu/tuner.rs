@@ -159,6 +159,7 @@ fn variant_round(
 enum Round {
     PlaneGather,
     StageWeights,
+    DrainOnce,
     Prefetch,
 }
 
@@ -171,6 +172,9 @@ impl Round {
             Round::PlaneGather => (!tile.plane_gather).then(|| tile.plane_gathered()),
             Round::StageWeights => (!tile.stage_weights)
                 .then(|| tile.weights_staged(kernel, sg, limits))
+                .flatten(),
+            Round::DrainOnce => (!tile.drain_once)
+                .then(|| tile.drained_once(kernel, sg, limits))
                 .flatten(),
             Round::Prefetch => (!tile.prefetch)
                 .then(|| tile.prefetched(kernel, sg))
@@ -314,6 +318,7 @@ impl GpuBackend {
                 prefetch: tile.prefetch,
                 plane_gather: tile.plane_gather,
                 stage_weights: tile.stage_weights,
+                drain_once: tile.drain_once,
                 tuned_ns,
                 heuristic_ns,
             })
@@ -448,11 +453,12 @@ impl GpuBackend {
     /// one chunk a stage; then each shape's fastest of those with the
     /// K-slices it takes (2 and 4 chunks a stage, one frame each, every
     /// layer at its shape's slice); then the fastest so far gathered plane
-    /// by plane, with its weights staged in workgroup memory, and with its
-    /// next stage prefetched (one frame each, [`Round`]). Each joins the
-    /// layers' `candidates`. A slice, a gather, staged weights or a
-    /// prefetch only change how the operands are staged, so each is timed
-    /// on the tile already best, not on every tile.
+    /// by plane, with its weights staged in workgroup memory, drained at
+    /// once, and with its next stage prefetched (one frame each,
+    /// [`Round`]). Each joins the layers' `candidates`. None of these
+    /// changes which invocations compute an output, only how operands and
+    /// results pass through workgroup memory, so each is timed on the tile
+    /// already best, not on every tile.
     fn time_coop(
         &mut self,
         frame: &Image,
@@ -483,8 +489,13 @@ impl GpuBackend {
             timed += 1;
         }
         // Then the fastest so far gathered plane by plane, with its weights
-        // staged, with its next stage prefetched.
-        for round in [Round::PlaneGather, Round::StageWeights, Round::Prefetch] {
+        // staged, drained at once, with its next stage prefetched.
+        for round in [
+            Round::PlaneGather,
+            Round::StageWeights,
+            Round::DrainOnce,
+            Round::Prefetch,
+        ] {
             let best = best_per_shape(&keyed, candidates, &times)?;
             let forced = variant_round(layers, candidates, &best, |l, t| round.of(l, t, limits));
             if !forced.is_empty() {
@@ -620,6 +631,13 @@ mod tests {
         times.insert((9, staged), 40);
         let best = best_per_shape(&keyed, &candidates, &times).expect("best");
         assert!(!best[1].3.stage_weights);
+        // Drained at once: where the epilogue's matrices fit beside the
+        // rest, never twice.
+        let drained = Round::DrainOnce
+            .of(&layers[2], best[1].3, &limits)
+            .expect("fits");
+        assert!(drained.drain_once && drained.workgroup_bytes(3) <= limits.workgroup_bytes);
+        assert_eq!(Round::DrainOnce.of(&layers[2], drained, &limits), None);
         // The prefetch round on that: every layer whose registers allow.
         let forced = variant_round(&layers, &mut candidates, &best, round(Round::Prefetch));
         for (l, f) in &forced {

@@ -542,6 +542,7 @@ mod tests {
                 prefetch: true,
                 plane_gather: true,
                 stage_weights: true,
+                drain_once: true,
                 tuned_ns: 2000,
                 heuristic_ns: 2500,
             }],
@@ -651,11 +652,13 @@ mod tests {
         assert!(text.contains("chunks = 2\n"), "{text}");
         assert!(text.contains("plane_gather = true\n"), "{text}");
         assert!(text.contains("stage_weights = true\n"), "{text}");
+        assert!(text.contains("drain_once = true\n"), "{text}");
         let old = text
             .replace("chunks = 2\n", "")
             .replace("prefetch = true\n", "")
             .replace("plane_gather = true\n", "")
-            .replace("stage_weights = true\n", "");
+            .replace("stage_weights = true\n", "")
+            .replace("drain_once = true\n", "");
         std::fs::write(&path, old).expect("writes");
         let (_, t) = TuningTable::find(dir.path(), &key())
             .expect("reads")
@@ -666,6 +669,7 @@ mod tests {
                 prefetch: false,
                 plane_gather: false,
                 stage_weights: false,
+                drain_once: false,
                 ..table().coops[0].tile().with_chunks(1)
             })
         );

@@ -48,7 +48,10 @@ pub const MAX_TABLE_WORKGROUP_BYTES: u32 = 65536;
 /// `stage_weights` the workgroup also copies its column blocks' weights of
 /// each K-slice into workgroup memory beside the input, and its subgroups
 /// load their weight matrices from there, not from the weight buffer:
-/// subgroups stacked over rows then share one copy.
+/// subgroups stacked over rows then share one copy. With `drain_once` each
+/// subgroup stores all its accumulators to workgroup memory, then after
+/// one barrier drains them all, where one matrix at a time takes two
+/// barriers each (for `rows` × `blocks` times the epilogue's memory).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
 pub struct CoopTile {
     pub rows: u32,
@@ -59,6 +62,7 @@ pub struct CoopTile {
     pub prefetch: bool,
     pub plane_gather: bool,
     pub stage_weights: bool,
+    pub drain_once: bool,
 }
 
 impl CoopTile {
@@ -74,6 +78,7 @@ impl CoopTile {
         prefetch: false,
         plane_gather: false,
         stage_weights: false,
+        drain_once: false,
     };
 
     /// The heuristics' tile for a layer of `columns` GEMM columns (output
@@ -94,6 +99,7 @@ impl CoopTile {
             prefetch: false,
             plane_gather: false,
             stage_weights: false,
+            drain_once: false,
         }
     }
 
@@ -113,10 +119,35 @@ impl CoopTile {
 
     /// Workgroup memory: the staged input tiles (f16, 16 channels a
     /// pixel, one per chunk of the K-slice), with `stage_weights` the
-    /// K-slice's weights, and one 16×16 f32 matrix per subgroup for the
-    /// epilogue.
+    /// K-slice's weights, and the epilogue's 16×16 f32 matrices.
     pub fn workgroup_bytes(&self, kernel: usize) -> u32 {
-        (self.stage_values(kernel) + self.staged_weights(kernel)) * 2 + self.subgroups() * 256 * 4
+        (self.stage_values(kernel) + self.staged_weights(kernel)) * 2
+            + self.subgroups() * self.drain_matrices() * 256 * 4
+    }
+
+    /// The epilogue's matrices a subgroup: all its accumulators with
+    /// `drain_once`, else one.
+    pub fn drain_matrices(&self) -> u32 {
+        if self.drain_once {
+            self.rows * self.blocks
+        } else {
+            1
+        }
+    }
+
+    /// This tile drained at once, where the device with `limits` has the
+    /// memory for it.
+    pub fn drained_once(self, kernel: usize, sg: u32, limits: &CoopLimits) -> Option<Self> {
+        CoopTile {
+            drain_once: true,
+            ..self
+        }
+        .fitting(kernel, sg, limits)
+    }
+
+    /// This tile where the device with `limits` runs it.
+    fn fitting(self, kernel: usize, sg: u32, limits: &CoopLimits) -> Option<Self> {
+        self.fits(kernel, sg, limits).then_some(self)
     }
 
     /// f16 weights a workgroup stages a K-slice with `stage_weights`:
@@ -132,17 +163,12 @@ impl CoopTile {
 
     /// This tile with its weights staged in workgroup memory, where the
     /// device with `limits` has the memory for them.
-    pub fn weights_staged(
-        self,
-        kernel: usize,
-        subgroup_size: u32,
-        limits: &CoopLimits,
-    ) -> Option<Self> {
-        let t = CoopTile {
+    pub fn weights_staged(self, kernel: usize, sg: u32, limits: &CoopLimits) -> Option<Self> {
+        CoopTile {
             stage_weights: true,
             ..self
-        };
-        t.fits(kernel, subgroup_size, limits).then_some(t)
+        }
+        .fitting(kernel, sg, limits)
     }
 
     /// f16 values of one stage: the K-slice's input tiles, each
@@ -261,6 +287,7 @@ impl CoopTile {
                         prefetch: false,
                         plane_gather: false,
                         stage_weights: false,
+                        drain_once: false,
                     };
                     if t.fits(kernel, subgroup_size, limits)
                         && t.column_blocks() <= max_blocks
@@ -489,12 +516,30 @@ pub(super) fn copy_weights(tile: CoopTile) -> String {
 /// Each accumulator out through workgroup memory and the epilogue.
 pub(super) fn stores(tile: CoopTile) -> String {
     let mut s = String::new();
-    for r in 0..tile.rows {
-        for n in 0..tile.blocks {
+    let mats: Vec<(u32, u32)> = (0..tile.rows)
+        .flat_map(|r| (0..tile.blocks).map(move |n| (r, n)))
+        .collect();
+    if tile.drain_once {
+        // Matrix r·blocks + n of the subgroup's DRAIN_MATS.
+        for &(r, n) in &mats {
+            let m = r * tile.blocks + n;
             s += &format!(
-                "    coopStoreT(c{r}_{n}, &c_tile[sg * 256u], 16u);\n    workgroupBarrier();\n    drain(sg, lane, blk0 + {n}u, x0, y0 + row0 + {r}u);\n    workgroupBarrier();\n"
+                "    coopStoreT(c{r}_{n}, &c_tile[(sg * DRAIN_MATS + {m}u) * 256u], 16u);\n"
             );
         }
+        s += "    workgroupBarrier();\n";
+        for &(r, n) in &mats {
+            let m = r * tile.blocks + n;
+            s += &format!(
+                "    drain(sg * DRAIN_MATS + {m}u, lane, blk0 + {n}u, x0, y0 + row0 + {r}u);\n"
+            );
+        }
+        return s;
+    }
+    for (r, n) in mats {
+        s += &format!(
+            "    coopStoreT(c{r}_{n}, &c_tile[sg * 256u], 16u);\n    workgroupBarrier();\n    drain(sg, lane, blk0 + {n}u, x0, y0 + row0 + {r}u);\n    workgroupBarrier();\n"
+        );
     }
     s
 }
@@ -581,6 +626,7 @@ mod tests {
             prefetch: false,
             plane_gather: false,
             stage_weights: false,
+            drain_once: false,
         };
         assert!(!small.contains(&tall) && large.contains(&tall), "{large:?}");
         assert!(tall.fits(3, 32, &nvidia) && !tall.fits(3, 32, &portable));

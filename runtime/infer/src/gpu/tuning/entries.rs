@@ -141,6 +141,10 @@ pub struct TunedCoop {
     /// written before it was tuned.
     #[serde(default)]
     pub stage_weights: bool,
+    /// Every accumulator stored before one barrier, then drained; false
+    /// in tables written before it was tuned.
+    #[serde(default)]
+    pub drain_once: bool,
     /// As [`TunedConv`]'s.
     pub tuned_ns: u64,
     pub heuristic_ns: u64,
@@ -157,6 +161,7 @@ impl TunedCoop {
             prefetch: self.prefetch,
             plane_gather: self.plane_gather,
             stage_weights: self.stage_weights,
+            drain_once: self.drain_once,
         }
     }
 }
