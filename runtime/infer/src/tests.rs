@@ -22,11 +22,16 @@ pub(crate) fn random_frame(width: usize, height: usize, seed: u64) -> Image {
     )
 }
 
+/// The largest |a − b|; a NaN on either side counts as infinite (f32::max
+/// would pass over it, and a NaN output is a bug, not agreement).
 pub(crate) fn max_abs_diff(a: &[f32], b: &[f32]) -> f32 {
     assert_eq!(a.len(), b.len());
     a.iter()
         .zip(b)
-        .map(|(x, y)| (x - y).abs())
+        .map(|(x, y)| {
+            let d = (x - y).abs();
+            if d.is_nan() { f32::INFINITY } else { d }
+        })
         .fold(0.0, f32::max)
 }
 

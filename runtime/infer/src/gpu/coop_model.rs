@@ -11,6 +11,7 @@ use super::pack;
 use crate::network::{Conv, ConvTranspose};
 use crate::reference::{self, Epilogue};
 use crate::synth::SplitMix;
+use crate::tests::max_abs_diff;
 
 /// The kernel's output at `tile` for an input of `cin`×`h`×`w`: a "same"
 /// `k`×`k` conv, or (`transposed`) the 2×2 stride-2 one; no ReLU.
@@ -293,19 +294,6 @@ fn tiles_for(columns: usize, h: usize, k: usize, cin: usize) -> Vec<CoopTile> {
 
 /// The subgroup size the model's invocations are counted in.
 const SUBGROUP: usize = 32;
-
-fn max_abs_diff(a: &[f32], b: &[f32]) -> f32 {
-    assert_eq!(a.len(), b.len());
-    a.iter()
-        .zip(b)
-        // NaN (a staged value no invocation wrote) counts as the largest
-        // difference: f32::max would pass over it.
-        .map(|(x, y)| {
-            let d = (x - y).abs();
-            if d.is_nan() { f32::INFINITY } else { d }
-        })
-        .fold(0.0, f32::max)
-}
 
 #[test]
 fn the_cooperative_kernels_addressing_computes_the_convolution() {
