@@ -20,9 +20,11 @@ struct Params {
     res_offset: u32,
     w_offset: u32,
     b_offset: u32,
-    _pad0: u32,
-    _pad1: u32,
-    _pad2: u32,
+    // The fused level's first convolution (conv_fused.wgsl; 0 elsewhere):
+    // its outputs, and its weights' and bias's offsets.
+    mid: u32,
+    first_w_offset: u32,
+    first_b_offset: u32,
 }
 
 @group(0) @binding(0) var<storage, read> p: Params;

@@ -284,6 +284,8 @@ mod needs_gpu {
                 "16x16",
                 "--tiles",
                 tiles,
+                "--fused-tiles",
+                "8x8",
                 "--repeat",
                 "1",
             ])
@@ -337,6 +339,22 @@ mod needs_gpu {
             Some("llvmpipe"),
             "{text}"
         );
+        // The fused levels: the half network's 7 (4 encoder, 3 decoder),
+        // one entry a shape whose intermediate fits lavapipe's workgroup
+        // memory at some tile, each timed fused and unfused.
+        assert!(
+            out.contains("| fused level | layer input | unfused µs | fused tile | µs |"),
+            "{out}"
+        );
+        assert!(out.contains("| 3×3 3→16, 3×3 →16 | 16×16 |"), "{out}");
+        let fused = table["fused"].as_array().expect("fused entries");
+        assert!((1..=7).contains(&fused.len()), "{text}");
+        for f in fused {
+            assert!(
+                f["fused_ns"].as_integer() > Some(0) && f["unfused_ns"].as_integer() > Some(0),
+                "{f}"
+            );
+        }
         // The DCT filter at the size: one entry.
         assert!(out.contains("### The DCT filter (three planes)"), "{out}");
         let ffts = table["fft"].as_array().expect("fft entries");
@@ -420,8 +438,20 @@ mod needs_gpu {
             "the DCT filter's entries changed"
         );
         assert!(again.get("coop").is_none(), "{again}");
+        assert_eq!(again["fused"], table["fused"], "the fused entries changed");
         // A tile the template does not build is refused by name.
         assert_clean_error(&tune("12x4"), "a conv tile is 8, 16 or 32 pixels wide");
+        let bad_fused = run(&[
+            "--tuning",
+            path(&tuning),
+            "bench",
+            "tune",
+            "--fused-tiles",
+            "12x8",
+            "--networks",
+            "half",
+        ]);
+        assert_clean_error(&bad_fused, "a fused level's tile is 8x8, 16x8");
         // A broken table stops the backend, naming it (the bench reports
         // each case it could not run).
         std::fs::write(&tables[0], text.replace("threads_y = ", "threads_y = 3 + "))

@@ -19,7 +19,7 @@ def sizes(smoke: bool) -> dict:
                 "steps": 4, "seed_steps": 2, "validate_every": 2, "max_batch": 2, "budget_s": 60, "copy_mb": 16,
                 "gemm": 256,
                 "tradeoff_size": "64x64", "tradeoff_prefilters": "lsq,refine:1", "tradeoff_designs": "multifocal",
-                "tune_frame": "32x32", "tune_tiles": ["--tiles", "8x4"]}
+                "tune_frame": "32x32", "tune_tiles": ["--tiles", "8x4", "--fused-tiles", "8x8"]}
     return {"frame": "1920x1080", "layer_frame": "1920x1080", "panel": "1920x1080", "frames": 200, "repeat": 10,
             "torch_repeat": 20, "pipeline_s": 8, "train_images": None, "val_images": None, "crop": None,
             "val_crop": None, "patch": 128, "width": 32, "levels": 4, "teacher_steps": 1000,

@@ -47,6 +47,24 @@ pub(crate) fn parse_tile(s: &str) -> Result<nedrt_infer::gpu::codegen::ConvTile,
     })
 }
 
+/// `--fused-tiles`: a fused level's tile as its output pixels,
+/// WIDTHxHEIGHT (8×8, 16×8, 8×16, 16×16, 32×8 or 32×16).
+pub(crate) fn parse_fused_tile(
+    s: &str,
+) -> Result<nedrt_infer::gpu::codegen::fused::FusedTile, String> {
+    let (w, h) = parse_size(s)?;
+    let tile = nedrt_infer::gpu::codegen::fused::FusedTile {
+        width: w as u32,
+        height: h as u32,
+    };
+    if w > 32 || h > 16 || !tile.is_valid() {
+        return Err(format!(
+            "{s:?}: a fused level's tile is 8x8, 16x8, 8x16, 16x16, 32x8 or 32x16"
+        ));
+    }
+    Ok(tile)
+}
+
 #[derive(Args, Debug)]
 pub struct BenchArgs {
     /// What to time.
@@ -115,6 +133,14 @@ pub struct BenchArgs {
     /// The layers on cooperative matrices are tuned over all their tiles.
     #[arg(long, value_delimiter = ',', value_parser = parse_tile, value_name = "WxH")]
     pub tiles: Vec<nedrt_infer::gpu::codegen::ConvTile>,
+    /// tune: only these tiles of the fused levels, WIDTHxHEIGHT in output
+    /// pixels (default: every tile each level takes; each tile of each
+    /// level is a kernel to compile).
+    #[arg(long, value_delimiter = ',', value_parser = parse_fused_tile, value_name = "WxH")]
+    pub fused_tiles: Vec<nedrt_infer::gpu::codegen::fused::FusedTile>,
+    /// tune: no fused level (the table's fused entries stay as they are).
+    #[arg(long, conflicts_with = "fused_tiles")]
+    pub no_fused: bool,
     /// tune: only the layers on cooperative matrices (at --precision f16 on
     /// an adapter that has them); the table's tiled entries stay as they are.
     #[arg(long)]

@@ -382,6 +382,11 @@ pub fn run(cli: Cli) -> Result<()> {
                     repeat: a.repeat,
                     dir: g.tuning.clone(),
                     tiles: (!a.tiles.is_empty()).then_some(a.tiles),
+                    fused_tiles: if a.no_fused {
+                        Some(Vec::new())
+                    } else {
+                        (!a.fused_tiles.is_empty()).then_some(a.fused_tiles)
+                    },
                     coop_only: a.coop_only,
                     fft: !a.no_fft,
                 };

@@ -20,14 +20,14 @@ pub(crate) fn gpu_device(precision: Precision) -> (wgpu::Device, wgpu::Queue) {
     nedrt_gpu::test_device(precision == Precision::F16)
 }
 
-fn tolerance(p: Precision) -> f32 {
+pub(crate) fn tolerance(p: Precision) -> f32 {
     match p {
         Precision::F32 => 1e-4,
         Precision::F16 => 2e-2,
     }
 }
 
-fn conv(
+pub(crate) fn conv(
     rng: &mut SplitMix,
     input: usize,
     output: usize,
@@ -49,7 +49,7 @@ fn conv(
     }
 }
 
-fn info(channels: usize, level: u32) -> ValueInfo {
+pub(crate) fn info(channels: usize, level: u32) -> ValueInfo {
     ValueInfo { channels, level }
 }
 

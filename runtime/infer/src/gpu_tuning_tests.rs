@@ -57,6 +57,7 @@ mod needs_gpu {
             template: crate::gpu::tuning::template_hash(),
             convs,
             coops: Vec::new(),
+            fused: Vec::new(),
             ffts: Vec::new(),
         }
     }

@@ -549,6 +549,8 @@ pub fn flat_field_warning(model: &str, shift: f32) -> Option<String> {
 }
 
 #[cfg(test)]
+mod gpu_fused_tests;
+#[cfg(test)]
 pub(crate) mod gpu_tests;
 #[cfg(test)]
 mod gpu_tuning_tests;

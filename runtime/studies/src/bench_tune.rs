@@ -2,8 +2,9 @@
 //! each network tuned on this adapter at each frame size and precision,
 //! merged into the adapter's table under `--tuning DIR`, which the wgpu
 //! backend then reads. Prints, per case, each conv shape's tile and time
-//! at the heuristics' tile and at the tuned one; then the DCT filter's
-//! workgroup shape at each size (`bench_tune_fft.rs`).
+//! at the heuristics' tile and at the tuned one, and each level that can
+//! run fused, fused against unfused; then the DCT filter's workgroup shape
+//! at each size (`bench_tune_fft.rs`).
 
 use std::fmt::Write as _;
 use std::path::PathBuf;
@@ -14,7 +15,7 @@ use crate::CommonOptions;
 use nedrt_infer::BackendOptions;
 use nedrt_infer::gpu::GpuBackend;
 use nedrt_infer::gpu::codegen::coop::CoopTile;
-use nedrt_infer::gpu::tuning::{AdapterKey, TunedConv, TunedCoop, TuningTable};
+use nedrt_infer::gpu::tuning::{AdapterKey, TunedConv, TunedCoop, TunedFused, TuningTable};
 use nedrt_infer::model_file::ModelFile;
 
 /// What to tune.
@@ -30,6 +31,9 @@ pub struct TuneBench {
     pub dir: PathBuf,
     /// Only these tiles besides each layer's heuristic one (None: all).
     pub tiles: Option<Vec<nedrt_infer::gpu::codegen::ConvTile>>,
+    /// Only these tiles of the fused levels (None: every tile each takes;
+    /// none: no fused level is timed).
+    pub fused_tiles: Option<Vec<nedrt_infer::gpu::codegen::fused::FusedTile>>,
     /// Only the layers on cooperative matrices (the tiled layers' entries
     /// of the table stay as they are).
     pub coop_only: bool,
@@ -158,6 +162,36 @@ fn coop_table(coops: &[TunedCoop]) -> String {
     md + &sum_row("all cooperative convs", h_sum, t_sum)
 }
 
+/// The fused levels: each shape's two layers at their tuned tiles against
+/// one fused kernel at its fastest tile, and whether the table fuses it.
+fn fused_table(fused: &[TunedFused]) -> String {
+    if fused.is_empty() {
+        return String::new();
+    }
+    let mut md = "\n| fused level | layer input | unfused µs | fused tile | µs | unfused / fused | fused in the table |\n| --- | --- | ---: | --- | ---: | ---: | --- |\n".to_string();
+    for f in fused {
+        let s = f.shape;
+        let _ = writeln!(
+            md,
+            "| {0}×{0} {1}→{2}, {3}×{3} →{4} | {5}×{6} | {7} | {8}×{9} | {10} | {11:.2} | {12} |",
+            s.first_kernel,
+            s.cin,
+            s.mid,
+            s.kernel,
+            s.cout,
+            s.width,
+            s.height,
+            us(f.unfused_ns),
+            f.tile_width,
+            f.tile_height,
+            us(f.fused_ns),
+            f.unfused_ns as f64 / f.fused_ns.max(1) as f64,
+            if f.faster() { "yes" } else { "no" }
+        );
+    }
+    md
+}
+
 /// Tunes every network at every size, at the precision the backend is
 /// asked for (`--precision`; tiles are tuned per storage and arithmetic
 /// type),
@@ -214,13 +248,20 @@ pub fn run(b: &TuneBench, common: &CommonOptions) -> Result<TuneOutcome, AppErro
                 tiled: !b.coop_only,
                 coop: true,
             };
-            let result = gpu.tune_kinds(&bench_frame(w, h), b.repeat, b.tiles.as_deref(), kinds)?;
+            let result = gpu.tune_kinds(
+                &bench_frame(w, h),
+                b.repeat,
+                b.tiles.as_deref(),
+                b.fused_tiles.as_deref(),
+                kinds,
+            )?;
             md += &case_table(
                 &format!("{name}, {precision:?}, {w}×{h}"),
                 &result.convs,
                 result.tiles_timed,
             );
             md += &coop_table(&result.coops);
+            md += &fused_table(&result.fused);
             if !result.passed_over.is_empty() {
                 md += "\nPassed over, their output not the heuristics' bit for bit (a kernel bug on \
                        this adapter):\n\n";
@@ -232,6 +273,7 @@ pub fn run(b: &TuneBench, common: &CommonOptions) -> Result<TuneOutcome, AppErro
             // its latest tuning.
             if let Some(t) = &mut table {
                 t.merge(result.convs, result.coops);
+                t.merge_fused(result.fused);
             }
         }
     }
@@ -244,9 +286,13 @@ pub fn run(b: &TuneBench, common: &CommonOptions) -> Result<TuneOutcome, AppErro
     // Stamped with this nedrt and template, whatever the old table said;
     // the conv entries written before the filter's tuning, which cannot
     // then lose them.
-    let ffts = std::mem::take(&mut table.ffts);
+    let (ffts, fused) = (
+        std::mem::take(&mut table.ffts),
+        std::mem::take(&mut table.fused),
+    );
     table = TuningTable::new(table.adapter, table.convs, table.coops);
     table.ffts = ffts;
+    table.fused = fused;
     let mut path = table.save(&b.dir)?;
     if b.fft && !b.coop_only {
         let (adapter, device, queue) = nedrt_gpu::open_device(&options.gpu, false)?;
@@ -267,10 +313,12 @@ pub fn run(b: &TuneBench, common: &CommonOptions) -> Result<TuneOutcome, AppErro
     let shapes = table.convs.len() + table.coops.len();
     let _ = writeln!(
         md,
-        "\nWrote {} ({} conv shapes, {} on cooperative matrices; the DCT filter's shape at {} frame size(s)).",
+        "\nWrote {} ({} conv shapes, {} on cooperative matrices; {} fused level shape(s), {} fused; the DCT filter's shape at {} frame size(s)).",
         path.display(),
         shapes,
         table.coops.len(),
+        table.fused.len(),
+        table.fused.iter().filter(|f| f.faster()).count(),
         table.ffts.len()
     );
     Ok(TuneOutcome {

@@ -4,6 +4,7 @@
 //! pipeline, built when a frame size first needs it and kept.
 
 pub mod coop;
+pub mod fused;
 mod tiled;
 
 /// Element type of a storage buffer.
@@ -132,6 +133,8 @@ pub enum KernelKind {
         subgroup_size: u32,
         tile: coop::CoopTile,
     },
+    /// A level's two convolutions in one kernel (`shaders/conv_fused.wgsl`).
+    FusedConv(fused::FusedLevel),
 }
 
 /// One pipeline variant.
@@ -162,6 +165,9 @@ const CONV_COOP: &str = include_str!("../../../../shaders/conv_coop.wgsl");
 pub(super) const COOP_TEMPLATE: &str = CONV_COOP;
 const LAYER_BINDINGS: &str = include_str!("../../../../shaders/layer_bindings.wgsl");
 const CONV_EPILOGUE: &str = include_str!("../../../../shaders/conv_epilogue.wgsl");
+const CONV_FUSED: &str = include_str!("../../../../shaders/conv_fused.wgsl");
+/// The fused level's template, whose hash a tuning table records.
+pub(super) const FUSED_TEMPLATE: &str = CONV_FUSED;
 
 /// ConvTranspose input pixels per workgroup side and output channels.
 pub const CONV_TRANSPOSE_TILE: (u32, u32) = (16, CONV_TRANSPOSE_OC);
@@ -275,6 +281,7 @@ impl KernelKey {
                     ("STORES", coop::stores(tile)),
                 ],
             ),
+            KernelKind::FusedConv(level) => (CONV_FUSED, fused::fields(&level)),
         };
         // The cooperative template enables f16 itself.
         let coop = matches!(self.kind, KernelKind::CoopConv { .. });
@@ -336,6 +343,34 @@ mod tests {
                 KernelKind::ConvTranspose { relu: true },
                 KernelKind::ConvTranspose { relu: false },
                 KernelKind::MaxPool,
+                KernelKind::FusedConv(fused::FusedLevel {
+                    first_kernel: 3,
+                    first_relu: true,
+                    mid: 32,
+                    mid_dtype: t,
+                    kernel: 3,
+                    relu: true,
+                    residual: false,
+                    clamp: false,
+                    tile: fused::FusedTile {
+                        width: 16,
+                        height: 8,
+                    },
+                }),
+                KernelKind::FusedConv(fused::FusedLevel {
+                    first_kernel: 1,
+                    first_relu: false,
+                    mid: 6,
+                    mid_dtype: t,
+                    kernel: 5,
+                    relu: false,
+                    residual: true,
+                    clamp: true,
+                    tile: fused::FusedTile {
+                        width: 32,
+                        height: 16,
+                    },
+                }),
             ];
             for kind in kinds {
                 keys.push(KernelKey {

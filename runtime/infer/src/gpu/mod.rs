@@ -22,15 +22,18 @@ mod choose;
 pub mod codegen;
 #[cfg(test)]
 mod coop_model;
+mod fused;
 mod pack;
 pub mod params;
 mod plan;
 mod profile;
 mod resident;
 mod tuner;
+mod tuner_fused;
 pub mod tuning;
 
 pub use choose::{ConvSupport, cooperative_against_tiled};
+pub use fused::LayerFused;
 pub use resident::DeviceDcnn;
 pub use tuner::{TuneKinds, TuneResult};
 
@@ -133,6 +136,8 @@ pub struct GpuBackend {
     forced_tiles: HashMap<usize, codegen::ConvTile>,
     /// The same for the cooperative-matrix layers.
     forced_coop: HashMap<usize, codegen::coop::CoopTile>,
+    /// Levels the tuner fuses (first layer → tile), over the table.
+    forced_fused: HashMap<usize, codegen::fused::FusedTile>,
     /// A tile whose output the tests corrupt where it is forced (a kernel
     /// bug for the tuner to pass over).
     #[cfg(test)]
@@ -363,6 +368,7 @@ impl GpuBackend {
             tuning: None,
             forced_tiles: HashMap::new(),
             forced_coop: HashMap::new(),
+            forced_fused: HashMap::new(),
             #[cfg(test)]
             fault_tile: None,
         })

@@ -18,7 +18,12 @@ pub struct Params {
     pub res_offset: u32,
     pub w_offset: u32,
     pub b_offset: u32,
-    pub _pad: [u32; 3],
+    /// The fused level's first convolution (`shaders/conv_fused.wgsl`; 0
+    /// for every other kernel): its output channels, and its weights' and
+    /// bias's offsets (`w_offset`, `b_offset` are the second's).
+    pub mid: u32,
+    pub first_w_offset: u32,
+    pub first_b_offset: u32,
 }
 
 #[cfg(test)]
@@ -38,6 +43,15 @@ mod tests {
             ("res_offset", std::mem::offset_of!(Params, res_offset)),
             ("w_offset", std::mem::offset_of!(Params, w_offset)),
             ("b_offset", std::mem::offset_of!(Params, b_offset)),
+            ("mid", std::mem::offset_of!(Params, mid)),
+            (
+                "first_w_offset",
+                std::mem::offset_of!(Params, first_w_offset),
+            ),
+            (
+                "first_b_offset",
+                std::mem::offset_of!(Params, first_b_offset),
+            ),
         ];
         for kind in [
             KernelKind::Conv {

@@ -199,6 +199,7 @@ impl GpuBackend {
                 *tile = t.tile;
             }
         }
+        self.fuse_keys(&mut keys, width, height);
         keys
     }
 
@@ -282,13 +283,23 @@ impl GpuBackend {
         let input = place_of(0);
         let mut dispatches = Vec::new();
         for (li, layer) in net.layers.iter().enumerate() {
-            let out = place_of(layer.output());
-            // Concat costs nothing: its inputs were written in place.
+            // Concat costs nothing: its inputs were written in place; a
+            // fused level's second layer runs in its first's kernel.
             let Some(key) = keys[li] else {
                 continue;
             };
+            // A fused level: the first layer's input and weights, the
+            // second's output, residual and weights.
+            let fused = match key.kind {
+                KernelKind::FusedConv(_) => super::fused::pair(net, li),
+                _ => None,
+            };
+            let out = place_of(fused.map_or(layer.output(), |(_, b)| b.output));
             let (input_v, residual, cin, cout) = match layer {
-                Layer::Conv(c) => (c.input, c.residual, c.cin, c.cout),
+                Layer::Conv(c) => match fused {
+                    Some((a, b)) => (a.input, b.residual, a.cin, b.cout),
+                    None => (c.input, c.residual, c.cin, c.cout),
+                },
                 Layer::ConvTranspose(c) => (c.input, None, c.cin, c.cout),
                 Layer::MaxPool { input, .. } => (
                     *input,
@@ -309,7 +320,8 @@ impl GpuBackend {
                 width >> net.values[input_v].level,
                 height >> net.values[input_v].level,
             );
-            let (w_off, b_off) = self.weight_offsets[li];
+            let (first_w, first_b) = self.weight_offsets[li];
+            let (w_off, b_off) = self.weight_offsets[li + usize::from(fused.is_some())];
             let params = Params {
                 width: lw as u32,
                 height: lh as u32,
@@ -320,7 +332,9 @@ impl GpuBackend {
                 res_offset: res.map_or(0, |r| r.offset as u32),
                 w_offset: w_off as u32,
                 b_offset: b_off as u32,
-                _pad: [0; 3],
+                mid: fused.map_or(0, |(a, _)| a.cout as u32),
+                first_w_offset: if fused.is_some() { first_w as u32 } else { 0 },
+                first_b_offset: if fused.is_some() { first_b as u32 } else { 0 },
             };
             let params_buffer = self
                 .device
@@ -381,6 +395,11 @@ impl GpuBackend {
                         columns.div_ceil(coop::SIZE).div_ceil(tile.column_blocks()),
                     ]
                 }
+                KernelKind::FusedConv(level) => [
+                    lw.div_ceil(level.tile.width),
+                    lh.div_ceil(level.tile.height),
+                    1,
+                ],
                 KernelKind::MaxPool => {
                     let t = codegen::POOL_TILE;
                     [(lw / 2).div_ceil(t), (lh / 2).div_ceil(t), cout]

@@ -9,7 +9,10 @@ use std::sync::Arc;
 
 use super::codegen::ConvTile;
 use super::codegen::coop::{CoopLimits, CoopTile};
-use super::tuning::{CoopShape, LayerCoopTile, TunedConv, TunedCoop, TuningTable, candidate_tiles};
+use super::codegen::fused::FusedTile;
+use super::tuning::{
+    CoopShape, LayerCoopTile, TunedConv, TunedCoop, TunedFused, TuningTable, candidate_tiles,
+};
 use super::{GpuBackend, err};
 use crate::InferenceError;
 use nedrt_core::Image;
@@ -22,9 +25,13 @@ pub struct TuneResult {
     /// One entry per cooperative-matrix conv shape (none on an adapter
     /// without cooperative matrices).
     pub coops: Vec<TunedCoop>,
+    /// One entry per shape of the levels that can run fused (none where
+    /// the register-tiled layers were not tuned), each fused in the table
+    /// where that was faster.
+    pub fused: Vec<TunedFused>,
     /// Frames of tiles timed: each tile once, for every layer it fits,
-    /// and each round of variants (K-slices, gather, staged weights,
-    /// prefetch) once.
+    /// each round of variants (K-slices, gather, staged weights, drain,
+    /// prefetch) once, and each fused tile once for every level it fits.
     pub tiles_timed: usize,
     /// The frames whose output was not the heuristics' bit for bit, each
     /// described (its layers and tiles, how many values differed): their
@@ -34,7 +41,7 @@ pub struct TuneResult {
 
 /// The heuristics' output of the frame being tuned, which every timed
 /// frame's output must equal bit for bit, and the frames that did not.
-struct Check {
+pub(super) struct Check {
     reference: Vec<f32>,
     passed_over: Vec<String>,
 }
@@ -62,7 +69,7 @@ fn values_differing(reference: &[f32], got: &[f32]) -> usize {
 }
 
 /// The best device time of a layer at a tile: (layer, tile) → ns.
-type Times<T> = HashMap<(usize, T), u64>;
+pub(super) type Times<T> = HashMap<(usize, T), u64>;
 
 /// Which layers a tuning run times: the register-tiled ones, the ones on
 /// cooperative matrices, or both ([`GpuBackend::tune_kinds`]).
@@ -217,16 +224,19 @@ impl GpuBackend {
         repeat: usize,
         only: Option<&[ConvTile]>,
     ) -> Result<TuneResult, InferenceError> {
-        self.tune_kinds(frame, repeat, only, TuneKinds::ALL)
+        self.tune_kinds(frame, repeat, only, None, TuneKinds::ALL)
     }
 
     /// [`Self::tune`] over the layers of `kinds` only: the others keep
-    /// their heuristics' tiles and have no entry in the result.
+    /// their heuristics' tiles and have no entry in the result. The fused
+    /// levels (with the register-tiled layers) at `only_fused`'s tiles
+    /// (None: every tile each takes; none: no fused level is timed).
     pub fn tune_kinds(
         &mut self,
         frame: &Image,
         repeat: usize,
         only: Option<&[ConvTile]>,
+        only_fused: Option<&[FusedTile]>,
         kinds: TuneKinds,
     ) -> Result<TuneResult, InferenceError> {
         let (w, h) = (frame.width, frame.height);
@@ -323,17 +333,24 @@ impl GpuBackend {
                 heuristic_ns,
             })
             .collect();
+        // Then the fused levels, against their layers at the tuned tiles.
+        let (fused, n_fused) = if kinds.tiled {
+            self.time_fused(frame, repeat, only_fused, &convs, &times, &mut check)?
+        } else {
+            (Vec::new(), 0)
+        };
         // The tuned network against the heuristics', bit for bit: each
         // tile computed them in its own frame; this checks them together.
         let Check {
             reference,
             passed_over,
         } = check;
-        let table = TuningTable::new(
+        let mut table = TuningTable::new(
             super::tuning::AdapterKey::of(&self.adapter_info()),
             convs.clone(),
             coops.clone(),
         );
+        table.merge_fused(fused.clone());
         self.set_tuning(Some(Arc::new(table)));
         let tuned = self.run_tensor(frame.data(), w, h);
         self.set_tuning(None);
@@ -349,7 +366,8 @@ impl GpuBackend {
         Ok(TuneResult {
             convs,
             coops,
-            tiles_timed: n_tiled + n_coop,
+            fused,
+            tiles_timed: n_tiled + n_coop + n_fused,
             passed_over,
         })
     }
@@ -394,7 +412,7 @@ impl GpuBackend {
     /// is never a shape's fastest), and the others are timed; where no
     /// tile alone does, the frame's tiles are named together and none is
     /// timed.
-    fn time_forced<T: Copy + Eq + Hash + std::fmt::Debug>(
+    pub(super) fn time_forced<T: Copy + Eq + Hash + std::fmt::Debug>(
         &mut self,
         frame: &Image,
         repeat: usize,

@@ -18,6 +18,7 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Serialize};
 
 use super::codegen::coop::{self, CoopTile};
+use super::codegen::fused::FusedTile;
 use super::codegen::{ConvTile, Dtype, WORKGROUP_BYTES};
 use crate::InferenceError;
 
@@ -76,7 +77,9 @@ impl AdapterKey {
 }
 
 mod entries;
-pub use entries::{ConvShape, CoopShape, DtypeName, TunedConv, TunedCoop, TunedFft};
+pub use entries::{
+    ConvShape, CoopShape, DtypeName, FusedShape, TunedConv, TunedCoop, TunedFft, TunedFused,
+};
 
 /// Every tile the template builds for a `kernel`×`kernel` conv summing in
 /// `arith`: 8, 16 or 32 pixels wide, 1 to 16 rows, one quad's staging
@@ -124,17 +127,21 @@ pub struct TuningTable {
     pub convs: Vec<TunedConv>,
     #[serde(default, rename = "coop", skip_serializing_if = "Vec::is_empty")]
     pub coops: Vec<TunedCoop>,
+    /// The fused levels timed, each fused where it was faster.
+    #[serde(default, rename = "fused", skip_serializing_if = "Vec::is_empty")]
+    pub fused: Vec<TunedFused>,
     /// The DCT filter's shape per frame size (docs/tuning.md).
     #[serde(default, rename = "fft", skip_serializing_if = "Vec::is_empty")]
     pub ffts: Vec<TunedFft>,
 }
 
-/// The conv templates' hash (register-tiled and cooperative), as tables
+/// The conv templates' hash (register-tiled, cooperative and fused), as tables
 /// record it.
 pub fn template_hash() -> String {
     let mut h = blake3::Hasher::new();
     h.update(super::codegen::CONV_TEMPLATE.as_bytes());
     h.update(super::codegen::COOP_TEMPLATE.as_bytes());
+    h.update(super::codegen::FUSED_TEMPLATE.as_bytes());
     h.finalize().to_hex()[..16].to_string()
 }
 
@@ -169,6 +176,7 @@ impl TuningTable {
             template: template_hash(),
             convs,
             coops,
+            fused: Vec::new(),
             ffts: Vec::new(),
         }
     }
@@ -263,6 +271,21 @@ impl TuningTable {
             }
         }
         let mut seen = HashMap::new();
+        for (i, f) in table.fused.iter().enumerate() {
+            let (s, at) = (f.shape, format!("fused entry {} ({})", i + 1, f.shape));
+            check_kernel(path, &at, s.first_kernel)?;
+            check_kernel(path, &at, s.kernel)?;
+            if let Some(why) = f.invalid() {
+                return Err(bad(path, format!("{at}: {why}")));
+            }
+            if let Some(j) = seen.insert(s, i) {
+                return Err(bad(
+                    path,
+                    format!("{at}: the same shape as fused entry {}", j + 1),
+                ));
+            }
+        }
+        let mut seen = HashMap::new();
         for (i, f) in table.ffts.iter().enumerate() {
             let at = format!("fft entry {} ({}×{})", i + 1, f.width, f.height);
             if let Some(why) = f.invalid() {
@@ -325,6 +348,25 @@ impl TuningTable {
             .iter()
             .find(|c| &c.shape == shape)
             .map(TunedCoop::tile)
+    }
+
+    /// The fused tile for `shape`'s levels, if the table has the shape and
+    /// fusing it was faster.
+    pub fn fused_tile_for(&self, shape: &FusedShape) -> Option<FusedTile> {
+        self.fused
+            .iter()
+            .find(|f| &f.shape == shape && f.faster())
+            .map(TunedFused::tile)
+    }
+
+    /// Merges `fused` in, a shape in both taking the new entry.
+    pub fn merge_fused(&mut self, fused: Vec<TunedFused>) {
+        for f in fused {
+            match self.fused.iter_mut().find(|e| e.shape == f.shape) {
+                Some(e) => *e = f,
+                None => self.fused.push(f),
+            }
+        }
     }
 
     /// Writes the table into `dir` under its adapter's file name (made if
@@ -405,7 +447,7 @@ pub fn table_for(
             tracing::info!(
                 "conv tiles of {} ({} shapes) tuned for {}",
                 path.display(),
-                table.convs.len() + table.coops.len(),
+                table.convs.len() + table.coops.len() + table.fused.len(),
                 key.name
             );
             if table.template != template_hash() {
@@ -546,6 +588,13 @@ mod tests {
                 tuned_ns: 2000,
                 heuristic_ns: 2500,
             }],
+            fused: vec![TunedFused {
+                shape: fused_shape(),
+                tile_width: 16,
+                tile_height: 8,
+                fused_ns: 700,
+                unfused_ns: 900,
+            }],
             ffts: vec![
                 TunedFft {
                     width: 1920,
@@ -564,6 +613,20 @@ mod tests {
                     heuristic_ns: 10,
                 },
             ],
+        }
+    }
+
+    fn fused_shape() -> FusedShape {
+        FusedShape {
+            first_kernel: 3,
+            kernel: 3,
+            cin: 3,
+            mid: 16,
+            cout: 16,
+            width: 64,
+            height: 32,
+            weights: DtypeName::F32,
+            arith: DtypeName::F32,
         }
     }
 
@@ -609,6 +672,17 @@ mod tests {
             ..coop_shape()
         };
         assert_eq!(t.coop_tile_for(&transposed), None);
+        assert_eq!(
+            t.fused_tile_for(&fused_shape()),
+            Some(FusedTile {
+                width: 16,
+                height: 8
+            })
+        );
+        // A level whose fused kernel was not faster runs unfused.
+        let mut slower = table();
+        slower.fused[0].fused_ns = slower.fused[0].unfused_ns;
+        assert_eq!(slower.fused_tile_for(&fused_shape()), None);
         assert_eq!(
             t.fft_shapes(),
             vec![
@@ -714,6 +788,13 @@ mod tests {
                 "chunks = 0",
                 "is not a tile the cooperative kernel builds",
             ),
+            (
+                "tile_width = 16",
+                "tile_width = 12",
+                "fused entry 1 (3×3 3→16, 3×3 →16 at 64×32): tile_width = 12, tile_height = 8 \
+                 is not a tile the fused kernel builds",
+            ),
+            ("first_kernel = 3", "first_kernel = 9", "kernel must be"),
         ] {
             std::fs::write(&path, text.replace(from, to)).expect("writes");
             let e = TuningTable::find(dir.path(), &key())
@@ -739,6 +820,13 @@ mod tests {
             .expect_err("twice")
             .to_string();
         assert!(e.contains("same shape as coop entry 1"), "{e}");
+        let mut twice = table();
+        twice.fused.push(twice.fused[0].clone());
+        std::fs::write(&path, toml::to_string(&twice).expect("toml")).expect("writes");
+        let e = TuningTable::find(dir.path(), &key())
+            .expect_err("twice")
+            .to_string();
+        assert!(e.contains("same shape as fused entry 1"), "{e}");
         let mut twice = table();
         twice.ffts.push(twice.ffts[1].clone());
         std::fs::write(&path, toml::to_string(&twice).expect("toml")).expect("writes");

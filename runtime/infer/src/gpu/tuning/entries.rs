@@ -1,10 +1,11 @@
 //! A tuning table's entries: the layer shapes it keys and the tiles it
-//! gives them (`[[conv]]` and `[[coop]]`), and the DCT filter's shape per
-//! frame size (`[[fft]]`).
+//! gives them (`[[conv]]` and `[[coop]]`), the levels it fuses
+//! (`[[fused]]`), and the DCT filter's shape per frame size (`[[fft]]`).
 
 use serde::{Deserialize, Serialize};
 
 use super::super::codegen::coop::{CoopLimits, CoopTile};
+use super::super::codegen::fused::FusedTile;
 use super::super::codegen::{ConvTile, Dtype};
 
 /// A register-tiled convolution as the tuner and the backend see it: its
@@ -168,6 +169,77 @@ impl TunedCoop {
 
 fn one_chunk() -> u32 {
     1
+}
+
+/// Two register-tiled convolutions that can run as one fused level
+/// (`shaders/conv_fused.wgsl`): the first's taps and input channels, the
+/// intermediate's channels, the second's taps and output channels, the
+/// level's size, storage and arithmetic types.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FusedShape {
+    pub first_kernel: usize,
+    pub kernel: usize,
+    pub cin: usize,
+    pub mid: usize,
+    pub cout: usize,
+    pub width: u32,
+    pub height: u32,
+    pub weights: DtypeName,
+    pub arith: DtypeName,
+}
+
+impl std::fmt::Display for FusedShape {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "{0}×{0} {1}→{2}, {3}×{3} →{4} at {5}×{6}",
+            self.first_kernel, self.cin, self.mid, self.kernel, self.cout, self.width, self.height
+        )
+    }
+}
+
+/// One level's fastest fused tile, with what the tuner measured: the level
+/// runs fused where `fused_ns` is below `unfused_ns`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TunedFused {
+    #[serde(flatten)]
+    pub shape: FusedShape,
+    /// Output pixels a workgroup computes.
+    pub tile_width: u32,
+    pub tile_height: u32,
+    /// The levels of this shape fused at this tile, summed: the best of
+    /// the tuner's repetitions, nanoseconds of device time.
+    pub fused_ns: u64,
+    /// The same levels' two convolutions unfused, at their tuned tiles.
+    pub unfused_ns: u64,
+}
+
+impl TunedFused {
+    pub fn tile(&self) -> FusedTile {
+        FusedTile {
+            width: self.tile_width,
+            height: self.tile_height,
+        }
+    }
+
+    /// Whether the runtime fuses this shape's levels.
+    pub fn faster(&self) -> bool {
+        self.fused_ns < self.unfused_ns
+    }
+
+    /// Why the entry's tile is not one the fused kernel builds, if it is
+    /// not.
+    pub fn invalid(&self) -> Option<String> {
+        (!self.tile().is_valid()).then(|| {
+            format!(
+                "tile_width = {}, tile_height = {} is not a tile the fused kernel builds (8×8, \
+                 16×8, 8×16, 16×16, 32×8 or 32×16)",
+                self.tile_width, self.tile_height
+            )
+        })
+    }
 }
 
 /// The DCT filter's workgroup-memory kernels at one frame size (issue 56,
