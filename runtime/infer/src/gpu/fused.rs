@@ -38,10 +38,13 @@ fn read_elsewhere(net: &Network, value: ValueId, second: usize) -> bool {
 }
 
 /// The first layers of the network's pairs that can run fused: a conv
-/// whose output only the next layer, a conv, reads; both on the
+/// whose output only the next layer, a conv, reads, as its input only (not
+/// its residual too: the intermediate is never written); both on the
 /// register-tiled kernel (`keys`); the first without a residual; its
-/// output not placed in a concat's buffer (`alias`); no layer in two
-/// pairs (of three such convs in a row, the first two are the pair).
+/// output not placed in a concat's buffer (`alias`), nor the second's in
+/// the buffer the first reads (one kernel would read and write it); no
+/// layer in two pairs (of three such convs in a row, the first two are
+/// the pair).
 pub(super) fn fusable_pairs(
     net: &Network,
     keys: &[Option<KernelKey>],
@@ -56,6 +59,13 @@ pub(super) fn fusable_pairs(
             }))
         )
     };
+    // The buffer a value lives in (a concat's, for its inputs).
+    let root = |mut v: ValueId| {
+        while let Some(&(c, _)) = alias.get(&v) {
+            v = c;
+        }
+        v
+    };
     let mut firsts: Vec<usize> = Vec::new();
     for i in 0..net.layers.len().saturating_sub(1) {
         let (Layer::Conv(a), Layer::Conv(b)) = (&net.layers[i], &net.layers[i + 1]) else {
@@ -68,7 +78,9 @@ pub(super) fn fusable_pairs(
             && tiled(i + 1)
             && b.input == a.output
             && a.residual.is_none()
+            && b.residual != Some(a.output)
             && !alias.contains_key(&a.output)
+            && root(a.input) != root(b.output)
             && !read_elsewhere(net, a.output, i + 1)
         {
             firsts.push(i);
@@ -205,5 +217,120 @@ impl GpuBackend {
             });
             keys[f.layer + 1] = None;
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::gpu::codegen::{ConvTile, Dtype};
+    use crate::network::ValueInfo;
+
+    fn conv(input: ValueId, output: ValueId, residual: Option<ValueId>) -> Layer {
+        Layer::Conv(Conv {
+            input,
+            output,
+            cin: 4,
+            cout: 4,
+            kernel: 3,
+            weight: vec![0.0; 144],
+            bias: vec![0.0; 4],
+            relu: true,
+            residual,
+        })
+    }
+
+    /// `layers` over `values` values of 4 channels at level 0, output
+    /// the last value: the pairs found, with the GPU backend's keys (every
+    /// conv tiled) and concat aliases.
+    fn pairs(layers: Vec<Layer>, values: usize) -> Vec<usize> {
+        let net = Network {
+            layers,
+            values: vec![
+                ValueInfo {
+                    channels: 4,
+                    level: 0
+                };
+                values
+            ],
+            output: values - 1,
+            multiple: 1,
+            macs_per_pixel: 0.0,
+            clamped: false,
+        };
+        let keys: Vec<Option<KernelKey>> = net
+            .layers
+            .iter()
+            .map(|l| {
+                matches!(l, Layer::Conv(_)).then_some(KernelKey {
+                    kind: KernelKind::Conv {
+                        kernel: 3,
+                        relu: true,
+                        residual: false,
+                        clamp: false,
+                        tile: ConvTile::LARGE,
+                    },
+                    src: Dtype::F32,
+                    dst: Dtype::F32,
+                    residual: Dtype::F32,
+                    weights: Dtype::F32,
+                    arith: Dtype::F32,
+                })
+            })
+            .collect();
+        fusable_pairs(&net, &keys, &super::super::concat_aliases(&net))
+    }
+
+    #[test]
+    fn a_pair_fuses_only_where_its_intermediate_is_the_seconds_input_alone() {
+        // Two convs; three in a row (the first two are the pair).
+        assert_eq!(pairs(vec![conv(0, 1, None), conv(1, 2, None)], 3), [0]);
+        assert_eq!(
+            pairs(
+                vec![conv(0, 1, None), conv(1, 2, None), conv(2, 3, None)],
+                4
+            ),
+            [0]
+        );
+        // The intermediate also the second's residual, or read by a third
+        // layer, or the network's output: never written if fused.
+        assert!(pairs(vec![conv(0, 1, None), conv(1, 2, Some(1))], 3).is_empty());
+        assert!(
+            pairs(
+                vec![conv(0, 1, None), conv(1, 2, None), conv(1, 3, None)],
+                4
+            )
+            .is_empty()
+        );
+        assert!(pairs(vec![conv(0, 1, None), conv(1, 2, None)], 2).is_empty());
+        // The first with a residual.
+        assert!(pairs(vec![conv(0, 1, Some(0)), conv(1, 2, None)], 3).is_empty());
+        // concat(x, conv(conv(x))): x and the second's output share the
+        // concat's buffer, which one fused kernel would read and write.
+        let concat = Layer::Concat {
+            inputs: vec![1, 3],
+            output: 4,
+        };
+        let layers = vec![
+            conv(0, 1, None),
+            conv(1, 2, None),
+            conv(2, 3, None),
+            concat,
+            conv(4, 5, None),
+        ];
+        assert!(pairs(layers, 6).is_empty());
+        // The second's output into a concat the first does not read fuses.
+        let concat = Layer::Concat {
+            inputs: vec![2, 3],
+            output: 4,
+        };
+        let layers = vec![
+            conv(0, 1, None),
+            conv(1, 2, None),
+            conv(0, 3, None),
+            concat,
+            conv(4, 5, None),
+        ];
+        assert_eq!(pairs(layers, 6), [0]);
     }
 }

@@ -23,8 +23,10 @@ pub(super) struct Place {
 /// One recorded dispatch.
 #[derive(Debug)]
 pub(super) struct Dispatch {
-    /// The layer of the network it runs.
+    /// The layer of the network it runs (a fused level's first).
     pub(super) layer: usize,
+    /// A fused level: the layer and the next in one kernel.
+    pub(super) fused: bool,
     pub(super) pipeline: wgpu::ComputePipeline,
     pub(super) bind_group: wgpu::BindGroup,
     pub(super) workgroups: [u32; 3],
@@ -239,7 +241,20 @@ impl GpuBackend {
         let mut buffers = Vec::new();
         let mut root_place: Vec<Option<Place>> = vec![None; net.values.len()];
         let mut places = Vec::with_capacity(net.values.len());
+        // A fused level's intermediate stays in workgroup memory: no buffer
+        // (nothing reads or writes its place; `fusable_pairs` made sure).
+        let fused_mids: Vec<ValueId> = (0..net.layers.len())
+            .filter(|&li| matches!(keys[li], Some(k) if matches!(k.kind, KernelKind::FusedConv(_))))
+            .filter_map(|li| super::fused::pair(net, li).map(|(a, _)| a.output))
+            .collect();
         for v in 0..net.values.len() {
+            if fused_mids.contains(&v) {
+                places.push(Place {
+                    buffer: usize::MAX,
+                    offset: 0,
+                });
+                continue;
+            }
             let mut offset = 0;
             let mut r = v;
             while let Some(&(c, ch)) = self.alias.get(&r) {
@@ -413,6 +428,7 @@ impl GpuBackend {
             }
             dispatches.push(Dispatch {
                 layer: li,
+                fused: fused.is_some(),
                 pipeline: self.pipelines[&key].clone(),
                 bind_group,
                 workgroups,

@@ -76,29 +76,41 @@ impl GpuBackend {
                 let l = net.values[v].level;
                 ((width >> l) * (height >> l)) as u64
             };
-            let (kind, macs, bytes) = match layer {
-                Layer::Conv(c) => {
-                    let k2 = (c.kernel * c.kernel) as u64;
-                    let (cin, cout) = (c.cin as u64, c.cout as u64);
-                    let px = lvl(c.input);
-                    let mut bytes = cin * px * act(c.input)
-                        + cout * px * act(c.output)
-                        + (cin * cout * k2 + cout) * weight_bytes;
-                    if let Some(r) = c.residual {
-                        bytes += cout * px * act(r);
-                    }
-                    let kind = format!(
-                        "conv {0}×{0}{1}{2}",
-                        c.kernel,
-                        if c.relu { " + relu" } else { "" },
-                        if c.residual.is_some() {
-                            " + residual + clamp"
-                        } else {
-                            ""
-                        }
-                    );
-                    (kind, cin * cout * k2 * px, bytes)
+            let conv = |c: &crate::network::Conv| {
+                let k2 = (c.kernel * c.kernel) as u64;
+                let (cin, cout) = (c.cin as u64, c.cout as u64);
+                let px = lvl(c.input);
+                let mut bytes = cin * px * act(c.input)
+                    + cout * px * act(c.output)
+                    + (cin * cout * k2 + cout) * weight_bytes;
+                if let Some(r) = c.residual {
+                    bytes += cout * px * act(r);
                 }
+                let kind = format!(
+                    "conv {0}×{0}{1}{2}",
+                    c.kernel,
+                    if c.relu { " + relu" } else { "" },
+                    if c.residual.is_some() {
+                        " + residual + clamp"
+                    } else {
+                        ""
+                    }
+                );
+                (kind, cin * cout * k2 * px, bytes)
+            };
+            // A fused level: both convolutions, less the intermediate's
+            // write and read, which stay in workgroup memory.
+            let fused = d.fused.then(|| super::fused::pair(net, d.layer)).flatten();
+            let out = fused.map_or(out, |(_, b)| b.output);
+            let (kind, macs, bytes) = match layer {
+                Layer::Conv(a) => match fused {
+                    Some((_, b)) => {
+                        let ((ka, ma, ba), (kb, mb, bb)) = (conv(a), conv(b));
+                        let mid = 2 * a.cout as u64 * lvl(a.output) * act(a.output);
+                        (format!("fused {ka}, {kb}"), ma + mb, ba + bb - mid)
+                    }
+                    None => conv(a),
+                },
                 Layer::ConvTranspose(c) => {
                     let (cin, cout) = (c.cin as u64, c.cout as u64);
                     let px = lvl(c.input);
