@@ -210,7 +210,8 @@ impl GpuBackend {
     /// `repeat` times after a warm-up, the best kept; per shape the tile
     /// with the least summed time, the heuristics' on a tie. The
     /// register-tiled layers first, then the cooperative-matrix ones, each
-    /// kind with the other at its heuristics' tiles. `only` restricts the
+    /// kind with the other at its heuristics' tiles, then the fused levels
+    /// at every fused tile (`tuner_fused.rs`). `only` restricts the
     /// register-tiled candidates to those tiles (the heuristics' always
     /// stays: every shape is timed against it); each tile is a kernel to
     /// compile, which a software adapter takes seconds over. Before
