@@ -176,6 +176,7 @@ impl GpuBackend {
     /// `keys` (each layer's, sized) with each fused level's two layers
     /// replaced by one fused kernel on the first and none on the second.
     pub(super) fn fuse_keys(&self, keys: &mut [Option<KernelKey>], width: usize, height: usize) {
+        let mut fused = Vec::new();
         for f in self.fused_levels(width, height) {
             let (Some(tile), Some((a, b))) = (f.tile, pair(&self.network, f.layer)) else {
                 continue;
@@ -216,6 +217,16 @@ impl GpuBackend {
                 arith: first.arith,
             });
             keys[f.layer + 1] = None;
+            if f.source == TileSource::Tuned {
+                fused.push(format!("{}+{}", f.layer, f.layer + 1));
+            }
+        }
+        // The table's fusion said once a frame size (the tuner's is not).
+        if !fused.is_empty() {
+            tracing::info!(
+                "D-CNN at {width}×{height}: layers {} fused (the tuning table)",
+                fused.join(", ")
+            );
         }
     }
 }
