@@ -40,6 +40,10 @@ const THREADS: u32 = {{THREADS}}u;
 // multiples of 8 wide), and the input quads a kernel row of them reads.
 const PX: u32 = 4u;
 const MID_GROUPS: u32 = (MID_W + PX - 1u) / PX;
+// Quads of the intermediate an invocation computes at once (4, 2 or 1,
+// dividing MID_QUADS), and the items' blocks of them.
+const MID_BLOCK: u32 = {{MID_BLOCK}}u;
+const MID_BLOCKS: u32 = MID_QUADS / MID_BLOCK;
 const OUT_GROUPS: u32 = TILE_W / PX;
 const ROW1: u32 = PX + K1 - 1u;
 const ROW2: u32 = PX + K2 - 1u;
@@ -105,16 +109,18 @@ fn main(
     let y0 = wg.y * TILE_H;
     let quads = (p.cin + 3u) / 4u;
     // The first convolution over the tile and its halo: an item is PX
-    // adjacent pixels of a row × four channels, so each 4×4 matrix loaded
-    // serves PX products and each input quad loaded up to K1 of them.
-    for (var i = li; i < MID_QUADS * MID_H * MID_GROUPS; i += THREADS) {
-        let o = i / (MID_H * MID_GROUPS);
+    // adjacent pixels of a row × MID_BLOCK quads of channels, so each 4×4
+    // matrix loaded serves PX products and each input quad loaded (from
+    // memory, four planes) K1 · MID_BLOCK of them.
+    for (var i = li; i < MID_BLOCKS * MID_H * MID_GROUPS; i += THREADS) {
+        let o0 = (i / (MID_H * MID_GROUPS)) * MID_BLOCK;
         let rem = i % (MID_H * MID_GROUPS);
         let my = rem / MID_GROUPS;
         let mx0 = (rem % MID_GROUPS) * PX;
         let gy = i32(y0 + my) - i32(R2);
         let gx0 = i32(x0 + mx0) - i32(R2);
-        var a: array<vec4<f32>, PX>;
+        // [quad of the block][pixel]
+        var a: array<vec4<f32>, MID_BLOCK * PX>;
         for (var q = 0u; q < quads; q++) {
             for (var ky = 0u; ky < K1; ky++) {
                 var r: array<vec4<T>, ROW1>;
@@ -122,26 +128,32 @@ fn main(
                     r[j] = input_quad(q, gx0 + i32(j) - i32(R1), gy + i32(ky) - i32(R1));
                 }
                 for (var kx = 0u; kx < K1; kx++) {
-                    let m = matrix(p.first_w_offset, quads, K1 * K1, q, ky * K1 + kx, o);
-                    for (var px = 0u; px < PX; px++) {
-                        a[px] = mac(m, r[px + kx], a[px]);
+                    for (var b = 0u; b < MID_BLOCK; b++) {
+                        let m = matrix(p.first_w_offset, quads, K1 * K1, q, ky * K1 + kx, o0 + b);
+                        for (var px = 0u; px < PX; px++) {
+                            a[b * PX + px] = mac(m, r[px + kx], a[b * PX + px]);
+                        }
                     }
                 }
             }
         }
-        for (var px = 0u; px < PX; px++) {
-            let gx = gx0 + i32(px);
-            var v = vec4<T>(0.0);
-            if (gx >= 0 && gx < i32(p.width) && gy >= 0 && gy < i32(p.height)) {
-                v = vec4<T>(
-                    first_out(4u * o, a[px].x),
-                    first_out(4u * o + 1u, a[px].y),
-                    first_out(4u * o + 2u, a[px].z),
-                    first_out(4u * o + 3u, a[px].w),
-                );
-            }
-            if (mx0 + px < MID_W) {
-                mid[(o * MID_H + my) * MID_W + mx0 + px] = v;
+        for (var b = 0u; b < MID_BLOCK; b++) {
+            let o = o0 + b;
+            for (var px = 0u; px < PX; px++) {
+                let gx = gx0 + i32(px);
+                let s = a[b * PX + px];
+                var v = vec4<T>(0.0);
+                if (gx >= 0 && gx < i32(p.width) && gy >= 0 && gy < i32(p.height)) {
+                    v = vec4<T>(
+                        first_out(4u * o, s.x),
+                        first_out(4u * o + 1u, s.y),
+                        first_out(4u * o + 2u, s.z),
+                        first_out(4u * o + 3u, s.w),
+                    );
+                }
+                if (mx0 + px < MID_W) {
+                    mid[(o * MID_H + my) * MID_W + mx0 + px] = v;
+                }
             }
         }
     }

@@ -95,6 +95,15 @@ pub struct FusedLevel {
     pub tile: FusedTile,
 }
 
+impl FusedLevel {
+    /// Quads of the intermediate an invocation of the first convolution
+    /// computes at once: the most of 4, 2 and 1 that divides its quads.
+    pub fn mid_block(&self) -> u32 {
+        let quads = self.mid.div_ceil(4) as u32;
+        [4, 2, 1].into_iter().find(|b| quads % b == 0).unwrap_or(1)
+    }
+}
+
 /// The template's fields for `level`.
 pub(super) fn fields(level: &FusedLevel) -> Vec<(&'static str, String)> {
     vec![
@@ -103,6 +112,7 @@ pub(super) fn fields(level: &FusedLevel) -> Vec<(&'static str, String)> {
         ("TW", level.tile.width.to_string()),
         ("TH", level.tile.height.to_string()),
         ("MID_QUADS", level.mid.div_ceil(4).to_string()),
+        ("MID_BLOCK", level.mid_block().to_string()),
         ("MID_T", level.mid_dtype.wgsl().to_string()),
         ("THREADS", level.tile.threads().to_string()),
         ("OC", ConvTile::OC.to_string()),
