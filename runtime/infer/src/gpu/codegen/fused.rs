@@ -100,7 +100,10 @@ impl FusedLevel {
     /// computes at once: the most of 4, 2 and 1 that divides its quads.
     pub fn mid_block(&self) -> u32 {
         let quads = self.mid.div_ceil(4) as u32;
-        [4, 2, 1].into_iter().find(|b| quads % b == 0).unwrap_or(1)
+        [4, 2, 1]
+            .into_iter()
+            .find(|b| quads.is_multiple_of(*b))
+            .unwrap_or(1)
     }
 }
 
@@ -157,5 +160,27 @@ mod tests {
             }
             .is_valid()
         );
+    }
+
+    #[test]
+    fn the_first_convolution_blocks_the_most_quads_that_divide_its_outputs() {
+        let level = |mid| FusedLevel {
+            first_kernel: 3,
+            first_relu: true,
+            mid,
+            mid_dtype: Dtype::F32,
+            kernel: 3,
+            relu: true,
+            residual: false,
+            clamp: false,
+            tile: FusedTile {
+                width: 8,
+                height: 8,
+            },
+        };
+        let blocks: Vec<u32> = [4, 6, 16, 20, 32, 64]
+            .map(|m| level(m).mid_block())
+            .to_vec();
+        assert_eq!(blocks, [1, 2, 4, 1, 4, 4]);
     }
 }
