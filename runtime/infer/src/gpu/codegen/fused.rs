@@ -58,20 +58,14 @@ impl FusedTile {
         arith: Dtype,
         limit: u32,
     ) -> Vec<FusedTile> {
+        // A side under 8 counts as 8: the smallest tile, 8×8, always passes.
         TILES
             .iter()
-            .enumerate()
-            .map(|(i, &(w, h))| {
-                (
-                    i,
-                    FusedTile {
-                        width: w,
-                        height: h,
-                    },
-                )
+            .map(|&(w, h)| FusedTile {
+                width: w,
+                height: h,
             })
-            .filter(|(i, t)| *i == 0 || (t.width <= width.max(8) && t.height <= height.max(8)))
-            .map(|(_, t)| t)
+            .filter(|t| t.width <= width.max(8) && t.height <= height.max(8))
             .filter(|t| t.fits(kernel, mid, arith, limit))
             .collect()
     }
